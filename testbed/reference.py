@@ -1,0 +1,168 @@
+"""Reference trajectories of the four papers and generic minimum-jerk paths.
+
+Every reference is analytic in position, velocity and acceleration and is evaluated for a whole
+time grid at once: `evaluate(traj, t)` with t (K,) seconds returns a `RefState` of arrays
+(K, N, ...) for N vehicles, world frame (ENU, metres, seconds). Attitude is either explicit
+(seed 003's eq. 31 Euler angles) or "flat": the attitude a quadrotor must have to produce the
+reference acceleration, thrust along body z, with the reference yaw. Body angular velocity and
+acceleration come from central differences of the attitude (errors ~1e-10 rad/s, ~1e-7 rad/s^2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from testbed.scenario import LeaderFollower, PhaseFormation, StraightLine, SwarmBox, Trajectory, Waypoints
+
+GRAVITY = 9.81  # m/s^2, as in models/arena.xml
+
+
+@dataclass(frozen=True, slots=True)
+class RefState:
+    """Reference at K instants for N vehicles.
+
+    pos, vel, acc: (K, N, 3) world frame (m, m/s, m/s^2); quat: (K, N, 4) wxyz body-to-world;
+    omega, alpha: (K, N, 3) body-frame angular velocity (rad/s) and acceleration (rad/s^2);
+    yaw: (K, N) rad.
+    """
+
+    pos: np.ndarray
+    vel: np.ndarray
+    acc: np.ndarray
+    quat: np.ndarray
+    omega: np.ndarray
+    alpha: np.ndarray
+    yaw: np.ndarray
+
+
+# ---------------------------------------------------------------------------- translations
+
+
+def _phase_masters(tr: PhaseFormation) -> np.ndarray:
+    """(5, 3) master positions in the navigation frame (FLU of master 3), metres."""
+    s = tr.spacing
+    if tr.formation == "line":  # lateral line, master 1 on the left
+        xy = [(0, 2 * s), (0, s), (0, 0), (0, -s), (0, -2 * s)]
+    elif tr.formation == "cross":  # master 3 in the centre, 2/4 lateral, 1/5 fore and aft
+        xy = [(s, 0), (0, s), (0, 0), (0, -s), (-s, 0)]
+    else:  # V with the apex (master 3) forward, arms backward at +/- half the opening angle
+        half = np.radians(120.0 if tr.formation == "vobtuse" else 30.0) / 2
+        left, right = np.array([-np.cos(half), np.sin(half)]), np.array([-np.cos(half), -np.sin(half)])
+        xy = [2 * s * left, s * left, (0, 0), s * right, 2 * s * right]
+    return np.column_stack([np.array(xy, float), np.array(tr.heights, float)])
+
+
+def _pva(tr: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Analytic position, velocity, acceleration, each (K, N, 3)."""
+    K = t.shape[0]
+    tt = t[:, None, None]
+    if isinstance(tr, PhaseFormation):
+        origin, vm = np.array(tr.nav_origin), np.array(tr.master_velocity)
+        starts = np.vstack([_phase_masters(tr), tr.follower_start]) + origin
+        vels = np.vstack([np.tile(vm, (5, 1)), vm + np.array(tr.follower_velocity)])
+        return starts + vels * tt, np.broadcast_to(vels, (K, 6, 3)).copy(), np.zeros((K, 6, 3))
+    if isinstance(tr, StraightLine):
+        base = np.array(tr.start) + np.array(tr.offsets)
+        v = np.broadcast_to(np.array(tr.velocity), base.shape)
+        return base + v * tt, np.broadcast_to(v, (K, *base.shape)).copy(), np.zeros((K, *base.shape))
+    if isinstance(tr, SwarmBox):
+        n = len(tr.bases)
+        i = np.arange(n)
+        period = tr.period_min + (tr.period_max - tr.period_min) * (i / max(n - 1, 1))
+        w = (2 * np.pi / period)[:, None]  # (N, 1) rad/s
+        phi = i[:, None] * 2.39996 + np.arange(3)[None, :] * 1.0  # (N, 3)
+        A = np.array(tr.amplitude)
+        arg = w * tt + phi
+        return np.array(tr.bases) + A * np.sin(arg), A * w * np.cos(arg), -A * w**2 * np.sin(arg)
+    if isinstance(tr, LeaderFollower):
+        v = np.array(tr.leader_velocity)
+        psi = np.arctan2(v[1], v[0])
+        xh, yh, zh = np.array([np.cos(psi), np.sin(psi), 0]), np.array([-np.sin(psi), np.cos(psi), 0]), np.array([0, 0, 1.0])
+        pl = np.array(tr.leader_start) + v * t[:, None]
+        ww, wh = 2 * np.pi / tr.weave_period, 2 * np.pi / (0.7 * tr.weave_period)
+        off = np.array(tr.follower_offset)
+        lat = tr.weave_amp * np.array([np.sin(ww * t), ww * np.cos(ww * t), -ww**2 * np.sin(ww * t)])
+        up = tr.heave_amp * np.array([np.sin(wh * t), wh * np.cos(wh * t), -wh**2 * np.sin(wh * t)])
+        pf = pl + off @ np.array([xh, yh, zh]) + lat[0][:, None] * yh + up[0][:, None] * zh
+        vf = v + lat[1][:, None] * yh + up[1][:, None] * zh
+        af = lat[2][:, None] * yh + up[2][:, None] * zh
+        return np.stack([pl, pf], 1), np.stack([np.broadcast_to(v, pl.shape), vf], 1), np.stack([np.zeros_like(pl), af], 1)
+    if isinstance(tr, Waypoints):
+        P, T = np.array(tr.points), np.array(tr.times)
+        tc = np.clip(t, T[0], T[-1])
+        seg = np.clip(np.searchsorted(T, tc, side="right") - 1, 0, len(T) - 2)
+        dur = T[seg + 1] - T[seg]
+        tau = (tc - T[seg]) / dur
+        # minimum-jerk rest-to-rest blend s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5 and derivatives
+        s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+        ds = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / dur
+        dds = (60 * tau - 180 * tau**2 + 120 * tau**3) / dur**2
+        d = P[seg + 1] - P[seg]
+        path = P[seg] + s[:, None] * d
+        off = np.array(tr.offsets)
+        return path[:, None] + off, (ds[:, None] * d)[:, None] + 0 * off, (dds[:, None] * d)[:, None] + 0 * off
+    raise TypeError(f"unknown trajectory {type(tr).__name__}")
+
+
+# ------------------------------------------------------------------------------- attitudes
+
+
+def _rotation(tr: Trajectory, t: np.ndarray) -> tuple[Rotation, np.ndarray]:
+    """Attitude at times t (K,): a flat Rotation of K*N elements and yaw (K, N)."""
+    K = t.shape[0]
+    if isinstance(tr, PhaseFormation):
+        # eq. 31: a * sin(2 pi f t + phase); masters level with yaw 0 (stable flight)
+        s = np.sin(2 * np.pi * tr.attitude_freq_hz * t + tr.attitude_phase)
+        ypr = np.zeros((K, 6, 3))
+        ypr[:, 5] = np.radians([tr.yaw_amp_deg, tr.pitch_amp_deg, tr.roll_amp_deg])[None] * s[:, None]
+        return Rotation.from_euler("ZYX", ypr.reshape(-1, 3)), ypr[..., 0]
+    _, _, acc = _pva(tr, t)
+    yaw = _yaw(tr, t, acc.shape[1])
+    return flat_rotation(acc.reshape(-1, 3), yaw.reshape(-1)), yaw
+
+
+def _yaw(tr: Trajectory, t: np.ndarray, n: int) -> np.ndarray:
+    """Reference yaw (K, N) rad of the trajectories with flat attitude."""
+    yaw = np.zeros((t.shape[0], n))
+    if isinstance(tr, LeaderFollower):
+        psi = np.arctan2(tr.leader_velocity[1], tr.leader_velocity[0])
+        yaw[:, 0] = psi
+        yaw[:, 1] = psi + np.radians(tr.yaw_amp_deg) * np.sin(2 * np.pi * t / tr.yaw_period)
+    elif isinstance(tr, Waypoints):
+        yaw[:] = np.radians(tr.yaw_deg)
+    return yaw
+
+
+def flat_rotation(acc: np.ndarray, yaw: np.ndarray) -> Rotation:
+    """Attitude of a quadrotor producing world acceleration acc (M, 3) with yaw (M,).
+
+    Body z along the required thrust a + g e_z; body x the projection of the yaw heading.
+    """
+    zb = acc + np.array([0.0, 0.0, GRAVITY])
+    zb /= np.linalg.norm(zb, axis=-1, keepdims=True)
+    xc = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], -1)
+    yb = np.cross(zb, xc)
+    yb /= np.linalg.norm(yb, axis=-1, keepdims=True)
+    xb = np.cross(yb, zb)
+    return Rotation.from_matrix(np.stack([xb, yb, zb], -1))
+
+
+def _omega(tr: Trajectory, t: np.ndarray, h: float) -> np.ndarray:
+    """Body angular velocity (K, N, 3) by the central difference log(R(t-h)^T R(t+h)) / 2h."""
+    r0, _ = _rotation(tr, t - h)
+    r1, _ = _rotation(tr, t + h)
+    return (r0.inv() * r1).as_rotvec().reshape(t.shape[0], -1, 3) / (2 * h)
+
+
+def evaluate(tr: Trajectory, t: np.ndarray | float) -> RefState:
+    """The reference at times t (K,) or a scalar (K = 1), see RefState."""
+    t = np.atleast_1d(np.asarray(t, float))
+    pos, vel, acc = _pva(tr, t)
+    rot, yaw = _rotation(tr, t)
+    quat = rot.as_quat(scalar_first=True).reshape(t.shape[0], -1, 4)
+    omega = _omega(tr, t, 1e-5)
+    ha = 1e-3
+    alpha = (_omega(tr, t + ha, 1e-5) - _omega(tr, t - ha, 1e-5)) / (2 * ha)
+    return RefState(pos, vel, acc, quat, omega, alpha, yaw)

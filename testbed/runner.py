@@ -1,0 +1,80 @@
+"""Writing a run directory (the data contract) atomically.
+
+`run(scenario, out)` simulates, runs the scenario's estimator pipeline, and writes
+`scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` and `plots/` into a temporary sibling
+directory that is renamed to `out` only when everything succeeded: an interrupted or failed run
+leaves nothing half-written.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from testbed import scenario as scenario_mod
+from testbed.config import ConfigError
+from testbed.log import save_npz
+from testbed.pipelines import run_pipeline
+from testbed.scenario import Scenario
+from testbed.simulate import simulate
+
+
+class RunError(Exception):
+    """A user-facing problem with the output location (exit code 2)."""
+
+
+def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:
+    """RMS distance (m) between each vehicle's true and reference position, UAV order."""
+    err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
+    return [float(x) for x in np.sqrt((err**2).mean(axis=0))]
+
+
+def prepare_out(out: Path, force: bool) -> None:
+    """Refuse to overwrite an existing non-empty run directory unless forced."""
+    if out.exists() and not out.is_dir():
+        raise RunError(f"{out}: exists and is not a directory")
+    if out.exists() and any(out.iterdir()) and not force:
+        raise RunError(f"{out}: already exists and is not empty (use --force to replace it)")
+
+
+def write_json(path: Path, obj: object) -> None:
+    path.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+
+
+def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = False, plots: bool = True) -> dict:
+    """Simulate `scenario` and write its run directory at `out`; returns the metrics."""
+    out = Path(out)
+    prepare_out(out, force)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        log, physics = simulate(scenario, progress=progress)
+        metrics = {
+            "scenario": scenario.name,
+            "seed": scenario.seed,
+            "motion": scenario.motion,
+            "duration_s": scenario.duration,
+            "vehicles": scenario.vehicles,
+            "tracking_rmse_m": tracking_rmse(log),
+            "mujoco_warnings": physics.warnings(),
+            "estimators": {},
+        }
+        (tmp / "plots").mkdir()
+        metrics["estimators"] = run_pipeline(scenario, log, tmp / "plots" if plots else None)
+        (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
+        (tmp / "scene.xml").write_text(physics.to_xml())
+        save_npz(tmp / "log.npz", log)
+        write_json(tmp / "metrics.json", metrics)
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return metrics
+
+
+__all__ = ["run", "RunError", "ConfigError", "tracking_rmse"]

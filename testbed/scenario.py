@@ -1,0 +1,316 @@
+"""Scenarios: frozen dataclasses loaded strictly from TOML.
+
+A scenario names the world (vehicles, anchors, obstacles), the motion (a reference trajectory
+flown `prescribed` or `flown`), the sensors and the estimator pipeline. Built-in scenarios live in
+`testbed/scenarios/*.toml`; any path is accepted too. Units: metres, seconds, radians unless a key
+says `_deg` or `_hz`. Frames: world ENU (x east, y north, z up); vehicle bodies FLU.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+from testbed.config import ConfigError, check, from_dict, set_dotted, to_dict
+from testbed.sensors.config import SensorsConfig
+from testbed.pipelines.config import PipelineConfig
+
+Vec3 = tuple[float, float, float]
+
+# ------------------------------------------------------------------------------------- world
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Obstacle:
+    """A static obstacle that blocks line of sight (mj_ray) and can be flown into.
+
+    box: size = half extents (m); cylinder (pillar): size = (radius, half height, unused).
+    pos: centre, world frame (m); yaw_deg: rotation about world z.
+    """
+
+    type: Literal["box", "cylinder"]
+    pos: Vec3
+    size: Vec3
+    yaw_deg: float = 0.0
+
+    def check(self) -> None:
+        check(all(s > 0 for s in self.size[:2]) and (self.type == "cylinder" or self.size[2] > 0), "size", f"must be positive, got {list(self.size)}")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class World:
+    """Physics and scene settings.
+
+    timestep: MuJoCo step (s); control_rate: controller and sensor tick rate (Hz), a multiple of
+    every sensor rate; truth_rate: rate (Hz) at which truth is logged even when no sensor samples;
+    antenna_a, antenna_b: nose and wing-tip antenna lever arms (m, seed 003); anchors: UWB anchor
+    positions (m, world); obstacles: static obstacles.
+    """
+
+    timestep: float = 0.0025
+    control_rate: float = 200.0
+    truth_rate: float = 10.0
+    antenna_a: float = 1.0
+    antenna_b: float = 1.0
+    anchors: tuple[Vec3, ...] = ()
+    obstacles: tuple[Obstacle, ...] = ()
+
+    def check(self) -> None:
+        check(0 < self.timestep <= 0.01, "timestep", f"must be in (0, 0.01] s, got {self.timestep}")
+        check(self.control_rate > 0, "control_rate", f"must be positive, got {self.control_rate}")
+        steps = 1.0 / (self.control_rate * self.timestep)
+        check(abs(steps - round(steps)) < 1e-9 and round(steps) >= 1, "control_rate", f"{self.control_rate} Hz is not a whole number of {self.timestep} s steps")
+        check(self.truth_rate > 0, "truth_rate", f"must be positive, got {self.truth_rate}")
+        check(self.antenna_a > 0 and self.antenna_b > 0, "antenna_a", "antenna lever arms must be positive")
+
+
+# --------------------------------------------------------------------------------- trajectories
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PhaseFormation:
+    """Seed 003: five masters in a formation observe a follower flying eq. 31.
+
+    Vehicles uav1..uav5 are the masters (uav3 on the symmetry axis; its body frame is the
+    navigation frame), uav6 is the follower. Everything here is in the navigation frame (FLU of
+    master 3); `nav_origin` places that frame in the world. The paper's frame (x fwd, y up,
+    z right) maps to ours as (x, y, z)_ours = (x, -z, y)_paper.
+    formation: line (lateral), cross, vobtuse (120 deg V), vacute (30 deg V), apex forward.
+    heights: master heights h1..h5 (m, Table 1). spacing: adjacent masters (m).
+    master_velocity: common velocity of the masters (m/s; 0 = hovering).
+    follower_start, follower_velocity: eq. 31 position at t = 0 and velocity (m, m/s).
+    *_amp_deg, attitude_freq_hz, attitude_phase: eq. 31 attitude a * sin(2 pi f t + phase).
+    """
+
+    kind: Literal["phase-formation"]
+    formation: Literal["line", "cross", "vobtuse", "vacute"]
+    heights: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    spacing: float = 100.0
+    nav_origin: Vec3 = (0.0, 0.0, 100.0)
+    master_velocity: Vec3 = (0.0, 0.0, 0.0)
+    follower_start: Vec3 = (-200.0, 200.0, 150.0)
+    follower_velocity: Vec3 = (4.0, -4.0, 3.0)
+    yaw_amp_deg: float = -5.0
+    pitch_amp_deg: float = -10.0
+    roll_amp_deg: float = 2.5
+    attitude_freq_hz: float = 0.005
+    attitude_phase: float = math.pi / 2
+
+    def check(self) -> None:
+        check(self.spacing > 0, "spacing", f"must be positive, got {self.spacing}")
+
+    @property
+    def vehicles(self) -> int:
+        return 6
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class StraightLine:
+    """Seed 000: a formation point moving at constant velocity, vehicles at fixed offsets.
+
+    start: formation point at t = 0 (m, world); velocity (m/s); offsets: one per vehicle (m).
+    """
+
+    kind: Literal["straight-line"]
+    start: Vec3
+    velocity: Vec3
+    offsets: tuple[Vec3, ...]
+
+    def check(self) -> None:
+        check(len(self.offsets) > 0, "offsets", "at least one vehicle is needed")
+
+    @property
+    def vehicles(self) -> int:
+        return len(self.offsets)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class SwarmBox:
+    """Seed 001: vehicles hovering around base points in a box with smooth oscillations.
+
+    p_i(t) = base_i + amplitude * sin(2 pi t / T_i + phi_i), per axis, with
+    T_i = period_min + (period_max - period_min) * i / (n - 1) and phases phi_i,axis =
+    (i * 2.39996 + axis * 1.0) rad (golden-angle spread), i = 0..n-1. Bases at least
+    `min_separation` apart and amplitude small enough never collide (checked).
+    rtk: 1-based numbers of the vehicles with RTK receivers.
+    """
+
+    kind: Literal["swarm-box"]
+    bases: tuple[Vec3, ...]
+    amplitude: Vec3 = (6.0, 6.0, 3.0)
+    period_min: float = 60.0
+    period_max: float = 120.0
+    rtk: tuple[int, ...] = ()
+
+    def check(self) -> None:
+        import numpy as np
+
+        n = len(self.bases)
+        check(n > 0, "bases", "at least one vehicle is needed")
+        b = np.array(self.bases)
+        if n > 1:
+            d = np.linalg.norm(b[:, None] - b[None], axis=-1) + np.eye(n) * 1e9
+            reach = 2 * float(np.linalg.norm(self.amplitude)) + 2.5
+            check(d.min() > reach, "bases", f"two bases are {d.min():.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
+        check(all(1 <= r <= n for r in self.rtk), "rtk", f"vehicle numbers must be in 1..{n}, got {list(self.rtk)}")
+        check(0 < self.period_min <= self.period_max, "period_min", "need 0 < period_min <= period_max")
+
+    @property
+    def vehicles(self) -> int:
+        return len(self.bases)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class LeaderFollower:
+    """Seed 004: a leader flying straight and a follower weaving behind it, yawing.
+
+    leader_start (m), leader_velocity (m/s), world frame; the leader's yaw follows its velocity.
+    follower_offset: nominal follower position in the leader's heading frame (m, FLU: negative x
+    is behind). weave_amp (m) and weave_period (s): lateral sinusoid of the follower;
+    yaw_amp_deg, yaw_period (s): follower yaw oscillation about the leader's heading;
+    heave_amp (m): vertical sinusoid at 0.7 x the weave period.
+    """
+
+    kind: Literal["leader-follower"]
+    leader_start: Vec3 = (0.0, 0.0, 30.0)
+    leader_velocity: Vec3 = (5.0, 0.0, 0.0)
+    follower_offset: Vec3 = (-20.0, 0.0, 0.0)
+    weave_amp: float = 3.0
+    weave_period: float = 40.0
+    heave_amp: float = 1.0
+    yaw_amp_deg: float = 10.0
+    yaw_period: float = 30.0
+
+    def check(self) -> None:
+        check(self.weave_period > 0 and self.yaw_period > 0, "weave_period", "periods must be positive")
+
+    @property
+    def vehicles(self) -> int:
+        return 2
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Waypoints:
+    """Generic minimum-jerk path: rest-to-rest quintic segments through waypoints.
+
+    points (m, world) reached at times (s, increasing, first 0); every vehicle flies the same path
+    shifted by its offset (m); yaw_deg constant.
+    """
+
+    kind: Literal["waypoints"]
+    points: tuple[Vec3, ...]
+    times: tuple[float, ...]
+    offsets: tuple[Vec3, ...] = ((0.0, 0.0, 0.0),)
+    yaw_deg: float = 0.0
+
+    def check(self) -> None:
+        check(len(self.points) >= 2, "points", "need at least two waypoints")
+        check(len(self.times) == len(self.points), "times", f"need one time per waypoint ({len(self.points)}), got {len(self.times)}")
+        check(self.times[0] == 0 and all(b > a for a, b in zip(self.times, self.times[1:])), "times", f"must start at 0 and increase, got {list(self.times)}")
+        check(len(self.offsets) > 0, "offsets", "at least one vehicle is needed")
+
+    @property
+    def vehicles(self) -> int:
+        return len(self.offsets)
+
+
+Trajectory = PhaseFormation | StraightLine | SwarmBox | LeaderFollower | Waypoints
+
+# ----------------------------------------------------------------------------------- scenario
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Control:
+    """Geometric tracking controller gains (Lee, Leok, McClamroch 2010), per unit mass/inertia.
+
+    kx (1/s^2), kv (1/s) position and velocity; kr (1/s^2), kw (1/s) attitude and rate.
+    """
+
+    kx: float = 4.0
+    kv: float = 3.0
+    kr: float = 60.0
+    kw: float = 14.0
+
+    def check(self) -> None:
+        check(min(self.kx, self.kv, self.kr, self.kw) > 0, "kx", "gains must be positive")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Scenario:
+    """A complete, resolved scenario. `vehicles` is derived from the trajectory."""
+
+    name: str
+    description: str
+    paper: Literal["003", "004", "000", "001", "none"] = "none"
+    seed: int = 0
+    duration: float
+    motion: Literal["prescribed", "flown"] = "prescribed"
+    world: World = field(default_factory=World)
+    control: Control = field(default_factory=Control)
+    trajectory: Trajectory
+    sensors: SensorsConfig = field(default_factory=SensorsConfig)
+    pipeline: PipelineConfig | None = None
+
+    def check(self) -> None:
+        check(self.duration > 0, "duration", f"must be positive, got {self.duration}")
+        check(self.seed >= 0, "seed", f"must be a non-negative integer, got {self.seed}")
+
+    @property
+    def vehicles(self) -> int:
+        return self.trajectory.vehicles
+
+
+# ------------------------------------------------------------------------------------ loading
+
+
+def builtin_names() -> list[str]:
+    """Names of the scenarios shipped with the package."""
+    return sorted(p.name[:-5] for p in resources.files("testbed.scenarios").iterdir() if p.name.endswith(".toml"))
+
+
+def _read_table(name_or_path: str) -> tuple[dict, str]:
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{name_or_path}: no such scenario file")
+        text, label = path.read_text(), str(path)
+    else:
+        res = resources.files("testbed.scenarios") / f"{name_or_path}.toml"
+        if not res.is_file():
+            raise ConfigError(f"unknown scenario {name_or_path!r}; built-in: {', '.join(builtin_names())}")
+        text, label = res.read_text(), f"{name_or_path}.toml"
+    try:
+        return tomllib.loads(text), label
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{label}: malformed TOML: {e}") from None
+
+
+def load(name_or_path: str, overrides: dict[str, str] | None = None, **top: object) -> Scenario:
+    """Load a built-in scenario by name or a TOML file by path, apply overrides, validate.
+
+    overrides: dotted key -> raw TOML value, as from `--set key=value` (the key must exist once
+    defaults are written out). top: seed, motion, duration given on the command line (None = keep).
+    Raises ConfigError with one line naming the file, key and value.
+    """
+    data, label = _read_table(name_or_path)
+    scenario = from_dict(Scenario, data, label)
+    if overrides:
+        resolved = to_dict(scenario)
+        for key, raw in overrides.items():
+            set_dotted(resolved, key, raw, label)
+        scenario = from_dict(Scenario, resolved, label)
+    changes = {k: v for k, v in top.items() if v is not None}
+    if changes:
+        scenario = from_dict(Scenario, {**to_dict(scenario), **changes}, label + " (command line)")
+    return scenario
+
+
+def dumps(scenario: Scenario) -> str:
+    """The fully resolved scenario as TOML, every default written out: enough to rerun."""
+    import tomli_w
+
+    return tomli_w.dumps(to_dict(scenario))
+

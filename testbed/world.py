@@ -1,0 +1,212 @@
+"""Scene construction with MjSpec, and named accessors to the simulated physics.
+
+`build(scenario)` composes `models/arena.xml` with one `models/quadrotor.xml` per vehicle
+(attached with the prefixes uav1/, uav2/, ...), UWB anchor sites `anchor1..` and obstacles
+`obstacle1..`, and returns a `Physics`. Nothing outside this module indexes raw MuJoCo arrays by
+hand: ask `physics.site_pos("uav3/ant1")` or the vectorized vehicle-state properties.
+"""
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from testbed.reference import RefState, evaluate
+from testbed.scenario import Scenario
+
+MODELS = Path(__file__).resolve().parent.parent / "models"
+PALETTE = [(0.85, 0.25, 0.2), (0.2, 0.45, 0.85), (0.25, 0.7, 0.3), (0.85, 0.6, 0.15), (0.6, 0.3, 0.75), (0.2, 0.7, 0.75)]
+
+
+def _vehicle_spec(scenario: Scenario, index: int) -> mujoco.MjSpec:
+    """One quadrotor, antennas moved to the scenario's lever arms, coloured by index (0-based)."""
+    q = mujoco.MjSpec.from_file(str(MODELS / "quadrotor.xml"))
+    a, b = scenario.world.antenna_a, scenario.world.antenna_b
+    tips = {1: (a, 0.0, 0.0), 2: (0.0, b, 0.0), 3: (0.0, -b, 0.0)}
+    for k, tip in tips.items():
+        q.site(f"ant{k}").pos = tip
+        q.geom(f"antenna{k}").pos = tip
+        start = np.array(q.geom(f"boom{k}").fromto[:3])
+        q.geom(f"boom{k}").fromto = np.concatenate([start, tip])
+    q.material("frame").rgba = (*PALETTE[index % len(PALETTE)], 1.0)
+    return q
+
+
+def build(scenario: Scenario) -> "Physics":
+    """Compile the scene of a scenario, placed at the reference's initial state."""
+    spec = mujoco.MjSpec.from_file(str(MODELS / "arena.xml"))
+    w = scenario.world
+    spec.option.timestep = w.timestep
+    ref0 = evaluate(scenario.trajectory, 0.0)
+    for i in range(scenario.vehicles):
+        frame = spec.worldbody.add_frame()
+        spec.attach(_vehicle_spec(scenario, i), prefix=f"uav{i + 1}/", frame=frame)
+    for key in list(spec.keys):  # per-vehicle keyframes do not describe the scene
+        spec.delete(key)
+    for k, p in enumerate(w.anchors, start=1):
+        spec.worldbody.add_site(name=f"anchor{k}", pos=p, size=[0.05, 0, 0], rgba=[1, 0.8, 0.1, 1], group=4)
+        spec.worldbody.add_geom(
+            name=f"anchor{k}_mast", type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[p[0], p[1], p[2] / 2],
+            size=[0.03, max(p[2] / 2, 0.01), 0], material="anchor", contype=0, conaffinity=0, group=1,
+        )
+    for k, ob in enumerate(w.obstacles, start=1):
+        gtype = mujoco.mjtGeom.mjGEOM_BOX if ob.type == "box" else mujoco.mjtGeom.mjGEOM_CYLINDER
+        half = np.radians(ob.yaw_deg) / 2
+        spec.worldbody.add_geom(name=f"obstacle{k}", type=gtype, pos=ob.pos, size=ob.size, quat=[np.cos(half), 0, 0, np.sin(half)], material="obstacle")
+    # Scene extent for the free camera and clipping planes (znear/zfar are in units of extent).
+    pts = ref0.pos[0]
+    extent = float(max(10.0, np.ptp(pts, axis=0).max(), *(np.abs(np.array(w.anchors)).max(axis=0) if w.anchors else [0])))
+    spec.stat.extent = extent
+    spec.stat.center = pts.mean(axis=0)
+    spec.visual.map.znear = 0.02 / extent
+    spec.visual.map.zfar = 50.0
+    physics = Physics(spec, scenario.vehicles)
+    physics.set_reference_state(ref0, 0)
+    spec.add_key(name="start", qpos=physics.data.qpos.copy(), qvel=physics.data.qvel.copy())
+    physics.recompile_keeping_state()
+    return physics
+
+
+class Physics:
+    """A compiled scene and its state, with named and vectorized accessors.
+
+    Vehicles are numbered 1..N as in the papers and the site names (`uav{i}/ant1`); arrays over
+    vehicles are indexed 0..N-1. World frame ENU, metres, seconds; quaternions wxyz.
+    """
+
+    def __init__(self, spec: mujoco.MjSpec, vehicles: int):
+        self.spec = spec
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.n = vehicles
+        self._cache_addresses()
+
+    def recompile_keeping_state(self) -> None:
+        qpos, qvel = self.data.qpos.copy(), self.data.qvel.copy()
+        self.model = self.spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.data.qpos[:], self.data.qvel[:] = qpos, qvel
+        mujoco.mj_forward(self.model, self.data)
+        self._cache_addresses()
+
+    def _cache_addresses(self) -> None:
+        m = self.model
+        joints = [m.joint(f"uav{i}/root") for i in range(1, self.n + 1)]
+        self.qpos_adr = np.array([j.qposadr[0] for j in joints])
+        self.dof_adr = np.array([j.dofadr[0] for j in joints])
+        self._qpos_idx = self.qpos_adr[:, None] + np.arange(7)
+        self._qvel_idx = self.dof_adr[:, None] + np.arange(6)
+        self.body_ids = np.array([m.body(f"uav{i}/base").id for i in range(1, self.n + 1)])
+        self.actuator_idx = np.array([[m.actuator(f"uav{i}/rotor{k}").id for k in range(1, 5)] for i in range(1, self.n + 1)])
+        acc = [m.sensor(f"uav{i}/accelerometer") for i in range(1, self.n + 1)]
+        gyr = [m.sensor(f"uav{i}/gyro") for i in range(1, self.n + 1)]
+        self._acc_idx = np.array([s.adr[0] for s in acc])[:, None] + np.arange(3)
+        self._gyro_idx = np.array([s.adr[0] for s in gyr])[:, None] + np.arange(3)
+        self._site_ids: dict[str, int] = {}
+        self.__dict__.pop("vehicle_mass", None)
+        self.__dict__.pop("vehicle_inertia", None)
+
+    # ------------------------------------------------------------------ names and sites
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def site_id(self, name: str) -> int:
+        """MuJoCo id of a site by its full name (e.g. 'uav2/uwb', 'anchor3')."""
+        if name not in self._site_ids:
+            sid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name)
+            if sid < 0:
+                raise KeyError(f"no site named {name!r} in the scene")
+            self._site_ids[name] = sid
+        return self._site_ids[name]
+
+    def site_ids(self, names: list[str]) -> np.ndarray:
+        return np.array([self.site_id(n) for n in names], dtype=int)
+
+    def site_pos(self, name: str | np.ndarray) -> np.ndarray:
+        """Site position(s), world frame, m: (3,) for a name, (M, 3) for an id array."""
+        ids = self.site_id(name) if isinstance(name, str) else name
+        return self.data.site_xpos[ids].copy()
+
+    def site_xmat(self, name: str | np.ndarray) -> np.ndarray:
+        """Site orientation(s) as rotation matrices site-to-world: (3, 3) or (M, 3, 3)."""
+        ids = self.site_id(name) if isinstance(name, str) else name
+        return self.data.site_xmat[ids].reshape(*np.shape(ids), 3, 3).copy()
+
+    def site_vel(self, name: str | np.ndarray) -> np.ndarray:
+        """Site linear velocity(ies), world frame, m/s: (3,) or (M, 3). Needs mj_forward's velocity stage."""
+        ids = [self.site_id(name)] if isinstance(name, str) else list(np.atleast_1d(name))
+        out = np.empty((len(ids), 3))
+        res = np.empty(6)
+        for k, sid in enumerate(ids):
+            mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, int(sid), res, 0)
+            out[k] = res[3:]
+        return out[0] if isinstance(name, str) else out
+
+    # ---------------------------------------------------------------- vehicle states
+    @property
+    def pos(self) -> np.ndarray:
+        """(N, 3) body origins (centre of mass), world, m."""
+        return self.data.qpos[self._qpos_idx[:, :3]]
+
+    @property
+    def quat(self) -> np.ndarray:
+        """(N, 4) body-to-world quaternions, wxyz."""
+        return self.data.qpos[self._qpos_idx[:, 3:]]
+
+    @property
+    def vel(self) -> np.ndarray:
+        """(N, 3) linear velocity of the body origins, world, m/s."""
+        return self.data.qvel[self._qvel_idx[:, :3]]
+
+    @property
+    def omega(self) -> np.ndarray:
+        """(N, 3) angular velocity, body frame, rad/s."""
+        return self.data.qvel[self._qvel_idx[:, 3:]]
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(N, 3, 3) body-to-world rotation matrices (valid after the position stage)."""
+        return self.data.xmat[self.body_ids].reshape(-1, 3, 3)
+
+    @property
+    def accelerometer(self) -> np.ndarray:
+        """(N, 3) MuJoCo accelerometer: specific force in the imu site frame, m/s^2."""
+        return self.data.sensordata[self._acc_idx]
+
+    @property
+    def gyro(self) -> np.ndarray:
+        """(N, 3) MuJoCo gyro: angular velocity in the imu site frame, rad/s."""
+        return self.data.sensordata[self._gyro_idx]
+
+    @cached_property
+    def vehicle_mass(self) -> float:
+        """Mass of one vehicle, kg (all vehicles are alike)."""
+        return float(self.model.body_subtreemass[self.body_ids[0]])
+
+    @cached_property
+    def vehicle_inertia(self) -> np.ndarray:
+        """(3,) principal inertia of one vehicle about its body axes, kg m^2."""
+        return self.model.body_inertia[self.body_ids[0]].copy()
+
+    def set_reference_state(self, ref: RefState, k: int) -> None:
+        """Kinematic playback: qpos, qvel and qacc of every vehicle from reference instant k.
+
+        Then `mj_inverse` computes everything else at that instant: site poses and velocities and
+        the accelerometer/gyro readings consistent with the reference motion.
+        """
+        d = self.data
+        d.qpos[self._qpos_idx] = np.concatenate([ref.pos[k], ref.quat[k]], axis=1)
+        d.qvel[self._qvel_idx] = np.concatenate([ref.vel[k], ref.omega[k]], axis=1)
+        d.qacc[self._qvel_idx] = np.concatenate([ref.acc[k], ref.alpha[k]], axis=1)
+        mujoco.mj_inverse(self.model, d)
+
+    def warnings(self) -> dict[str, int]:
+        """MuJoCo warnings raised so far, by name (empty if none)."""
+        return {mujoco.mjtWarning(i).name: int(n) for i, n in enumerate(self.data.warning.number) if n}
+
+    def to_xml(self) -> str:
+        """The exact model simulated, loadable with mujoco.MjModel.from_xml_string."""
+        return self.spec.to_xml()
