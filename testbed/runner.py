@@ -50,6 +50,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     prepare_out(out, force)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    tmp.chmod(0o755)
     try:
         log, physics = simulate(scenario, progress=progress)
         metrics = {

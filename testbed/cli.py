@@ -1,0 +1,184 @@
+"""The `testbed` command line (also `python -m testbed`).
+
+    testbed list
+    testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
+                [--set key=value ...] [--video] [--force]
+    testbed render DIR [--out FILE] [--width W --height H --fps F --speed X --max-seconds S
+                       --shadow-size N --samples N]
+    testbed sweep SCENARIO --runs N [--workers K] --out DIR [run options]
+    testbed bench physics|sensors|estimators [--json FILE]
+    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--runs N] [--motion M]
+    testbed demo [--out DIR]
+
+A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output)
+prints one line `testbed: error: ...` and exits with code 2, leaving no run directory behind.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from testbed.config import ConfigError
+
+
+class UsageError(Exception):
+    """A bad command-line argument (exit code 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2, no usage dump
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="built-in scenario name (see `testbed list`) or path to a TOML file")
+    p.add_argument("--seed", type=int, help="scenario seed (default: the scenario's)")
+    p.add_argument("--motion", choices=["prescribed", "flown"], help="motion mode (default: the scenario's)")
+    p.add_argument("--duration", type=float, help="run length in seconds (default: the scenario's)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario key, e.g. --set world.truth_rate=20")
+
+
+def _overrides(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--set {item!r}: expected KEY=VALUE")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _load(args: argparse.Namespace):
+    from testbed import scenario
+
+    return scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="testbed", description="MuJoCo physics-in-the-loop testbed for cooperative navigation of UAV swarms")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    sub.add_parser("list", help="list the built-in scenarios")
+
+    p = sub.add_parser("run", help="simulate a scenario and write its run directory")
+    _add_run_options(p)
+    p.add_argument("--out", type=Path, required=True, help="run directory to write")
+    p.add_argument("--video", action="store_true", help="also render video.mp4")
+    p.add_argument("--force", action="store_true", help="replace an existing run directory")
+
+    p = sub.add_parser("render", help="render a run directory to video.mp4 (headless)")
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--out", type=Path, help="output MP4 (default RUN_DIR/video.mp4)")
+    p.add_argument("--width", type=int, default=960)
+    p.add_argument("--height", type=int, default=540)
+    p.add_argument("--fps", type=int, default=30)
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed, x real time")
+    p.add_argument("--max-seconds", type=float, help="render at most this much simulated time")
+    p.add_argument("--shadow-size", type=int, default=1024, help="shadow map size (smaller is faster on llvmpipe)")
+    p.add_argument("--samples", type=int, default=0, help="multisampling (0 is fastest on llvmpipe)")
+
+    p = sub.add_parser("sweep", help="Monte Carlo: run N seeds in parallel and aggregate metrics")
+    _add_run_options(p)
+    p.add_argument("--runs", type=int, required=True)
+    p.add_argument("--workers", type=int, help="worker processes (default: all cores)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--force", action="store_true")
+
+    p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
+    p.add_argument("what", choices=["physics", "sensors", "estimators"])
+    p.add_argument("--json", type=Path, help="write the figures to this JSON file")
+
+    p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
+    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--runs", type=int, help="Monte Carlo runs (default: the paper's reproduction default)")
+    p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
+    p.add_argument("--duration", type=float, help="shorten every run (seconds)")
+    p.add_argument("--workers", type=int)
+
+    p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
+    p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    return parser
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "list":
+        from testbed import scenario
+
+        for name in scenario.builtin_names():
+            print(f"{name:22s} {scenario.load(name).description}")
+        return 0
+    if args.command == "run":
+        from testbed.runner import run
+
+        sc = _load(args)
+        metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty())
+        if args.video:
+            from testbed.render import render_run
+
+            render_run(args.out, progress=sys.stderr.isatty())
+        rmse = ", ".join(f"{x:.3g}" for x in metrics["tracking_rmse_m"])
+        print(f"{sc.name} ({sc.motion}, seed {sc.seed}) -> {args.out}  tracking RMSE [m]: {rmse}")
+        for name, est in metrics["estimators"].items():
+            keys = [k for k in est if k.startswith("rmse_")]
+            print(f"  {name}: " + ", ".join(f"{k} {_fmt(est[k])}" for k in keys))
+        return 0
+    if args.command == "render":
+        from testbed.render import render_run
+
+        if not (args.run_dir / "scene.xml").is_file() or not (args.run_dir / "log.npz").is_file():
+            raise UsageError(f"{args.run_dir}: not a run directory (needs scene.xml and log.npz)")
+        out = render_run(
+            args.run_dir, args.out, width=args.width, height=args.height, fps=args.fps, speed=args.speed,
+            max_seconds=args.max_seconds, shadow_size=args.shadow_size, samples=args.samples, progress=sys.stderr.isatty(),
+        )
+        print(out)
+        return 0
+    if args.command == "sweep":
+        from testbed.sweep import sweep
+
+        summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force)
+        print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
+        return 0
+    if args.command == "bench":
+        from testbed.bench import bench
+
+        bench(args.what, args.json)
+        return 0
+    if args.command == "reproduce":
+        from testbed.reproduce import reproduce
+
+        reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers)
+        return 0
+    if args.command == "demo":
+        from testbed.demo import demo
+
+        demo(args.out)
+        return 0
+    raise UsageError(f"unknown command {args.command!r}")
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list) and len(v) <= 4:
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v) if not isinstance(v, list) else f"[{len(v)} values]"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from testbed.runner import RunError
+
+    try:
+        return _dispatch(build_parser().parse_args(argv))
+    except (ConfigError, UsageError, RunError) as e:
+        print(f"testbed: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("testbed: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
