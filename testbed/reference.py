@@ -156,12 +156,19 @@ def _omega(tr: Trajectory, t: np.ndarray, h: float) -> np.ndarray:
     return (r0.inv() * r1).as_rotvec().reshape(t.shape[0], -1, 3) / (2 * h)
 
 
-def evaluate(tr: Trajectory, t: np.ndarray | float) -> RefState:
-    """The reference at times t (K,) or a scalar (K = 1), see RefState."""
+def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True) -> RefState:
+    """The reference at times t (K,) or a scalar (K = 1), see RefState.
+
+    rates=False skips the angular velocity and acceleration (left as zeros): what a tracking
+    controller needs is position, velocity, acceleration and yaw.
+    """
     t = np.atleast_1d(np.asarray(t, float))
     pos, vel, acc = _pva(tr, t)
     rot, yaw = _rotation(tr, t)
     quat = rot.as_quat(scalar_first=True).reshape(t.shape[0], -1, 4)
+    if not rates:
+        zeros = np.zeros_like(pos)
+        return RefState(pos, vel, acc, quat, zeros, zeros, yaw)
     omega = _omega(tr, t, 1e-5)
     ha = 1e-3
     alpha = (_omega(tr, t + ha, 1e-5) - _omega(tr, t - ha, 1e-5)) / (2 * ha)

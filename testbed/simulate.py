@@ -74,14 +74,14 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     bar = tqdm(total=len(ticks), desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False)
     for c0 in range(0, len(ticks), CHUNK):
         chunk = ticks[c0 : c0 + CHUNK]
-        ref = evaluate(scenario.trajectory, times[chunk])
+        ref = evaluate(scenario.trajectory, times[chunk], rates=not flown)
         for j, k in enumerate(chunk):
             t = times[k]
             if flown:
                 mujoco.mj_step1(m, d)
                 d.ctrl[physics.actuator_idx] = controller(
                     physics.pos, physics.vel, physics.rotation, physics.omega,
-                    ref.pos[j], ref.vel[j], ref.acc[j], ref.yaw[j], ref.omega[j],
+                    ref.pos[j], ref.vel[j], ref.acc[j], ref.yaw[j],
                 )
                 is_logged = sched.logged[k]
                 if is_logged:
