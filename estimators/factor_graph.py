@@ -1,0 +1,690 @@
+"""Factor-graph cooperative navigation of a UAV swarm at one epoch (seed 001: GNSS + UWB ranges).
+
+Variables: the 3-D positions p_i (ENU, metres, local frame of the scenario origin) of all n UAVs
+at one epoch, stacked as x = [p_0; p_1; ...; p_{n-1}] (3n,).
+Factors (SPEC, seed 001):
+- GNSS factor per UAV i: z_i = p_i + n_i, n_i ~ N(0, Sigma_i) (Sigma_i: (3, 3) m^2, diagonal
+  (s_h^2, s_h^2, s_v^2) for SPP 1.5/3.0 m or RTK 0.02/0.03 m, any SPD matrix accepted);
+- range factor per pair (i, j) within ranging distance: d_ij = |p_i - p_j| + e, e ~ N(0, sigma_d^2)
+  (sigma_d = 0.10 m by default, per link).
+
+Conventions chosen here (see also the report of the seed):
+- UWB clock scale factor (20 ppm): NOT modelled as a state. Over a <= 100 m link it is a bias of
+  at most 20e-6 * 100 m = 2 mm, i.e. a variance (2e-3)^2 = 4e-6 m^2 against sigma_d^2 = 1e-2 m^2
+  (0.04 %): it is absorbed into the range noise. A user who wants it can pass a per-link
+  `range_sigma` (m,) = sqrt(sigma_d^2 + (ppm * d)^2); nothing else changes.
+- Linearization follows the paper's notation (eqs. 13-16): at the current x0 each factor k gives
+  the whitened Jacobian A_k = Sigma_k^{-1/2} dh_k/dx and the whitened prediction error
+  b_k = Sigma_k^{-1/2} (z_k - h_k(x0)); the step Delta solves min |A Delta - b|^2, i.e. the normal
+  equations A^T A Delta = A^T b.
+- Robust option: Huber loss on the whitened range residuals r (IRLS weight w = min(1, delta/|r|)),
+  threshold delta = 1.345 (in units of the range sigma: 0.1345 m for sigma_d = 0.10 m), the
+  classical choice with 95 % efficiency under Gaussian noise.
+- Distributed scheme (the paper's message iteration, section 2.3.2): each UAV's local graph has its
+  own GNSS factor, the range factors to its neighbours and the neighbours' last received
+  broadcasts (position (3,) + covariance (3, 3)) as priors on local neighbour variables. One
+  Gauss-Newton step is taken on the local graph linearized at (own estimate, neighbours'
+  broadcasts); only the UAV's own 3-D block of the step and of the covariance is kept (eq. 19).
+  By the Schur complement this is *exactly* the same as keeping the neighbours fixed at their
+  broadcast positions and inflating each range variance to sigma_d^2 + u^T Sigma_j u (u: unit
+  vector from j to i). The vectorized solver uses that closed form; `local_step_qr` is the
+  literal QR form of the paper and the tests check that the two agree.
+- Messages: one broadcast per transmitting UAV per round = position (3 float64) + the 6 unique
+  entries of the covariance (6 float64) = 72 bytes of payload (headers not counted). A broadcast is
+  one message regardless of how many neighbours hear it; successful receptions are counted
+  separately as `deliveries`. Round 0 is the broadcast of the GNSS fix and GNSS covariance.
+- Faults: every receiver keeps a table of the last message received from each neighbour.
+  A silent node (stops broadcasting from a given round on) or a lost message leaves the previous
+  entry in place (`max_age=None`: keep the last message) or, with `max_age=k`, the entry is dropped
+  once it is older than k rounds, and with it the range factor to that neighbour (a range to a
+  neighbour of unknown position carries no information about one's own position).
+
+This module never imports mujoco, testbed or gtsam.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+from scipy import linalg, sparse
+from scipy.sparse import linalg as splinalg
+
+from estimators.core import symmetrize
+
+__all__ = [
+    "CoopProblem",
+    "CentralizedResult",
+    "DistributedResult",
+    "HUBER_DELTA",
+    "MESSAGE_BYTES",
+    "gnss_h",
+    "gnss_jacobian",
+    "range_h",
+    "range_jacobian",
+    "huber_weight",
+    "huber_rho",
+    "whitened_system",
+    "cost",
+    "solve_centralized",
+    "local_step_qr",
+    "solve_distributed",
+    "neighbours",
+    "bench_solvers",
+]
+
+#: Huber threshold, in units of the whitened residual (sigma): 95 % Gaussian efficiency.
+HUBER_DELTA = 1.345
+#: Payload of one broadcast: position (3) + unique covariance entries (6), float64.
+MESSAGE_BYTES = (3 + 6) * 8
+
+
+# ----------------------------------------------------------------------------------------------
+# Problem
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class CoopProblem:
+    """The measurements of one epoch.
+
+    gnss_pos: (n, 3) GNSS fixes z_i, metres, ENU.
+    gnss_cov: (n, 3, 3) GNSS covariances Sigma_i, m^2, SPD.
+    edges: (m, 2) int, UAV index pairs (i, j), i != j, each unordered pair at most once.
+    ranges: (m,) measured UWB distances d_ij, metres.
+    range_sigma: (m,) range standard deviations sigma_d, metres (a scalar is broadcast).
+    """
+
+    gnss_pos: np.ndarray
+    gnss_cov: np.ndarray
+    edges: np.ndarray
+    ranges: np.ndarray
+    range_sigma: np.ndarray
+
+    def __post_init__(self) -> None:
+        z = np.asarray(self.gnss_pos, dtype=float)
+        n = z.shape[0]
+        cov = np.asarray(self.gnss_cov, dtype=float)
+        e = np.asarray(self.edges, dtype=np.int64).reshape(-1, 2)
+        d = np.asarray(self.ranges, dtype=float).reshape(-1)
+        s = np.broadcast_to(np.asarray(self.range_sigma, dtype=float), d.shape).copy()
+        if z.ndim != 2 or z.shape[1] != 3:
+            raise ValueError(f"CoopProblem: gnss_pos must be (n, 3), got {z.shape}")
+        if cov.shape != (n, 3, 3):
+            raise ValueError(f"CoopProblem: gnss_cov must be ({n}, 3, 3), got {cov.shape}")
+        if e.shape[0] != d.shape[0]:
+            raise ValueError(f"CoopProblem: {e.shape[0]} edges but {d.shape[0]} ranges")
+        if e.size and (e.min() < 0 or e.max() >= n or np.any(e[:, 0] == e[:, 1])):
+            raise ValueError("CoopProblem: edge indices out of range or self-loops")
+        if np.any(s <= 0):
+            raise ValueError("CoopProblem: range_sigma must be positive")
+        object.__setattr__(self, "gnss_pos", z)
+        object.__setattr__(self, "gnss_cov", cov)
+        object.__setattr__(self, "edges", e)
+        object.__setattr__(self, "ranges", d)
+        object.__setattr__(self, "range_sigma", s)
+
+    @property
+    def n(self) -> int:
+        """Number of UAVs."""
+        return self.gnss_pos.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Number of range factors."""
+        return self.edges.shape[0]
+
+
+# ----------------------------------------------------------------------------------------------
+# Factors: measurement functions with analytic Jacobians
+# ----------------------------------------------------------------------------------------------
+def gnss_h(p: np.ndarray) -> np.ndarray:
+    """GNSS measurement function h(p) = p. p: (..., 3) metres ENU -> (..., 3) metres."""
+    return np.asarray(p, dtype=float)
+
+
+def gnss_jacobian(p: np.ndarray) -> np.ndarray:
+    """dh/dp of the GNSS factor: (..., 3, 3) identity (unitless)."""
+    p = np.asarray(p, dtype=float)
+    return np.broadcast_to(np.eye(3), p.shape[:-1] + (3, 3)).copy()
+
+
+def range_h(p_i: np.ndarray, p_j: np.ndarray) -> np.ndarray:
+    """Range measurement function |p_i - p_j|. p_i, p_j: (..., 3) metres -> (...,) metres."""
+    return np.linalg.norm(np.asarray(p_i, float) - np.asarray(p_j, float), axis=-1)
+
+
+def range_jacobian(p_i: np.ndarray, p_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(dh/dp_i, dh/dp_j) of the range factor: (..., 3) each, unitless.
+
+    dh/dp_i = u = (p_i - p_j) / |p_i - p_j| (unit vector from j to i), dh/dp_j = -u.
+    Undefined for coincident points (the swarm keeps a separation; a zero distance raises).
+    """
+    diff = np.asarray(p_i, float) - np.asarray(p_j, float)
+    r = np.linalg.norm(diff, axis=-1, keepdims=True)
+    if np.any(r == 0.0):
+        raise ValueError("range_jacobian: coincident positions")
+    u = diff / r
+    return u, -u
+
+
+def huber_weight(r: np.ndarray, delta: float | None) -> np.ndarray:
+    """IRLS weight of the Huber loss on whitened residuals r (...,): min(1, delta/|r|); 1 if delta None."""
+    r = np.abs(np.asarray(r, dtype=float))
+    if delta is None:
+        return np.ones_like(r)
+    return np.where(r <= delta, 1.0, delta / np.maximum(r, delta))
+
+
+def huber_rho(r: np.ndarray, delta: float | None) -> np.ndarray:
+    """Loss of whitened residuals r (...,): r^2/2 (delta None or |r| <= delta), else delta|r| - delta^2/2."""
+    r = np.abs(np.asarray(r, dtype=float))
+    if delta is None:
+        return 0.5 * r * r
+    return np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)
+
+
+def _gnss_sqrt_info(cov: np.ndarray) -> np.ndarray:
+    """W_i = L_i^{-1} with Sigma_i = L_i L_i^T, so W_i^T W_i = Sigma_i^{-1}. cov: (n,3,3) -> (n,3,3)."""
+    L = np.linalg.cholesky(cov)
+    return np.linalg.inv(L)
+
+
+def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened range residuals r_k = (d_k - |p_i - p_j|)/sigma_k (m,) and unit vectors u_k (m, 3)."""
+    i, j = problem.edges[:, 0], problem.edges[:, 1]
+    u, _ = range_jacobian(X[i], X[j])
+    r = (problem.ranges - range_h(X[i], X[j])) / problem.range_sigma
+    return r, u
+
+
+def cost(problem: CoopProblem, X: np.ndarray, huber: float | None = None) -> float:
+    """Objective 1/2 sum |b_k|^2 (Huber on the range terms if huber is a threshold). X: (n, 3) m."""
+    W = _gnss_sqrt_info(problem.gnss_cov)
+    bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X)
+    r, _ = _range_residuals(problem, X)
+    return float(0.5 * np.sum(bg * bg) + np.sum(huber_rho(r, huber)))
+
+
+def whitened_system(
+    problem: CoopProblem, X: np.ndarray, huber: float | None = None
+) -> tuple[sparse.csr_matrix, np.ndarray]:
+    """Stacked whitened Jacobian A ((3n + m) x 3n, sparse) and error b ((3n + m),) at X (n, 3).
+
+    Rows 0..3n-1: GNSS factors, A block W_i at column block i, b = W_i (z_i - p_i).
+    Rows 3n..3n+m-1: range factors, A row (u/sigma at block i, -u/sigma at block j), b = r_k;
+    with `huber`, range rows and errors are scaled by sqrt(w_k) (IRLS).
+    """
+    n, m = problem.n, problem.m
+    W = _gnss_sqrt_info(problem.gnss_cov)
+    # eq. 13-14: whitening, A_k = Sigma_k^{-1/2} H_k, b_k = Sigma_k^{-1/2} (z_k - h_k(x0))
+    bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X).reshape(-1)
+    rows_g = np.repeat(np.arange(3 * n).reshape(n, 3), 3, axis=1).reshape(-1)
+    cols_g = np.tile(np.arange(3 * n).reshape(n, 1, 3), (1, 3, 1)).reshape(-1)
+    vals_g = W.reshape(-1)
+    r, u = _range_residuals(problem, X)
+    sw = np.sqrt(huber_weight(r, huber))
+    coef = (sw / problem.range_sigma)[:, None] * u  # (m, 3)
+    i, j = problem.edges[:, 0], problem.edges[:, 1]
+    rows_r = np.repeat(3 * n + np.arange(m), 6)
+    cols_r = np.concatenate([3 * i[:, None] + np.arange(3), 3 * j[:, None] + np.arange(3)], axis=1).reshape(-1)
+    vals_r = np.concatenate([coef, -coef], axis=1).reshape(-1)
+    A = sparse.csr_matrix(
+        (np.concatenate([vals_g, vals_r]), (np.concatenate([rows_g, rows_r]), np.concatenate([cols_g, cols_r]))),
+        shape=(3 * n + m, 3 * n),
+    )
+    b = np.concatenate([bg, sw * r])
+    return A, b
+
+
+# ----------------------------------------------------------------------------------------------
+# Centralized Gauss-Newton
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class CentralizedResult:
+    """Centralized MAP solution.
+
+    positions: (n, 3) metres ENU; cov: (n, 3, 3) marginal covariances m^2 (None if not asked);
+    cov_full: (3n, 3n) joint covariance (A^T A)^-1 or None; cost: final objective; iterations:
+    accepted Gauss-Newton steps; converged: stopped on the step/cost tolerances (never on a cost
+    increase); history: objective after each accepted iteration (first entry: initial cost).
+    """
+
+    positions: np.ndarray
+    cov: np.ndarray | None
+    cov_full: np.ndarray | None
+    cost: float
+    iterations: int
+    converged: bool
+    history: tuple[float, ...]
+
+
+_DIVERGED_M = 1e5  # a local step this large (metres) means the iteration diverged
+_DENSE_LIMIT = 600  # below this many unknowns the dense Cholesky beats the sparse LU
+
+
+def _solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> np.ndarray:
+    """Delta of eq. 16, A^T C A Delta = A^T b, C = diag(curv) (identity if None).
+
+    Dense Cholesky for small systems, sparse LU otherwise.
+    """
+    Ac = A if curv is None else sparse.diags(curv) @ A
+    N = (A.T @ Ac).tocsc()
+    g = A.T @ b
+    if N.shape[0] <= _DENSE_LIMIT:
+        return linalg.cho_solve(linalg.cho_factor(N.toarray()), g)
+    return splinalg.splu(N, permc_spec="MMD_AT_PLUS_A").solve(g)
+
+
+def _gn_direction(problem: CoopProblem, X: np.ndarray, huber: float | None, newton: bool) -> np.ndarray:
+    """Gauss-Newton direction (n, 3) at X.
+
+    huber None: eq. 16 on the whitened system. With huber and newton=False: IRLS (rows scaled by
+    sqrt(w)). With huber and newton=True: Gauss-Newton on the Huber cost itself - gradient from the
+    clipped residual psi(r) = clip(r, -delta, delta), curvature 1 on the quadratic branch and 0 on
+    the linear branch (rho'' = 0); the GNSS factors keep the normal matrix positive definite.
+    """
+    if huber is None or not newton:
+        A, b = whitened_system(problem, X, huber)
+        return _solve_normal(A, b).reshape(-1, 3)
+    A, b = whitened_system(problem, X, None)
+    ng = 3 * problem.n
+    r = b[ng:]
+    rhs = np.concatenate([b[:ng], np.clip(r, -huber, huber)])
+    curv = np.concatenate([np.ones(ng), (np.abs(r) <= huber).astype(float)])
+    return _solve_normal(A, rhs, curv).reshape(-1, 3)
+
+
+def _covariance(A: sparse.csr_matrix) -> np.ndarray:
+    """(A^T A)^-1 (3n, 3n): dense Cholesky factor and its inverse (LAPACK potrf/potri)."""
+    N = (A.T @ A).toarray()
+    c, info = linalg.lapack.dpotrf(N, lower=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"_covariance: A^T A not positive definite (potrf info {info})")
+    inv, info = linalg.lapack.dpotri(c, lower=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"_covariance: potri failed (info {info})")
+    # eq. 19 on the whole graph: Sigma = (R^T R)^-1 = (A^T A)^-1; potri fills the upper triangle
+    return np.triu(inv) + np.triu(inv, 1).T
+
+
+def solve_centralized(
+    problem: CoopProblem,
+    x0: np.ndarray | None = None,
+    *,
+    huber: float | None = None,
+    max_iter: int = 50,
+    step_tol: float = 1e-8,
+    cost_tol: float = 1e-12,
+    max_halvings: int = 30,
+    covariance: str = "marginal",
+) -> CentralizedResult:
+    """Gauss-Newton on the stacked whitened system (eqs. 13-16) with backtracking step control.
+
+    problem: the epoch; x0: (n, 3) initial positions, metres (default: the GNSS fixes);
+    huber: Huber threshold on whitened range residuals (e.g. HUBER_DELTA) or None for least squares;
+    step_tol: stop when the largest accepted step component is below it (metres);
+    cost_tol: stop when the relative cost decrease is below it on two consecutive steps (one
+    such step may still be followed by a useful one; below ~1e-14 the cost is at round-off);
+    covariance: "marginal" (n,3,3 blocks), "full" (also the (3n,3n) matrix) or "none".
+    A step that increases the cost is halved (up to max_halvings); if no halving decreases it the
+    solver stops with converged=False unless the step was already below step_tol.
+    With huber: least-squares solve first, then Gauss-Newton steps on the Huber cost (zero
+    curvature on the linear branch), falling back to the IRLS direction if no halving of the
+    Newton-Huber step decreases the cost. The covariance then uses the IRLS weights at the
+    solution (the usual approximation). `history` holds the Huber-cost phase only.
+    """
+    if covariance not in ("marginal", "full", "none"):
+        raise ValueError(f"solve_centralized: covariance must be marginal, full or none, got {covariance!r}")
+    X = np.array(problem.gnss_pos if x0 is None else x0, dtype=float)
+    if huber is not None:
+        # start the robust solve from the least-squares optimum: there only the outlying ranges
+        # sit on the linear branch of the Huber loss and the Newton-Huber steps are well posed
+        X = solve_centralized(problem, X, max_iter=max_iter, step_tol=step_tol, cost_tol=cost_tol,
+                              max_halvings=max_halvings, covariance="none").positions
+    f = cost(problem, X, huber)
+    history = [f]
+    converged = False
+    it = 0
+    small_cost = 0  # consecutive accepted steps with a relative cost decrease below cost_tol
+    for it in range(1, max_iter + 1):
+        accepted = False
+        for newton in ((True, False) if huber is not None else (False,)):
+            # eq. 15-16: Delta = argmin |A Delta - b|^2  <=>  A^T A Delta = A^T b
+            delta = _gn_direction(problem, X, huber, newton)
+            t = 1.0
+            for _ in range(max_halvings + 1):
+                X_new = X + t * delta
+                f_new = cost(problem, X_new, huber)
+                if f_new <= f:
+                    accepted = True
+                    break
+                t *= 0.5
+            if accepted:
+                break
+        if not accepted:
+            # no decrease along the GN direction: at a minimum to round-off, or a failure
+            converged = bool(np.abs(delta).max() < step_tol)
+            it -= 1
+            break
+        step = t * np.abs(delta).max()
+        rel = (f - f_new) / max(f, 1e-300)
+        X, f = X_new, f_new
+        history.append(f)
+        small_cost += 1 if rel < cost_tol else -small_cost
+        if step < step_tol or small_cost >= 2:
+            converged = True
+            break
+    cov = cov_full = None
+    if covariance != "none":
+        A, _ = whitened_system(problem, X, huber)
+        full = _covariance(A)
+        n = problem.n
+        idx = np.arange(n)
+        cov = full.reshape(n, 3, n, 3)[idx, :, idx, :]
+        cov_full = full if covariance == "full" else None
+    return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history))
+
+
+# ----------------------------------------------------------------------------------------------
+# Distributed message iteration
+# ----------------------------------------------------------------------------------------------
+def neighbours(problem: CoopProblem, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Neighbours of UAV i in the range graph: (indices (k,), edge indices (k,))."""
+    e = problem.edges
+    k = np.flatnonzero((e[:, 0] == i) | (e[:, 1] == i))
+    other = np.where(e[k, 0] == i, e[k, 1], e[k, 0])
+    return other, k
+
+
+def local_step_qr(
+    x_i: np.ndarray,
+    z_i: np.ndarray,
+    gnss_cov_i: np.ndarray,
+    nbr_pos: np.ndarray,
+    nbr_cov: np.ndarray,
+    ranges: np.ndarray,
+    range_sigma: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One Gauss-Newton step of UAV i's local graph, the paper's literal form (eqs. 17-19).
+
+    x_i: (3,) current own position (linearization point), z_i: (3,) own GNSS fix, gnss_cov_i (3, 3);
+    nbr_pos: (k, 3) neighbours' broadcast positions, nbr_cov: (k, 3, 3) their broadcast covariances
+    (priors on the local neighbour variables, linearized at the broadcasts);
+    ranges, range_sigma: (k,) metres.
+    Local state X_i = [p_i, p_1..p_k] (3 + 3k); whitened A_i ((3 + 3k + k) x (3 + 3k)) is QR
+    factored. Returns (own step (3,), own covariance (3, 3)): the p_i blocks of the step and of
+    (R^T R)^-1.
+    """
+    k = nbr_pos.shape[0]
+    nv = 3 + 3 * k
+    A = np.zeros((3 + 3 * k + k, nv))
+    b = np.zeros(3 + 3 * k + k)
+    Wg = np.linalg.inv(np.linalg.cholesky(gnss_cov_i))
+    A[:3, :3] = Wg
+    b[:3] = Wg @ (z_i - x_i)
+    if k:
+        Wn = np.linalg.inv(np.linalg.cholesky(nbr_cov))
+        for a in range(k):
+            A[3 + 3 * a: 6 + 3 * a, 3 + 3 * a: 6 + 3 * a] = Wn[a]  # prior residual is 0 at the broadcast
+        u, _ = range_jacobian(x_i, nbr_pos)
+        r = (ranges - range_h(x_i, nbr_pos)) / range_sigma
+        rows = 3 + 3 * k + np.arange(k)
+        A[rows, 0:3] = u / range_sigma[:, None]
+        for a in range(k):
+            A[rows[a], 3 + 3 * a: 6 + 3 * a] = -u[a] / range_sigma[a]
+        b[rows] = r
+    # eq. 18: A_i = Q R; Delta = R^-1 Q^T b_i
+    Q, R = np.linalg.qr(A, mode="reduced")
+    delta = linalg.solve_triangular(R, Q.T @ b)
+    # eq. 19: Sigma = (R^T R)^-1 = R^-1 R^-T; keep the rows/columns of p_i
+    Rinv = linalg.solve_triangular(R, np.eye(nv))
+    Sigma = Rinv[:3] @ Rinv[:3].T
+    return delta[:3], symmetrize(Sigma)
+
+
+@dataclass(frozen=True, slots=True)
+class DistributedResult:
+    """Result of the distributed scheme.
+
+    positions: (n, 3) metres ENU; cov: (n, 3, 3) the covariances each UAV computed (eq. 19), m^2;
+    rounds: optimization rounds run; converged: every position change of the last round below tol;
+    messages: broadcasts sent (one per transmitting UAV per round, round 0 = GNSS broadcast);
+    bytes_sent: messages * MESSAGE_BYTES; deliveries: successful receptions (directed links);
+    max_step: (rounds,) largest position change |Delta_i| of each round, metres;
+    positions_history: (rounds + 1, n, 3) positions after each round (entry 0: GNSS).
+    """
+
+    positions: np.ndarray
+    cov: np.ndarray
+    rounds: int
+    converged: bool
+    messages: int
+    bytes_sent: int
+    deliveries: int
+    max_step: np.ndarray
+    positions_history: np.ndarray = field(repr=False)
+
+
+def solve_distributed(
+    problem: CoopProblem,
+    *,
+    mode: str = "iterate",
+    neighbour_model: str = "prior",
+    max_rounds: int = 100,
+    tol: float = 1e-4,
+    huber: float | None = None,
+    silent_from: dict[int, int] | None = None,
+    loss_prob: float = 0.0,
+    rng: np.random.Generator | None = None,
+    max_age: int | None = None,
+    local_solver: str = "schur",
+    damping: float = 1.0,
+) -> DistributedResult:
+    """The paper's distributed message iteration (section 2.3.2, Table 1), synchronous rounds.
+
+    mode: "gnss" (no cooperation, no messages), "single" (one optimization: GNSS broadcast, one
+    local step, no iteration) or "iterate" (repeat broadcast + local step until every position
+    change is below `tol` metres, at most `max_rounds` rounds).
+    neighbour_model: "prior" (the paper: neighbours' broadcasts are priors with their broadcast
+    covariances; equivalently fixed neighbours with range variance sigma_d^2 + u^T Sigma_j u) or
+    "fixed" (neighbours fixed at their broadcasts, range variance sigma_d^2: block-Jacobi
+    Gauss-Newton whose fixed point is exactly the centralized optimum; its covariance ignores the
+    neighbours' uncertainty).
+    huber: Huber threshold on the range residual whitened by its (inflated) sigma, or None.
+    silent_from: {uav: round} - the UAV stops broadcasting from that round on (0 = never sends);
+    it keeps receiving and computing.
+    loss_prob: probability that one directed delivery is lost, drawn with `rng` (required if > 0).
+    max_age: receivers drop a neighbour's message (and the range factor) once it is older than
+    max_age rounds; None keeps the last message forever.
+    local_solver: "schur" (vectorized closed form) or "qr" (per-UAV literal QR, eqs. 17-19; only
+    with neighbour_model="prior" and no Huber).
+    damping: fraction in (0, 1] of the local Gauss-Newton step applied (1 = the paper). Undamped
+    "fixed" iterations can oscillate and diverge on this nonlinear problem (measured: 1 of 3
+    seeded 18-UAV epochs); 0.5 removes the oscillating modes of the Jacobi iteration.
+    """
+    if mode not in ("gnss", "single", "iterate"):
+        raise ValueError(f"solve_distributed: unknown mode {mode!r}")
+    if neighbour_model not in ("prior", "fixed"):
+        raise ValueError(f"solve_distributed: unknown neighbour_model {neighbour_model!r}")
+    if local_solver not in ("schur", "qr"):
+        raise ValueError(f"solve_distributed: unknown local_solver {local_solver!r}")
+    if local_solver == "qr" and (neighbour_model != "prior" or huber is not None):
+        raise ValueError("solve_distributed: local_solver='qr' supports only neighbour_model='prior' without Huber")
+    if not 0.0 < damping <= 1.0:
+        raise ValueError(f"solve_distributed: damping must be in (0, 1], got {damping}")
+    if loss_prob > 0.0 and rng is None:
+        raise ValueError("solve_distributed: loss_prob > 0 needs an rng (numpy Generator)")
+    n, m = problem.n, problem.m
+    z, Sg = problem.gnss_pos, problem.gnss_cov
+    info_g = np.linalg.inv(Sg)
+    X = z.copy()
+    P = Sg.copy()
+    hist = [X.copy()]
+    steps: list[float] = []
+    if mode == "gnss":
+        return DistributedResult(X, P, 0, True, 0, 0, 0, np.zeros(0), np.asarray(hist))
+
+    # directed links: receiver dst uses the message of src and the range of edge eid
+    src = np.concatenate([problem.edges[:, 0], problem.edges[:, 1]])
+    dst = np.concatenate([problem.edges[:, 1], problem.edges[:, 0]])
+    eid = np.concatenate([np.arange(m), np.arange(m)])
+    d = problem.ranges[eid]
+    sig2 = problem.range_sigma[eid] ** 2
+    tab_pos = np.zeros((2 * m, 3))
+    tab_cov = np.zeros((2 * m, 3, 3))
+    tab_age = np.full(2 * m, np.iinfo(np.int64).max // 2)  # never received
+    silent_round = np.full(n, np.iinfo(np.int64).max)
+    for uav, r0 in (silent_from or {}).items():
+        silent_round[int(uav)] = int(r0)
+
+    messages = deliveries = 0
+    rounds = 0
+    converged = False
+    cap = 1 if mode == "single" else max_rounds
+    for rnd in range(cap):
+        # --- broadcast of (position, covariance): round 0 sends the GNSS fix and covariance
+        sending = silent_round > rnd
+        messages += int(sending.sum())
+        ok = sending[src]
+        if loss_prob > 0.0:
+            ok &= rng.random(2 * m) >= loss_prob
+        deliveries += int(ok.sum())
+        tab_pos[ok] = X[src[ok]]
+        tab_cov[ok] = P[src[ok]]
+        tab_age = np.where(ok, 0, tab_age + 1)
+        valid = tab_age < np.iinfo(np.int64).max // 4 if max_age is None else tab_age <= max_age
+
+        # --- local Gauss-Newton step of every UAV on its own position
+        if local_solver == "qr":
+            dX = np.zeros((n, 3))
+            P_new = np.empty((n, 3, 3))
+            for i in range(n):
+                sel = np.flatnonzero(valid & (dst == i))
+                dX[i], P_new[i] = local_step_qr(
+                    X[i], z[i], Sg[i], tab_pos[sel], tab_cov[sel], d[sel], np.sqrt(sig2[sel])
+                )
+        else:
+            v = np.flatnonzero(valid)
+            u, _ = range_jacobian(X[dst[v]], tab_pos[v])
+            res = d[v] - range_h(X[dst[v]], tab_pos[v])
+            if neighbour_model == "prior":
+                # Schur complement of the neighbour prior: var = sigma_d^2 + u^T Sigma_j u
+                s2 = sig2[v] + np.einsum("ka,kab,kb->k", u, tab_cov[v], u)
+            else:
+                s2 = sig2[v]
+            w = huber_weight(res / np.sqrt(s2), huber) / s2
+            Lam = info_g.copy()
+            g = np.einsum("nab,nb->na", info_g, z - X)
+            # eq. 16 (local): (A_i^T A_i) Delta_i = A_i^T b_i, accumulated factor by factor
+            np.add.at(Lam, dst[v], w[:, None, None] * u[:, :, None] * u[:, None, :])
+            np.add.at(g, dst[v], (w * res)[:, None] * u)
+            c = np.linalg.cholesky(Lam)
+            dX = np.linalg.solve(Lam, g[..., None])[..., 0]
+            # eq. 19: Sigma_i = (R^T R)^-1 = (A_i^T A_i)^-1 restricted to p_i
+            Ci = np.linalg.inv(c)
+            P_new = np.einsum("nba,nbc->nac", Ci, Ci)
+        dX = damping * dX
+        X = X + dX
+        P = 0.5 * (P_new + np.swapaxes(P_new, 1, 2))
+        hist.append(X.copy())
+        step = float(np.linalg.norm(dX, axis=1).max()) if n else 0.0
+        steps.append(step)
+        rounds = rnd + 1
+        if not np.isfinite(step) or step > _DIVERGED_M:
+            break  # diverged: reported with converged=False, never as convergence
+        if mode == "iterate" and step < tol:
+            converged = True
+            break
+    if mode == "single":
+        converged = True
+    return DistributedResult(
+        X, P, rounds, converged, messages, messages * MESSAGE_BYTES, deliveries,
+        np.asarray(steps), np.asarray(hist),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Benchmark (numpy side; the GTSAM timings come from estimators.gtsam_reference.bench)
+# ----------------------------------------------------------------------------------------------
+def _best_time(fn, repeats: int = 3) -> float:
+    """Smallest wall time of `repeats` calls of fn(), seconds."""
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return float(best)
+
+
+def bench_solvers(n_list=(18, 100, 1000), seed: int = 0, make_epoch=None, *, tol: float = 1e-4,
+                  max_rounds: int = 3000, reference=None) -> list[dict]:
+    """Centralized solve time (ours, and the reference's if given) and distributed rounds per size.
+
+    reference(problem, marginals: bool) -> (positions (n,3), covs (n,3,3) or None): e.g.
+    estimators.gtsam_reference.solve_gtsam (this module never imports gtsam itself; use
+    estimators.gtsam_reference.bench for the GTSAM comparison).
+
+    Solve times without covariance are the best of 3 runs; with covariance, one run. Distributed:
+    the paper's scheme ("prior", undamped) and the consistent block-Jacobi ("fixed", damping 0.5)
+    until every position change is below `tol` metres or `max_rounds`.
+
+    make_epoch(n, seed) -> (truth (n,3), CoopProblem): the epoch generator; default: the test
+    generator tests/coop_synthetic.py of this repository (box scaled to the density of 18 UAVs in
+    200 x 200 x 100 m). Returns one dict per n with times in seconds. Not a test: timings vary.
+    """
+    if make_epoch is None:
+        make_epoch = _default_epoch_factory()
+    out = []
+    for n in n_list:
+        truth, prob = make_epoch(n, seed)
+        c = solve_centralized(prob, covariance="none")
+        t_ours = _best_time(lambda: solve_centralized(prob, covariance="none"))
+        t0 = time.perf_counter()
+        solve_centralized(prob, covariance="marginal")
+        t_ours_cov = time.perf_counter() - t0
+        row = {
+            "n": n, "m": prob.m, "mean_degree": 2 * prob.m / n,
+            "ours_solve_s": t_ours, "ours_solve_with_cov_s": t_ours_cov, "ours_iterations": c.iterations,
+            "rmse_gnss_m": float(np.sqrt(np.mean(np.sum((prob.gnss_pos - truth) ** 2, 1)))),
+            "rmse_centralized_m": float(np.sqrt(np.mean(np.sum((c.positions - truth) ** 2, 1)))),
+        }
+        if reference is not None:
+            Xg, _ = reference(prob, marginals=False)
+            row["gtsam_solve_s"] = _best_time(lambda: reference(prob, marginals=False))
+            t0 = time.perf_counter()
+            Xg, Pg = reference(prob, marginals=True)
+            row["gtsam_solve_with_cov_s"] = time.perf_counter() - t0
+            row["max_pos_diff_vs_gtsam_m"] = float(np.abs(Xg - c.positions).max())
+        for model, damping in (("prior", 1.0), ("fixed", 0.5)):
+            t0 = time.perf_counter()
+            dres = solve_distributed(prob, neighbour_model=model, damping=damping, max_rounds=max_rounds, tol=tol)
+            row[f"dist_{model}_s"] = time.perf_counter() - t0
+            row[f"dist_{model}_rounds"] = dres.rounds
+            row[f"dist_{model}_converged"] = dres.converged
+            row[f"dist_{model}_bytes"] = dres.bytes_sent
+            row[f"dist_{model}_gap_to_central_m"] = float(np.linalg.norm(dres.positions - c.positions, axis=1).max())
+            row[f"dist_{model}_rmse_m"] = float(np.sqrt(np.mean(np.sum((dres.positions - truth) ** 2, 1))))
+        out.append(row)
+    return out
+
+
+def _default_epoch_factory():
+    """Load tests/coop_synthetic.py from the source tree (the benchmark is a developer tool)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tests" / "coop_synthetic.py"
+    if not path.exists():
+        raise FileNotFoundError(f"bench_solvers: no epoch generator given and {path} not found")
+    spec = importlib.util.spec_from_file_location("coop_synthetic", path)
+    mod = importlib.util.module_from_spec(spec)
+    import sys
+
+    sys.modules.setdefault("coop_synthetic", mod)  # dataclasses look the module up by name
+    spec.loader.exec_module(sys.modules["coop_synthetic"])
+    mod = sys.modules["coop_synthetic"]
+
+    def factory(n, seed):
+        ep = mod.make_epoch(n=n, seed=seed, scale_box_to_density=True)
+        return ep.truth, ep.problem
+
+    return factory
