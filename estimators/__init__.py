@@ -1,5 +1,10 @@
 """Estimation library of the testbed: pure numpy/scipy, never imports mujoco or testbed.
 
 Modules:
-    core        Gaussian belief, linear Kalman steps, Joseph update, NEES.
+    core            Gaussian belief, linear Kalman steps, Joseph update, NEES, chi-square bounds.
+    phase_model     seed 003: carrier-phase range/range-rate model of three-antenna UAVs.
+    phase_ekf       seed 003: 18-state antenna EKF, innovation gate, body state, PCRB.
+    bandwidth       seed 000: bandwidth-limited distributed fusion, bound M, selection search.
+    factor_graph    seed 001: GNSS + UWB factor graph, centralized and distributed solvers.
+    gtsam_reference seed 001: the same centralized problem solved with GTSAM (reference only).
 """

@@ -1,0 +1,287 @@
+"""Seed 003 models: carrier-phase ranges between three-antenna UAVs, and the antenna <-> body maps.
+
+Paper: Pan, Yin, Xu, "A new method for relative positioning of UAV group ...", Ordnance Industry
+Automation 2023 (shared/seeds/003). Pure numpy; no mujoco, no testbed.
+
+Frames and conventions (the testbed's, not the paper's)
+-------------------------------------------------------
+- Navigation frame N: the body frame of the reference master (z up). Every position here is in N,
+  metres; every velocity is d/dt of such a position, m/s, in N.
+- Body frame FLU (x forward, y left, z up). Antenna sites: ant1 = (+a, 0, 0) nose,
+  ant2 = (0, +b, 0) left wing tip, ant3 = (0, -b, 0) right wing tip. Body origin = midpoint of
+  ant2 and ant3 (paper eq. 29).
+- Attitude: ZYX Euler angles (yaw psi about z, pitch theta about y, roll phi about x),
+  R_N_from_body = Rz(psi) Ry(theta) Rx(phi). With FLU, positive pitch puts the nose DOWN and
+  positive roll puts the right wing down. The paper's (psi, theta, gamma) (body x fwd, y up,
+  z right) map to ours as psi = psi_paper, theta = -theta_paper, phi = gamma_paper.
+
+Filter state (paper eq. 13), x: (18,)
+    x = [x1, x2, x3, v1, v2, v3]: follower antenna positions x_j (3,) m, then their velocities
+    v_j (3,) m/s, all in N. `x[:9].reshape(3, 3)[j]` is antenna j+1.
+
+Masters: M masters with antenna positions X0: (M, 3, 3) [master m, master slot i, xyz] and
+velocities V0: (M, 3, 3). These are an INPUT stream (the masters' own navigation solution), never
+the truth.
+
+Measurement row ordering (paper eq. 12, 25): for each master m (in the order of X0), 9 ranges
+then 9 range rates; inside each group the master slot i is the slow index, the follower antenna
+j the fast one:
+
+    row(m, kind, i, j) = 18 m + 9 kind + 3 i + j,   kind 0 = range r_mij, kind 1 = rate rdot_mij
+
+with r_mij = |X0[m, i] - x_j| (eq. 5) and rdot_mij = d r_mij / dt = u_mij . (v_j - V0[m, i])
+(eq. 10 written with the relative velocity; the paper's masters are static in N), where
+u_mij = (x_j - X0[m, i]) / r_mij is the unit line of sight, master -> follower.
+Five masters give 90 rows (eq. 25-26).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+N_STATE = 18
+ROWS_PER_MASTER = 18
+#: names of the 12 body-state components returned by `body_from_antennas`
+BODY_STATE_NAMES = (
+    "x", "y", "z", "vx", "vy", "vz",
+    "yaw", "pitch", "roll", "yaw_rate", "pitch_rate", "roll_rate",
+)
+
+
+# ------------------------------------------------------------------------------------------------
+# Rotations
+# ------------------------------------------------------------------------------------------------
+def rot_zyx(psi: float, theta: float, phi: float) -> np.ndarray:
+    """R_N_from_body = Rz(psi) Ry(theta) Rx(phi), (3, 3). Angles in rad (yaw, pitch, roll)."""
+    cps, sps = np.cos(psi), np.sin(psi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cph, sph = np.cos(phi), np.sin(phi)
+    return np.array([
+        [cps * cth, cps * sth * sph - sps * cph, cps * sth * cph + sps * sph],
+        [sps * cth, sps * sth * sph + cps * cph, sps * sth * cph - cps * sph],
+        [-sth, cth * sph, cth * cph],
+    ])
+
+
+def rot_zyx_dot(euler: np.ndarray, euler_rate: np.ndarray) -> np.ndarray:
+    """d/dt of R_N_from_body for ZYX Euler angles (psi, theta, phi) and their rates, (3, 3), 1/s."""
+    psi, theta, phi = euler
+    dpsi, dtheta, dphi = euler_rate
+    c, s = np.cos, np.sin
+    Rz = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1.0]])
+    Ry = np.array([[c(theta), 0, s(theta)], [0, 1.0, 0], [-s(theta), 0, c(theta)]])
+    Rx = np.array([[1.0, 0, 0], [0, c(phi), -s(phi)], [0, s(phi), c(phi)]])
+    dRz = np.array([[-s(psi), -c(psi), 0], [c(psi), -s(psi), 0], [0, 0, 0.0]])
+    dRy = np.array([[-s(theta), 0, c(theta)], [0, 0, 0.0], [-c(theta), 0, -s(theta)]])
+    dRx = np.array([[0.0, 0, 0], [0, -s(phi), -c(phi)], [0, c(phi), -s(phi)]])
+    return dpsi * dRz @ Ry @ Rx + dtheta * Rz @ dRy @ Rx + dphi * Rz @ Ry @ dRx
+
+
+def antenna_offsets(a: float = 1.0, b: float = 1.0) -> np.ndarray:
+    """Antenna sites in the FLU body frame, (3, 3) [antenna j, xyz], metres, relative to the body origin."""
+    return np.array([[a, 0.0, 0.0], [0.0, b, 0.0], [0.0, -b, 0.0]])
+
+
+def antenna_state_from_body(p: np.ndarray, v: np.ndarray, R: np.ndarray, R_dot: np.ndarray,
+                            a: float = 1.0, b: float = 1.0) -> np.ndarray:
+    """Forward map body -> filter state (paper eq. 1, 3 and 8 in the FLU frame).
+
+    p, v: (3,) body-origin position (m) and velocity (m/s) in N; R: (3, 3) R_N_from_body;
+    R_dot: (3, 3) its time derivative (1/s). Returns x: (18,) = [x1 x2 x3 v1 v2 v3].
+    """
+    s = antenna_offsets(a, b)
+    # eq. 1 / 3: x_j = X_o + C^T s_j
+    pos = p[None, :] + s @ R.T
+    # eq. 8: xdot_j = Xdot_o + d(C^T)/dt s_j
+    vel = v[None, :] + s @ R_dot.T
+    return np.concatenate([pos.reshape(-1), vel.reshape(-1)])
+
+
+# ------------------------------------------------------------------------------------------------
+# Measurement model (eq. 5, 10, 12, 25-28)
+# ------------------------------------------------------------------------------------------------
+def stack_rows(ranges: np.ndarray, range_rates: np.ndarray) -> np.ndarray:
+    """Stack (M, 3, 3) ranges and (M, 3, 3) range rates into the (18 M,) row order of eq. 12/25."""
+    M = ranges.shape[0]
+    return np.concatenate([ranges.reshape(M, 9), range_rates.reshape(M, 9)], axis=1).reshape(-1)
+
+
+def unstack_rows(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of `stack_rows`: (18 M,) -> ranges (M, 3, 3), range rates (M, 3, 3)."""
+    z = np.asarray(z).reshape(-1, 2, 3, 3)
+    return z[:, 0], z[:, 1]
+
+
+def row_label(row: int) -> tuple[int, str, int, int]:
+    """(master m, 'range' | 'range_rate', master slot i, follower antenna j), all 0-based, of a row."""
+    m, rem = divmod(int(row), ROWS_PER_MASTER)
+    kind, rem = divmod(rem, 9)
+    i, j = divmod(rem, 3)
+    return m, ("range", "range_rate")[kind], i, j
+
+
+def measurement_model(x: np.ndarray, master_pos: np.ndarray, master_vel: np.ndarray,
+                      jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """h(x) and its analytic Jacobian for M masters (paper eq. 12, 25-28, derived anew).
+
+    x: (18,) follower antenna state in N (m, m/s); master_pos, master_vel: (M, 3, 3) master antenna
+    positions (m) and velocities (m/s) in N, [master, slot, xyz].
+    Returns h: (18 M,) [m, m/s] in the row order of the module docstring, and H: (18 M, 18)
+    (None if jacobian is False). Vectorized over masters and antenna pairs.
+
+    Jacobian (eq. 27-28 corrected): with d = x_j - X0[m,i], r = |d|, u = d / r,
+    w = v_j - V0[m,i] (relative velocity) and rdot = u . w,
+        d r    / d x_j = u^T,
+        d rdot / d x_j = (w - u rdot)^T / r = w^T / r - d^T (d . w) / r^3,
+        d rdot / d v_j = u^T,
+    and zero on the other antennas' blocks.
+    """
+    X = np.asarray(x, dtype=float)
+    P = X[:9].reshape(3, 3)
+    V = X[9:].reshape(3, 3)
+    X0 = np.asarray(master_pos, dtype=float)
+    V0 = np.asarray(master_vel, dtype=float)
+    M = X0.shape[0]
+    # d[m, i, j] = x_j - X0[m, i]
+    d = P[None, None, :, :] - X0[:, :, None, :]
+    w = V[None, None, :, :] - V0[:, :, None, :]
+    # eq. 5: r_ij = |X_i0 - X_j|
+    r = np.linalg.norm(d, axis=-1)
+    u = d / r[..., None]
+    # eq. 10 (relative velocity): rdot_ij = u_ij . (v_j - v_i0)
+    rdot = np.einsum("mijk,mijk->mij", u, w)
+    # eq. 12 / 25: per master 9 ranges then 9 range rates
+    h = stack_rows(r, rdot)
+    if not jacobian:
+        return h, None
+    # eq. 28 (corrected): range-rate row on the position block
+    g = (w - u * rdot[..., None]) / r[..., None]
+    E = np.eye(3)
+    # place the (M, 3, 3, 3) row vectors on antenna j's 3 columns: (M, 3, 3, 3 [antenna], 3 [xyz])
+    u_blk = np.einsum("jJ,mijk->mijJk", E, u).reshape(M, 9, 9)
+    g_blk = np.einsum("jJ,mijk->mijJk", E, g).reshape(M, 9, 9)
+    H = np.zeros((M, 2, 9, 18))
+    # eq. 27: range rows [A_j, 0]; range-rate rows [Rdot_pos, Rdot_vel]
+    H[:, 0, :, :9] = u_blk
+    H[:, 1, :, :9] = g_blk
+    H[:, 1, :, 9:] = u_blk
+    return h, H.reshape(M * ROWS_PER_MASTER, N_STATE)
+
+
+# ------------------------------------------------------------------------------------------------
+# Body state from the antennas (eq. 29-30 redone in FLU)
+# ------------------------------------------------------------------------------------------------
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _normalize_with_rate(v, vd, Jv, Jvd):
+    """e = v/|v| and its rate ed = (I - e e^T) vd / |v|, with Jacobians wrt the 18-state.
+
+    v, vd: (3,); Jv, Jvd: (3, 18) Jacobians of v and vd. Returns e, ed, Je, Jed.
+    """
+    n = np.linalg.norm(v)
+    e = v / n
+    A = (np.eye(3) - np.outer(e, e)) / n
+    ed = A @ vd
+    # d ed / d v = -[(e . vd) A + e ed^T + ed e^T] / n ; d ed / d vd = A
+    Dv = -((e @ vd) * A + np.outer(e, ed) + np.outer(ed, e)) / n
+    return e, ed, A @ Jv, Dv @ Jv + A @ Jvd
+
+
+def _cross_with_rate(a, ad, Ja, Jad, b, bd, Jb, Jbd):
+    """c = a x b and cd = ad x b + a x bd with Jacobians wrt the 18-state."""
+    c = np.cross(a, b)
+    cd = np.cross(ad, b) + np.cross(a, bd)
+    Jc = _skew(a) @ Jb - _skew(b) @ Ja
+    Jcd = _skew(ad) @ Jb - _skew(b) @ Jad + _skew(a) @ Jbd - _skew(bd) @ Ja
+    return c, cd, Jc, Jcd
+
+
+def rotation_from_antennas(x: np.ndarray) -> np.ndarray:
+    """R_N_from_body (3, 3) built from the antenna positions x[:9] (see `body_from_antennas`)."""
+    P = np.asarray(x, dtype=float)[:9].reshape(3, 3)
+    u = P[0] - 0.5 * (P[1] + P[2])
+    w = P[1] - P[2]
+    ex = u / np.linalg.norm(u)
+    ez = np.cross(u, w)
+    ez /= np.linalg.norm(ez)
+    return np.column_stack([ex, np.cross(ez, ex), ez])
+
+
+def euler_from_rotation(R: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles (yaw psi, pitch theta, roll phi), rad, of R = Rz(psi) Ry(theta) Rx(phi)."""
+    return np.array([
+        np.arctan2(R[1, 0], R[0, 0]),
+        np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0])),
+        np.arctan2(R[2, 1], R[2, 2]),
+    ])
+
+
+def body_from_antennas(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Follower body state from the antenna state, and its analytic Jacobian (eq. 29-30 in FLU).
+
+    x: (18,) antenna state in N. Returns y: (12,) and J = dy/dx: (12, 18), with
+    y = [p (3) m, v (3) m/s, yaw psi, pitch theta, roll phi (rad), their rates (rad/s)]:
+    - eq. 29: p = (x2 + x3) / 2, v = (v2 + v3) / 2 (body origin between the wing tips);
+    - body axes (FLU) from the antenna triangle, Gram-Schmidt with the nose line first:
+        u = x1 - (x2 + x3)/2 (forward), w = x2 - x3 (left),
+        e_x = u / |u|, e_z = (u x w) / |u x w|, e_y = e_z x e_x,   R = [e_x e_y e_z];
+      neither a nor b is needed (the axes are normalized);
+    - eq. 30 redone for R = Rz(psi) Ry(theta) Rx(phi):
+        psi = atan2(e_x,y, e_x,x), theta = -asin(e_x,z), phi = atan2(e_y,z, e_z,z);
+    - Euler rates: the exact time derivative of these formulas, with d e/dt propagated from the
+      antenna velocities (u_dot = v1 - (v2 + v3)/2, w_dot = v2 - v3). Singular at |pitch| = 90 deg.
+    """
+    x = np.asarray(x, dtype=float)
+    P = x[:9].reshape(3, 3)
+    V = x[9:].reshape(3, 3)
+    I3 = np.eye(3)
+    Z = np.zeros((3, 3))
+    # selectors of u, w (and of their rates) from the 18-state
+    Lu = np.hstack([I3, -0.5 * I3, -0.5 * I3])
+    Lw = np.hstack([Z, I3, -I3])
+    Ju, Jud = np.hstack([Lu, np.zeros((3, 9))]), np.hstack([np.zeros((3, 9)), Lu])
+    Jw, Jwd = np.hstack([Lw, np.zeros((3, 9))]), np.hstack([np.zeros((3, 9)), Lw])
+    u, ud = Lu @ P.reshape(-1), Lu @ V.reshape(-1)
+    w, wd = Lw @ P.reshape(-1), Lw @ V.reshape(-1)
+
+    ex, exd, Jex, Jexd = _normalize_with_rate(u, ud, Ju, Jud)
+    c, cd, Jc, Jcd = _cross_with_rate(u, ud, Ju, Jud, w, wd, Jw, Jwd)
+    ez, ezd, Jez, Jezd = _normalize_with_rate(c, cd, Jc, Jcd)
+    ey, eyd, Jey, Jeyd = _cross_with_rate(ez, ezd, Jez, Jezd, ex, exd, Jex, Jexd)
+
+    y = np.empty(12)
+    J = np.zeros((12, 18))
+    # eq. 29: body position and velocity = mean of wing-tip antennas 2 and 3
+    y[0:3] = 0.5 * (P[1] + P[2])
+    y[3:6] = 0.5 * (V[1] + V[2])
+    J[0:3, 3:9] = np.hstack([0.5 * I3, 0.5 * I3])
+    J[3:6, 12:18] = np.hstack([0.5 * I3, 0.5 * I3])
+
+    # eq. 30 (FLU, ZYX): yaw from the horizontal projection of the nose axis
+    h2 = ex[0] ** 2 + ex[1] ** 2
+    h = np.sqrt(h2)
+    y[6] = np.arctan2(ex[1], ex[0])
+    J[6] = (ex[0] * Jex[1] - ex[1] * Jex[0]) / h2
+    # eq. 30: pitch = -asin(e_x,z), evaluated as atan2 for accuracy
+    y[7] = np.arctan2(-ex[2], h)
+    J[7] = (-h * Jex[2] + ex[2] * (ex[0] * Jex[0] + ex[1] * Jex[1]) / h) / (h2 + ex[2] ** 2)
+    # eq. 30: roll from the z components of the left and up axes
+    q2 = ey[2] ** 2 + ez[2] ** 2
+    y[8] = np.arctan2(ey[2], ez[2])
+    J[8] = (ez[2] * Jey[2] - ey[2] * Jez[2]) / q2
+
+    # eq. 30 (rates): psi_dot = (ex_x exd_y - ex_y exd_x) / h^2
+    num = ex[0] * exd[1] - ex[1] * exd[0]
+    y[9] = num / h2
+    dnum = exd[1] * Jex[0] + ex[0] * Jexd[1] - exd[0] * Jex[1] - ex[1] * Jexd[0]
+    J[9] = dnum / h2 - num * (2 * ex[0] * Jex[0] + 2 * ex[1] * Jex[1]) / h2 ** 2
+    # theta_dot = -exd_z / sqrt(1 - ex_z^2) = -exd_z / h   (|e_x| = 1)
+    y[10] = -exd[2] / h
+    J[10] = -Jexd[2] / h + exd[2] * (ex[0] * Jex[0] + ex[1] * Jex[1]) / h ** 3
+    # phi_dot = (ez_z eyd_z - ey_z ezd_z) / (ey_z^2 + ez_z^2)
+    num = ez[2] * eyd[2] - ey[2] * ezd[2]
+    y[11] = num / q2
+    dnum = eyd[2] * Jez[2] + ez[2] * Jeyd[2] - ezd[2] * Jey[2] - ey[2] * Jezd[2]
+    J[11] = dnum / q2 - num * (2 * ey[2] * Jey[2] + 2 * ez[2] * Jez[2]) / q2 ** 2
+    return y, J
