@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 
 from testbed import scenario
+from testbed.render import render_run
+from testbed.reproduce import reproduce
 from testbed.runner import run
 
 # (scenario, motion, seconds): brief runs of every paper's scenario.
@@ -40,17 +42,9 @@ def demo(out: Path) -> None:
             keys = [k for k in scores if k.startswith("rmse_")]
             lines.append(f"  - {est}: " + ", ".join(f"{k} = {scores[k]}" for k in keys))
         print(lines[-1], flush=True)
-    from testbed.reproduce import reproduce
-
-    summary = reproduce("bandwidth", out / "reproduce-bandwidth", runs=50)
-    lines.append(f"- bandwidth paper-mode reproduction (50 runs): see `reproduce-bandwidth/table.md` and `claims.json`")
-    try:
-        from testbed.render import render_run
-
-        video = render_run(out / VIDEO_RUN, width=640, height=360, max_seconds=30.0, progress=True)
-        lines.append(f"- video: `{video.relative_to(out)}`")
-    except ImportError:
-        lines.append("- video: renderer not available")
+    reproduce("bandwidth", out / "reproduce-bandwidth", runs=50)
+    lines.append("- seed 000 paper-mode reproduction (50 runs): `reproduce-bandwidth/table.md`, `claims.json`")
+    video = render_run(out / VIDEO_RUN, width=640, height=360, max_seconds=30.0, progress=True)
+    lines.append(f"- video: `{video.relative_to(out)}`")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     print(f"demo results in {out}/summary.md")
-    del summary

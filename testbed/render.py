@@ -1,0 +1,627 @@
+"""Headless video and still images of a run directory, rendered offscreen with MuJoCo.
+
+`render_run(run_dir)` replays the logged `qpos` of `run_dir/log.npz` in the exact model of
+`run_dir/scene.xml` and writes `run_dir/video.mp4` (H.264, yuv420p); `save_frame(run_dir, t, path)`
+writes one PNG of the same view. Nothing is simulated again: every frame is the logged state at
+that instant (geodesic interpolation between the two nearest log rows), then `mj_forward`.
+
+What a frame shows
+- A tracking camera (a free `mjvCamera`) that keeps every vehicle in view: its lookat follows
+  the swarm centroid and its distance is the smallest that keeps every vehicle inside the
+  picture with a margin (from the vehicles' offsets in camera axes), both smoothed offline with
+  a zero-phase Gaussian (no lag, no jitter; the distance is smoothed as an upper envelope so
+  nobody leaves the picture when the swarm spreads). See `camera_track`. The
+  viewing direction is fixed for the whole run: azimuth perpendicular to the direction of the
+  largest horizontal spread (so a line or a leader-follower pair is seen side by side, not one
+  behind the other), elevation 20-45 degrees down, steeper when the formation is spread in both
+  horizontal directions (a cross, a box) so its plan is readable. With an isotropic layout the
+  camera looks north (east to the right of the picture, as on a map).
+- Markers: quadrotors are ~2 m across while scenes span up to 1.5 km, so a vehicle that would
+  less than about 2 x `marker_px` pixels across gets a sphere of constant on-screen radius
+  `marker_px` in its frame colour (a decoration added to the mjvScene, so obstacles still hide
+  it) and a thin drop line to the ground (altitude cue); every vehicle leaves a fading trail of
+  its recent path (constant-pixel-width lines) and has its number written next to it. Up close
+  the real airframe is shown. No model geometry is changed.
+- Picture-in-picture: the view of camera `uav{i}/cam` (640 x 480 on board, rendered smaller
+  with the same 4:3 aspect and field of view) in the top-right corner with a thin border,
+  for the leader of seed 004 by default.
+- A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
+
+Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
+(`testbed/__init__.py` sets `egl` unless the user chose). If the renderer cannot be created in
+this process, the backends egl and osmesa are probed each in a fresh subprocess; the first that
+works renders the job in a subprocess (`python -m testbed.render ...` with that `MUJOCO_GL`).
+If none works, `RenderError` says which system libraries to install.
+
+Speed on software OpenGL (llvmpipe): the cost is per pixel, so resolution, multisampling
+(`samples`, model.vis.quality.offsamples) and shadows (`shadow_size`, model.vis.quality.
+shadowsize; 0 turns shadows off) are options; `max_seconds` caps the video length. The arena's
+sun casts no shadow (models/arena.xml, castshadow="false") and the headlight never does, so with
+the shipped arena the shadow size costs nothing; multisampling roughly halves the frame rate.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+INSTALL_HINT = (
+    "install the EGL libraries (Debian/Ubuntu: apt-get install libegl1 libopengl0 libgl1-mesa-dri) "
+    "or OSMesa (apt-get install libosmesa6), then run again; MUJOCO_GL=egl|osmesa chooses the backend"
+)
+BACKENDS = ("egl", "osmesa")
+FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo's free-camera default)
+
+
+class RenderError(RuntimeError):
+    """Rendering is impossible here (no OpenGL backend) or the run directory cannot be rendered."""
+
+
+# ------------------------------------------------------------------------------ backend choice
+
+_IN_PROCESS: tuple[bool, str] | None = None  # (works, error) for this process's MUJOCO_GL
+
+
+def _probe_in_process() -> tuple[bool, str]:
+    """Can this process create a MuJoCo offscreen renderer? (cached; error text if not)."""
+    global _IN_PROCESS
+    if _IN_PROCESS is None:
+        try:
+            import mujoco
+
+            with mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16) as r:
+                r.render()
+            _IN_PROCESS = (True, "")
+        except Exception as e:  # any import or GL failure means: not here
+            _IN_PROCESS = (False, f"{type(e).__name__}: {e}")
+    return _IN_PROCESS
+
+
+def _probe_subprocess(backend: str) -> tuple[bool, str]:
+    """Does `MUJOCO_GL=backend` give a working offscreen renderer in a fresh interpreter?"""
+    code = (
+        "import mujoco\n"
+        "with mujoco.Renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 16, 16) as r: r.render()\n"
+    )
+    env = {**os.environ, "MUJOCO_GL": backend}
+    env.pop("PYOPENGL_PLATFORM", None)  # mujoco sets it to match MUJOCO_GL
+    try:
+        p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        return False, str(e)
+    err = p.stderr.strip().splitlines()
+    return p.returncode == 0, (err[-1] if err else f"exit code {p.returncode}")
+
+
+def choose_backend() -> str | None:
+    """None if this process can render; else the MUJOCO_GL value a subprocess must use.
+
+    Raises RenderError naming the libraries to install when no backend works.
+    """
+    ok, err = _probe_in_process()
+    if ok:
+        return None
+    current = os.environ.get("MUJOCO_GL", "")
+    errors = [f"MUJOCO_GL={current or '(unset)'} in this process: {err}"]
+    for backend in BACKENDS:
+        if backend == current:
+            continue
+        ok, err = _probe_subprocess(backend)
+        if ok:
+            return backend
+        errors.append(f"MUJOCO_GL={backend}: {err}")
+    raise RenderError("no OpenGL backend for offscreen rendering works (" + "; ".join(errors) + "): " + INSTALL_HINT)
+
+
+def _delegate(backend: str, call: dict) -> Path:
+    """Run one render call in a subprocess with MUJOCO_GL=backend; returns the written path."""
+    env = {**os.environ, "MUJOCO_GL": backend}
+    env.pop("PYOPENGL_PLATFORM", None)
+    p = subprocess.run([sys.executable, "-m", "testbed.render", "--call", json.dumps(call)], env=env, stdout=subprocess.PIPE, text=True)
+    if p.returncode != 0:
+        raise RenderError(f"rendering with MUJOCO_GL={backend} in a subprocess failed (exit code {p.returncode})")
+    return Path(p.stdout.strip().splitlines()[-1])
+
+
+# --------------------------------------------------------------------------------- the replay
+
+
+class _Replay:
+    """The model of a run directory and its logged states, with interpolation in time.
+
+    time: (K,) s; qpos: (K, nq). Vehicles are the bodies `uav{i}/base`, i = 1..N.
+    """
+
+    def __init__(self, run_dir: Path):
+        import mujoco
+
+        run_dir = Path(run_dir)
+        for name in ("scene.xml", "log.npz"):
+            if not (run_dir / name).is_file():
+                raise RenderError(f"{run_dir}: not a run directory (no {name})")
+        self.model = mujoco.MjModel.from_xml_path(str(run_dir / "scene.xml"))
+        self.data = mujoco.MjData(self.model)
+        with np.load(run_dir / "log.npz", allow_pickle=False) as z:
+            self.time = np.asarray(z["time"], float)
+            self.qpos = np.asarray(z["qpos"], float)
+        if self.qpos.shape != (self.time.size, self.model.nq) or self.time.size == 0:
+            raise RenderError(f"{run_dir}: log.npz qpos {self.qpos.shape} does not match time ({self.time.size},) and scene nq={self.model.nq}")
+        ids = []
+        while (b := mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, f"uav{len(ids) + 1}/base")) >= 0:
+            ids.append(b)
+        if not ids:
+            raise RenderError(f"{run_dir}: scene.xml has no vehicle body uav1/base")
+        self.body_ids = np.array(ids)
+        self.n = len(ids)
+        self.colors = np.array([self._vehicle_rgba(i) for i in range(1, self.n + 1)], np.float32)
+        self.meta = _read_meta(run_dir)
+        self._v = np.zeros(self.model.nv)
+
+    def _vehicle_rgba(self, i: int) -> np.ndarray:
+        """(4,) colour of vehicle i's frame material (the per-vehicle palette colour)."""
+        import mujoco
+
+        mid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_MATERIAL, f"uav{i}/frame")
+        rgba = self.model.mat_rgba[mid].copy() if mid >= 0 else np.array([0.9, 0.2, 0.2, 1.0], np.float32)
+        rgba[3] = 1.0
+        return rgba
+
+    def set_time(self, t: float, forward: bool = True) -> None:
+        """Put the logged state at time t (s) into data: qpos between the two nearest rows.
+
+        Between rows k and k+1 the state moves along the joint-space geodesic
+        q(a) = q_k (+) a (q_{k+1} (-) q_k), a = (t - t_k) / (t_{k+1} - t_k), with MuJoCo's own
+        mj_differentiatePos / mj_integratePos, so free-joint quaternions are slerped and stay
+        unit. Outside the log the first or last row is held. Then mj_forward (or only
+        mj_kinematics when forward is False).
+        """
+        import mujoco
+
+        m, d = self.model, self.data
+        k = int(np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, self.time.size - 1))
+        d.qpos[:] = self.qpos[k]
+        if k + 1 < self.time.size and t > self.time[k]:
+            dt = self.time[k + 1] - self.time[k]
+            a = min(1.0, (t - self.time[k]) / dt) if dt > 0 else 0.0
+            if a > 0:
+                mujoco.mj_differentiatePos(m, self._v, 1.0, self.qpos[k], self.qpos[k + 1])
+                mujoco.mj_integratePos(m, d.qpos, self._v, a)
+        d.time = t
+        (mujoco.mj_forward if forward else mujoco.mj_kinematics)(m, d)
+
+    def positions(self, times: np.ndarray) -> np.ndarray:
+        """(F, N, 3) vehicle body origins, world frame, m, at the given times (F,) s."""
+        out = np.empty((len(times), self.n, 3))
+        for f, t in enumerate(times):
+            self.set_time(float(t), forward=False)
+            out[f] = self.data.xpos[self.body_ids]
+        return out
+
+
+def _read_meta(run_dir: Path) -> dict:
+    """Scenario name and paper from scenario.toml (or metrics.json), tolerant of their absence."""
+    meta = {"name": run_dir.name, "paper": "none"}
+    try:
+        data = tomllib.loads((run_dir / "scenario.toml").read_text())
+        meta["name"] = str(data.get("name", meta["name"]))
+        meta["paper"] = str(data.get("paper", "none"))
+    except (OSError, tomllib.TOMLDecodeError):
+        try:
+            meta["name"] = str(json.loads((run_dir / "metrics.json").read_text()).get("scenario", meta["name"]))
+        except (OSError, ValueError):
+            pass
+    return meta
+
+
+# ----------------------------------------------------------------------------- camera framing
+
+
+@dataclass(frozen=True, slots=True)
+class CameraTrack:
+    """A free-camera path: lookat (F, 3) m world, distance (F,) m, fixed azimuth/elevation (deg).
+
+    MuJoCo convention: the camera looks along (cos el cos az, cos el sin az, sin el) from
+    lookat - distance * that vector; elevation < 0 looks down.
+    """
+
+    times: np.ndarray
+    lookat: np.ndarray
+    distance: np.ndarray
+    azimuth: float
+    elevation: float
+
+    def at(self, t: float) -> tuple[np.ndarray, float]:
+        """Lookat (3,) and distance (m) at time t (s), linear between track samples."""
+        look = np.array([np.interp(t, self.times, self.lookat[:, j]) for j in range(3)])
+        return look, float(np.exp(np.interp(t, self.times, np.log(self.distance))))
+
+
+def camera_track(times: np.ndarray, pos: np.ndarray, *, aspect: float, smooth: float, fovy: float = FOVY_TRACK,
+                 margin: float = 1.2, min_distance: float = 6.0, body_radius: float = 1.0) -> CameraTrack:
+    """Frame the swarm at every sample: times (F,) s, pos (F, N, 3) m world.
+
+    1. Direction, fixed for the run, from the horizontal layout about the centroid (all samples):
+       azimuth perpendicular to the principal axis of largest spread, turned to look north-ish
+       (east on the right); looking north when the layout is nearly isotropic. Elevation
+       -(20 + 25 s_minor / s_major) deg: a line is seen from low, a 2-D layout from higher up.
+    2. Lookat: the centroid, Gaussian-smoothed in time (sigma = `smooth` samples, zero phase).
+    3. Distance: the smallest that keeps every vehicle (a sphere of `body_radius` m) inside the
+       picture with `margin`: in camera axes (right x, up y, forward z) an offset d from the
+       lookat needs D >= margin (|x| + R) / tan(hfov / 2) - z and likewise for y with fovy;
+       then the Gaussian of a running maximum (+-2 sigma) in log space, so the camera backs off
+       ahead of a growing spread instead of lagging behind it; never below `min_distance` m.
+    aspect: width / height of the picture; fovy: vertical field of view, deg.
+    """
+    from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+
+    F = len(times)
+    sigma = max(smooth, 1e-6)
+    centroid = pos.mean(axis=1)
+    rel = (pos - centroid[:, None])[..., :2].reshape(-1, 2)
+    ev, evec = np.linalg.eigh(rel.T @ rel / max(len(rel), 1))
+    s_minor, s_major = np.sqrt(np.maximum(ev, 0.0))
+    if s_major < 1e-6 or s_minor > 0.7 * s_major:
+        azimuth = 90.0  # isotropic or a single vehicle: look north, east to the right
+        ratio = 1.0 if s_major >= 1e-6 else 0.2
+    else:
+        major = evec[:, 1]
+        azimuth = math.degrees(math.atan2(major[1], major[0])) + 90.0
+        if math.sin(math.radians(azimuth)) < 0:  # prefer looking north-ish: east on the right
+            azimuth -= 180.0
+        azimuth = (azimuth + 180.0) % 360.0 - 180.0
+        ratio = s_minor / s_major
+    elevation = -(20.0 + 25.0 * ratio)
+    lookat = gaussian_filter1d(centroid, sigma, axis=0, mode="nearest") if F > 1 else centroid
+    az, el = math.radians(azimuth), math.radians(elevation)
+    fwd = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    right = np.array([math.sin(az), -math.cos(az), 0.0])
+    up = np.cross(right, fwd)
+    d = pos - lookat[:, None]  # (F, N, 3)
+    ty = math.tan(math.radians(fovy) / 2)
+    tx = ty * aspect
+    need_x = margin * (np.abs(d @ right) + body_radius) / tx - d @ fwd
+    need_y = margin * (np.abs(d @ up) + body_radius) / ty - d @ fwd
+    dist = np.maximum(min_distance, np.maximum(need_x, need_y).max(axis=1))
+    if F > 1:
+        win = 2 * int(math.ceil(2 * sigma)) + 1
+        dist = np.exp(gaussian_filter1d(np.log(maximum_filter1d(dist, win, mode="nearest")), sigma, mode="nearest"))
+    return CameraTrack(np.asarray(times, float), lookat, dist, azimuth, elevation)
+
+
+# ----------------------------------------------------------------------------------- drawing
+
+
+@dataclass(frozen=True, slots=True)
+class _Style:
+    marker_px: float = 6.0  # on-screen marker radius, px, for vehicles smaller than that
+    trail_px: float = 2.0  # trail line width, px
+    labels: bool = True
+    droplines: bool = True  # vertical line from each far vehicle's marker to the ground (z = 0)
+
+
+class _Painter:
+    """Two offscreen renderers (tracking view, PiP) and the drawing of one composed frame."""
+
+    def __init__(self, replay: _Replay, width: int, height: int, *, shadow_size: int, samples: int, pip_vehicle: int | None, style: _Style):
+        import mujoco
+
+        for name, v in (("width", width), ("height", height)):
+            if v < 16 or v % 2:
+                raise ValueError(f"{name} must be an even number of pixels >= 16 (H.264 yuv420p), got {v}")
+        m = replay.model
+        m.vis.quality.shadowsize = max(0, int(shadow_size))
+        m.vis.quality.offsamples = max(0, int(samples))
+        m.vis.global_.offwidth = max(int(m.vis.global_.offwidth), width)
+        m.vis.global_.offheight = max(int(m.vis.global_.offheight), height)
+        self.replay, self.width, self.height, self.style = replay, width, height, style
+        self.renderer = mujoco.Renderer(m, height, width)
+        if shadow_size <= 0:
+            self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        self.cam = mujoco.MjvCamera()
+        self.cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        self.zfar0 = float(m.vis.map.zfar)
+        self.pip = None
+        if pip_vehicle:
+            if not 1 <= pip_vehicle <= replay.n:
+                raise ValueError(f"pip_vehicle must be in 1..{replay.n}, got {pip_vehicle}")
+            self.pip_cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, f"uav{pip_vehicle}/cam")
+            if self.pip_cam < 0:
+                raise RenderError(f"scene has no camera uav{pip_vehicle}/cam for the picture-in-picture")
+            cw, ch = m.cam_resolution[self.pip_cam]
+            ph = 2 * round(0.32 * height / 2)
+            pw = 2 * round(ph * cw / ch / 2)
+            self.pip = mujoco.Renderer(m, ph, pw)
+            if shadow_size <= 0:
+                self.pip.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+            self.pip_label = f"uav{pip_vehicle}/cam"
+
+    def close(self) -> None:
+        self.renderer.close()
+        if self.pip is not None:
+            self.pip.close()
+
+    def frame(self, t: float, look: np.ndarray, dist: float, az: float, el: float, trails: np.ndarray | None, overlay: list[str]) -> np.ndarray:
+        """One composed RGB frame (H, W, 3) uint8 at time t (s) with the given free camera.
+
+        trails: (N, P, 3) m world, each vehicle's recent positions (oldest first), or None.
+        """
+        import cv2
+        import mujoco
+
+        rp, m = self.replay, self.replay.model
+        rp.set_time(t)
+        self.cam.lookat[:] = look
+        self.cam.distance, self.cam.azimuth, self.cam.elevation = dist, az, el
+        # Far plane (units of extent) beyond the farthest vehicle, even for km-wide scenes.
+        need = 4.0 * (dist + float(np.linalg.norm(rp.data.xpos[rp.body_ids] - look, axis=1).max())) / m.stat.extent
+        m.vis.map.zfar = max(self.zfar0, need)
+        self.renderer.update_scene(rp.data, self.cam)
+        gl = self.renderer.scene.camera[0]
+        proj = _Projection(gl, self.width, self.height)
+        pos = rp.data.xpos[rp.body_ids]
+        px_per_m = proj.px_per_metre(pos)  # (N,) at each vehicle's depth
+        small = px_per_m * 1.0 < 2.0 * self.style.marker_px  # a vehicle spans ~1 m either side
+        scn = self.renderer.scene
+        if trails is not None:
+            for i in range(rp.n):
+                P = trails[i]
+                for j in range(len(P) - 1):
+                    rgba = rp.colors[i].copy()
+                    rgba[3] = 0.15 + 0.75 * (j + 1) / (len(P) - 1)
+                    _add_line(scn, P[j], P[j + 1], self.style.trail_px, rgba)
+        for i in np.flatnonzero(small):
+            _add_sphere(scn, pos[i], self.style.marker_px / px_per_m[i], rp.colors[i])
+            if self.style.droplines and pos[i, 2] > 0:  # altitude cue: a thin line down to the ground
+                _add_line(scn, pos[i], np.array([pos[i, 0], pos[i, 1], 0.0]), 1.0, np.array([*rp.colors[i][:3], 0.45], np.float32))
+        img = np.ascontiguousarray(self.renderer.render())
+        m.vis.map.zfar = self.zfar0
+        if self.style.labels:
+            uv, front = proj.pixels(pos)
+            for i in range(rp.n):
+                if front[i] and -50 < uv[i, 0] < self.width + 50 and -50 < uv[i, 1] < self.height + 50:
+                    off = max(self.style.marker_px, px_per_m[i] * 0.8) + 3
+                    _text(img, str(i + 1), (int(uv[i, 0] + off), int(uv[i, 1] - off)), 0.45 * self.height / 540)
+        if self.pip is not None:
+            self.pip.update_scene(rp.data, self.pip_cam)
+            sub = self.pip.render()
+            ph, pw = sub.shape[:2]
+            pad = max(8, self.height // 60)
+            y0, x0 = pad, self.width - pw - pad  # top right: usually sky, away from the text
+            cv2.rectangle(img, (x0 - 2, y0 - 2), (x0 + pw + 1, y0 + ph + 1), (235, 235, 235), 2)
+            img[y0 : y0 + ph, x0 : x0 + pw] = sub
+            _text(img, self.pip_label, (x0 + 6, y0 + ph - 8), 0.4 * self.height / 540)
+        for k, line in enumerate(overlay):
+            s = 0.55 * self.height / 540
+            _text(img, line, (int(12 * s / 0.55), int((26 + 24 * k) * s / 0.55)), s)
+        return img
+
+
+class _Projection:
+    """Pinhole projection of the rendered OpenGL camera (mjvGLCamera) to pixels.
+
+    Frustum values are at the near plane: x in [center - width, center + width], y in
+    [bottom, top]; pixel rows grow downwards.
+    """
+
+    def __init__(self, gl, width: int, height: int):
+        self.pos = np.array(gl.pos, float)
+        self.fwd = np.array(gl.forward, float)
+        self.up = np.array(gl.up, float)
+        self.right = np.cross(self.fwd, self.up)
+        self.near, self.c, self.w = gl.frustum_near, gl.frustum_center, gl.frustum_width
+        self.b, self.t = gl.frustum_bottom, gl.frustum_top
+        if self.w <= 0:  # 0 means: from the viewport aspect ratio (set by mjr_render)
+            self.w = (self.t - self.b) / 2 * width / height
+        self.W, self.H = width, height
+
+    def pixels(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """p (N, 3) m world -> pixel coordinates (N, 2) (u right, v down) and in-front mask (N,)."""
+        d = p - self.pos
+        z = d @ self.fwd
+        zz = np.where(z > 1e-9, z, 1e-9)
+        x, y = self.near * (d @ self.right) / zz, self.near * (d @ self.up) / zz
+        u = (x - (self.c - self.w)) / (2 * self.w) * self.W
+        v = (1.0 - (y - self.b) / (self.t - self.b)) * self.H
+        return np.column_stack([u, v]), z > 1e-9
+
+    def px_per_metre(self, p: np.ndarray) -> np.ndarray:
+        """(N,) pixels per metre of a small object at points p (N, 3), by its depth."""
+        z = np.maximum((p - self.pos) @ self.fwd, 1e-9)
+        return self.near * self.H / ((self.t - self.b) * z)
+
+
+def _add_sphere(scn, pos: np.ndarray, radius: float, rgba: np.ndarray) -> None:
+    """Append a decorative sphere (radius m, world pos (3,) m) to an mjvScene if there is room."""
+    import mujoco
+
+    if scn.ngeom >= scn.maxgeom:
+        return
+    g = scn.geoms[scn.ngeom]
+    mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([radius, 0, 0], float), np.asarray(pos, float), np.eye(3).ravel(), rgba)
+    g.emission = 0.35
+    g.category = mujoco.mjtCatBit.mjCAT_DECOR
+    scn.ngeom += 1
+
+
+def _add_line(scn, a: np.ndarray, b: np.ndarray, width_px: float, rgba: np.ndarray) -> None:
+    """Append a line segment a -> b (3,) m world, width in pixels, to an mjvScene if there is room."""
+    import mujoco
+
+    if scn.ngeom >= scn.maxgeom:
+        return
+    g = scn.geoms[scn.ngeom]
+    mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), rgba)
+    mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_LINE, width_px, np.asarray(a, float), np.asarray(b, float))
+    g.category = mujoco.mjtCatBit.mjCAT_DECOR
+    scn.ngeom += 1
+
+
+def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float) -> None:
+    """White text with a dark outline, legible on sky and on grass (img RGB, modified in place)."""
+    import cv2
+
+    th = max(1, round(scale * 2))
+    # The outline is the same text shifted by one pixel in eight directions: a thicker stroke
+    # would not do, OpenCV's glyph advance grows with the thickness.
+    x, y = org
+    for dx, dy in ((-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)):
+        cv2.putText(img, s, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), th, cv2.LINE_AA)
+    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), th, cv2.LINE_AA)
+
+
+# ---------------------------------------------------------------------------------- the jobs
+
+
+def _default_pip(replay: _Replay, pip_vehicle: int | None) -> int | None:
+    """pip_vehicle as given (0 = none); None = vehicle 1 for seed 004 (leader camera), else none."""
+    if pip_vehicle is None:
+        return 1 if replay.meta["paper"] == "004" else None
+    return pip_vehicle or None
+
+
+def _trails(times: np.ndarray, pos: np.ndarray, f: int, n_frames: int, points: int = 16) -> np.ndarray | None:
+    """(N, P, 3) positions of frames f - n_frames .. f (at most `points` of them), or None."""
+    if n_frames < 1 or f == 0:
+        return None
+    idx = np.unique(np.linspace(max(0, f - n_frames), f, points).round().astype(int))
+    return None if idx.size < 2 else np.transpose(pos[idx], (1, 0, 2))
+
+
+def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, height: int = 540, fps: int = 30, speed: float = 1.0,
+               max_seconds: float | None = None, shadow_size: int = 1024, samples: int = 0, pip_vehicle: int | None = None,
+               progress: bool = False, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True) -> Path:
+    """Render a run directory to an MP4; returns its path (default `run_dir/video.mp4`).
+
+    Video time runs at `speed` x simulated time from the first logged instant; frame k shows
+    simulated time t0 + k * speed / fps. Frames: round(video seconds * fps), the video lasting
+    (t_end - t0) / speed s or `max_seconds` if shorter. width, height: even pixel counts.
+    shadow_size: shadow map size in px (0 = shadows off); samples: multisampling (0 = off).
+    pip_vehicle: 1-based vehicle whose `uav{i}/cam` is shown in the corner; None = from
+    scenario.toml (vehicle 1 when paper = "004", else none); 0 = none. trail: trail length in
+    video seconds (0 = none); marker_px: on-screen radius (px) of the markers of far vehicles;
+    labels: write vehicle numbers. The file is written beside `out` and renamed when complete.
+    """
+    import imageio.v2 as imageio
+    from tqdm import tqdm
+
+    run_dir = Path(run_dir)
+    out = Path(out) if out is not None else run_dir / "video.mp4"
+    if fps <= 0 or speed <= 0:
+        raise ValueError(f"fps and speed must be positive, got fps={fps}, speed={speed}")
+    backend = choose_backend()
+    if backend is not None:
+        call = dict(fn="render_run", run_dir=str(run_dir), out=str(out), width=width, height=height, fps=fps, speed=speed, max_seconds=max_seconds,
+                    shadow_size=shadow_size, samples=samples, pip_vehicle=pip_vehicle, progress=progress, trail=trail, marker_px=marker_px, labels=labels)
+        return _delegate(backend, call)
+    replay = _Replay(run_dir)
+    t0, t1 = float(replay.time[0]), float(replay.time[-1])
+    video_s = (t1 - t0) / speed
+    if max_seconds is not None:
+        video_s = min(video_s, max_seconds)
+    n_frames = max(1, int(round(video_s * fps)))
+    times = t0 + np.arange(n_frames) * speed / fps
+    pos = replay.positions(times)
+    track = camera_track(times, pos, aspect=width / height, smooth=0.75 * fps)
+    painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle),
+                       style=_Style(marker_px=marker_px, labels=labels))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(f".{out.stem}.partial.mp4")
+    writer = imageio.get_writer(partial, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=2, quality=None,
+                                output_params=["-crf", "20", "-preset", "veryfast"], ffmpeg_log_level="error")
+    trail_frames = int(round(trail * fps))
+    try:
+        for f in tqdm(range(n_frames), desc=f"render {replay.meta['name']}", unit="frame", disable=not progress, leave=False):
+            overlay = [replay.meta["name"], f"t = {times[f]:7.2f} s" + (f"   x{speed:g}" if speed != 1 else "")]
+            img = painter.frame(float(times[f]), track.lookat[f], float(track.distance[f]), track.azimuth, track.elevation,
+                                _trails(times, pos, f, trail_frames), overlay)
+            writer.append_data(img)
+        writer.close()
+        os.replace(partial, out)
+    except BaseException:
+        writer.close()
+        partial.unlink(missing_ok=True)
+        raise
+    finally:
+        painter.close()
+    return out
+
+
+def save_frame(run_dir: Path, t: float, path: Path, *, width: int = 960, height: int = 540, shadow_size: int = 1024, samples: int = 0,
+               pip_vehicle: int | None = None, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True) -> Path:
+    """Write one PNG of the tracking view at simulated time t (s), as the video (30 fps, 1x) shows it.
+
+    Options as for `render_run`. Returns the path.
+    """
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    backend = choose_backend()
+    if backend is not None:
+        call = dict(fn="save_frame", run_dir=str(run_dir), t=t, path=str(path), width=width, height=height, shadow_size=shadow_size,
+                    samples=samples, pip_vehicle=pip_vehicle, trail=trail, marker_px=marker_px, labels=labels)
+        return _delegate(backend, call)
+    replay = _Replay(Path(run_dir))
+    fps = 30
+    t0, t1 = float(replay.time[0]), float(replay.time[-1])
+    times = t0 + np.arange(int(math.floor((t1 - t0) * fps)) + 1) / fps
+    pos = replay.positions(times)
+    track = camera_track(times, pos, aspect=width / height, smooth=0.75 * fps)
+    painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle),
+                       style=_Style(marker_px=marker_px, labels=labels))
+    try:
+        f = int(np.clip(round((t - t0) * fps), 0, len(times) - 1))
+        look, dist = track.at(t)
+        img = painter.frame(float(t), look, dist, track.azimuth, track.elevation, _trails(times, pos, f, int(round(trail * fps))),
+                            [replay.meta["name"], f"t = {t:7.2f} s"])
+    finally:
+        painter.close()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    imageio.imwrite(path, img)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m testbed.render RUN_DIR [--out FILE] [...]`; also the subprocess entry (--call JSON)."""
+    ap = argparse.ArgumentParser(prog="python -m testbed.render", description="Render a run directory to MP4 (or one PNG with --frame T).")
+    ap.add_argument("run_dir", nargs="?", type=Path)
+    ap.add_argument("--out", type=Path)
+    ap.add_argument("--frame", type=float, metavar="T", help="write one PNG at simulated time T (s) instead of a video")
+    ap.add_argument("--width", type=int, default=960)
+    ap.add_argument("--height", type=int, default=540)
+    ap.add_argument("--fps", type=int, default=30)
+    ap.add_argument("--speed", type=float, default=1.0)
+    ap.add_argument("--max-seconds", type=float)
+    ap.add_argument("--shadow-size", type=int, default=1024)
+    ap.add_argument("--samples", type=int, default=0)
+    ap.add_argument("--pip", type=int, dest="pip_vehicle")
+    ap.add_argument("--call", help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    try:
+        if a.call:
+            kw = json.loads(a.call)
+            fn = {"render_run": render_run, "save_frame": save_frame}[kw.pop("fn")]
+            print(fn(**kw))
+            return 0
+        if a.run_dir is None:
+            ap.error("RUN_DIR is required")
+        common = dict(width=a.width, height=a.height, shadow_size=a.shadow_size, samples=a.samples, pip_vehicle=a.pip_vehicle)
+        if a.frame is not None:
+            print(save_frame(a.run_dir, a.frame, a.out or a.run_dir / f"frame_{a.frame:g}.png", **common))
+        else:
+            print(render_run(a.run_dir, a.out, fps=a.fps, speed=a.speed, max_seconds=a.max_seconds, progress=True, **common))
+    except (RenderError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
