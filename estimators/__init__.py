@@ -7,4 +7,7 @@ Modules:
     bandwidth       seed 000: bandwidth-limited distributed fusion, bound M, selection search.
     factor_graph    seed 001: GNSS + UWB factor graph, centralized and distributed solvers.
     gtsam_reference seed 001: the same centralized problem solved with GTSAM (reference only).
+    cubature        seed 004: third- and fifth-degree spherical-radial cubature rules.
+    sigma_filters   seed 004: EKF, CKF, HCKF, MCKF, RHCF on one model interface.
+    visnav          seed 004: INS + LED line-of-sight relative navigation model.
 """
