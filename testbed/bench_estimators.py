@@ -23,6 +23,7 @@ def _median_time(fn, repeats: int) -> float:
     return float(np.median(samples))
 
 
+# ---- seed 003 (phase) -------------------------------------------------------------------------
 def bench_phase_ekf(repeats: int = 200) -> list[dict]:
     """One 90-row EKF update: ours (with and without the w-test gate) vs filterpy."""
     from filterpy.kalman import ExtendedKalmanFilter
@@ -69,12 +70,17 @@ def bench_phase_ekf(repeats: int = 200) -> list[dict]:
     }]
 
 
+# ---- seed 004 (visnav) ------------------------------------------------------------------------
+
+
+# ---- seed 001 (coop) --------------------------------------------------------------------------
 def bench_factor_graph() -> list[dict]:
     from estimators.gtsam_reference import bench
 
     return bench(n_list=(18, 100, 1000), seed=0)
 
 
+# ---- all ---------------------------------------------------------------------------------------
 def bench_estimators() -> dict[str, list[dict]]:
     """All estimator benchmarks available: {family: rows}."""
     return {"phase_ekf": bench_phase_ekf(), "factor_graph": bench_factor_graph()}

@@ -1,8 +1,13 @@
-"""Estimator-pipeline configuration of a scenario: a table discriminated by `kind`."""
+"""Estimator-pipeline configuration of a scenario: a `[pipeline]` table discriminated by `kind`."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Literal
+
+from testbed.pipelines.bandwidth import BandwidthConfig
+from testbed.pipelines.coop import CoopConfig
+from testbed.pipelines.phase import PhaseEkfConfig
+from testbed.pipelines.visnav import VisnavConfig
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -12,4 +17,4 @@ class TrackingOnly:
     kind: Literal["tracking"]
 
 
-PipelineConfig = TrackingOnly
+PipelineConfig = TrackingOnly | PhaseEkfConfig | VisnavConfig | BandwidthConfig | CoopConfig

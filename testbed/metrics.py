@@ -1,0 +1,66 @@
+"""Scores shared by every pipeline: RMSE, attitude error on SO(3), NEES/ANEES, run statistics.
+
+Conventions: errors are estimate minus truth; RMSE is the root of the mean over samples of the
+squared error norm (the 3-D error for positions); attitude errors are the angle of the relative
+rotation R_true^T R_est (never a difference of Euler angles or quaternions).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import t as student_t
+
+from estimators.core import chi2_interval, nees
+
+
+def rmse(err: np.ndarray, axis: int = 0) -> np.ndarray | float:
+    """sqrt(mean over `axis` of |e|^2), the norm taken over the last axis. err: (K, d) or (K, ..., d)."""
+    val = np.sqrt(np.mean(np.sum(np.asarray(err) ** 2, axis=-1), axis=axis))
+    return float(val) if np.ndim(val) == 0 else val
+
+
+def attitude_error_deg(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:
+    """Angle (deg) of R_true^T R_est for wxyz quaternions (..., 4); shape (...)."""
+    r_est = Rotation.from_quat(np.reshape(q_est, (-1, 4)), scalar_first=True)
+    r_true = Rotation.from_quat(np.reshape(q_true, (-1, 4)), scalar_first=True)
+    return np.degrees((r_true.inv() * r_est).magnitude()).reshape(np.shape(q_est)[:-1])
+
+
+def attitude_error_vector(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
+    """Rotation vector (rad) of R_true^T R_est for rotation matrices (..., 3, 3): (..., 3)."""
+    rel = Rotation.from_matrix(np.reshape(np.swapaxes(R_true, -1, -2) @ R_est, (-1, 3, 3)))
+    return rel.as_rotvec().reshape(*np.shape(R_est)[:-2], 3)
+
+
+def anees(err: np.ndarray, cov: np.ndarray) -> float:
+    """Average NEES over all samples (and runs): err (..., n), cov (..., n, n)."""
+    return float(np.mean(nees(err, cov)))
+
+
+def anees_interval(dof: int, samples: int, level: float = 0.99) -> tuple[float, float]:
+    """Interval a consistent filter's ANEES falls in with probability `level` (independent samples)."""
+    return chi2_interval(dof, samples, level)
+
+
+def mean_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean and Student-t confidence interval (lo, hi) of independent samples x (n,)."""
+    x = np.asarray(x, float)
+    m = float(x.mean())
+    if x.size < 2:
+        return m, m, m
+    h = float(student_t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    return m, m - h, m + h
+
+
+def paired_test(a: np.ndarray, b: np.ndarray) -> dict:
+    """Paired comparison of two scores over the same runs: is a < b?
+
+    Returns mean difference a - b, its standard error, t statistic, one-sided p-value of
+    H0: mean(a - b) >= 0 (Student t), and the fraction of runs where a < b.
+    """
+    d = np.asarray(a, float) - np.asarray(b, float)
+    n = d.size
+    se = float(d.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+    tstat = float(d.mean() / se) if n > 1 and se > 0 else float("nan")
+    p = float(student_t.cdf(tstat, n - 1)) if np.isfinite(tstat) else float("nan")
+    return {"mean_diff": float(d.mean()), "se": se, "t": tstat, "p_one_sided": p, "frac_a_better": float(np.mean(d < 0)), "runs": int(n)}

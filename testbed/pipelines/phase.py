@@ -1,0 +1,23 @@
+"""Seed 003 estimator pipeline (kind "phase-ekf"): run log -> estimates, metrics, plots.
+
+Must not import testbed.scenario, testbed.world or testbed.simulate at module level (the scenario
+module imports this one for its configuration dataclass).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from testbed.pipelines import register
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PhaseEkfConfig:
+    """[pipeline] table of a seed 003 scenario."""
+
+    kind: Literal["phase-ekf"]
+
+
+@register("phase-ekf")
+def run(scenario, log, plots_dir):
+    raise NotImplementedError("the seed 003 pipeline is being written")
