@@ -257,6 +257,11 @@ class Scenario:
     def check(self) -> None:
         check(self.duration > 0, "duration", f"must be positive, got {self.duration}")
         check(self.seed >= 0, "seed", f"must be a non-negative integer, got {self.seed}")
+        try:  # sensor rates must divide the control rate; vehicle numbers must exist
+            self.sensors.check_rates(self.world.control_rate, self.vehicles)
+        except ValueError as e:
+            key, msg = e.args if len(e.args) == 2 else ("", e.args[0])
+            raise ValueError(f"sensors.{key}", msg) from None
 
     @property
     def vehicles(self) -> int:

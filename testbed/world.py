@@ -145,6 +145,57 @@ class Physics:
             out[k] = res[3:]
         return out[0] if isinstance(name, str) else out
 
+    def site_vels(self, ids: np.ndarray) -> np.ndarray:
+        """Linear velocities of sites `ids` (M,), world frame, m/s: (M, 3), vectorized.
+
+        Same quantity as `site_vel` (mj_objectVelocity): the body's com-based velocity cvel
+        (valid after the velocity stage) moved from the root's subtree centre of mass to the site.
+        """
+        m, d = self.model, self.data
+        ids = np.asarray(ids, dtype=int)
+        body = m.site_bodyid[ids]
+        cvel = d.cvel[body]
+        arm = d.site_xpos[ids] - d.subtree_com[m.body_rootid[body]]
+        return cvel[:, 3:] + np.cross(cvel[:, :3], arm)
+
+    def site_body(self, ids: np.ndarray) -> np.ndarray:
+        """Body ids (M,) of sites `ids` (M,)."""
+        return self.model.site_bodyid[np.asarray(ids, dtype=int)].copy()
+
+    def ray(self, start: np.ndarray, end: np.ndarray, geomgroup: np.ndarray | None, bodyexclude: int = -1) -> tuple[float, int]:
+        """First geom hit on the segment start -> end (world, m), as in mj_ray.
+
+        Returns (distance from start in m, geom id), or (inf, -1) if nothing is hit before `end`.
+        geomgroup: (6,) uint8 mask of geom groups that can block (None: all); bodyexclude: a
+        body whose geoms are ignored (-1: none).
+        """
+        vec = np.asarray(end, float) - np.asarray(start, float)
+        length = float(np.linalg.norm(vec))
+        gid = np.array([-1], dtype=np.int32)
+        dist = mujoco.mj_ray(self.model, self.data, np.asarray(start, float), vec / length, geomgroup, 1, int(bodyexclude), gid)
+        if dist < 0 or dist > length:
+            return np.inf, -1
+        return float(dist), int(gid[0])
+
+    def rays_from(self, start: np.ndarray, ends: np.ndarray, geomgroup: np.ndarray | None, bodyexclude: int = -1) -> tuple[np.ndarray, np.ndarray]:
+        """First hits of segments from one point to many (mj_multiRay): ends (M, 3) world, m.
+
+        Returns distances (M,) from start (inf where nothing is hit before the end) and geom ids
+        (M,) (-1 where nothing is hit).
+        """
+        start = np.asarray(start, float)
+        vec = np.asarray(ends, float) - start
+        length = np.linalg.norm(vec, axis=1)
+        unit = vec / length[:, None]
+        n = len(unit)
+        gid = np.full(n, -1, dtype=np.int32)
+        dist = np.full(n, -1.0)
+        mujoco.mj_multiRay(self.model, self.data, start, unit.reshape(-1), geomgroup, 1, int(bodyexclude), gid, dist, None, n, float(length.max()) + 1.0)
+        miss = (dist < 0) | (dist > length)
+        dist[miss] = np.inf
+        gid[miss] = -1
+        return dist, gid
+
     # ---------------------------------------------------------------- vehicle states
     @property
     def pos(self) -> np.ndarray:

@@ -23,3 +23,50 @@ class Sensor(Protocol):
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Everything measured, keyed `NAME/...` as in the data contract."""
+
+
+class Recorder:
+    """Accumulates one stream's rows sample by sample; `arrays()` concatenates them.
+
+    `add(key, rows)` appends an array whose first axis is the row axis; string rows become
+    fixed-width numpy unicode arrays (no pickles: the log is saved with allow_pickle=False).
+    `empty` gives the trailing shape and dtype of every key, so a stream that never measured
+    still writes well-formed (0, ...) arrays.
+    """
+
+    def __init__(self, name: str, empty: dict[str, tuple[tuple[int, ...], str]]):
+        self.name = name
+        self._empty = empty
+        self._chunks: dict[str, list[np.ndarray]] = {k: [] for k in empty}
+
+    def add(self, **rows: np.ndarray) -> None:
+        for key, value in rows.items():
+            self._chunks[key].append(np.asarray(value))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {}
+        for key, chunks in self._chunks.items():
+            shape, dtype = self._empty[key]
+            if chunks:
+                arr = np.concatenate(chunks, axis=0)
+                if dtype == "U":
+                    arr = arr.astype(str)
+                else:
+                    arr = arr.astype(dtype, copy=False)
+            else:
+                arr = np.empty((0, *shape), dtype="U1" if dtype == "U" else dtype)
+            out[f"{self.name}/{key}"] = arr
+        return out
+
+
+def common_keys(d: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """The data-contract keys of a stream with d-dimensional values (see module docstring)."""
+    return {
+        "time": ((), "f8"),
+        "arrival": ((), "f8"),
+        "state_index": ((), "i8"),
+        "value": ((d,), "f8"),
+        "clean": ((d,), "f8"),
+        "src": ((), "U"),
+        "dst": ((), "U"),
+    }

@@ -1,9 +1,319 @@
-"""Sensor configuration of a scenario: one optional table per stream."""
+"""Sensor configuration of a scenario: one optional table per stream, `[sensors.NAME]`.
+
+A missing table means the stream is off; an empty table turns it on with its defaults. Each table
+has `rate_hz` (must divide the scenario's control_rate; checked by `check_rates`), `latency` (s:
+`NAME/arrival = NAME/time + latency`, `NAME/time` being the time of validity) and a `preset` that
+fills every error key the table leaves out (presets in testbed.sensors.presets). Keys given
+explicitly override the preset; the resolved scenario writes every value out. Units SI (m, s,
+rad); see docs/sensors.md for every key.
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields, replace
+from typing import Literal
+
+from testbed.config import check
+from testbed.sensors.presets import CAMERA_PRESETS, GNSS_PRESETS, IMU_PRESETS, PHASE_PRESETS, UWB_PRESETS
+
+
+def _fill(obj: object, table: dict) -> None:
+    """Set every None field of a frozen dataclass that the preset table names."""
+    for f in fields(obj):
+        if getattr(obj, f.name) is None and f.name in table:
+            object.__setattr__(obj, f.name, table[f.name])
+
+
+def _check_rate(rate: float, latency: float) -> None:
+    check(rate > 0, "rate_hz", f"must be positive, got {rate}")
+    check(latency >= 0, "latency", f"must be >= 0 s, got {latency}")
+
+
+# --------------------------------------------------------------------------------------- IMU
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class InertialErrors:
+    """Error model of one triad (accelerometer or gyro), per axis, SI units.
+
+    accel: m/s^2 (noise_density m/s^2/sqrt(Hz), bias_walk m/s^3/sqrt(Hz)); gyro: rad/s
+    (rad/s/sqrt(Hz), rad/s^2/sqrt(Hz)). gm_tau in s (0 = no Gauss-Markov bias). scale_sigma
+    dimensionless, misalign_sigma rad. Omitted keys come from the IMU preset.
+    """
+
+    noise_density: float | None = None
+    bias: float | None = None
+    bias_sigma: float | None = None
+    bias_walk: float | None = None
+    gm_sigma: float | None = None
+    gm_tau: float | None = None
+    scale_sigma: float | None = None
+    misalign_sigma: float | None = None
+
+    def check(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            check(v is None or f.name == "bias" or v >= 0, f.name, f"must be >= 0, got {v}")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class ImuConfig:
+    """[sensors.imu]: accelerometer + gyro of every vehicle's `imu` site (seed 004 eqs. 1-4).
+
+    vehicles: 1-based vehicle numbers carrying an IMU (empty = all).
+    """
+
+    preset: Literal["paper004", "bmi088", "mpu9250", "ideal"] = "paper004"
+    rate_hz: float = 200.0
+    latency: float = 0.0
+    vehicles: tuple[int, ...] = ()
+    accel: InertialErrors | None = None
+    gyro: InertialErrors | None = None
+
+    def __post_init__(self) -> None:
+        table = IMU_PRESETS[self.preset]
+        for name in ("accel", "gyro"):
+            cur = getattr(self, name) or InertialErrors()
+            filled = replace(cur)
+            _fill(filled, table[name])
+            object.__setattr__(self, name, filled)
+
+    def check(self) -> None:
+        _check_rate(self.rate_hz, self.latency)
+        check(all(v >= 1 for v in self.vehicles), "vehicles", f"vehicle numbers start at 1, got {list(self.vehicles)}")
+
+
+# --------------------------------------------------------------------------------------- UWB
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class UwbConfig:
+    """[sensors.uwb]: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
+
+    anchor_links: tag-to-anchor ranges; tag_links: tag-to-tag (every pair once). max_range (m):
+    true distance beyond which no range is made. noise (m, 1 sigma, white); loss_prob: packet
+    loss per measurement; clock_ppm: 1 sigma of each device's clock scale factor (ppm), range x
+    (1 + (k_src + k_dst)/2 1e-6); link_bias_sigma: constant per-link bias, 1 sigma (m).
+    LOS by mj_ray between the two sites through geoms of groups `los_groups` (0: obstacles and
+    floor, 3: vehicle collision boxes), ignoring both end vehicles. nlos: what a blocked link does
+    ("bias": + nlos_bias_per_m x blocked span + Exp(mean nlos_bias_mean), noise x
+    nlos_noise_factor; "drop": not reported; "ignore": only flagged). Gross outliers: probability
+    outlier_prob, N(0, outlier_sigma^2) added.
+    """
+
+    preset: Literal["paper001", "dw1000", "ideal"] = "paper001"
+    rate_hz: float = 10.0
+    latency: float = 0.0
+    anchor_links: bool = True
+    tag_links: bool = True
+    max_range: float = 100.0
+    los_groups: tuple[int, ...] = (0, 3)
+    noise: float | None = None
+    loss_prob: float | None = None
+    clock_ppm: float | None = None
+    link_bias_sigma: float | None = None
+    nlos: Literal["bias", "drop", "ignore"] | None = None
+    nlos_bias_mean: float | None = None
+    nlos_bias_per_m: float | None = None
+    nlos_noise_factor: float | None = None
+    outlier_prob: float | None = None
+    outlier_sigma: float | None = None
+
+    def __post_init__(self) -> None:
+        _fill(self, UWB_PRESETS[self.preset])
+
+    def check(self) -> None:
+        _check_rate(self.rate_hz, self.latency)
+        check(self.max_range > 0, "max_range", f"must be positive, got {self.max_range}")
+        check(all(0 <= g <= 5 for g in self.los_groups), "los_groups", f"geom groups are 0..5, got {list(self.los_groups)}")
+        for k in ("noise", "clock_ppm", "link_bias_sigma", "nlos_bias_mean", "nlos_bias_per_m", "outlier_sigma"):
+            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
+        check(self.nlos_noise_factor >= 1, "nlos_noise_factor", f"must be >= 1, got {self.nlos_noise_factor}")
+        for k in ("loss_prob", "outlier_prob"):
+            check(0 <= getattr(self, k) < 1, k, f"must be in [0, 1), got {getattr(self, k)}")
+
+
+# ------------------------------------------------------------------------------------- phase
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PhaseConfig:
+    """[sensors.phase]: carrier phase between the masters' and the follower's ant1..3 (seed 003).
+
+    Every master antenna i (slot 1..3, wavelength wavelengths[i-1], m) to every follower antenna
+    j. The receiver samples the wrapped phase every T = 1/phase_rate_hz s; every 1/rate_hz s it
+    reports the phase, the ambiguity-resolved range and the eq. 7 range rate averaged over
+    rate_periods = N + 1 periods. phase_noise: white, 1 sigma in range terms (m);
+    coarse_noise: 1 sigma of the coarse range used to fix integers (m); slip_prob: injected cycle
+    slip probability per link per phase sample, +/-1..slip_max_cycles cycles;
+    master_pos_noise / master_vel_noise: 1 sigma white error (m, m/s) of the masters' own
+    navigation solution logged in phase/master_pos, phase/master_vel.
+    """
+
+    preset: Literal["paper003", "ideal"] = "paper003"
+    rate_hz: float = 10.0
+    phase_rate_hz: float = 50.0
+    rate_periods: int = 35
+    latency: float = 0.0
+    masters: tuple[int, ...] = (1, 2, 3, 4, 5)
+    follower: int = 6
+    wavelengths: tuple[float, float, float] = (1.0, 2.0, 3.0)
+    slip_max_cycles: int = 3
+    phase_noise: float | None = None
+    coarse_noise: float | None = None
+    slip_prob: float | None = None
+    master_pos_noise: float | None = None
+    master_vel_noise: float | None = None
+
+    def __post_init__(self) -> None:
+        _fill(self, PHASE_PRESETS[self.preset])
+
+    def check(self) -> None:
+        _check_rate(self.rate_hz, self.latency)
+        ratio = self.phase_rate_hz / self.rate_hz
+        check(self.phase_rate_hz > 0 and abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1, "phase_rate_hz",
+              f"must be a whole multiple of rate_hz = {self.rate_hz} Hz, got {self.phase_rate_hz}")
+        check(self.rate_periods >= 1, "rate_periods", f"must be >= 1, got {self.rate_periods}")
+        check(len(self.masters) >= 1 and all(m >= 1 for m in self.masters), "masters", f"need vehicle numbers >= 1, got {list(self.masters)}")
+        check(self.follower >= 1 and self.follower not in self.masters, "follower", f"must be a vehicle number that is not a master, got {self.follower}")
+        check(all(w > 0 for w in self.wavelengths), "wavelengths", "must be positive")
+        check(self.slip_max_cycles >= 1, "slip_max_cycles", "must be >= 1")
+        for k in ("phase_noise", "coarse_noise", "master_pos_noise", "master_vel_noise"):
+            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
+        check(0 <= self.slip_prob < 1, "slip_prob", f"must be in [0, 1), got {self.slip_prob}")
+        lam = min(self.wavelengths)
+        # Integer fixing rounds (coarse - phase range)/lambda: a 5 sigma total error must stay
+        # inside half a cycle of the shortest wavelength.
+        tot = (self.coarse_noise**2 + self.phase_noise**2) ** 0.5
+        check(5 * tot < lam / 2, "coarse_noise",
+              f"coarse/phase noise {tot:.3f} m (1 sigma) too large to fix integers of the {lam} m wavelength (need 5 sigma < lambda/2)")
+
+
+# -------------------------------------------------------------------------------------- GNSS
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class GnssErrors:
+    """Error model of one receiver class: white noise_h/noise_v (m, 1 sigma, east/north and up)
+    plus a first-order Gauss-Markov bias bias_h/bias_v (m, steady-state 1 sigma) with time
+    constant bias_tau (s; 0 = no bias)."""
+
+    preset: Literal["spp", "spp-correlated", "rtk", "ideal"] = "spp"
+    noise_h: float | None = None
+    noise_v: float | None = None
+    bias_h: float | None = None
+    bias_v: float | None = None
+    bias_tau: float | None = None
+
+    def __post_init__(self) -> None:
+        _fill(self, GNSS_PRESETS[self.preset])
+
+    def check(self) -> None:
+        for k in ("noise_h", "noise_v", "bias_h", "bias_v", "bias_tau"):
+            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
+        check(self.bias_tau > 0 or (self.bias_h == 0 and self.bias_v == 0), "bias_tau", "a Gauss-Markov bias needs bias_tau > 0")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class GnssConfig:
+    """[sensors.gnss]: position of each vehicle's antenna in the world (ENU) frame.
+
+    antenna: "uwb" (the uwb site on the mast, default) or "body" (the body origin / CoM).
+    vehicles: 1-based numbers with a receiver (empty = all). rtk_vehicles: those using the `rtk`
+    error table (empty: the swarm-box trajectory's `rtk` list if any). receiver / rtk: error
+    tables [sensors.gnss.receiver], [sensors.gnss.rtk].
+    """
+
+    rate_hz: float = 5.0
+    latency: float = 0.0
+    antenna: Literal["uwb", "body"] = "uwb"
+    vehicles: tuple[int, ...] = ()
+    rtk_vehicles: tuple[int, ...] = ()
+    receiver: GnssErrors = field(default_factory=lambda: GnssErrors(preset="spp"))
+    rtk: GnssErrors = field(default_factory=lambda: GnssErrors(preset="rtk"))
+
+    def check(self) -> None:
+        _check_rate(self.rate_hz, self.latency)
+        check(all(v >= 1 for v in self.vehicles + self.rtk_vehicles), "rtk_vehicles", "vehicle numbers start at 1")
+
+
+# ------------------------------------------------------------------------------------ camera
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class CameraConfig:
+    """[sensors.camera]: the leader's `cam` camera sees the follower's LED beacons (seed 004).
+
+    mode "geometric": projection of the LED centres (eqs. 5-6, 9-10) with eq. 8 / eq. 13 noise of
+    sigma (rad) and d (eq. 8), glint contamination (probability glint_prob, std x glint_factor);
+    "pixels": offscreen render + OpenCV detection (no added noise). focal_length (m) scales
+    alpha, beta (paper: 1 m). min_depth (m): LEDs closer than this along the optical axis are
+    not seen.
+    """
+
+    preset: Literal["paper004", "gaussian", "ideal"] = "paper004"
+    mode: Literal["geometric", "pixels"] = "geometric"
+    rate_hz: float = 10.0
+    latency: float = 0.0
+    leader: int = 1
+    follower: int = 2
+    focal_length: float = 1.0
+    min_depth: float = 0.05
+    sigma: float | None = None
+    d: float | None = None
+    glint_prob: float | None = None
+    glint_factor: float | None = None
+
+    def __post_init__(self) -> None:
+        _fill(self, CAMERA_PRESETS[self.preset])
+
+    def check(self) -> None:
+        _check_rate(self.rate_hz, self.latency)
+        check(self.leader >= 1 and self.follower >= 1 and self.leader != self.follower, "follower", "leader and follower must be two different vehicle numbers")
+        check(self.focal_length > 0, "focal_length", "must be positive")
+        check(self.sigma >= 0 and self.d >= 0, "sigma", "sigma and d must be >= 0")
+        check(0 <= self.glint_prob < 1 and self.glint_factor >= 1, "glint_prob", "need 0 <= glint_prob < 1 and glint_factor >= 1")
+
+
+# ------------------------------------------------------------------------------------- table
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class SensorsConfig:
     """Which sensors a scenario carries; a missing table means the stream is off."""
+
+    imu: ImuConfig | None = None
+    uwb: UwbConfig | None = None
+    phase: PhaseConfig | None = None
+    gnss: GnssConfig | None = None
+    camera: CameraConfig | None = None
+
+    def streams(self) -> dict[str, object]:
+        """The configured streams by name, in a fixed order."""
+        return {n: getattr(self, n) for n in ("imu", "uwb", "phase", "gnss", "camera") if getattr(self, n) is not None}
+
+    def check_rates(self, control_rate: float, vehicles: int) -> None:
+        """Every stream's sampling rate must divide the control rate; vehicle numbers must exist.
+
+        Raises ValueError(key, message) (key dotted below `sensors`), as `check` does.
+        """
+        for name, cfg in self.streams().items():
+            rates = [("rate_hz", cfg.rate_hz)]
+            if name == "phase":
+                rates = [("phase_rate_hz", cfg.phase_rate_hz)]
+            for key, rate in rates:
+                ratio = control_rate / rate
+                check(abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1, f"{name}.{key}",
+                      f"{rate:g} Hz does not divide the control rate {control_rate:g} Hz (world.control_rate); use {_divisors(control_rate)} Hz")
+            nums: list[int] = []
+            if name in ("imu", "gnss"):
+                nums = list(cfg.vehicles) + (list(cfg.rtk_vehicles) if name == "gnss" else [])
+            elif name == "phase":
+                nums = [*cfg.masters, cfg.follower]
+            elif name == "camera":
+                nums = [cfg.leader, cfg.follower]
+            check(all(1 <= v <= vehicles for v in nums), name, f"vehicle numbers must be in 1..{vehicles}, got {nums}")
+
+
+def _divisors(rate: float) -> str:
+    r = int(round(rate))
+    return ", ".join(str(r // k) for k in range(1, r + 1) if r % k == 0 and r // k >= 1)[:80]

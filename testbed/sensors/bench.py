@@ -1,0 +1,106 @@
+"""Benchmark of the sensor suite (not a test): `python -m testbed.sensors.bench`.
+
+(a) real-time factor of an 18-vehicle flown swarm (seed 001's 200 x 200 x 100 m box, bases on a
+3 x 3 x 2 grid 60 m / 50 m apart, 4 anchors, 3 pillars) with IMU 200 Hz, GNSS 5 Hz and UWB on all
+tag pairs and anchors at 10 Hz with NLOS ray casting, next to the same run without sensors;
+(b) frames per second of the camera pixel path at 640 x 480 (render + code-colour detection)
+next to bare mujoco.Renderer on the same scene and camera.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from testbed.config import from_dict
+from testbed.scenario import Scenario
+
+
+def swarm_scenario(duration: float, sensors: dict) -> Scenario:
+    bases = [[40.0 + 60 * i, 40.0 + 60 * j, 25.0 + 50 * k] for k in range(2) for j in range(3) for i in range(3)]
+    data = {
+        "name": "bench-swarm", "description": "18-vehicle swarm benchmark", "seed": 0, "duration": duration, "motion": "flown",
+        "world": {
+            "anchors": [[0.0, 0.0, 2.0], [200.0, 0.0, 2.0], [0.0, 200.0, 2.0], [200.0, 200.0, 2.0]],
+            "obstacles": [{"type": "cylinder", "pos": [70.0, 70.0, 50.0], "size": [4.0, 50.0, 0.0]},
+                          {"type": "cylinder", "pos": [130.0, 130.0, 50.0], "size": [4.0, 50.0, 0.0]},
+                          {"type": "box", "pos": [100.0, 70.0, 30.0], "size": [10.0, 1.0, 30.0]}],
+        },
+        "trajectory": {"kind": "swarm-box", "bases": bases, "rtk": [1, 7, 12]},
+        "sensors": sensors,
+    }
+    return from_dict(Scenario, data, "bench")
+
+
+def _timed(fn, repeat: int = 1) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def bench_sensors(duration: float = 20.0, frames: int = 30, repeat: int = 1) -> dict:
+    """Measure the sensor suite; returns a dict of timings (s), real-time factors and fps.
+
+    duration: simulated seconds of the swarm runs; frames: rendered frames per camera timing;
+    repeat: best of this many runs (the machine may be shared).
+    """
+    import mujoco
+
+    from testbed.sensors.camera import Camera
+    from testbed.simulate import simulate
+    from testbed.world import build
+
+    sensors = {"imu": {"preset": "bmi088"}, "gnss": {}, "uwb": {"preset": "dw1000", "max_range": 100.0}}
+    bare = swarm_scenario(duration, {})
+    full = swarm_scenario(duration, sensors)
+    out: dict = {"duration_s": duration, "vehicles": bare.vehicles}
+    logs = {}
+
+    def run(sc, key):
+        logs[key] = simulate(sc)[0]
+
+    out["wall_bare_s"] = _timed(lambda: run(bare, "bare"), repeat)
+    out["wall_sensors_s"] = _timed(lambda: run(full, "full"), repeat)
+    out["rtf_bare"] = duration / out["wall_bare_s"]
+    out["rtf_sensors"] = duration / out["wall_sensors_s"]
+    log = logs["full"]
+    out["uwb_measurements"] = int(len(log["uwb/value"]))
+    out["uwb_nlos_fraction"] = float(log["uwb/nlos"].mean()) if len(log["uwb/nlos"]) else 0.0
+    out["imu_samples"] = int(len(log["imu/value"]))
+
+    # (b) camera pixel path vs bare renderer, leader-follower scene
+    cam_sc = from_dict(Scenario, {"name": "bench-cam", "description": "", "duration": 1.0,
+                                  "trajectory": {"kind": "leader-follower", "follower_offset": [-8.0, 0.0, 0.0]},
+                                  "sensors": {"camera": {"mode": "pixels", "preset": "ideal"}}}, "bench")
+    physics = build(cam_sc)
+    cam = Camera(cam_sc.sensors.camera, physics, np.random.default_rng(0), 20)
+    cam.sample(physics, 0.0, 0)  # warm-up: creates the renderer
+
+    def pixel_path():
+        for _ in range(frames):
+            cam.sample(physics, 0.0, 0)
+
+    renderer = mujoco.Renderer(physics.model, 480, 640)
+
+    def bare_render():
+        for _ in range(frames):
+            renderer.update_scene(physics.data, camera="uav1/cam")
+            renderer.render()
+
+    bare_render()
+    out["fps_renderer_bare"] = frames / _timed(bare_render, repeat)
+    out["fps_camera_pixels"] = frames / _timed(pixel_path, repeat)
+    renderer.close()
+    cam.arrays()
+    return out
+
+
+if __name__ == "__main__":
+    import json
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    print(json.dumps(bench_sensors(), indent=2))

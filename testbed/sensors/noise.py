@@ -1,0 +1,94 @@
+"""Noise processes shared by the sensors, written once for one sample or a long stream.
+
+All functions take pre-drawn standard normals `normals` of shape (n, ...) for n consecutive
+samples at period dt (s), so a sensor advancing one sample at a time (n = 1) and a test
+generating a long synthetic stream (n = 10^5) run the same code.
+
+Discretisation of a white noise of density N (unit/sqrt(Hz)) sampled every dt: sigma_d = N / sqrt(dt)
+(the average of the continuous noise over the sample interval). A random walk of density K
+(unit/sqrt(s)): b_{k+1} = b_k + K sqrt(dt) w_k. A first-order Gauss-Markov process of
+steady-state sigma s and time constant tau: b_{k+1} = phi b_k + s sqrt(1 - phi^2) w_k,
+phi = exp(-dt / tau) (exact discretisation).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def white(density: float | np.ndarray, dt: float, normals: np.ndarray) -> np.ndarray:
+    """White noise samples (n, ...) of density `density` (unit/sqrt(Hz)) at period dt (s)."""
+    return np.asarray(density) / np.sqrt(dt) * normals
+
+
+def random_walk(start: np.ndarray, density: float | np.ndarray, dt: float, normals: np.ndarray) -> np.ndarray:
+    """Random walk path (n, ...) continuing from `start` (...): b_k = b_{k-1} + K sqrt(dt) w_k."""
+    return start + np.cumsum(np.asarray(density) * np.sqrt(dt) * normals, axis=0)
+
+
+def gauss_markov(start: np.ndarray, sigma: float | np.ndarray, tau: float, dt: float, normals: np.ndarray) -> np.ndarray:
+    """First-order Gauss-Markov path (n, ...) from `start`; tau <= 0 gives zeros."""
+    if tau <= 0:
+        return np.zeros_like(normals)
+    phi = np.exp(-dt / tau)
+    q = np.asarray(sigma) * np.sqrt(1.0 - phi**2)
+    if normals.shape[0] == 1:
+        return (phi * start + q * normals[0])[None]
+    from scipy.signal import lfilter  # only for long streams: keeps the import cost out of runs
+
+    zi = (phi * np.asarray(start, float))[None] * np.ones((1, *normals.shape[1:]))
+    y, _ = lfilter([1.0], [1.0, -phi], q * normals, axis=0, zi=zi)
+    return y
+
+
+class TriadErrors:
+    """Errors of V sensor triads (C = 3 axes), seed 004 eqs. 1-4 plus MEMS terms.
+
+    meas = (I + K) x + b_const + b_turn_on + b_walk(t) + b_gm(t) + white, per vehicle:
+    K = diag(scale) + off-diagonal misalignment (drawn once), b_turn_on drawn once, b_walk a
+    random walk (eq. 2/4 eta_u), b_gm a first-order Gauss-Markov bias. `apply(x, normals)` maps
+    n consecutive clean samples x (n, V, 3) to measurements, normals (n, 3, V, 3) for white,
+    walk and Gauss-Markov increments.
+    """
+
+    def __init__(self, errors, n_triads: int, dt: float, rng: np.random.Generator):
+        e = errors
+        self.e, self.dt = e, dt
+        z = rng.standard_normal((4, n_triads, 3))
+        off = rng.standard_normal((n_triads, 3, 3))
+        eye = np.eye(3)
+        self.K = e.scale_sigma * z[0][:, :, None] * eye + e.misalign_sigma * off * (1 - eye)  # (V, 3, 3)
+        self.b0 = e.bias + e.bias_sigma * z[1]  # (V, 3) constant + turn-on
+        self.walk = np.zeros((n_triads, 3))
+        self.gm = e.gm_sigma * z[2] if e.gm_tau > 0 else np.zeros((n_triads, 3))  # stationary start
+
+    def bias(self) -> np.ndarray:
+        """(V, 3) current total bias."""
+        return self.b0 + self.walk + self.gm
+
+    def apply(self, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        e, dt = self.e, self.dt
+        out = x + (self.K @ x[..., None])[..., 0]  # (I + K) x
+        out += self.b0
+        if e.bias_walk > 0:  # terms with zero parameters are skipped (their normals are still drawn)
+            walk = random_walk(self.walk, e.bias_walk, dt, normals[:, 1])
+            self.walk = walk[-1]
+            out += walk
+        if e.gm_tau > 0:
+            gm = gauss_markov(self.gm, e.gm_sigma, e.gm_tau, dt, normals[:, 2])
+            self.gm = gm[-1]
+            out += gm
+        if e.noise_density > 0:
+            out += white(e.noise_density, dt, normals[:, 0])
+        return out
+
+
+def allan_deviation(y: np.ndarray, dt: float, m: np.ndarray) -> np.ndarray:
+    """Non-overlapping Allan deviation of a rate signal y (n,) at averaging factors m (k,).
+
+    tau = m dt; avar = mean((ybar_{j+1} - ybar_j)^2) / 2 over the n // m block means.
+    """
+    out = np.empty(len(m))
+    for i, mi in enumerate(m):
+        blocks = y[: (len(y) // mi) * mi].reshape(-1, mi).mean(axis=1)
+        out[i] = np.sqrt(0.5 * np.mean(np.diff(blocks) ** 2))
+    return out

@@ -1,0 +1,118 @@
+"""Named error presets of the sensor streams (the `preset = "..."` key of each [sensors.NAME] table).
+
+Every preset is a flat table of SI values. A preset only fills the error keys a scenario leaves
+out; the resolved scenario (scenario.toml of a run) writes every value out, so a run never
+depends on this file to be reread. Units: m, s, rad, m/s^2, rad/s; noise densities per sqrt(Hz)
+(= per sqrt(s^-1)), random-walk densities per sqrt(s).
+"""
+from __future__ import annotations
+
+import math
+
+G0 = 9.80665  # m/s^2, standard gravity (to convert the datasheets' g, mg, micro-g)
+UG = 1e-6 * G0  # m/s^2 per micro-g
+DEG = math.pi / 180.0
+DPH = DEG / 3600.0  # rad/s per deg/h
+ARW_DEG_SQRT_H = DEG / 60.0  # rad/s/sqrt(Hz) per deg/sqrt(h): 1 sqrt(h) = 60 sqrt(s)
+
+# ------------------------------------------------------------------------------------- IMU
+# Keys of one instrument (accel or gyro), per axis, SI:
+#   noise_density   white noise density N (m/s^2/sqrt(Hz) or rad/s/sqrt(Hz)); sample sigma N/sqrt(dt)
+#   bias            constant bias, the same on every axis and vehicle (m/s^2 or rad/s)
+#   bias_sigma      turn-on bias 1 sigma, drawn per vehicle and axis at start
+#   bias_walk       bias random-walk density K (unit/s/sqrt(Hz) = unit/sqrt(s)); eq. 2/4 eta_u
+#   gm_sigma, gm_tau  first-order Gauss-Markov bias: steady-state 1 sigma and time constant (s)
+#   scale_sigma     scale-factor error 1 sigma (dimensionless), diagonal of K_g / K_a (eqs. 1, 3)
+#   misalign_sigma  axis misalignment / cross-axis 1 sigma (rad), off-diagonal of K_g / K_a
+_ZERO_INSTR = dict(noise_density=0.0, bias=0.0, bias_sigma=0.0, bias_walk=0.0, gm_sigma=0.0, gm_tau=0.0, scale_sigma=0.0, misalign_sigma=0.0)
+
+IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
+    "ideal": {"accel": dict(_ZERO_INSTR), "gyro": dict(_ZERO_INSTR)},
+    # Seed 004, section 4: accel constant bias 250 micro-g, accel random noise "50 micro-g/sqrt(h)",
+    # gyro constant drift 0.1 deg/h, gyro white noise 0.08 deg/sqrt(h). The accel noise unit
+    # micro-g/sqrt(h) is not a noise-density unit; read as 50 micro-g/sqrt(Hz) (a navigation-grade
+    # accelerometer; the literal /60 reading would give 0.8 micro-g/sqrt(Hz), implausibly good).
+    # The gyro 0.08 deg/sqrt(h) is an angle random walk: 0.08/60 deg/s/sqrt(Hz).
+    # Biases are constant (eq. 2/4 with eta_u = 0, "b_a constant in the paper's run").
+    "paper004": {
+        "accel": {**_ZERO_INSTR, "noise_density": 50.0 * UG, "bias": 250.0 * UG},
+        "gyro": {**_ZERO_INSTR, "noise_density": 0.08 * ARW_DEG_SQRT_H, "bias": 0.1 * DPH},
+    },
+    # Bosch BMI088 (data sheet BST-BMI088-DS001, Table 1 "accelerometer" / Table 2 "gyroscope"),
+    # typical values, each datasheet +/- tolerance taken as 1 sigma:
+    #   accel output noise density 175 micro-g/sqrt(Hz) (normal mode); zero-g offset +/-20 mg;
+    #   sensitivity tolerance +/-0.5 %... taken as 0.5 %; cross-axis sensitivity 0.5 %;
+    #   gyro output noise density 0.014 deg/s/sqrt(Hz); zero-rate offset +/-1 deg/s;
+    #   sensitivity tolerance +/-1 %; cross-axis sensitivity +/-1 %.
+    # Bias instability is not in the data sheet: assumed Gauss-Markov, tau 100 s, with sigma
+    # 0.1 mg (accel) and 5 deg/h (gyro), typical of this class of MEMS (Allan-deviation floors).
+    "bmi088": {
+        "accel": dict(noise_density=175.0 * UG, bias=0.0, bias_sigma=20e-3 * G0, bias_walk=0.0,
+                      gm_sigma=0.1e-3 * G0, gm_tau=100.0, scale_sigma=0.005, misalign_sigma=0.005),
+        "gyro": dict(noise_density=0.014 * DEG, bias=0.0, bias_sigma=1.0 * DEG, bias_walk=0.0,
+                     gm_sigma=5.0 * DPH, gm_tau=100.0, scale_sigma=0.01, misalign_sigma=0.01),
+    },
+    # InvenSense MPU-9250 (product specification PS-MPU-9250A-01 rev 1.1, tables 1 and 2):
+    #   gyro rate noise spectral density 0.01 deg/s/sqrt(Hz); initial zero-rate offset tolerance
+    #   +/-5 deg/s; sensitivity scale factor tolerance +/-3 %; cross-axis sensitivity +/-2 %;
+    #   accel noise power spectral density 300 micro-g/sqrt(Hz); zero-g initial calibration
+    #   tolerance +/-60 mg (x, y; +/-80 mg z, 60 mg used); initial sensitivity tolerance +/-3 %;
+    #   cross-axis sensitivity +/-2 %.
+    # Bias instability not in the data sheet: assumed Gauss-Markov, tau 100 s, 0.2 mg and
+    # 10 deg/h.
+    "mpu9250": {
+        "accel": dict(noise_density=300.0 * UG, bias=0.0, bias_sigma=60e-3 * G0, bias_walk=0.0,
+                      gm_sigma=0.2e-3 * G0, gm_tau=100.0, scale_sigma=0.03, misalign_sigma=0.02),
+        "gyro": dict(noise_density=0.01 * DEG, bias=0.0, bias_sigma=5.0 * DEG, bias_walk=0.0,
+                     gm_sigma=10.0 * DPH, gm_tau=100.0, scale_sigma=0.03, misalign_sigma=0.02),
+    },
+}
+
+# ------------------------------------------------------------------------------------- UWB
+UWB_PRESETS: dict[str, dict[str, float | str]] = {
+    "ideal": dict(noise=0.0, loss_prob=0.0, clock_ppm=0.0, link_bias_sigma=0.0, nlos="ignore",
+                  nlos_bias_mean=0.0, nlos_bias_per_m=0.0, nlos_noise_factor=1.0, outlier_prob=0.0, outlier_sigma=0.0),
+    # Seed 001 (SPEC defaults for its lost Table 2): 0.10 m white noise, 20 ppm crystal scale
+    # factor; the paper has no NLOS: the physics still flags blocked links, which get the DW1000
+    # NLOS model below.
+    "paper001": dict(noise=0.10, loss_prob=0.0, clock_ppm=20.0, link_bias_sigma=0.0, nlos="bias",
+                     nlos_bias_mean=0.3, nlos_bias_per_m=1.0, nlos_noise_factor=3.0, outlier_prob=0.0, outlier_sigma=0.0),
+    # A Decawave DW1000-class two-way ranging radio: +/-10 cm LOS accuracy (DW1000 data sheet),
+    # 20 ppm crystal, 5 cm per-link antenna-delay residual, 2 % packet loss; NLOS: exponential
+    # excess delay with mean 0.3 m plus 1 m per m of blocking material ((sqrt(eps_r) - 1) ~ 1 for
+    # concrete/brick), 3x noise; 1 % gross outliers of 3 m (multipath lock-on to a late path).
+    "dw1000": dict(noise=0.10, loss_prob=0.02, clock_ppm=20.0, link_bias_sigma=0.05, nlos="bias",
+                   nlos_bias_mean=0.3, nlos_bias_per_m=1.0, nlos_noise_factor=3.0, outlier_prob=0.01, outlier_sigma=3.0),
+}
+
+# ----------------------------------------------------------------------------------- phase
+PHASE_PRESETS: dict[str, dict[str, float]] = {
+    "ideal": dict(phase_noise=0.0, coarse_noise=0.0, slip_prob=0.0, master_pos_noise=0.0, master_vel_noise=0.0),
+    # Seed 003: range noise 0.15 m (3 sigma) -> 0.05 m 1 sigma on every wrapped phase sample (in
+    # range terms); the range rate noise 0.3 m/s (3 sigma) follows from eq. 7 with the default
+    # T = 20 ms and N + 1 = 35 periods: sqrt(2) 0.05 / 0.7 = 0.101 m/s. Coarse range for the
+    # ambiguity: 0.05 m (code ranging on the same radios; keeps false slip alarms < 1e-11/check).
+    # Masters' antenna positions known exactly, as in the paper.
+    "paper003": dict(phase_noise=0.05, coarse_noise=0.05, slip_prob=0.0, master_pos_noise=0.0, master_vel_noise=0.0),
+}
+
+# ------------------------------------------------------------------------------------ GNSS
+GNSS_PRESETS: dict[str, dict[str, float]] = {
+    "ideal": dict(noise_h=0.0, noise_v=0.0, bias_h=0.0, bias_v=0.0, bias_tau=0.0),
+    # Seed 001 (SPEC): standalone GNSS 1.5 m horizontal / 3.0 m vertical 1 sigma, Gaussian white.
+    "spp": dict(noise_h=1.5, noise_v=3.0, bias_h=0.0, bias_v=0.0, bias_tau=0.0),
+    # The same totals, but most of it a slowly varying bias (atmosphere, orbits): white 0.5/1.0 m,
+    # Gauss-Markov 1.41/2.83 m with tau 300 s (total 1.5/3.0 m).
+    "spp-correlated": dict(noise_h=0.5, noise_v=1.0, bias_h=1.414, bias_v=2.828, bias_tau=300.0),
+    # Seed 001 (SPEC): RTK 0.02 m horizontal / 0.03 m vertical.
+    "rtk": dict(noise_h=0.02, noise_v=0.03, bias_h=0.0, bias_v=0.0, bias_tau=0.0),
+}
+
+# ---------------------------------------------------------------------------------- camera
+CAMERA_PRESETS: dict[str, dict[str, float]] = {
+    "ideal": dict(sigma=0.0, d=1.0, glint_prob=0.0, glint_factor=1.0),
+    # Seed 004: vision noise 3500 micro-rad; glint contamination rate 0.1 with 5x std. d of eq. 8 is
+    # not given; d = 1 (Crassidis' VisNav papers).
+    "paper004": dict(sigma=3500e-6, d=1.0, glint_prob=0.1, glint_factor=5.0),
+    "gaussian": dict(sigma=3500e-6, d=1.0, glint_prob=0.0, glint_factor=1.0),
+}

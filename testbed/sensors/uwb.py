@@ -1,0 +1,122 @@
+"""UWB stream `uwb`: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
+
+Links (fixed at start, in this order): every tag to every anchor (src = "uav{i}/uwb",
+dst = "anchor{k}"), then every tag pair once (src = "uav{i}/uwb", dst = "uav{j}/uwb", i < j).
+At each sample, a link whose true distance exceeds max_range makes no measurement.
+
+Line of sight: one mj_multiRay per source tag towards all its in-range link ends, through the
+geoms of `los_groups` (default 0: obstacles and floor, 3: vehicle collision boxes; visual geoms
+and anchor masts never block), excluding the source vehicle's body; a hit on the destination
+vehicle's own body, or within 1 mm of the end point, does not block. Blocked links are NLOS.
+Blocked span: distance between the first hit seen from each end (a second ray from the
+destination), i.e. the length of the segment inside/between blocking geoms.
+
+Range model (m), per measurement:
+  value = d (1 + 1e-6 (k_src + k_dst) / 2) + c_link + s e1 + [NLOS] (nlos_bias_per_m span +
+          nlos_bias_mean E) + [outlier] outlier_sigma e2
+with d the true distance between the sites, k per-device clock scale factors ~ N(0, clock_ppm^2)
+(two-way ranging averages both clocks), c_link ~ N(0, link_bias_sigma^2) constant per link,
+s = noise (x nlos_noise_factor when NLOS), E ~ Exp(1), e1, e2 ~ N(0, 1); outlier with probability
+outlier_prob; the measurement is lost with probability loss_prob; nlos = "drop" drops NLOS links,
+"ignore" only flags them. The same number of random draws is made at every sample.
+
+Log: uwb/value, uwb/clean (M, 1) m; uwb/nlos (M,) bool; uwb/outlier (M,) bool; uwb/span (M,)
+m (0 when LOS); src/dst site names. Per device (D,): uwb/devices names, uwb/clock_ppm.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from testbed.sensors.base import Recorder, common_keys
+from testbed.sensors.config import UwbConfig
+from testbed.world import Physics
+
+END_TOLERANCE = 1e-3  # m: hits this close to the far end (e.g. the floor under a ground anchor) do not block
+
+
+class Uwb:
+    name = "uwb"
+
+    def __init__(self, cfg: UwbConfig, physics: Physics, rng: np.random.Generator, period_ticks: int, n_anchors: int):
+        self.cfg, self.rng, self.period_ticks = cfg, rng, period_ticks
+        N = physics.n
+        names = [f"anchor{k}" for k in range(1, n_anchors + 1)] + [f"uav{i}/uwb" for i in range(1, N + 1)]
+        self.devices = np.array(names)
+        self.site_ids = physics.site_ids(names)
+        A = n_anchors
+        # body of each device (-1 for anchors: world body, never excluded)
+        self.dev_body = np.concatenate([np.full(A, -1), physics.body_ids]).astype(int)
+        src, dst = [], []
+        if cfg.anchor_links:
+            for i in range(N):
+                for k in range(A):
+                    src.append(A + i), dst.append(k)
+        if cfg.tag_links:
+            for i in range(N):
+                for j in range(i + 1, N):
+                    src.append(A + i), dst.append(A + j)
+        self.src, self.dst = np.array(src, dtype=int), np.array(dst, dtype=int)
+        self.src_names, self.dst_names = self.devices[self.src], self.devices[self.dst]
+        D, L = len(names), len(src)
+        self.ppm = cfg.clock_ppm * rng.standard_normal(D)
+        self.link_bias = cfg.link_bias_sigma * rng.standard_normal(L)
+        self.scale = 1.0 + 1e-6 * (self.ppm[self.src] + self.ppm[self.dst]) / 2
+        self.groups = np.array([1 if g in cfg.los_groups else 0 for g in range(6)], dtype=np.uint8)
+        self.geom_body = physics.model.geom_bodyid.copy()
+        self.rec = Recorder("uwb", {**common_keys(1), "nlos": ((), "?"), "outlier": ((), "?"), "span": ((), "f8")})
+
+    def line_of_sight(self, physics: Physics, P: np.ndarray, links: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """NLOS flags and blocked spans (m) of links (indices into the link list), P (D, 3)."""
+        nlos = np.zeros(len(links), dtype=bool)
+        first = np.full(len(links), np.inf)
+        src = self.src[links]
+        for s in np.unique(src):
+            sel = np.flatnonzero(src == s)
+            ends = P[self.dst[links[sel]]]
+            dist, gid = physics.rays_from(P[s], ends, self.groups, self.dev_body[s])
+            hit_body = np.where(gid >= 0, self.geom_body[np.maximum(gid, 0)], -2)
+            own_dst = hit_body == self.dev_body[self.dst[links[sel]]]
+            blocked = np.isfinite(dist) & (dist < d[sel] - END_TOLERANCE) & ~own_dst
+            nlos[sel] = blocked
+            first[sel] = dist
+        span = np.zeros(len(links))
+        if self.cfg.nlos_bias_per_m > 0:
+            for k in np.flatnonzero(nlos):
+                l = links[k]
+                back, _ = physics.ray(P[self.dst[l]], P[self.src[l]], self.groups, self.dev_body[self.dst[l]])
+                span[k] = max(0.0, d[k] - first[k] - (back if np.isfinite(back) else 0.0))
+        return nlos, span
+
+    def sample(self, physics: Physics, t: float, state_index: int) -> None:
+        cfg, L = self.cfg, len(self.src)
+        P = physics.data.site_xpos[self.site_ids]
+        dist = np.linalg.norm(P[self.dst] - P[self.src], axis=1)
+        e = self.rng.standard_normal((2, L))
+        expo = self.rng.exponential(1.0, L)
+        u = self.rng.random((2, L))
+        links = np.flatnonzero(dist <= cfg.max_range)
+        d = dist[links]
+        nlos, span = self.line_of_sight(physics, P, links, d)
+        outlier = u[0, links] < cfg.outlier_prob
+        keep = u[1, links] >= cfg.loss_prob
+        sigma = np.full(len(links), cfg.noise)
+        value = d * self.scale[links] + self.link_bias[links]
+        if cfg.nlos == "bias":
+            sigma[nlos] *= cfg.nlos_noise_factor
+            value = value + nlos * (cfg.nlos_bias_per_m * span + cfg.nlos_bias_mean * expo[links])
+        elif cfg.nlos == "drop":
+            keep &= ~nlos
+        value = value + sigma * e[0, links] + outlier * cfg.outlier_sigma * e[1, links]
+        k = links[keep]
+        M = len(k)
+        self.rec.add(
+            time=np.full(M, t), arrival=np.full(M, t + cfg.latency), state_index=np.full(M, state_index),
+            value=value[keep][:, None], clean=d[keep][:, None], src=self.src_names[k], dst=self.dst_names[k],
+            nlos=nlos[keep], outlier=outlier[keep], span=span[keep],
+        )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = self.rec.arrays()
+        out["uwb/devices"] = self.devices.astype(str)
+        out["uwb/clock_ppm"] = self.ppm.copy()
+        return out
