@@ -32,20 +32,30 @@ class Imu:
         self.gyro = TriadErrors(cfg.gyro, V, dt, rng)
         self.src = np.array([f"uav{i}/imu" for i in self.vehicles])
         self.rec = Recorder("imu", {**common_keys(6), "vehicle": ((), "i8"), "bias": ((6,), "f8")})
+        self.clean: list[np.ndarray] = []  # (V, 6) per sample
+        self.times: list[tuple[float, int]] = []  # (t, state_index) per sample
 
     def sample(self, physics: Physics, t: float, state_index: int) -> None:
-        V = len(self.idx)
-        a = physics.accelerometer[self.idx]
-        w = physics.gyro[self.idx]
-        normals = self.rng.standard_normal((2, 1, 3, V, 3))
-        am = self.accel.apply(a[None], normals[0])[0]
-        wm = self.gyro.apply(w[None], normals[1])[0]
-        self.rec.add(
-            time=np.full(V, t), arrival=np.full(V, t + self.cfg.latency), state_index=np.full(V, state_index),
-            value=np.concatenate([am, wm], axis=1), clean=np.concatenate([a, w], axis=1),
-            src=self.src, dst=np.full(V, ""), vehicle=self.vehicles,
-            bias=np.concatenate([self.accel.bias(), self.gyro.bias()], axis=1),
-        )
+        """Keep MuJoCo's clean readings; errors are applied to the whole series in arrays()."""
+        self.clean.append(np.concatenate([physics.accelerometer[self.idx], physics.gyro[self.idx]], axis=1))
+        self.times.append((t, state_index))
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """Errors of the whole series at once (same draws as sample by sample: one generator,
+        consumed in time order, accelerometer then gyro normals per sample)."""
+        V, n = len(self.idx), len(self.times)
+        if n == 0:
+            return self.rec.arrays()
+        clean = np.array(self.clean).reshape(n, V, 6)
+        normals = self.rng.standard_normal((n, 2, 3, V, 3))
+        am = self.accel.apply(clean[:, :, :3], normals[:, 0])
+        wm = self.gyro.apply(clean[:, :, 3:], normals[:, 1])
+        t, k = np.array(self.times, dtype=float).reshape(n, 2).T
+        rows = n * V
+        self.rec.add(
+            time=np.repeat(t, V), arrival=np.repeat(t + self.cfg.latency, V), state_index=np.repeat(k.astype(np.int64), V),
+            value=np.concatenate([am, wm], axis=2).reshape(rows, 6), clean=clean.reshape(rows, 6),
+            src=np.tile(self.src, n), dst=np.full(rows, ""), vehicle=np.tile(self.vehicles, n),
+            bias=np.concatenate([self.accel.bias_series, self.gyro.bias_series], axis=2).reshape(rows, 6),
+        )
         return self.rec.arrays()

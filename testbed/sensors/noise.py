@@ -61,22 +61,20 @@ class TriadErrors:
         self.walk = np.zeros((n_triads, 3))
         self.gm = e.gm_sigma * z[2] if e.gm_tau > 0 else np.zeros((n_triads, 3))  # stationary start
 
-    def bias(self) -> np.ndarray:
-        """(V, 3) current total bias."""
-        return self.b0 + self.walk + self.gm
-
     def apply(self, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Measurements (n, V, 3) of clean samples x (n, V, 3); `bias_series` keeps the bias (n, V, 3)."""
         e, dt = self.e, self.dt
-        out = x + (self.K @ x[..., None])[..., 0]  # (I + K) x
-        out += self.b0
+        bias = np.broadcast_to(self.b0, x.shape).copy()
         if e.bias_walk > 0:  # terms with zero parameters are skipped (their normals are still drawn)
             walk = random_walk(self.walk, e.bias_walk, dt, normals[:, 1])
             self.walk = walk[-1]
-            out += walk
+            bias += walk
         if e.gm_tau > 0:
             gm = gauss_markov(self.gm, e.gm_sigma, e.gm_tau, dt, normals[:, 2])
             self.gm = gm[-1]
-            out += gm
+            bias += gm
+        self.bias_series = bias
+        out = x + (self.K @ x[..., None])[..., 0] + bias  # (I + K) x + b
         if e.noise_density > 0:
             out += white(e.noise_density, dt, normals[:, 0])
         return out
