@@ -86,7 +86,7 @@ def bench(what: str, json_path: Path | None = None) -> dict:
     elif what == "sensors":
         from testbed.sensors.bench import bench_sensors
 
-        result = {"sensors": bench_sensors()}
+        result = {"sensors": bench_sensors(repeat=3)}
         for k, rows in result["sensors"].items():
             if isinstance(rows, list) and rows:
                 _print_table(f"sensors: {k}", rows)
