@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve
 
 from estimators.core import Gaussian
 
@@ -443,15 +444,22 @@ class FusionState:
 
 
 def fusion_step(model: NetworkModel, state: FusionState, y: Sequence[np.ndarray], S: np.ndarray,
-                P: np.ndarray) -> tuple[FusionState, np.ndarray]:
+                P: np.ndarray, available: np.ndarray | None = None) -> tuple[FusionState, np.ndarray]:
     """One step of the estimator for all nodes: eqs. 18, 4, 6, 7 and 19.
 
     state: xhat (..., N, n), M (..., N, n, n); y: list of N measurements (..., m_i) of step k;
     S: effective masks (..., N, N, n) of what actually arrived (nominal T with dropped components
-    zeroed); P: (..., N, N). Returns the new state and lambda (..., N, n).
+    zeroed); P: (..., N, N). available: (..., N) bool or None (all): a node without a measurement
+    this step (e.g. a lost range) uses L_j = 0, so lambda_j = A xhat_j + B, and its bound is eq. 15
+    with L_j = 0 (Q_j = A M_j A^T); its y entry is ignored (may be NaN).
+    Returns the new state and lambda (..., N, n).
     """
     A, B = model.A, model.B
     L = gains(model, state.M)  # eq. 18
+    if available is not None:
+        av = np.asarray(available, bool)
+        L = [Lj * av[..., j, None, None] for j, Lj in enumerate(L)]
+        y = [np.where(av[..., j, None], y[j], 0.0) for j in range(len(y))]
     pred = state.xhat @ A.T + B  # A xhat_i + B, (..., N, n)
     lam = np.empty_like(state.xhat)
     for j, C in enumerate(model.C):
@@ -461,7 +469,7 @@ def fusion_step(model: NetworkModel, state: FusionState, y: Sequence[np.ndarray]
     # eq. 6 + eq. 7: xhat_i(k+1) = sum_j p_ij [T_ji lambda_j + (I - T_ji)(A xhat_i + B)]
     x_new = np.einsum("...ij,...jia,...ja->...ia", P, S, lam)
     x_new = x_new + np.einsum("...ij,...jia->...ia", P, 1.0 - S) * pred
-    M_new = bound_step(model, state.M, S, P, L)  # eq. 19 (see bound_step)
+    M_new = bound_step(model, state.M, S, P, L)  # eq. 19 (see bound_step); eq. 15 where L_j = 0
     return FusionState(xhat=x_new, M=M_new, k=state.k + 1), lam
 
 
@@ -590,6 +598,41 @@ def simulate(model: NetworkModel, net: FusionNetwork, *, mu0: np.ndarray, Sigma0
     comm = CommLog(components=np.stack(comps) if comps else np.zeros((0, N, N)), budget=budget)
     Mh = np.stack(Ms, 1) if faults is not None else np.stack([m[0] for m in Ms])
     return SimResult(truth=np.stack(xs, 1), xhat=np.stack(xh, 1), M=Mh, comm=comm)
+
+
+def uwb_pseudo_measurement(ranges: np.ndarray, anchors: np.ndarray, range_sigma: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Linear position pseudo-measurement from ranges to one anchor group (paper eqs. 21-23).
+
+    ranges: (..., m) measured ranges r_k (m) to the anchors a_1..a_m; anchors: (m, 3) known
+    positions (m, world ENU), the last one a_m is the reference; m >= 4 and the differences
+    a_k - a_m must span 3-D. range_sigma: 1 sigma of each range (m, white, independent).
+
+    r_k^2 = |p|^2 - 2 a_k.p + |a_k|^2; subtracting the reference's equation removes |p|^2:
+        2 (a_k - a_m)^T p = |a_k|^2 - |a_m|^2 - r_k^2 + r_m^2,   k = 1..m-1   (eqs. 21-22)
+    i.e. H p = z; p = (H^T H)^-1 H^T z (H invertible for m = 4), so y = p with C = I3 (eq. 23).
+    Noise by linear error propagation: dz = G dr with G = [-2 diag(r_1..r_{m-1}) | 2 r_m 1], so
+    cov(y) = sigma^2 H^+ G G^T H^+T, evaluated at the *measured* ranges (never the truth). The
+    second-order terms -dr_k^2 + dr_m^2 have zero mean, so y is unbiased to second order.
+    Returns y (..., 3) (m, world) and V (..., 3, 3) (m^2).
+    """
+    a = np.asarray(anchors, float)
+    r = np.asarray(ranges, float)
+    m = a.shape[0]
+    H = 2.0 * (a[:-1] - a[-1])  # (m-1, 3)
+    # eq. 22: z_k = |a_k|^2 - |a_m|^2 - r_k^2 + r_m^2
+    z = (a[:-1] ** 2).sum(-1) - (a[-1] ** 2).sum() - r[..., :-1] ** 2 + r[..., -1:] ** 2
+    # H^+ = (H^T H)^-1 H^T by Cholesky (H^T H is SPD when the anchor differences span 3-D)
+    Hp = cho_solve(cho_factor(H.T @ H), H.T)  # (3, m-1)
+    # eq. 23: y = H^+ z = p (C = I3)
+    y = z @ Hp.T
+    G = np.zeros(r.shape[:-1] + (m - 1, m))
+    idx = np.arange(m - 1)
+    G[..., idx, idx] = -2.0 * r[..., :-1]
+    G[..., :, -1] = 2.0 * r[..., -1:]
+    HG = Hp @ G  # (..., 3, m)
+    V = range_sigma ** 2 * HG @ np.swapaxes(HG, -1, -2)
+    return y, _sym(V)
 
 
 def comm_accounting(net: FusionNetwork, K: int) -> CommLog:

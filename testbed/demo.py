@@ -42,8 +42,8 @@ def demo(out: Path) -> None:
             keys = [k for k in scores if k.startswith("rmse_")]
             lines.append(f"  - {est}: " + ", ".join(f"{k} = {scores[k]}" for k in keys))
         print(lines[-1], flush=True)
-    reproduce("bandwidth", out / "reproduce-bandwidth", runs=50)
-    lines.append("- seed 000 paper-mode reproduction (50 runs): `reproduce-bandwidth/table.md`, `claims.json`")
+    reproduce("bandwidth", out / "reproduce-bandwidth", runs=20)
+    lines.append("- seed 000 reproduction, paper and uwb modes (20 runs each): `reproduce-bandwidth/table.md`, `claims.json`")
     video = render_run(out / VIDEO_RUN, width=640, height=360, max_seconds=30.0, progress=True)
     lines.append(f"- video: `{video.relative_to(out)}`")
     (out / "summary.md").write_text("\n".join(lines) + "\n")

@@ -226,3 +226,35 @@ def test_drops_and_node_failure_stay_bounded():
     assert bw.link_components(Se).sum() == 0 and (Se[:, range(4), range(4)] == 1).all()
     with pytest.raises(ValueError, match="Generator"):
         bw.LinkFaults(drop_prob=0.1).effective(T_SETS["T1"], 0, None, 1)
+
+
+# ------------------------------------------------------------------ UWB pseudo-measurement (eqs. 21-23)
+def test_uwb_pseudo_measurement_exact_and_V_by_finite_differences():
+    a = 20.0 * np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [0, 0, 0]])
+    p = np.array([13.0, 10.0, 10.17])
+    r = np.linalg.norm(p - a, axis=1)
+    y, V = bw.uwb_pseudo_measurement(r, a, 0.1)
+    assert np.allclose(y, p, atol=1e-10)  # eqs. 21-23 are exact on noise-free ranges
+    # V = sigma^2 J J^T with J = dy/dr (3, 4): check J by central differences
+    h = 1e-5
+    J = np.stack([(bw.uwb_pseudo_measurement(r + h * np.eye(4)[k], a, 0.1)[0]
+                   - bw.uwb_pseudo_measurement(r - h * np.eye(4)[k], a, 0.1)[0]) / (2 * h) for k in range(4)], 1)
+    assert np.allclose(V, 0.01 * J @ J.T, rtol=1e-6)
+    # batched ranges give the same as one at a time
+    yb, Vb = bw.uwb_pseudo_measurement(np.stack([r, r + 0.05]), a, 0.1)
+    assert np.allclose(yb[0], y) and np.allclose(Vb[0], V)
+
+
+def test_missing_measurement_predicts_only():
+    model = paper_model(0.1, True)
+    net = bw.FusionNetwork(select=T_SETS["T1"], weights=P_SETS["P1"], budget=BUDGET)
+    S, P = net.at(0)
+    st = bw.FusionState(xhat=np.zeros((4, 3)), M=np.broadcast_to(M0_PAPER, (4, 4, 3, 3))[0].copy())
+    y = [np.full(3, np.nan)] + [np.ones(3)] * 3
+    avail = np.array([False, True, True, True])
+    _, lam = bw.fusion_step(model, st, y, S, P, available=avail)
+    assert np.allclose(lam[0], model.B)  # lambda_1 = A xhat_1 + B, no innovation
+    L = bw.gains(model, st.M)
+    L[0] = np.zeros_like(L[0])
+    st1, _ = bw.fusion_step(model, st, y, S, P, available=avail)
+    assert np.allclose(st1.M, bw.bound_step(model, st.M, S, P, L))  # eq. 15 with L_1 = 0
