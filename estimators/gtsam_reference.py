@@ -58,9 +58,10 @@ def solve_gtsam(problem: CoopProblem, x0: np.ndarray | None = None, *, optimizer
     return X, P
 
 
-def bench(n_list=(18, 100, 1000), seed: int = 0) -> list[dict]:
+def bench(make_epoch, n_list=(18, 100, 1000), seed: int = 0) -> list[dict]:
     """estimators.factor_graph.bench_solvers with GTSAM as the reference: ours vs GTSAM solve times
-    (keys gtsam_solve_s, gtsam_solve_with_cov_s, max_pos_diff_vs_gtsam_m) and distributed rounds."""
+    (keys gtsam_solve_s, gtsam_solve_with_cov_s, max_pos_diff_vs_gtsam_m) and distributed rounds.
+    make_epoch(n, seed) -> (truth, CoopProblem): the epoch generator (e.g. testbed.synthetic.epoch_factory())."""
     from estimators.factor_graph import bench_solvers
 
-    return bench_solvers(n_list, seed, reference=solve_gtsam)
+    return bench_solvers(make_epoch, n_list, seed, reference=solve_gtsam)

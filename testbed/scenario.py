@@ -16,6 +16,7 @@ from typing import Literal
 
 from testbed.config import ConfigError, check, from_dict, set_dotted, to_dict
 from testbed.sensors.config import SensorsConfig
+from testbed.pipelines import check_pipeline
 from testbed.pipelines.config import PipelineConfig
 
 Vec3 = tuple[float, float, float]
@@ -262,6 +263,7 @@ class Scenario:
         except ValueError as e:
             key, msg = e.args if len(e.args) == 2 else ("", e.args[0])
             raise ValueError(f"sensors.{key}", msg) from None
+        check_pipeline(self)
 
     @property
     def vehicles(self) -> int:

@@ -92,6 +92,27 @@ def test_centralized_equals_gtsam(optimizer):
     assert all(is_spd(c) for c in ours.cov)
 
 
+def test_sparse_marginals_equal_dense_inverse_and_gtsam():
+    """Above 600 unknowns the marginal 3x3 blocks come from the supernodal selected inverse of a
+    sparse LDL^T factor, not from the full inverse: they equal the dense (A^T A)^-1 blocks and
+    GTSAM's marginals (250 UAVs, 750 unknowns). Measured: 8e-14 and 1.5e-8 relative."""
+    from estimators.factor_graph import _covariance
+
+    ep = make_epoch(250, seed=7, scale_box_to_density=True)
+    p = ep.problem
+    c = solve_centralized(p)
+    assert c.converged and 3 * p.n > 600
+    A, _ = whitened_system(p, c.positions)
+    full = _covariance(A)
+    idx = np.arange(p.n)
+    dense = full.reshape(p.n, 3, p.n, 3)[idx, :, idx, :]
+    scale = np.abs(dense).max(axis=(1, 2))[:, None, None]
+    assert np.all(np.abs(c.cov - dense) <= 1e-10 * scale)
+    _, Pg = gtsam_reference.solve_gtsam(p, x0=c.positions)
+    assert np.all(np.abs(c.cov - Pg) <= 1e-6 * scale)
+    assert all(is_spd(P) for P in c.cov)
+
+
 def test_centralized_step_control_from_a_bad_start():
     ep = make_epoch(18, seed=2)
     p = ep.problem

@@ -13,14 +13,26 @@ import numpy as np
 
 Pipeline = Callable[..., dict]
 _REGISTRY: dict[str, Pipeline] = {}
+_CHECKS: dict[str, Callable[..., None]] = {}
 
 
-def register(kind: str) -> Callable[[Pipeline], Pipeline]:
+def register(kind: str, check: Callable[..., None] | None = None) -> Callable[[Pipeline], Pipeline]:
+    """Register a pipeline; `check(scenario)` (optional) cross-checks the scenario at load time
+    (sensors the pipeline needs, vehicle numbers) and raises ConfigError."""
+
     def deco(fn: Pipeline) -> Pipeline:
         _REGISTRY[kind] = fn
+        if check is not None:
+            _CHECKS[kind] = check
         return fn
 
     return deco
+
+
+def check_pipeline(scenario) -> None:
+    """Run the scenario's pipeline cross-checks, if it has any (called by Scenario.check)."""
+    if scenario.pipeline is not None and scenario.pipeline.kind in _CHECKS:
+        _CHECKS[scenario.pipeline.kind](scenario)
 
 
 def run_pipeline(scenario, log: dict[str, np.ndarray], plots_dir: Path | None) -> dict:

@@ -1,4 +1,32 @@
-"""Seed 001 estimator pipeline (kind "coop-fg"): run log -> estimates, metrics, plots.
+"""Seed 001 estimator pipeline (kind "coop-fg"): run log -> epochs -> four estimators -> scores.
+
+Epochs. One epoch per GNSS sample instant (`gnss/time`; 1 Hz in coop-fg). The UWB ranges of an
+epoch are the `uwb` rows taken at the same controller tick (same `state_index`), i.e. the same
+physics state: the UWB rate must be a multiple of the GNSS rate (both divide the control rate),
+otherwise a GNSS epoch has no ranges and the pipeline refuses the scenario (ConfigError). Only
+tag-to-tag links (`uav{i}/uwb` - `uav{j}/uwb`) are used.
+
+The variable of UAV i is the position of its `uav{i}/uwb` site (ENU, m). The GNSS antenna must be
+that same site (`sensors.gnss.antenna = "uwb"`): then the fix and the ranges refer to one point
+and there is no lever arm (the estimator knows no attitude to rotate one). Truth for scoring is
+`gnss/clean` (the physics position of that site at the epoch); the estimators never see it.
+
+Inputs of the estimators, nothing else: `gnss/value` with the receiver's solution type
+`gnss/rtk` (a real receiver reports its fix type), `uwb/value`, `uwb/src`, `uwb/dst`, and the
+"known" noise model of [pipeline] (gnss_sigma_*, rtk_sigma_*, range_sigma, clock_ppm): a
+mismatch between these and the sensor tables is the configurable error of the known quantities.
+The UWB clock scale factor is absorbed: sigma_k^2 = range_sigma^2 + (clock_ppm 1e-6 d_k)^2 / 2
+(two-way ranging averages both clocks; <= 1.4 mm at 100 m). `uwb/nlos` is truth (scoring only).
+
+Estimators (metrics.json `estimators.*`):
+- gnss_only: the fix itself, covariance = the known GNSS covariance;
+- one_shot: the paper's distributed scheme, one broadcast of the GNSS fixes + one local step;
+- iterated: message iteration until every position change < tol or max_rounds (cap);
+- centralized: Gauss-Newton on the whole graph (estimators.factor_graph.solve_centralized).
+Faults (item 7): `silent_uav` stops broadcasting from `silent_from_s` on (it still receives,
+computes and ranges); each directed delivery is lost with probability `message_loss`, drawn from
+`stream_rng(seed, "links")`; receivers keep a neighbour's last message for `max_age` rounds
+(-1 = for the whole epoch). Tables start empty at every epoch.
 
 Must not import testbed.scenario, testbed.world or testbed.simulate at module level (the scenario
 module imports this one for its configuration dataclass).
@@ -6,18 +34,359 @@ module imports this one for its configuration dataclass).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
+from testbed.config import ConfigError, check
 from testbed.pipelines import register
+
+ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class CoopConfig:
-    """[pipeline] table of a seed 001 scenario."""
+    """[pipeline] table of a seed 001 scenario.
+
+    gnss_sigma_h, gnss_sigma_v / rtk_sigma_h, rtk_sigma_v: the GNSS noise the estimators assume,
+    1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`).
+    range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock scale factor
+    (ppm, 1 sigma per device), absorbed into the range variance.
+    robust: "none" (least squares) or "huber" range factors, threshold huber_delta (in sigmas).
+    neighbour_model: "prior" (the paper: neighbours' broadcasts as priors with their covariances)
+    or "fixed" (neighbours fixed, block-Jacobi: converges to the centralized optimum, slower).
+    damping: fraction of the local step applied (1 = the paper).
+    max_rounds: cap on message-iteration rounds per epoch; tol: stop when every position change
+    of a round is below tol (m).
+    message_loss: probability that one directed delivery is lost (stream "links").
+    max_age: rounds a receiver keeps a neighbour's last message (-1: the whole epoch).
+    silent_uav: 1-based UAV that stops broadcasting (0: none) at time silent_from_s (s) on.
+    plot_uavs: four 1-based UAVs for the error-vs-time figure (empty: chosen by neighbour count).
+    """
 
     kind: Literal["coop-fg"]
+    gnss_sigma_h: float = 1.5
+    gnss_sigma_v: float = 3.0
+    rtk_sigma_h: float = 0.02
+    rtk_sigma_v: float = 0.03
+    range_sigma: float = 0.10
+    clock_ppm: float = 20.0
+    robust: Literal["none", "huber"] = "none"
+    huber_delta: float = 1.345
+    neighbour_model: Literal["prior", "fixed"] = "prior"
+    damping: float = 1.0
+    max_rounds: int = 300
+    tol: float = 1e-3
+    message_loss: float = 0.0
+    max_age: int = -1
+    silent_uav: int = 0
+    silent_from_s: float = 0.0
+    plot_uavs: tuple[int, ...] = ()
+
+    def check(self) -> None:
+        for k in ("gnss_sigma_h", "gnss_sigma_v", "rtk_sigma_h", "rtk_sigma_v", "range_sigma", "huber_delta", "tol"):
+            check(getattr(self, k) > 0, k, f"must be positive, got {getattr(self, k)}")
+        check(self.clock_ppm >= 0, "clock_ppm", f"must be >= 0, got {self.clock_ppm}")
+        check(0 < self.damping <= 1, "damping", f"must be in (0, 1], got {self.damping}")
+        check(self.max_rounds >= 1, "max_rounds", f"must be at least 1, got {self.max_rounds}")
+        check(0 <= self.message_loss < 1, "message_loss", f"must be in [0, 1), got {self.message_loss}")
+        check(self.max_age >= -1, "max_age", f"must be -1 (keep) or >= 0 rounds, got {self.max_age}")
+        check(self.silent_uav >= 0, "silent_uav", f"must be 0 (none) or a 1-based UAV number, got {self.silent_uav}")
+        check(self.silent_from_s >= 0, "silent_from_s", f"must be >= 0 s, got {self.silent_from_s}")
+        check(len(self.plot_uavs) in (0, 4) and all(u >= 1 for u in self.plot_uavs), "plot_uavs",
+              f"must be empty or four 1-based UAV numbers, got {list(self.plot_uavs)}")
 
 
-@register("coop-fg")
+# ----------------------------------------------------------------------------------------------
+# Log -> epochs
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Epochs:
+    """The measurements of a run grouped by GNSS epoch (K epochs, N UAVs, UAV order 1..N).
+
+    time: (K,) s; gnss: (K, N, 3) m ENU fixes; is_rtk: (N,) bool (receiver fix type);
+    truth: (K, N, 3) m ENU physics position of the uwb sites (scoring only);
+    edges: list of K (m_k, 2) int arrays (0-based UAV indices); ranges: list of K (m_k,) m;
+    nlos: list of K (m_k,) bool (truth flag, diagnostics only).
+    """
+
+    time: np.ndarray
+    gnss: np.ndarray
+    is_rtk: np.ndarray
+    truth: np.ndarray
+    edges: list
+    ranges: list
+    nlos: list
+
+
+def _uav_index(names: np.ndarray, label: str) -> np.ndarray:
+    """'uav7/uwb' -> 6 (0-based). Raises ConfigError on a site that is not a UAV tag."""
+    out = np.empty(len(names), dtype=np.int64)
+    for k, s in enumerate(names):
+        head, _, site = str(s).partition("/")
+        if not head.startswith("uav") or site != "uwb":
+            raise ConfigError(f"pipeline coop-fg: {label} site {s!r} is not a UAV uwb tag")
+        out[k] = int(head[3:]) - 1
+    return out
+
+
+def check_scenario(scenario) -> None:
+    """Cross-checks of the scenario the pipeline needs; one ConfigError line each."""
+    s = scenario.sensors
+    if s.gnss is None or s.uwb is None:
+        raise ConfigError(f"{scenario.name}: pipeline coop-fg needs [sensors.gnss] and [sensors.uwb]")
+    if s.gnss.antenna != "uwb":
+        raise ConfigError(f"{scenario.name}: sensors.gnss.antenna: {s.gnss.antenna!r}; the coop-fg factor graph has one point per UAV, "
+                          "the UWB tag: set antenna = \"uwb\"")
+    ratio = s.uwb.rate_hz / s.gnss.rate_hz
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ConfigError(f"{scenario.name}: sensors.uwb.rate_hz: {s.uwb.rate_hz} Hz is not a multiple of sensors.gnss.rate_hz "
+                          f"{s.gnss.rate_hz} Hz; every GNSS epoch needs its UWB sample")
+    if not s.uwb.tag_links:
+        raise ConfigError(f"{scenario.name}: sensors.uwb.tag_links: false; coop-fg needs UAV-to-UAV ranges")
+    cfg = scenario.pipeline
+    if cfg.silent_uav > scenario.vehicles:
+        raise ConfigError(f"{scenario.name}: pipeline.silent_uav: {cfg.silent_uav}, the scenario has {scenario.vehicles} UAVs")
+    if any(u > scenario.vehicles for u in cfg.plot_uavs):
+        raise ConfigError(f"{scenario.name}: pipeline.plot_uavs: {list(cfg.plot_uavs)}, the scenario has {scenario.vehicles} UAVs")
+
+
+def epochs_from_log(log: dict[str, np.ndarray], n: int) -> Epochs:
+    """Group the gnss and uwb streams of a run log into epochs (see Epochs). n: number of UAVs."""
+    gi = log["gnss/state_index"]
+    ticks = np.unique(gi)
+    K = ticks.size
+    gnss = np.full((K, n, 3), np.nan)
+    truth = np.full((K, n, 3), np.nan)
+    veh = log["gnss/vehicle"] - 1
+    row = np.searchsorted(ticks, gi)
+    gnss[row, veh] = log["gnss/value"]
+    truth[row, veh] = log["gnss/clean"]
+    if np.isnan(gnss).any():
+        raise ConfigError("pipeline coop-fg: every UAV needs a GNSS fix at every epoch (sensors.gnss.vehicles = [] : all)")
+    is_rtk = np.zeros(n, bool)
+    is_rtk[veh] = log["gnss/rtk"]
+    ui = log["uwb/state_index"]
+    tag = np.char.endswith(log["uwb/src"].astype(str), "/uwb") & np.char.startswith(log["uwb/src"].astype(str), "uav") \
+        & np.char.startswith(log["uwb/dst"].astype(str), "uav")
+    src = _uav_index(log["uwb/src"][tag], "uwb/src")
+    dst = _uav_index(log["uwb/dst"][tag], "uwb/dst")
+    ui, val, nl = ui[tag], log["uwb/value"][tag, 0], log["uwb/nlos"][tag]
+    order = np.argsort(ui, kind="stable")
+    bounds = np.searchsorted(ui[order], np.concatenate([ticks, [np.iinfo(np.int64).max]]))
+    edges, ranges, nlos = [], [], []
+    for k in range(K):
+        sel = order[bounds[k]:bounds[k + 1]]
+        edges.append(np.stack([src[sel], dst[sel]], axis=1))
+        ranges.append(val[sel].astype(float))
+        nlos.append(nl[sel].astype(bool))
+    t = log["time"][ticks]
+    return Epochs(t, gnss, is_rtk, truth, edges, ranges, nlos)
+
+
+# ----------------------------------------------------------------------------------------------
+# Estimation
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class CoopEstimates:
+    """Per-epoch results of the four estimators (K epochs, N UAVs).
+
+    pos, cov: {name: (K, N, 3) m ENU, (K, N, 3, 3) m^2}; rounds, messages, bytes: {name: (K,)};
+    converged: {name: (K,) bool}; joint_nees: (K,) centralized NEES of all 3N coordinates with
+    the full covariance (3N dof); epochs: the input.
+    """
+
+    epochs: Epochs
+    pos: dict
+    cov: dict
+    rounds: dict
+    messages: dict
+    bytes: dict
+    converged: dict
+    joint_nees: np.ndarray
+
+
+def gnss_covariances(cfg: CoopConfig, is_rtk: np.ndarray) -> np.ndarray:
+    """Known GNSS covariances (N, 3, 3) m^2, diagonal (s_h^2, s_h^2, s_v^2) by fix type."""
+    sig = np.where(is_rtk[:, None], [cfg.rtk_sigma_h, cfg.rtk_sigma_h, cfg.rtk_sigma_v],
+                   [cfg.gnss_sigma_h, cfg.gnss_sigma_h, cfg.gnss_sigma_v])
+    cov = np.zeros((is_rtk.size, 3, 3))
+    cov[:, [0, 1, 2], [0, 1, 2]] = sig ** 2
+    return cov
+
+
+def estimate(cfg: CoopConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
+    """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
+    from estimators.core import nees
+    from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
+    from testbed.rng import stream_rng
+
+    K, n = epochs.gnss.shape[:2]
+    rng = stream_rng(seed, "links")
+    Sg = gnss_covariances(cfg, epochs.is_rtk)
+    huber = cfg.huber_delta if cfg.robust == "huber" else None
+    max_age = None if cfg.max_age < 0 else cfg.max_age
+    pos = {w: np.empty((K, n, 3)) for w in which}
+    cov = {w: np.empty((K, n, 3, 3)) for w in which}
+    rounds = {w: np.zeros(K, dtype=np.int64) for w in which}
+    messages = {w: np.zeros(K, dtype=np.int64) for w in which}
+    nbytes = {w: np.zeros(K, dtype=np.int64) for w in which}
+    conv = {w: np.ones(K, dtype=bool) for w in which}
+    joint = np.full(K, np.nan)
+    for k in range(K):
+        e, d = epochs.edges[k], epochs.ranges[k]
+        # clock scale factor absorbed: var = sigma_d^2 + (ppm 1e-6 d)^2 / 2 (mean of two clocks)
+        sig = np.sqrt(cfg.range_sigma ** 2 + 0.5 * (cfg.clock_ppm * 1e-6 * d) ** 2)
+        prob = CoopProblem(gnss_pos=epochs.gnss[k], gnss_cov=Sg, edges=e, ranges=d, range_sigma=sig)
+        silent = {cfg.silent_uav - 1: 0} if cfg.silent_uav and epochs.time[k] >= cfg.silent_from_s else None
+        for w in which:
+            if w == "centralized":
+                res = solve_centralized(prob, huber=huber, covariance="full")
+                pos[w][k], cov[w][k] = res.positions, res.cov
+                rounds[w][k], conv[w][k] = res.iterations, res.converged
+                # every UAV uploads its fix + covariance (9 floats) and the ranges it initiated
+                # (value + neighbour id): n messages, 8 (9 n + 2 m) bytes
+                messages[w][k], nbytes[w][k] = n, 8 * (9 * n + 2 * prob.m)
+                joint[k] = float(nees((res.positions - epochs.truth[k]).reshape(-1), res.cov_full))
+                continue
+            mode = {"gnss_only": "gnss", "one_shot": "single", "iterated": "iterate"}[w]
+            loss = cfg.message_loss if mode != "gnss" else 0.0
+            res = solve_distributed(prob, mode=mode, neighbour_model=cfg.neighbour_model, max_rounds=cfg.max_rounds,
+                                    tol=cfg.tol, huber=huber, silent_from=silent, loss_prob=loss,
+                                    rng=rng if loss > 0 else None, max_age=max_age, damping=cfg.damping)
+            pos[w][k], cov[w][k] = res.positions, res.cov
+            rounds[w][k], conv[w][k] = res.rounds, res.converged
+            messages[w][k], nbytes[w][k] = res.messages, res.bytes_sent
+    return CoopEstimates(epochs, pos, cov, rounds, messages, nbytes, conv, joint)
+
+
+# ----------------------------------------------------------------------------------------------
+# Scores
+# ----------------------------------------------------------------------------------------------
+def score(est: CoopEstimates) -> dict:
+    """The `estimators` object of metrics.json (see the module docstring for the keys)."""
+    from estimators.core import nees
+    from testbed.metrics import anees, anees_interval, rmse
+
+    ep = est.epochs
+    K, n = ep.gnss.shape[:2]
+    spp = ~ep.is_rtk
+    lo, hi = anees_interval(3, K * n)
+    out = {}
+    for w in est.pos:
+        err = est.pos[w] - ep.truth  # (K, N, 3)
+        per_uav = rmse(err, axis=0)  # (N,)
+        ne = nees(err, est.cov[w])  # (K, N)
+        s = {
+            "rmse_position_m": [float(x) for x in per_uav],
+            "rmse_position_mean_m": float(np.mean(per_uav)),
+            "rmse_position_spp_mean_m": float(np.mean(per_uav[spp])),
+            "rmse_position_rtk_mean_m": float(np.mean(per_uav[~spp])) if (~spp).any() else float("nan"),
+            "iterations_mean": float(np.mean(est.rounds[w])),
+            "iterations_max": int(np.max(est.rounds[w])),
+            "converged_fraction": float(np.mean(est.converged[w])),
+            "messages_per_epoch": float(np.mean(est.messages[w])),
+            "bytes_per_epoch": float(np.mean(est.bytes[w])),
+            "anees": anees(err, est.cov[w]),
+            "anees_spp": float(np.mean(ne[:, spp])),
+            "anees_rtk": float(np.mean(ne[:, ~spp])) if (~spp).any() else float("nan"),
+            "anees_interval_99": [lo, hi],
+            "epochs": int(K),
+        }
+        if w == "centralized":
+            jlo, jhi = anees_interval(3 * n, K)
+            s["anees_joint"] = float(np.mean(est.joint_nees))
+            s["anees_joint_dof"] = 3 * n
+            s["anees_joint_interval_99"] = [jlo, jhi]
+        out[w] = s
+    nl = np.concatenate(ep.nlos) if ep.nlos else np.zeros(0, bool)
+    out["iterated"]["nlos_fraction"] = float(nl.mean()) if nl.size else 0.0
+    return out
+
+
+def neighbour_counts(epochs: Epochs) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over epochs of each UAV's number of UWB neighbours and of RTK neighbours: (N,), (N,)."""
+    K, n = epochs.gnss.shape[:2]
+    nb = np.zeros(n)
+    nr = np.zeros(n)
+    for e in epochs.edges:
+        np.add.at(nb, e[:, 0], 1.0)
+        np.add.at(nb, e[:, 1], 1.0)
+        np.add.at(nr, e[:, 0], epochs.is_rtk[e[:, 1]].astype(float))
+        np.add.at(nr, e[:, 1], epochs.is_rtk[e[:, 0]].astype(float))
+    return nb / K, nr / K
+
+
+def choose_four(epochs: Epochs) -> list[int]:
+    """Four SPP UAVs (1-based) with different neighbour counts, like the paper's UAVs 1, 7, 12, 13:
+    the SPP UAVs sorted by (mean neighbours, RTK neighbours, number), taken at the 0, 1/3, 2/3 and
+    1 quantiles of that order."""
+    nb, nr = neighbour_counts(epochs)
+    spp = np.flatnonzero(~epochs.is_rtk)
+    order = spp[np.lexsort((spp, nr[spp], nb[spp]))]
+    picks = np.round(np.linspace(0, order.size - 1, 4)).astype(int)
+    return [int(order[p]) + 1 for p in picks]
+
+
+# ----------------------------------------------------------------------------------------------
+# Plots
+# ----------------------------------------------------------------------------------------------
+def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: str) -> Path:
+    """Figure 6: position error norm (m) against time for four UAVs (1-based), every estimator."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    nb, nr = neighbour_counts(est.epochs)
+    fig, axes = plt.subplots(len(uavs), 1, figsize=(8, 2.0 * len(uavs) + 0.6), sharex=True)
+    for ax, u in zip(np.atleast_1d(axes), uavs):
+        for c, w in enumerate(est.pos):
+            e = np.linalg.norm(est.pos[w][:, u - 1] - est.epochs.truth[:, u - 1], axis=1)
+            ax.plot(est.epochs.time, e, lw=0.8, color=f"C{c}", label=w)
+        ax.set_yscale("log")
+        ax.set_ylabel("|error| [m]")
+        ax.set_title(f"UAV {u}: {nb[u - 1]:.1f} neighbours, {nr[u - 1]:.1f} RTK neighbours", fontsize=9)
+        ax.grid(alpha=0.3)
+    np.atleast_1d(axes)[0].legend(fontsize=7, ncol=4, loc="upper right")
+    np.atleast_1d(axes)[-1].set_xlabel("time [s]")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Path) -> None:
+    """Figure 6, the iterated error of the first chosen UAV with its own 3-sigma envelope (shows
+    the over-confidence), the centralized one likewise, and the mean RMSE per estimator."""
+    from testbed.plots import compare_bars, error_envelope
+
+    plot_error_vs_time(est, uavs, plots_dir / "fig6_error_vs_time.png", "Position error of four UAVs")
+    u = uavs[0] - 1
+    for w in ("iterated", "centralized"):
+        if w in est.pos:
+            err = est.pos[w][:, u] - est.epochs.truth[:, u]
+            sig = np.sqrt(np.diagonal(est.cov[w][:, u], axis1=1, axis2=2))
+            error_envelope(est.epochs.time, err, sig, plots_dir / f"{w}_uav{u + 1}_envelope.png",
+                           title=f"{w}: UAV {u + 1} position error and its own 3-sigma", ylabel="m", labels=("E", "N", "U"))
+    names = list(scores)
+    means = np.array([scores[w]["rmse_position_mean_m"] for w in names])
+    compare_bars(names, means, means, means, plots_dir / "rmse_mean.png", title="Mean per-UAV position RMSE",
+                 ylabel="RMSE [m]")
+
+
+@register("coop-fg", check=check_scenario)
 def run(scenario, log, plots_dir):
-    raise NotImplementedError("the seed 001 pipeline is being written")
+    """Pipeline entry: (scenario, run log, plots dir or None) -> metrics.json `estimators`."""
+    check_scenario(scenario)
+    ep = epochs_from_log(log, scenario.vehicles)
+    est = estimate(scenario.pipeline, ep, scenario.seed)
+    scores = score(est)
+    uavs = list(scenario.pipeline.plot_uavs) or choose_four(ep)
+    if plots_dir is not None:
+        write_plots(est, scores, uavs, Path(plots_dir))
+    return scores
