@@ -59,7 +59,7 @@ import numpy as np
 from scipy import linalg
 from scipy.stats import norm
 
-from estimators.core import Gaussian, joseph_update, kalman_gain, kf_predict, symmetrize
+from estimators.core import Gaussian, kf_predict, symmetrize
 from estimators.phase_model import (
     N_STATE,
     ROWS_PER_MASTER,
@@ -113,6 +113,9 @@ class PhaseMeasurement:
         as reported by the masters' own navigation (an input stream, not truth);
     sigma_range (m), sigma_range_rate (m/s): 1-sigma noise, scalars or arrays broadcastable to (M, 3, 3);
     valid_range, valid_range_rate: optional (M, 3, 3) bool masks (False = missing / flagged).
+    rate_window: None = the rates are instantaneous (the paper's eq. 10); W (s, scalar or
+        (M, 3, 3)) = each rate is the mean range rate over [t - W, t] (eq. 7 as measured; see
+        phase_model.measurement_model).
     Non-finite ranges or rates are treated as missing.
     """
 
@@ -124,6 +127,7 @@ class PhaseMeasurement:
     sigma_range_rate: float | np.ndarray = 0.1
     valid_range: np.ndarray | None = None
     valid_range_rate: np.ndarray | None = None
+    rate_window: float | np.ndarray | None = None
 
     @property
     def n_masters(self) -> int:
@@ -171,7 +175,9 @@ class UpdateInfo:
        NaN everywhere if the gate is disabled);
     used: rows that entered the update; rejected: indices of rows rejected by the gate;
     rejected_labels: (master, kind, slot i, antenna j) of each rejected row (see phase_model.row_label);
-    nis: nu^T S^-1 nu over the used rows, dof = number of used rows; threshold: the |w| threshold.
+    nis: nu^T S^-1 nu over the used rows, dof = number of used rows; threshold: the |w| threshold;
+    gain: the gain K (n, number of used rows), columns in the order of the used rows (for a
+    covariance analysis of the filter against another truth model, e.g. Gelb 1974 ch. 7).
     """
 
     innovation: np.ndarray
@@ -183,6 +189,7 @@ class UpdateInfo:
     nis: float = 0.0
     dof: int = 0
     threshold: float = np.inf
+    gain: np.ndarray | None = None
 
 
 def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.ndarray,
@@ -192,8 +199,14 @@ def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.nda
 
     belief: prior (n,); z, hx, r_var: (m,); H: (m, n); valid: (m,) bool or None (all rows).
     Rows with valid False or non-finite z are skipped; the gate may reject more (see module doc).
-    Covariance by the Joseph form (eq. 21); gain by a Cholesky solve (eq. 20).
     labels: optional callable row -> label for UpdateInfo.rejected_labels.
+
+    Gain in information form: R is diagonal and m (90) > n (18), so instead of factorizing the
+    m x m innovation covariance S the update factorizes the n x n information matrix
+        A = P^-1 + H^T R^-1 H,   X = A^-1 H^T,   K = X R^-1 = P H^T S^-1     (eq. 20, Woodbury)
+    and the same X gives the gate's S^-1 nu and diag(S^-1) for free:
+        S^-1 = R^-1 - R^-1 H A^-1 H^T R^-1.
+    The covariance is still the Joseph form of eq. 21 with that gain (not A^-1).
     """
     z = np.asarray(z, float)
     m_all = z.shape[0]
@@ -204,26 +217,24 @@ def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.nda
     w_all = np.full(m_all, np.nan)
     nn_all = np.full(m_all, np.nan)
     P = belief.cov
-    # for diag(S^-1) in O(m n^2) instead of O(m^3): S^-1 = R^-1 - R^-1 H (P^-1 + H^T R^-1 H)^-1 H^T R^-1
-    P_inv = linalg.cho_solve(linalg.cho_factor(P), np.eye(P.shape[0])) if gate.enabled else None
     rejected: list[int] = []
     thr = gate.threshold(rows.size) if gate.enabled else np.inf
     if rows.size == 0:
         info = UpdateInfo(nu_all, nn_all, w_all, np.zeros(m_all, bool), np.array([], int), (), 0.0, 0, thr)
         return belief, info
+    P_inv = linalg.cho_solve(linalg.cho_factor(P, check_finite=False), np.eye(P.shape[0]), check_finite=False)
     while True:
         Hr, nu = H[rows], nu_all[rows]
-        PHt = P @ Hr.T
-        # eq. 20: innovation covariance H P H^T + R
-        S = symmetrize(Hr @ PHt + np.diag(r_var[rows]))
-        cf = linalg.cho_factor(S)
-        Sinv_nu = linalg.cho_solve(cf, nu)
+        r_inv = 1.0 / r_var[rows]
+        # eq. 20 in information form: A = P^-1 + H^T R^-1 H, X = A^-1 H^T
+        A = symmetrize(P_inv + Hr.T @ (r_inv[:, None] * Hr))
+        X = linalg.cho_solve(linalg.cho_factor(A, check_finite=False), Hr.T, check_finite=False)
+        # Woodbury: S^-1 nu = R^-1 nu - R^-1 H X R^-1 nu
+        Rnu = r_inv * nu
+        Sinv_nu = Rnu - r_inv * (Hr @ (X @ Rnu))
         if not gate.enabled:
             break
-        r_inv = 1.0 / r_var[rows]
-        A = P_inv + Hr.T @ (r_inv[:, None] * Hr)
-        X = linalg.cho_solve(linalg.cho_factor(symmetrize(A)), Hr.T)
-        Sinv_diag = r_inv - r_inv ** 2 * np.einsum("kn,nk->k", Hr, X)
+        Sinv_diag = r_inv - r_inv ** 2 * (Hr * X.T).sum(axis=1)
         # Baarda w-test statistic per row
         w = Sinv_nu / np.sqrt(Sinv_diag)
         w_all[rows] = w
@@ -233,18 +244,21 @@ def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.nda
             rows = np.delete(rows, k)
             continue
         break
-    nn_all[rows] = nu / np.sqrt(np.diag(S))
-    # eq. 20: K = P H^T (H P H^T + R)^-1
-    K = kalman_gain(PHt, S)
+    # S_kk = H_k P H_k^T + r_k, for the normalized innovations
+    S_diag = ((Hr @ P) * Hr).sum(axis=1) + r_var[rows]
+    nn_all[rows] = nu / np.sqrt(S_diag)
+    # eq. 20: K = P H^T (H P H^T + R)^-1 = A^-1 H^T R^-1
+    K = X * r_inv[None, :]
     # eq. 19: x = x_pred + K (z - h(x_pred))
     x = belief.mean + K @ nu
-    # eq. 21: Joseph form
-    Pn = joseph_update(P, K, Hr, np.diag(r_var[rows]))
+    # eq. 21: Joseph form, with R diagonal: K R K^T = (K r) K^T
+    I_KH = np.eye(P.shape[0]) - K @ Hr
+    Pn = symmetrize(I_KH @ P @ I_KH.T + (K * r_var[rows][None, :]) @ K.T)
     used = np.zeros(m_all, bool)
     used[rows] = True
     lab = tuple(labels(r) for r in rejected) if labels is not None else ()
     info = UpdateInfo(nu_all, nn_all, w_all, used, np.array(rejected, int), lab,
-                      float(nu @ Sinv_nu), int(rows.size), thr)
+                      float(nu @ Sinv_nu), int(rows.size), thr, K)
     return Gaussian(x, Pn), info
 
 
@@ -261,11 +275,13 @@ def update(belief: Gaussian, measurement: PhaseMeasurement, gate: Gate = Gate(),
     """
     z, r_var, valid = measurement.stacked()
     # eq. 17, 26-28: h and H at the predicted state
-    hx, H = measurement_model(belief.mean, measurement.master_pos, measurement.master_vel)
+    hx, H = measurement_model(belief.mean, measurement.master_pos, measurement.master_vel,
+                              rate_window=measurement.rate_window)
     post, info = linearized_update(belief, z, hx, H, r_var, valid, gate, labels=row_label)
     for _ in range(iterations - 1):
         xi = post.mean
-        hx, H = measurement_model(xi, measurement.master_pos, measurement.master_vel)
+        hx, H = measurement_model(xi, measurement.master_pos, measurement.master_vel,
+                                  rate_window=measurement.rate_window)
         # h(x) ~ h(x_i) + H_i (x - x_i), written about the prior mean x_p: hx_p = h(x_i) + H_i (x_p - x_i)
         post, _ = linearized_update(belief, z, hx + H @ (belief.mean - xi), H, r_var, info.used, NO_GATE)
     return post, info
@@ -325,13 +341,16 @@ def run_filter(prior: Gaussian, times: np.ndarray, measurements, q: float = DEFA
 # ------------------------------------------------------------------------------------------------
 def pcrb(states: np.ndarray, times: np.ndarray, master_pos: np.ndarray, master_vel: np.ndarray,
          P0: np.ndarray, sigma_range: float | np.ndarray, sigma_range_rate: float | np.ndarray,
-         q: float = DEFAULT_Q, valid: np.ndarray | None = None) -> np.ndarray:
+         q: float = DEFAULT_Q, valid: np.ndarray | None = None,
+         rate_window: float | np.ndarray | None = None) -> np.ndarray:
     """PCRB covariance per step for the linear-Gaussian CV dynamics + nonlinear phase measurements.
 
     states: (K, 18) state trajectory at which H is evaluated (the scorer passes the true one);
     times: (K,) s; master_pos, master_vel: (K, M, 3, 3) or (M, 3, 3) (constant); P0: (18, 18)
-    prior covariance at times[0]; sigmas as in PhaseMeasurement (scalars or (M, 3, 3));
-    valid: optional (K, 18 M) bool rows available per step.
+    prior covariance at times[0]; sigmas as in PhaseMeasurement (scalars or (M, 3, 3)), or
+    (K, M, 3, 3) per step;
+    valid: optional (K, 18 M) bool rows available per step; rate_window: None (instantaneous
+    rates) or the eq. 7 window W (s): scalar, (M, 3, 3), or (K, M, 3, 3) per step.
     Same timing as run_filter: measurements at every step including k = 0:
         J_0 = P0^-1 + H_0^T R^-1 H_0,
         J_k = (Q + Phi J_{k-1}^-1 Phi^T)^-1 + H_k^T R^-1 H_k    (additive Gaussian noise, linear
@@ -347,8 +366,11 @@ def pcrb(states: np.ndarray, times: np.ndarray, master_pos: np.ndarray, master_v
         Vs = np.broadcast_to(Vs, (K,) + Vs.shape)
     M = Xs.shape[1]
     shape = (M, 3, 3)
-    r_inv = 1.0 / stack_rows(np.broadcast_to(np.asarray(sigma_range, float) ** 2, shape),
-                             np.broadcast_to(np.asarray(sigma_range_rate, float) ** 2, shape))
+    def _r_inv(k: int) -> np.ndarray:
+        sr, sd = (np.asarray(v, float) for v in (sigma_range, sigma_range_rate))
+        sr, sd = (v[k] if v.ndim == 4 else v for v in (sr, sd))
+        return 1.0 / stack_rows(np.broadcast_to(sr ** 2, shape), np.broadcast_to(sd ** 2, shape))
+
     out = np.empty((K, N_STATE, N_STATE))
     I = np.eye(N_STATE)
     C = np.asarray(P0, float)
@@ -357,7 +379,9 @@ def pcrb(states: np.ndarray, times: np.ndarray, master_pos: np.ndarray, master_v
             dt = float(times[k] - times[k - 1])
             F = transition(dt)
             C = symmetrize(F @ C @ F.T + process_noise(dt, q))
-        _, H = measurement_model(states[k], Xs[k], Vs[k])
+        W = None if rate_window is None else (rate_window[k] if np.ndim(rate_window) == 4 else rate_window)
+        _, H = measurement_model(states[k], Xs[k], Vs[k], rate_window=W)
+        r_inv = _r_inv(k)
         wts = r_inv if valid is None else r_inv * np.asarray(valid[k], bool)
         # J = (Q + Phi J^-1 Phi^T)^-1 + H^T R^-1 H
         J = linalg.cho_solve(linalg.cho_factor(C), I) + H.T @ (wts[:, None] * H)

@@ -120,7 +120,8 @@ def row_label(row: int) -> tuple[int, str, int, int]:
 
 
 def measurement_model(x: np.ndarray, master_pos: np.ndarray, master_vel: np.ndarray,
-                      jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+                      jacobian: bool = True, rate_window: float | np.ndarray | None = None,
+                      ) -> tuple[np.ndarray, np.ndarray | None]:
     """h(x) and its analytic Jacobian for M masters (paper eq. 12, 25-28, derived anew).
 
     x: (18,) follower antenna state in N (m, m/s); master_pos, master_vel: (M, 3, 3) master antenna
@@ -134,6 +135,14 @@ def measurement_model(x: np.ndarray, master_pos: np.ndarray, master_vel: np.ndar
         d rdot / d x_j = (w - u rdot)^T / r = w^T / r - d^T (d . w) / r^3,
         d rdot / d v_j = u^T,
     and zero on the other antennas' blocks.
+
+    rate_window: None = the paper's instantaneous range rate (eq. 10). Otherwise W (s), a scalar
+    or (M, 3, 3) (entries > 0): the rate rows model eq. 7 as it is really measured, the MEAN
+    range rate over the window [t - W, t], i.e. (r(t) - r(t - W)) / W, with the follower antenna
+    moved back along the constant-velocity model (eq. 24), x_j(t - W) = x_j - W v_j, and the
+    master antenna likewise, X0(t - W) = X0 - W V0. With d0 = d - W w, r0 = |d0|, u0 = d0 / r0:
+        h = (r - r0) / W,   d h / d x_j = (u - u0)^T / W,   d h / d v_j = u0^T,
+    which tends to eq. 10 and its Jacobian as W -> 0.
     """
     X = np.asarray(x, dtype=float)
     P = X[:9].reshape(3, 3)
@@ -147,23 +156,35 @@ def measurement_model(x: np.ndarray, master_pos: np.ndarray, master_vel: np.ndar
     # eq. 5: r_ij = |X_i0 - X_j|
     r = np.linalg.norm(d, axis=-1)
     u = d / r[..., None]
-    # eq. 10 (relative velocity): rdot_ij = u_ij . (v_j - v_i0)
-    rdot = np.einsum("mijk,mijk->mij", u, w)
+    if rate_window is None:
+        # eq. 10 (relative velocity): rdot_ij = u_ij . (v_j - v_i0)
+        rdot = np.einsum("mijk,mijk->mij", u, w)
+    else:
+        # eq. 7 as measured: mean rate over [t - W, t] = (r(t) - r(t - W)) / W, CV back-propagation
+        W = np.broadcast_to(np.asarray(rate_window, dtype=float), r.shape)[..., None]
+        d0 = d - W * w
+        r0 = np.linalg.norm(d0, axis=-1)
+        u0 = d0 / r0[..., None]
+        rdot = (r - r0) / W[..., 0]
     # eq. 12 / 25: per master 9 ranges then 9 range rates
     h = stack_rows(r, rdot)
     if not jacobian:
         return h, None
-    # eq. 28 (corrected): range-rate row on the position block
-    g = (w - u * rdot[..., None]) / r[..., None]
-    E = np.eye(3)
-    # place the (M, 3, 3, 3) row vectors on antenna j's 3 columns: (M, 3, 3, 3 [antenna], 3 [xyz])
-    u_blk = np.einsum("jJ,mijk->mijJk", E, u).reshape(M, 9, 9)
-    g_blk = np.einsum("jJ,mijk->mijJk", E, g).reshape(M, 9, 9)
-    H = np.zeros((M, 2, 9, 18))
-    # eq. 27: range rows [A_j, 0]; range-rate rows [Rdot_pos, Rdot_vel]
-    H[:, 0, :, :9] = u_blk
-    H[:, 1, :, :9] = g_blk
-    H[:, 1, :, 9:] = u_blk
+    if rate_window is None:
+        # eq. 28 (corrected): range-rate row on the position block
+        g = (w - u * rdot[..., None]) / r[..., None]
+        uv = u
+    else:
+        # window form: d h / d x_j = (u - u0) / W, d h / d v_j = u0
+        g = (u - u0) / W
+        uv = u0
+    # rows (master m, kind, slot i, antenna j); each row lives on antenna j's 3 columns
+    H = np.zeros((M, 2, 3, 3, 18))
+    for j in range(3):
+        # eq. 27: range rows [A_j, 0]; range-rate rows [Rdot_pos, Rdot_vel]
+        H[:, 0, :, j, 3 * j:3 * j + 3] = u[:, :, j]
+        H[:, 1, :, j, 3 * j:3 * j + 3] = g[:, :, j]
+        H[:, 1, :, j, 9 + 3 * j:12 + 3 * j] = uv[:, :, j]
     return h, H.reshape(M * ROWS_PER_MASTER, N_STATE)
 
 

@@ -376,3 +376,20 @@ def test_iterated_update_reduces_first_epoch_linearization_error():
     one, _ = update(prior, m, gate=NO_GATE)
     three, _ = update(prior, m, gate=NO_GATE, iterations=3)
     assert np.linalg.norm(three.mean - states[0]) < np.linalg.norm(one.mean - states[0])
+
+
+def test_window_rate_model_jacobian_and_limit():
+    """eq. 7 as measured (mean rate over [t - W, t]): analytic Jacobian vs central differences at
+    random states, and the window model tends to eq. 10 as W -> 0."""
+    rng = np.random.default_rng(21)
+    for _ in range(5):
+        x, _, _ = _random_state(rng)
+        X0 = rng.uniform(-150, 150, (5, 3, 3))
+        V0 = rng.normal(0, 3, (5, 3, 3))
+        W = rng.uniform(0.1, 0.7, (5, 3, 3))
+        h, H = measurement_model(x, X0, V0, rate_window=W)
+        Hn = _central_jacobian(lambda y: measurement_model(y, X0, V0, jacobian=False, rate_window=W)[0], x, 1e-3)
+        assert np.abs(H - Hn).max() <= 1e-6 * np.abs(H).max()
+        h0, H0 = measurement_model(x, X0, V0)
+        h1, H1 = measurement_model(x, X0, V0, rate_window=1e-6)
+        assert np.abs(h1 - h0).max() < 1e-4 and np.abs(H1 - H0).max() < 1e-4

@@ -1,23 +1,439 @@
 """Seed 003 estimator pipeline (kind "phase-ekf"): run log -> estimates, metrics, plots.
 
-Must not import testbed.scenario, testbed.world or testbed.simulate at module level (the scenario
-module imports this one for its configuration dataclass).
+Inputs the estimator gets (nothing else):
+- the `phase` stream: per output epoch and link (master m, slot i, follower antenna j) the
+  ambiguity-resolved range r_hat (m) and the eq. 7 range rate (m/s), `phase/rate_periods`;
+- the masters' own navigation solution `phase/master_pos`, `phase/master_vel` (world, m, m/s);
+- configured knowns from this [pipeline] table (filter noise, q, initial-error model, the
+  follower's antenna lever arms for the prior spread) and the sensor's phase period
+  T = 1 / sensors.phase.phase_rate_hz (an instrument setting, not truth);
+- the planned initial state of the follower: the scenario's reference trajectory at the first
+  epoch (testbed.reference; the plan, not the MuJoCo state), to which the initial error is added.
+
+Navigation frame N = body frame (FLU) of master `nav_master` (3, on the symmetry axis). Its pose is
+derived every epoch from ITS OWN antennas in the master_pos/master_vel stream (eq. 29-30 applied
+to the master: origin = mid wing tips, axes from the antenna triangle, Euler rates from the antenna
+velocities), and every master antenna is expressed in N:
+    X_N = R^T (X_W - p),   V_N = d/dt X_N = R^T (V_W - v) + (dR/dt)^T (X_W - p).
+Ranges are frame-free. The truth for scoring is expressed the same way with master 3's TRUE pose
+(truth/pos, truth/vel, truth/quat, truth/omega). In prescribed mode master 3 hovers level with yaw
+0 at trajectory.nav_origin, so N is the world frame shifted; in flown mode it is the frame of the
+hovering quadrotor (its small motion, if any, is carried by R, p and their rates).
+
+Range-rate rows (eq. 7 as the sensor really measures it): the reported rate is the mean over the
+window W = rate_periods T (0.7 s by default) ending at the epoch, i.e. (r(t) - r(t - W)) / W; it
+lags the instantaneous rate by ~W / 2. `rate_rows = "window"` (default) predicts exactly that mean
+from the constant-velocity state (phase_model.measurement_model, rate_window), `"instantaneous"`
+is the paper's eq. 10 (biased by the lag), `"off"` uses ranges only. The rate noise is
+sqrt(2) sigma_range / W per row (W shorter during the first 0.7 s).
+Correlation: because the phase tracker telescopes, the reported rate equals
+(r_hat(t) - r_hat(t - W)) / W to round-off (checked in tests/test_phase_scenario.py): its error is
+the difference of the range errors at t and t - W. So a rate row is correlated with the same
+epoch's range row (rho = +0.71) and with the range row W earlier (rho = -0.71), and consecutive
+rates are NOT correlated with each other (the window's inner phase samples cancel). The paper's
+EKF treats all 90 rows as independent, which counts the range information twice in velocity;
+`testbed reproduce phase` measures what that does to consistency (ANEES) against `"off"`.
+
+Scores (estimators.ekf in metrics.json), body = mean of wing tips (eq. 29), frame N:
+rmse_position_m, rmse_velocity_mps, rmse_attitude_deg over t >= score_start;
+rmse_position_last_100s_m; max_abs_position_error_last_100s_m, max_abs_velocity_error_last_100s_mps
+(per axis x, y, z of N: x forward, y left, z up); anees: mean over t >= score_start of the NEES
+of the body position and velocity (6 dof, linear in the state, so its covariance is exact);
+anees_state18: the same for the 18-state; pcrb_rmse_position_m: sqrt of the mean over the same
+epochs of trace(body-position block of the PCRB) along the true trajectory (Tichavsky 1998, same
+measurement model, same rows, same q and P0 as the filter); gate statistics.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
+from testbed.config import check
 from testbed.pipelines import register
+
+Vec3 = tuple[float, float, float]
+# SPEC seed 003 initial error and covariance, paper frame (x fwd, y up, z right) mapped to ours
+# (x fwd, y left, z up) as (x, -z, y).
+PAPER_POS_ERROR = (-1.33500, 1.68219, -1.62100)  # m      (paper -1.33500, -1.62100, -1.68219)
+PAPER_VEL_ERROR = (0.81860, -0.74150, 0.68610)  # m/s    (paper 0.81860, 0.68610, 0.74150)
+PAPER_POS_VAR = (1.87306, 3.70352, 3.14771)  # m^2    (paper 1.87306, 3.14771, 3.70352)
+PAPER_VEL_VAR = (0.69928, 0.50587, 0.46008)  # m^2/s^2 (paper 0.69928, 0.46008, 0.50587)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class PhaseEkfConfig:
-    """[pipeline] table of a seed 003 scenario."""
+    """[pipeline] table of a seed 003 scenario (see the module docstring).
+
+    nav_master: the master whose body frame is the navigation frame (1-based).
+    q, q_flown: white-acceleration density per antenna axis (m^2/s^3) in prescribed / flown mode.
+    sigma_range: filter range noise, 1 sigma (m); rate rows get sqrt(2) sigma_range / W.
+    rate_rows: "window" | "instantaneous" | "off" (module docstring).
+    init: "drawn" = initial 18-state error drawn from the initial covariance per run (stream
+      "init"); "paper" = the paper's fixed body error on every antenna.
+    init_pos_error, init_vel_error: the paper's fixed error (m, m/s, frame N);
+    init_pos_var, init_vel_var: diagonal initial covariance per antenna (m^2, m^2/s^2).
+    antenna_a, antenna_b: follower nose / wing-tip lever arms known to the estimator (m), used
+      only to spread the body prior to the antennas; antenna_error: their error (m).
+    gate, gate_alpha: w-test innovation gate on/off and its family-wise false-alarm rate.
+    iterations: 1 = the paper's EKF, > 1 iterated EKF.
+    score_start: scores skip t < score_start (s, initial convergence); last_window: the
+      "last 100 s" window (s).
+    """
 
     kind: Literal["phase-ekf"]
+    nav_master: int = 3
+    q: float = 1e-7
+    q_flown: float = 1e-6
+    sigma_range: float = 0.05
+    rate_rows: Literal["window", "instantaneous", "off"] = "window"
+    init: Literal["drawn", "paper"] = "drawn"
+    init_pos_error: Vec3 = PAPER_POS_ERROR
+    init_vel_error: Vec3 = PAPER_VEL_ERROR
+    init_pos_var: Vec3 = PAPER_POS_VAR
+    init_vel_var: Vec3 = PAPER_VEL_VAR
+    antenna_a: float = 1.0
+    antenna_b: float = 1.0
+    antenna_error: float = 0.0
+    gate: bool = True
+    gate_alpha: float = 1e-3
+    iterations: int = 1
+    score_start: float = 10.0
+    last_window: float = 100.0
+
+    def check(self) -> None:
+        check(1 <= self.nav_master, "nav_master", f"must be a master number >= 1, got {self.nav_master}")
+        check(self.q > 0 and self.q_flown > 0, "q", f"process noise densities must be positive, got {self.q}, {self.q_flown}")
+        check(self.sigma_range > 0, "sigma_range", f"must be positive, got {self.sigma_range}")
+        check(min(self.init_pos_var + self.init_vel_var) > 0, "init_pos_var", "initial variances must be positive")
+        check(self.antenna_a > 0 and self.antenna_b > 0, "antenna_a", "lever arms must be positive")
+        check(0 < self.gate_alpha < 1, "gate_alpha", f"must be in (0, 1), got {self.gate_alpha}")
+        check(self.iterations >= 1, "iterations", f"must be >= 1, got {self.iterations}")
+        check(self.score_start >= 0 and self.last_window > 0, "score_start", "score_start >= 0 and last_window > 0 needed")
+
+
+# ------------------------------------------------------------------------------------------------
+# Frames
+# ------------------------------------------------------------------------------------------------
+def _skew(w: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    S = np.zeros(w.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    return S
+
+
+def nav_pose_from_antennas(X: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Pose of the navigation master from its own antennas, per epoch.
+
+    X, V: (K, 3, 3) world positions / velocities of its ant1..3 (m, m/s). Returns p, v (K, 3)
+    (origin = mid wing tips, eq. 29), R (K, 3, 3) R_world_from_N, Rd (K, 3, 3) dR/dt (1/s).
+    """
+    from estimators.phase_model import body_from_antennas, rot_zyx, rot_zyx_dot
+
+    K = X.shape[0]
+    p, v = np.empty((K, 3)), np.empty((K, 3))
+    R, Rd = np.empty((K, 3, 3)), np.empty((K, 3, 3))
+    for k in range(K):
+        y, _ = body_from_antennas(np.concatenate([X[k].ravel(), V[k].ravel()]))
+        p[k], v[k] = y[0:3], y[3:6]
+        R[k], Rd[k] = rot_zyx(*y[6:9]), rot_zyx_dot(y[6:9], y[9:12])
+    return p, v, R, Rd
+
+
+def to_nav(X: np.ndarray, V: np.ndarray, p, v, R, Rd) -> tuple[np.ndarray, np.ndarray]:
+    """World points X (K, ..., 3) and their velocities V to N: R^T (X - p), R^T (V - v) + Rd^T (X - p)."""
+    extra = X.ndim - 2
+    sl = (slice(None),) + (None,) * extra
+    dX = X - p[sl]
+    XN = np.einsum("k...i,kij->k...j", dX, R)
+    VN = np.einsum("k...i,kij->k...j", V - v[sl], R) + np.einsum("k...i,kij->k...j", dX, Rd)
+    return XN, VN
+
+
+# ------------------------------------------------------------------------------------------------
+# Streams -> estimator inputs
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class PhaseInputs:
+    """Per-epoch inputs in N. times (K,) s; state_index (K,) into the log; ranges, rates, windows
+    (K, M, 3, 3) m, m/s, s; master_pos, master_vel (K, M, 3, 3) m, m/s; slip (K, M, 3, 3) bool
+    (sensor's repaired-slip flag); nav pose (p, v, R, Rd) from the nav master's own antennas."""
+
+    times: np.ndarray
+    state_index: np.ndarray
+    masters: tuple[int, ...]
+    follower: int
+    ranges: np.ndarray
+    rates: np.ndarray
+    windows: np.ndarray
+    master_pos: np.ndarray
+    master_vel: np.ndarray
+    slip: np.ndarray
+    nav_pose: tuple
+
+
+def phase_inputs(log: dict, phase_period: float, nav_master: int) -> PhaseInputs:
+    """Reshape the `phase` stream (rows: epoch, master, slot i, antenna j) and move it to N.
+
+    phase_period: T = 1 / phase_rate_hz (s). Raises ValueError if the stream's layout is not the
+    documented one or the nav master is not among the masters.
+    """
+    times_all = log["phase/time"]
+    times, first = np.unique(times_all, return_index=True)
+    K = times.size
+    L = times_all.size // K
+    if L * K != times_all.size or L % 9:
+        raise ValueError(f"phase stream has {times_all.size} rows, not a whole number of epochs of 9 M links")
+    M = L // 9
+    src = log["phase/src"].reshape(K, M, 3, 3)[0]
+    dst = log["phase/dst"].reshape(K, M, 3, 3)[0]
+    masters = tuple(int(s.split("/")[0][3:]) for s in src[:, 0, 0])
+    follower = int(dst[0, 0, 0].split("/")[0][3:])
+    for m in range(M):
+        for i in range(3):
+            for j in range(3):
+                if src[m, i, j] != f"uav{masters[m]}/ant{i + 1}" or dst[m, i, j] != f"uav{follower}/ant{j + 1}":
+                    raise ValueError("phase stream rows are not in (master, slot, antenna) order")
+    if nav_master not in masters:
+        raise ValueError(f"nav_master {nav_master} is not one of the phase masters {masters}")
+    val = log["phase/value"].reshape(K, M, 3, 3, 3)
+    periods = log["phase/rate_periods"].reshape(K, M, 3, 3).astype(float)
+    Xw = log["phase/master_pos"].reshape(K, M, 3, 3, 3)[:, :, :, 0]  # (K, M, slot, xyz)
+    Vw = log["phase/master_vel"].reshape(K, M, 3, 3, 3)[:, :, :, 0]
+    n = masters.index(nav_master)
+    pose = nav_pose_from_antennas(Xw[:, n], Vw[:, n])
+    XN, VN = to_nav(Xw, Vw, *pose)
+    windows = np.where(periods > 0, periods * phase_period, np.nan)
+    return PhaseInputs(times, log["phase/state_index"][first], masters, follower, val[..., 1], val[..., 2],
+                       windows, XN, VN, log["phase/slip"].reshape(K, M, 3, 3), pose)
+
+
+def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: float, b: float):
+    """Truth at log rows idx (K,) in N from master nav_master's TRUE pose (scoring only).
+
+    Returns body (K, 12) [p, v, yaw, pitch, roll, their rates], R_N_follower (K, 3, 3) and the
+    18-state (K, 18) with the true lever arms a, b (m).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from estimators.phase_model import antenna_state_from_body, euler_from_rotation
+
+    def pose(u):
+        R = Rotation.from_quat(log["truth/quat"][idx, u - 1], scalar_first=True).as_matrix()
+        om = log["truth/omega"][idx, u - 1]
+        return log["truth/pos"][idx, u - 1], log["truth/vel"][idx, u - 1], R, R @ _skew(om)
+
+    p3, v3, R3, R3d = pose(nav_master)
+    p6, v6, R6, R6d = pose(follower)
+    pN, vN = to_nav(p6, v6, p3, v3, R3, R3d)
+    RN = np.einsum("kji,kjl->kil", R3, R6)
+    RNd = np.einsum("kji,kjl->kil", R3d, R6) + np.einsum("kji,kjl->kil", R3, R6d)
+    K = idx.size
+    states = np.array([antenna_state_from_body(pN[k], vN[k], RN[k], RNd[k], a, b) for k in range(K)])
+    eul = np.array([euler_from_rotation(R) for R in RN])
+    # Euler rates are not scored (left 0)
+    body = np.concatenate([pN, vN, eul, np.zeros_like(eul)], axis=1)
+    return body, RN, states
+
+
+# ------------------------------------------------------------------------------------------------
+# Filter
+# ------------------------------------------------------------------------------------------------
+def initial_prior(cfg: PhaseEkfConfig, scenario, inp: PhaseInputs, rng: np.random.Generator):
+    """Prior on the 18-state at the first epoch: the planned (reference) follower state in N plus
+    the initial error (drawn from the prior covariance, or the paper's fixed error).
+    Returns (Gaussian prior, P0 (18, 18), error added (18,))."""
+    from scipy.spatial.transform import Rotation
+
+    from estimators.core import Gaussian
+    from estimators.phase_ekf import initial_belief
+    from estimators.phase_model import antenna_state_from_body
+    from testbed.reference import evaluate
+
+    ref = evaluate(scenario.trajectory, inp.times[0])
+    f = inp.follower - 1
+    p0, v0, R0, Rd0 = (x[:1] for x in inp.nav_pose)
+    pN, vN = to_nav(ref.pos[:, f], ref.vel[:, f], p0, v0, R0, Rd0)
+    Rw = Rotation.from_quat(ref.quat[0, f], scalar_first=True).as_matrix()
+    RN = R0[0].T @ Rw
+    RNd = Rd0[0].T @ Rw + R0[0].T @ Rw @ _skew(ref.omega[0, f])
+    a, b = cfg.antenna_a + cfg.antenna_error, cfg.antenna_b + cfg.antenna_error
+    base = initial_belief(pN[0], vN[0], RN, RNd, np.diag(cfg.init_pos_var), np.diag(cfg.init_vel_var), a, b)
+    if cfg.init == "paper":
+        mean = antenna_state_from_body(pN[0] + np.array(cfg.init_pos_error), vN[0] + np.array(cfg.init_vel_error), RN, RNd, a, b)
+    else:
+        mean = base.mean + np.linalg.cholesky(base.cov) @ rng.standard_normal(base.mean.size)
+    return Gaussian(mean, base.cov), base.cov, mean - base.mean
+
+
+def measurement_epochs(cfg: PhaseEkfConfig, inp: PhaseInputs) -> list:
+    """One PhaseMeasurement per epoch with the configured rate-row model and noise."""
+    from estimators.phase_ekf import PhaseMeasurement
+
+    out = []
+    for k in range(inp.times.size):
+        W = inp.windows[k]
+        sig_rate = np.where(np.isfinite(W), np.sqrt(2.0) * cfg.sigma_range / np.where(np.isfinite(W), W, 1.0), np.inf)
+        use_rate = np.isfinite(W) & (cfg.rate_rows != "off")
+        out.append(PhaseMeasurement(
+            inp.ranges[k], inp.rates[k], inp.master_pos[k], inp.master_vel[k], cfg.sigma_range, sig_rate,
+            valid_range_rate=use_rate,
+            rate_window=np.where(use_rate, W, 1.0) if cfg.rate_rows == "window" else None,
+        ))
+    return out
+
+
+def run_ekf(cfg: PhaseEkfConfig, q: float, prior, meas: list, times: np.ndarray):
+    """The filter over all epochs: means (K, 18), covs (K, 18, 18), UpdateInfo list, and the
+    ACTUAL error covariance of this filter (K, 18, 18) if the truth had no random acceleration.
+
+    Covariance analysis of a suboptimal filter (Gelb 1974, ch. 7): with the filter's own gains K_k
+    and Jacobians H_k, the error of a truth with zero process noise has covariance
+        P_act,k|k-1 = Phi P_act Phi^T,   P_act,k = (I - K H) P_act,k|k-1 (I - K H)^T + K R K^T.
+    The filter's P (with Q = q ...) is >= P_act, so its NEES is low on the eq. 31 truth, whose body
+    has no acceleration at all; NEES against P_act is the consistency check that accounts for it.
+    """
+    from estimators.core import symmetrize
+    from estimators.phase_ekf import Gate, predict, transition, update
+    from estimators.phase_model import measurement_model
+
+    gate = Gate(alpha=cfg.gate_alpha, enabled=cfg.gate)
+    K = times.size
+    means, covs, acts = np.empty((K, 18)), np.empty((K, 18, 18)), np.empty((K, 18, 18))
+    infos = []
+    bel, Pa = prior, prior.cov
+    I18 = np.eye(18)
+    for k in range(K):
+        if k > 0:
+            dt = float(times[k] - times[k - 1])
+            bel = predict(bel, dt, q)
+            F = transition(dt)
+            Pa = F @ Pa @ F.T
+        m = meas[k]
+        _, H = measurement_model(bel.mean, m.master_pos, m.master_vel, rate_window=m.rate_window)
+        bel, info = update(bel, m, gate, cfg.iterations)
+        if info.dof:
+            _, r_var, _ = m.stacked()
+            Hu, Ku, ru = H[info.used], info.gain, r_var[info.used]
+            IKH = I18 - Ku @ Hu
+            Pa = symmetrize(IKH @ Pa @ IKH.T + (Ku * ru[None, :]) @ Ku.T)
+        means[k], covs[k], acts[k] = bel.mean, bel.cov, Pa
+        infos.append(info)
+    return means, covs, infos, acts
+
+
+def phase_pcrb(cfg: PhaseEkfConfig, q: float, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
+    """PCRB (K, 18, 18) along the true 18-state trajectory with the filter's own rows and model."""
+    from estimators.phase_ekf import pcrb
+
+    valid = np.array([m.stacked()[2] for m in meas])
+    sig_rate = np.array([np.broadcast_to(m.sigma_range_rate, (len(inp.masters), 3, 3)) for m in meas])
+    sig_rate = np.where(np.isfinite(sig_rate), sig_rate, 1.0)
+    W = np.where(np.isfinite(inp.windows), inp.windows, 1.0) if cfg.rate_rows == "window" else None
+    return pcrb(states, inp.times, inp.master_pos, inp.master_vel, P0, cfg.sigma_range, sig_rate, q,
+                valid=valid, rate_window=W)
+
+
+# ------------------------------------------------------------------------------------------------
+# Scores
+# ------------------------------------------------------------------------------------------------
+BODY_POS = np.zeros((3, 18))
+BODY_POS[:, 3:6] = BODY_POS[:, 6:9] = 0.5 * np.eye(3)
+BODY_PV = np.zeros((6, 18))
+BODY_PV[:3] = BODY_POS
+BODY_PV[3:, 12:15] = BODY_PV[3:, 15:18] = 0.5 * np.eye(3)
+
+
+def score(cfg: PhaseEkfConfig, t: np.ndarray, means, covs, acts, infos, states_true, body_true, R_true, bound) -> dict:
+    """metrics.json `estimators.ekf` (module docstring) and the series the plots need."""
+    from estimators.core import nees
+    from estimators.phase_model import rotation_from_antennas
+    from testbed.metrics import attitude_error_vector, rmse
+
+    pv = means @ BODY_PV.T
+    Ppv = BODY_PV @ covs @ BODY_PV.T
+    e = pv - body_true[:, :6]
+    R_est = np.array([rotation_from_antennas(x) for x in means])
+    att = np.degrees(np.linalg.norm(attitude_error_vector(R_est, R_true), axis=-1))
+    sc = t >= t[0] + cfg.score_start
+    if not sc.any():  # a run shorter than score_start: score every epoch
+        sc[:] = True
+    last = t >= t[-1] - cfg.last_window + 1e-9
+    nees6 = nees(e, Ppv)
+    nees18 = nees(means - states_true, covs)
+    nees6_act = nees(e, BODY_PV @ acts @ BODY_PV.T)
+    Bp = BODY_POS @ bound @ BODY_POS.T
+    rejected = np.array([0 if i is None else i.rejected.size for i in infos])
+    mid = int(np.argmin(np.abs(t - (t[0] + 0.5 * (t[-1] - t[0])))))
+    out = {
+        "rmse_position_m": rmse(e[sc, :3]),
+        "rmse_velocity_mps": rmse(e[sc, 3:]),
+        "rmse_attitude_deg": float(np.sqrt(np.mean(att[sc] ** 2))),
+        "rmse_position_last_100s_m": rmse(e[last, :3]),
+        "max_abs_position_error_last_100s_m": np.abs(e[last, :3]).max(axis=0).tolist(),
+        "max_abs_velocity_error_last_100s_mps": np.abs(e[last, 3:]).max(axis=0).tolist(),
+        "position_error_mid_m": e[mid, :3].tolist(),
+        "position_error_final_m": e[-1, :3].tolist(),
+        "sigma_position_final_m": np.sqrt(np.diag(Ppv[-1])[:3]).tolist(),
+        "anees": float(np.mean(nees18[sc])),
+        "anees_dof": 18,
+        "anees_body6": float(np.mean(nees6[sc])),
+        "anees_body6_actual_cov": float(np.mean(nees6_act[sc])),
+        "nees_final": float(nees18[-1]),
+        "nees_body6_final": float(nees6[-1]),
+        "nees_body6_actual_cov_final": float(nees6_act[-1]),
+        "pcrb_rmse_position_m": float(np.sqrt(np.mean(np.trace(Bp[sc], axis1=1, axis2=2)))),
+        "pcrb_rmse_position_last_100s_m": float(np.sqrt(np.mean(np.trace(Bp[last], axis1=1, axis2=2)))),
+        "pcrb_sigma_position_final_m": np.sqrt(np.diag(Bp[-1])).tolist(),
+        "gate_rejected_rows": int(rejected.sum()),
+        "gate_epochs_with_rejection": int((rejected > 0).sum()),
+        "epochs": int(t.size),
+        "score_start_s": float(t[sc][0]),
+    }
+    series = {"t": t, "err": e, "sigma": np.sqrt(np.diagonal(Ppv, axis1=1, axis2=2)), "att_deg": att}
+    return out, series
+
+
+def plot(series: dict, plots_dir, name: str) -> None:
+    """Figures like the paper's figs. 4-15: position and velocity error per axis, +/-3 sigma."""
+    from testbed.plots import error_envelope
+
+    t, e, s = series["t"], series["err"], series["sigma"]
+    lab = ("x (fwd)", "y (left)", "z (up)")
+    error_envelope(t, e[:, :3], s[:, :3], plots_dir / "position_error.png", title=f"{name}: body position error (nav frame)", ylabel="m", labels=lab)
+    error_envelope(t, e[:, 3:], s[:, 3:], plots_dir / "velocity_error.png", title=f"{name}: body velocity error (nav frame)", ylabel="m/s", labels=lab)
+
+
+def estimate(scenario, log: dict) -> tuple[dict, dict]:
+    """Run the seed 003 EKF on a run log and score it: (estimators.ekf metrics, plot series)."""
+    from testbed.config import ConfigError
+    from testbed.rng import stream_rng
+
+    cfg: PhaseEkfConfig = scenario.pipeline
+    ph = scenario.sensors.phase
+    if ph is None or "phase/time" not in log:
+        raise ConfigError(f"{scenario.name}: pipeline phase-ekf needs the [sensors.phase] stream")
+    try:
+        inp = phase_inputs(log, 1.0 / ph.phase_rate_hz, cfg.nav_master)
+    except ValueError as e:
+        raise ConfigError(f"{scenario.name}: pipeline.nav_master: {e}") from None
+    q = cfg.q_flown if scenario.motion == "flown" else cfg.q
+    prior, P0, _ = initial_prior(cfg, scenario, inp, stream_rng(scenario.seed, "init"))
+    meas = measurement_epochs(cfg, inp)
+    means, covs, infos, acts = run_ekf(cfg, q, prior, meas, inp.times)
+    body, RN, states = truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
+                                    scenario.world.antenna_a, scenario.world.antenna_b)
+    bound = phase_pcrb(cfg, q, states, inp, meas, P0)
+    metrics, series = score(cfg, inp.times, means, covs, acts, infos, states, body, RN, bound)
+    metrics = {"q_m2ps3": q, "rate_rows": cfg.rate_rows, "init": cfg.init, **metrics}
+    return metrics, series
 
 
 @register("phase-ekf")
 def run(scenario, log, plots_dir):
-    raise NotImplementedError("the seed 003 pipeline is being written")
+    metrics, series = estimate(scenario, log)
+    if plots_dir is not None:
+        plot(series, plots_dir, scenario.name)
+    return {"ekf": metrics}

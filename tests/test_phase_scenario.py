@@ -1,0 +1,172 @@
+"""Seed 003 end to end: the phase-ekf pipeline on logs simulated by the real testbed.
+
+Monte Carlo sizes and horizons are chosen for CI (see each test); tolerances come from the sample
+size (chi-square intervals of estimators.core.chi2_interval), never tuned.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from estimators.core import chi2_interval, is_spd, nees
+from testbed import scenario as scenario_mod
+from testbed.config import ConfigError
+from testbed.pipelines import phase as P
+from testbed.rng import stream_rng
+from testbed.simulate import simulate
+
+NAME = "phase-cross-h000"
+
+
+def _filter(sc, log):
+    """The pipeline's pieces: inputs, prior, filter, truth in N, PCRB."""
+    cfg, ph = sc.pipeline, sc.sensors.phase
+    inp = P.phase_inputs(log, 1.0 / ph.phase_rate_hz, cfg.nav_master)
+    prior, P0, err0 = P.initial_prior(cfg, sc, inp, stream_rng(sc.seed, "init"))
+    meas = P.measurement_epochs(cfg, inp)
+    means, covs, infos, acts = P.run_ekf(cfg, cfg.q, prior, meas, inp.times)
+    body, RN, states = P.truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
+                                      sc.world.antenna_a, sc.world.antenna_b)
+    return dict(inp=inp, prior=prior, P0=P0, err0=err0, meas=meas, means=means, covs=covs,
+                infos=infos, acts=acts, body=body, states=states)
+
+
+def test_reported_rate_is_the_window_mean_of_the_resolved_ranges():
+    """Documented in the pipeline: eq. 7's rate = (r_hat(t) - r_hat(t - W)) / W, W = 0.7 s."""
+    sc = scenario_mod.load(NAME, duration=3.0)
+    log, _ = simulate(sc)
+    v = log["phase/value"].reshape(-1, 45, 3)
+    W = log["phase/rate_periods"].reshape(-1, 45) / sc.sensors.phase.phase_rate_hz
+    k = np.arange(7, v.shape[0])
+    assert np.all(W[k] == pytest.approx(0.7))
+    assert np.abs((v[k, :, 1] - v[k - 7, :, 1]) / W[k] - v[k, :, 2]).max() < 1e-9
+
+
+@pytest.mark.slow
+def test_monte_carlo_cross_h000_consistent_and_near_pcrb():
+    """30 seeds of phase-cross-h000 through the real testbed, 20 s horizon (CI budget).
+
+    At the final epoch over the 30 independent runs:
+    - the NEES of the body position and velocity against the error covariance this filter really
+      has on a truth without random acceleration (P_act, Gelb's covariance analysis: the eq. 31
+      body moves at exactly constant velocity) is inside its 99 % chi-square interval;
+    - the filter's own P is not overconfident: ANEES (18-state and body) below the 99 % upper
+      limits (it is conservative, because Q > 0 while the truth has no random acceleration);
+    - RMSE of the antenna positions and of the body position <= 1.5 x the PCRB.
+    """
+    runs, horizon = 30, 20.0
+    e18, n18, n6, n6a = [], [], [], []
+    bound = None
+    for i in range(runs):
+        sc = scenario_mod.load(NAME, seed=1 + i, duration=horizon)
+        log, _ = simulate(sc)
+        r = _filter(sc, log)
+        e = r["means"][-1] - r["states"][-1]
+        e18.append(e)
+        n18.append(nees(e, r["covs"][-1]))
+        n6.append(nees(P.BODY_PV @ e, P.BODY_PV @ r["covs"][-1] @ P.BODY_PV.T))
+        n6a.append(nees(P.BODY_PV @ e, P.BODY_PV @ r["acts"][-1] @ P.BODY_PV.T))
+        if bound is None:  # prescribed truth and PCRB are the same for every seed
+            bound = P.phase_pcrb(sc.pipeline, sc.pipeline.q, r["states"], r["inp"], r["meas"], r["P0"])[-1]
+        assert np.linalg.eigvalsh(r["covs"][-1] - r["acts"][-1]).min() > -1e-12  # P >= P_act
+    E = np.array(e18)
+    lo6, hi6 = chi2_interval(6, runs)
+    lo18, hi18 = chi2_interval(18, runs)
+    a6a, a6, a18 = np.mean(n6a), np.mean(n6), np.mean(n18)
+    rmse_ant = np.sqrt(np.mean(np.sum(E[:, :9] ** 2, axis=1)))
+    rmse_body = np.sqrt(np.mean(np.sum((E @ P.BODY_POS.T) ** 2, axis=1)))
+    b_ant = np.sqrt(np.trace(bound[:9, :9]))
+    b_body = np.sqrt(np.trace(P.BODY_POS @ bound @ P.BODY_POS.T))
+    print(f"ANEES body6 vs P_act {a6a:.2f} in [{lo6:.2f}, {hi6:.2f}]; filter ANEES body6 {a6:.2f}, "
+          f"18-state {a18:.2f} [{lo18:.2f}, {hi18:.2f}]; RMSE antennas {rmse_ant:.4f} / PCRB {b_ant:.4f}, "
+          f"body {rmse_body:.4f} / PCRB {b_body:.4f}")
+    assert lo6 < a6a < hi6
+    assert a6 < hi6 and a18 < hi18
+    assert rmse_ant < 1.5 * b_ant and rmse_body < 1.5 * b_body
+
+
+def test_unrepaired_cycle_slip_is_rejected_by_the_gate_not_absorbed():
+    """Corrupt the logged stream with a slip the sensor did not repair: +1 cycle (lambda = 2 m) on
+    one link from t = 15 s on. The gate must reject that row at every later epoch, and the
+    estimate must stay where the clean run's is (far inside the 2 m the slip would pull)."""
+    sc = scenario_mod.load(NAME, duration=25.0)
+    log, _ = simulate(sc)
+    clean = _filter(sc, log)
+    bad = dict(log)
+    val = log["phase/value"].copy()
+    t = log["phase/time"]
+    m, i, j = 2, 1, 0  # master 2, slot 2 (lambda = 2 m), follower antenna 1
+    rows = (np.arange(t.size) % 45 == 9 * (m - 1) + 3 * i + j) & (t >= 15.0)
+    lam = log["phase/wavelength"][rows][0]
+    assert lam == 2.0
+    val[rows, 1] += lam
+    bad["phase/value"] = val
+    slipped = _filter(sc, bad)
+    row = 18 * (m - 1) + 3 * i + j  # eq. 12/25 row of that range
+    after = clean["inp"].times >= 15.0
+    for info_c, info_s, late in zip(clean["infos"], slipped["infos"], after):
+        if late:
+            assert row in info_s.rejected
+        assert row not in info_c.rejected
+    # not absorbed: the final estimate differs from the clean run's (which has one row more per
+    # epoch) by well under its own sigma, component by component; absorbing 2 m would be ~100 sigma
+    d = np.abs(slipped["means"][-1] - clean["means"][-1]) / np.sqrt(np.diag(clean["covs"][-1]))
+    print(f"max |slipped - clean| / sigma = {d.max():.3f}")
+    assert d.max() < 0.5
+    # and the run-level metric reports it
+    metrics, _ = P.estimate(sc, bad)
+    assert metrics["gate_rejected_rows"] >= after.sum()
+
+
+def test_run_directory_metrics_plots_and_reproducibility(tmp_path):
+    from testbed.runner import run
+
+    sc = scenario_mod.load(NAME, duration=12.0, seed=4)
+    m1 = run(sc, tmp_path / "a")
+    m2 = run(sc, tmp_path / "b")
+    assert (tmp_path / "a" / "metrics.json").read_text() == (tmp_path / "b" / "metrics.json").read_text()
+    ekf = json.loads((tmp_path / "a" / "metrics.json").read_text())["estimators"]["ekf"]
+    for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg", "anees", "pcrb_rmse_position_m"):
+        assert np.isfinite(ekf[key]), key
+    assert len(ekf["max_abs_position_error_last_100s_m"]) == 3 and len(ekf["max_abs_velocity_error_last_100s_mps"]) == 3
+    assert (tmp_path / "a" / "plots" / "position_error.png").stat().st_size > 10_000
+    assert (tmp_path / "a" / "plots" / "velocity_error.png").stat().st_size > 10_000
+    assert m1 == m2
+    # after 12 s on the cross the body position is at the cm level, and the covariances are SPD
+    assert ekf["rmse_position_m"] < 0.1
+
+
+def test_paper_initial_error_option_applies_the_mapped_fixed_error():
+    sc = scenario_mod.load(NAME, duration=1.0, overrides={"pipeline.init": '"paper"'})
+    log, _ = simulate(sc)
+    r = _filter(sc, log)
+    err = r["err0"]
+    # same body error on every antenna: paper (x, y, z) -> ours (x, -z, y)
+    for j in range(3):
+        assert np.allclose(err[3 * j:3 * j + 3], [-1.335, 1.68219, -1.621], atol=1e-9)
+        assert np.allclose(err[9 + 3 * j:12 + 3 * j], [0.8186, -0.7415, 0.6861], atol=1e-9)
+    assert is_spd(r["P0"])
+    # drawn (default) differs per seed and is reproducible per seed
+    a = P.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(3, "init"))[2]
+    b = P.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(3, "init"))[2]
+    c = P.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(4, "init"))[2]
+    assert np.array_equal(a, b) and not np.allclose(a, c)
+
+
+def test_flown_mode_nav_frame_from_master_antennas():
+    """Flown: master 3's pose comes from its own antennas; the filter tracks the flown follower."""
+    sc = scenario_mod.load(NAME, duration=12.0, motion="flown")
+    log, _ = simulate(sc)
+    metrics, _ = P.estimate(sc, log)
+    assert metrics["q_m2ps3"] == sc.pipeline.q_flown
+    assert metrics["rmse_position_m"] < 0.1 and metrics["rmse_attitude_deg"] < 5.0
+
+
+@pytest.mark.parametrize("key,value", [("pipeline.rate_rows", '"sometimes"'), ("pipeline.q", "-1.0"),
+                                       ("pipeline.iterations", "0"), ("pipeline.init", '"zero"')])
+def test_bad_pipeline_values_are_one_line_config_errors(key, value):
+    with pytest.raises(ConfigError) as e:
+        scenario_mod.load(NAME, overrides={key: value})
+    assert key.split(".")[1] in str(e.value) and "\n" not in str(e.value)
