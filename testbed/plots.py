@@ -10,6 +10,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
+def save(fig, path: Path) -> Path:
+    """Lay out, write as PNG (110 dpi, parent folders created) and close a figure."""
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def error_envelope(t: np.ndarray, err: np.ndarray, sigma: np.ndarray | None, path: Path, *,
                    title: str, ylabel: str, labels=("x", "y", "z"), nsigma: float = 3.0) -> Path:
     """Error per axis against time with the filter's +/- nsigma envelope, one panel per axis.
@@ -29,12 +39,7 @@ def error_envelope(t: np.ndarray, err: np.ndarray, sigma: np.ndarray | None, pat
     axes[0].set_title(title)
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def compare_bars(names: list[str], means: np.ndarray, lo: np.ndarray, hi: np.ndarray, path: Path, *,
@@ -46,9 +51,4 @@ def compare_bars(names: list[str], means: np.ndarray, lo: np.ndarray, hi: np.nda
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)

@@ -334,10 +334,7 @@ def choose_four(epochs: Epochs) -> list[int]:
 # ----------------------------------------------------------------------------------------------
 def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: str) -> Path:
     """Figure 6: position error norm (m) against time for four UAVs (1-based), every estimator."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from testbed.plots import plt, save
 
     nb, nr = neighbour_counts(est.epochs)
     fig, axes = plt.subplots(len(uavs), 1, figsize=(8, 2.0 * len(uavs) + 0.6), sharex=True)
@@ -352,12 +349,7 @@ def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: s
     np.atleast_1d(axes)[0].legend(fontsize=7, ncol=4, loc="upper right")
     np.atleast_1d(axes)[-1].set_xlabel("time [s]")
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Path) -> None:
