@@ -56,8 +56,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg
-from scipy.stats import norm
+from scipy import linalg, special
+from scipy.linalg import lapack
 
 from estimators.core import Gaussian, kf_predict, symmetrize
 from estimators.phase_model import (
@@ -135,15 +135,19 @@ class PhaseMeasurement:
 
     def stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """z (18 M,), noise variances r_var (18 M,), valid (18 M,) bool, in the eq. 12/25 row order."""
-        M = self.n_masters
-        shape = (M, 3, 3)
-        z = stack_rows(np.asarray(self.ranges, float), np.asarray(self.range_rates, float))
-        r_var = stack_rows(np.broadcast_to(np.asarray(self.sigma_range, float) ** 2, shape),
-                           np.broadcast_to(np.asarray(self.sigma_range_rate, float) ** 2, shape))
-        vr = np.ones(shape, bool) if self.valid_range is None else np.asarray(self.valid_range, bool)
-        vd = np.ones(shape, bool) if self.valid_range_rate is None else np.asarray(self.valid_range_rate, bool)
-        valid = stack_rows(vr, vd).astype(bool) & np.isfinite(z)
-        return z, r_var, valid
+        # [m, kind, i, j] is row 18 m + 9 kind + 3 i + j (phase_model.stack_rows, written in place)
+        shape = (self.n_masters, 2, 3, 3)
+        z = np.empty(shape)
+        z[:, 0], z[:, 1] = self.ranges, self.range_rates
+        r_var = np.empty(shape)
+        r_var[:, 0] = np.square(self.sigma_range, dtype=float)
+        r_var[:, 1] = np.square(self.sigma_range_rate, dtype=float)
+        valid = np.isfinite(z)
+        if self.valid_range is not None:
+            valid[:, 0] &= np.asarray(self.valid_range, bool)
+        if self.valid_range_rate is not None:
+            valid[:, 1] &= np.asarray(self.valid_range_rate, bool)
+        return z.reshape(-1), r_var.reshape(-1), valid.reshape(-1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,8 +163,8 @@ class Gate:
     enabled: bool = True
 
     def threshold(self, m: int) -> float:
-        """|w| threshold for m rows: Phi^-1(1 - alpha / (2 m))."""
-        return float(norm.isf(self.alpha / (2.0 * max(m, 1))))
+        """|w| threshold for m rows: Phi^-1(1 - alpha / (2 m)) (= scipy.stats.norm.isf, without its overhead)."""
+        return float(-special.ndtri(self.alpha / (2.0 * max(m, 1))))
 
 
 NO_GATE = Gate(enabled=False)
@@ -192,6 +196,39 @@ class UpdateInfo:
     gain: np.ndarray | None = None
 
 
+def _cholesky_upper(a: np.ndarray) -> np.ndarray:
+    """Upper Cholesky factor U of an SPD (n, n) matrix, a = U^T U (strict lower triangle zero).
+
+    LAPACK dpotrf called directly (scipy.linalg.cho_factor's validation costs more than the
+    factorization at n = 18); reads only the upper triangle of a. Raises LinAlgError if a is not
+    positive definite.
+    """
+    # positional lower=0, clean=1: at n = 18 keyword parsing is a noticeable part of the call
+    U, info = lapack.dpotrf(a, 0, 1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dpotrf: matrix not positive definite (info = {info})")
+    return U
+
+
+def _cho_solve(U: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a^-1 b for a = U^T U (U from `_cholesky_upper`), b: (n,) or (n, k); LAPACK dpotrs."""
+    x, info = lapack.dpotrs(U, b, 0)  # lower=0
+    if info != 0:
+        raise ValueError(f"dpotrs: illegal argument {-info}")
+    return x
+
+
+def _cho_inverse_upper(U: np.ndarray) -> np.ndarray:
+    """Upper triangle of a^-1 for a = U^T U (U from `_cholesky_upper`); strict lower triangle zero.
+
+    LAPACK dpotri; for consumers that read only the upper triangle (`_cholesky_upper`).
+    """
+    a_inv, info = lapack.dpotri(U, 0)  # lower=0
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dpotri: singular factor (info = {info})")
+    return a_inv
+
+
 def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.ndarray,
                       r_var: np.ndarray, valid: np.ndarray | None = None,
                       gate: Gate = Gate(), labels=None) -> tuple[Gaussian, UpdateInfo]:
@@ -201,42 +238,54 @@ def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.nda
     Rows with valid False or non-finite z are skipped; the gate may reject more (see module doc).
     labels: optional callable row -> label for UpdateInfo.rejected_labels.
 
-    Gain in information form: R is diagonal and m (90) > n (18), so instead of factorizing the
-    m x m innovation covariance S the update factorizes the n x n information matrix
-        A = P^-1 + H^T R^-1 H,   X = A^-1 H^T,   K = X R^-1 = P H^T S^-1     (eq. 20, Woodbury)
-    and the same X gives the gate's S^-1 nu and diag(S^-1) for free:
-        S^-1 = R^-1 - R^-1 H A^-1 H^T R^-1.
-    The covariance is still the Joseph form of eq. 21 with that gain (not A^-1).
+    R is diagonal, so the used rows are whitened once, Hw = R^-1/2 H, nuw = R^-1/2 nu. Gain in
+    information form: m (90) > n (18), so instead of factorizing the m x m innovation covariance S
+    the update factorizes the n x n information matrix
+        A = P^-1 + Hw^T Hw,   Xw = A^-1 Hw^T,   K = Xw R^-1/2 = P H^T S^-1     (eq. 20, Woodbury)
+    and the same Xw gives the gate's S^-1 nu and diag(S^-1) for free:
+        S^-1 = R^-1/2 (I - Hw A^-1 Hw^T) R^-1/2.
+    The covariance is still the Joseph form of eq. 21 with that gain (not A^-1), evaluated as
+    the symmetric product C C^T, C = [(I - K H) U^T, Xw] with P = U^T U (Cholesky), so no
+    symmetrization is needed.
     """
     z = np.asarray(z, float)
     m_all = z.shape[0]
-    ok = np.isfinite(z) if valid is None else (np.asarray(valid, bool) & np.isfinite(z))
-    rows = np.flatnonzero(ok)
-    nu_all = np.full(m_all, np.nan)
-    nu_all[rows] = z[rows] - hx[rows]
+    ok = np.isfinite(z)
+    if valid is not None:
+        ok &= np.asarray(valid, bool)
+    rows = ok.nonzero()[0]
+    nu_all = z - hx
+    if rows.size < m_all:
+        nu_all[~ok] = np.nan
     w_all = np.full(m_all, np.nan)
-    nn_all = np.full(m_all, np.nan)
+    nn_all = w_all.copy()
     P = belief.cov
+    n = P.shape[0]
     rejected: list[int] = []
     thr = gate.threshold(rows.size) if gate.enabled else np.inf
     if rows.size == 0:
         info = UpdateInfo(nu_all, nn_all, w_all, np.zeros(m_all, bool), np.array([], int), (), 0.0, 0, thr)
         return belief, info
-    P_inv = linalg.cho_solve(linalg.cho_factor(P, check_finite=False), np.eye(P.shape[0]), check_finite=False)
+    # P = U^T U; upper triangle of P^-1 (dpotri), all that the factorization of A below reads
+    U = _cholesky_upper(P)
+    P_inv_upper = _cho_inverse_upper(U)
     while True:
-        Hr, nu = H[rows], nu_all[rows]
-        r_inv = 1.0 / r_var[rows]
-        # eq. 20 in information form: A = P^-1 + H^T R^-1 H, X = A^-1 H^T
-        A = symmetrize(P_inv + Hr.T @ (r_inv[:, None] * Hr))
-        X = linalg.cho_solve(linalg.cho_factor(A, check_finite=False), Hr.T, check_finite=False)
-        # Woodbury: S^-1 nu = R^-1 nu - R^-1 H X R^-1 nu
-        Rnu = r_inv * nu
-        Sinv_nu = Rnu - r_inv * (Hr @ (X @ Rnu))
+        # all rows used: no copies
+        Hr, nu, r = (H, nu_all, r_var) if rows.size == m_all else (H[rows], nu_all[rows], r_var[rows])
+        s_inv = 1.0 / np.sqrt(r)
+        Hw = Hr * s_inv[:, None]
+        nuw = nu * s_inv
+        # eq. 20 in information form: A = P^-1 + Hw^T Hw (upper triangle), Xw = A^-1 Hw^T
+        Xw = _cho_solve(_cholesky_upper(P_inv_upper + Hw.T @ Hw), Hw.T)
+        # eq. 19 correction: K nu = Xw nuw
+        dx = Xw @ nuw
+        # Woodbury: S^-1 nu = R^-1/2 e, e = nuw - Hw A^-1 Hw^T nuw
+        e = nuw - Hw @ dx
         if not gate.enabled:
             break
-        Sinv_diag = r_inv - r_inv ** 2 * (Hr * X.T).sum(axis=1)
-        # Baarda w-test statistic per row
-        w = Sinv_nu / np.sqrt(Sinv_diag)
+        # Baarda w-test statistic per row: w_k = (S^-1 nu)_k / sqrt((S^-1)_kk)
+        #   = e_k / sqrt(1 - (Hw A^-1 Hw^T)_kk)
+        w = e / np.sqrt(1.0 - np.einsum("kj,jk->k", Hw, Xw))
         w_all[rows] = w
         k = int(np.argmax(np.abs(w)))
         if abs(w[k]) > thr and len(rejected) < gate.max_rejections and rows.size > 1:
@@ -244,21 +293,23 @@ def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.nda
             rows = np.delete(rows, k)
             continue
         break
-    # S_kk = H_k P H_k^T + r_k, for the normalized innovations
-    S_diag = ((Hr @ P) * Hr).sum(axis=1) + r_var[rows]
-    nn_all[rows] = nu / np.sqrt(S_diag)
-    # eq. 20: K = P H^T (H P H^T + R)^-1 = A^-1 H^T R^-1
-    K = X * r_inv[None, :]
+    # S_kk = H_k P H_k^T + r_k = |(H U^T)_k|^2 + r_k, for the normalized innovations
+    HU = Hr @ U.T
+    nn_all[rows] = nu / np.sqrt(np.einsum("kj,kj->k", HU, HU) + r)
+    # eq. 20: K = P H^T (H P H^T + R)^-1 = A^-1 H^T R^-1 = Xw R^-1/2
+    K = Xw * s_inv
     # eq. 19: x = x_pred + K (z - h(x_pred))
-    x = belief.mean + K @ nu
-    # eq. 21: Joseph form, with R diagonal: K R K^T = (K r) K^T
-    I_KH = np.eye(P.shape[0]) - K @ Hr
-    Pn = symmetrize(I_KH @ P @ I_KH.T + (K * r_var[rows][None, :]) @ K.T)
-    used = np.zeros(m_all, bool)
-    used[rows] = True
+    x = belief.mean + dx
+    # eq. 21: Joseph form (I - K H) P (I - K H)^T + K R K^T = C C^T, one symmetric product, with
+    # C = [(I - K H) U^T, K R^1/2] = [U^T - K (H U^T), Xw] (R diagonal)
+    C = np.concatenate([U.T - K @ HU, Xw], axis=1)
+    Pn = C @ C.T
+    used = ok
+    if rejected:
+        used[rejected] = False
     lab = tuple(labels(r) for r in rejected) if labels is not None else ()
     info = UpdateInfo(nu_all, nn_all, w_all, used, np.array(rejected, int), lab,
-                      float(nu @ Sinv_nu), int(rows.size), thr, K)
+                      float(nuw @ e), int(rows.size), thr, K)
     return Gaussian(x, Pn), info
 
 

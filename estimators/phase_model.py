@@ -145,47 +145,49 @@ def measurement_model(x: np.ndarray, master_pos: np.ndarray, master_vel: np.ndar
     which tends to eq. 10 and its Jacobian as W -> 0.
     """
     X = np.asarray(x, dtype=float)
-    P = X[:9].reshape(3, 3)
-    V = X[9:].reshape(3, 3)
     X0 = np.asarray(master_pos, dtype=float)
     V0 = np.asarray(master_vel, dtype=float)
     M = X0.shape[0]
-    # d[m, i, j] = x_j - X0[m, i]
-    d = P[None, None, :, :] - X0[:, :, None, :]
-    w = V[None, None, :, :] - V0[:, :, None, :]
-    # eq. 5: r_ij = |X_i0 - X_j|
-    r = np.linalg.norm(d, axis=-1)
+    # d[m, i, j] = x_j - X0[m, i], w[m, i, j] = v_j - V0[m, i]: (M, 3, 3, 3)
+    d = X[:9].reshape(1, 1, 3, 3) - X0[:, :, None, :]
+    w = X[9:].reshape(1, 1, 3, 3) - V0[:, :, None, :]
+    # h[m, kind, i, j] is row 18 m + 9 kind + 3 i + j (eq. 12 / 25): ranges, then range rates
+    h = np.empty((M, 2, 3, 3))
+    r = h[:, 0]
+    # eq. 5: r_ij = |X_i0 - X_j|   (= np.linalg.norm(d, axis=-1), without its overhead)
+    np.sqrt(np.add.reduce(d * d, axis=-1), out=r)
     u = d / r[..., None]
     if rate_window is None:
         # eq. 10 (relative velocity): rdot_ij = u_ij . (v_j - v_i0)
-        rdot = np.einsum("mijk,mijk->mij", u, w)
+        rdot = np.einsum("mijk,mijk->mij", u, w, out=h[:, 1])
     else:
         # eq. 7 as measured: mean rate over [t - W, t] = (r(t) - r(t - W)) / W, CV back-propagation
         W = np.broadcast_to(np.asarray(rate_window, dtype=float), r.shape)[..., None]
         d0 = d - W * w
-        r0 = np.linalg.norm(d0, axis=-1)
+        r0 = np.sqrt(np.add.reduce(d0 * d0, axis=-1))
         u0 = d0 / r0[..., None]
-        rdot = (r - r0) / W[..., 0]
-    # eq. 12 / 25: per master 9 ranges then 9 range rates
-    h = stack_rows(r, rdot)
+        rdot = np.divide(r - r0, W[..., 0], out=h[:, 1])
+    h = h.reshape(-1)
     if not jacobian:
         return h, None
+    # Row (m, kind, i, j) of H is nonzero only on antenna j's columns: position 3 j + (0..2),
+    # velocity 9 + 3 j + (0..2). Jb stores the rows j = 0, 1, 2 of each (m, kind, i) with 21
+    # entries instead of 18: entry c of row j sits at offset 21 j + c = 18 j + (3 j + c), which is
+    # column 3 j + c of row j once each group of 3 x 21 entries is cut back to its first 3 x 18.
+    # So the blocks of all antennas are written at entries c = 0..2 and 9..11 of every row.
+    Jb = np.zeros((M, 2, 3, 3, 21))
+    # eq. 27: range rows [A_j, 0]
+    Jb[:, 0, :, :, 0:3] = u
     if rate_window is None:
-        # eq. 28 (corrected): range-rate row on the position block
-        g = (w - u * rdot[..., None]) / r[..., None]
-        uv = u
+        # eq. 28 (corrected): range-rate rows, position block (w - u rdot) / r, velocity block u
+        Jb[:, 1, :, :, 0:3] = (w - u * rdot[..., None]) / r[..., None]
+        Jb[:, 1, :, :, 9:12] = u
     else:
         # window form: d h / d x_j = (u - u0) / W, d h / d v_j = u0
-        g = (u - u0) / W
-        uv = u0
-    # rows (master m, kind, slot i, antenna j); each row lives on antenna j's 3 columns
-    H = np.zeros((M, 2, 3, 3, 18))
-    for j in range(3):
-        # eq. 27: range rows [A_j, 0]; range-rate rows [Rdot_pos, Rdot_vel]
-        H[:, 0, :, j, 3 * j:3 * j + 3] = u[:, :, j]
-        H[:, 1, :, j, 3 * j:3 * j + 3] = g[:, :, j]
-        H[:, 1, :, j, 9 + 3 * j:12 + 3 * j] = uv[:, :, j]
-    return h, H.reshape(M * ROWS_PER_MASTER, N_STATE)
+        Jb[:, 1, :, :, 0:3] = (u - u0) / W
+        Jb[:, 1, :, :, 9:12] = u0
+    H = Jb.reshape(M * 6, 63)[:, :54].reshape(M * ROWS_PER_MASTER, N_STATE)
+    return h, H
 
 
 # ------------------------------------------------------------------------------------------------
