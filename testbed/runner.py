@@ -1,7 +1,8 @@
 """Writing a run directory (the data contract) atomically.
 
 `run(scenario, out)` simulates, runs the scenario's estimator pipeline, and writes
-`scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` and `plots/` into a temporary sibling
+`scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
+`timing.json` (wall-clock costs, when a pipeline reports them) and `plots/` into a temporary sibling
 directory that is renamed to `out` only when everything succeeded: an interrupted or failed run
 leaves nothing half-written.
 """
@@ -30,6 +31,17 @@ def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:
     """RMS distance (m) between each vehicle's true and reference position, UAV order."""
     err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
     return [float(x) for x in np.sqrt((err**2).mean(axis=0))]
+
+
+def split_timing(estimators: dict) -> tuple[dict, dict]:
+    """Separate wall-clock timings (keys ending in `_ms`) from the scores.
+
+    metrics.json must be bit-identical for the same seed, and timings never are: they go to
+    timing.json, with the same layout ({estimator: {key: value}}).
+    """
+    scores = {name: {k: v for k, v in est.items() if not k.endswith("_ms")} for name, est in estimators.items()}
+    timing = {name: {k: v for k, v in est.items() if k.endswith("_ms")} for name, est in estimators.items()}
+    return scores, {name: t for name, t in timing.items() if t}
 
 
 def prepare_out(out: Path, force: bool) -> None:
@@ -64,11 +76,14 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             "estimators": {},
         }
         (tmp / "plots").mkdir()
-        metrics["estimators"] = run_pipeline(scenario, log, tmp / "plots" if plots else None)
+        estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
+        metrics["estimators"], timing = split_timing(estimators)
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
         save_npz(tmp / "log.npz", log)
         write_json(tmp / "metrics.json", metrics)
+        if timing:
+            write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})
         if out.exists():
             shutil.rmtree(out)
         tmp.rename(out)
