@@ -35,7 +35,8 @@ def swarm_scenario(n: int, duration: float, sensors: dict | None = None) -> Scen
     return from_dict(Scenario, table, "bench")
 
 
-def _bare_rtf(scenario: Scenario) -> float:
+def bare_rtf(scenario: Scenario) -> float:
+    """Real-time factor of plain mj_step on the scenario's model, constant hover thrust."""
     from testbed.world import build
 
     physics = build(scenario)
@@ -47,7 +48,8 @@ def _bare_rtf(scenario: Scenario) -> float:
     return scenario.duration / (time.perf_counter() - t0)
 
 
-def _flown_rtf(scenario: Scenario) -> float:
+def flown_rtf(scenario: Scenario) -> float:
+    """Real-time factor of simulate() (flown, controller in the loop), scene compiled beforehand."""
     from testbed.simulate import simulate
     from testbed.world import build
 
@@ -58,12 +60,13 @@ def _flown_rtf(scenario: Scenario) -> float:
 
 
 def bench_physics(sizes=(1, 6, 18, 50), duration: float = 20.0, repeats: int = 3) -> list[dict]:
-    """Best-of-`repeats` real-time factors, flown (controller) and bare mj_step, per swarm size."""
+    """Best-of-`repeats` real-time factors, flown (controller) and bare mj_step run alternately,
+    per swarm size."""
     rows = []
     for n in sizes:
         sc = swarm_scenario(n, duration)
-        flown = max(_flown_rtf(sc) for _ in range(repeats))
-        bare = max(_bare_rtf(sc) for _ in range(repeats))
+        runs = [(flown_rtf(sc), bare_rtf(sc)) for _ in range(repeats)]  # interleaved: same load
+        flown, bare = (max(r) for r in zip(*runs))
         rows.append({"vehicles": n, "flown_rtf": flown, "bare_rtf": bare, "ratio": flown / bare,
                      "flown_ticks_per_s": flown * sc.world.control_rate, "bare_steps_per_s": bare / sc.world.timestep})
     return rows

@@ -109,22 +109,33 @@ def _pva(tr: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
 # ------------------------------------------------------------------------------- attitudes
 
 
-def _rotation(tr: Trajectory, t: np.ndarray) -> tuple[Rotation, np.ndarray]:
-    """Attitude at times t (K,): a flat Rotation of K*N elements and yaw (K, N)."""
-    K = t.shape[0]
+def _rotation(tr: Trajectory, t: np.ndarray, acc: np.ndarray | None = None) -> tuple[Rotation, np.ndarray]:
+    """Attitude at times t (K,): a flat Rotation of K*N elements and yaw (K, N).
+
+    acc: the reference acceleration (K, N, 3) at t if already evaluated (flat attitudes use it).
+    """
     if isinstance(tr, PhaseFormation):
-        # eq. 31: a * sin(2 pi f t + phase); masters level with yaw 0 (stable flight)
-        s = np.sin(2 * np.pi * tr.attitude_freq_hz * t + tr.attitude_phase)
-        ypr = np.zeros((K, 6, 3))
-        ypr[:, 5] = np.radians([tr.yaw_amp_deg, tr.pitch_amp_deg, tr.roll_amp_deg])[None] * s[:, None]
+        ypr = _phase_ypr(tr, t)
         return Rotation.from_euler("ZYX", ypr.reshape(-1, 3)), ypr[..., 0]
-    _, _, acc = _pva(tr, t)
+    if acc is None:
+        acc = _pva(tr, t)[2]
     yaw = _yaw(tr, t, acc.shape[1])
     return flat_rotation(acc.reshape(-1, 3), yaw.reshape(-1)), yaw
 
 
+def _phase_ypr(tr: PhaseFormation, t: np.ndarray) -> np.ndarray:
+    """Seed 003 eq. 31 yaw, pitch, roll (K, 6, 3) rad: a * sin(2 pi f t + phase) on the
+    follower; masters level with yaw 0 (stable flight)."""
+    s = np.sin(2 * np.pi * tr.attitude_freq_hz * t + tr.attitude_phase)
+    ypr = np.zeros((t.shape[0], 6, 3))
+    ypr[:, 5] = np.radians([tr.yaw_amp_deg, tr.pitch_amp_deg, tr.roll_amp_deg])[None] * s[:, None]
+    return ypr
+
+
 def _yaw(tr: Trajectory, t: np.ndarray, n: int) -> np.ndarray:
-    """Reference yaw (K, N) rad of the trajectories with flat attitude."""
+    """Reference yaw (K, N) rad of every trajectory."""
+    if isinstance(tr, PhaseFormation):
+        return _phase_ypr(tr, t)[..., 0]
     yaw = np.zeros((t.shape[0], n))
     if isinstance(tr, LeaderFollower):
         psi = np.arctan2(tr.leader_velocity[1], tr.leader_velocity[0])
@@ -156,6 +167,20 @@ def _omega(tr: Trajectory, t: np.ndarray, h: float) -> np.ndarray:
     return (r0.inv() * r1).as_rotvec().reshape(t.shape[0], -1, 3) / (2 * h)
 
 
+def tracking(tr: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a tracking controller needs at times t (K,) s, the same values `evaluate` gives:
+    pos, vel, acc (K, N, 3) world (m, m/s, m/s^2) and yaw (K, N) rad. No attitude: cheap."""
+    pos, vel, acc = _pva(tr, t)
+    return pos, vel, acc, _yaw(tr, t, pos.shape[1])
+
+
+def attitude(tr: Trajectory, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Reference attitude quaternions (K, N, 4) wxyz at times t (K,) s, given the reference
+    acceleration acc (K, N, 3) there (from `tracking`): the same values `evaluate` gives."""
+    rot, _ = _rotation(tr, t, acc)
+    return rot.as_quat(scalar_first=True).reshape(t.shape[0], -1, 4)
+
+
 def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True) -> RefState:
     """The reference at times t (K,) or a scalar (K = 1), see RefState.
 
@@ -164,7 +189,7 @@ def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True) -> RefSt
     """
     t = np.atleast_1d(np.asarray(t, float))
     pos, vel, acc = _pva(tr, t)
-    rot, yaw = _rotation(tr, t)
+    rot, yaw = _rotation(tr, t, acc)
     quat = rot.as_quat(scalar_first=True).reshape(t.shape[0], -1, 4)
     if not rates:
         zeros = np.zeros_like(pos)

@@ -18,8 +18,8 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
-from testbed.control import GeometricController
-from testbed.reference import evaluate
+from testbed.control import GeometricController, heading
+from testbed.reference import attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors import make_sensors
 from testbed.sensors.base import Sensor
@@ -58,63 +58,89 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     physics = physics or build(scenario)
     sensors = make_sensors(scenario, physics)
     sched = schedule(scenario, sensors)
-    times = sched.times
     log_ticks = np.flatnonzero(sched.logged)
-    K = log_ticks.size
-    qpos = np.empty((K, physics.model.nq))
-    qvel = np.empty((K, physics.model.nv))
-    ref_pos = np.empty((K, physics.n, 3))
-    ref_quat = np.empty((K, physics.n, 4))
-    ctrl = np.zeros((K, physics.model.nu))
-    m, d = physics.model, physics.data
-    flown = scenario.motion == "flown"
-    controller = GeometricController(physics, scenario.control) if flown else None
-    ticks = np.arange(sched.n_ticks) if flown else log_ticks
-    row = 0
-    bar = tqdm(total=len(ticks), desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False)
-    for c0 in range(0, len(ticks), CHUNK):
-        chunk = ticks[c0 : c0 + CHUNK]
-        ref = evaluate(scenario.trajectory, times[chunk], rates=not flown)
-        for j, k in enumerate(chunk):
-            t = times[k]
-            if flown:
-                mujoco.mj_step1(m, d)
-                d.ctrl[physics.actuator_idx] = controller(
-                    physics.pos, physics.vel, physics.rotation, physics.omega,
-                    ref.pos[j], ref.vel[j], ref.acc[j], ref.yaw[j],
-                )
-                is_logged = sched.logged[k]
-                if is_logged:
-                    qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
-                mujoco.mj_step2(m, d)  # acceleration stage at time t, then integrate to t + dt
-            else:
-                d.time = t
-                physics.set_reference_state(ref, j)
-                is_logged = True
-                qpos[row], qvel[row] = d.qpos, d.qvel
-            if is_logged:
-                ref_pos[row], ref_quat[row] = ref.pos[j], ref.quat[j]
-                for s in sensors:
-                    if k % s.period_ticks == 0:
-                        s.sample(physics, t, row)
-                row += 1
-            if flown and sched.substeps > 1:
-                mujoco.mj_step(m, d, nstep=sched.substeps - 1)
-        bar.update(len(chunk))
-    bar.close()
+    K, N, m = log_ticks.size, physics.n, physics.model
     log = {
-        "time": times[log_ticks],
-        "qpos": qpos,
-        "qvel": qvel,
-        "reference/pos": ref_pos,
-        "reference/quat": ref_quat,
-        **truth_from_state(physics, qpos, qvel),
+        "time": sched.times[log_ticks],
+        "qpos": np.empty((K, m.nq)),
+        "qvel": np.empty((K, m.nv)),
+        "reference/pos": np.empty((K, N, 3)),
+        "reference/quat": np.empty((K, N, 4)),
     }
+    # sensors sampling at each logged tick, in the order of `sensors`
+    due = [[s for s in sensors if k % s.period_ticks == 0] for k in log_ticks.tolist()]
+    flown = scenario.motion == "flown"
+    n = sched.n_ticks if flown else K
+    ctrl = np.zeros((K, m.nu))
+    with tqdm(total=n, desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False) as bar:
+        if flown:
+            _fly(scenario, physics, sched, log, ctrl, due, bar)
+        else:
+            _play(scenario, physics, log["time"], log, due, bar)
+    log.update(truth_from_state(physics, log["qpos"], log["qvel"]))
     if flown:
         log["ctrl"] = ctrl
     for s in sensors:
         log.update(s.arrays())
     return log, physics
+
+
+def _play(scenario: Scenario, physics: Physics, times: np.ndarray, log: dict[str, np.ndarray], due: list[list[Sensor]], bar: tqdm) -> None:
+    """Prescribed motion: the reference state set at each logged instant times (K,) s."""
+    d = physics.data
+    qpos, qvel = log["qpos"], log["qvel"]
+    for r0 in range(0, len(times), CHUNK):
+        t = times[r0 : r0 + CHUNK]
+        ref = evaluate(scenario.trajectory, t)
+        log["reference/pos"][r0 : r0 + len(t)] = ref.pos
+        log["reference/quat"][r0 : r0 + len(t)] = ref.quat
+        for j, tj in enumerate(t.tolist()):
+            row = r0 + j
+            d.time = tj
+            physics.set_reference_state(ref, j)
+            qpos[row], qvel[row] = d.qpos, d.qvel
+            for s in due[row]:
+                s.sample(physics, tj, row)
+        bar.update(len(t))
+
+
+def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm) -> None:
+    """Flown motion: the controller in the loop at every tick; logged ticks as in the module
+    docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
+    ticks at a time, its attitude only at the logged ticks."""
+    m, d = physics.model, physics.data
+    tr = scenario.trajectory
+    controller = GeometricController(physics, scenario.control)
+    v = physics.views()
+    pos, vel, rotation, omega, thrust = v.pos, v.vel, v.rotation, v.omega, v.ctrl
+    qpos, qvel = log["qpos"], log["qvel"]
+    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
+    rest = sched.substeps - 1  # physics steps of a tick after the controller's
+    times = sched.times
+    row = 0
+    for c0 in range(0, sched.n_ticks, CHUNK):
+        t = times[c0 : c0 + CHUNK]
+        ref_pos, ref_vel, ref_acc, ref_yaw = tracking(tr, t)
+        ref_heading = heading(ref_yaw)
+        logged = sched.logged[c0 : c0 + CHUNK]
+        if logged.any():
+            rows = slice(row, row + int(logged.sum()))
+            log["reference/pos"][rows] = ref_pos[logged]
+            log["reference/quat"][rows] = attitude(tr, t[logged], ref_acc[logged])
+        for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
+            step1(m, d)
+            controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
+            if is_logged:
+                qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
+                step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt
+                for s in due[row]:
+                    s.sample(physics, tj, row)
+                row += 1
+            else:
+                step2(m, d)
+            if rest:
+                step(m, d, nstep=rest)
+        bar.update(len(t))
 
 
 def truth_from_state(physics: Physics, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:

@@ -3,10 +3,12 @@
 `build(scenario)` composes `models/arena.xml` with one `models/quadrotor.xml` per vehicle
 (attached with the prefixes uav1/, uav2/, ...), UWB anchor sites `anchor1..` and obstacles
 `obstacle1..`, and returns a `Physics`. Nothing outside this module indexes raw MuJoCo arrays by
-hand: ask `physics.site_pos("uav3/ant1")` or the vectorized vehicle-state properties.
+hand: ask `physics.site_pos("uav3/ant1")` or the vectorized vehicle-state properties (copies),
+or `physics.views()` (views into MjData, for per-tick loops).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -17,6 +19,7 @@ from testbed.reference import RefState, evaluate
 from testbed.scenario import Scenario
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
+SEGMENT_MARGIN = 1e-6  # m: bounding boxes grown by this in Physics.segments_may_hit (rounding)
 PALETTE = [(0.85, 0.25, 0.2), (0.2, 0.45, 0.85), (0.25, 0.7, 0.3), (0.85, 0.6, 0.15), (0.6, 0.3, 0.75), (0.2, 0.7, 0.75)]
 
 
@@ -69,6 +72,50 @@ def build(scenario: Scenario) -> "Physics":
     return physics
 
 
+def _rows(arr: np.ndarray, first: np.ndarray, width: int) -> np.ndarray:
+    """View (M, width, ...) of rows first[i] .. first[i] + width - 1 of `arr` (along axis 0).
+
+    first: (M,) start indices spaced by a constant stride >= width (vehicles are attached one
+    after another, so their joints, bodies, actuators and sensors are); raises otherwise.
+    """
+    stride = int(first[1] - first[0]) if len(first) > 1 else width
+    if stride < width or np.any(first != first[0] + stride * np.arange(len(first))):
+        raise ValueError(f"rows starting at {first.tolist()} are not evenly spaced by >= {width}")
+    view = arr[first[0] : first[0] + stride * len(first)].reshape(len(first), stride, *arr.shape[1:])
+    return view[:, :width]
+
+
+@dataclass(frozen=True, slots=True)
+class StateViews:
+    """Views (not copies) of every vehicle's state in one MjData, for per-tick loops.
+
+    pos, vel: (N, 3) world, m and m/s (qpos, qvel); omega: (N, 3) body frame, rad/s (qvel);
+    rotation: (N, 3, 3) body-to-world (xmat, valid after the position stage); ctrl: (N, 4) rotor
+    thrusts rotor1..rotor4, N (writable). Valid while that MjData lives.
+    """
+
+    pos: np.ndarray
+    vel: np.ndarray
+    omega: np.ndarray
+    rotation: np.ndarray
+    ctrl: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class RayTargets:
+    """Geoms a ray can hit (Physics.ray_targets) with their bounding boxes in the geom frame.
+
+    ids, body: (G,) geom and body ids; plane: (G,) bool (planes have no box); centre, half: (G, 3)
+    box centre and half-sizes (m, grown by SEGMENT_MARGIN; centre 0 for planes).
+    """
+
+    ids: np.ndarray
+    plane: np.ndarray
+    centre: np.ndarray
+    half: np.ndarray
+    body: np.ndarray
+
+
 class Physics:
     """A compiled scene and its state, with named and vectorized accessors.
 
@@ -104,6 +151,7 @@ class Physics:
         gyr = [m.sensor(f"uav{i}/gyro") for i in range(1, self.n + 1)]
         self._acc_idx = np.array([s.adr[0] for s in acc])[:, None] + np.arange(3)
         self._gyro_idx = np.array([s.adr[0] for s in gyr])[:, None] + np.arange(3)
+        self.imu_idx = np.concatenate([self._acc_idx, self._gyro_idx], axis=1)  # (N, 6) into sensordata
         self._site_ids: dict[str, int] = {}
         self.__dict__.pop("vehicle_mass", None)
         self.__dict__.pop("vehicle_inertia", None)
@@ -183,18 +231,75 @@ class Physics:
         Returns distances (M,) from start (inf where nothing is hit before the end) and geom ids
         (M,) (-1 where nothing is hit).
         """
-        start = np.asarray(start, float)
-        vec = np.asarray(ends, float) - start
+        ends = np.asarray(ends, float)
+        return self.rays(np.asarray(start, float)[None], np.zeros(len(ends), dtype=int), ends, geomgroup, np.array([bodyexclude]))
+
+    def rays(self, origins: np.ndarray, source: np.ndarray, ends: np.ndarray, geomgroup: np.ndarray | None, bodyexclude: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First hits of segments origins[source[l]] -> ends[l], one mj_multiRay per origin used.
+
+        origins: (S, 3) world, m; source: (M,) indices into origins; ends: (M, 3) world, m;
+        bodyexclude: (S,) body whose geoms are ignored by the rays of each origin (-1: none).
+        Returns distances (M,) from the origin (inf where nothing is hit before the end) and geom
+        ids (M,) (-1 where nothing is hit).
+        """
+        order = np.argsort(source, kind="stable")  # rays of one origin contiguous
+        src = source[order]
+        vec = ends[order] - origins[src]
         length = np.linalg.norm(vec, axis=1)
         unit = vec / length[:, None]
-        n = len(unit)
-        gid = np.full(n, -1, dtype=np.int32)
-        dist = np.full(n, -1.0)
-        mujoco.mj_multiRay(self.model, self.data, start, unit.reshape(-1), geomgroup, 1, int(bodyexclude), gid, dist, None, n, float(length.max()) + 1.0)
+        gid = np.full(len(unit), -1, dtype=np.int32)
+        dist = np.full(len(unit), -1.0)
+        edges = [0, *(np.flatnonzero(np.diff(src)) + 1).tolist(), len(src)] if len(src) else [0]
+        for a, b in zip(edges[:-1], edges[1:]):  # rays src[a:b] share their origin
+            s = src[a]
+            mujoco.mj_multiRay(self.model, self.data, origins[s], unit[a:b].reshape(-1), geomgroup, 1, int(bodyexclude[s]),
+                               gid[a:b], dist[a:b], None, b - a, float(length[a:b].max()) + 1.0)
         miss = (dist < 0) | (dist > length)
         dist[miss] = np.inf
         gid[miss] = -1
-        return dist, gid
+        out_dist, out_gid = np.empty_like(dist), np.empty_like(gid)
+        out_dist[order], out_gid[order] = dist, gid
+        return out_dist, out_gid
+
+    def ray_targets(self, geomgroup: np.ndarray) -> RayTargets:
+        """The geoms mj_ray / mj_multiRay can hit with group mask geomgroup (6,): those in an
+        enabled group (clamped to 0..5) that are visible (MuJoCo's rays skip geoms whose rgba, or
+        material rgba, has alpha 0, such as the vehicles' collision boxes)."""
+        m = self.model
+        alpha = np.where(m.geom_matid >= 0, m.mat_rgba[m.geom_matid, 3], m.geom_rgba[:, 3])
+        ids = np.flatnonzero((alpha != 0) & (np.asarray(geomgroup)[np.clip(m.geom_group, 0, 5)] != 0))
+        plane = m.geom_type[ids] == mujoco.mjtGeom.mjGEOM_PLANE
+        centre = np.where(plane[:, None], 0.0, m.geom_aabb[ids, :3])
+        return RayTargets(ids, plane, centre, m.geom_aabb[ids, 3:] + SEGMENT_MARGIN, m.geom_bodyid[ids].copy())
+
+    def segments_may_hit(self, targets: RayTargets, start: np.ndarray, end: np.ndarray, ignore: np.ndarray) -> np.ndarray:
+        """(L,) bool: whether segment l from start[l] to end[l] ((L, 3) world, m) may touch one of
+        the target geoms other than those on bodies ignore[l] ((L, k) body ids, -1 for none).
+
+        Conservative (never False where a ray along the segment hits such a geom): a plane only
+        when an end point lies within SEGMENT_MARGIN above it or below; any other geom when the
+        segment meets its bounding box (geom_aabb, geom frame) grown by SEGMENT_MARGIN, by the
+        separating-axis test of a segment and a box (three box axes, three cross products).
+        """
+        d = self.data
+        # world-to-geom rotations with rows x, y, z, x, y: components [1:4] and [2:5] of a rotated
+        # vector are its cyclic shifts (for the cross products)
+        cyc = [0, 1, 2, 0, 1]
+        Rt = d.geom_xmat[targets.ids].reshape(-1, 3, 3).transpose(0, 2, 1)[:, cyc]  # (G, 5, 3)
+        c = Rt @ d.geom_xpos[targets.ids][:, :, None] + targets.centre[:, cyc, None]  # (G, 5, 1)
+        # segment midpoint (from the box centre) and half-vector in each geom's frame: (G, 5, L)
+        mid = Rt @ (0.5 * (start + end)).T - c
+        e = Rt @ (0.5 * (end - start)).T
+        ae = np.abs(e)
+        h = targets.half[:, cyc, None]
+        apart = (np.abs(mid[:, :3]) > h[:, :3] + ae[:, :3]).any(axis=1)
+        cross = mid[:, 1:4] * e[:, 2:5] - mid[:, 2:5] * e[:, 1:4]
+        apart |= (np.abs(cross) > h[:, 1:4] * ae[:, 2:5] + h[:, 2:5] * ae[:, 1:4]).any(axis=1)
+        below = mid[:, 2] - ae[:, 2] <= SEGMENT_MARGIN  # planes: local z up
+        hit = np.where(targets.plane[:, None], below, ~apart)  # (G, L)
+        for body in np.asarray(ignore).T:
+            hit &= targets.body[:, None] != body
+        return hit.any(axis=0)
 
     # ---------------------------------------------------------------- vehicle states
     @property
@@ -221,6 +326,18 @@ class Physics:
     def rotation(self) -> np.ndarray:
         """(N, 3, 3) body-to-world rotation matrices (valid after the position stage)."""
         return self.data.xmat[self.body_ids].reshape(-1, 3, 3)
+
+    def views(self) -> StateViews:
+        """Views of the vehicle states in the current `data` (see StateViews)."""
+        d = self.data
+        qpos, qvel = _rows(d.qpos, self.qpos_adr, 7), _rows(d.qvel, self.dof_adr, 6)
+        first_rotor = self.actuator_idx[:, 0]
+        if np.any(self.actuator_idx != first_rotor[:, None] + np.arange(4)):
+            raise ValueError("rotor actuators of a vehicle are not consecutive")
+        return StateViews(
+            pos=qpos[:, :3], vel=qvel[:, :3], omega=qvel[:, 3:],
+            rotation=_rows(d.xmat, self.body_ids, 1).reshape(-1, 3, 3), ctrl=_rows(d.ctrl, first_rotor, 4),
+        )
 
     @property
     def accelerometer(self) -> np.ndarray:

@@ -330,6 +330,17 @@ def test_uwb_wall_gives_nlos_and_positive_bias_clear_path_los():
     assert len(log2["uwb/value"]) == len(log["uwb/value"]) - 4
 
 
+def test_uwb_blocked_by_another_airframe():
+    """A vehicle between two tags blocks their link (its collision box, group 3); the links to
+    the vehicle in the middle stay clear (a hit on the destination's own airframe does not block)."""
+    traj = {"kind": "straight-line", "start": [0.0, 0.0, 10.0], "velocity": [0.0, 0.0, 0.0],
+            "offsets": [[0.0, 0.0, 0.0], [5.0, 0.0, 0.1], [10.0, 0.0, 0.0]]}
+    log, _ = simulate(scenario({"uwb": {"preset": "ideal", "nlos": "ignore"}}, trajectory=traj, duration=0.2))
+    through = (log["uwb/src"] == "uav1/uwb") & (log["uwb/dst"] == "uav3/uwb")
+    assert through.sum() == 3 and log["uwb/nlos"][through].all()
+    assert not log["uwb/nlos"][~through].any()
+
+
 def test_uwb_clock_scale_factor_scales_range():
     sens = {"uwb": {"preset": "ideal", "clock_ppm": 500.0}}
     log, _ = simulate(scenario(sens, trajectory=_uwb_traj(), world={"anchors": [[5.0, 30.0, 10.0]]}, duration=0.2))

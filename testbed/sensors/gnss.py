@@ -35,7 +35,8 @@ class Gnss:
 
         self.noise = np.stack([per_vehicle("noise_h")] * 2 + [per_vehicle("noise_v")], axis=1)  # (V, 3)
         self.bsig = np.stack([per_vehicle("bias_h")] * 2 + [per_vehicle("bias_v")], axis=1)
-        self.tau = per_vehicle("bias_tau")  # (V,)
+        tau = per_vehicle("bias_tau")  # (V,)
+        self.tau_groups = [(float(v), tau == v) for v in np.unique(tau)]  # (time constant s, (V,) mask)
         self.bias = self.bsig * rng.standard_normal((V, 3))
         if cfg.antenna == "uwb":
             self.site_ids = physics.site_ids([f"uav{i}/uwb" for i in self.vehicles])
@@ -52,9 +53,8 @@ class Gnss:
         else:
             p = physics.data.xpos[physics.body_ids[self.vehicles - 1]]
         n = self.rng.standard_normal((2, V, 3))
-        for tau in np.unique(self.tau):
-            sel = self.tau == tau
-            self.bias[sel] = gauss_markov(self.bias[sel], self.bsig[sel], float(tau), self.dt, n[1][sel][None])[0]
+        for tau, sel in self.tau_groups:
+            self.bias[sel] = gauss_markov(self.bias[sel], self.bsig[sel], tau, self.dt, n[1][sel][None])[0]
         self.rec.add(
             time=np.full(V, t), arrival=np.full(V, t + self.cfg.latency), state_index=np.full(V, state_index),
             value=p + self.bias + self.noise * n[0], clean=p.copy(), src=self.src, dst=np.full(V, ""),

@@ -25,7 +25,7 @@ class Imu:
     def __init__(self, cfg: ImuConfig, physics: Physics, rng: np.random.Generator, period_ticks: int, tick: float):
         self.cfg, self.rng, self.period_ticks = cfg, rng, period_ticks
         self.vehicles = np.array(cfg.vehicles or range(1, physics.n + 1), dtype=int)
-        self.idx = self.vehicles - 1
+        self.sensordata_idx = physics.imu_idx[self.vehicles - 1]  # (V, 6): accelerometer, gyro
         V = len(self.vehicles)
         dt = period_ticks * tick
         self.accel = TriadErrors(cfg.accel, V, dt, rng)
@@ -37,13 +37,13 @@ class Imu:
 
     def sample(self, physics: Physics, t: float, state_index: int) -> None:
         """Keep MuJoCo's clean readings; errors are applied to the whole series in arrays()."""
-        self.clean.append(np.concatenate([physics.accelerometer[self.idx], physics.gyro[self.idx]], axis=1))
+        self.clean.append(physics.data.sensordata[self.sensordata_idx])
         self.times.append((t, state_index))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Errors of the whole series at once (same draws as sample by sample: one generator,
         consumed in time order, accelerometer then gyro normals per sample)."""
-        V, n = len(self.idx), len(self.times)
+        V, n = len(self.vehicles), len(self.times)
         if n == 0:
             return self.rec.arrays()
         clean = np.array(self.clean).reshape(n, V, 6)

@@ -4,10 +4,13 @@ Links (fixed at start, in this order): every tag to every anchor (src = "uav{i}/
 dst = "anchor{k}"), then every tag pair once (src = "uav{i}/uwb", dst = "uav{j}/uwb", i < j).
 At each sample, a link whose true distance exceeds max_range makes no measurement.
 
-Line of sight: one mj_multiRay per source tag towards all its in-range link ends, through the
-geoms of `los_groups` (default 0: obstacles and floor, 3: vehicle collision boxes; visual geoms
-and anchor masts never block), excluding the source vehicle's body; a hit on the destination
+Line of sight: one mj_multiRay per source tag towards its in-range link ends, through the geoms
+of `los_groups` (default 0: obstacles and floor, 3: vehicle collision boxes; visual geoms and
+anchor masts never block), excluding the source vehicle's body; a hit on the destination
 vehicle's own body, or within 1 mm of the end point, does not block. Blocked links are NLOS.
+MuJoCo's rays skip fully transparent geoms, so the vehicles' collision boxes have alpha 0.3 (they
+are in group 3, which is not rendered): other airframes block. Only links whose segment meets the bounding box of a geom the rays can hit (or
+reaches down to a plane) are ray-cast (Physics.segments_may_hit); the others are clear.
 Blocked span: distance between the first hit seen from each end (a second ray from the
 destination), i.e. the length of the segment inside/between blocking geoms.
 
@@ -63,22 +66,19 @@ class Uwb:
         self.scale = 1.0 + 1e-6 * (self.ppm[self.src] + self.ppm[self.dst]) / 2
         self.groups = np.array([1 if g in cfg.los_groups else 0 for g in range(6)], dtype=np.uint8)
         self.geom_body = physics.model.geom_bodyid.copy()
+        self.blockers = physics.ray_targets(self.groups)  # geoms the LOS rays can hit
         self.rec = Recorder("uwb", {**common_keys(1), "nlos": ((), "?"), "outlier": ((), "?"), "span": ((), "f8")})
 
     def line_of_sight(self, physics: Physics, P: np.ndarray, links: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """NLOS flags and blocked spans (m) of links (indices into the link list), P (D, 3)."""
-        nlos = np.zeros(len(links), dtype=bool)
+        src, dst = self.src[links], self.dst[links]
+        # rays only where a blocking geom's bounding box meets the link (the rest are clear)
+        cast = np.flatnonzero(physics.segments_may_hit(self.blockers, P[src], P[dst], self.dev_body[np.stack([src, dst], axis=1)]))
         first = np.full(len(links), np.inf)
-        src = self.src[links]
-        for s in np.unique(src):
-            sel = np.flatnonzero(src == s)
-            ends = P[self.dst[links[sel]]]
-            dist, gid = physics.rays_from(P[s], ends, self.groups, self.dev_body[s])
-            hit_body = np.where(gid >= 0, self.geom_body[np.maximum(gid, 0)], -2)
-            own_dst = hit_body == self.dev_body[self.dst[links[sel]]]
-            blocked = np.isfinite(dist) & (dist < d[sel] - END_TOLERANCE) & ~own_dst
-            nlos[sel] = blocked
-            first[sel] = dist
+        gid = np.full(len(links), -1)
+        first[cast], gid[cast] = physics.rays(P, src[cast], P[dst[cast]], self.groups, self.dev_body)
+        hit_body = np.where(gid >= 0, self.geom_body[np.maximum(gid, 0)], -2)
+        nlos = np.isfinite(first) & (first < d - END_TOLERANCE) & (hit_body != self.dev_body[dst])
         span = np.zeros(len(links))
         if self.cfg.nlos_bias_per_m > 0:
             for k in np.flatnonzero(nlos):
