@@ -122,7 +122,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"{sc.name} ({sc.motion}, seed {sc.seed}) -> {args.out}  tracking RMSE [m]: {rmse}")
         for name, est in metrics["estimators"].items():
             keys = [k for k in est if k.startswith("rmse_")]
-            print(f"  {name}: " + ", ".join(f"{k} {_fmt(est[k])}" for k in keys))
+            print(f"  {name}: " + ", ".join(f"{k} {fmt(est[k])}" for k in keys))
         return 0
     if args.command == "render":
         from testbed.render import render_run
@@ -159,12 +159,15 @@ def _dispatch(args: argparse.Namespace) -> int:
     raise UsageError(f"unknown command {args.command!r}")
 
 
-def _fmt(v: object) -> str:
+def fmt(v: object) -> str:
+    """A score for a person: 4 significant digits; long lists summarized by their mean."""
     if isinstance(v, float):
         return f"{v:.4g}"
     if isinstance(v, list) and len(v) <= 4:
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return str(v) if not isinstance(v, list) else f"[{len(v)} values]"
+        return "[" + ", ".join(fmt(x) for x in v) + "]"
+    if isinstance(v, list) and v and all(isinstance(x, (int, float)) for x in v):
+        return f"[{len(v)} values, mean {sum(v) / len(v):.4g}]"
+    return str(v)
 
 
 def main(argv: list[str] | None = None) -> int:

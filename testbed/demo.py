@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from testbed import scenario
+from testbed.cli import fmt
 from testbed.render import render_run
 from testbed.reproduce import reproduce
 from testbed.runner import run
@@ -40,7 +41,7 @@ def demo(out: Path) -> None:
         lines.append(f"- `{name}` ({motion}, {seconds:g} s, {time.perf_counter() - t0:.1f} s wall): tracking RMSE [m] {rmse}")
         for est, scores in metrics["estimators"].items():
             keys = [k for k in scores if k.startswith("rmse_")]
-            lines.append(f"  - {est}: " + ", ".join(f"{k} = {scores[k]}" for k in keys))
+            lines.append(f"  - {est}: " + ", ".join(f"{k} = {fmt(scores[k])}" for k in keys))
         print(lines[-1], flush=True)
     reproduce("bandwidth", out / "reproduce-bandwidth", runs=20)
     lines.append("- seed 000 reproduction, paper and uwb modes (20 runs each): `reproduce-bandwidth/table.md`, `claims.json`")
