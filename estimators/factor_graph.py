@@ -44,7 +44,6 @@ This module never imports mujoco, testbed or gtsam.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-import time
 
 import numpy as np
 from scipy import linalg, sparse
@@ -70,7 +69,6 @@ __all__ = [
     "local_step_qr",
     "solve_distributed",
     "neighbours",
-    "bench_solvers",
 ]
 
 #: Huber threshold, in units of the whitened residual (sigma): 95 % Gaussian efficiency.
@@ -656,67 +654,3 @@ def solve_distributed(
         X, P, rounds, converged, messages, messages * MESSAGE_BYTES, deliveries,
         np.asarray(steps), np.asarray(hist),
     )
-
-
-# ----------------------------------------------------------------------------------------------
-# Benchmark (numpy side; the GTSAM timings come from estimators.gtsam_reference.bench)
-# ----------------------------------------------------------------------------------------------
-def _best_time(fn, repeats: int = 3) -> float:
-    """Smallest wall time of `repeats` calls of fn(), seconds."""
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return float(best)
-
-
-def bench_solvers(make_epoch, n_list=(18, 100, 1000), seed: int = 0, *, tol: float = 1e-4,
-                  max_rounds: int = 3000, reference=None) -> list[dict]:
-    """Centralized solve time (ours, and the reference's if given) and distributed rounds per size.
-
-    reference(problem, marginals: bool) -> (positions (n,3), covs (n,3,3) or None): e.g.
-    estimators.gtsam_reference.solve_gtsam (this module never imports gtsam itself; use
-    estimators.gtsam_reference.bench for the GTSAM comparison).
-
-    Solve times without covariance are the best of 3 runs; with covariance, one run. Distributed:
-    the paper's scheme ("prior", undamped) and the consistent block-Jacobi ("fixed", damping 0.5)
-    until every position change is below `tol` metres or `max_rounds`.
-
-    make_epoch(n, seed) -> (truth (n,3), CoopProblem): the epoch generator (required; this library
-    ships none: testbed.synthetic.epoch_factory() is the testbed's, a random connected swarm at the
-    density of 18 UAVs in 200 x 200 x 100 m). Returns one dict per n with times in seconds.
-    Not a test: timings vary.
-    """
-    out = []
-    for n in n_list:
-        truth, prob = make_epoch(n, seed)
-        c = solve_centralized(prob, covariance="none")
-        t_ours = _best_time(lambda: solve_centralized(prob, covariance="none"))
-        t0 = time.perf_counter()
-        solve_centralized(prob, covariance="marginal")
-        t_ours_cov = time.perf_counter() - t0
-        row = {
-            "n": n, "m": prob.m, "mean_degree": 2 * prob.m / n,
-            "ours_solve_s": t_ours, "ours_solve_with_cov_s": t_ours_cov, "ours_iterations": c.iterations,
-            "rmse_gnss_m": float(np.sqrt(np.mean(np.sum((prob.gnss_pos - truth) ** 2, 1)))),
-            "rmse_centralized_m": float(np.sqrt(np.mean(np.sum((c.positions - truth) ** 2, 1)))),
-        }
-        if reference is not None:
-            Xg, _ = reference(prob, marginals=False)
-            row["gtsam_solve_s"] = _best_time(lambda: reference(prob, marginals=False))
-            t0 = time.perf_counter()
-            Xg, Pg = reference(prob, marginals=True)
-            row["gtsam_solve_with_cov_s"] = time.perf_counter() - t0
-            row["max_pos_diff_vs_gtsam_m"] = float(np.abs(Xg - c.positions).max())
-        for model, damping in (("prior", 1.0), ("fixed", 0.5)):
-            t0 = time.perf_counter()
-            dres = solve_distributed(prob, neighbour_model=model, damping=damping, max_rounds=max_rounds, tol=tol)
-            row[f"dist_{model}_s"] = time.perf_counter() - t0
-            row[f"dist_{model}_rounds"] = dres.rounds
-            row[f"dist_{model}_converged"] = dres.converged
-            row[f"dist_{model}_bytes"] = dres.bytes_sent
-            row[f"dist_{model}_gap_to_central_m"] = float(np.linalg.norm(dres.positions - c.positions, axis=1).max())
-            row[f"dist_{model}_rmse_m"] = float(np.sqrt(np.mean(np.sum((dres.positions - truth) ** 2, 1))))
-        out.append(row)
-    return out

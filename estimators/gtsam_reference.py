@@ -56,12 +56,3 @@ def solve_gtsam(problem: CoopProblem, x0: np.ndarray | None = None, *, optimizer
     marg = gtsam.Marginals(graph, result)
     P = np.array([marg.marginalCovariance(i) for i in range(problem.n)])
     return X, P
-
-
-def bench(make_epoch, n_list=(18, 100, 1000), seed: int = 0) -> list[dict]:
-    """estimators.factor_graph.bench_solvers with GTSAM as the reference: ours vs GTSAM solve times
-    (keys gtsam_solve_s, gtsam_solve_with_cov_s, max_pos_diff_vs_gtsam_m) and distributed rounds.
-    make_epoch(n, seed) -> (truth, CoopProblem): the epoch generator (e.g. testbed.synthetic.epoch_factory())."""
-    from estimators.factor_graph import bench_solvers
-
-    return bench_solvers(make_epoch, n_list, seed, reference=solve_gtsam)

@@ -104,7 +104,7 @@ def make_epoch(n: int = 18, seed: int = 0, *, n_rtk: int = 3, box=BOX, max_range
 
 
 def epoch_factory(n_rtk: int = 3):
-    """make_epoch(n, seed) -> (truth (n, 3) m, CoopProblem) for estimators.factor_graph.bench_solvers:
+    """make_epoch(n, seed) -> (truth (n, 3) m, CoopProblem) for testbed.bench_estimators.bench_factor_graph:
     a random connected swarm with the box scaled to the density of 18 UAVs in 200 x 200 x 100 m."""
 
     def factory(n: int, seed: int):
