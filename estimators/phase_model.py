@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.core import skew
+
 N_STATE = 18
 ROWS_PER_MASTER = 18
 #: names of the 12 body-state components returned by `body_from_antennas`
@@ -193,10 +195,6 @@ def measurement_model(x: np.ndarray, master_pos: np.ndarray, master_vel: np.ndar
 # ------------------------------------------------------------------------------------------------
 # Body state from the antennas (eq. 29-30 redone in FLU)
 # ------------------------------------------------------------------------------------------------
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _normalize_with_rate(v, vd, Jv, Jvd):
     """e = v/|v| and its rate ed = (I - e e^T) vd / |v|, with Jacobians wrt the 18-state.
 
@@ -215,8 +213,8 @@ def _cross_with_rate(a, ad, Ja, Jad, b, bd, Jb, Jbd):
     """c = a x b and cd = ad x b + a x bd with Jacobians wrt the 18-state."""
     c = np.cross(a, b)
     cd = np.cross(ad, b) + np.cross(a, bd)
-    Jc = _skew(a) @ Jb - _skew(b) @ Ja
-    Jcd = _skew(ad) @ Jb - _skew(b) @ Jad + _skew(a) @ Jbd - _skew(bd) @ Ja
+    Jc = skew(a) @ Jb - skew(b) @ Ja
+    Jcd = skew(ad) @ Jb - skew(b) @ Jad + skew(a) @ Jbd - skew(bd) @ Ja
     return c, cd, Jc, Jcd
 
 

@@ -63,6 +63,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from estimators.core import skew
 from estimators.sigma_filters import FunctionMeasurement
 
 # --------------------------------------------------------------------------------------------
@@ -92,17 +93,6 @@ NX, N_ERR = 22, 21
 # --------------------------------------------------------------------------------------------
 # SO(3) and quaternion helpers (batched over leading axes)
 # --------------------------------------------------------------------------------------------
-def skew(v: np.ndarray) -> np.ndarray:
-    """[v]x: (..., 3) -> (..., 3, 3), [v]x w = v x w."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    out[..., 0, 1], out[..., 0, 2] = -z, y
-    out[..., 1, 0], out[..., 1, 2] = z, -x
-    out[..., 2, 0], out[..., 2, 1] = -y, x
-    return out
-
-
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a (x) b of wxyz quaternions (..., 4); R(a (x) b) = R(a) R(b)."""
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]

@@ -224,6 +224,36 @@ Trajectory = PhaseFormation | StraightLine | SwarmBox | LeaderFollower | Waypoin
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
+class Disturbance:
+    """Random body accelerations: the white-noise-acceleration motion model made physical.
+
+    Each disturbed vehicle gets, per controller tick (1 / world.control_rate s), an independent
+    Gaussian linear acceleration (world axes) and angular acceleration (body axes), held over the
+    tick: the piecewise-constant sampling of continuous white noise whose spectral densities are
+    accel_density (m^2/s^3, per axis) and angular_accel_density (rad^2/s^3, per axis). So the
+    velocity (angular velocity) is a random walk and, over any logged interval dt, increments by
+    N(0, density * dt). prescribed: added to the reference motion (position, velocity,
+    acceleration; attitude, body rate, angular acceleration), so the truth IS that process and every
+    sensor sees it. flown: applied as an external force m a and torque I alpha (a gust), which the
+    controller then fights. Stream "disturbance". vehicles: 1-based numbers; empty = all.
+    Zero densities (the default) = no disturbance: the run is bit-identical to one without it.
+    """
+
+    accel_density: float = 0.0
+    angular_accel_density: float = 0.0
+    vehicles: tuple[int, ...] = ()
+
+    def check(self) -> None:
+        check(self.accel_density >= 0, "accel_density", f"must be >= 0 m^2/s^3, got {self.accel_density}")
+        check(self.angular_accel_density >= 0, "angular_accel_density", f"must be >= 0 rad^2/s^3, got {self.angular_accel_density}")
+        check(all(v >= 1 for v in self.vehicles) and len(set(self.vehicles)) == len(self.vehicles), "vehicles", f"must be distinct vehicle numbers >= 1, got {list(self.vehicles)}")
+
+    @property
+    def active(self) -> bool:
+        return self.accel_density > 0 or self.angular_accel_density > 0
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class Control:
     """Geometric tracking controller gains (Lee, Leok, McClamroch 2010), per unit mass/inertia.
 
@@ -252,12 +282,15 @@ class Scenario:
     world: World = field(default_factory=World)
     control: Control = field(default_factory=Control)
     trajectory: Trajectory
+    disturbance: Disturbance = field(default_factory=Disturbance)
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
     pipeline: PipelineConfig | None = None
 
     def check(self) -> None:
         check(self.duration > 0, "duration", f"must be positive, got {self.duration}")
         check(self.seed >= 0, "seed", f"must be a non-negative integer, got {self.seed}")
+        bad = [v for v in self.disturbance.vehicles if v > self.vehicles]
+        check(not bad, "disturbance.vehicles", f"vehicle {bad[0] if bad else 0} does not exist (the scenario has {self.vehicles})")
         try:  # sensor rates must divide the control rate; vehicle numbers must exist
             self.sensors.check_rates(self.world.control_rate, self.vehicles)
         except ValueError as e:

@@ -9,6 +9,9 @@ reference, and every due sensor samples the physics state of that instant.
 - flown: the controller commands the rotors every tick; `mj_step1` (position and velocity
   stages), controller, `mj_step2` (acceleration stage, then integration) so sensors see the state
   of the tick itself; the remaining physics steps of the tick hold the command.
+
+A scenario's [disturbance] (testbed.disturbance) is added to the played-back motion in prescribed
+mode and applied as an external force and torque, held over each tick, in flown mode.
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from testbed.control import GeometricController, heading
+from testbed.disturbance import Realization, perturb, realize, wrench
 from testbed.reference import attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors import make_sensors
@@ -72,11 +76,12 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     flown = scenario.motion == "flown"
     n = sched.n_ticks if flown else K
     ctrl = np.zeros((K, m.nu))
+    dist = realize(scenario, sched.n_ticks)
     with tqdm(total=n, desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False) as bar:
         if flown:
-            _fly(scenario, physics, sched, log, ctrl, due, bar)
+            _fly(scenario, physics, sched, log, ctrl, due, bar, dist)
         else:
-            _play(scenario, physics, log["time"], log, due, bar)
+            _play(scenario, physics, log_ticks, log, due, bar, dist)
     log.update(truth_from_state(physics, log["qpos"], log["qvel"]))
     if flown:
         log["ctrl"] = ctrl
@@ -85,15 +90,20 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     return log, physics
 
 
-def _play(scenario: Scenario, physics: Physics, times: np.ndarray, log: dict[str, np.ndarray], due: list[list[Sensor]], bar: tqdm) -> None:
-    """Prescribed motion: the reference state set at each logged instant times (K,) s."""
+def _play(scenario: Scenario, physics: Physics, ticks: np.ndarray, log: dict[str, np.ndarray], due: list[list[Sensor]], bar: tqdm,
+          dist: Realization | None) -> None:
+    """Prescribed motion: the reference state (plus the disturbance, if any) set at each logged
+    tick, ticks (K,) tick numbers; the log's reference stays the undisturbed plan."""
     d = physics.data
     qpos, qvel = log["qpos"], log["qvel"]
+    times = log["time"]
     for r0 in range(0, len(times), CHUNK):
         t = times[r0 : r0 + CHUNK]
         ref = evaluate(scenario.trajectory, t)
         log["reference/pos"][r0 : r0 + len(t)] = ref.pos
         log["reference/quat"][r0 : r0 + len(t)] = ref.quat
+        if dist is not None:
+            ref = perturb(ref, dist, ticks[r0 : r0 + CHUNK])
         for j, tj in enumerate(t.tolist()):
             row = r0 + j
             d.time = tj
@@ -104,10 +114,12 @@ def _play(scenario: Scenario, physics: Physics, times: np.ndarray, log: dict[str
         bar.update(len(t))
 
 
-def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm) -> None:
+def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm,
+         dist: Realization | None) -> None:
     """Flown motion: the controller in the loop at every tick; logged ticks as in the module
     docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
-    ticks at a time, its attitude only at the logged ticks."""
+    ticks at a time, its attitude only at the logged ticks. dist: the disturbance wrench is set
+    after the position stage of each tick and held over the tick."""
     m, d = physics.model, physics.data
     tr = scenario.trajectory
     controller = GeometricController(physics, scenario.control)
@@ -117,6 +129,11 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
     step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
     rest = sched.substeps - 1  # physics steps of a tick after the controller's
     times = sched.times
+    if dist is not None:
+        xfrc = physics.data.xfrc_applied
+        bodies = physics.body_ids[dist.index]
+        mass, inertia = physics.vehicle_mass, physics.vehicle_inertia
+    tick = 0
     row = 0
     for c0 in range(0, sched.n_ticks, CHUNK):
         t = times[c0 : c0 + CHUNK]
@@ -130,6 +147,9 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
         for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
             step1(m, d)
             controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
+            if dist is not None:
+                xfrc[bodies] = wrench(dist, tick, mass, inertia, rotation[dist.index])
+            tick += 1
             if is_logged:
                 qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
                 step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt

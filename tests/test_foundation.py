@@ -117,6 +117,8 @@ BAD = {
     "malformed": (HOVER.replace("duration = 3.0", "duration = = 3"), "malformed TOML"),
     "wrong type": (HOVER.replace("duration = 3.0", 'duration = "long"'), "duration"),
     "rate not dividing": (HOVER + "[sensors.imu]\nrate_hz = 7.0\n", "sensors.imu.rate_hz"),
+    "negative disturbance": (HOVER + "[disturbance]\naccel_density = -1.0\n", "disturbance.accel_density"),
+    "disturbed vehicle missing": (HOVER + "[disturbance]\naccel_density = 1.0\nvehicles = [2]\n", "disturbance.vehicles"),
 }
 
 

@@ -107,8 +107,8 @@ def claims(R: dict[str, list[dict]]) -> list[dict]:
 
 COLS = [("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos [m]"),
         ("rmse_position_last_100s_m", "RMSE pos last 100 s [m]"), ("pcrb_rmse_position_last_100s_m", "PCRB last 100 s [m]"),
-        ("rmse_velocity_mps", "RMSE vel [m/s]"), ("rmse_attitude_deg", "RMSE att [deg]"), ("anees", "ANEES (18)"),
-        ("anees_body6_actual_cov", "ANEES body vs P_act (6)")]
+        ("rmse_velocity_mps", "RMSE vel [m/s]"), ("rmse_attitude_deg", "RMSE att [deg]"), ("anees", "ANEES body (6)"),
+        ("anees_state18", "ANEES (18)"), ("anees_body6_actual_cov", "ANEES body vs P_act (6)")]
 
 
 def table(R: dict[str, list[dict]], out: Path) -> None:

@@ -1,0 +1,122 @@
+"""Random body accelerations of the scenario's [disturbance] table (see scenario.Disturbance).
+
+One realization per run, drawn from stream "disturbance" on the controller-tick grid (tick h):
+a_k ~ N(0, q / h) per world axis and alpha_k ~ N(0, q_r / h) per body axis, held over tick k.
+Integrated exactly for the translation,
+    dv_{k+1} = dv_k + a_k h,   dp_{k+1} = dp_k + dv_k h + a_k h^2 / 2,
+so over n ticks (dt = n h) the velocity increment is N(0, q dt) and the position increment has
+variance q (dt^3 / 3 - h^2 dt / 12): the constant-velocity model's Q to 1e-3 relative at
+h = 5 ms, dt = 0.1 s. The rotation is a perturbation Delta (body-to-body) on top of the reference
+attitude, R = R_ref Delta, with its own body rate w_d (random walk) and
+    Delta_{k+1} = Delta_k exp(w_d,k h + alpha_k h^2 / 2),  w_d,k+1 = w_d,k + alpha_k h;
+then, exactly for R = R_ref Delta (Rdot = R [w]x):
+    w     = Delta^T w_ref + w_d,
+    alpha = Delta^T alpha_ref - w_d x (Delta^T w_ref) + alpha_d.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from testbed.reference import RefState
+from testbed.rng import stream_rng
+from testbed.scenario import Scenario
+
+
+@dataclass(frozen=True, slots=True)
+class Realization:
+    """One run's disturbance on the tick grid (n ticks) for the D disturbed vehicles.
+
+    index: (D,) 0-based vehicle indices; accel: (n, D, 3) world m/s^2; dp, dv: (n, D, 3) world
+    position (m) and velocity (m/s) offsets; ang_accel: (n, D, 3) body rad/s^2; omega: (n, D, 3)
+    body rate of Delta (rad/s); delta: (n, D, 4) wxyz quaternion of Delta (body-to-body).
+    """
+
+    index: np.ndarray
+    accel: np.ndarray
+    dp: np.ndarray
+    dv: np.ndarray
+    ang_accel: np.ndarray
+    omega: np.ndarray
+    delta: np.ndarray
+
+
+def realize(scenario: Scenario, n_ticks: int) -> Realization | None:
+    """The run's disturbance on ticks 0..n_ticks-1, or None if the scenario has none.
+
+    Starts at rest (all offsets zero at t = 0). Deterministic in scenario.seed.
+    """
+    dist = scenario.disturbance
+    if not dist.active:
+        return None
+    h = 1.0 / scenario.world.control_rate
+    index = np.array([v - 1 for v in dist.vehicles] if dist.vehicles else range(scenario.vehicles), int)
+    D = index.size
+    rng = stream_rng(scenario.seed, "disturbance")
+    noise = rng.standard_normal((n_ticks, D, 6))
+    accel = noise[..., :3] * np.sqrt(dist.accel_density / h)
+    ang = noise[..., 3:] * np.sqrt(dist.angular_accel_density / h)
+    dv, dp = _integrate(accel, h)
+    omega, _ = _integrate(ang, h)
+    delta = np.empty((n_ticks, D, 4))
+    q = np.zeros((D, 4))
+    q[:, 0] = 1.0
+    steps = Rotation.from_rotvec((omega * h + ang * h * h / 2).reshape(-1, 3)).as_quat(scalar_first=True).reshape(n_ticks, D, 4)
+    for k in range(n_ticks):
+        delta[k] = q
+        q = _quat_mul(q, steps[k])
+    return Realization(index, accel, dp, dv, ang, omega, delta)
+
+
+def _integrate(a: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity and position (n, D, 3) from rest under accelerations a (n, D, 3) held over h."""
+    v = np.zeros_like(a)
+    p = np.zeros_like(a)
+    np.cumsum(a[:-1] * h, axis=0, out=v[1:])
+    np.cumsum(v[:-1] * h + a[:-1] * (h * h / 2), axis=0, out=p[1:])
+    return v, p
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of wxyz quaternions (..., 4)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def perturb(ref: RefState, real: Realization, ticks: np.ndarray) -> RefState:
+    """The reference at ticks (K,) (tick numbers of its K rows) with the disturbance added
+    (module docstring): the motion prescribed mode plays back."""
+    i = real.index
+    pos, vel, acc = ref.pos.copy(), ref.vel.copy(), ref.acc.copy()
+    quat, omega, alpha = ref.quat.copy(), ref.omega.copy(), ref.alpha.copy()
+    pos[:, i] += real.dp[ticks]
+    vel[:, i] += real.dv[ticks]
+    acc[:, i] += real.accel[ticks]
+    d = real.delta[ticks]
+    quat[:, i] = _quat_mul(ref.quat[:, i], d)
+    Dt = Rotation.from_quat(d.reshape(-1, 4), scalar_first=True).inv()  # Delta^T
+    w_ref = Dt.apply(ref.omega[:, i].reshape(-1, 3)).reshape(d.shape[:-1] + (3,))
+    a_ref = Dt.apply(ref.alpha[:, i].reshape(-1, 3)).reshape(w_ref.shape)
+    wd = real.omega[ticks]
+    omega[:, i] = w_ref + wd
+    alpha[:, i] = a_ref - np.cross(wd, w_ref) + real.ang_accel[ticks]
+    return replace(ref, pos=pos, vel=vel, acc=acc, quat=quat, omega=omega, alpha=alpha)
+
+
+def wrench(real: Realization, tick: int, mass: float, inertia: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Flown mode: external force and torque (D, 6), world frame, at the body's centre of mass,
+    that give a free body the disturbance accelerations of this tick: [m a, R (I alpha)].
+
+    mass (kg), inertia (3,) principal moments about the body axes (kg m^2), rotation (D, 3, 3)
+    the disturbed bodies' R_world_from_body now.
+    """
+    torque_body = inertia * real.ang_accel[tick]
+    return np.concatenate([mass * real.accel[tick], np.einsum("dij,dj->di", rotation, torque_body)], axis=1)
