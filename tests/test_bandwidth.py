@@ -5,7 +5,7 @@ from scipy.stats import norm
 
 from estimators import bandwidth as bw
 from estimators.core import kalman_gain
-from testbed.reproduce.bandwidth_paper import M0_PAPER, P_SETS, T_SETS, X0_PAPER, paper_model
+from testbed.reproduce.bandwidth_paper import M0_PAPER, P_SETS, T_SETS, X0_PAPER, paper_model, simulate
 
 BUDGET = [5, 5, 5, 5]
 
@@ -69,7 +69,7 @@ def test_bound_dominates_empirical_covariance_paper_setup(tname, pname):
     Sig = bw.node_blocks(bw.exact_covariance(model, net, M0_PAPER, K, Ls), 4)
     # exact: M - Sigma positive semidefinite at every node and step
     assert (np.linalg.eigvalsh(M - Sig).min(-1) >= -1e-9 * np.linalg.eigvalsh(M).max(-1)).all()
-    sim = bw.simulate(model, net, mu0=X0_PAPER, Sigma0=M0_PAPER, K=K, runs=R, rng=np.random.default_rng(7))
+    sim = simulate(model, net, mu0=X0_PAPER, Sigma0=M0_PAPER, K=K, runs=R, rng=np.random.default_rng(7))
     e = sim.errors
     emp = np.einsum("rkia,rkib->kiab", e, e) / R
     tr_emp = np.trace(emp, axis1=-2, axis2=-1)
@@ -89,7 +89,7 @@ def test_known_input_keeps_estimates_unbiased():
     model = paper_model(1.0, False)
     net = bw.FusionNetwork(select=T_SETS["T2"], weights=P_SETS["P1"], budget=BUDGET)
     R = 1000
-    sim = bw.simulate(model, net, mu0=X0_PAPER, Sigma0=M0_PAPER, K=30, runs=R, rng=np.random.default_rng(3),
+    sim = simulate(model, net, mu0=X0_PAPER, Sigma0=M0_PAPER, K=30, runs=R, rng=np.random.default_rng(3),
                       x0_random=False)
     e = sim.errors[:, -1]
     assert (np.abs(e.mean(0)) < 4.5 * e.std(0, ddof=1) / np.sqrt(R)).all()
@@ -209,7 +209,7 @@ def test_drops_and_node_failure_stay_bounded():
     net = bw.FusionNetwork(select=T_SETS["T1"], weights=P_SETS["P1"], budget=BUDGET)
     K, R = 200, 200
     faults = bw.LinkFaults(drop_prob=0.3, failed={1: 50})  # node 2 stops sending at k = 50
-    sim = bw.simulate(model, net, mu0=X0_PAPER, Sigma0=M0_PAPER, K=K, runs=R, rng=np.random.default_rng(5),
+    sim = simulate(model, net, mu0=X0_PAPER, Sigma0=M0_PAPER, K=K, runs=R, rng=np.random.default_rng(5),
                       faults=faults)
     e = sim.errors
     assert np.isfinite(sim.xhat).all() and np.isfinite(sim.M).all()

@@ -42,12 +42,12 @@ from typing import Literal
 
 import numpy as np
 
+from estimators.visnav import PAPER_ACCEL_BIAS, PAPER_ACCEL_NOISE, PAPER_GYRO_BIAS, PAPER_GYRO_NOISE, PAPER_VISION_SIGMA
 from testbed.config import ConfigError, check
 from testbed.pipelines import register
 
 FILTER_NAMES = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 _DEG = math.pi / 180.0
-_G0 = 9.80665
 
 Vec3 = tuple[float, float, float]
 
@@ -81,12 +81,12 @@ class VisnavConfig:
     cam_att_sigma_deg: float = 0.0
     led_pos: tuple[Vec3, ...] = ((0.40, 0.30, 0.06), (0.40, -0.30, 0.06), (0.25, 0.0, 0.28), (0.60, 0.0, -0.12))
     led_pos_sigma: float = 0.0
-    los_sigma: float = 3500e-6
+    los_sigma: float = PAPER_VISION_SIGMA
     focal_d: float = 1.0
-    gyro_noise: float = 0.08 * _DEG / 60.0
-    accel_noise: float = 50e-6 * _G0
-    gyro_bias_sigma: float = 0.1 * _DEG / 3600.0
-    accel_bias_sigma: float = 250e-6 * _G0
+    gyro_noise: float = PAPER_GYRO_NOISE
+    accel_noise: float = PAPER_ACCEL_NOISE
+    gyro_bias_sigma: float = PAPER_GYRO_BIAS
+    accel_bias_sigma: float = PAPER_ACCEL_BIAS
     gyro_bias_rw: float = 0.0
     accel_bias_rw: float = 0.0
     init_sigma_pos: float = 0.5
