@@ -557,7 +557,7 @@ def uwb_pseudo_measurement(ranges: np.ndarray, anchors: np.ndarray, range_sigma:
         2 (a_k - a_m)^T p = |a_k|^2 - |a_m|^2 - r_k^2 + r_m^2,   k = 1..m-1   (eqs. 21-22)
     i.e. H p = z; p = (H^T H)^-1 H^T z (H invertible for m = 4), so y = p with C = I3 (eq. 23).
     Noise by linear error propagation: dz = G dr with G = [-2 diag(r_1..r_{m-1}) | 2 r_m 1], so
-    cov(y) = sigma^2 H^+ G G^T H^+T, evaluated at the *measured* ranges (never the truth). The
+    cov(y) = sigma^2 H^+ G G^T H^+T, evaluated at the *measured* ranges (never the true ones). The
     second-order terms -dr_k^2 + dr_m^2 have zero mean, so y is unbiased to second order.
     Returns y (..., 3) (m, world) and V (..., 3, 3) (m^2).
     """

@@ -98,7 +98,7 @@ def kf_update(belief: Gaussian, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> 
 def nees(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Normalized estimation error squared e^T P^-1 e.
 
-    error: (..., n) estimate minus truth; cov: (..., n, n). Returns (...,).
+    error: (..., n) estimate minus true value; cov: (..., n, n). Returns (...,).
     """
     e = np.asarray(error)[..., None]
     sol = np.linalg.solve(cov, e)

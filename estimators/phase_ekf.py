@@ -36,7 +36,7 @@ antenna give ~0.02 m along the lines of sight; the same argument on the range-ra
 few 1e-7). An order-of-magnitude bound, so it was checked
 on the 200 s eq. 31 run (cross formation, 10 runs): q = 1e-8 lags (ANEES 83 for 18 dof at 100 s),
 q = 1e-7 and 1e-6 do not (ANEES 8-15), and 1e-7 has the lower RMSE (1.7 cm vs 2.3 cm at 50 s), so
-1e-7 is the default. Because the eq. 31 truth has no random acceleration at all, any q > 0 makes
+1e-7 is the default. Because the eq. 31 motion has no random acceleration at all, any q > 0 makes
 the filter (and the PCRB) somewhat conservative on it. In `flown` mode (closed-loop quadrotors)
 the accelerations are larger: the scenario must set q.
 
@@ -50,7 +50,7 @@ and Q = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]], with rho from the state the pr
 from. This is exactly the motion of a scenario's [disturbance] (testbed.disturbance) on a body
 whose attitude changes slowly over dt; the independent term q keeps covering the deterministic
 attitude-driven accelerations of eq. 31. A rigid body has no random motion in the 6 directions
-that stretch the antenna triangle (3 lengths and their rates), so on any rigid truth the 18-state
+that stretch the antenna triangle (3 lengths and their rates), so on any rigid body's motion the 18-state
 NEES is not chi-square there; the body position and velocity (6 dof) have no such deficit.
 Measured (tests/test_phase_scenario.py, phase-cross-h000 with the follower's [disturbance] =
 this Q's 1e-3 / 1e-5, range rows, 30 runs, 20 s): body ANEES 5.78 in [4.50, 7.75]; 18-state
@@ -153,7 +153,7 @@ class PhaseMeasurement:
     ranges: (M, 3, 3) r[m, i, j], m: master m's slot-i antenna to follower antenna j (eq. 5-6);
     range_rates: (M, 3, 3) rdot[m, i, j], m/s (eq. 7);
     master_pos, master_vel: (M, 3, 3) master antenna positions (m) / velocities (m/s) [m, slot, xyz]
-        as reported by the masters' own navigation (an input stream, not truth);
+        as reported by the masters' own navigation (an input stream, not the simulator's state);
     sigma_range (m), sigma_range_rate (m/s): 1-sigma noise, scalars or arrays broadcastable to (M, 3, 3);
     valid_range, valid_range_rate: optional (M, 3, 3) bool masks (False = missing / flagged).
     rate_window: None = the rates are instantaneous (the paper's eq. 10); W (s, scalar or
@@ -224,7 +224,7 @@ class UpdateInfo:
     rejected_labels: (master, kind, slot i, antenna j) of each rejected row (see phase_model.row_label);
     nis: nu^T S^-1 nu over the used rows, dof = number of used rows; threshold: the |w| threshold;
     gain: the gain K (n, number of used rows), columns in the order of the used rows (for a
-    covariance analysis of the filter against another truth model, e.g. Gelb 1974 ch. 7).
+    covariance analysis of the filter against another model of the true motion, e.g. Gelb 1974 ch. 7).
     """
 
     innovation: np.ndarray

@@ -21,7 +21,7 @@ Filter state (paper eq. 13), x: (18,)
 
 Masters: M masters with antenna positions X0: (M, 3, 3) [master m, master slot i, xyz] and
 velocities V0: (M, 3, 3). These are an INPUT stream (the masters' own navigation solution), never
-the truth.
+the simulator's state.
 
 Measurement row ordering (paper eq. 12, 25): for each master m (in the order of X0), 9 ranges
 then 9 range rates; inside each group the master slot i is the slow index, the follower antenna

@@ -55,7 +55,7 @@ class ManifoldGaussian(Gaussian):
     """A Gaussian on a manifold: mean (nx,) is a point, cov (n, n) lives in the tangent space at it.
 
     x_true = mean (+) dx, dx ~ N(0, cov). nx may exceed n (a quaternion has 4 numbers, 3 degrees of
-    freedom); everything else is as core.Gaussian. NEES: core.nees(model.boxminus(est, truth), cov).
+    freedom); everything else is as core.Gaussian. NEES: core.nees(model.boxminus(est, true_state), cov).
     """
 
     def __post_init__(self) -> None:

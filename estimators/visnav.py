@@ -24,7 +24,7 @@ their prior covariance, which is consistent as long as the prior is honest.
 
 Continuous dynamics (w_L, w_F body rates, f_L, f_F specific forces, all true values):
     dp/dt = -w_L x p + v
-    dv/dt = -w_L x v + R_rel f_F - f_L        (gravity cancels: no gravity model, no truth)
+    dv/dt = -w_L x v + R_rel f_F - f_L        (gravity cancels: no gravity model needed)
     dR_rel/dt = R_rel [w_F]x - [w_L]x R_rel
     biases: random walks (random constants if their densities are zero).
 IMU model (eq. 1-4): w_meas = (I + Kg) w + bg + eta, a_meas = (I + Ka) a + ba + eta; Kg, Ka are

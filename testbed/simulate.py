@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from testbed.control import GeometricController, heading
-from testbed.disturbance import Realization, perturb, realize, wrench
+from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
 from testbed.reference import attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors import make_sensors
@@ -76,12 +76,11 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     flown = scenario.motion == "flown"
     n = sched.n_ticks if flown else K
     ctrl = np.zeros((K, m.nu))
-    dist = realize(scenario, sched.n_ticks)
     with tqdm(total=n, desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False) as bar:
         if flown:
-            _fly(scenario, physics, sched, log, ctrl, due, bar, dist)
+            _fly(scenario, physics, sched, log, ctrl, due, bar, draw(scenario, sched.n_ticks))
         else:
-            _play(scenario, physics, log_ticks, log, due, bar, dist)
+            _play(scenario, physics, log, due, bar, realize(scenario, log_ticks))
     log.update(truth_from_state(physics, log["qpos"], log["qvel"]))
     if flown:
         log["ctrl"] = ctrl
@@ -90,10 +89,10 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     return log, physics
 
 
-def _play(scenario: Scenario, physics: Physics, ticks: np.ndarray, log: dict[str, np.ndarray], due: list[list[Sensor]], bar: tqdm,
+def _play(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], due: list[list[Sensor]], bar: tqdm,
           dist: Realization | None) -> None:
-    """Prescribed motion: the reference state (plus the disturbance, if any) set at each logged
-    tick, ticks (K,) tick numbers; the log's reference stays the undisturbed plan."""
+    """Prescribed motion: the reference state (plus the disturbance, realized at the logged
+    ticks, if any) set at each logged instant; the log's reference stays the undisturbed plan."""
     d = physics.data
     qpos, qvel = log["qpos"], log["qvel"]
     times = log["time"]
@@ -103,7 +102,7 @@ def _play(scenario: Scenario, physics: Physics, ticks: np.ndarray, log: dict[str
         log["reference/pos"][r0 : r0 + len(t)] = ref.pos
         log["reference/quat"][r0 : r0 + len(t)] = ref.quat
         if dist is not None:
-            ref = perturb(ref, dist, ticks[r0 : r0 + CHUNK])
+            ref = perturb(ref, dist, slice(r0, r0 + len(t)))
         for j, tj in enumerate(t.tolist()):
             row = r0 + j
             d.time = tj
@@ -115,7 +114,7 @@ def _play(scenario: Scenario, physics: Physics, ticks: np.ndarray, log: dict[str
 
 
 def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm,
-         dist: Realization | None) -> None:
+         dist: Draws | None) -> None:
     """Flown motion: the controller in the loop at every tick; logged ticks as in the module
     docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
     ticks at a time, its attitude only at the logged ticks. dist: the disturbance wrench is set
