@@ -109,12 +109,13 @@ def _pva(tr: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
 # ------------------------------------------------------------------------------- attitudes
 
 
-def _rotation(tr: Trajectory, t: np.ndarray, acc: np.ndarray | None = None) -> tuple[Rotation, np.ndarray]:
+def _rotation(tr: Trajectory, t: np.ndarray, acc: np.ndarray | None = None, flat: bool = False) -> tuple[Rotation, np.ndarray]:
     """Attitude at times t (K,): a flat Rotation of K*N elements and yaw (K, N).
 
     acc: the reference acceleration (K, N, 3) at t if already evaluated (flat attitudes use it).
+    flat: the flat attitude even where the trajectory prescribes one (seed 003's eq. 31).
     """
-    if isinstance(tr, PhaseFormation):
+    if isinstance(tr, PhaseFormation) and not flat:
         ypr = _phase_ypr(tr, t)
         return Rotation.from_euler("ZYX", ypr.reshape(-1, 3)), ypr[..., 0]
     if acc is None:
@@ -160,10 +161,10 @@ def flat_rotation(acc: np.ndarray, yaw: np.ndarray) -> Rotation:
     return Rotation.from_matrix(np.stack([xb, yb, zb], -1))
 
 
-def _omega(tr: Trajectory, t: np.ndarray, h: float) -> np.ndarray:
+def _omega(tr: Trajectory, t: np.ndarray, h: float, flat: bool = False) -> np.ndarray:
     """Body angular velocity (K, N, 3) by the central difference log(R(t-h)^T R(t+h)) / 2h."""
-    r0, _ = _rotation(tr, t - h)
-    r1, _ = _rotation(tr, t + h)
+    r0, _ = _rotation(tr, t - h, flat=flat)
+    r1, _ = _rotation(tr, t + h, flat=flat)
     return (r0.inv() * r1).as_rotvec().reshape(t.shape[0], -1, 3) / (2 * h)
 
 
@@ -181,20 +182,22 @@ def attitude(tr: Trajectory, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
     return rot.as_quat(scalar_first=True).reshape(t.shape[0], -1, 4)
 
 
-def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True) -> RefState:
+def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True, flat: bool = False) -> RefState:
     """The reference at times t (K,) or a scalar (K = 1), see RefState.
 
     rates=False skips the angular velocity and acceleration (left as zeros): what a tracking
-    controller needs is position, velocity, acceleration and yaw.
+    controller needs is position, velocity, acceleration and yaw. flat=True gives every vehicle
+    the flat attitude (thrust along a + g, the reference yaw) even where the trajectory prescribes
+    one: the attitude a flown quadrotor has on that path (its start state in flown mode).
     """
     t = np.atleast_1d(np.asarray(t, float))
     pos, vel, acc = _pva(tr, t)
-    rot, yaw = _rotation(tr, t, acc)
+    rot, yaw = _rotation(tr, t, acc, flat)
     quat = rot.as_quat(scalar_first=True).reshape(t.shape[0], -1, 4)
     if not rates:
         zeros = np.zeros_like(pos)
         return RefState(pos, vel, acc, quat, zeros, zeros, yaw)
-    omega = _omega(tr, t, 1e-5)
+    omega = _omega(tr, t, 1e-5, flat)
     ha = 1e-3
-    alpha = (_omega(tr, t + ha, 1e-5) - _omega(tr, t - ha, 1e-5)) / (2 * ha)
+    alpha = (_omega(tr, t + ha, 1e-5, flat) - _omega(tr, t - ha, 1e-5, flat)) / (2 * ha)
     return RefState(pos, vel, acc, quat, omega, alpha, yaw)

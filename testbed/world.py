@@ -38,11 +38,13 @@ def _vehicle_spec(scenario: Scenario, index: int) -> mujoco.MjSpec:
 
 
 def build(scenario: Scenario) -> "Physics":
-    """Compile the scene of a scenario, placed at the reference's initial state."""
+    """Compile the scene of a scenario, placed at the reference's initial state (in flown mode
+    with the flat attitude a quadrotor has on that path: a prescribed attitude such as eq. 31's
+    cannot be held in flight and would start the run with a levelling transient)."""
     spec = mujoco.MjSpec.from_file(str(MODELS / "arena.xml"))
     w = scenario.world
     spec.option.timestep = w.timestep
-    ref0 = evaluate(scenario.trajectory, 0.0)
+    ref0 = evaluate(scenario.trajectory, 0.0, flat=scenario.motion == "flown")
     for i in range(scenario.vehicles):
         frame = spec.worldbody.add_frame()
         spec.attach(_vehicle_spec(scenario, i), prefix=f"uav{i + 1}/", frame=frame)
