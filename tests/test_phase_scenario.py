@@ -57,6 +57,46 @@ MATCHED = {
 }
 
 
+def _monte_carlo(runs: int, horizon: float, overrides: dict | None = None) -> dict:
+    """`runs` seeds of phase-cross-h000 (with overrides) through the testbed and the filter.
+
+    Final-epoch values over the runs: n18, n6 (the filter's NEES, 18-state and body position +
+    velocity), n6_act (body NEES against the Gelb covariance P_act), P_minus_P_act_min (smallest
+    eigenvalue of P - P_act), and RMSE of the antenna positions / body position next to the PCRB
+    (each run's bound along its own true trajectory, averaged over the runs).
+    """
+    e18, n18, n6, n6a, gap, bounds = [], [], [], [], [], []
+    for i in range(runs):
+        sc = scenario_mod.load(NAME, seed=1 + i, duration=horizon, overrides=overrides)
+        log, _ = simulate(sc)
+        r = _filter(sc, log)
+        e = r["means"][-1] - r["states"][-1]
+        B = P.BODY_PV
+        e18.append(e)
+        n18.append(nees(e, r["covs"][-1]))
+        n6.append(nees(B @ e, B @ r["covs"][-1] @ B.T))
+        n6a.append(nees(B @ e, B @ r["acts"][-1] @ B.T))
+        gap.append(np.linalg.eigvalsh(r["covs"][-1] - r["acts"][-1]).min())
+        q = P.process_noise_model(sc.pipeline, sc.motion)
+        bounds.append(P.phase_pcrb(sc.pipeline, q, r["states"], r["inp"], r["meas"], r["P0"])[-1])
+    E, bound = np.array(e18), np.mean(bounds, axis=0)
+    return dict(
+        n18=np.mean(n18), n6=np.mean(n6), n6_act=np.mean(n6a), P_minus_P_act_min=min(gap),
+        rmse_ant=np.sqrt(np.mean(np.sum(E[:, :9] ** 2, axis=1))),
+        rmse_body=np.sqrt(np.mean(np.sum((E @ P.BODY_POS.T) ** 2, axis=1))),
+        pcrb_ant=np.sqrt(np.trace(bound[:9, :9])),
+        pcrb_body=np.sqrt(np.trace(P.BODY_POS @ bound @ P.BODY_POS.T)),
+    )
+
+
+def _report(label: str, mc: dict, runs: int) -> None:
+    lo6, hi6 = chi2_interval(6, runs)
+    lo18, hi18 = chi2_interval(18, runs)
+    print(f"{label}: ANEES body6 {mc['n6']:.2f} (vs P_act {mc['n6_act']:.2f}) [{lo6:.2f}, {hi6:.2f}]; "
+          f"18-state {mc['n18']:.2f} [{lo18:.2f}, {hi18:.2f}]; RMSE antennas {mc['rmse_ant']:.4f} / PCRB "
+          f"{mc['pcrb_ant']:.4f}, body {mc['rmse_body']:.4f} / PCRB {mc['pcrb_body']:.4f}")
+
+
 @pytest.mark.slow
 def test_monte_carlo_cross_h000_matched_truth_is_consistent_and_near_pcrb():
     """The issue's consistency test: 30 seeds of phase-cross-h000 through the real testbed, 20 s
@@ -66,39 +106,16 @@ def test_monte_carlo_cross_h000_matched_truth_is_consistent_and_near_pcrb():
     At the final epoch over the 30 independent runs:
     - ANEES of the body position and velocity (the `anees` metric, 6 dof) with the filter's own
       covariance inside its 99 % chi-square interval (consistent, neither over- nor under-confident);
-    - RMSE of the body position and of the antenna positions <= 1.5 x the PCRB (each run's bound
-      along its own true trajectory, averaged over the runs).
+    - RMSE of the body position and of the antenna positions <= 1.5 x the PCRB.
     The 18-state ANEES is printed, not asserted: 6 of its 18 directions (the antenna triangle's
     side lengths and their rates) have no random motion on a rigid body (phase_ekf docstring).
     """
-    runs, horizon = 30, 20.0
-    e18, n18, n6 = [], [], []
-    bounds = []
-    mean6 = []
-    for i in range(runs):
-        sc = scenario_mod.load(NAME, seed=1 + i, duration=horizon, overrides=MATCHED)
-        log, _ = simulate(sc)
-        r = _filter(sc, log)
-        e = r["means"][-1] - r["states"][-1]
-        e18.append(e)
-        n18.append(nees(e, r["covs"][-1]))
-        n6.append(nees(P.BODY_PV @ e, P.BODY_PV @ r["covs"][-1] @ P.BODY_PV.T))
-        q = P.process_noise_model(sc.pipeline, sc.motion)
-        bounds.append(P.phase_pcrb(sc.pipeline, q, r["states"], r["inp"], r["meas"], r["P0"])[-1])
-        mean6.append(P.estimate(sc, log)[0]["anees"]) if i < 3 else None
-    E, bound = np.array(e18), np.mean(bounds, axis=0)
+    runs = 30
+    mc = _monte_carlo(runs, 20.0, MATCHED)
+    _report("matched truth", mc, runs)
     lo6, hi6 = chi2_interval(6, runs)
-    lo18, hi18 = chi2_interval(18, runs)
-    a6, a18 = np.mean(n6), np.mean(n18)
-    rmse_ant = np.sqrt(np.mean(np.sum(E[:, :9] ** 2, axis=1)))
-    rmse_body = np.sqrt(np.mean(np.sum((E @ P.BODY_POS.T) ** 2, axis=1)))
-    b_ant = np.sqrt(np.trace(bound[:9, :9]))
-    b_body = np.sqrt(np.trace(P.BODY_POS @ bound @ P.BODY_POS.T))
-    print(f"matched truth: ANEES body6 {a6:.2f} in [{lo6:.2f}, {hi6:.2f}]; 18-state {a18:.2f} "
-          f"[{lo18:.2f}, {hi18:.2f}]; RMSE antennas {rmse_ant:.4f} / PCRB {b_ant:.4f}, body "
-          f"{rmse_body:.4f} / PCRB {b_body:.4f}; metric anees (time mean, first runs) {np.round(mean6, 2)}")
-    assert lo6 < a6 < hi6
-    assert rmse_ant < 1.5 * b_ant and rmse_body < 1.5 * b_body
+    assert lo6 < mc["n6"] < hi6
+    assert mc["rmse_ant"] < 1.5 * mc["pcrb_ant"] and mc["rmse_body"] < 1.5 * mc["pcrb_body"]
 
 
 @pytest.mark.slow
@@ -109,39 +126,19 @@ def test_monte_carlo_cross_h000_deterministic_truth():
     - the NEES of the body position and velocity against the error covariance this filter really
       has on a truth without random acceleration (P_act, Gelb's covariance analysis: the eq. 31
       body moves at exactly constant velocity) is inside its 99 % chi-square interval;
-    - the filter's own P is not overconfident: ANEES (18-state and body) below the 99 % upper
-      limits (it is conservative, because Q > 0 while the truth has no random acceleration);
+    - the filter's own P is not overconfident: P >= P_act, ANEES (18-state and body) below the
+      99 % upper limits (it is conservative, because Q > 0 while the truth has no random
+      acceleration);
     - RMSE of the antenna positions and of the body position <= 1.5 x the PCRB.
     """
-    runs, horizon = 30, 20.0
-    e18, n18, n6, n6a = [], [], [], []
-    bound = None
-    for i in range(runs):
-        sc = scenario_mod.load(NAME, seed=1 + i, duration=horizon)
-        log, _ = simulate(sc)
-        r = _filter(sc, log)
-        e = r["means"][-1] - r["states"][-1]
-        e18.append(e)
-        n18.append(nees(e, r["covs"][-1]))
-        n6.append(nees(P.BODY_PV @ e, P.BODY_PV @ r["covs"][-1] @ P.BODY_PV.T))
-        n6a.append(nees(P.BODY_PV @ e, P.BODY_PV @ r["acts"][-1] @ P.BODY_PV.T))
-        if bound is None:  # prescribed truth and PCRB are the same for every seed
-            bound = P.phase_pcrb(sc.pipeline, sc.pipeline.q, r["states"], r["inp"], r["meas"], r["P0"])[-1]
-        assert np.linalg.eigvalsh(r["covs"][-1] - r["acts"][-1]).min() > -1e-12  # P >= P_act
-    E = np.array(e18)
+    runs = 30
+    mc = _monte_carlo(runs, 20.0)
+    _report("eq. 31 truth", mc, runs)
     lo6, hi6 = chi2_interval(6, runs)
-    lo18, hi18 = chi2_interval(18, runs)
-    a6a, a6, a18 = np.mean(n6a), np.mean(n6), np.mean(n18)
-    rmse_ant = np.sqrt(np.mean(np.sum(E[:, :9] ** 2, axis=1)))
-    rmse_body = np.sqrt(np.mean(np.sum((E @ P.BODY_POS.T) ** 2, axis=1)))
-    b_ant = np.sqrt(np.trace(bound[:9, :9]))
-    b_body = np.sqrt(np.trace(P.BODY_POS @ bound @ P.BODY_POS.T))
-    print(f"ANEES body6 vs P_act {a6a:.2f} in [{lo6:.2f}, {hi6:.2f}]; filter ANEES body6 {a6:.2f}, "
-          f"18-state {a18:.2f} [{lo18:.2f}, {hi18:.2f}]; RMSE antennas {rmse_ant:.4f} / PCRB {b_ant:.4f}, "
-          f"body {rmse_body:.4f} / PCRB {b_body:.4f}")
-    assert lo6 < a6a < hi6
-    assert a6 < hi6 and a18 < hi18
-    assert rmse_ant < 1.5 * b_ant and rmse_body < 1.5 * b_body
+    assert lo6 < mc["n6_act"] < hi6
+    assert mc["P_minus_P_act_min"] > -1e-12
+    assert mc["n6"] < hi6 and mc["n18"] < chi2_interval(18, runs)[1]
+    assert mc["rmse_ant"] < 1.5 * mc["pcrb_ant"] and mc["rmse_body"] < 1.5 * mc["pcrb_body"]
 
 
 def test_unrepaired_cycle_slip_is_rejected_by_the_gate_not_absorbed():
