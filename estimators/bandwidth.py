@@ -286,7 +286,7 @@ def bound_step(model: NetworkModel, M: np.ndarray, S: np.ndarray, P: np.ndarray,
     subtraction cancels catastrophically once M_j >> V_j, which happens: see the module docstring).
     With a given L (list of (..., n, m_i)) it is eq. 15 for that gain.
     """
-    A, n = model.A, model.n
+    A = model.A
     L = gains(model, M) if L is None else L
     Q = np.empty_like(M)
     for j, (C, V) in enumerate(zip(model.C, model.V)):

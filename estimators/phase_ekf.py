@@ -305,7 +305,6 @@ def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.nda
     w_all = np.full(m_all, np.nan)
     nn_all = w_all.copy()
     P = belief.cov
-    n = P.shape[0]
     rejected: list[int] = []
     thr = gate.threshold(rows.size) if gate.enabled else np.inf
     if rows.size == 0:

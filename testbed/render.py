@@ -354,7 +354,6 @@ class _Painter:
         trails: (N, P, 3) m world, each vehicle's recent positions (oldest first), or None.
         """
         import cv2
-        import mujoco
 
         rp, m = self.replay, self.replay.model
         rp.set_time(t)

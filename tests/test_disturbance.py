@@ -5,7 +5,6 @@ Statistical checks use chi-square intervals from the sample size (estimators.cor
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from estimators.core import chi2_interval

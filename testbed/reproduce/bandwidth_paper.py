@@ -424,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.runs < 2:
         print("error: --runs must be >= 2", file=sys.stderr)
         return 2
-    s = reproduce_paper(a.out_dir, a.runs, a.seed)
+    reproduce_paper(a.out_dir, a.runs, a.seed)
     print((a.out_dir / "table.md").read_text())
     return 0
 

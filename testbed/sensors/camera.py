@@ -79,7 +79,7 @@ def led_geometry(physics: Physics, cam_id: int, led_sites: np.ndarray, led_geoms
     Returns xn, yn (K,) normalised coordinates, b (K, 3) unit LOS (camera frame), uv (K, 2) px,
     visible (K,) bool (in front, in the image, not occluded).
     """
-    d, m = physics.data, physics.model
+    d = physics.data
     c = d.cam_xpos[cam_id].copy()
     R = d.cam_xmat[cam_id].reshape(3, 3)
     P = d.site_xpos[led_sites]
