@@ -237,6 +237,9 @@ class Disturbance:
     sensor sees it. flown: applied as an external force m a and torque I alpha (a gust), which the
     controller then fights. Stream "disturbance". vehicles: 1-based numbers; empty = all.
     Zero densities (the default) = no disturbance: the run is bit-identical to one without it.
+    Prescribed, nothing pulls the vehicle back: after t seconds its position has wandered
+    sqrt(accel_density t^3 / 3) m per axis (1.6 m at 1e-3 m^2/s^3 and 20 s, 95 m at 300 s, through
+    floors and obstacles alike), so choose the density for the horizon, or fly it (`flown`).
     """
 
     accel_density: float = 0.0
