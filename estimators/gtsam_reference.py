@@ -36,20 +36,16 @@ def solve_gtsam(problem: CoopProblem, x0: np.ndarray | None = None, *, optimizer
     X0 = problem.gnss_pos if x0 is None else np.asarray(x0, float)
     for i in range(problem.n):
         init.insert(i, X0[i].copy())
-    if optimizer == "gn":
-        params = gtsam.GaussNewtonParams()
-        params.setRelativeErrorTol(1e-15)
-        params.setAbsoluteErrorTol(1e-15)
-        params.setMaxIterations(max_iter)
-        result = gtsam.GaussNewtonOptimizer(graph, init, params).optimize()
-    elif optimizer == "lm":
-        params = gtsam.LevenbergMarquardtParams()
-        params.setRelativeErrorTol(1e-15)
-        params.setAbsoluteErrorTol(1e-15)
-        params.setMaxIterations(max_iter)
-        result = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize()
-    else:
+    kinds = {"gn": (gtsam.GaussNewtonParams, gtsam.GaussNewtonOptimizer),
+             "lm": (gtsam.LevenbergMarquardtParams, gtsam.LevenbergMarquardtOptimizer)}
+    if optimizer not in kinds:
         raise ValueError(f"solve_gtsam: optimizer must be 'gn' or 'lm', got {optimizer!r}")
+    make_params, make_optimizer = kinds[optimizer]
+    params = make_params()
+    params.setRelativeErrorTol(1e-15)
+    params.setAbsoluteErrorTol(1e-15)
+    params.setMaxIterations(max_iter)
+    result = make_optimizer(graph, init, params).optimize()
     X = np.array([result.atPoint3(i) for i in range(problem.n)])
     if not marginals:
         return X, None

@@ -119,7 +119,9 @@ class ProcessNoise:
     def density(self, x: np.ndarray | None) -> np.ndarray:
         """Acceleration density S (9, 9) of the stacked antennas at state x (18,) (needed only
         if rotation > 0: the lever arms rho_j = x_j - (x_2 + x_3) / 2)."""
-        S = np.kron(np.full((3, 3), self.translation), np.eye(3)) + self.antenna * np.eye(9)
+        S = self.antenna * np.eye(9)
+        if self.translation:
+            S += np.kron(np.full((3, 3), self.translation), np.eye(3))
         if self.rotation:
             P = np.asarray(x, float)[:9].reshape(3, 3)
             rho = P - 0.5 * (P[1] + P[2])

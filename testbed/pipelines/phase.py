@@ -50,13 +50,16 @@ measurement model, same rows, same q and P0 as the filter); gate statistics.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from estimators.core import skew
 from testbed.config import check
 from testbed.pipelines import register
+
+if TYPE_CHECKING:
+    from estimators.phase_ekf import ProcessNoise
 
 Vec3 = tuple[float, float, float]
 # SPEC seed 003 initial error and covariance, paper frame (x fwd, y up, z right) mapped to ours
@@ -289,14 +292,14 @@ def measurement_epochs(cfg: PhaseEkfConfig, inp: PhaseInputs) -> list:
     return out
 
 
-def process_noise_model(cfg: PhaseEkfConfig, motion: str):
+def process_noise_model(cfg: PhaseEkfConfig, motion: str) -> ProcessNoise:
     """The filter's ProcessNoise: per-antenna q of the motion mode plus the rigid-body terms."""
     from estimators.phase_ekf import ProcessNoise
 
     return ProcessNoise(cfg.q_flown if motion == "flown" else cfg.q, cfg.q_translation, cfg.q_rotation)
 
 
-def run_ekf(cfg: PhaseEkfConfig, q, prior, meas: list, times: np.ndarray):
+def run_ekf(cfg: PhaseEkfConfig, q: float | ProcessNoise, prior, meas: list, times: np.ndarray):
     """The filter over all epochs (q: float or ProcessNoise): means (K, 18), covs (K, 18, 18),
     UpdateInfo list, and the ACTUAL error covariance of this filter (K, 18, 18) if the truth had no
     random acceleration.
@@ -336,7 +339,7 @@ def run_ekf(cfg: PhaseEkfConfig, q, prior, meas: list, times: np.ndarray):
     return means, covs, infos, acts
 
 
-def phase_pcrb(cfg: PhaseEkfConfig, q, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
+def phase_pcrb(cfg: PhaseEkfConfig, q: float | ProcessNoise, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
     """PCRB (K, 18, 18) along the true 18-state trajectory with the filter's own rows and model."""
     from estimators.phase_ekf import pcrb
 
