@@ -19,11 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from testbed.config import ConfigError
-
-
-class UsageError(Exception):
-    """A bad command-line argument (exit code 2)."""
+from testbed.errors import TestbedError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -171,11 +167,9 @@ def fmt(v: object) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from testbed.runner import RunError
-
     try:
         return _dispatch(build_parser().parse_args(argv))
-    except (ConfigError, UsageError, RunError) as e:
+    except TestbedError as e:
         print(f"testbed: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -16,9 +16,7 @@ import dataclasses
 import types
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
-
-class ConfigError(Exception):
-    """A user mistake in a configuration: one line, names file, key and value."""
+from testbed.errors import ConfigError
 
 
 def _fail(file: str, path: str, msg: str) -> ConfigError:

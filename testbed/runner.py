@@ -16,15 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from testbed import scenario as scenario_mod
-from testbed.config import ConfigError
+from testbed.errors import ConfigError, RunError
 from testbed.log import save_npz
 from testbed.pipelines import run_pipeline
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
-
-
-class RunError(Exception):
-    """A user-facing problem with the output location (exit code 2)."""
 
 
 def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:

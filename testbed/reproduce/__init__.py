@@ -10,14 +10,14 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
+from testbed.errors import UsageError
+
 DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20}
 
 
 def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "prescribed",
               duration: float | None = None, workers: int | None = None) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included)."""
-    from testbed.cli import UsageError
-
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")

@@ -1,0 +1,37 @@
+"""The user-facing errors of the testbed: each is one line on stderr and exit code 2.
+
+Raised anywhere below the command line, caught only in `testbed.cli.main`. A message names the
+file, the dotted key and the offending value where there is one; it never needs a traceback.
+"""
+from __future__ import annotations
+
+
+class TestbedError(Exception):
+    """A mistake the user can fix (exit code 2): one line, no traceback."""
+
+    __test__ = False  # not a pytest test class despite the name
+
+
+class UsageError(TestbedError):
+    """A bad command-line argument."""
+
+
+class ConfigError(TestbedError):
+    """A bad scenario or configuration value: names the file, the dotted key and the value."""
+
+
+class FieldError(ConfigError):
+    """One configuration key with a bad value.
+
+    file: the file it came from ('' when built in code); key: dotted path (`world.anchors[2]`);
+    value: the offending value; reason: what is wrong with it.
+    """
+
+    def __init__(self, file: str, key: str, value: object, reason: str) -> None:
+        self.file, self.key, self.value, self.reason = file, key, value, reason
+        where = f"{file}: " if file else ""
+        super().__init__(f"{where}{key}: {reason}" if key else f"{where}{reason}")
+
+
+class RunError(TestbedError):
+    """A problem with an output location (exists, not ours, not writable)."""
