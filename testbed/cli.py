@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from testbed.errors import TestbedError, UsageError
+from testbed.report import fmt
 
 
 class _Parser(argparse.ArgumentParser):
@@ -153,17 +154,6 @@ def _dispatch(args: argparse.Namespace) -> int:
         demo(args.out)
         return 0
     raise UsageError(f"unknown command {args.command!r}")
-
-
-def fmt(v: object) -> str:
-    """A score for a person: 4 significant digits; long lists summarized by their mean."""
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, list) and len(v) <= 4:
-        return "[" + ", ".join(fmt(x) for x in v) + "]"
-    if isinstance(v, list) and v and all(isinstance(x, (int, float)) for x in v):
-        return f"[{len(v)} values, mean {sum(v) / len(v):.4g}]"
-    return str(v)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from testbed import scenario
-from testbed.cli import fmt
+from testbed.report import fmt
 from testbed.render import render_run
 from testbed.reproduce import reproduce
 from testbed.runner import run
