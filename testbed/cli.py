@@ -139,7 +139,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
-        from testbed.bench import bench
+        from testbed.bench.run import bench
 
         bench(args.what, args.json)
         return 0
