@@ -258,10 +258,11 @@ def choose_four(epochs: Epochs) -> list[int]:
 # ----------------------------------------------------------------------------------------------
 def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: str) -> Path:
     """Figure 6: position error norm (m) against time for four UAVs (1-based), every estimator."""
-    from testbed.plots import plt, save
+    from testbed.plots import figure, save
 
     nb, nr = neighbour_counts(est.epochs)
-    fig, axes = plt.subplots(len(uavs), 1, figsize=(8, 2.0 * len(uavs) + 0.6), sharex=True)
+    fig = figure(figsize=(8, 2.0 * len(uavs) + 0.6))
+    axes = fig.subplots(len(uavs), 1, sharex=True)
     for ax, u in zip(np.atleast_1d(axes), uavs):
         for c, w in enumerate(est.pos):
             e = np.linalg.norm(est.pos[w][:, u - 1] - est.epochs.truth[:, u - 1], axis=1)
