@@ -12,6 +12,11 @@
 
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output)
 prints one line `testbed: error: ...` and exits with code 2, leaving no run directory behind.
+
+Imports: this module loads only the standard library and light testbed modules at the top; each
+command imports what it needs inside `_dispatch` (numpy, mujoco, scipy, matplotlib come with
+testbed.scenario, testbed.runner and the rest), so `testbed --help` answers at once and the
+environment (testbed.environment) is set before numpy or mujoco load.
 """
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from testbed.environment import apply_defaults
 from testbed.errors import TestbedError, UsageError
 from testbed.report import fmt
 
@@ -47,7 +53,7 @@ def _overrides(items: list[str]) -> dict[str, str]:
 
 
 def _load(args: argparse.Namespace):
-    from testbed import scenario
+    from testbed import scenario  # lazy: see the module docstring
 
     return scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)
 
@@ -100,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _dispatch(args: argparse.Namespace) -> int:
+    # the imports below are lazy on purpose: see the module docstring
     if args.command == "list":
         from testbed import scenario
 
@@ -139,7 +146,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
-        from testbed.bench import bench
+        from testbed.bench.run import bench
 
         bench(args.what, args.json)
         return 0
@@ -157,6 +164,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    apply_defaults()  # before any command imports numpy or mujoco
     try:
         return _dispatch(build_parser().parse_args(argv))
     except TestbedError as e:

@@ -7,16 +7,21 @@ exit code 2.
 
 Supported field types: bool, int, float (an int is accepted), str, Literal[...], tuple[float, ...]
 and other homogeneous tuples, nested dataclasses, tuples of dataclasses, `X | None`, and unions of
-dataclasses discriminated by a `kind: Literal[...]` field. Range checks live in each dataclass's
-`check()` method, which raises `ValueError(key, message)`; `ConfigError` adds the file and path.
+dataclasses discriminated by a `kind: Literal[...]` field.
+
+Validation cannot be skipped: every configuration dataclass checks its values in `__post_init__`
+(so `dataclasses.replace` re-checks too) with `require` / `in_range`, which raise `FieldError`
+naming the key relative to that dataclass. `from_dict` re-raises it with the file and the full
+dotted path (`world.anchors[2]`, `sensors.uwb.noise`).
 """
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 import types
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
-from testbed.errors import ConfigError
+from testbed.errors import ConfigError, FieldError
 
 
 def _fail(file: str, path: str, msg: str) -> ConfigError:
@@ -94,16 +99,10 @@ def from_dict(cls: type, data: Any, file: str = "", path: str = "") -> Any:
             kwargs[name] = _convert(hints[name], data[name], file, sub)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise _fail(file, sub, "missing required key")
-    obj = cls(**kwargs)
-    check = getattr(obj, "check", None)
-    if check is not None:
-        try:
-            check()
-        except ValueError as e:
-            key, msg = e.args if len(e.args) == 2 else ("", e.args[0])
-            sub = f"{path}.{key}" if path and key else (key or path)
-            raise _fail(file, sub, msg) from None
-    return obj
+    try:
+        return cls(**kwargs)
+    except FieldError as e:  # raised by __post_init__ with a key relative to cls
+        raise FieldError(file, join_key(path, e.key), e.value, e.reason) from None
 
 
 def to_dict(obj: Any) -> Any:
@@ -121,8 +120,6 @@ def set_dotted(data: dict, dotted: str, raw: str, file: str) -> None:
     The key must already exist (after defaults are written out); the value is parsed as TOML, or
     taken as a string if it does not parse.
     """
-    import tomllib
-
     keys = dotted.split(".")
     node: Any = data
     for i, k in enumerate(keys[:-1]):
@@ -142,8 +139,50 @@ def set_dotted(data: dict, dotted: str, raw: str, file: str) -> None:
     node[last] = value
 
 
-def check(cond: bool, key: str, msg: str) -> None:
-    """Raise the ValueError(key, msg) that from_dict turns into a ConfigError."""
-    if not cond:
-        raise ValueError(key, msg)
+# ------------------------------------------------------------------------------ validation
 
+
+def join_key(prefix: str, key: str) -> str:
+    """Dotted path of `key` below `prefix` ('' on either side allowed; `[i]` indices glue on)."""
+    if not prefix or not key:
+        return prefix or key
+    return f"{prefix}{key}" if key.startswith("[") else f"{prefix}.{key}"
+
+
+def require(cond: bool, key: str, value: object, reason: str) -> None:
+    """The check of a configuration dataclass's `__post_init__`: raise FieldError unless cond.
+
+    key: the field tested, relative to the dataclass (`from_dict` prefixes the path and the file);
+    value: the offending value; reason: what is wrong, for a person.
+    """
+    if not cond:
+        raise FieldError("", key, value, reason)
+
+
+def in_range(obj: object, key: str, lo: float | None = None, hi: float | None = None, *,
+             lo_open: bool = False, hi_open: bool = False, unit: str = "") -> None:
+    """Require field `key` of obj (a number, or every number of a tuple) to lie in an interval.
+
+    lo, hi: bounds (None = unbounded); lo_open, hi_open: exclude the bound. The one place for
+    "a number in a range" checks, so that checks of finiteness can be added here once.
+    """
+    value = getattr(obj, key)
+    values = value if isinstance(value, tuple) else (value,)
+    ok = all((lo is None or (v > lo if lo_open else v >= lo)) and (hi is None or (v < hi if hi_open else v <= hi)) for v in values)
+    if ok:
+        return
+    u = f" {unit}" if unit else ""
+    if hi is None:
+        want = ("positive" if lo == 0 else f"> {lo:g}{u}") if lo_open else f">= {lo:g}{u}"
+    elif lo is None:
+        want = f"< {hi:g}{u}" if hi_open else f"<= {hi:g}{u}"
+    else:
+        want = f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}"
+    got = list(value) if isinstance(value, tuple) else value
+    raise FieldError("", key, value, f"must be {want}, got {got}")
+
+
+def whole_ratio(a: float, b: float) -> bool:
+    """Is a / b a whole number >= 1 (to 1e-9)? For rates that must divide each other."""
+    ratio = a / b
+    return abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1

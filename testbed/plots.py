@@ -1,22 +1,31 @@
-"""Standard figures of navigation papers, written as PNG with matplotlib's Agg backend."""
+"""Standard figures of navigation papers, written as PNG.
+
+Figures are `matplotlib.figure.Figure` objects drawn on an Agg canvas: no pyplot state, no global
+backend choice (`matplotlib.use` is never called), so importing this module changes nothing for
+the caller and figures are freed with their last reference.
+"""
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 
-def save(fig, path: Path) -> Path:
-    """Lay out, write as PNG (110 dpi, parent folders created) and close a figure."""
+def figure(**kwargs) -> Figure:
+    """A new figure on its own Agg canvas; kwargs go to `Figure` (figsize in inches, ...)."""
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save(fig: Figure, path: Path) -> Path:
+    """Lay out and write a figure as PNG (110 dpi, parent folders created)."""
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -27,8 +36,8 @@ def error_envelope(t: np.ndarray, err: np.ndarray, sigma: np.ndarray | None, pat
     t: (K,) s; err: (K, d) estimate minus truth; sigma: (K, d) filter standard deviations or None.
     """
     d = err.shape[1]
-    fig, axes = plt.subplots(d, 1, figsize=(7.5, 1.9 * d + 0.6), sharex=True)
-    axes = np.atleast_1d(axes)
+    fig = figure(figsize=(7.5, 1.9 * d + 0.6))
+    axes = np.atleast_1d(fig.subplots(d, 1, sharex=True))
     for i, ax in enumerate(axes):
         ax.plot(t, err[:, i], lw=0.9, color="C0", label="error")
         if sigma is not None:
@@ -45,7 +54,8 @@ def error_envelope(t: np.ndarray, err: np.ndarray, sigma: np.ndarray | None, pat
 def compare_bars(names: list[str], means: np.ndarray, lo: np.ndarray, hi: np.ndarray, path: Path, *,
                  title: str, ylabel: str) -> Path:
     """Bar chart of a score per method with confidence intervals (lo, hi)."""
-    fig, ax = plt.subplots(figsize=(1.1 * len(names) + 2.5, 3.2))
+    fig = figure(figsize=(1.1 * len(names) + 2.5, 3.2))
+    ax = fig.subplots()
     means, lo, hi = map(np.asarray, (means, lo, hi))
     ax.bar(names, means, yerr=[means - lo, hi - means], capsize=4, color=[f"C{i}" for i in range(len(names))])
     ax.set_ylabel(ylabel)

@@ -18,7 +18,7 @@ import numpy as np
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
 from testbed.log import save_npz
-from testbed.pipelines import run_pipeline
+from testbed.pipelines.registry import run_pipeline
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
 

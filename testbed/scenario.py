@@ -14,10 +14,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Literal
 
-from testbed.config import ConfigError, check, from_dict, set_dotted, to_dict
-from testbed.sensors.config import SensorsConfig
-from testbed.pipelines import check_pipeline
+import numpy as np
+import tomli_w
+
+from testbed.config import from_dict, in_range, require, set_dotted, to_dict, whole_ratio
+from testbed.errors import ConfigError
 from testbed.pipelines.config import PipelineConfig
+from testbed.sensors.config import SensorsConfig
 
 Vec3 = tuple[float, float, float]
 
@@ -37,8 +40,9 @@ class Obstacle:
     size: Vec3
     yaw_deg: float = 0.0
 
-    def check(self) -> None:
-        check(all(s > 0 for s in self.size[:2]) and (self.type == "cylinder" or self.size[2] > 0), "size", f"must be positive, got {list(self.size)}")
+    def __post_init__(self) -> None:
+        require(all(s > 0 for s in self.size[:2]) and (self.type == "cylinder" or self.size[2] > 0), "size", self.size,
+                f"must be positive, got {list(self.size)}")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -59,13 +63,14 @@ class World:
     anchors: tuple[Vec3, ...] = ()
     obstacles: tuple[Obstacle, ...] = ()
 
-    def check(self) -> None:
-        check(0 < self.timestep <= 0.01, "timestep", f"must be in (0, 0.01] s, got {self.timestep}")
-        check(self.control_rate > 0, "control_rate", f"must be positive, got {self.control_rate}")
-        steps = 1.0 / (self.control_rate * self.timestep)
-        check(abs(steps - round(steps)) < 1e-9 and round(steps) >= 1, "control_rate", f"{self.control_rate} Hz is not a whole number of {self.timestep} s steps")
-        check(self.truth_rate > 0, "truth_rate", f"must be positive, got {self.truth_rate}")
-        check(self.antenna_a > 0 and self.antenna_b > 0, "antenna_a", "antenna lever arms must be positive")
+    def __post_init__(self) -> None:
+        in_range(self, "timestep", 0, 0.01, lo_open=True, unit="s")
+        in_range(self, "control_rate", 0, lo_open=True)
+        require(whole_ratio(1.0, self.control_rate * self.timestep), "control_rate", self.control_rate,
+                f"{self.control_rate} Hz is not a whole number of {self.timestep} s steps")
+        in_range(self, "truth_rate", 0, lo_open=True)
+        in_range(self, "antenna_a", 0, lo_open=True)
+        in_range(self, "antenna_b", 0, lo_open=True)
 
 
 # --------------------------------------------------------------------------------- trajectories
@@ -100,8 +105,8 @@ class PhaseFormation:
     attitude_freq_hz: float = 0.005
     attitude_phase: float = math.pi / 2
 
-    def check(self) -> None:
-        check(self.spacing > 0, "spacing", f"must be positive, got {self.spacing}")
+    def __post_init__(self) -> None:
+        in_range(self, "spacing", 0, lo_open=True)
 
     @property
     def vehicles(self) -> int:
@@ -120,8 +125,8 @@ class StraightLine:
     velocity: Vec3
     offsets: tuple[Vec3, ...]
 
-    def check(self) -> None:
-        check(len(self.offsets) > 0, "offsets", "at least one vehicle is needed")
+    def __post_init__(self) -> None:
+        require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
 
     @property
     def vehicles(self) -> int:
@@ -146,18 +151,18 @@ class SwarmBox:
     period_max: float = 120.0
     rtk: tuple[int, ...] = ()
 
-    def check(self) -> None:
-        import numpy as np
-
+    def __post_init__(self) -> None:
         n = len(self.bases)
-        check(n > 0, "bases", "at least one vehicle is needed")
+        require(n > 0, "bases", self.bases, "at least one vehicle is needed")
         b = np.array(self.bases)
         if n > 1:
             d = np.linalg.norm(b[:, None] - b[None], axis=-1) + np.eye(n) * 1e9
             reach = 2 * float(np.linalg.norm(self.amplitude)) + 2.5
-            check(d.min() > reach, "bases", f"two bases are {d.min():.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
-        check(all(1 <= r <= n for r in self.rtk), "rtk", f"vehicle numbers must be in 1..{n}, got {list(self.rtk)}")
-        check(0 < self.period_min <= self.period_max, "period_min", "need 0 < period_min <= period_max")
+            require(d.min() > reach, "bases", self.bases,
+                    f"two bases are {d.min():.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
+        require(all(1 <= r <= n for r in self.rtk), "rtk", self.rtk, f"vehicle numbers must be in 1..{n}, got {list(self.rtk)}")
+        in_range(self, "period_min", 0, lo_open=True, unit="s")
+        in_range(self, "period_max", self.period_min, unit="s (period_min)")
 
     @property
     def vehicles(self) -> int:
@@ -185,8 +190,9 @@ class LeaderFollower:
     yaw_amp_deg: float = 10.0
     yaw_period: float = 30.0
 
-    def check(self) -> None:
-        check(self.weave_period > 0 and self.yaw_period > 0, "weave_period", "periods must be positive")
+    def __post_init__(self) -> None:
+        in_range(self, "weave_period", 0, lo_open=True)
+        in_range(self, "yaw_period", 0, lo_open=True)
 
     @property
     def vehicles(self) -> int:
@@ -207,11 +213,13 @@ class Waypoints:
     offsets: tuple[Vec3, ...] = ((0.0, 0.0, 0.0),)
     yaw_deg: float = 0.0
 
-    def check(self) -> None:
-        check(len(self.points) >= 2, "points", "need at least two waypoints")
-        check(len(self.times) == len(self.points), "times", f"need one time per waypoint ({len(self.points)}), got {len(self.times)}")
-        check(self.times[0] == 0 and all(b > a for a, b in zip(self.times, self.times[1:])), "times", f"must start at 0 and increase, got {list(self.times)}")
-        check(len(self.offsets) > 0, "offsets", "at least one vehicle is needed")
+    def __post_init__(self) -> None:
+        require(len(self.points) >= 2, "points", self.points, "need at least two waypoints")
+        require(len(self.times) == len(self.points), "times", self.times,
+                f"need one time per waypoint ({len(self.points)}), got {len(self.times)}")
+        require(self.times[0] == 0 and all(b > a for a, b in zip(self.times, self.times[1:])), "times", self.times,
+                f"must start at 0 and increase, got {list(self.times)}")
+        require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
 
     @property
     def vehicles(self) -> int:
@@ -246,10 +254,11 @@ class Disturbance:
     angular_accel_density: float = 0.0
     vehicles: tuple[int, ...] = ()
 
-    def check(self) -> None:
-        check(self.accel_density >= 0, "accel_density", f"must be >= 0 m^2/s^3, got {self.accel_density}")
-        check(self.angular_accel_density >= 0, "angular_accel_density", f"must be >= 0 rad^2/s^3, got {self.angular_accel_density}")
-        check(all(v >= 1 for v in self.vehicles) and len(set(self.vehicles)) == len(self.vehicles), "vehicles", f"must be distinct vehicle numbers >= 1, got {list(self.vehicles)}")
+    def __post_init__(self) -> None:
+        in_range(self, "accel_density", 0, unit="m^2/s^3")
+        in_range(self, "angular_accel_density", 0, unit="rad^2/s^3")
+        require(all(v >= 1 for v in self.vehicles) and len(set(self.vehicles)) == len(self.vehicles), "vehicles", self.vehicles,
+                f"must be distinct vehicle numbers >= 1, got {list(self.vehicles)}")
 
     @property
     def active(self) -> bool:
@@ -268,8 +277,9 @@ class Control:
     kr: float = 60.0
     kw: float = 14.0
 
-    def check(self) -> None:
-        check(min(self.kx, self.kv, self.kr, self.kw) > 0, "kx", "gains must be positive")
+    def __post_init__(self) -> None:
+        for key in ("kx", "kv", "kr", "kw"):
+            in_range(self, key, 0, lo_open=True)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -289,17 +299,17 @@ class Scenario:
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
     pipeline: PipelineConfig | None = None
 
-    def check(self) -> None:
-        check(self.duration > 0, "duration", f"must be positive, got {self.duration}")
-        check(self.seed >= 0, "seed", f"must be a non-negative integer, got {self.seed}")
+    def __post_init__(self) -> None:
+        in_range(self, "duration", 0, lo_open=True, unit="s")
+        require(self.seed >= 0, "seed", self.seed, f"must be a non-negative integer, got {self.seed}")
         bad = [v for v in self.disturbance.vehicles if v > self.vehicles]
-        check(not bad, "disturbance.vehicles", f"vehicle {bad[0] if bad else 0} does not exist (the scenario has {self.vehicles})")
-        try:  # sensor rates must divide the control rate; vehicle numbers must exist
-            self.sensors.check_rates(self.world.control_rate, self.vehicles)
-        except ValueError as e:
-            key, msg = e.args if len(e.args) == 2 else ("", e.args[0])
-            raise ValueError(f"sensors.{key}", msg) from None
-        check_pipeline(self)
+        require(not bad, "disturbance.vehicles", self.disturbance.vehicles,
+                f"vehicle {bad[0] if bad else 0} does not exist (the scenario has {self.vehicles})")
+        # cross-checks: sensor rates divide the control rate, vehicle numbers exist, the
+        # pipeline has the sensors it needs (keys dotted from the scenario root)
+        self.sensors.cross_check(self.world.control_rate, self.vehicles, "sensors")
+        if self.pipeline is not None:
+            self.pipeline.cross_check(self.sensors, self.vehicles)
 
     @property
     def vehicles(self) -> int:
@@ -353,7 +363,5 @@ def load(name_or_path: str, overrides: dict[str, str] | None = None, **top: obje
 
 def dumps(scenario: Scenario) -> str:
     """The fully resolved scenario as TOML, every default written out: enough to rerun."""
-    import tomli_w
-
     return tomli_w.dumps(to_dict(scenario))
 

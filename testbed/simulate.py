@@ -25,7 +25,7 @@ from testbed.control import GeometricController, heading
 from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
 from testbed.reference import attitude, evaluate, tracking
 from testbed.scenario import Scenario
-from testbed.sensors import make_sensors
+from testbed.sensors.suite import make_sensors
 from testbed.sensors.base import Sensor
 from testbed.world import Physics, build
 

@@ -19,6 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from testbed.config import from_dict, to_dict
+from testbed.environment import apply_defaults
 from testbed.runner import RunError, prepare_out, run, write_json
 from testbed.scenario import Scenario
 
@@ -79,7 +80,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
             results[i] = _one(job)
             bar.update()
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=apply_defaults) as pool:
             futures = {pool.submit(_one, job): i for i, job in enumerate(jobs)}
             for fut in as_completed(futures):
                 results[futures[fut]] = fut.result()

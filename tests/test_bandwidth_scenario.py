@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import norm
 
 from testbed import scenario as scenario_mod
-from testbed.config import ConfigError
+from testbed.errors import ConfigError
 from testbed.log import load_log
 from testbed.pipelines import bandwidth as pb
 from testbed.runner import run

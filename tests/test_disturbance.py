@@ -12,7 +12,7 @@ from testbed import scenario
 from testbed.disturbance import perturb, realize
 from testbed.reference import evaluate
 from testbed.simulate import simulate, schedule
-from testbed.sensors import make_sensors
+from testbed.sensors.suite import make_sensors
 from testbed.world import build
 
 from physics_checks import assert_imu_reads_played_state  # tests/ helper

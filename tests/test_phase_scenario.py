@@ -13,7 +13,7 @@ import pytest
 from estimators.core import chi2_interval, is_spd, nees
 from estimators.phase_model import body_from_antennas
 from testbed import scenario as scenario_mod
-from testbed.config import ConfigError
+from testbed.errors import ConfigError
 from testbed.pipelines import phase as P
 from testbed.rng import stream_rng
 from testbed.simulate import simulate

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from testbed.config import ConfigError, from_dict, to_dict
+from testbed.config import from_dict, to_dict
+from testbed.errors import ConfigError
 from testbed.scenario import Scenario
 from testbed.sensors.config import InertialErrors
 from testbed.sensors.noise import TriadErrors, allan_deviation

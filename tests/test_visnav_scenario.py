@@ -13,21 +13,23 @@ from scipy.stats import chi2
 from estimators.core import chi2_interval
 from estimators.visnav import RelNavModel
 from testbed import scenario
-from testbed.config import ConfigError, to_dict
+from testbed.config import to_dict
+from testbed.errors import ConfigError
 from testbed.pipelines import visnav as pv
+from testbed.pipelines.config import FILTER_NAMES, VisNavPipelineConfig
 from testbed.runner import run
 from testbed.simulate import simulate
 
-FILTERS = pv.FILTER_NAMES
+FILTERS = FILTER_NAMES
 
 
 def test_scenario_file_writes_every_pipeline_default():
-    """Every key of VisnavConfig is written in visnav.toml, with the dataclass default's value."""
+    """Every key of VisNavPipelineConfig is written in visnav.toml, with the dataclass default's value."""
     text = (resources.files("testbed.scenarios") / "visnav.toml").read_text()
     table = tomllib.loads(text)["pipeline"]
     resolved = to_dict(scenario.load("visnav"))["pipeline"]
     assert set(table) == set(resolved)
-    defaults = to_dict(pv.VisnavConfig(kind="visnav"))
+    defaults = to_dict(VisNavPipelineConfig(kind="visnav"))
     for k, v in defaults.items():
         if isinstance(v, str) or k == "filters":
             assert table[k] == (list(v) if isinstance(v, tuple) else v), k

@@ -31,85 +31,14 @@ T entry 0) and M follows the realised loss pattern.
 
 Truth (scoring only): x_true(t_k) = mean_i (truth/pos_i(t_k) - d_i), d_i the scenario's vehicle
 offsets; prescribed: exactly start + velocity t.
-
-Must not import testbed.scenario, testbed.world or testbed.simulate at module level (the scenario
-module imports this one for its configuration dataclass).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
-
 import numpy as np
 
-from testbed.config import ConfigError, check
-from testbed.pipelines import register
+from testbed.errors import ConfigError
+from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 
-Vec3 = tuple[float, float, float]
-N_NODES = 4
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class BandwidthConfig:
-    """[pipeline] table of a seed 000 scenario (every key written out in bandwidth.toml).
-
-    measurements: "uwb" | "paper" (module docstring). dt: filter step (s); in uwb mode a multiple
-    of the UWB period. process_noise: diag W (m^2/s for w_reading "rate", m^2 for "per-step").
-    paper_V: diag V of the paper mode (m^2). range_sigma: UWB range noise 1 sigma assumed by the
-    estimator (m). x0: initial estimate (m); M0: diag M_i(0) (m^2). velocity: known input v (m/s).
-    selection: "T1" | "T2" | "T3" (the paper's sets) | "search" (bound-optimal set for the run's
-    horizon, exhaustive over the 2430 admissible sets; in uwb mode with V from the first epoch).
-    weights: "P1" | "P2" | "P3". budget: t_i, components each node receives per step.
-    anchors: known anchor positions (m, world), 1-based numbering as `anchor{k}`; groups: the four
-    anchor numbers of each UAV, the last one the reference of eq. 21; offsets: known tag position
-    of each UAV relative to the formation point (m, world). anchor_error, offset_error: 1 sigma
-    per axis (m) of the error of those known values. drop_prob: per directed message and step;
-    fail_node (1-based, 0 = none) stops sending at fail_time (s).
-    """
-
-    kind: Literal["bandwidth"]
-    measurements: Literal["uwb", "paper"] = "uwb"
-    dt: float = 0.1
-    process_noise: Vec3 = (0.02, 0.05, 0.03)
-    w_reading: Literal["rate", "per-step"] = "rate"
-    paper_V: Vec3 = (0.03, 0.04, 0.02)
-    range_sigma: float = 0.10
-    x0: Vec3 = (10.0, 10.0, 10.0)
-    M0: Vec3 = (0.19, 0.09, 0.08)
-    velocity: Vec3 = (0.5, 0.5, 0.5)
-    selection: Literal["T1", "T2", "T3", "search"] = "T1"
-    weights: Literal["P1", "P2", "P3"] = "P1"
-    budget: int = 5
-    anchors: tuple[Vec3, ...] = ()
-    groups: tuple[tuple[int, int, int, int], ...] = ((1, 2, 3, 4), (5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16))
-    offsets: tuple[Vec3, ...] = ()
-    anchor_error: float = 0.0
-    offset_error: float = 0.0
-    drop_prob: float = 0.0
-    fail_node: int = 0
-    fail_time: float = 0.0
-
-    def check(self) -> None:
-        check(self.dt > 0, "dt", f"must be positive, got {self.dt}")
-        check(min(self.process_noise) >= 0, "process_noise", f"must be >= 0, got {list(self.process_noise)}")
-        check(min(self.paper_V) > 0, "paper_V", f"must be positive, got {list(self.paper_V)}")
-        check(self.range_sigma > 0, "range_sigma", f"must be positive, got {self.range_sigma}")
-        check(min(self.M0) > 0, "M0", f"must be positive, got {list(self.M0)}")
-        check(len(self.groups) == N_NODES, "groups", f"need one anchor group per UAV ({N_NODES}), got {len(self.groups)}")
-        check(len(self.offsets) == N_NODES, "offsets", f"need one tag offset per UAV ({N_NODES}), got {len(self.offsets)}")
-        for g in self.groups:
-            check(all(1 <= a <= len(self.anchors) for a in g), "groups",
-                  f"anchor numbers must be in 1..{len(self.anchors)} (pipeline.anchors), got {list(g)}")
-            if all(1 <= a <= len(self.anchors) for a in g):
-                a = np.array([self.anchors[k - 1] for k in g])
-                check(np.linalg.matrix_rank(a[:-1] - a[-1], tol=1e-6) == 3, "groups",
-                      f"anchors {list(g)} do not span 3-D: eqs. 21-23 cannot be solved")
-        check(1 <= self.budget <= 3 * (N_NODES - 1), "budget", f"must be in 1..{3 * (N_NODES - 1)}, got {self.budget}")
-        check(self.budget >= N_NODES - 1, "budget", f"t_ji >= 1 on every link needs budget >= {N_NODES - 1}, got {self.budget}")
-        check(self.anchor_error >= 0 and self.offset_error >= 0, "anchor_error", "known-value errors must be >= 0")
-        check(0 <= self.drop_prob < 1, "drop_prob", f"must be in [0, 1), got {self.drop_prob}")
-        check(0 <= self.fail_node <= N_NODES, "fail_node", f"must be 0 (none) or 1..{N_NODES}, got {self.fail_node}")
-        check(self.fail_time >= 0, "fail_time", f"must be >= 0, got {self.fail_time}")
 
 
 # ---------------------------------------------------------------------------------- helpers
@@ -139,7 +68,7 @@ def truth_formation_point(scenario, log: dict, t: np.ndarray) -> np.ndarray:
     return (log["truth/pos"][idx] - d[None]).mean(1)
 
 
-def uwb_epochs(cfg: BandwidthConfig, log: dict, K: int, anchors: np.ndarray, offsets: np.ndarray):
+def uwb_epochs(cfg: BandwidthPipelineConfig, log: dict, K: int, anchors: np.ndarray, offsets: np.ndarray):
     """Pseudo-measurements from the `uwb` stream. Returns y (K+1, N, 3) m (NaN where unavailable),
     V (K+1, N, 3, 3) m^2 (identity where unavailable), available (K+1, N) bool, ranges (K+1, N, 4)."""
     from estimators.bandwidth import uwb_pseudo_measurement
@@ -173,7 +102,7 @@ def measurements(scenario, log: dict) -> dict:
     """
     from testbed.rng import stream_rng
 
-    cfg: BandwidthConfig = scenario.pipeline
+    cfg: BandwidthPipelineConfig = scenario.pipeline
     label = f"{scenario.name}.toml"
     K = int(np.floor(scenario.duration / cfg.dt + 1e-9))
     t = np.arange(K + 1) * cfg.dt
@@ -227,7 +156,7 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     from estimators import bandwidth as bw
     from testbed.rng import stream_rng
 
-    cfg: BandwidthConfig = scenario.pipeline
+    cfg: BandwidthPipelineConfig = scenario.pipeline
     label = f"{scenario.name}.toml"
     meas = measurements(scenario, log) if meas is None else meas
     K, y, V, avail = meas["K"], meas["y"], meas["V"], meas["available"]
@@ -323,7 +252,6 @@ def scores(est: dict) -> dict:
     }
 
 
-@register("bandwidth")
 def run(scenario, log, plots_dir):
     """Pipeline entry: estimate, score, plot (errors of each node with +/- 3 sqrt(diag M))."""
     est = estimate(scenario, log)

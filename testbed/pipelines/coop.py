@@ -27,75 +27,20 @@ Faults (item 7): `silent_uav` stops broadcasting from `silent_from_s` on (it sti
 computes and ranges); each directed delivery is lost with probability `message_loss`, drawn from
 `stream_rng(seed, "links")`; receivers keep a neighbour's last message for `max_age` rounds
 (-1 = for the whole epoch). Tables start empty at every epoch.
-
-Must not import testbed.scenario, testbed.world or testbed.simulate at module level (the scenario
-module imports this one for its configuration dataclass).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
-from testbed.config import ConfigError, check
-from testbed.pipelines import register
+from testbed.errors import ConfigError
+from testbed.pipelines.config import CoopPipelineConfig
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
-class CoopConfig:
-    """[pipeline] table of a seed 001 scenario.
-
-    gnss_sigma_h, gnss_sigma_v / rtk_sigma_h, rtk_sigma_v: the GNSS noise the estimators assume,
-    1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`).
-    range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock scale factor
-    (ppm, 1 sigma per device), absorbed into the range variance.
-    robust: "none" (least squares) or "huber" range factors, threshold huber_delta (in sigmas).
-    neighbour_model: "prior" (the paper: neighbours' broadcasts as priors with their covariances)
-    or "fixed" (neighbours fixed, block-Jacobi: converges to the centralized optimum, slower).
-    damping: fraction of the local step applied (1 = the paper).
-    max_rounds: cap on message-iteration rounds per epoch; tol: stop when every position change
-    of a round is below tol (m).
-    message_loss: probability that one directed delivery is lost (stream "links").
-    max_age: rounds a receiver keeps a neighbour's last message (-1: the whole epoch).
-    silent_uav: 1-based UAV that stops broadcasting (0: none) at time silent_from_s (s) on.
-    plot_uavs: four 1-based UAVs for the error-vs-time figure (empty: chosen by neighbour count).
-    """
-
-    kind: Literal["coop-fg"]
-    gnss_sigma_h: float = 1.5
-    gnss_sigma_v: float = 3.0
-    rtk_sigma_h: float = 0.02
-    rtk_sigma_v: float = 0.03
-    range_sigma: float = 0.10
-    clock_ppm: float = 20.0
-    robust: Literal["none", "huber"] = "none"
-    huber_delta: float = 1.345
-    neighbour_model: Literal["prior", "fixed"] = "prior"
-    damping: float = 1.0
-    max_rounds: int = 300
-    tol: float = 1e-3
-    message_loss: float = 0.0
-    max_age: int = -1
-    silent_uav: int = 0
-    silent_from_s: float = 0.0
-    plot_uavs: tuple[int, ...] = ()
-
-    def check(self) -> None:
-        for k in ("gnss_sigma_h", "gnss_sigma_v", "rtk_sigma_h", "rtk_sigma_v", "range_sigma", "huber_delta", "tol"):
-            check(getattr(self, k) > 0, k, f"must be positive, got {getattr(self, k)}")
-        check(self.clock_ppm >= 0, "clock_ppm", f"must be >= 0, got {self.clock_ppm}")
-        check(0 < self.damping <= 1, "damping", f"must be in (0, 1], got {self.damping}")
-        check(self.max_rounds >= 1, "max_rounds", f"must be at least 1, got {self.max_rounds}")
-        check(0 <= self.message_loss < 1, "message_loss", f"must be in [0, 1), got {self.message_loss}")
-        check(self.max_age >= -1, "max_age", f"must be -1 (keep) or >= 0 rounds, got {self.max_age}")
-        check(self.silent_uav >= 0, "silent_uav", f"must be 0 (none) or a 1-based UAV number, got {self.silent_uav}")
-        check(self.silent_from_s >= 0, "silent_from_s", f"must be >= 0 s, got {self.silent_from_s}")
-        check(len(self.plot_uavs) in (0, 4) and all(u >= 1 for u in self.plot_uavs), "plot_uavs",
-              f"must be empty or four 1-based UAV numbers, got {list(self.plot_uavs)}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -129,27 +74,6 @@ def _uav_index(names: np.ndarray, label: str) -> np.ndarray:
             raise ConfigError(f"pipeline coop-fg: {label} site {s!r} is not a UAV uwb tag")
         out[k] = int(head[3:]) - 1
     return out
-
-
-def check_scenario(scenario) -> None:
-    """Cross-checks of the scenario the pipeline needs; one ConfigError line each."""
-    s = scenario.sensors
-    if s.gnss is None or s.uwb is None:
-        raise ConfigError(f"{scenario.name}: pipeline coop-fg needs [sensors.gnss] and [sensors.uwb]")
-    if s.gnss.antenna != "uwb":
-        raise ConfigError(f"{scenario.name}: sensors.gnss.antenna: {s.gnss.antenna!r}; the coop-fg factor graph has one point per UAV, "
-                          "the UWB tag: set antenna = \"uwb\"")
-    ratio = s.uwb.rate_hz / s.gnss.rate_hz
-    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        raise ConfigError(f"{scenario.name}: sensors.uwb.rate_hz: {s.uwb.rate_hz} Hz is not a multiple of sensors.gnss.rate_hz "
-                          f"{s.gnss.rate_hz} Hz; every GNSS epoch needs its UWB sample")
-    if not s.uwb.tag_links:
-        raise ConfigError(f"{scenario.name}: sensors.uwb.tag_links: false; coop-fg needs UAV-to-UAV ranges")
-    cfg = scenario.pipeline
-    if cfg.silent_uav > scenario.vehicles:
-        raise ConfigError(f"{scenario.name}: pipeline.silent_uav: {cfg.silent_uav}, the scenario has {scenario.vehicles} UAVs")
-    if any(u > scenario.vehicles for u in cfg.plot_uavs):
-        raise ConfigError(f"{scenario.name}: pipeline.plot_uavs: {list(cfg.plot_uavs)}, the scenario has {scenario.vehicles} UAVs")
 
 
 def epochs_from_log(log: dict[str, np.ndarray], n: int) -> Epochs:
@@ -207,7 +131,7 @@ class CoopEstimates:
     joint_nees: np.ndarray
 
 
-def gnss_covariances(cfg: CoopConfig, is_rtk: np.ndarray) -> np.ndarray:
+def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
     """Known GNSS covariances (N, 3, 3) m^2, diagonal (s_h^2, s_h^2, s_v^2) by fix type."""
     sig = np.where(is_rtk[:, None], [cfg.rtk_sigma_h, cfg.rtk_sigma_h, cfg.rtk_sigma_v],
                    [cfg.gnss_sigma_h, cfg.gnss_sigma_h, cfg.gnss_sigma_v])
@@ -216,7 +140,7 @@ def gnss_covariances(cfg: CoopConfig, is_rtk: np.ndarray) -> np.ndarray:
     return cov
 
 
-def estimate(cfg: CoopConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
+def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
     """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
     from estimators.core import nees
     from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
@@ -334,10 +258,11 @@ def choose_four(epochs: Epochs) -> list[int]:
 # ----------------------------------------------------------------------------------------------
 def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: str) -> Path:
     """Figure 6: position error norm (m) against time for four UAVs (1-based), every estimator."""
-    from testbed.plots import plt, save
+    from testbed.plots import figure, save
 
     nb, nr = neighbour_counts(est.epochs)
-    fig, axes = plt.subplots(len(uavs), 1, figsize=(8, 2.0 * len(uavs) + 0.6), sharex=True)
+    fig = figure(figsize=(8, 2.0 * len(uavs) + 0.6))
+    axes = fig.subplots(len(uavs), 1, sharex=True)
     for ax, u in zip(np.atleast_1d(axes), uavs):
         for c, w in enumerate(est.pos):
             e = np.linalg.norm(est.pos[w][:, u - 1] - est.epochs.truth[:, u - 1], axis=1)
@@ -371,10 +296,8 @@ def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Pa
                  ylabel="RMSE [m]")
 
 
-@register("coop-fg", check=check_scenario)
 def run(scenario, log, plots_dir):
     """Pipeline entry: (scenario, run log, plots dir or None) -> metrics.json `estimators`."""
-    check_scenario(scenario)
     ep = epochs_from_log(log, scenario.vehicles)
     est = estimate(scenario.pipeline, ep, scenario.seed)
     scores = score(est)

@@ -50,82 +50,15 @@ measurement model, same rows, same q and P0 as the filter); gate statistics.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from estimators.core import skew
-from testbed.config import check
-from testbed.pipelines import register
+from testbed.pipelines.config import PhasePipelineConfig
 
 if TYPE_CHECKING:
     from estimators.phase_ekf import ProcessNoise
-
-Vec3 = tuple[float, float, float]
-# SPEC seed 003 initial error and covariance, paper frame (x fwd, y up, z right) mapped to ours
-# (x fwd, y left, z up) as (x, -z, y).
-PAPER_POS_ERROR = (-1.33500, 1.68219, -1.62100)  # m      (paper -1.33500, -1.62100, -1.68219)
-PAPER_VEL_ERROR = (0.81860, -0.74150, 0.68610)  # m/s    (paper 0.81860, 0.68610, 0.74150)
-PAPER_POS_VAR = (1.87306, 3.70352, 3.14771)  # m^2    (paper 1.87306, 3.14771, 3.70352)
-PAPER_VEL_VAR = (0.69928, 0.50587, 0.46008)  # m^2/s^2 (paper 0.69928, 0.46008, 0.50587)
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class PhaseEkfConfig:
-    """[pipeline] table of a seed 003 scenario (see the module docstring).
-
-    nav_master: the master whose body frame is the navigation frame (1-based).
-    q, q_flown: white-acceleration density per antenna axis (m^2/s^3) in prescribed / flown mode.
-    q_translation (m^2/s^3), q_rotation (rad^2/s^3): rigid-body white accelerations of the
-      follower, common to its antennas (estimators.phase_ekf.ProcessNoise); 0 = the paper's Q.
-      A scenario with a [disturbance] on the follower states its densities here (model-matched).
-    sigma_range: filter range noise, 1 sigma (m); rate rows get sqrt(2) sigma_range / W.
-    rate_rows: "window" | "instantaneous" | "off" (module docstring).
-    init: "drawn" = initial 18-state error drawn from the initial covariance per run (stream
-      "init"); "paper" = the paper's fixed body error on every antenna.
-    init_pos_error, init_vel_error: the paper's fixed error (m, m/s, frame N);
-    init_pos_var, init_vel_var: diagonal initial covariance per antenna (m^2, m^2/s^2).
-    antenna_a, antenna_b: follower nose / wing-tip lever arms known to the estimator (m), used
-      only to spread the body prior to the antennas; antenna_error: their error (m).
-    gate, gate_alpha: w-test innovation gate on/off and its family-wise false-alarm rate.
-    iterations: 1 = the paper's EKF, > 1 iterated EKF.
-    score_start: scores skip t < score_start (s, initial convergence); last_window: the
-      "last 100 s" window (s).
-    """
-
-    kind: Literal["phase-ekf"]
-    nav_master: int = 3
-    q: float = 1e-7
-    q_flown: float = 1e-6
-    q_translation: float = 0.0
-    q_rotation: float = 0.0
-    sigma_range: float = 0.05
-    rate_rows: Literal["window", "instantaneous", "off"] = "window"
-    init: Literal["drawn", "paper"] = "drawn"
-    init_pos_error: Vec3 = PAPER_POS_ERROR
-    init_vel_error: Vec3 = PAPER_VEL_ERROR
-    init_pos_var: Vec3 = PAPER_POS_VAR
-    init_vel_var: Vec3 = PAPER_VEL_VAR
-    antenna_a: float = 1.0
-    antenna_b: float = 1.0
-    antenna_error: float = 0.0
-    gate: bool = True
-    gate_alpha: float = 1e-3
-    iterations: int = 1
-    score_start: float = 10.0
-    last_window: float = 100.0
-
-    def check(self) -> None:
-        check(1 <= self.nav_master, "nav_master", f"must be a master number >= 1, got {self.nav_master}")
-        check(self.q > 0 and self.q_flown > 0, "q", f"process noise densities must be positive, got {self.q}, {self.q_flown}")
-        check(self.q_translation >= 0, "q_translation", f"must be >= 0, got {self.q_translation}")
-        check(self.q_rotation >= 0, "q_rotation", f"must be >= 0, got {self.q_rotation}")
-        check(self.sigma_range > 0, "sigma_range", f"must be positive, got {self.sigma_range}")
-        check(min(self.init_pos_var + self.init_vel_var) > 0, "init_pos_var", "initial variances must be positive")
-        check(self.antenna_a > 0 and self.antenna_b > 0, "antenna_a", "lever arms must be positive")
-        check(0 < self.gate_alpha < 1, "gate_alpha", f"must be in (0, 1), got {self.gate_alpha}")
-        check(self.iterations >= 1, "iterations", f"must be >= 1, got {self.iterations}")
-        check(self.score_start >= 0 and self.last_window > 0, "score_start", "score_start >= 0 and last_window > 0 needed")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -248,7 +181,7 @@ def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: 
 # ------------------------------------------------------------------------------------------------
 # Filter
 # ------------------------------------------------------------------------------------------------
-def initial_prior(cfg: PhaseEkfConfig, scenario, inp: PhaseInputs, rng: np.random.Generator):
+def initial_prior(cfg: PhasePipelineConfig, scenario, inp: PhaseInputs, rng: np.random.Generator):
     """Prior on the 18-state at the first epoch: the planned (reference) follower state in N plus
     the initial error (drawn from the prior covariance, or the paper's fixed error).
     Returns (Gaussian prior, P0 (18, 18), error added (18,))."""
@@ -275,7 +208,7 @@ def initial_prior(cfg: PhaseEkfConfig, scenario, inp: PhaseInputs, rng: np.rando
     return Gaussian(mean, base.cov), base.cov, mean - base.mean
 
 
-def measurement_epochs(cfg: PhaseEkfConfig, inp: PhaseInputs) -> list:
+def measurement_epochs(cfg: PhasePipelineConfig, inp: PhaseInputs) -> list:
     """One PhaseMeasurement per epoch with the configured rate-row model and noise."""
     from estimators.phase_ekf import PhaseMeasurement
 
@@ -292,14 +225,14 @@ def measurement_epochs(cfg: PhaseEkfConfig, inp: PhaseInputs) -> list:
     return out
 
 
-def process_noise_model(cfg: PhaseEkfConfig, motion: str) -> ProcessNoise:
+def process_noise_model(cfg: PhasePipelineConfig, motion: str) -> ProcessNoise:
     """The filter's ProcessNoise: per-antenna q of the motion mode plus the rigid-body terms."""
     from estimators.phase_ekf import ProcessNoise
 
     return ProcessNoise(cfg.q_flown if motion == "flown" else cfg.q, cfg.q_translation, cfg.q_rotation)
 
 
-def run_ekf(cfg: PhaseEkfConfig, q: float | ProcessNoise, prior, meas: list, times: np.ndarray):
+def run_ekf(cfg: PhasePipelineConfig, q: float | ProcessNoise, prior, meas: list, times: np.ndarray):
     """The filter over all epochs (q: float or ProcessNoise): means (K, 18), covs (K, 18, 18),
     UpdateInfo list, and the ACTUAL error covariance of this filter (K, 18, 18) if the truth had no
     random acceleration.
@@ -339,7 +272,7 @@ def run_ekf(cfg: PhaseEkfConfig, q: float | ProcessNoise, prior, meas: list, tim
     return means, covs, infos, acts
 
 
-def phase_pcrb(cfg: PhaseEkfConfig, q: float | ProcessNoise, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
+def phase_pcrb(cfg: PhasePipelineConfig, q: float | ProcessNoise, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
     """PCRB (K, 18, 18) along the true 18-state trajectory with the filter's own rows and model."""
     from estimators.phase_ekf import pcrb
 
@@ -361,7 +294,7 @@ BODY_PV[:3] = BODY_POS
 BODY_PV[3:, 12:15] = BODY_PV[3:, 15:18] = 0.5 * np.eye(3)
 
 
-def score(cfg: PhaseEkfConfig, t: np.ndarray, means, covs, acts, infos, states_true, body_true, R_true, bound) -> dict:
+def score(cfg: PhasePipelineConfig, t: np.ndarray, means, covs, acts, infos, states_true, body_true, R_true, bound) -> dict:
     """metrics.json `estimators.ekf` (module docstring) and the series the plots need."""
     from estimators.core import nees
     from estimators.phase_model import rotation_from_antennas
@@ -426,7 +359,7 @@ def estimate(scenario, log: dict) -> tuple[dict, dict]:
     from testbed.config import ConfigError
     from testbed.rng import stream_rng
 
-    cfg: PhaseEkfConfig = scenario.pipeline
+    cfg: PhasePipelineConfig = scenario.pipeline
     ph = scenario.sensors.phase
     if ph is None or "phase/time" not in log:
         raise ConfigError(f"{scenario.name}: pipeline phase-ekf needs the [sensors.phase] stream")
@@ -446,7 +379,6 @@ def estimate(scenario, log: dict) -> tuple[dict, dict]:
     return metrics, series
 
 
-@register("phase-ekf")
 def run(scenario, log, plots_dir):
     metrics, series = estimate(scenario, log)
     if plots_dir is not None:

@@ -28,9 +28,6 @@ RMSE of the relative position (m), velocity (m/s) and attitude (deg, on SO(3) by
 testbed.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e), and the
 wall time per camera epoch (one update and its predicts). The wall time is the only part of
 metrics.json that is not bit-identical between two runs of the same seed.
-
-Must not import testbed.scenario, testbed.world or testbed.simulate at module level (the scenario
-module imports this one for its configuration dataclass).
 """
 from __future__ import annotations
 
@@ -38,79 +35,13 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
-from estimators.visnav import PAPER_ACCEL_BIAS, PAPER_ACCEL_NOISE, PAPER_GYRO_BIAS, PAPER_GYRO_NOISE, PAPER_VISION_SIGMA
-from testbed.config import ConfigError, check
-from testbed.pipelines import register
+from testbed.errors import ConfigError
+from testbed.pipelines.config import VisNavPipelineConfig
 
-FILTER_NAMES = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 _DEG = math.pi / 180.0
-
-Vec3 = tuple[float, float, float]
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class VisnavConfig:
-    """[pipeline] table of a seed 004 scenario. Units SI unless the key says otherwise.
-
-    filters: which of ekf, ckf, hckf, mckf, rhcf to run. measurement: "los" (unit LOS on the
-    tangent plane, eqs. 9-13) or "focal" (alpha, beta with the eq. 8 covariance).
-    predict_rate_hz: filter prediction rate (IMU readings trapezoid-averaged over each step).
-    cam_pos (m, leader body FLU) and cam_xyaxes (MJCF convention: camera x and y axes in the
-    leader body frame): the camera mounting known to the filter; cam_pos_sigma (m per axis) and
-    cam_att_sigma_deg (per axis): its survey error, drawn once per run from stream "known".
-    led_pos (K, 3) m in the follower body frame; led_pos_sigma (m per coordinate): survey error.
-    los_sigma (rad): nominal LOS noise; focal_d: eq. 8 constant d.
-    IMU figures known to the filter, the same for both vehicles: gyro_noise (rad/s/sqrt(Hz)),
-    accel_noise (m/s^2/sqrt(Hz)), gyro_bias_sigma (rad/s), accel_bias_sigma (m/s^2) prior stds,
-    gyro_bias_rw (rad/s^2/sqrt(Hz)), accel_bias_rw (m/s^3/sqrt(Hz)).
-    init_sigma_pos (m), init_sigma_vel (m/s), init_sigma_att_deg: initial relative-state std per
-    axis. kernel_sigma (whitened units), mc_tol, mc_max_iter: correntropy update of mckf/rhcf.
-    """
-
-    kind: Literal["visnav"]
-    filters: tuple[str, ...] = FILTER_NAMES
-    measurement: Literal["los", "focal"] = "los"
-    predict_rate_hz: float = 20.0
-    cam_pos: Vec3 = (-0.645, 0.0, 0.0)
-    cam_xyaxes: tuple[float, float, float, float, float, float] = (0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-    cam_pos_sigma: float = 0.0
-    cam_att_sigma_deg: float = 0.0
-    led_pos: tuple[Vec3, ...] = ((0.40, 0.30, 0.06), (0.40, -0.30, 0.06), (0.25, 0.0, 0.28), (0.60, 0.0, -0.12))
-    led_pos_sigma: float = 0.0
-    los_sigma: float = PAPER_VISION_SIGMA
-    focal_d: float = 1.0
-    gyro_noise: float = PAPER_GYRO_NOISE
-    accel_noise: float = PAPER_ACCEL_NOISE
-    gyro_bias_sigma: float = PAPER_GYRO_BIAS
-    accel_bias_sigma: float = PAPER_ACCEL_BIAS
-    gyro_bias_rw: float = 0.0
-    accel_bias_rw: float = 0.0
-    init_sigma_pos: float = 0.5
-    init_sigma_vel: float = 0.1
-    init_sigma_att_deg: float = 2.0
-    kernel_sigma: float = 3.0
-    mc_tol: float = 1e-6
-    mc_max_iter: int = 50
-
-    def check(self) -> None:
-        check(len(self.filters) > 0 and all(f in FILTER_NAMES for f in self.filters), "filters",
-              f"must be a non-empty subset of {list(FILTER_NAMES)}, got {list(self.filters)}")
-        check(len(set(self.filters)) == len(self.filters), "filters", f"repeated names in {list(self.filters)}")
-        check(self.predict_rate_hz > 0, "predict_rate_hz", f"must be positive, got {self.predict_rate_hz}")
-        x, y = np.array(self.cam_xyaxes[:3]), np.array(self.cam_xyaxes[3:])
-        check(np.linalg.norm(x) > 1e-9 and np.linalg.norm(np.cross(x, y)) > 1e-6 * np.linalg.norm(x) * np.linalg.norm(y),
-              "cam_xyaxes", f"x and y axes must be non-zero and not parallel, got {list(self.cam_xyaxes)}")
-        check(len(self.led_pos) >= 1, "led_pos", "at least one LED is needed")
-        for k in ("cam_pos_sigma", "cam_att_sigma_deg", "led_pos_sigma", "gyro_noise", "accel_noise",
-                  "gyro_bias_sigma", "accel_bias_sigma", "gyro_bias_rw", "accel_bias_rw", "focal_d"):
-            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
-        for k in ("los_sigma", "init_sigma_pos", "init_sigma_vel", "init_sigma_att_deg", "kernel_sigma", "mc_tol"):
-            check(getattr(self, k) > 0, k, f"must be positive, got {getattr(self, k)}")
-        check(self.mc_max_iter >= 1, "mc_max_iter", f"must be >= 1, got {self.mc_max_iter}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -127,7 +58,7 @@ def xyaxes_to_rotation(xyaxes) -> np.ndarray:
     return np.column_stack([x, y, np.cross(x, y)])
 
 
-def estimator_config(cfg: VisnavConfig, seed: int, focal_length: float):
+def estimator_config(cfg: VisNavPipelineConfig, seed: int, focal_length: float):
     """The VisNavConfig the filters get: configured camera/LED values plus their survey errors
     (stream "known"), configured IMU and vision noise figures."""
     from estimators.visnav import ImuNoise, VisNavConfig, quat_exp, quat_to_rotmat
@@ -173,7 +104,7 @@ class Inputs:
     cam_ab: list
 
 
-def build_inputs(cfg: VisnavConfig, log: dict, leader: int, follower: int, imu_rate: float) -> Inputs:
+def build_inputs(cfg: VisNavPipelineConfig, log: dict, leader: int, follower: int, imu_rate: float) -> Inputs:
     """Pre-integrate both IMUs to the predict rate and group the camera rows by epoch."""
     n_sub = imu_rate / cfg.predict_rate_hz
     if abs(n_sub - round(n_sub)) > 1e-9 or round(n_sub) < 1:
@@ -231,7 +162,7 @@ class Track:
     update_s: float
 
 
-def initial_belief(cfg: VisnavConfig, model, truth0: np.ndarray, seed: int):
+def initial_belief(cfg: VisNavPipelineConfig, model, truth0: np.ndarray, seed: int):
     """Prior at t0: the true relative navigation state (+) a draw from P0 (stream "init"), biases 0.
 
     truth0: (22,) true state (only its p, v, q are used)."""
@@ -246,7 +177,7 @@ def initial_belief(cfg: VisnavConfig, model, truth0: np.ndarray, seed: int):
     return ManifoldGaussian(model.boxplus(x0[None], d[None])[0], P0)
 
 
-def run_filter(name: str, cfg: VisnavConfig, model, inputs: Inputs, prior) -> Track:
+def run_filter(name: str, cfg: VisNavPipelineConfig, model, inputs: Inputs, prior) -> Track:
     """Run one filter of the family over the inputs; returns its Track."""
     import warnings
 
@@ -348,7 +279,7 @@ def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], o
     """Run every configured filter on the log; returns tracks, their scores and the model."""
     from estimators.visnav import RelNavModel
 
-    cfg: VisnavConfig = scenario.pipeline
+    cfg: VisNavPipelineConfig = scenario.pipeline
     cam, imu = scenario.sensors.camera, scenario.sensors.imu
     if cam is None or imu is None:
         raise ConfigError(f"sensors: the visnav pipeline needs [sensors.imu] and [sensors.camera] (scenario {scenario.name})")
@@ -382,7 +313,6 @@ def plot_track(track: Track, sc: Scored, plots_dir: Path, prefix: str = "") -> l
     ]
 
 
-@register("visnav")
 def run(scenario, log, plots_dir):
     """The seed 004 pipeline: every configured filter on the log; one metrics entry per filter."""
     tracks, scores, _ = run_all(scenario, log)

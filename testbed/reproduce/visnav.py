@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.environment import apply_defaults
+
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_mps", "velocity", "m/s"),
               ("rmse_attitude_deg", "attitude", "deg"))
@@ -93,7 +95,7 @@ def _run_many(jobs: list[tuple], workers: int) -> list[dict]:
             results[i] = one_run(job)
             print(f"  run {i + 1}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=apply_defaults) as pool:
             futures = [pool.submit(one_run, job) for job in jobs]
             for i, fut in enumerate(futures):
                 results[i] = fut.result()

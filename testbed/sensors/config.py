@@ -1,18 +1,19 @@
 """Sensor configuration of a scenario: one optional table per stream, `[sensors.NAME]`.
 
 A missing table means the stream is off; an empty table turns it on with its defaults. Each table
-has `rate_hz` (must divide the scenario's control_rate; checked by `check_rates`), `latency` (s:
+has `rate_hz` (must divide the scenario's control_rate; checked by `cross_check`), `latency` (s:
 `NAME/arrival = NAME/time + latency`, `NAME/time` being the time of validity) and a `preset` that
 fills every error key the table leaves out (presets in testbed.sensors.presets). Keys given
 explicitly override the preset; the resolved scenario writes every value out. Units SI (m, s,
-rad); see docs/sensors.md for every key.
+rad); see docs/sensors.md for every key. Every table validates itself in `__post_init__` (after
+the preset filled it in), so `dataclasses.replace` re-checks.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 from typing import Literal
 
-from testbed.config import check
+from testbed.config import in_range, join_key, require, whole_ratio
 from testbed.sensors.presets import CAMERA_PRESETS, GNSS_PRESETS, IMU_PRESETS, PHASE_PRESETS, UWB_PRESETS
 
 
@@ -23,9 +24,9 @@ def _fill(obj: object, table: dict) -> None:
             object.__setattr__(obj, f.name, table[f.name])
 
 
-def _check_rate(rate: float, latency: float) -> None:
-    check(rate > 0, "rate_hz", f"must be positive, got {rate}")
-    check(latency >= 0, "latency", f"must be >= 0 s, got {latency}")
+def _check_rate(cfg: object) -> None:
+    in_range(cfg, "rate_hz", 0, lo_open=True, unit="Hz")
+    in_range(cfg, "latency", 0, unit="s")
 
 
 # --------------------------------------------------------------------------------------- IMU
@@ -49,10 +50,10 @@ class InertialErrors:
     scale_sigma: float | None = None
     misalign_sigma: float | None = None
 
-    def check(self) -> None:
+    def __post_init__(self) -> None:
         for f in fields(self):
-            v = getattr(self, f.name)
-            check(v is None or f.name == "bias" or v >= 0, f.name, f"must be >= 0, got {v}")
+            if f.name != "bias" and getattr(self, f.name) is not None:
+                in_range(self, f.name, 0)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -76,10 +77,8 @@ class ImuConfig:
             filled = replace(cur)
             _fill(filled, table[name])
             object.__setattr__(self, name, filled)
-
-    def check(self) -> None:
-        _check_rate(self.rate_hz, self.latency)
-        check(all(v >= 1 for v in self.vehicles), "vehicles", f"vehicle numbers start at 1, got {list(self.vehicles)}")
+        _check_rate(self)
+        in_range(self, "vehicles", 1)
 
 
 # --------------------------------------------------------------------------------------- UWB
@@ -120,16 +119,14 @@ class UwbConfig:
 
     def __post_init__(self) -> None:
         _fill(self, UWB_PRESETS[self.preset])
-
-    def check(self) -> None:
-        _check_rate(self.rate_hz, self.latency)
-        check(self.max_range > 0, "max_range", f"must be positive, got {self.max_range}")
-        check(all(0 <= g <= 5 for g in self.los_groups), "los_groups", f"geom groups are 0..5, got {list(self.los_groups)}")
+        _check_rate(self)
+        in_range(self, "max_range", 0, lo_open=True, unit="m")
+        require(all(0 <= g <= 5 for g in self.los_groups), "los_groups", self.los_groups, f"geom groups are 0..5, got {list(self.los_groups)}")
         for k in ("noise", "clock_ppm", "link_bias_sigma", "nlos_bias_mean", "nlos_bias_per_m", "outlier_sigma"):
-            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
-        check(self.nlos_noise_factor >= 1, "nlos_noise_factor", f"must be >= 1, got {self.nlos_noise_factor}")
+            in_range(self, k, 0)
+        in_range(self, "nlos_noise_factor", 1)
         for k in ("loss_prob", "outlier_prob"):
-            check(0 <= getattr(self, k) < 1, k, f"must be in [0, 1), got {getattr(self, k)}")
+            in_range(self, k, 0, 1, hi_open=True)
 
 
 # ------------------------------------------------------------------------------------- phase
@@ -166,26 +163,26 @@ class PhaseConfig:
 
     def __post_init__(self) -> None:
         _fill(self, PHASE_PRESETS[self.preset])
-
-    def check(self) -> None:
-        _check_rate(self.rate_hz, self.latency)
-        ratio = self.phase_rate_hz / self.rate_hz
-        check(self.phase_rate_hz > 0 and abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1, "phase_rate_hz",
-              f"must be a whole multiple of rate_hz = {self.rate_hz} Hz, got {self.phase_rate_hz}")
-        check(self.rate_periods >= 1, "rate_periods", f"must be >= 1, got {self.rate_periods}")
-        check(len(self.masters) >= 1 and all(m >= 1 for m in self.masters), "masters", f"need vehicle numbers >= 1, got {list(self.masters)}")
-        check(self.follower >= 1 and self.follower not in self.masters, "follower", f"must be a vehicle number that is not a master, got {self.follower}")
-        check(all(w > 0 for w in self.wavelengths), "wavelengths", "must be positive")
-        check(self.slip_max_cycles >= 1, "slip_max_cycles", "must be >= 1")
+        _check_rate(self)
+        require(self.phase_rate_hz > 0 and whole_ratio(self.phase_rate_hz, self.rate_hz), "phase_rate_hz", self.phase_rate_hz,
+                f"must be a whole multiple of rate_hz = {self.rate_hz} Hz, got {self.phase_rate_hz}")
+        in_range(self, "rate_periods", 1)
+        require(len(self.masters) >= 1 and all(m >= 1 for m in self.masters), "masters", self.masters,
+                f"need vehicle numbers >= 1, got {list(self.masters)}")
+        require(self.follower >= 1 and self.follower not in self.masters, "follower", self.follower,
+                f"must be a vehicle number that is not a master, got {self.follower}")
+        in_range(self, "wavelengths", 0, lo_open=True, unit="m")
+        in_range(self, "slip_max_cycles", 1)
         for k in ("phase_noise", "coarse_noise", "master_pos_noise", "master_vel_noise"):
-            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
-        check(0 <= self.slip_prob < 1, "slip_prob", f"must be in [0, 1), got {self.slip_prob}")
+            in_range(self, k, 0)
+        in_range(self, "slip_prob", 0, 1, hi_open=True)
         lam = min(self.wavelengths)
         # Integer fixing rounds (coarse - phase range)/lambda: a 5 sigma total error must stay
         # inside half a cycle of the shortest wavelength.
         tot = (self.coarse_noise**2 + self.phase_noise**2) ** 0.5
-        check(5 * tot < lam / 2, "coarse_noise",
-              f"coarse/phase noise {tot:.3f} m (1 sigma) too large to fix integers of the {lam} m wavelength (need 5 sigma < lambda/2)")
+        require(5 * tot < lam / 2, "coarse_noise", self.coarse_noise,
+                f"coarse/phase noise {tot:.3f} m (1 sigma, with phase_noise) too large to fix integers of the {lam} m wavelength "
+                "(need 5 sigma < lambda/2)")
 
 
 # -------------------------------------------------------------------------------------- GNSS
@@ -206,11 +203,10 @@ class GnssErrors:
 
     def __post_init__(self) -> None:
         _fill(self, GNSS_PRESETS[self.preset])
-
-    def check(self) -> None:
         for k in ("noise_h", "noise_v", "bias_h", "bias_v", "bias_tau"):
-            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
-        check(self.bias_tau > 0 or (self.bias_h == 0 and self.bias_v == 0), "bias_tau", "a Gauss-Markov bias needs bias_tau > 0")
+            in_range(self, k, 0)
+        require(self.bias_tau > 0 or (self.bias_h == 0 and self.bias_v == 0), "bias_tau", self.bias_tau,
+                "a Gauss-Markov bias needs bias_tau > 0")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -231,9 +227,10 @@ class GnssConfig:
     receiver: GnssErrors = field(default_factory=lambda: GnssErrors(preset="spp"))
     rtk: GnssErrors = field(default_factory=lambda: GnssErrors(preset="rtk"))
 
-    def check(self) -> None:
-        _check_rate(self.rate_hz, self.latency)
-        check(all(v >= 1 for v in self.vehicles + self.rtk_vehicles), "rtk_vehicles", "vehicle numbers start at 1")
+    def __post_init__(self) -> None:
+        _check_rate(self)
+        in_range(self, "vehicles", 1)
+        in_range(self, "rtk_vehicles", 1)
 
 
 # ------------------------------------------------------------------------------------ camera
@@ -265,13 +262,15 @@ class CameraConfig:
 
     def __post_init__(self) -> None:
         _fill(self, CAMERA_PRESETS[self.preset])
-
-    def check(self) -> None:
-        _check_rate(self.rate_hz, self.latency)
-        check(self.leader >= 1 and self.follower >= 1 and self.leader != self.follower, "follower", "leader and follower must be two different vehicle numbers")
-        check(self.focal_length > 0, "focal_length", "must be positive")
-        check(self.sigma >= 0 and self.d >= 0, "sigma", "sigma and d must be >= 0")
-        check(0 <= self.glint_prob < 1 and self.glint_factor >= 1, "glint_prob", "need 0 <= glint_prob < 1 and glint_factor >= 1")
+        _check_rate(self)
+        in_range(self, "leader", 1)
+        in_range(self, "follower", 1)
+        require(self.leader != self.follower, "follower", self.follower, f"must differ from the leader {self.leader}")
+        in_range(self, "focal_length", 0, lo_open=True, unit="m")
+        in_range(self, "sigma", 0)
+        in_range(self, "d", 0)
+        in_range(self, "glint_prob", 0, 1, hi_open=True)
+        in_range(self, "glint_factor", 1)
 
 
 # ------------------------------------------------------------------------------------- table
@@ -291,27 +290,26 @@ class SensorsConfig:
         """The configured streams by name, in a fixed order."""
         return {n: getattr(self, n) for n in ("imu", "uwb", "phase", "gnss", "camera") if getattr(self, n) is not None}
 
-    def check_rates(self, control_rate: float, vehicles: int) -> None:
+    def cross_check(self, control_rate: float, vehicles: int, at: str) -> None:
         """Every stream's sampling rate must divide the control rate; vehicle numbers must exist.
 
-        Raises ValueError(key, message) (key dotted below `sensors`), as `check` does.
+        control_rate: world.control_rate (Hz); vehicles: the scenario's vehicle count; at: the
+        dotted path of this table (`sensors`). Raises FieldError naming the full key.
         """
         for name, cfg in self.streams().items():
-            rates = [("rate_hz", cfg.rate_hz)]
-            if name == "phase":
-                rates = [("phase_rate_hz", cfg.phase_rate_hz)]
-            for key, rate in rates:
-                ratio = control_rate / rate
-                check(abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1, f"{name}.{key}",
-                      f"{rate:g} Hz does not divide the control rate {control_rate:g} Hz (world.control_rate); use {_divisors(control_rate)} Hz")
-            nums: list[int] = []
-            if name in ("imu", "gnss"):
-                nums = list(cfg.vehicles) + (list(cfg.rtk_vehicles) if name == "gnss" else [])
-            elif name == "phase":
-                nums = [*cfg.masters, cfg.follower]
-            elif name == "camera":
-                nums = [cfg.leader, cfg.follower]
-            check(all(1 <= v <= vehicles for v in nums), name, f"vehicle numbers must be in 1..{vehicles}, got {nums}")
+            key = "phase_rate_hz" if name == "phase" else "rate_hz"
+            rate = getattr(cfg, key)
+            require(whole_ratio(control_rate, rate), join_key(at, f"{name}.{key}"), rate,
+                    f"{rate:g} Hz does not divide the control rate {control_rate:g} Hz (world.control_rate); use {_divisors(control_rate)} Hz")
+            for key in _VEHICLE_KEYS[name]:
+                nums = getattr(cfg, key)
+                require(all(1 <= v <= vehicles for v in (nums if isinstance(nums, tuple) else (nums,))),
+                        join_key(at, f"{name}.{key}"), nums, f"vehicle numbers must be in 1..{vehicles}, got {nums}")
+
+
+# The keys of each stream that hold 1-based vehicle numbers.
+_VEHICLE_KEYS = {"imu": ("vehicles",), "uwb": (), "phase": ("masters", "follower"), "gnss": ("vehicles", "rtk_vehicles"),
+                 "camera": ("leader", "follower")}
 
 
 def _divisors(rate: float) -> str:

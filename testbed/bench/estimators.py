@@ -13,6 +13,18 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from filterpy.kalman import CubatureKalmanFilter, ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+from estimators import phase_ekf as pe
+from estimators.core import Gaussian
+from estimators.factor_graph import solve_centralized, solve_distributed
+from estimators.gtsam_reference import solve_gtsam as reference
+from estimators.phase_model import antenna_offsets, measurement_model, stack_rows
+from estimators.sigma_filters import ManifoldGaussian, make_filter
+from estimators.visnav import RelNavModel, imu_input, make_state, quat_exp
+from testbed import scenario
+from testbed.pipelines.visnav import estimator_config
+from testbed.synthetic import epoch_factory
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -53,12 +65,6 @@ def bench_phase_ekf(repeats: int = 200) -> list[dict]:
     filterpy (which has none); ours with the gate is reported next to it. The three are timed
     interleaved in one process.
     """
-    from filterpy.kalman import ExtendedKalmanFilter
-
-    from estimators import phase_ekf as pe
-    from estimators.core import Gaussian
-    from estimators.phase_model import antenna_offsets, measurement_model, stack_rows
-
     rng = np.random.default_rng(0)
     bodies = np.array([[100, 0, 0], [0, 100, 0], [0, 0, 0], [0, -100, 0], [-100, 0, 0]], float)
     master_pos = bodies[:, None, :] + antenna_offsets()[None]
@@ -110,11 +116,6 @@ def bench_phase_ekf(repeats: int = 200) -> list[dict]:
 def _visnav_problem():
     """The seed 004 model (n = 21, the visnav scenario's camera and LEDs, paper IMU figures) at a
     formation state 10 m behind the leader, one 20 Hz IMU input and a 4-LED LOS measurement."""
-    from estimators.sigma_filters import ManifoldGaussian
-    from estimators.visnav import RelNavModel, imu_input, make_state, quat_exp
-    from testbed import scenario
-    from testbed.pipelines.visnav import estimator_config
-
     sc = scenario.load("visnav")
     model = RelNavModel(estimator_config(sc.pipeline, 0, 1.0))
     rng = np.random.default_rng(0)
@@ -132,10 +133,6 @@ def bench_visnav(repeats: int = 30) -> list[dict]:
     UnscentedKalmanFilter (Merwe points, alpha 1, beta 2, kappa 0) on the same model, written in
     the tangent chart at the prior mean (x_vec -> mean (+) x_vec, one point per fx/hx call, which
     is filterpy's interface). Same Q (model.Q at the mean), R and tangent-plane measurement."""
-    from filterpy.kalman import CubatureKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
-
-    from estimators.sigma_filters import make_filter
-
     model, prior, u, b_meas, dt = _visnav_problem()
     ref = prior.mean
     Q = model.Q(ref, u, dt)
@@ -201,10 +198,6 @@ def bench_factor_graph(n_list=(18, 100, 1000), seed: int = 0, *, tol: float = 1e
     distributed message iteration needs (every change < tol m, cap max_rounds): the paper's scheme
     ("prior", undamped) and the consistent block-Jacobi ("fixed", damping 0.5), with their gap to
     the centralized solution. Times in seconds; not a test."""
-    from estimators.factor_graph import solve_centralized, solve_distributed
-    from estimators.gtsam_reference import solve_gtsam as reference
-    from testbed.synthetic import epoch_factory
-
     make_epoch = epoch_factory()
     out = []
     for n in n_list:

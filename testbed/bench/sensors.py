@@ -1,4 +1,4 @@
-"""Benchmark of the sensor suite (not a test): `python -m testbed.sensors.bench`.
+"""`testbed bench sensors`: cost of the sensor suite (not a test).
 
 (a) real-time factor of an 18-vehicle flown swarm (seed 001's 200 x 200 x 100 m box, bases on a
 3 x 3 x 2 grid 60 m / 50 m apart, 4 anchors, 3 pillars) with IMU 200 Hz, GNSS 5 Hz and UWB on all
@@ -11,26 +11,31 @@ from __future__ import annotations
 
 import time
 
+import mujoco
 import numpy as np
 
+from testbed.bench.physics import bare_rtf
+from testbed.bench.swarm import swarm_scenario
 from testbed.config import from_dict
 from testbed.scenario import Scenario
+from testbed.sensors.camera import Camera
+from testbed.simulate import simulate
+from testbed.world import build
 
 
-def swarm_scenario(duration: float, sensors: dict) -> Scenario:
-    bases = [[40.0 + 60 * i, 40.0 + 60 * j, 25.0 + 50 * k] for k in range(2) for j in range(3) for i in range(3)]
-    data = {
-        "name": "bench-swarm", "description": "18-vehicle swarm benchmark", "seed": 0, "duration": duration, "motion": "flown",
-        "world": {
-            "anchors": [[0.0, 0.0, 2.0], [200.0, 0.0, 2.0], [0.0, 200.0, 2.0], [200.0, 200.0, 2.0]],
-            "obstacles": [{"type": "cylinder", "pos": [70.0, 70.0, 50.0], "size": [4.0, 50.0, 0.0]},
-                          {"type": "cylinder", "pos": [130.0, 130.0, 50.0], "size": [4.0, 50.0, 0.0]},
-                          {"type": "box", "pos": [100.0, 70.0, 30.0], "size": [10.0, 1.0, 30.0]}],
-        },
-        "trajectory": {"kind": "swarm-box", "bases": bases, "rtk": [1, 7, 12]},
-        "sensors": sensors,
-    }
-    return from_dict(Scenario, data, "bench")
+# seed 001's 200 x 200 x 100 m box: four anchors at the corners, two pillars and a wall
+ARENA_WORLD = {
+    "anchors": [[0.0, 0.0, 2.0], [200.0, 0.0, 2.0], [0.0, 200.0, 2.0], [200.0, 200.0, 2.0]],
+    "obstacles": [{"type": "cylinder", "pos": [70.0, 70.0, 50.0], "size": [4.0, 50.0, 0.0]},
+                  {"type": "cylinder", "pos": [130.0, 130.0, 50.0], "size": [4.0, 50.0, 0.0]},
+                  {"type": "box", "pos": [100.0, 70.0, 30.0], "size": [10.0, 1.0, 30.0]}],
+}
+
+
+def arena_swarm(duration: float, sensors: dict) -> Scenario:
+    """The 18-vehicle swarm of the sensor benchmark (module docstring) with the given [sensors]."""
+    return swarm_scenario(18, duration, spacing=(60.0, 60.0, 50.0), origin=(40.0, 40.0, 25.0), sensors=sensors,
+                          world=ARENA_WORLD, rtk=(1, 7, 12))
 
 
 def _timed(fn, repeat: int = 1) -> float:
@@ -48,16 +53,9 @@ def bench_sensors(duration: float = 20.0, frames: int = 30, repeat: int = 1) -> 
     duration: simulated seconds of the swarm runs; frames: rendered frames per camera timing;
     repeat: best of this many runs (the machine may be shared).
     """
-    import mujoco
-
-    from testbed.bench import bare_rtf
-    from testbed.sensors.camera import Camera
-    from testbed.simulate import simulate
-    from testbed.world import build
-
     sensors = {"imu": {"preset": "bmi088"}, "gnss": {}, "uwb": {"preset": "dw1000", "max_range": 100.0}}
-    bare = swarm_scenario(duration, {})
-    full = swarm_scenario(duration, sensors)
+    bare = arena_swarm(duration, {})
+    full = arena_swarm(duration, sensors)
     out: dict = {"duration_s": duration, "vehicles": bare.vehicles}
     # interleaved runs (same load), the scene compiled before each (untimed, as in bench physics);
     # rtf_mj_step: plain mj_step on the same model, for scale
@@ -107,10 +105,3 @@ def bench_sensors(duration: float = 20.0, frames: int = 30, repeat: int = 1) -> 
     cam.arrays()
     return out
 
-
-if __name__ == "__main__":
-    import json
-    import os
-
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    print(json.dumps(bench_sensors(), indent=2))

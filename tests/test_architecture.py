@@ -1,0 +1,192 @@
+"""Architecture: no import cycles among the project's modules, no sys.path edits, estimators/ a
+leaf that never imports mujoco or testbed, a light scenario schema, and `import testbed` without
+side effects."""
+from __future__ import annotations
+
+import ast
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from estimators import visnav as estimators_visnav
+from testbed.environment import DEFAULTS, apply_defaults
+from testbed.pipelines import config as pipeline_config
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("testbed", "estimators")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _project_modules() -> dict[str, Path]:
+    return {_module_name(p): p for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))}
+
+
+def _imports(path: Path, name: str, modules: dict[str, Path]) -> set[str]:
+    """Project modules imported anywhere in the file (module level, in functions, under
+    TYPE_CHECKING alike). `from a.b import c` counts as a.b.c when that is a module, else a.b."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else []))
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        else:
+            continue
+        for t in targets:
+            while t and t not in modules:  # `import a.b.c` of a non-module attribute: nearest module
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                out.add(t)
+    return out
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), plus self-loops."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1 or v in graph[v]:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def _import_graph() -> dict[str, set[str]]:
+    modules = _project_modules()
+    return {name: _imports(path, name, modules) for name, path in modules.items()}
+
+
+def test_cycle_finder_finds_a_planted_cycle():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": {"e"}, "f": set()}
+    assert _cycles(graph) == [["a", "b", "c"], ["e"]]
+
+
+def test_no_import_cycles_in_the_project():
+    graph = _import_graph()
+    assert len(graph) > 40 and "testbed.scenario" in graph["testbed.reference"]  # the finder sees edges
+    assert _cycles(graph) == []
+
+
+def test_estimators_never_import_mujoco_or_testbed():
+    for path in sorted((ROOT / "estimators").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            bad = [n for n in names if n.split(".")[0] in ("mujoco", "testbed")]
+            assert not bad, f"{path.relative_to(ROOT)}:{node.lineno} imports {bad}"
+
+
+def _sys_path_edits(source: str) -> list[int]:
+    """Lines that use sys.path at all (insert, append, assignment...): the project needs none."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and node.attr == "path" and isinstance(node.value, ast.Name) and node.value.id == "sys":
+            lines.append(node.lineno)
+    return lines
+
+
+def test_no_sys_path_edits_in_the_repository():
+    assert _sys_path_edits("import sys\nsys.path.insert(0, 'x')\n") == [2]  # the check can fail
+    files = [p for p in ROOT.rglob("*.py") if not any(part.startswith(".") or part in ("build", "runs") for part in p.relative_to(ROOT).parts)]
+    assert len(files) > 40
+    offenders = [f"{p.relative_to(ROOT)}:{ln}" for p in files for ln in _sys_path_edits(p.read_text())]
+    assert offenders == []
+
+
+def _fresh(code: str, env: dict | None = None) -> dict:
+    """Run code in a fresh interpreter from the repository root; it prints one JSON object."""
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, env=env, timeout=120)
+    assert run.returncode == 0, run.stderr
+    return json.loads(run.stdout)
+
+
+def test_scenario_schema_loads_without_compute_modules_scipy_or_mujoco():
+    loaded = _fresh(
+        "import json, sys\n"
+        "import testbed.scenario as s\n"
+        "s.load('coop-fg'); s.load('phase-cross-h000')\n"
+        "print(json.dumps(sorted(sys.modules)))\n"
+    )
+    heavy = [m for m in loaded if m.split(".")[0] in ("scipy", "mujoco", "cv2", "matplotlib", "gtsam", "filterpy")]
+    compute = [m for m in loaded if m.startswith(("testbed.pipelines.", "testbed.sensors.", "estimators"))
+               and m not in ("testbed.pipelines.config", "testbed.sensors.config", "testbed.sensors.presets")]
+    assert "testbed.pipelines.config" in loaded and heavy == [] and compute == []
+
+
+def test_import_testbed_leaves_the_environment_alone():
+    env = {k: v for k, v in os.environ.items() if k not in DEFAULTS}
+    code = ("import json, os\nbefore = dict(os.environ)\nimport testbed, testbed.scenario, testbed.plots\n"
+            "print(json.dumps([before == dict(os.environ), 'matplotlib.pyplot' in __import__('sys').modules]))\n")
+    assert _fresh(code, env) == [True, False]
+
+
+def test_cli_sets_the_environment_before_numpy_loads():
+    env = {k: v for k, v in os.environ.items() if k not in DEFAULTS}
+    code = ("import json, os, sys, contextlib, io\nfrom testbed.cli import main\nnumpy_before = 'numpy' in sys.modules\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n    main(['list'])\n"
+            "print(json.dumps([numpy_before, {k: os.environ.get(k) for k in %r}]))\n" % list(DEFAULTS))
+    numpy_before, seen = _fresh(code, env)
+    assert numpy_before is False and seen == DEFAULTS
+
+
+def _worker_env() -> dict:
+    return {k: os.environ.get(k) for k in DEFAULTS}
+
+
+def test_sweep_workers_get_single_threaded_blas(monkeypatch):
+    """The pool set-up of testbed.sweep: spawned workers run apply_defaults before any task (and
+    so before the task's module imports numpy), even when the parent never set the variables."""
+    for k in DEFAULTS:
+        monkeypatch.delenv(k, raising=False)
+    with ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"), initializer=apply_defaults) as pool:
+        assert pool.submit(_worker_env).result() == DEFAULTS
+    assert all(k not in os.environ for k in DEFAULTS)  # the parent is left alone
+
+
+def test_config_copies_of_the_visnav_paper_figures_equal_the_estimators():
+    for name in ("PAPER_ACCEL_BIAS", "PAPER_ACCEL_NOISE", "PAPER_GYRO_BIAS", "PAPER_GYRO_NOISE", "PAPER_VISION_SIGMA"):
+        assert getattr(pipeline_config, name) == getattr(estimators_visnav, name), name
+
+
+def test_plots_never_choose_a_backend_or_use_pyplot():
+    tree = ast.parse((ROOT / "testbed/plots.py").read_text())
+    calls = [ast.unparse(n.func) for n in ast.walk(tree) if isinstance(n, ast.Call)]
+    imports = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names] + \
+        [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    assert "matplotlib.use" not in calls and not any("pyplot" in (m or "") for m in imports)
