@@ -33,17 +33,6 @@ class Gaussian:
             raise ValueError(f"Gaussian: mean {self.mean.shape} and cov {self.cov.shape} do not match")
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """[v]x: (..., 3) -> (..., 3, 3), [v]x w = v x w."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    out[..., 0, 1], out[..., 0, 2] = -z, y
-    out[..., 1, 0], out[..., 1, 2] = z, -x
-    out[..., 2, 0], out[..., 2, 1] = -y, x
-    return out
-
-
 def symmetrize(P: np.ndarray) -> np.ndarray:
     """(P + P^T) / 2: removes the round-off asymmetry of a covariance product."""
     return 0.5 * (P + P.T)

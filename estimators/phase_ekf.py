@@ -78,7 +78,8 @@ import numpy as np
 from scipy import linalg, special
 from scipy.linalg import lapack
 
-from estimators.core import Gaussian, kf_predict, skew, symmetrize
+from estimators.core import Gaussian, kf_predict, symmetrize
+from estimators.so3 import skew
 from estimators.phase_model import (
     N_STATE,
     ROWS_PER_MASTER,

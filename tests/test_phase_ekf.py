@@ -31,11 +31,10 @@ from estimators.phase_model import (
     antenna_state_from_body,
     body_from_antennas,
     measurement_model,
-    rot_zyx,
-    rot_zyx_dot,
     row_label,
     stack_rows,
 )
+from estimators.so3 import rot_zyx, rot_zyx_dot
 from phase_synthetic import (  # tests/ helper (pytest puts tests/ on sys.path)
     P0_POS,
     P0_VEL,

@@ -16,9 +16,8 @@ from estimators.sigma_filters import (
     CubaturePredict, LinearGaussianModel, LinearMeasurement, ManifoldGaussian, SpdRepairWarning,
     correntropy_solve, ensure_spd, make_filter, make_mckf,
 )
-from estimators.visnav import (
-    ImuNoise, RelNavModel, VisNavConfig, make_state, quat_exp, quat_to_rotmat,
-)
+from estimators.so3 import quat_exp, quat_to_rotmat
+from estimators.visnav import ImuNoise, RelNavModel, VisNavConfig, make_state
 
 sys.path.insert(0, str(Path(__file__).parent))
 import visnav_synthetic as syn  # noqa: E402

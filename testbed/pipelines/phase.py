@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from estimators.core import skew
+from estimators.so3 import skew
 from testbed.config import check
 from testbed.pipelines import register
 
@@ -137,7 +137,8 @@ def nav_pose_from_antennas(X: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, ..
     X, V: (K, 3, 3) world positions / velocities of its ant1..3 (m, m/s). Returns p, v (K, 3)
     (origin = mid wing tips, eq. 29), R (K, 3, 3) R_world_from_N, Rd (K, 3, 3) dR/dt (1/s).
     """
-    from estimators.phase_model import body_from_antennas, rot_zyx, rot_zyx_dot
+    from estimators.phase_model import body_from_antennas
+    from estimators.so3 import rot_zyx, rot_zyx_dot
 
     K = X.shape[0]
     p, v = np.empty((K, 3)), np.empty((K, 3))
@@ -225,7 +226,8 @@ def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: 
     """
     from scipy.spatial.transform import Rotation
 
-    from estimators.phase_model import antenna_state_from_body, euler_from_rotation
+    from estimators.phase_model import antenna_state_from_body
+    from estimators.so3 import euler_from_rotation
 
     def pose(u):
         R = Rotation.from_quat(log["truth/quat"][idx, u - 1], scalar_first=True).as_matrix()

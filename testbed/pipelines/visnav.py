@@ -130,7 +130,8 @@ def xyaxes_to_rotation(xyaxes) -> np.ndarray:
 def estimator_config(cfg: VisnavConfig, seed: int, focal_length: float):
     """The VisNavConfig the filters get: configured camera/LED values plus their survey errors
     (stream "known"), configured IMU and vision noise figures."""
-    from estimators.visnav import ImuNoise, VisNavConfig, quat_exp, quat_to_rotmat
+    from estimators.so3 import quat_exp, quat_to_rotmat
+    from estimators.visnav import ImuNoise, VisNavConfig
     from testbed.rng import stream_rng
 
     rng = stream_rng(seed, "known")
@@ -282,7 +283,7 @@ def run_filter(name: str, cfg: VisnavConfig, model, inputs: Inputs, prior) -> Tr
 def true_relative_state(log: dict, leader: int, follower: int, idx: np.ndarray) -> np.ndarray:
     """True relative state (len(idx), 22) at log rows idx: p, v in the leader frame, q = q_L^* q_F,
     biases from imu/bias at the nearest IMU sample (scoring only)."""
-    from estimators.visnav import quat_conj, quat_mul, quat_to_rotmat
+    from estimators.so3 import quat_conj, quat_mul, quat_to_rotmat
 
     L, F = leader - 1, follower - 1
     qL, qF = log["truth/quat"][idx, L], log["truth/quat"][idx, F]
