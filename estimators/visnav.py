@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimators.so3 import quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat, skew, so3_right_jacobian
-from estimators.sigma_filters import FunctionMeasurement
+from estimators.sigma_filters import ComposedFilter, FunctionMeasurement, ManifoldGaussian
 
 # --------------------------------------------------------------------------------------------
 # Units and the paper's values (section 3.1)
@@ -418,3 +418,44 @@ def tangent_basis(b: np.ndarray) -> np.ndarray:
     t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
     t2 = np.cross(b, t1)
     return np.stack([t1, t2], axis=-1)
+
+
+# --------------------------------------------------------------------------------------------
+# The filters on raw camera frames (core.Filter)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFrame:
+    """One camera epoch as the sensor reports it.
+
+    leds: (K,) 0-based LED indices seen; los: (K, 3) unit lines of sight in the camera frame C;
+    focal: (K, 2) focal-plane coordinates alpha, beta (m).
+    """
+
+    leds: np.ndarray
+    los: np.ndarray
+    focal: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFilter:
+    """A filter of the seed 004 family fed with raw camera frames (a core.Filter).
+
+    predict is the inner filter's (u: the IMU input (12,), see `imu_input`); update builds the
+    frame's measurement about the PREDICTED mean (the LOS tangent bases / the eq. 8 covariance
+    depend on it: `RelNavModel.los_measurement`, `focal_measurement`) and hands it to the inner
+    filter's update. measurement: "los" (eqs. 9-13) or "focal" (eqs. 5-8).
+    """
+
+    inner: ComposedFilter
+    measurement: str = "los"
+
+    def predict(self, belief: ManifoldGaussian, dt: float, u: np.ndarray | None = None) -> ManifoldGaussian:
+        return self.inner.predict(belief, dt, u)
+
+    def update(self, belief: ManifoldGaussian, frame: CameraFrame) -> ManifoldGaussian:
+        model = self.inner.model
+        if self.measurement == "los":
+            meas = model.los_measurement(belief.mean, frame.los, frame.leds)
+        else:
+            meas = model.focal_measurement(belief.mean, frame.focal, frame.leds)
+        return self.inner.update(belief, meas)

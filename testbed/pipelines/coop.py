@@ -39,8 +39,11 @@ from typing import Literal
 
 import numpy as np
 
+from estimators.core import nees
+from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
 from testbed.config import ConfigError, check
 from testbed.pipelines import register
+from testbed.rng import stream_rng
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
@@ -218,9 +221,6 @@ def gnss_covariances(cfg: CoopConfig, is_rtk: np.ndarray) -> np.ndarray:
 
 def estimate(cfg: CoopConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
     """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
-    from estimators.core import nees
-    from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
-    from testbed.rng import stream_rng
 
     K, n = epochs.gnss.shape[:2]
     rng = stream_rng(seed, "links")
@@ -266,7 +266,7 @@ def estimate(cfg: CoopConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) ->
 # ----------------------------------------------------------------------------------------------
 def score(est: CoopEstimates) -> dict:
     """The `estimators` object of metrics.json (see the module docstring for the keys)."""
-    from estimators.core import nees
+    # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
     from testbed.metrics import anees, anees_interval, rmse
 
     ep = est.epochs
@@ -334,6 +334,7 @@ def choose_four(epochs: Epochs) -> list[int]:
 # ----------------------------------------------------------------------------------------------
 def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: str) -> Path:
     """Figure 6: position error norm (m) against time for four UAVs (1-based), every estimator."""
+    # lazy: matplotlib, only when plots are written
     from testbed.plots import plt, save
 
     nb, nr = neighbour_counts(est.epochs)
@@ -355,6 +356,7 @@ def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: s
 def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Path) -> None:
     """Figure 6, the iterated error of the first chosen UAV with its own 3-sigma envelope (shows
     the over-confidence), the centralized one likewise, and the mean RMSE per estimator."""
+    # lazy: matplotlib, only when plots are written
     from testbed.plots import compare_bars, error_envelope
 
     plot_error_vs_time(est, uavs, plots_dir / "fig6_error_vs_time.png", "Position error of four UAVs")
