@@ -430,12 +430,40 @@ def _block_diag(mats: Sequence[np.ndarray]) -> np.ndarray:
 # Filter step, faults, communication accounting, simulation
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True, slots=True)
+class NodeMeasurements:
+    """The measurements of all N nodes at one step (what `FusionFilter.update` takes).
+
+    y: N arrays (..., m_i), node i's measurement; V: N arrays (..., m_i, m_i), its noise
+    covariance; available: (..., N) bool or None (all): a node without a measurement (see
+    :func:`fusion_step`).
+    """
+
+    y: tuple
+    V: tuple
+    available: np.ndarray | None = None
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class FusionState:
-    """State of all nodes at step k. xhat: (..., N, n) estimates; M: (..., N, n, n) bounds."""
+    """State of all nodes at step k. xhat: (..., N, n) estimates; M: (..., N, n, n) bounds.
+
+    pending: the step's measurements stored by `FusionFilter.update`, applied by its predict.
+    As a belief of the estimator interface, mean = xhat and cov = M (an upper bound of the error
+    covariance, not a calibrated one).
+    """
 
     xhat: np.ndarray
     M: np.ndarray
     k: int = 0
+    pending: NodeMeasurements | None = None
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.xhat
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self.M
 
     def beliefs(self) -> list[Gaussian]:
         """Per-node Gaussian(xhat_i, M_i) (unbatched state only). M_i is an upper bound of the
@@ -471,6 +499,41 @@ def fusion_step(model: NetworkModel, state: FusionState, y: Sequence[np.ndarray]
     x_new = x_new + np.einsum("...ij,...jia->...ia", P, 1.0 - S) * pred
     M_new = bound_step(model, state.M, S, P, L)  # eq. 19 (see bound_step); eq. 15 where L_j = 0
     return FusionState(xhat=x_new, M=M_new, k=state.k + 1), lam
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class FusionFilter:
+    """The estimator of eqs. 4-7 and 18-19 on the estimator interface (core.Filter; run by
+    core.drive). Beliefs are FusionState (all nodes, optionally batched over runs).
+
+    The paper's estimator is in one-step-predictor form: the gain of eq. 18 is a predictor gain
+    (L = A M C^T (...)^-1), so a node's measurement at step k enters only through xhat(k+1). So
+    update(state, NodeMeasurements) stores the step's measurements (the estimate at k is not
+    changed: there is no filtered estimate at k in this method), and predict(state, dt, u)
+    applies them with the exchange and fusion of :func:`fusion_step`, giving xhat(k+1) and
+    M(k+1). u = (S, P): the masks (..., N, N, n) of what actually arrived this step and the
+    weights (..., N, N). dt is the model's fixed step (A, B, W are per step) and is not used.
+    A, B, C, W as in :class:`NetworkModel`; V comes with the measurements.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: tuple
+    W: np.ndarray
+
+    def update(self, state: FusionState, measurement: NodeMeasurements) -> FusionState:
+        return FusionState(xhat=state.xhat, M=state.M, k=state.k, pending=measurement)
+
+    def predict(self, state: FusionState, dt: float, u: tuple[np.ndarray, np.ndarray]) -> FusionState:
+        meas = state.pending
+        if meas is None:
+            raise ValueError("FusionFilter.predict: no measurements for this step (update first: the "
+                             "estimator is in one-step-predictor form)")
+        S, P = u
+        model = NetworkModel(A=self.A, B=self.B, C=self.C, W=self.W, V=tuple(meas.V))
+        # eqs. 18, 4, 6, 7, 19
+        new, _ = fusion_step(model, state, list(meas.y), S, P, available=meas.available)
+        return new
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -9,14 +9,15 @@ Public API
 transition(dt)                              Phi (18, 18), eq. 24
 ProcessNoise                                white-acceleration densities: per antenna, body translation, body rotation
 process_noise(dt, q, x)                     Q (18, 18), continuous white-noise-acceleration model
-predict(belief, dt, q)                      time update, eq. 18/22
+PhaseEkf(q, gate, iterations)               THE filter on the estimator interface (core.Filter):
+                                            predict(belief, dt), update(belief, measurement) -> belief
+PhaseEkfCovarianceAnalysis                  the same filter, also carrying its ACTUAL error covariance
+time_update(belief, dt, q)                  time update, eq. 18/22
 PhaseMeasurement                            one epoch: ranges, range rates, master antennas, sigmas, masks
-Gate                                        innovation gate settings (w-test, family-wise false alarm)
-update(belief, meas, gate, iterations)      EKF (or iterated EKF) measurement update (eq. 19-22, Joseph) -> (Gaussian, UpdateInfo)
-linearized_update(belief, z, hx, H, r_var, valid, gate)   the same on any linearized measurement
+measurement_update(belief, meas, gate, iterations)   EKF (or iterated EKF) measurement update
+                                            (eq. 19-22, Joseph) -> (Gaussian, core.UpdateInfo)
 initial_belief(p, v, R, R_dot, P_pos, P_vel, a, b)  prior on the 18-state from a body prior
 body_state(belief)                          Gaussian over the 12 body quantities (eq. 29-30)
-run_filter(prior, times, measurements, q, gate, iterations)   convenience loop
 pcrb(states, times, master_pos, master_vel, P0, sigma_range, sigma_range_rate, q)   Tichavsky PCRB
 pcrb_position_rmse(bounds, body)            sqrt(trace) of the position block of the bound
 
@@ -60,25 +61,24 @@ this Q's 1e-3 / 1e-5, range rows, 30 runs, 20 s): body position and velocity ANE
 
 Innovation gate (cycle slips)
 -----------------------------
-Baarda's w-test with iterative data snooping on the innovation nu (m valid rows), S = H P H^T + R:
-    w_k = (S^-1 nu)_k / sqrt((S^-1)_kk),   w_k ~ N(0, 1) for a correct row k,
-the most powerful test of "row k alone carries a bias". Unlike nu_k / sqrt(S_kk) it uses the
-redundancy of the 90 rows, so a one-wavelength slip (1-3 m, >= 20 range sigmas) is caught even
-while the prior is still metres wide. Threshold k_w = Phi^-1(1 - alpha / (2 m)) (Bonferroni): the
-probability of rejecting any good row in an epoch is <= alpha (default 1e-3, k_w = 4.39 for m = 90).
-The row with the largest |w| above k_w is rejected, S refactorized without it, and the test
-repeated (at most `max_rejections` rows per epoch). Rejected rows are listed in `UpdateInfo`;
-they never enter the state.
+core.Gate: Baarda's w-test with iterative data snooping on the innovation of all rows (the
+numerics are core.linearized_update's). It uses the redundancy of the 90 rows, so a one-wavelength
+slip (1-3 m, >= 20 range sigmas) is caught even while the prior is still metres wide. Default
+alpha = 1e-3, k_w = 4.39 for m = 90. Rejected rows are listed in `UpdateInfo` (labelled by
+phase_model.row_label) and counted in the driver's health counts; they never enter the state.
+
+Running it: core.drive(PhaseEkf(q, gate, iterations), prior, epochs), one core.Epoch per
+measurement epoch (controls None: the prior is at the first epoch, which is updated without a
+predict; every later epoch is predicted over the time since the previous one).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, special
-from scipy.linalg import lapack
+from scipy import linalg
 
-from estimators.core import Gaussian, kf_predict, skew, symmetrize
+from estimators.core import NO_GATE, Gate, Gaussian, UpdateInfo, kf_predict, linearized_update, symmetrize
 from estimators.phase_model import (
     N_STATE,
     ROWS_PER_MASTER,
@@ -88,6 +88,7 @@ from estimators.phase_model import (
     row_label,
     stack_rows,
 )
+from estimators.so3 import skew
 
 #: default white-noise-acceleration spectral density per antenna axis, m^2/s^3 (see module doc)
 DEFAULT_Q = 1e-7
@@ -141,7 +142,7 @@ def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray 
     return np.block([[dt ** 3 / 3 * S, dt ** 2 / 2 * S], [dt ** 2 / 2 * S, dt * S]])
 
 
-def predict(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q) -> Gaussian:
+def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q) -> Gaussian:
     """EKF time update over dt s (eq. 15, 18, 23): x' = Phi x, P' = Phi P Phi^T + Q."""
     # eq. 22 (first two lines) with f linear: eq. 23-24
     return kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean))
@@ -197,170 +198,8 @@ class PhaseMeasurement:
         return z.reshape(-1), r_var.reshape(-1), valid.reshape(-1)
 
 
-@dataclass(frozen=True, slots=True)
-class Gate:
-    """Innovation gate: iterative Baarda w-test (see module docstring).
-
-    alpha: family-wise probability of rejecting at least one good row per epoch;
-    max_rejections: at most this many rows rejected per epoch; enabled: False = no gate.
-    """
-
-    alpha: float = 1e-3
-    max_rejections: int = 12
-    enabled: bool = True
-
-    def threshold(self, m: int) -> float:
-        """|w| threshold for m rows: Phi^-1(1 - alpha / (2 m)) (= scipy.stats.norm.isf, without its overhead)."""
-        return float(-special.ndtri(self.alpha / (2.0 * max(m, 1))))
-
-
-NO_GATE = Gate(enabled=False)
-
-
-@dataclass(frozen=True, slots=True)
-class UpdateInfo:
-    """What one update did. Row arrays are (m_total,) in the stacked order; NaN where unused.
-
-    innovation: z - h(x_prior); normalized_innovation: nu_k / sqrt(S_kk) (final S);
-    w: Baarda w-statistics (final S; rejected rows keep the value at which they were rejected;
-       NaN everywhere if the gate is disabled);
-    used: rows that entered the update; rejected: indices of rows rejected by the gate;
-    rejected_labels: (master, kind, slot i, antenna j) of each rejected row (see phase_model.row_label);
-    nis: nu^T S^-1 nu over the used rows, dof = number of used rows; threshold: the |w| threshold;
-    gain: the gain K (n, number of used rows), columns in the order of the used rows (for a
-    covariance analysis of the filter against another model of the true motion, e.g. Gelb 1974 ch. 7).
-    """
-
-    innovation: np.ndarray
-    normalized_innovation: np.ndarray
-    w: np.ndarray
-    used: np.ndarray
-    rejected: np.ndarray
-    rejected_labels: tuple = field(default_factory=tuple)
-    nis: float = 0.0
-    dof: int = 0
-    threshold: float = np.inf
-    gain: np.ndarray | None = None
-
-
-def _cholesky_upper(a: np.ndarray) -> np.ndarray:
-    """Upper Cholesky factor U of an SPD (n, n) matrix, a = U^T U (strict lower triangle zero).
-
-    LAPACK dpotrf called directly (scipy.linalg.cho_factor's validation costs more than the
-    factorization at n = 18); reads only the upper triangle of a. Raises LinAlgError if a is not
-    positive definite.
-    """
-    # positional lower=0, clean=1: at n = 18 keyword parsing is a noticeable part of the call
-    U, info = lapack.dpotrf(a, 0, 1)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"dpotrf: matrix not positive definite (info = {info})")
-    return U
-
-
-def _cho_solve(U: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a^-1 b for a = U^T U (U from `_cholesky_upper`), b: (n,) or (n, k); LAPACK dpotrs."""
-    x, info = lapack.dpotrs(U, b, 0)  # lower=0
-    if info != 0:
-        raise ValueError(f"dpotrs: illegal argument {-info}")
-    return x
-
-
-def _cho_inverse_upper(U: np.ndarray) -> np.ndarray:
-    """Upper triangle of a^-1 for a = U^T U (U from `_cholesky_upper`); strict lower triangle zero.
-
-    LAPACK dpotri; for consumers that read only the upper triangle (`_cholesky_upper`).
-    """
-    a_inv, info = lapack.dpotri(U, 0)  # lower=0
-    if info != 0:
-        raise np.linalg.LinAlgError(f"dpotri: singular factor (info = {info})")
-    return a_inv
-
-
-def linearized_update(belief: Gaussian, z: np.ndarray, hx: np.ndarray, H: np.ndarray,
-                      r_var: np.ndarray, valid: np.ndarray | None = None,
-                      gate: Gate = Gate(), labels=None) -> tuple[Gaussian, UpdateInfo]:
-    """EKF update on a linearized measurement z ~ hx + H (x - x_prior) + v, v ~ N(0, diag(r_var)).
-
-    belief: prior (n,); z, hx, r_var: (m,); H: (m, n); valid: (m,) bool or None (all rows).
-    Rows with valid False or non-finite z are skipped; the gate may reject more (see module doc).
-    labels: optional callable row -> label for UpdateInfo.rejected_labels.
-
-    R is diagonal, so the used rows are whitened once, Hw = R^-1/2 H, nuw = R^-1/2 nu. Gain in
-    information form: m (90) > n (18), so instead of factorizing the m x m innovation covariance S
-    the update factorizes the n x n information matrix
-        A = P^-1 + Hw^T Hw,   Xw = A^-1 Hw^T,   K = Xw R^-1/2 = P H^T S^-1     (eq. 20, Woodbury)
-    and the same Xw gives the gate's S^-1 nu and diag(S^-1) for free:
-        S^-1 = R^-1/2 (I - Hw A^-1 Hw^T) R^-1/2.
-    The covariance is still the Joseph form of eq. 21 with that gain (not A^-1), evaluated as
-    the symmetric product C C^T, C = [(I - K H) U^T, Xw] with P = U^T U (Cholesky), so no
-    symmetrization is needed.
-    """
-    z = np.asarray(z, float)
-    m_all = z.shape[0]
-    ok = np.isfinite(z)
-    if valid is not None:
-        ok &= np.asarray(valid, bool)
-    rows = ok.nonzero()[0]
-    nu_all = z - hx
-    if rows.size < m_all:
-        nu_all[~ok] = np.nan
-    w_all = np.full(m_all, np.nan)
-    nn_all = w_all.copy()
-    P = belief.cov
-    rejected: list[int] = []
-    thr = gate.threshold(rows.size) if gate.enabled else np.inf
-    if rows.size == 0:
-        info = UpdateInfo(nu_all, nn_all, w_all, np.zeros(m_all, bool), np.array([], int), (), 0.0, 0, thr)
-        return belief, info
-    # P = U^T U; upper triangle of P^-1 (dpotri), all that the factorization of A below reads
-    U = _cholesky_upper(P)
-    P_inv_upper = _cho_inverse_upper(U)
-    while True:
-        # all rows used: no copies
-        Hr, nu, r = (H, nu_all, r_var) if rows.size == m_all else (H[rows], nu_all[rows], r_var[rows])
-        s_inv = 1.0 / np.sqrt(r)
-        Hw = Hr * s_inv[:, None]
-        nuw = nu * s_inv
-        # eq. 20 in information form: A = P^-1 + Hw^T Hw (upper triangle), Xw = A^-1 Hw^T
-        Xw = _cho_solve(_cholesky_upper(P_inv_upper + Hw.T @ Hw), Hw.T)
-        # eq. 19 correction: K nu = Xw nuw
-        dx = Xw @ nuw
-        # Woodbury: S^-1 nu = R^-1/2 e, e = nuw - Hw A^-1 Hw^T nuw
-        e = nuw - Hw @ dx
-        if not gate.enabled:
-            break
-        # Baarda w-test statistic per row: w_k = (S^-1 nu)_k / sqrt((S^-1)_kk)
-        #   = e_k / sqrt(1 - (Hw A^-1 Hw^T)_kk)
-        w = e / np.sqrt(1.0 - np.einsum("kj,jk->k", Hw, Xw))
-        w_all[rows] = w
-        k = int(np.argmax(np.abs(w)))
-        if abs(w[k]) > thr and len(rejected) < gate.max_rejections and rows.size > 1:
-            rejected.append(int(rows[k]))
-            rows = np.delete(rows, k)
-            continue
-        break
-    # S_kk = H_k P H_k^T + r_k = |(H U^T)_k|^2 + r_k, for the normalized innovations
-    HU = Hr @ U.T
-    nn_all[rows] = nu / np.sqrt(np.einsum("kj,kj->k", HU, HU) + r)
-    # eq. 20: K = P H^T (H P H^T + R)^-1 = A^-1 H^T R^-1 = Xw R^-1/2
-    K = Xw * s_inv
-    # eq. 19: x = x_pred + K (z - h(x_pred))
-    x = belief.mean + dx
-    # eq. 21: Joseph form (I - K H) P (I - K H)^T + K R K^T = C C^T, one symmetric product, with
-    # C = [(I - K H) U^T, K R^1/2] = [U^T - K (H U^T), Xw] (R diagonal)
-    C = np.concatenate([U.T - K @ HU, Xw], axis=1)
-    Pn = C @ C.T
-    used = ok
-    if rejected:
-        used[rejected] = False
-    lab = tuple(labels(r) for r in rejected) if labels is not None else ()
-    info = UpdateInfo(nu_all, nn_all, w_all, used, np.array(rejected, int), lab,
-                      float(nuw @ e), int(rows.size), thr, K)
-    return Gaussian(x, Pn), info
-
-
-def update(belief: Gaussian, measurement: PhaseMeasurement, gate: Gate = Gate(),
-           iterations: int = 1) -> tuple[Gaussian, UpdateInfo]:
+def measurement_update(belief: Gaussian, measurement: PhaseMeasurement, gate: Gate = Gate(),
+                       iterations: int = 1) -> tuple[Gaussian, UpdateInfo]:
     """EKF measurement update with the M-master carrier-phase model (eq. 16-22, 25-28).
 
     belief: prior over the 18-state (phase_model docstring); measurement: one epoch.
@@ -368,7 +207,8 @@ def update(belief: Gaussian, measurement: PhaseMeasurement, gate: Gate = Gate(),
     relinearized n - 1 more times at the latest estimate x_i, with the rows kept by the gate in
     the first pass, z_lin = z - h(x_i) + H_i x_i; it removes the linearization error of the first
     epochs when the prior is metres wide (tests/test_phase_ekf.py measures it).
-    Returns the posterior and an UpdateInfo (rows in the eq. 12/25 order, gate decisions).
+    Returns the posterior and an UpdateInfo (rows in the eq. 12/25 order, gate decisions, gain and
+    Jacobian of the first pass). `PhaseEkf.update` is this without the UpdateInfo.
     """
     z, r_var, valid = measurement.stacked()
     # eq. 17, 26-28: h and H at the predicted state
@@ -385,7 +225,7 @@ def update(belief: Gaussian, measurement: PhaseMeasurement, gate: Gate = Gate(),
 
 
 # ------------------------------------------------------------------------------------------------
-# Initialization, body state, driver
+# Initialization, body state
 # ------------------------------------------------------------------------------------------------
 def initial_belief(p: np.ndarray, v: np.ndarray, R: np.ndarray, R_dot: np.ndarray,
                    P_pos: np.ndarray, P_vel: np.ndarray, a: float = 1.0, b: float = 1.0) -> Gaussian:
@@ -410,27 +250,73 @@ def body_state(belief: Gaussian) -> Gaussian:
     return Gaussian(y, symmetrize(J @ belief.cov @ J.T))
 
 
-def run_filter(prior: Gaussian, times: np.ndarray, measurements, q: float | ProcessNoise = DEFAULT_Q,
-               gate: Gate = Gate(), iterations: int = 1) -> tuple[np.ndarray, np.ndarray, list[UpdateInfo]]:
-    """Filter a sequence: at k = 0 update the prior with measurements[0]; for k > 0 predict over
-    times[k] - times[k-1] then update. times: (K,) s; measurements: K PhaseMeasurement (or None).
+# ------------------------------------------------------------------------------------------------
+# The filter on the estimator interface (core.Filter)
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class PhaseEkf:
+    """The seed 003 EKF as a core.Filter: predict(belief, dt, u) and update(belief, measurement).
 
-    Returns means (K, 18), covariances (K, 18, 18), and the K UpdateInfo (None where skipped).
+    q: white-acceleration density per antenna axis (m^2/s^3) or a ProcessNoise; gate: the
+    innovation gate; iterations: 1 = the paper's EKF, > 1 iterated EKF (`measurement_update`).
+    The filter has no input: u is ignored.
     """
-    K = len(times)
-    means = np.empty((K, N_STATE))
-    covs = np.empty((K, N_STATE, N_STATE))
-    infos: list[UpdateInfo | None] = []
-    bel = prior
-    for k in range(K):
-        if k > 0:
-            bel = predict(bel, float(times[k] - times[k - 1]), q)
-        info = None
-        if measurements[k] is not None:
-            bel, info = update(bel, measurements[k], gate, iterations)
-        means[k], covs[k] = bel.mean, bel.cov
-        infos.append(info)
-    return means, covs, infos
+
+    q: float | ProcessNoise = DEFAULT_Q
+    gate: Gate = Gate()
+    iterations: int = 1
+
+    def predict(self, belief: Gaussian, dt: float, u: None = None) -> Gaussian:
+        """Time update over dt s (eq. 18, 22-24)."""
+        return time_update(belief, dt, self.q)
+
+    def update(self, belief: Gaussian, measurement: PhaseMeasurement) -> Gaussian:
+        """Measurement update with one epoch (eq. 16-22, 25-28); gate rejections are tallied."""
+        return measurement_update(belief, measurement, self.gate, self.iterations)[0]
+
+
+@dataclass(frozen=True, slots=True)
+class AnalyzedGaussian(Gaussian):
+    """A belief that also carries the ACTUAL error covariance of the filter that produced it.
+
+    actual: (n, n) covariance of this filter's error if the truth had no random acceleration
+    (`PhaseEkfCovarianceAnalysis`); info: the UpdateInfo of the update that produced the belief
+    (None after a predict); mean and cov as in core.Gaussian.
+    """
+
+    actual: np.ndarray
+    info: UpdateInfo | None = None
+
+
+class PhaseEkfCovarianceAnalysis(PhaseEkf):
+    """PhaseEkf that also propagates its actual error covariance for a truth without process noise.
+
+    Covariance analysis of a suboptimal filter (Gelb 1974, ch. 7): with the filter's own gains K_k
+    and Jacobians H_k, the error of a truth with zero process noise has covariance
+        P_act,k|k-1 = Phi P_act Phi^T,   P_act,k = (I - K H) P_act,k|k-1 (I - K H)^T + K R K^T.
+    The filter's P (with Q = q ...) is >= P_act, so its NEES is low on the eq. 31 truth, whose
+    body has no acceleration at all; NEES against P_act is the consistency check that accounts for
+    it. Beliefs are AnalyzedGaussian (start from AnalyzedGaussian(mean, P0, P0)); the filter's own
+    mean and cov are exactly PhaseEkf's.
+    """
+
+    __slots__ = ()
+
+    def predict(self, belief: AnalyzedGaussian, dt: float, u: None = None) -> AnalyzedGaussian:
+        bel = time_update(belief, dt, self.q)
+        F = transition(dt)
+        return AnalyzedGaussian(bel.mean, bel.cov, F @ belief.actual @ F.T)
+
+    def update(self, belief: AnalyzedGaussian, measurement: PhaseMeasurement) -> AnalyzedGaussian:
+        post, info = measurement_update(belief, measurement, self.gate, self.iterations)
+        Pa = belief.actual
+        if info.dof:
+            _, r_var, _ = measurement.stacked()
+            K, ru = info.gain, r_var[info.used]
+            IKH = np.eye(N_STATE) - K @ info.jacobian
+            # Joseph form of eq. 21 with the filter's gain, on the actual covariance
+            Pa = symmetrize(IKH @ Pa @ IKH.T + (K * ru[None, :]) @ K.T)
+        return AnalyzedGaussian(post.mean, post.cov, Pa, info)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -449,7 +335,7 @@ def pcrb(states: np.ndarray, times: np.ndarray, master_pos: np.ndarray, master_v
     (K, M, 3, 3) per step;
     valid: optional (K, 18 M) bool rows available per step; rate_window: None (instantaneous
     rates) or the eq. 7 window W (s): scalar, (M, 3, 3), or (K, M, 3, 3) per step.
-    Same timing as run_filter: measurements at every step including k = 0:
+    Same timing as the filter under core.drive: measurements at every step including k = 0:
         J_0 = P0^-1 + H_0^T R^-1 H_0,
         J_k = (Q + Phi J_{k-1}^-1 Phi^T)^-1 + H_k^T R^-1 H_k    (additive Gaussian noise, linear
         dynamics: the D11/D12/D22 terms of Tichavsky et al. reduce to this form).
@@ -503,7 +389,7 @@ def pcrb_position_rmse(bounds: np.ndarray, body: bool = False) -> np.ndarray:
 
 
 __all__ = [
-    "DEFAULT_Q", "Gate", "NO_GATE", "PhaseMeasurement", "ProcessNoise", "UpdateInfo", "body_state", "initial_belief",
-    "linearized_update", "pcrb", "pcrb_position_rmse", "predict", "process_noise", "run_filter",
-    "transition", "update", "ROWS_PER_MASTER",
+    "DEFAULT_Q", "AnalyzedGaussian", "PhaseEkf", "PhaseEkfCovarianceAnalysis", "PhaseMeasurement",
+    "ProcessNoise", "body_state", "initial_belief", "measurement_update", "pcrb", "pcrb_position_rmse",
+    "process_noise", "time_update", "transition", "ROWS_PER_MASTER",
 ]

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.core import skew
+from estimators.so3 import skew
 
 N_STATE = 18
 ROWS_PER_MASTER = 18
@@ -50,34 +50,8 @@ BODY_STATE_NAMES = (
 
 
 # ------------------------------------------------------------------------------------------------
-# Rotations
+# Antenna <-> body maps
 # ------------------------------------------------------------------------------------------------
-def rot_zyx(psi: float, theta: float, phi: float) -> np.ndarray:
-    """R_N_from_body = Rz(psi) Ry(theta) Rx(phi), (3, 3). Angles in rad (yaw, pitch, roll)."""
-    cps, sps = np.cos(psi), np.sin(psi)
-    cth, sth = np.cos(theta), np.sin(theta)
-    cph, sph = np.cos(phi), np.sin(phi)
-    return np.array([
-        [cps * cth, cps * sth * sph - sps * cph, cps * sth * cph + sps * sph],
-        [sps * cth, sps * sth * sph + cps * cph, sps * sth * cph - cps * sph],
-        [-sth, cth * sph, cth * cph],
-    ])
-
-
-def rot_zyx_dot(euler: np.ndarray, euler_rate: np.ndarray) -> np.ndarray:
-    """d/dt of R_N_from_body for ZYX Euler angles (psi, theta, phi) and their rates, (3, 3), 1/s."""
-    psi, theta, phi = euler
-    dpsi, dtheta, dphi = euler_rate
-    c, s = np.cos, np.sin
-    Rz = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1.0]])
-    Ry = np.array([[c(theta), 0, s(theta)], [0, 1.0, 0], [-s(theta), 0, c(theta)]])
-    Rx = np.array([[1.0, 0, 0], [0, c(phi), -s(phi)], [0, s(phi), c(phi)]])
-    dRz = np.array([[-s(psi), -c(psi), 0], [c(psi), -s(psi), 0], [0, 0, 0.0]])
-    dRy = np.array([[-s(theta), 0, c(theta)], [0, 0, 0.0], [-c(theta), 0, -s(theta)]])
-    dRx = np.array([[0.0, 0, 0], [0, -s(phi), -c(phi)], [0, c(phi), -s(phi)]])
-    return dpsi * dRz @ Ry @ Rx + dtheta * Rz @ dRy @ Rx + dphi * Rz @ Ry @ dRx
-
-
 def antenna_offsets(a: float = 1.0, b: float = 1.0) -> np.ndarray:
     """Antenna sites in the FLU body frame, (3, 3) [antenna j, xyz], metres, relative to the body origin."""
     return np.array([[a, 0.0, 0.0], [0.0, b, 0.0], [0.0, -b, 0.0]])
@@ -227,15 +201,6 @@ def rotation_from_antennas(x: np.ndarray) -> np.ndarray:
     ez = np.cross(u, w)
     ez /= np.linalg.norm(ez)
     return np.column_stack([ex, np.cross(ez, ex), ez])
-
-
-def euler_from_rotation(R: np.ndarray) -> np.ndarray:
-    """ZYX Euler angles (yaw psi, pitch theta, roll phi), rad, of R = Rz(psi) Ry(theta) Rx(phi)."""
-    return np.array([
-        np.arctan2(R[1, 0], R[0, 0]),
-        np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0])),
-        np.arctan2(R[2, 1], R[2, 2]),
-    ])
 
 
 def body_from_antennas(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,7 +1,8 @@
 """The filter family of seed 004 on one shared model interface: EKF, CKF, HCKF, MCKF, RHCF.
 
-Every filter is ``Filter(time_update, measurement_update)``; the five differ only where the method
-differs:
+Every filter is one ``ComposedFilter(name, model, time_update, measurement_update)`` on the
+estimator interface of ``estimators.core`` (predict(belief, dt, u), update(belief, measurement),
+run by ``core.drive``); the five differ only in the step where the method differs:
 
     filter  time update                      measurement update
     EKF     linearized (analytic F)          Kalman, analytic Jacobian H, Joseph form
@@ -27,7 +28,9 @@ SPD handling (HCKF, negative weights for n > 4): every covariance a filter retur
 negative weights of a strongly nonlinear map is indefinite) the covariance is repaired by an
 eigenvalue floor applied in correlation coordinates (D^-1 P D^-1, D = sqrt(diag P)), so that
 states of very different units (metres and rad/s biases) each keep their own scale, and a
-``SpdRepairWarning`` is emitted. The same test guards P_yy before its Cholesky solve. In addition
+``SpdRepairWarning`` is emitted and the repair is counted (``core.tally``: the driver records
+it in the track's ``covariance_repairs``). A correntropy update that stops at ``max_iter``
+without converging is counted as ``nonconverged_iterations``. The same test guards P_yy before its Cholesky solve. In addition
 the cubature Kalman update is computed in Joseph form with the *effective* noise
 R_eff = P_yy - H P H^T, H = P_xy^T P^-1; this is algebraically the textbook P - K P_yy K^T and
 stays PSD whenever R_eff is PSD (always, for a rule with positive weights).
@@ -43,7 +46,7 @@ from typing import Callable, Literal, NamedTuple, Protocol
 import numpy as np
 from scipy import linalg
 
-from estimators.core import Gaussian, joseph_update, kalman_gain, symmetrize
+from estimators.core import Gaussian, joseph_update, kalman_gain, symmetrize, tally
 from estimators.cubature import CubatureRule, fifth_degree_rule, third_degree_rule
 
 
@@ -173,8 +176,8 @@ def ensure_spd(P: np.ndarray, rel_floor: float = 1e-12, what: str = "covariance"
 
     P: (n, n). Repair: D = sqrt(diag P) (non-positive diagonal entries replaced by
     rel_floor * max diag), C = D^-1 P D^-1, eigenvalues of C floored at rel_floor * max(1, lambda_max),
-    P = D C D. Emits SpdRepairWarning when a repair happens; an SPD input is returned as
-    symmetrize(P), untouched otherwise.
+    P = D C D. When a repair happens, emits SpdRepairWarning and tallies a covariance repair
+    (core.tally); an SPD input is returned as symmetrize(P), untouched otherwise.
     """
     P = symmetrize(np.asarray(P, dtype=float))
     try:
@@ -192,6 +195,7 @@ def ensure_spd(P: np.ndarray, rel_floor: float = 1e-12, what: str = "covariance"
     lam, V = np.linalg.eigh(symmetrize(C))
     lam = np.maximum(lam, rel_floor * max(1.0, float(lam.max())))
     C = (V * lam) @ V.T
+    tally(covariance_repairs=1)
     warnings.warn(f"{what} was not positive definite; repaired by an eigenvalue floor",
                   SpdRepairWarning, stacklevel=2)
     return symmetrize(C * np.outer(d, d))
@@ -457,6 +461,8 @@ class CorrentropyUpdate:
         sol = correntropy_solve(belief.cov, lin.H, lin.R, meas.y - lin.y_pred,
                                 kernel_sigma=self.kernel_sigma, tol=self.tol,
                                 max_iter=self.max_iter, covariance=self.covariance)
+        if not sol.converged:
+            tally(nonconverged_iterations=1)
         P = ensure_spd(sol.P, what="correntropy posterior covariance")
         return _new_belief(belief, model.boxplus(belief.mean[None, :], sol.dx[None, :])[0], P)
 
@@ -469,8 +475,9 @@ MeasurementUpdate = Callable[[StateSpaceModel, Gaussian, Measurement], Gaussian]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class Filter:
-    """A filter = a model, a time update and a measurement update. Pure: returns new beliefs.
+class ComposedFilter:
+    """A filter = a model, a time update and a measurement update (a core.Filter). Pure: returns
+    new beliefs.
 
     predict(belief, dt, u): dt seconds, u the model's input (for visnav the IMU readings (12,)).
     update(belief, measurement): a Measurement built by the model.
@@ -492,51 +499,51 @@ class Filter:
 DEFAULT_KERNEL_SIGMA = 3.0
 
 
-def make_ekf(model: StateSpaceModel) -> Filter:
+def make_ekf(model: StateSpaceModel) -> ComposedFilter:
     """Extended Kalman filter: analytic F and H, Joseph-form update."""
-    return Filter("ekf", model, linearized_predict, KalmanUpdate(jacobian_linearization))
+    return ComposedFilter("ekf", model, linearized_predict, KalmanUpdate(jacobian_linearization))
 
 
-def make_ckf(model: StateSpaceModel) -> Filter:
+def make_ckf(model: StateSpaceModel) -> ComposedFilter:
     """Cubature Kalman filter: third-degree rule (2n points) in both steps."""
-    return Filter("ckf", model, CubaturePredict(third_degree_rule),
+    return ComposedFilter("ckf", model, CubaturePredict(third_degree_rule),
                   KalmanUpdate(CubatureLinearization(third_degree_rule)))
 
 
-def make_hckf(model: StateSpaceModel) -> Filter:
+def make_hckf(model: StateSpaceModel) -> ComposedFilter:
     """High-degree cubature Kalman filter: fifth-degree rule (2n^2 + 1 points) in both steps."""
-    return Filter("hckf", model, CubaturePredict(fifth_degree_rule),
+    return ComposedFilter("hckf", model, CubaturePredict(fifth_degree_rule),
                   KalmanUpdate(CubatureLinearization(fifth_degree_rule)))
 
 
 def make_mckf(model: StateSpaceModel, *, kernel_sigma: float = DEFAULT_KERNEL_SIGMA, tol: float = 1e-6,
-              max_iter: int = 50, covariance: Literal["joseph", "information"] = "joseph") -> Filter:
+              max_iter: int = 50, covariance: Literal["joseph", "information"] = "joseph") -> ComposedFilter:
     """Maximum-correntropy KF (Chen et al. 2017) on the EKF linearization (analytic F, H)."""
-    return Filter("mckf", model, linearized_predict,
+    return ComposedFilter("mckf", model, linearized_predict,
                   CorrentropyUpdate(jacobian_linearization, kernel_sigma, tol, max_iter, covariance))
 
 
 def make_rhcf(model: StateSpaceModel, *, kernel_sigma: float = DEFAULT_KERNEL_SIGMA, tol: float = 1e-6,
-              max_iter: int = 50, covariance: Literal["joseph", "information"] = "joseph") -> Filter:
+              max_iter: int = 50, covariance: Literal["joseph", "information"] = "joseph") -> ComposedFilter:
     """Robust high-degree cubature filter (the seed's RHCF, eq. 16-48): fifth-degree time update,
     correntropy update on the fifth-degree statistical linearization H = (P^-1 P_xy)^T (eq. 31).
 
     The state update is eq. 23-47 exactly; the posterior covariance defaults to Chen et al.'s
     Joseph form (same as MCKF, so the two differ only in linearization and time update);
     covariance="information" gives the paper's eq. 48, (M^T Psi M)^-1."""
-    return Filter("rhcf", model, CubaturePredict(fifth_degree_rule),
+    return ComposedFilter("rhcf", model, CubaturePredict(fifth_degree_rule),
                   CorrentropyUpdate(CubatureLinearization(fifth_degree_rule), kernel_sigma, tol,
                                     max_iter, covariance))
 
 
-FILTER_FACTORIES: dict[str, Callable[..., Filter]] = {
+FILTER_FACTORIES: dict[str, Callable[..., ComposedFilter]] = {
     "ekf": make_ekf, "ckf": make_ckf, "hckf": make_hckf, "mckf": make_mckf, "rhcf": make_rhcf,
 }
 
 
 def make_filter(name: str, model: StateSpaceModel, *, kernel_sigma: float = DEFAULT_KERNEL_SIGMA,
                 tol: float = 1e-6, max_iter: int = 50,
-                covariance: Literal["joseph", "information"] = "joseph") -> Filter:
+                covariance: Literal["joseph", "information"] = "joseph") -> ComposedFilter:
     """Build a filter by name ("ekf", "ckf", "hckf", "mckf", "rhcf"). The correntropy options
     (kernel_sigma, tol, max_iter, covariance) apply to "mckf" and "rhcf" and are ignored otherwise."""
     if name not in FILTER_FACTORIES:

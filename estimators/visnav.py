@@ -63,8 +63,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimators.core import skew
-from estimators.sigma_filters import FunctionMeasurement
+from estimators.so3 import quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat, skew, so3_right_jacobian
+from estimators.sigma_filters import ComposedFilter, FunctionMeasurement, ManifoldGaussian
 
 # --------------------------------------------------------------------------------------------
 # Units and the paper's values (section 3.1)
@@ -90,100 +90,6 @@ BGF_, BAF_, BGL_, BAL_ = slice(10, 13), slice(13, 16), slice(16, 19), slice(19, 
 dP, dV, dTH = slice(0, 3), slice(3, 6), slice(6, 9)
 dBGF, dBAF, dBGL, dBAL = slice(9, 12), slice(12, 15), slice(15, 18), slice(18, 21)
 NX, N_ERR = 22, 21
-
-
-# --------------------------------------------------------------------------------------------
-# SO(3) and quaternion helpers (batched over leading axes)
-# --------------------------------------------------------------------------------------------
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a (x) b of wxyz quaternions (..., 4); R(a (x) b) = R(a) R(b)."""
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
-    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
-    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
-    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
-    return out
-
-
-def quat_conj(q: np.ndarray) -> np.ndarray:
-    """Conjugate (inverse of a unit quaternion), (..., 4)."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix (..., 3, 3) of unit wxyz quaternions (..., 4)."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty(q.shape[:-1] + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - w * z)
-    out[..., 0, 2] = 2 * (x * z + w * y)
-    out[..., 1, 0] = 2 * (x * y + w * z)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - w * x)
-    out[..., 2, 0] = 2 * (x * z - w * y)
-    out[..., 2, 1] = 2 * (y * z + w * x)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
-
-
-def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
-    """wxyz quaternion (w >= 0) of a rotation matrix (3, 3) (Shepperd's method, unbatched)."""
-    R = np.asarray(R, dtype=float)
-    tr = np.trace(R)
-    cands = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
-    i = int(np.argmax(cands))
-    if i == 0:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
-    else:
-        j, k = (i % 3) + 1, ((i + 1) % 3) + 1
-        a, b, c = i - 1, j - 1, k - 1
-        s = 2.0 * np.sqrt(1.0 + R[a, a] - R[b, b] - R[c, c])
-        q = np.empty(4)
-        q[0] = (R[c, b] - R[b, c]) / s
-        q[i] = 0.25 * s
-        q[j] = (R[b, a] + R[a, b]) / s
-        q[k] = (R[c, a] + R[a, c]) / s
-    q = q / np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
-
-
-def quat_exp(phi: np.ndarray) -> np.ndarray:
-    """Unit quaternion (..., 4) of the rotation vector phi (..., 3) rad: Exp(phi)."""
-    phi = np.asarray(phi, dtype=float)
-    th = np.linalg.norm(phi, axis=-1, keepdims=True)
-    # sin(th/2)/th = 0.5 sinc(th / (2 pi)), safe at 0
-    s = 0.5 * np.sinc(th / (2.0 * np.pi))
-    return np.concatenate([np.cos(0.5 * th), s * phi], axis=-1)
-
-
-def quat_log(q: np.ndarray) -> np.ndarray:
-    """Rotation vector (..., 3) rad of unit quaternions (..., 4), shortest rotation (|phi| <= pi)."""
-    q = np.where(q[..., :1] < 0, -q, q)
-    w, v = q[..., :1], q[..., 1:]
-    s = np.linalg.norm(v, axis=-1, keepdims=True)
-    small = s < 1e-8
-    s_safe = np.where(small, 1.0, s)
-    w_safe = np.where(w > 0.5, w, 1.0)   # small s implies w ~ 1
-    factor = np.where(small, 2.0 / w_safe * (1.0 - s * s / (3.0 * w_safe * w_safe)),
-                      2.0 * np.arctan2(s, w) / s_safe)
-    return factor * v
-
-
-def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
-    """Right Jacobian J_r(phi) (3, 3): Exp(phi + d) = Exp(phi) Exp(J_r(phi) d) to first order."""
-    phi = np.asarray(phi, dtype=float)
-    th = float(np.linalg.norm(phi))
-    K = skew(phi)
-    if th < 1e-4:
-        a = 0.5 - th * th / 24.0
-        b = 1.0 / 6.0 - th * th / 120.0
-    else:
-        a = (1.0 - np.cos(th)) / th ** 2
-        b = (th - np.sin(th)) / th ** 3
-    return np.eye(3) - a * K + b * (K @ K)
 
 
 # --------------------------------------------------------------------------------------------
@@ -512,3 +418,44 @@ def tangent_basis(b: np.ndarray) -> np.ndarray:
     t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
     t2 = np.cross(b, t1)
     return np.stack([t1, t2], axis=-1)
+
+
+# --------------------------------------------------------------------------------------------
+# The filters on raw camera frames (core.Filter)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFrame:
+    """One camera epoch as the sensor reports it.
+
+    leds: (K,) 0-based LED indices seen; los: (K, 3) unit lines of sight in the camera frame C;
+    focal: (K, 2) focal-plane coordinates alpha, beta (m).
+    """
+
+    leds: np.ndarray
+    los: np.ndarray
+    focal: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFilter:
+    """A filter of the seed 004 family fed with raw camera frames (a core.Filter).
+
+    predict is the inner filter's (u: the IMU input (12,), see `imu_input`); update builds the
+    frame's measurement about the PREDICTED mean (the LOS tangent bases / the eq. 8 covariance
+    depend on it: `RelNavModel.los_measurement`, `focal_measurement`) and hands it to the inner
+    filter's update. measurement: "los" (eqs. 9-13) or "focal" (eqs. 5-8).
+    """
+
+    inner: ComposedFilter
+    measurement: str = "los"
+
+    def predict(self, belief: ManifoldGaussian, dt: float, u: np.ndarray | None = None) -> ManifoldGaussian:
+        return self.inner.predict(belief, dt, u)
+
+    def update(self, belief: ManifoldGaussian, frame: CameraFrame) -> ManifoldGaussian:
+        model = self.inner.model
+        if self.measurement == "los":
+            meas = model.los_measurement(belief.mean, frame.los, frame.leds)
+        else:
+            meas = model.focal_measurement(belief.mean, frame.focal, frame.leds)
+        return self.inner.update(belief, meas)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from estimators.so3 import quat_mul
 from testbed.reference import RefState
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
@@ -92,7 +93,7 @@ def realize(scenario: Scenario, ticks: np.ndarray) -> Realization | None:
         if k == ticks[row]:
             delta[row] = q
             row += 1
-        q = _quat_mul(q, steps[k])
+        q = quat_mul(q, steps[k])
     return Realization(dr.index, ticks, accel[ticks], dp[ticks], dv[ticks], ang[ticks], omega[ticks], delta)
 
 
@@ -105,18 +106,6 @@ def _integrate(a: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     return v, p
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of wxyz quaternions (..., 4)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
-
-
 def perturb(ref: RefState, real: Realization, rows: slice | np.ndarray) -> RefState:
     """The reference with the disturbance added (module docstring): the motion prescribed mode
     plays back. ref's instants are the realization's rows `rows` (their ticks real.ticks[rows])."""
@@ -127,7 +116,7 @@ def perturb(ref: RefState, real: Realization, rows: slice | np.ndarray) -> RefSt
     vel[:, i] += real.dv[rows]
     acc[:, i] += real.accel[rows]
     d = real.delta[rows]
-    quat[:, i] = _quat_mul(ref.quat[:, i], d)
+    quat[:, i] = quat_mul(ref.quat[:, i], d)
     Dt = Rotation.from_quat(d.reshape(-1, 4), scalar_first=True).inv()  # Delta^T
     w_ref = Dt.apply(ref.omega[:, i].reshape(-1, 3)).reshape(d.shape[:-1] + (3,))
     a_ref = Dt.apply(ref.alpha[:, i].reshape(-1, 3)).reshape(w_ref.shape)

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.phase_ekf import PhaseMeasurement
-from estimators.phase_model import antenna_offsets, antenna_state_from_body, measurement_model, rot_zyx, rot_zyx_dot
+from estimators.phase_model import antenna_offsets, antenna_state_from_body, measurement_model
+from estimators.so3 import rot_zyx, rot_zyx_dot
 
 SPACING = 100.0  # m, adjacent masters (SPEC seed 003)
 SIGMA_RANGE = 0.05  # m, 1 sigma (paper: 0.15 m is 3 sigma)

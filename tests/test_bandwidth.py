@@ -4,7 +4,7 @@ import pytest
 from scipy.stats import norm
 
 from estimators import bandwidth as bw
-from estimators.core import kalman_gain
+from estimators.core import Epoch, drive, kalman_gain
 from testbed.reproduce.bandwidth_paper import M0_PAPER, P_SETS, T_SETS, X0_PAPER, paper_model, simulate
 
 BUDGET = [5, 5, 5, 5]
@@ -258,3 +258,32 @@ def test_missing_measurement_predicts_only():
     L[0] = np.zeros_like(L[0])
     st1, _ = bw.fusion_step(model, st, y, S, P, available=avail)
     assert np.allclose(st1.M, bw.bound_step(model, st.M, S, P, L))  # eq. 15 with L_1 = 0
+
+
+# ------------------------------------------------------------------ the estimator interface
+def test_fusion_filter_through_the_driver_equals_the_step_loop():
+    """bw.FusionFilter under core.drive (update stores y(k), predict fuses) reproduces the
+    fusion_step loop bit for bit, with a node missing its measurement on one step."""
+    rng = np.random.default_rng(12)
+    N, n, K = 4, 3, 6
+    A, B, W = np.eye(n), np.array([0.1, 0.0, -0.05]), 0.01 * np.eye(n)
+    C = (np.eye(n),) * N
+    V = [np.diag(rng.uniform(0.5, 1.5, n)) for _ in range(N)]
+    model = bw.NetworkModel(A=A, B=B, C=C, W=W, V=tuple(V))
+    net = bw.FusionNetwork(select=T_SETS["T1"], weights=P_SETS["P2"], budget=BUDGET)
+    y = rng.normal(size=(K + 1, N, n))
+    avail = np.ones((K + 1, N), bool)
+    avail[2, 1] = False
+    st = bw.FusionState(xhat=np.zeros((N, n)), M=np.broadcast_to(np.eye(n), (N, n, n)).copy())
+    ref = [st]
+    for k in range(K):
+        S, P = net.at(k)
+        st, _ = bw.fusion_step(model, st, list(y[k]), S, P, available=avail[k])
+        ref.append(st)
+    meas = [bw.NodeMeasurements(y=tuple(y[k]), V=tuple(V), available=avail[k]) for k in range(K + 1)]
+    epochs = [Epoch(float(k), meas[k], [(1.0, net.at(k - 1))] if k else []) for k in range(K + 1)]
+    track = drive(bw.FusionFilter(A=A, B=B, C=C, W=W), ref[0], epochs)
+    assert np.array_equal(track.mean, np.stack([s.xhat for s in ref]))
+    assert np.array_equal(track.cov, np.stack([s.M for s in ref]))
+    with pytest.raises(ValueError, match="update first"):
+        bw.FusionFilter(A=A, B=B, C=C, W=W).predict(ref[0], 1.0, net.at(0))

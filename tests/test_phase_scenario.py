@@ -27,11 +27,14 @@ def _filter(sc, log):
     inp = P.phase_inputs(log, 1.0 / ph.phase_rate_hz, cfg.nav_master)
     prior, P0, err0 = P.initial_prior(cfg, sc, inp, stream_rng(sc.seed, "init"))
     meas = P.measurement_epochs(cfg, inp)
-    means, covs, infos, acts = P.run_ekf(cfg, P.process_noise_model(cfg, sc.motion), prior, meas, inp.times)
+    track = P.run_filter(cfg, P.process_noise_model(cfg, sc.motion), prior, meas, inp.times)
+    means, covs = track.mean, track.cov
+    infos = [b.info for b in track.beliefs]
+    acts = np.stack([b.actual for b in track.beliefs])
     body, RN, states = P.truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
                                       sc.world.antenna_a, sc.world.antenna_b)
     return dict(inp=inp, prior=prior, P0=P0, err0=err0, meas=meas, means=means, covs=covs,
-                infos=infos, acts=acts, body=body, states=states)
+                infos=infos, acts=acts, body=body, states=states, track=track)
 
 
 def test_reported_rate_is_the_window_mean_of_the_resolved_ranges():
@@ -273,6 +276,7 @@ def test_flown_line_h000_keeps_the_tangential_velocity():
     e = B @ (r["means"][-1] - r["states"][-1])
     n3 = nees(e, B @ r["covs"][-1] @ B.T)
     rejected = sum(i.rejected.size for i in r["infos"])
+    assert rejected == r["track"].rejected_measurements.sum()  # the driver's health count
     print(f"velocity error {e.round(4)} m/s, NEES {n3:.2f}, rejected rows {rejected}")
     assert n3 < 16.27 and rejected == 0
 

@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimators.core import Gaussian, chi2_interval, is_spd, kf_predict, kf_update, nees
+from estimators.core import Epoch, Gaussian, chi2_interval, counting, drive, is_spd, kf_predict, kf_update, nees
 from estimators.cubature import fifth_degree_rule
 from estimators.sigma_filters import (
     CubaturePredict, LinearGaussianModel, LinearMeasurement, ManifoldGaussian, SpdRepairWarning,
     correntropy_solve, ensure_spd, make_filter, make_mckf,
 )
-from estimators.visnav import (
-    ImuNoise, RelNavModel, VisNavConfig, make_state, quat_exp, quat_to_rotmat,
-)
+from estimators.so3 import quat_exp, quat_to_rotmat
+from estimators.visnav import CameraFilter, CameraFrame, ImuNoise, RelNavModel, VisNavConfig, make_state
 
 import visnav_synthetic as syn  # tests/ helper (pytest puts tests/ on sys.path)
 
@@ -286,18 +285,14 @@ MC_DURATION, MC_DT, MC_CAM_EVERY = 10.0, 0.05, 2     # 20 Hz IMU, 10 Hz camera, 
 
 
 def _run_filter(name, run, model):
-    filt = make_filter(name, model)
-    b = ManifoldGaussian(run.mean0, run.cov0)
-    j, nees_t, pos_err = 0, [], []
-    for k in range(run.inputs.shape[0]):
-        b = filt.predict(b, run.dt, run.inputs[k])
-        if j < run.cam_steps.size and k + 1 == run.cam_steps[j]:
-            b = filt.update(b, model.los_measurement(b.mean, run.b_meas[j]))
-            j += 1
-            e = model.boxminus(run.truth[k + 1][None], b.mean[None])[0]
-            nees_t.append(nees(e, b.cov))
-            pos_err.append(np.linalg.norm(e[0:3]))
-    return np.array(nees_t), np.array(pos_err)
+    """The filter through the library's driver (core.drive), one epoch per camera frame."""
+    steps = np.concatenate([[0], run.cam_steps])
+    epochs = [Epoch(float(steps[j + 1] * run.dt), CameraFrame(None, run.b_meas[j], None),
+                    [(run.dt, run.inputs[k]) for k in range(steps[j], steps[j + 1])])
+              for j in range(run.cam_steps.size)]
+    track = drive(CameraFilter(make_filter(name, model)), ManifoldGaussian(run.mean0, run.cov0), epochs, t0=0.0)
+    e = model.boxminus(run.truth[run.cam_steps], track.mean)
+    return nees(e, track.cov), np.linalg.norm(e[:, 0:3], axis=1)
 
 
 @pytest.fixture(scope="module")
@@ -350,3 +345,23 @@ def test_glint_monte_carlo_no_divergence(glint_mc, name):
         assert np.all(np.isfinite(ne)) and np.all(np.isfinite(pe))
         assert pe[-1] < 0.3
         assert ne[-1] < 3.4 * chi2.ppf(1 - 1e-6, 21)
+
+
+def test_repairs_and_unconverged_correntropy_updates_are_counted():
+    """Health counts (core.tally): an indefinite covariance repaired by ensure_spd is one
+    covariance repair; a correntropy update stopped at max_iter = 1 on an outlier is one
+    non-converged iteration, and the driver records both per epoch."""
+    with counting() as h, warnings.catch_warnings():
+        warnings.simplefilter("ignore", SpdRepairWarning)
+        ensure_spd(np.array([[1.0, 2.0], [2.0, 1.0]]))
+        ensure_spd(np.eye(2))
+    assert h.covariance_repairs == 1
+    model = LinearGaussianModel(np.eye(2), 0.01 * np.eye(2))
+    H, R = np.eye(2), 0.01 * np.eye(2)
+    prior = Gaussian(np.zeros(2), np.eye(2))
+    z_out, z_ok = np.array([30.0, 0.0]), np.array([0.01, -0.02])
+    epochs = [Epoch(0.0, LinearMeasurement(z_ok, H, R)), Epoch(0.1, LinearMeasurement(z_out, H, R))]
+    one = drive(make_mckf(model, max_iter=1, kernel_sigma=1.0), prior, epochs)
+    many = drive(make_mckf(model, max_iter=50, kernel_sigma=1.0), prior, epochs)
+    assert one.nonconverged_iterations.tolist() == [0, 1]
+    assert many.nonconverged_iterations.tolist() == [0, 0]

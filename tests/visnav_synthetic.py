@@ -4,7 +4,7 @@ Independent of the filter's model code paths where it matters: the truth comes f
 world-frame trajectories of two vehicles (world z-up, bodies FLU), the IMU readings from their
 analytic derivatives (specific force f = R^T (a - g_W), g_W = (0, 0, -9.80665) m/s^2; body rates
 from central differences of the attitude), the lines of sight from world geometry. Only the
-quaternion/rotation helpers are shared with estimators.visnav.
+quaternion/rotation helpers (estimators.so3) are shared with estimators.visnav.
 
 IMU readings are mid-interval samples (t_k + dt/2): the filter holds a reading over [t_k, t_k+1].
 Noise: white densities N sampled as N / sqrt(dt) per reading; biases constant, drawn from their
@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.so3 import quat_log, rotmat_to_quat
 from estimators.visnav import (
-    G0, PAPER_GLINT_RATE, PAPER_GLINT_SCALE, RelNavModel, VisNavConfig, make_state, quat_log,
-    rotmat_to_quat, tangent_basis,
+    G0, PAPER_GLINT_RATE, PAPER_GLINT_SCALE, RelNavModel, VisNavConfig, make_state, tangent_basis,
 )
 
 G_W = np.array([0.0, 0.0, -G0])

@@ -16,7 +16,7 @@ import numpy as np
 from filterpy.kalman import CubatureKalmanFilter, ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from estimators import phase_ekf as pe
-from estimators.core import Gaussian
+from estimators.core import NO_GATE, Gaussian
 from estimators.factor_graph import solve_centralized, solve_distributed
 from estimators.gtsam_reference import solve_gtsam as reference
 from estimators.phase_model import antenna_offsets, measurement_model, stack_rows
@@ -57,7 +57,7 @@ def bench_phase_ekf(repeats: int = 200) -> list[dict]:
     """One 90-row EKF update: ours (with and without the w-test gate) vs filterpy.
 
     Same work on both sides, from the same epoch (ranges and range rates, (5, 3, 3) each): the
-    timed call stacks them into z, evaluates h and the Jacobian (ours once, as phase_ekf.update
+    timed call stacks them into z, evaluates h and the Jacobian (ours once, as phase_ekf.measurement_update
     does; filterpy through its HJacobian and Hx callbacks, the same
     phase_model.measurement_model), then the gain, the state and the Joseph-form covariance.
     filterpy's R is built once outside (constant sigmas); ours rebuilds its variances and masks
@@ -91,13 +91,13 @@ def bench_phase_ekf(repeats: int = 200) -> list[dict]:
     # ours: gain in information form (18 x 18 Cholesky, R diagonal), Joseph-form covariance; the
     # w-test gate reuses the same factor (Woodbury), so it costs little
     t = _interleaved_median_times({
-        "ours": lambda: pe.update(prior, meas, gate=pe.NO_GATE),
-        "ours_gate": lambda: pe.update(prior, meas),
+        "ours": lambda: pe.measurement_update(prior, meas, gate=NO_GATE),
+        "ours_gate": lambda: pe.measurement_update(prior, meas),
         "filterpy": filterpy_update,
     }, repeats)
     filterpy_update()
-    post, _ = pe.update(prior, meas, gate=pe.NO_GATE)
-    post_gate, info_gate = pe.update(prior, meas)
+    post, _ = pe.measurement_update(prior, meas, gate=NO_GATE)
+    post_gate, info_gate = pe.measurement_update(prior, meas)
     return [{
         "rows": 90,
         "ours_ms": t["ours"] * 1e3,

@@ -36,8 +36,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators import bandwidth as bw
+from estimators.bandwidth import BYTES_PER_COMPONENT, uwb_pseudo_measurement
+from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
+from testbed.rng import stream_rng
 
 
 
@@ -46,6 +50,8 @@ from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 
 def paper_sets():
     """The paper's T1-T3 (masks (4, 4, 3)) and P1-P3 ((4, 4)), from the paper-mode reproduction."""
+    # lazy: testbed.reproduce (its paper-mode module) imports the pipelines; a module-level import
+    # here would be an import cycle
     from testbed.reproduce.bandwidth_paper import P_SETS, T_SETS
 
     return T_SETS, P_SETS
@@ -71,7 +77,6 @@ def truth_formation_point(scenario, log: dict, t: np.ndarray) -> np.ndarray:
 def uwb_epochs(cfg: BandwidthPipelineConfig, log: dict, K: int, anchors: np.ndarray, offsets: np.ndarray):
     """Pseudo-measurements from the `uwb` stream. Returns y (K+1, N, 3) m (NaN where unavailable),
     V (K+1, N, 3, 3) m^2 (identity where unavailable), available (K+1, N) bool, ranges (K+1, N, 4)."""
-    from estimators.bandwidth import uwb_pseudo_measurement
 
     ranges = np.full((K + 1, N_NODES, 4), np.nan)
     e, on = _epoch_index(log["uwb/time"], cfg.dt)
@@ -100,8 +105,6 @@ def measurements(scenario, log: dict) -> dict:
     the pseudo-measurements and their covariances; available (K+1, N) bool; K; x_init (3,) m the
     initial estimate x0 + N(0, M0) (stream "init").
     """
-    from testbed.rng import stream_rng
-
     cfg: BandwidthPipelineConfig = scenario.pipeline
     label = f"{scenario.name}.toml"
     K = int(np.floor(scenario.duration / cfg.dt + 1e-9))
@@ -153,9 +156,6 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     Returns the arrays of :func:`measurements` plus xhat (K+1, N, 3) m; M (K+1, N, 3, 3) m^2;
     comm: estimators.bandwidth.CommLog; S, P: nominal masks and weights; W (3, 3) per step.
     """
-    from estimators import bandwidth as bw
-    from testbed.rng import stream_rng
-
     cfg: BandwidthPipelineConfig = scenario.pipeline
     label = f"{scenario.name}.toml"
     meas = measurements(scenario, log) if meas is None else meas
@@ -191,23 +191,28 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     if batch and faults is not None:
         raise ValueError("estimate: batched runs cannot use link faults (per-run generators)")
     x_init = meas["x_init"]
-    state = bw.FusionState(xhat=np.broadcast_to(x_init[..., None, :], batch + (N_NODES, n)).copy(),
+    prior = bw.FusionState(xhat=np.broadcast_to(x_init[..., None, :], batch + (N_NODES, n)).copy(),
                            M=np.broadcast_to(M0, batch + (N_NODES, n, n)).copy())
-    xh, Ms, comps = [state.xhat], [state.M], []
     C = (np.eye(n),) * N_NODES
+    # what actually arrives at each step: the nominal design with this step's dropped messages
+    delivered = []
     for k in range(K):
         Sn, Pk = net.at(k)
-        Se = faults.effective(Sn, k, rng_links, 1)[0] if faults is not None else Sn
-        # V_i(k) of each run (batched V broadcasts through eqs. 15 and 18)
-        model = bw.NetworkModel(A=A, B=B, C=C, W=W, V=tuple(V[k][..., i, :, :] for i in range(N_NODES)))
-        state, _ = bw.fusion_step(model, state, [y[k][..., i, :] for i in range(N_NODES)], Se, Pk,
-                                  available=avail[k])
-        xh.append(state.xhat)
-        Ms.append(state.M)
-        comps.append(bw.link_components(Se))
+        delivered.append((faults.effective(Sn, k, rng_links, 1)[0] if faults is not None else Sn, Pk))
+    t = meas["t"]
+    # V_i(k) of each run (batched V broadcasts through eqs. 15 and 18)
+    epochs = [Epoch(float(t[k]), bw.NodeMeasurements(y=tuple(y[k][..., i, :] for i in range(N_NODES)),
+                                                     V=tuple(V[k][..., i, :, :] for i in range(N_NODES)),
+                                                     available=avail[k]),
+                    [(cfg.dt, delivered[k - 1])] if k else [])
+              for k in range(K + 1)]
+    track = drive(bw.FusionFilter(A=A, B=B, C=C, W=W), prior, epochs)
+    comps = [bw.link_components(Se) for Se, _ in delivered]
     comm = bw.CommLog(components=np.stack(comps) if comps else np.zeros((0, N_NODES, N_NODES)),
                       budget=np.asarray(budget))
     ax = len(batch)
+    xh = [b.xhat for b in track.beliefs]
+    Ms = [b.M for b in track.beliefs]
     return dict(meas, xhat=np.stack(xh, ax), M=np.stack(Ms, ax), comm=comm, S=S, P=P, W=W)
 
 
@@ -223,7 +228,6 @@ def scores(est: dict) -> dict:
     (testbed reproduce bandwidth). bytes_per_step: per directed link "j->i" (float64 components),
     mean over steps as delivered, next to the budget.
     """
-    from estimators.bandwidth import BYTES_PER_COMPONENT
 
     e = est["truth"][:, None, :] - est["xhat"]  # eq. 10: e_i(k) = x(k) - xhat_i(k)
     se = (e ** 2).sum(-1)  # (K+1, N)
@@ -257,6 +261,7 @@ def run(scenario, log, plots_dir):
     est = estimate(scenario, log)
     out = scores(est)
     if plots_dir is not None:
+        # lazy: matplotlib, only when plots are written
         from testbed.plots import error_envelope
 
         e = est["xhat"] - est["truth"][:, None, :]

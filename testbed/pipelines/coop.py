@@ -35,8 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
+from estimators.core import nees
+from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
 from testbed.errors import ConfigError
 from testbed.pipelines.config import CoopPipelineConfig
+from testbed.rng import stream_rng
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
@@ -142,9 +145,6 @@ def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
 
 def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
     """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
-    from estimators.core import nees
-    from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
-    from testbed.rng import stream_rng
 
     K, n = epochs.gnss.shape[:2]
     rng = stream_rng(seed, "links")
@@ -190,7 +190,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
 # ----------------------------------------------------------------------------------------------
 def score(est: CoopEstimates) -> dict:
     """The `estimators` object of metrics.json (see the module docstring for the keys)."""
-    from estimators.core import nees
+    # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
     from testbed.metrics import anees, anees_interval, rmse
 
     ep = est.epochs
@@ -280,6 +280,7 @@ def plot_error_vs_time(est: CoopEstimates, uavs: list[int], path: Path, title: s
 def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Path) -> None:
     """Figure 6, the iterated error of the first chosen UAV with its own 3-sigma envelope (shows
     the over-confidence), the centralized one likewise, and the mean RMSE per estimator."""
+    # lazy: matplotlib, only when plots are written
     from testbed.plots import compare_bars, error_envelope
 
     plot_error_vs_time(est, uavs, plots_dir / "fig6_error_vs_time.png", "Position error of four UAVs")

@@ -50,15 +50,24 @@ measurement model, same rows, same q and P0 as the filter); gate statistics.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from estimators.core import skew
+from estimators.core import Epoch, Gate, Gaussian, Track, drive, nees
+from estimators.phase_ekf import (
+    AnalyzedGaussian,
+    PhaseEkfCovarianceAnalysis,
+    PhaseMeasurement,
+    ProcessNoise,
+    initial_belief,
+    pcrb,
+)
+from estimators.phase_model import antenna_state_from_body, body_from_antennas, rotation_from_antennas
+from estimators.so3 import euler_from_rotation, rot_zyx, rot_zyx_dot, skew
+from testbed.errors import ConfigError
 from testbed.pipelines.config import PhasePipelineConfig
-
-if TYPE_CHECKING:
-    from estimators.phase_ekf import ProcessNoise
+from testbed.rng import stream_rng
 
 
 # ------------------------------------------------------------------------------------------------
@@ -70,8 +79,6 @@ def nav_pose_from_antennas(X: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, ..
     X, V: (K, 3, 3) world positions / velocities of its ant1..3 (m, m/s). Returns p, v (K, 3)
     (origin = mid wing tips, eq. 29), R (K, 3, 3) R_world_from_N, Rd (K, 3, 3) dR/dt (1/s).
     """
-    from estimators.phase_model import body_from_antennas, rot_zyx, rot_zyx_dot
-
     K = X.shape[0]
     p, v = np.empty((K, 3)), np.empty((K, 3))
     R, Rd = np.empty((K, 3, 3)), np.empty((K, 3, 3))
@@ -156,10 +163,6 @@ def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: 
     Returns body (K, 12) [p, v, yaw, pitch, roll, their rates], R_N_follower (K, 3, 3) and the
     18-state (K, 18) with the true lever arms a, b (m).
     """
-    from scipy.spatial.transform import Rotation
-
-    from estimators.phase_model import antenna_state_from_body, euler_from_rotation
-
     def pose(u):
         R = Rotation.from_quat(log["truth/quat"][idx, u - 1], scalar_first=True).as_matrix()
         om = log["truth/omega"][idx, u - 1]
@@ -185,11 +188,7 @@ def initial_prior(cfg: PhasePipelineConfig, scenario, inp: PhaseInputs, rng: np.
     """Prior on the 18-state at the first epoch: the planned (reference) follower state in N plus
     the initial error (drawn from the prior covariance, or the paper's fixed error).
     Returns (Gaussian prior, P0 (18, 18), error added (18,))."""
-    from scipy.spatial.transform import Rotation
-
-    from estimators.core import Gaussian
-    from estimators.phase_ekf import initial_belief
-    from estimators.phase_model import antenna_state_from_body
+    # lazy: testbed.reference imports testbed.scenario, which imports this module for its config
     from testbed.reference import evaluate
 
     ref = evaluate(scenario.trajectory, inp.times[0])
@@ -210,8 +209,6 @@ def initial_prior(cfg: PhasePipelineConfig, scenario, inp: PhaseInputs, rng: np.
 
 def measurement_epochs(cfg: PhasePipelineConfig, inp: PhaseInputs) -> list:
     """One PhaseMeasurement per epoch with the configured rate-row model and noise."""
-    from estimators.phase_ekf import PhaseMeasurement
-
     out = []
     for k in range(inp.times.size):
         W = inp.windows[k]
@@ -227,55 +224,24 @@ def measurement_epochs(cfg: PhasePipelineConfig, inp: PhaseInputs) -> list:
 
 def process_noise_model(cfg: PhasePipelineConfig, motion: str) -> ProcessNoise:
     """The filter's ProcessNoise: per-antenna q of the motion mode plus the rigid-body terms."""
-    from estimators.phase_ekf import ProcessNoise
-
     return ProcessNoise(cfg.q_flown if motion == "flown" else cfg.q, cfg.q_translation, cfg.q_rotation)
 
 
-def run_ekf(cfg: PhasePipelineConfig, q: float | ProcessNoise, prior, meas: list, times: np.ndarray):
-    """The filter over all epochs (q: float or ProcessNoise): means (K, 18), covs (K, 18, 18),
-    UpdateInfo list, and the ACTUAL error covariance of this filter (K, 18, 18) if the truth had no
-    random acceleration.
-
-    Covariance analysis of a suboptimal filter (Gelb 1974, ch. 7): with the filter's own gains K_k
-    and Jacobians H_k, the error of a truth with zero process noise has covariance
-        P_act,k|k-1 = Phi P_act Phi^T,   P_act,k = (I - K H) P_act,k|k-1 (I - K H)^T + K R K^T.
-    The filter's P (with Q = q ...) is >= P_act, so its NEES is low on the eq. 31 truth, whose body
-    has no acceleration at all; NEES against P_act is the consistency check that accounts for it.
+def run_filter(cfg: PhasePipelineConfig, q: float | ProcessNoise, prior: Gaussian, meas: list,
+               times: np.ndarray) -> Track:
+    """The seed 003 EKF over all epochs through the library's driver (core.drive): one epoch per
+    measurement, the prior at the first one. The beliefs are AnalyzedGaussian: besides the
+    filter's mean and cov they carry the ACTUAL error covariance of this filter if the truth had
+    no random acceleration (phase_ekf.PhaseEkfCovarianceAnalysis), for the NEES against it.
+    Gate rejections per epoch are the track's rejected_measurements.
     """
-    from estimators.core import symmetrize
-    from estimators.phase_ekf import Gate, predict, transition, update
-    from estimators.phase_model import measurement_model
-
-    gate = Gate(alpha=cfg.gate_alpha, enabled=cfg.gate)
-    K = times.size
-    means, covs, acts = np.empty((K, 18)), np.empty((K, 18, 18)), np.empty((K, 18, 18))
-    infos = []
-    bel, Pa = prior, prior.cov
-    I18 = np.eye(18)
-    for k in range(K):
-        if k > 0:
-            dt = float(times[k] - times[k - 1])
-            bel = predict(bel, dt, q)
-            F = transition(dt)
-            Pa = F @ Pa @ F.T
-        m = meas[k]
-        _, H = measurement_model(bel.mean, m.master_pos, m.master_vel, rate_window=m.rate_window)
-        bel, info = update(bel, m, gate, cfg.iterations)
-        if info.dof:
-            _, r_var, _ = m.stacked()
-            Hu, Ku, ru = H[info.used], info.gain, r_var[info.used]
-            IKH = I18 - Ku @ Hu
-            Pa = symmetrize(IKH @ Pa @ IKH.T + (Ku * ru[None, :]) @ Ku.T)
-        means[k], covs[k], acts[k] = bel.mean, bel.cov, Pa
-        infos.append(info)
-    return means, covs, infos, acts
+    filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=cfg.gate_alpha, enabled=cfg.gate), cfg.iterations)
+    epochs = [Epoch(float(t), m) for t, m in zip(times, meas)]
+    return drive(filt, AnalyzedGaussian(prior.mean, prior.cov, prior.cov), epochs)
 
 
 def phase_pcrb(cfg: PhasePipelineConfig, q: float | ProcessNoise, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
     """PCRB (K, 18, 18) along the true 18-state trajectory with the filter's own rows and model."""
-    from estimators.phase_ekf import pcrb
-
     valid = np.array([m.stacked()[2] for m in meas])
     sig_rate = np.array([np.broadcast_to(m.sigma_range_rate, (len(inp.masters), 3, 3)) for m in meas])
     sig_rate = np.where(np.isfinite(sig_rate), sig_rate, 1.0)
@@ -294,12 +260,13 @@ BODY_PV[:3] = BODY_POS
 BODY_PV[3:, 12:15] = BODY_PV[3:, 15:18] = 0.5 * np.eye(3)
 
 
-def score(cfg: PhasePipelineConfig, t: np.ndarray, means, covs, acts, infos, states_true, body_true, R_true, bound) -> dict:
+def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true, bound) -> dict:
     """metrics.json `estimators.ekf` (module docstring) and the series the plots need."""
-    from estimators.core import nees
-    from estimators.phase_model import rotation_from_antennas
+    # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
     from testbed.metrics import attitude_error_vector, rmse
 
+    t, means, covs = track.t, track.mean, track.cov
+    acts = np.stack([b.actual for b in track.beliefs])
     pv = means @ BODY_PV.T
     Ppv = BODY_PV @ covs @ BODY_PV.T
     e = pv - body_true[:, :6]
@@ -313,7 +280,7 @@ def score(cfg: PhasePipelineConfig, t: np.ndarray, means, covs, acts, infos, sta
     nees18 = nees(means - states_true, covs)
     nees6_act = nees(e, BODY_PV @ acts @ BODY_PV.T)
     Bp = BODY_POS @ bound @ BODY_POS.T
-    rejected = np.array([0 if i is None else i.rejected.size for i in infos])
+    rejected = track.rejected_measurements
     mid = int(np.argmin(np.abs(t - (t[0] + 0.5 * (t[-1] - t[0])))))
     out = {
         "rmse_position_m": rmse(e[sc, :3]),
@@ -346,6 +313,7 @@ def score(cfg: PhasePipelineConfig, t: np.ndarray, means, covs, acts, infos, sta
 
 def plot(series: dict, plots_dir, name: str) -> None:
     """Figures like the paper's figs. 4-15: position and velocity error per axis, +/-3 sigma."""
+    # lazy: matplotlib, only when plots are written
     from testbed.plots import error_envelope
 
     t, e, s = series["t"], series["err"], series["sigma"]
@@ -356,9 +324,6 @@ def plot(series: dict, plots_dir, name: str) -> None:
 
 def estimate(scenario, log: dict) -> tuple[dict, dict]:
     """Run the seed 003 EKF on a run log and score it: (estimators.ekf metrics, plot series)."""
-    from testbed.config import ConfigError
-    from testbed.rng import stream_rng
-
     cfg: PhasePipelineConfig = scenario.pipeline
     ph = scenario.sensors.phase
     if ph is None or "phase/time" not in log:
@@ -370,11 +335,11 @@ def estimate(scenario, log: dict) -> tuple[dict, dict]:
     q = process_noise_model(cfg, scenario.motion)
     prior, P0, _ = initial_prior(cfg, scenario, inp, stream_rng(scenario.seed, "init"))
     meas = measurement_epochs(cfg, inp)
-    means, covs, infos, acts = run_ekf(cfg, q, prior, meas, inp.times)
+    track = run_filter(cfg, q, prior, meas, inp.times)
     body, RN, states = truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
                                     scenario.world.antenna_a, scenario.world.antenna_b)
     bound = phase_pcrb(cfg, q, states, inp, meas, P0)
-    metrics, series = score(cfg, inp.times, means, covs, acts, infos, states, body, RN, bound)
+    metrics, series = score(cfg, track, states, body, RN, bound)
     metrics = {"q_m2ps3": q.antenna, "q_translation_m2ps3": q.translation, "q_rotation_rad2ps3": q.rotation, "rate_rows": cfg.rate_rows, "init": cfg.init, **metrics}
     return metrics, series
 

@@ -32,14 +32,25 @@ metrics.json that is not bit-identical between two runs of the same seed.
 from __future__ import annotations
 
 import math
-import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from estimators.core import Epoch, Track, drive, nees
+from estimators.sigma_filters import ManifoldGaussian, SpdRepairWarning, make_filter
+from estimators.so3 import quat_conj, quat_exp, quat_mul, quat_to_rotmat
+from estimators.visnav import (
+    CameraFilter,
+    CameraFrame,
+    ImuNoise,
+    RelNavModel,
+    VisNavConfig,
+)
 from testbed.errors import ConfigError
 from testbed.pipelines.config import VisNavPipelineConfig
+from testbed.rng import stream_rng
 
 _DEG = math.pi / 180.0
 
@@ -61,8 +72,6 @@ def xyaxes_to_rotation(xyaxes) -> np.ndarray:
 def estimator_config(cfg: VisNavPipelineConfig, seed: int, focal_length: float):
     """The VisNavConfig the filters get: configured camera/LED values plus their survey errors
     (stream "known"), configured IMU and vision noise figures."""
-    from estimators.visnav import ImuNoise, VisNavConfig, quat_exp, quat_to_rotmat
-    from testbed.rng import stream_rng
 
     rng = stream_rng(seed, "known")
     led = np.array(cfg.led_pos, float)
@@ -149,26 +158,10 @@ def build_inputs(cfg: VisNavPipelineConfig, log: dict, leader: int, follower: in
 # --------------------------------------------------------------------------------------------
 # Filters
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True, slots=True, eq=False)
-class Track:
-    """A filter's output at the camera epochs: t (E,) s, mean (E, 22), cov (E, 21, 21);
-    predict_s, update_s: total wall time (s) of the predicts and of the updates."""
-
-    name: str
-    t: np.ndarray
-    mean: np.ndarray
-    cov: np.ndarray
-    predict_s: float
-    update_s: float
-
-
 def initial_belief(cfg: VisNavPipelineConfig, model, truth0: np.ndarray, seed: int):
     """Prior at t0: the true relative navigation state (+) a draw from P0 (stream "init"), biases 0.
 
     truth0: (22,) true state (only its p, v, q are used)."""
-    from estimators.sigma_filters import ManifoldGaussian
-    from testbed.rng import stream_rng
-
     P0 = model.initial_cov(cfg.init_sigma_pos, cfg.init_sigma_vel, cfg.init_sigma_att_deg * _DEG)
     d = np.zeros(P0.shape[0])
     d[:9] = stream_rng(seed, "init").standard_normal(9) * np.sqrt(np.diag(P0)[:9])
@@ -177,44 +170,33 @@ def initial_belief(cfg: VisNavPipelineConfig, model, truth0: np.ndarray, seed: i
     return ManifoldGaussian(model.boxplus(x0[None], d[None])[0], P0)
 
 
-def run_filter(name: str, cfg: VisNavPipelineConfig, model, inputs: Inputs, prior) -> Track:
-    """Run one filter of the family over the inputs; returns its Track."""
-    import warnings
+def camera_epochs(inputs: Inputs) -> list[Epoch]:
+    """The driver's epochs: one per camera epoch, with the predict steps (dt, IMU input) since the
+    previous one and the camera frame (None if no LED was seen: predict only)."""
+    epochs, j = [], 0
+    for e in range(inputs.cam_step.size):
+        controls = [(inputs.dt, inputs.u[i]) for i in range(j, int(inputs.cam_step[e]))]
+        j = max(j, int(inputs.cam_step[e]))
+        leds = inputs.cam_leds[e]
+        frame = CameraFrame(leds, inputs.cam_b[e], inputs.cam_ab[e]) if leds.size else None
+        epochs.append(Epoch(float(inputs.cam_time[e]), frame, controls))
+    return epochs
 
-    from estimators.sigma_filters import SpdRepairWarning, make_filter
 
-    filt = make_filter(name, model, kernel_sigma=cfg.kernel_sigma, tol=cfg.mc_tol, max_iter=cfg.mc_max_iter)
-    E = inputs.cam_step.size
-    means, covs = np.empty((E, prior.mean.size)), np.empty((E,) + prior.cov.shape)
-    b, j = prior, 0
-    t_pred = t_upd = 0.0
+def run_filter(name: str, cfg: VisNavPipelineConfig, model, epochs: list[Epoch], prior) -> Track:
+    """Run one filter of the family over the camera epochs through the library's driver
+    (core.drive); returns its core.Track (beliefs at every camera epoch after the update, health
+    counts, wall time of the predicts and updates per epoch)."""
+    filt = CameraFilter(make_filter(name, model, kernel_sigma=cfg.kernel_sigma, tol=cfg.mc_tol,
+                                    max_iter=cfg.mc_max_iter), cfg.measurement)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SpdRepairWarning)   # repairs are counted by the tests of estimators
-        for e in range(E):
-            t0 = time.perf_counter()
-            while j < inputs.cam_step[e]:
-                b = filt.predict(b, inputs.dt, inputs.u[j])
-                j += 1
-            t1 = time.perf_counter()
-            leds = inputs.cam_leds[e]
-            if leds.size:
-                if cfg.measurement == "los":
-                    meas = model.los_measurement(b.mean, inputs.cam_b[e], leds)
-                else:
-                    meas = model.focal_measurement(b.mean, inputs.cam_ab[e], leds)
-                b = filt.update(b, meas)
-            t2 = time.perf_counter()
-            t_pred += t1 - t0
-            t_upd += t2 - t1
-            means[e], covs[e] = b.mean, b.cov
-    return Track(name, inputs.cam_time, means, covs, t_pred, t_upd)
+        warnings.simplefilter("ignore", SpdRepairWarning)  # counted by the driver: track.covariance_repairs
+        return drive(filt, prior, epochs)
 
 
 def true_relative_state(log: dict, leader: int, follower: int, idx: np.ndarray) -> np.ndarray:
     """True relative state (len(idx), 22) at log rows idx: p, v in the leader frame, q = q_L^* q_F,
     biases from imu/bias at the nearest IMU sample (scoring only)."""
-    from estimators.visnav import quat_conj, quat_mul, quat_to_rotmat
-
     L, F = leader - 1, follower - 1
     qL, qF = log["truth/quat"][idx, L], log["truth/quat"][idx, F]
     RL = quat_to_rotmat(qL)
@@ -242,7 +224,7 @@ class Scored:
 
 def score_track(model, track: Track, truth: np.ndarray) -> Scored:
     """Score a Track against the true states truth (E, 22) (see Scored)."""
-    from estimators.core import nees
+    # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
     from testbed.metrics import attitude_error_deg
 
     est = track.mean
@@ -255,9 +237,11 @@ def score_track(model, track: Track, truth: np.ndarray) -> Scored:
 
 def metrics_of(track: Track, sc: Scored) -> dict:
     """The metrics.json entry of one filter."""
+    # lazy: see score_track
     from testbed.metrics import rmse
 
     E = track.t.size
+    predict_s, update_s = float(track.predict_s.sum()), float(track.update_s.sum())
     finite = bool(np.all(np.isfinite(sc.err)) and np.all(np.isfinite(sc.nees)))
     return {
         "rmse_position_m": rmse(sc.err[:, 0:3]),
@@ -265,9 +249,9 @@ def metrics_of(track: Track, sc: Scored) -> dict:
         "rmse_attitude_deg": float(np.sqrt(np.mean(sc.att_deg ** 2))),
         "anees": float(np.mean(sc.nees)),
         "anees_dof": 9,
-        "time_per_step_ms": 1e3 * (track.predict_s + track.update_s) / max(E, 1),
-        "predict_per_epoch_ms": 1e3 * track.predict_s / max(E, 1),
-        "update_ms": 1e3 * track.update_s / max(E, 1),
+        "time_per_step_ms": 1e3 * (predict_s + update_s) / max(E, 1),
+        "predict_per_epoch_ms": 1e3 * predict_s / max(E, 1),
+        "update_ms": 1e3 * update_s / max(E, 1),
         "final_position_error_m": float(np.linalg.norm(sc.err[-1, 0:3])),
         "final_nees": float(sc.nees[-1]),
         "epochs": int(E),
@@ -277,8 +261,6 @@ def metrics_of(track: Track, sc: Scored) -> dict:
 
 def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], object]:
     """Run every configured filter on the log; returns tracks, their scores and the model."""
-    from estimators.visnav import RelNavModel
-
     cfg: VisNavPipelineConfig = scenario.pipeline
     cam, imu = scenario.sensors.camera, scenario.sensors.imu
     if cam is None or imu is None:
@@ -290,25 +272,27 @@ def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], o
     prior = initial_belief(cfg, model, truth0, scenario.seed)
     if inputs.cam_step[0] != 0:
         raise ValueError("visnav: the first camera epoch must coincide with the first IMU sample")
+    epochs = camera_epochs(inputs)
     tracks, scores = {}, {}
     for name in cfg.filters:
-        tracks[name] = run_filter(name, cfg, model, inputs, prior)
+        tracks[name] = run_filter(name, cfg, model, epochs, prior)
         scores[name] = score_track(model, tracks[name], truth)
     return tracks, scores, model
 
 
-def plot_track(track: Track, sc: Scored, plots_dir: Path, prefix: str = "") -> list[Path]:
-    """Error curves with +/-3 sigma envelopes (position, velocity, attitude) of one filter."""
+def plot_track(name: str, track: Track, sc: Scored, plots_dir: Path, prefix: str = "") -> list[Path]:
+    """Error curves with +/-3 sigma envelopes (position, velocity, attitude) of filter `name`."""
+    # lazy: matplotlib, only when plots are written
     from testbed.plots import error_envelope
 
-    n = track.name.upper()
+    n = name.upper()
     return [
-        error_envelope(track.t, sc.err[:, 0:3], sc.sigma[:, 0:3], plots_dir / f"{prefix}{track.name}_position.png",
+        error_envelope(track.t, sc.err[:, 0:3], sc.sigma[:, 0:3], plots_dir / f"{prefix}{name}_position.png",
                        title=f"{n} relative position error (leader frame)", ylabel="m"),
-        error_envelope(track.t, sc.err[:, 3:6], sc.sigma[:, 3:6], plots_dir / f"{prefix}{track.name}_velocity.png",
+        error_envelope(track.t, sc.err[:, 3:6], sc.sigma[:, 3:6], plots_dir / f"{prefix}{name}_velocity.png",
                        title=f"{n} relative velocity error (leader frame)", ylabel="m/s"),
         error_envelope(track.t, np.degrees(sc.err[:, 6:9]), np.degrees(sc.sigma[:, 6:9]),
-                       plots_dir / f"{prefix}{track.name}_attitude.png",
+                       plots_dir / f"{prefix}{name}_attitude.png",
                        title=f"{n} relative attitude error (follower frame)", ylabel="deg"),
     ]
 
@@ -318,5 +302,5 @@ def run(scenario, log, plots_dir):
     tracks, scores, _ = run_all(scenario, log)
     if plots_dir is not None:
         for name in tracks:
-            plot_track(tracks[name], scores[name], Path(plots_dir))
+            plot_track(name, tracks[name], scores[name], Path(plots_dir))
     return {name: metrics_of(tracks[name], scores[name]) for name in tracks}

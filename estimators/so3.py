@@ -1,0 +1,161 @@
+"""Rotation helpers of every estimator and of the testbed: skew matrices, unit quaternions, SO(3)
+exponential and logarithm, ZYX Euler angles. Written once here (testbed imports them; estimators
+never import testbed).
+
+Conventions: quaternions are wxyz (scalar first, as MuJoCo), Hamilton product, unit norm;
+R(q) maps the rotated frame's coordinates to the reference frame (R_a_from_b for q_a_from_b);
+rotation vectors phi (rad) are axis * angle, Exp(phi) the rotation about phi by |phi|.
+ZYX Euler angles (yaw psi about z, pitch theta about y, roll phi about x):
+R = Rz(psi) Ry(theta) Rx(phi). Quaternion functions are batched over leading axes.
+
+Pure numpy; never imports mujoco or testbed.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------------------------
+# Skew-symmetric matrices
+# --------------------------------------------------------------------------------------------
+def skew(v: np.ndarray) -> np.ndarray:
+    """[v]x: (..., 3) -> (..., 3, 3), [v]x w = v x w."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    out[..., 0, 1], out[..., 0, 2] = -z, y
+    out[..., 1, 0], out[..., 1, 2] = z, -x
+    out[..., 2, 0], out[..., 2, 1] = -y, x
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Quaternions and SO(3) (batched over leading axes)
+# --------------------------------------------------------------------------------------------
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a (x) b of wxyz quaternions (..., 4); R(a (x) b) = R(a) R(b)."""
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate (inverse of a unit quaternion), (..., 4)."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix (..., 3, 3) of unit wxyz quaternions (..., 4)."""
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
+    """wxyz quaternion (w >= 0) of a rotation matrix (3, 3) (Shepperd's method, unbatched)."""
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R)
+    cands = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
+    i = int(np.argmax(cands))
+    if i == 0:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
+    else:
+        j, k = (i % 3) + 1, ((i + 1) % 3) + 1
+        a, b, c = i - 1, j - 1, k - 1
+        s = 2.0 * np.sqrt(1.0 + R[a, a] - R[b, b] - R[c, c])
+        q = np.empty(4)
+        q[0] = (R[c, b] - R[b, c]) / s
+        q[i] = 0.25 * s
+        q[j] = (R[b, a] + R[a, b]) / s
+        q[k] = (R[c, a] + R[a, c]) / s
+    q = q / np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def quat_exp(phi: np.ndarray) -> np.ndarray:
+    """Unit quaternion (..., 4) of the rotation vector phi (..., 3) rad: Exp(phi)."""
+    phi = np.asarray(phi, dtype=float)
+    th = np.linalg.norm(phi, axis=-1, keepdims=True)
+    # sin(th/2)/th = 0.5 sinc(th / (2 pi)), safe at 0
+    s = 0.5 * np.sinc(th / (2.0 * np.pi))
+    return np.concatenate([np.cos(0.5 * th), s * phi], axis=-1)
+
+
+def quat_log(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (..., 3) rad of unit quaternions (..., 4), shortest rotation (|phi| <= pi)."""
+    q = np.where(q[..., :1] < 0, -q, q)
+    w, v = q[..., :1], q[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    small = s < 1e-8
+    s_safe = np.where(small, 1.0, s)
+    w_safe = np.where(w > 0.5, w, 1.0)   # small s implies w ~ 1
+    factor = np.where(small, 2.0 / w_safe * (1.0 - s * s / (3.0 * w_safe * w_safe)),
+                      2.0 * np.arctan2(s, w) / s_safe)
+    return factor * v
+
+
+def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Right Jacobian J_r(phi) (3, 3): Exp(phi + d) = Exp(phi) Exp(J_r(phi) d) to first order."""
+    phi = np.asarray(phi, dtype=float)
+    th = float(np.linalg.norm(phi))
+    K = skew(phi)
+    if th < 1e-4:
+        a = 0.5 - th * th / 24.0
+        b = 1.0 / 6.0 - th * th / 120.0
+    else:
+        a = (1.0 - np.cos(th)) / th ** 2
+        b = (th - np.sin(th)) / th ** 3
+    return np.eye(3) - a * K + b * (K @ K)
+
+
+# --------------------------------------------------------------------------------------------
+# ZYX Euler angles
+# --------------------------------------------------------------------------------------------
+def rot_zyx(psi: float, theta: float, phi: float) -> np.ndarray:
+    """R_N_from_body = Rz(psi) Ry(theta) Rx(phi), (3, 3). Angles in rad (yaw, pitch, roll)."""
+    cps, sps = np.cos(psi), np.sin(psi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cph, sph = np.cos(phi), np.sin(phi)
+    return np.array([
+        [cps * cth, cps * sth * sph - sps * cph, cps * sth * cph + sps * sph],
+        [sps * cth, sps * sth * sph + cps * cph, sps * sth * cph - cps * sph],
+        [-sth, cth * sph, cth * cph],
+    ])
+
+
+def rot_zyx_dot(euler: np.ndarray, euler_rate: np.ndarray) -> np.ndarray:
+    """d/dt of R_N_from_body for ZYX Euler angles (psi, theta, phi) and their rates, (3, 3), 1/s."""
+    psi, theta, phi = euler
+    dpsi, dtheta, dphi = euler_rate
+    c, s = np.cos, np.sin
+    Rz = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1.0]])
+    Ry = np.array([[c(theta), 0, s(theta)], [0, 1.0, 0], [-s(theta), 0, c(theta)]])
+    Rx = np.array([[1.0, 0, 0], [0, c(phi), -s(phi)], [0, s(phi), c(phi)]])
+    dRz = np.array([[-s(psi), -c(psi), 0], [c(psi), -s(psi), 0], [0, 0, 0.0]])
+    dRy = np.array([[-s(theta), 0, c(theta)], [0, 0, 0.0], [-c(theta), 0, -s(theta)]])
+    dRx = np.array([[0.0, 0, 0], [0, -s(phi), -c(phi)], [0, c(phi), -s(phi)]])
+    return dpsi * dRz @ Ry @ Rx + dtheta * Rz @ dRy @ Rx + dphi * Rz @ Ry @ dRx
+
+
+def euler_from_rotation(R: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles (yaw psi, pitch theta, roll phi), rad, of R = Rz(psi) Ry(theta) Rx(phi)."""
+    return np.array([
+        np.arctan2(R[1, 0], R[0, 0]),
+        np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0])),
+        np.arctan2(R[2, 1], R[2, 2]),
+    ])
