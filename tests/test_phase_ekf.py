@@ -36,7 +36,7 @@ from estimators.phase_model import (
     row_label,
     stack_rows,
 )
-from phase_synthetic import (  # tests/ helper (pytest puts tests/ on sys.path)
+from testbed.synthetic.phase import (
     P0_POS,
     P0_VEL,
     SIGMA_RANGE,

@@ -2,9 +2,7 @@
 
 Statistical tolerances come from the sample sizes (see each test's docstring); nothing is tuned.
 """
-import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,9 +17,7 @@ from estimators.sigma_filters import (
 from estimators.visnav import (
     ImuNoise, RelNavModel, VisNavConfig, make_state, quat_exp, quat_to_rotmat,
 )
-
-sys.path.insert(0, str(Path(__file__).parent))
-import visnav_synthetic as syn  # noqa: E402
+from testbed.synthetic import visnav as syn
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 WIDE = 1e8      # kernel width (whitened units) for which the correntropy weights are 1 - O(1e-15)

@@ -1,6 +1,6 @@
 """Seeded synthetic epochs of the factor-graph cooperative navigation problem (seed 001), pure numpy.
 
-Used by the tests (tests/coop_synthetic.py re-exports it) and by `testbed bench estimators`
+Used by the tests and by `testbed bench estimators`
 (`epoch_factory`). No physics: for the physics-in-the-loop epochs run the scenario coop-fg.
 
 Geometry: n UAVs uniformly in a box (default 200 m east x 200 m north x 100 m up, the paper's
