@@ -2,7 +2,7 @@
 
 Unit checks (Jacobians vs central differences, linear sanity vs estimators.core, attitude
 recovery, masks, cycle-slip gate, PCRB recursion) and two seeded Monte Carlo checks on pure-numpy
-synthetic data (tests/phase_synthetic.py; no MuJoCo).
+synthetic data (testbed.synthetic.phase; no MuJoCo).
 """
 import numpy as np
 import pytest

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
+from estimators.factor_graph import CoopProblem, solve_centralized
 from testbed.config import from_dict, to_dict
 from testbed.log import load_log
 from testbed.metrics import anees_interval, mean_ci, paired_test
@@ -86,7 +87,6 @@ def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
 def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
     """Centralized solution and marginals vs GTSAM on every epoch of a run."""
     # lazy: GTSAM is a heavy optional dependency, loaded only for this check
-    from estimators.factor_graph import CoopProblem, solve_centralized
     from estimators.gtsam_reference import solve_gtsam
 
     Sg = coop.gnss_covariances(cfg, ep.is_rtk)

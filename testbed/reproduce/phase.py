@@ -77,9 +77,9 @@ def _within_text(what: str, level: float, unit: str = "m") -> str:
             f"{FRACTION:.0%} of the runs")
 
 
-def _within_summary(*named: tuple[str, dict]) -> str:
-    return "; ".join(f"{name}{fmt(100 * w['fraction_of_runs'])} % of runs within, worst {fmt_list(w['max_abs_worst'])}"
-                     for name, w in named)
+def _within_summary(*named: tuple[str, dict], unit: str = "m") -> str:
+    return "; ".join(f"{name}{fmt(100 * w['fraction_of_runs'])} % of runs within, worst {fmt_list(w['max_abs_worst'])} "
+                     f"{unit}" for name, w in named)
 
 
 def _equal_claim(claim_id: str, text: str, a: list[dict], b: list[dict]) -> Claim:
@@ -109,7 +109,7 @@ def decide(R: dict[str, list[dict]]) -> list[Claim]:
     v = _within(line, 0.005, key="max_abs_velocity_error_last_100s_mps")
     out.append(Claim(id="line-h000-velocity", text="line H000: velocity error within +/-0.005 m/s after it settles",
                      numbers=v, criterion=_within_text("velocity error", 0.005, "m/s"), holds=v["holds"],
-                     summary=_within_summary(("", v))))
+                     summary=_within_summary(("", v), unit="m/s")))
     c = _within(R["phase-cross-h000"], 0.01)
     out.append(Claim(id="cross-h000-0.01", text="cross H000: all three position errors within +/-0.01 m",
                      numbers={**c, "pcrb_sigma_final_m": _pcrb_axes(R["phase-cross-h000"])},
