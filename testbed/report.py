@@ -1,13 +1,232 @@
-"""Reports for people: how numbers are formatted (one place for every table, summary and line)."""
+"""Reports for people and programs: claims and verdicts, tables, strict JSON; numbers formatted once.
+
+Every reproduction (`testbed.reproduce.<paper>`) states the paper's claims as `Claim`s and writes
+its files through this module:
+- `table.md`: Markdown, tables built by `markdown_table` and the verdicts by `claims_section`;
+- `table.csv`: every number at full precision (`write_csv`);
+- `claims.json`: strict JSON (`write_claims` / `write_json`): no bare NaN or Infinity; a value
+  that cannot exist is `null`, with the reason beside it under `<key>_null_reason`.
+
+Numbers for people are formatted here and only here: `fmt` (4 significant digits), `fmt_pm`
+(mean ± spread), `fmt_ci` (mean [lo, hi]). CSV and JSON keep full precision (shortest repr that
+reads back to the same float).
+"""
 from __future__ import annotations
 
+import csv
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 
-def fmt(v: object) -> str:
-    """A score for a person: 4 significant digits; long lists summarized by their mean."""
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, list) and len(v) <= 4:
-        return "[" + ", ".join(fmt(x) for x in v) + "]"
-    if isinstance(v, list) and v and all(isinstance(x, (int, float)) for x in v):
-        return f"[{len(v)} values, mean {sum(v) / len(v):.4g}]"
+import numpy as np
+
+SIG = 4  # significant digits of a value shown to a person
+SIG_SPREAD = 2  # significant digits of a spread (std, interval half-width)
+NULL_SUFFIX = "_null_reason"
+NAN_REASON = "undefined for these data (e.g. a statistic of fewer than 2 runs)"
+
+
+# ------------------------------------------------------------------------------- formatting
+
+
+def fmt(v: object, sig: int = SIG) -> str:
+    """A number (or a short list of them) for a person: `sig` significant digits; long numeric
+    lists summarized by their mean; None and undefined values as "n/a"."""
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v))
+    if isinstance(v, (float, np.floating)):
+        return f"{float(v):.{sig}g}" if math.isfinite(v) else ("n/a" if math.isnan(v) else str(float(v)))
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if v is None or isinstance(v, Undefined):
+        return "n/a"
+    if isinstance(v, (list, tuple)) and len(v) <= 4:
+        return "[" + ", ".join(fmt(x, sig) for x in v) + "]"
+    if isinstance(v, (list, tuple)) and v and all(isinstance(x, (int, float)) for x in v):
+        return f"[{len(v)} values, mean {fmt(sum(v) / len(v), sig)}]"
     return str(v)
+
+
+def fmt_pm(mean: float, spread: float) -> str:
+    """"mean ± spread" (spread: a standard deviation or an interval half-width)."""
+    return f"{fmt(mean)} ± {fmt(spread, SIG_SPREAD)}"
+
+
+def fmt_ci(mean: float, lo: float, hi: float) -> str:
+    """"mean [lo, hi]" of a confidence interval."""
+    return f"{fmt(mean)} [{fmt(lo)}, {fmt(hi)}]"
+
+
+def fmt_list(values: Iterable[float], sep: str = ", ") -> str:
+    """Every value of a sequence, formatted and joined (no summarizing)."""
+    return sep.join(fmt(v) for v in values)
+
+
+def verdict(holds: bool) -> str:
+    return "holds" if holds else "does not hold"
+
+
+# ------------------------------------------------------------------------------- claims
+
+
+@dataclass(frozen=True, slots=True)
+class Undefined:
+    """A number that cannot exist for these data (a t statistic of one run, a ratio over zero):
+    written as JSON null with `reason` beside it, shown to people as "n/a"."""
+
+    reason: str
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Claim:
+    """One claim of a paper, decided.
+
+    id: stable key (unique within a reproduction, with `context`); text: the claim as the paper
+    states it; criterion: how it is decided (test, threshold, sample), fixed before the runs;
+    holds: the verdict; numbers: what it was judged on (JSON-able; numpy values, `Undefined` and
+    non-finite floats are converted by `write_json`); summary: the decisive numbers in one line,
+    for the verdict table; note: a remark for the reader; context: keys that locate the claim
+    (e.g. {"mode": "paper", "reading": "a_dt1"}).
+    """
+
+    id: str
+    text: str
+    criterion: str
+    holds: bool
+    numbers: Mapping[str, object]
+    summary: str = ""
+    note: str = ""
+    context: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.holds, bool):
+            raise TypeError(f"Claim {self.id!r}: holds must be a bool, got {type(self.holds).__name__}")
+
+    def to_json(self) -> dict:
+        """{"id", <context keys>, "claim", "criterion", "holds", "numbers"[, "summary"][, "note"]}."""
+        out = {"id": self.id, **self.context, "claim": self.text, "criterion": self.criterion,
+               "holds": self.holds, "numbers": dict(self.numbers)}
+        if self.summary:
+            out["summary"] = self.summary
+        if self.note:
+            out["note"] = self.note
+        return out
+
+    def label(self) -> str:
+        """The claim's name in a table: id, then its context in brackets."""
+        ctx = ", ".join(str(v) for v in self.context.values())
+        return f"{self.id} [{ctx}]" if ctx else self.id
+
+
+def claims_section(claims: Sequence[Claim], heading: str = "## Claims") -> list[str]:
+    """Markdown lines: the verdict table (claim, the paper's words, numbers, criterion, verdict)."""
+    rows = [[c.label(), c.text, c.summary, c.criterion, f"**{verdict(c.holds)}**"] for c in claims]
+    held = sum(c.holds for c in claims)
+    return [heading, "", f"{held} of {len(claims)} claims hold.", "",
+            *markdown_table(["claim", "paper", "numbers", "criterion", "verdict"], rows)]
+
+
+# ------------------------------------------------------------------------------- tables
+
+
+def markdown_table(columns: Sequence[str], rows: Iterable[Sequence[object]]) -> list[str]:
+    """Markdown lines of a table; cells that are not strings are formatted with `fmt`."""
+
+    def cell(v: object) -> str:
+        return (v if isinstance(v, str) else fmt(v)).replace("|", "\\|").replace("\n", " ")
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(cell(v) for v in r) + " |" for r in rows]
+    return lines
+
+
+def csv_cell(v: object) -> object:
+    """A CSV cell at full precision: floats as their shortest exact repr, bools as 0/1, None empty."""
+    if v is None or isinstance(v, Undefined):
+        return ""
+    if isinstance(v, (bool, np.bool_)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[object]]) -> Path:
+    """Write a table as CSV (header row, then one row per entry, cells by `csv_cell`)."""
+    path = Path(path)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(columns)
+        w.writerows([csv_cell(v) for v in r] for r in rows)
+    return path
+
+
+def write_markdown(path: Path, lines: Iterable[str]) -> Path:
+    path = Path(path)
+    path.write_text("\n".join(lines).rstrip("\n") + "\n")
+    return path
+
+
+# ------------------------------------------------------------------------------- strict JSON
+
+
+def _bad(x: float) -> str | None:
+    return None if math.isfinite(x) else (NAN_REASON if math.isnan(x) else f"{x} (diverged or unbounded)")
+
+
+def _plain(v: object) -> tuple[object, str | None]:
+    """(JSON-able value, reason if v or anything inside a list of it cannot exist)."""
+    if isinstance(v, Claim):
+        return jsonable(v.to_json()), None
+    if isinstance(v, Mapping):
+        return jsonable(v), None
+    if isinstance(v, Undefined):
+        return None, v.reason
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v), None
+    if isinstance(v, (int, np.integer)):
+        return int(v), None
+    if isinstance(v, (float, np.floating)):
+        reason = _bad(float(v))
+        return (None, reason) if reason else (float(v), None)
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if isinstance(v, (list, tuple)):
+        items = [_plain(x) for x in v]
+        bad = [f"[{i}]: {r}" for i, (_, r) in enumerate(items) if r]
+        return [x for x, _ in items], ("; ".join(bad) if bad else None)
+    if isinstance(v, Path):
+        return str(v), None
+    if v is None or isinstance(v, str):
+        return v, None
+    raise TypeError(f"not JSON-able: {type(v).__name__}")
+
+
+def jsonable(obj: Mapping) -> dict:
+    """A plain dict for strict JSON: numpy to Python, Claims to dicts, and every value that cannot
+    exist (Undefined, NaN, +-inf, also inside lists) to null with `<key>_null_reason` beside it."""
+    out: dict = {}
+    for k, v in obj.items():
+        out[str(k)], reason = _plain(v)
+        if reason:
+            out[f"{k}{NULL_SUFFIX}"] = reason
+    return out
+
+
+def write_json(path: Path, obj: Mapping) -> Path:
+    """Strict JSON (allow_nan=False) of `jsonable(obj)`, indented, newline at the end."""
+    path = Path(path)
+    path.write_text(json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n")
+    return path
+
+
+def write_claims(path: Path, claims: Sequence[Claim], **context: object) -> dict:
+    """claims.json: {<context: paper, runs, seeds, ...>, "claims": [...]}; returns what was written
+    (as it reads back)."""
+    doc = jsonable({**context, "claims": list(claims)})
+    write_json(path, doc)
+    return doc

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from coop_synthetic import is_connected, make_epoch
 from estimators.core import chi2_interval, is_spd, nees
 from estimators.factor_graph import (
     HUBER_DELTA,
@@ -23,6 +22,7 @@ from estimators.factor_graph import (
     solve_distributed,
     whitened_system,
 )
+from testbed.synthetic.coop import is_connected, make_epoch
 
 gtsam_reference = pytest.importorskip("estimators.gtsam_reference")
 

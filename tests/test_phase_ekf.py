@@ -2,7 +2,7 @@
 
 Unit checks (Jacobians vs central differences, linear sanity vs estimators.core, attitude
 recovery, masks, cycle-slip gate, PCRB recursion) and two seeded Monte Carlo checks on pure-numpy
-synthetic data (tests/phase_synthetic.py; no MuJoCo).
+synthetic data (testbed.synthetic.phase; no MuJoCo).
 """
 import numpy as np
 import pytest
@@ -32,7 +32,7 @@ from estimators.phase_model import (
     stack_rows,
 )
 from estimators.so3 import rot_zyx, rot_zyx_dot
-from phase_synthetic import (  # tests/ helper (pytest puts tests/ on sys.path)
+from testbed.synthetic.phase import (
     P0_POS,
     P0_VEL,
     SIGMA_RANGE,

@@ -16,8 +16,7 @@ from estimators.sigma_filters import (
 )
 from estimators.so3 import quat_exp, quat_to_rotmat
 from estimators.visnav import CameraFilter, CameraFrame, ImuNoise, RelNavModel, VisNavConfig, make_state
-
-import visnav_synthetic as syn  # tests/ helper (pytest puts tests/ on sys.path)
+from testbed.synthetic import visnav as syn
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 WIDE = 1e8      # kernel width (whitened units) for which the correntropy weights are 1 - O(1e-15)

@@ -149,8 +149,8 @@ def test_reproduce_writes_tables_claims_and_plots(tmp_path):
     for f in ("table.md", "table.csv", "claims.json", "runs.json", "plots/rhcf_position_glint_run0.png",
               "plots/compare_position_glint.png", "plots/rms_error_vs_time_glint.png"):
         assert (tmp_path / f).is_file(), f
-    claims = json.loads((tmp_path / "claims.json").read_text())
+    claims = json.loads((tmp_path / "claims.json").read_text())["claims"]
     assert [c["id"] for c in claims] == ["glint-ordering", "gaussian-cost"]
     assert all(isinstance(c["holds"], bool) for c in claims)
-    assert len(claims[0]["comparisons"]) == 9
+    assert len(claims[0]["numbers"]["comparisons"]) == 9
     assert summary["meta"]["runs"] == 2

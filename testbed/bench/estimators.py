@@ -24,7 +24,7 @@ from estimators.sigma_filters import ManifoldGaussian, make_filter
 from estimators.visnav import RelNavModel, imu_input, make_state, quat_exp
 from testbed import scenario
 from testbed.pipelines.visnav import estimator_config
-from testbed.synthetic import epoch_factory
+from testbed.synthetic.coop import epoch_factory
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -191,7 +191,7 @@ def bench_visnav(repeats: int = 30) -> list[dict]:
 
 # ---- seed 001 (coop) --------------------------------------------------------------------------
 def bench_factor_graph(n_list=(18, 100, 1000), seed: int = 0, *, tol: float = 1e-4, max_rounds: int = 3000) -> list[dict]:
-    """Seed 001, random connected swarms of 18, 100 and 1000 UAVs (testbed.synthetic, density of 18
+    """Seed 001, random connected swarms of 18, 100 and 1000 UAVs (testbed.synthetic.coop, density of 18
     UAVs in 200 x 200 x 100 m, 3 RTK): our centralized Gauss-Newton solve time (median of 3) and with
     marginal covariances (sparse selected inverse) next to GTSAM's (Gauss-Newton; gtsam.Marginals),
     their largest position difference, accuracy against the generated positions, and the rounds the

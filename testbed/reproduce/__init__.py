@@ -1,9 +1,12 @@
 """Paper reproductions (`testbed reproduce PAPER --out DIR`): tables, figures and claims.
 
-Each paper's module `testbed.reproduce.<paper>` exposes
+Each paper's module `testbed.reproduce.<paper>` has the same shape: `compute` (runs -> numbers),
+`decide` (numbers -> `testbed.report.Claim`s), `write` (files through testbed.report), and
 `reproduce(out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None) -> dict`
-and writes `DIR/table.md`, `DIR/table.csv`, `DIR/claims.json` (a list of the paper's claims, each
-with the numbers it was judged on and `holds: true/false`) and `DIR/plots/`.
+chaining them. It writes `DIR/table.md` (tables and the verdicts), `DIR/table.csv` (every number at
+full precision), `DIR/claims.json` (strict JSON: the reproduction's context and `claims`, each with
+`id`, the paper's `claim`, the `criterion`, `holds: true/false` and the `numbers` it was judged on)
+and `DIR/plots/`. Monte Carlo run i uses the scenario's seed + i (testbed.reproduce.runs).
 """
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ Setup exactly as the paper's section 2: 4 nodes, n = 3, A = I3, C_i = I3, known 
 B = [0.5 0.5 0.5] m/s (motion along x = y = z), W = diag(0.02, 0.05, 0.03),
 V = diag(0.03, 0.04, 0.02) m^2, x(0) = [10 10 10] m, M(0) = diag(0.19, 0.09, 0.08) m^2, budget
 t_i = 5 with t_ji in 1..3, selection sets T1-T3 and weight sets P1-P3 as listed; synthetic
-y_i = C x + v_i.
+y_i = C x + v_i (the generator: testbed.synthetic.bandwidth).
 
 The paper states no time step and no horizon, so both readings of W are reported over a horizon of
 50 s:
@@ -18,88 +18,29 @@ identical (common random numbers): differences between cases are judged on paire
 differences. Besides the Monte Carlo, the exact error covariance of the linear network for the
 same gains (estimators.bandwidth.exact_covariance) gives J with no sampling error.
 
-Usage: python -m testbed.reproduce.bandwidth_paper OUT_DIR [--runs R] [--seed S]
+Run numbering: the Monte Carlo of a reading is one vectorized draw from one stream (seed
+SeedSequence([seed, reading index])), so run i has no seed of its own and no run directory; the
+physics-based uwb mode (testbed.reproduce.bandwidth) follows the common convention (run i: the
+scenario's seed + i, runs/run-XXX).
+
+Shape (as every reproduction): `compute` (Monte Carlo and exact covariances per reading),
+`decide` (numbers -> claims), `write` (paper/ files through testbed.report).
 """
 from __future__ import annotations
 
-import argparse
-import csv
-from dataclasses import dataclass
-import json
-import pathlib
-import sys
+from pathlib import Path
 
 import numpy as np
+from scipy.linalg import solve_discrete_are
 from scipy.stats import norm
 
 from estimators import bandwidth as bw
 from estimators.core import chi2_interval, nees
+from testbed.reproduce import bandwidth_plots as bplots
+from testbed.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, \
+    write_markdown
+from testbed.synthetic.bandwidth import M0_PAPER, V_PAPER, VEL_PAPER, X0_PAPER, N, n, paper_model, simulate
 
-# ------------------------------------------------------------------------------------------------
-# Synthetic Monte Carlo of the paper's network (truth, y = C x + v, the estimator)
-# ------------------------------------------------------------------------------------------------
-@dataclass(frozen=True, kw_only=True, slots=True)
-class SimResult:
-    """Monte Carlo of the network. truth: (R, K+1, n); xhat: (R, K+1, N, n); M: (K+1, N, n, n)
-    without faults (the same in every run), (R, K+1, N, n, n) with faults (it follows the realised
-    losses); comm: delivered components per link per step (mean over runs)."""
-
-    truth: np.ndarray
-    xhat: np.ndarray
-    M: np.ndarray
-    comm: bw.CommLog
-
-    @property
-    def errors(self) -> np.ndarray:
-        """e_i(k) = x(k) - xhat_i(k) (eq. 10): (R, K+1, N, n)."""
-        return self.truth[:, :, None, :] - self.xhat
-
-
-def simulate(model: bw.NetworkModel, net: bw.FusionNetwork, *, mu0: np.ndarray, Sigma0: np.ndarray, K: int,
-             runs: int, rng: np.random.Generator, M0: np.ndarray | None = None,
-             faults: bw.LinkFaults | None = None, x0_random: bool = True) -> SimResult:
-    """Seeded Monte Carlo of truth, synthetic measurements y = C x + v, and the estimator.
-
-    x(0) ~ N(mu0, Sigma0) (x0_random) or x(0) = mu0; every node starts at xhat_i(0) = mu0 with
-    M_i(0) = M0 (default Sigma0). Runs are vectorized. K steps give K+1 instants.
-    """
-    N, n = model.N, model.n
-    mu0 = np.asarray(mu0, float)
-    Sigma0 = np.asarray(Sigma0, float)
-    M0 = Sigma0 if M0 is None else np.asarray(M0, float)
-    x = np.broadcast_to(mu0, (runs, n)).copy()
-    if x0_random:
-        x = x + rng.standard_normal((runs, n)) @ np.linalg.cholesky(Sigma0).T
-    Wc = np.linalg.cholesky(model.W) if np.all(np.linalg.eigvalsh(model.W) > 0) else None
-    Vc = [np.linalg.cholesky(V) for V in model.V]
-    state = bw.FusionState(xhat=np.broadcast_to(mu0, (runs, N, n)).copy(),
-                        M=np.broadcast_to(np.broadcast_to(M0, (N, n, n)), (runs, N, n, n)).copy())
-    xs, xh, Ms, comps = [x], [state.xhat], [state.M], []
-    for k in range(K):
-        S, P = net.at(k)
-        Se = faults.effective(S, k, rng, runs) if faults is not None else np.broadcast_to(S, (runs,) + S.shape)
-        y = [x @ C.T + rng.standard_normal((runs, C.shape[0])) @ Vc[j].T for j, C in enumerate(model.C)]
-        state, _ = bw.fusion_step(model, state, y, Se, P)
-        w = (rng.standard_normal((runs, n)) @ Wc.T) if Wc is not None else \
-            rng.multivariate_normal(np.zeros(n), model.W, size=runs)
-        x = x @ model.A.T + model.B + w
-        xs.append(x)
-        xh.append(state.xhat)
-        Ms.append(state.M)
-        comps.append(bw.link_components(Se).mean(0))
-    budget = None if net.budget is None else np.asarray(net.budget)
-    comm = bw.CommLog(components=np.stack(comps) if comps else np.zeros((0, N, N)), budget=budget)
-    Mh = np.stack(Ms, 1) if faults is not None else np.stack([m[0] for m in Ms])
-    return SimResult(truth=np.stack(xs, 1), xhat=np.stack(xh, 1), M=Mh, comm=comm)
-
-
-
-N, n = 4, 3
-W_PAPER = np.diag([0.02, 0.05, 0.03])
-V_PAPER = np.diag([0.03, 0.04, 0.02])
-M0_PAPER = np.diag([0.19, 0.09, 0.08])
-X0_PAPER = np.array([10.0, 10.0, 10.0])
-VEL_PAPER = np.array([0.5, 0.5, 0.5])  # m/s
 BUDGET = [5, 5, 5, 5]
 HORIZON_S = 50.0
 READINGS = {"a_dt1": dict(dt=1.0, w_rate=False), "b_dt0.1": dict(dt=0.1, w_rate=True)}
@@ -134,12 +75,6 @@ P_SETS = {
                     [0.15, 0.05, 0.65, 0.15],
                     [0.05, 0.15, 0.15, 0.65]]),
 }
-
-
-def paper_model(dt: float, w_rate: bool) -> bw.NetworkModel:
-    """The paper's model for one reading: W per step (w_rate False) or W*dt (rate); B = v*dt."""
-    W = W_PAPER * dt if w_rate else W_PAPER
-    return bw.NetworkModel.create(A=np.eye(n), B=VEL_PAPER * dt, C=np.eye(n), W=W, V=V_PAPER, N=N)
 
 
 def _fmt_T(S: np.ndarray) -> str:
@@ -201,8 +136,6 @@ def run_case(model: bw.NetworkModel, S: np.ndarray, P: np.ndarray, K: int, runs:
 def _central_kf_rms(model: bw.NetworkModel) -> float:
     """RMS error (m) of the steady-state centralised Kalman one-step predictor using all nodes'
     measurements with full bandwidth: sqrt(tr P) of the discrete algebraic Riccati solution."""
-    from scipy.linalg import solve_discrete_are
-
     C = np.vstack(model.C)
     V = np.zeros((C.shape[0], C.shape[0]))
     o = 0
@@ -218,60 +151,52 @@ def _paired(a: dict, b: dict) -> tuple[float, float]:
     return float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size))
 
 
-def reproduce_paper(out_dir: pathlib.Path, runs: int, seed: int) -> dict:
-    """Run both readings, write table.md, table.csv, claims.json and plots/; return a summary dict."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir = pathlib.Path(out_dir)
-    (out_dir / "plots").mkdir(parents=True, exist_ok=True)
-    summary: dict = {"runs": runs, "seed": seed, "horizon_s": HORIZON_S, "readings": {}}
-    rows, claims = [], []
-    for r_idx, (rname, rd) in enumerate(READINGS.items()):
-        dt = rd["dt"]
-        K = int(round(HORIZON_S / dt))
-        model = paper_model(dt, rd["w_rate"])
-        rseed = int(np.random.SeedSequence([seed, r_idx]).generate_state(1)[0])
-        search_b = bw.search_selection(model, P_SETS["P1"], M0_PAPER, K, BUDGET, objective="bound")
-        search_e = bw.search_selection(model, P_SETS["P1"], M0_PAPER, K, BUDGET, objective="exact")
-        # rank of the paper's sets among all admissible ones
-        def rank(res, S):
-            idx = int(np.flatnonzero((res.candidates == S).all(axis=(1, 2, 3)))[0])
-            return int((res.all_J < res.all_J[idx]).sum()) + 1
-        cases = {("T1", "P1"): (T_SETS["T1"], P_SETS["P1"]), ("T2", "P1"): (T_SETS["T2"], P_SETS["P1"]),
-                 ("T3", "P1"): (T_SETS["T3"], P_SETS["P1"]), ("T1", "P2"): (T_SETS["T1"], P_SETS["P2"]),
-                 ("T1", "P3"): (T_SETS["T1"], P_SETS["P3"]),
-                 ("Tbest_bound", "P1"): (search_b.best, P_SETS["P1"]),
-                 ("Tbest_exact", "P1"): (search_e.best, P_SETS["P1"])}
-        res = {f"{t}+{p}": run_case(model, S, P, K, runs, rseed) for (t, p), (S, P) in cases.items()}
-        for key, r in res.items():
-            rows.append(dict(reading=rname, dt_s=dt, steps=K, case=key, J_emp=r["J_emp"],
-                             J_emp_ci95=1.96 * r["J_emp_se"], J_exact=r["J_exact"], J_bound=r["J_bound"],
-                             bound_over_exact=r["J_bound"] / r["J_exact"],
-                             max_final_tr_M=max(r["final_tr_M"]), max_final_tr_exact=max(r["final_tr_exact"]),
-                             rms_err_max_node_m=max(r["rms_node_m"]), mc_bound_violations=r["mc_violations"],
-                             bytes_recv_per_node_step=r["bytes_per_step_received"][0]))
-        rsum = {
-            "dt_s": dt, "steps": K, "W_per_step": np.diag(model.W).tolist(), "B_per_step": model.B.tolist(),
-            "centralised_kf_predictor_rms_m": _central_kf_rms(model),
-            "admissible_selection_sets": search_b.count,
-            "best_T_by_bound": _fmt_T(search_b.best), "best_T_by_bound_Jbound": search_b.best_J,
-            "best_T_by_exact": _fmt_T(search_e.best), "best_T_by_exact_J": search_e.best_J,
-            "rank_by_bound": {t: rank(search_b, T_SETS[t]) for t in T_SETS},
-            "rank_by_exact": {t: rank(search_e, T_SETS[t]) for t in T_SETS},
-            "cases": {k: {kk: vv for kk, vv in v.items() if not isinstance(vv, np.ndarray)} for k, v in res.items()},
-        }
-        summary["readings"][rname] = rsum
-        _plots(plt, out_dir / "plots", rname, dt, res)
-        claims += _claims(rname, res, rsum)
-    summary["claims"] = claims
-    _write_tables(out_dir, rows, summary)
-    (out_dir / "claims.json").write_text(json.dumps(claims, indent=2))
-    return summary
+def _rank(res: bw.SearchResult, S: np.ndarray) -> int:
+    """Rank (1 = best) of the selection set S among all admissible ones of a search."""
+    idx = int(np.flatnonzero((res.candidates == S).all(axis=(1, 2, 3)))[0])
+    return int((res.all_J < res.all_J[idx]).sum()) + 1
 
 
-def _claims(rname: str, res: dict, rsum: dict) -> list[dict]:
+def compute_reading(r_idx: int, rd: dict, runs: int, seed: int) -> dict:
+    """One reading of W: every (T, P) case (Monte Carlo + exact + bound) and the selection searches.
+    Returns {"dt", "steps", "res": {case: run_case(...)}, "summary": JSON-able numbers}."""
+    dt = rd["dt"]
+    K = int(round(HORIZON_S / dt))
+    model = paper_model(dt, rd["w_rate"])
+    rseed = int(np.random.SeedSequence([seed, r_idx]).generate_state(1)[0])
+    search_b = bw.search_selection(model, P_SETS["P1"], M0_PAPER, K, BUDGET, objective="bound")
+    search_e = bw.search_selection(model, P_SETS["P1"], M0_PAPER, K, BUDGET, objective="exact")
+    cases = {("T1", "P1"): (T_SETS["T1"], P_SETS["P1"]), ("T2", "P1"): (T_SETS["T2"], P_SETS["P1"]),
+             ("T3", "P1"): (T_SETS["T3"], P_SETS["P1"]), ("T1", "P2"): (T_SETS["T1"], P_SETS["P2"]),
+             ("T1", "P3"): (T_SETS["T1"], P_SETS["P3"]),
+             ("Tbest_bound", "P1"): (search_b.best, P_SETS["P1"]),
+             ("Tbest_exact", "P1"): (search_e.best, P_SETS["P1"])}
+    res = {f"{t}+{p}": run_case(model, S, P, K, runs, rseed) for (t, p), (S, P) in cases.items()}
+    summary = {
+        "dt_s": dt, "steps": K, "W_per_step": np.diag(model.W).tolist(), "B_per_step": model.B.tolist(),
+        "centralised_kf_predictor_rms_m": _central_kf_rms(model),
+        "admissible_selection_sets": search_b.count,
+        "best_T_by_bound": _fmt_T(search_b.best), "best_T_by_bound_Jbound": search_b.best_J,
+        "best_T_by_exact": _fmt_T(search_e.best), "best_T_by_exact_J": search_e.best_J,
+        "rank_by_bound": {t: _rank(search_b, T_SETS[t]) for t in T_SETS},
+        "rank_by_exact": {t: _rank(search_e, T_SETS[t]) for t in T_SETS},
+        "cases": {k: {kk: vv for kk, vv in v.items() if not isinstance(vv, np.ndarray)} for k, v in res.items()},
+    }
+    return {"dt": dt, "steps": K, "res": res, "summary": summary}
+
+
+def compute(runs: int, seed: int) -> dict[str, dict]:
+    """Both readings of W: {reading: compute_reading(...)}."""
+    return {rname: compute_reading(r_idx, rd, runs, seed) for r_idx, (rname, rd) in enumerate(READINGS.items())}
+
+
+def decide(readings: dict[str, dict]) -> list[Claim]:
+    """The paper's claims for every reading."""
+    return [c for rname, r in readings.items() for c in _claims(rname, r["res"], r["summary"])]
+
+
+def _claims(rname: str, res: dict, rsum: dict) -> list[Claim]:
+    ctx = {"mode": "paper", "reading": rname}
     out = []
     c = res["T1+P1"]
     # xhat_i(k+1) is a one-step *prediction* (eq. 7 uses data up to k), so its error contains the
@@ -282,152 +207,132 @@ def _claims(rname: str, res: dict, rsum: dict) -> list[dict]:
     rms_meas = float(np.sqrt(np.trace(V_PAPER)))
     rms_naive = float(np.sqrt(np.trace(V_PAPER) + W_step.sum()))
     bias_z = np.abs(np.array(c["bias_final_m"])) / np.array(c["bias_final_se_m"])
-    holds = bool(max(c["rms_node_m"]) < rms_naive and bias_z.max() < 4.0)
-    out.append(dict(reading=rname, claim="the fused estimates track the truth (T1, P1)", holds=holds,
-                    criterion="every node's time-averaged RMS error < RMS error of the naive one-step predictor "
-                              "y_i(k) + B, sqrt(tr V + tr W), and final-step mean error within 4 standard errors of 0",
-                    numbers=dict(rms_err_per_node_m=c["rms_node_m"], naive_predictor_rms_m=rms_naive,
-                                 raw_measurement_rms_m=rms_meas,
-                                 centralised_kf_predictor_rms_m=rsum["centralised_kf_predictor_rms_m"],
-                                 max_bias_z=float(bias_z.max()), node_spread_rms_m=c["node_spread_rms_m"],
-                                 distance_travelled_m=float(np.linalg.norm(VEL_PAPER) * HORIZON_S))))
+    out.append(Claim(id="track", context=ctx, text="the fused estimates track the truth (T1, P1)",
+                     holds=bool(max(c["rms_node_m"]) < rms_naive and bias_z.max() < 4.0),
+                     criterion="every node's time-averaged RMS error < RMS error of the naive one-step predictor "
+                               "y_i(k) + B, sqrt(tr V + tr W), and final-step mean error within 4 standard errors of 0",
+                     numbers=dict(rms_err_per_node_m=c["rms_node_m"], naive_predictor_rms_m=rms_naive,
+                                  raw_measurement_rms_m=rms_meas,
+                                  centralised_kf_predictor_rms_m=rsum["centralised_kf_predictor_rms_m"],
+                                  max_bias_z=float(bias_z.max()), node_spread_rms_m=c["node_spread_rms_m"],
+                                  distance_travelled_m=float(np.linalg.norm(VEL_PAPER) * HORIZON_S)),
+                     summary=f"node RMS {fmt_list(c['rms_node_m'])} m < {fmt(rms_naive)} m; max bias z "
+                             f"{fmt(bias_z.max())}"))
     pairs = {}
     for a, b in (("T1", "T2"), ("T1", "T3"), ("T2", "T3")):
         d, se = _paired(res[f"{a}+P1"], res[f"{b}+P1"])
         pairs[f"J({a})-J({b})"] = dict(diff=d, se=se, z=d / se,
                                        exact_diff=res[f"{a}+P1"]["J_exact"] - res[f"{b}+P1"]["J_exact"],
                                        bound_ratio=res[f"{a}+P1"]["J_bound"] / res[f"{b}+P1"]["J_bound"])
-    holds = any(abs(v["z"]) > Z_PAIR for v in pairs.values())
-    out.append(dict(reading=rname, claim="the selection set T changes J (T1, T2, T3 with P1)", holds=bool(holds),
-                    criterion=f"some paired Monte Carlo difference of J (eq. 12) exceeds {Z_PAIR} standard errors",
-                    numbers=dict(J_emp={t: res[f"{t}+P1"]["J_emp"] for t in T_SETS},
-                                 J_exact={t: res[f"{t}+P1"]["J_exact"] for t in T_SETS},
-                                 J_bound={t: res[f"{t}+P1"]["J_bound"] for t in T_SETS}, paired=pairs)))
+    out.append(Claim(id="T-changes-J", context=ctx, text="the selection set T changes J (T1, T2, T3 with P1)",
+                     holds=bool(any(abs(v["z"]) > Z_PAIR for v in pairs.values())),
+                     criterion=f"some paired Monte Carlo difference of J (eq. 12) exceeds {Z_PAIR} standard errors",
+                     numbers=dict(J_emp={t: res[f"{t}+P1"]["J_emp"] for t in T_SETS},
+                                  J_exact={t: res[f"{t}+P1"]["J_exact"] for t in T_SETS},
+                                  J_bound={t: res[f"{t}+P1"]["J_bound"] for t in T_SETS}, paired=pairs),
+                     summary="z " + ", ".join(f"{k} {fmt(v['z'])}" for k, v in pairs.items())))
     d12, s12 = _paired(res["T1+P1"], res["T1+P2"])
     d23, s23 = _paired(res["T1+P2"], res["T1+P3"])
-    holds = bool(d12 < -Z_PAIR * s12 and d23 < -Z_PAIR * s23)
     Jb = {p: res[f"T1+{p}"]["J_bound"] for p in P_SETS}
     Je = {p: res[f"T1+{p}"]["J_exact"] for p in P_SETS}
-    out.append(dict(reading=rname, claim="P1 gives lower J than P2, P2 lower than P3 (T1), J of eq. 12",
-                    holds=holds,
-                    criterion=f"paired differences J(P1)-J(P2) and J(P2)-J(P3) both below -{Z_PAIR} standard errors",
-                    numbers=dict(J_emp={p: res[f"T1+{p}"]["J_emp"] for p in P_SETS}, J_exact=Je,
-                                 paired={"J(P1)-J(P2)": [d12, s12], "J(P2)-J(P3)": [d23, s23]},
-                                 exact_order_holds=bool(Je["P1"] < Je["P2"] < Je["P3"]))))
-    out.append(dict(reading=rname, claim="P1 gives lower J than P2, P2 lower than P3 (T1), bound J of eq. 16",
-                    holds=bool(Jb["P1"] < Jb["P2"] < Jb["P3"]), criterion="deterministic J_bar ordering",
-                    numbers=dict(J_bound=Jb)))
+    out.append(Claim(id="P-order-J", context=ctx, text="P1 gives lower J than P2, P2 lower than P3 (T1), J of eq. 12",
+                     holds=bool(d12 < -Z_PAIR * s12 and d23 < -Z_PAIR * s23),
+                     criterion=f"paired differences J(P1)-J(P2) and J(P2)-J(P3) both below -{Z_PAIR} standard errors",
+                     numbers=dict(J_emp={p: res[f"T1+{p}"]["J_emp"] for p in P_SETS}, J_exact=Je,
+                                  paired={"J(P1)-J(P2)": [d12, s12], "J(P2)-J(P3)": [d23, s23]},
+                                  exact_order_holds=bool(Je["P1"] < Je["P2"] < Je["P3"])),
+                     summary=f"z {fmt(d12 / s12)}, {fmt(d23 / s23)}"))
+    out.append(Claim(id="P-order-bound", context=ctx,
+                     text="P1 gives lower J than P2, P2 lower than P3 (T1), bound J of eq. 16",
+                     holds=bool(Jb["P1"] < Jb["P2"] < Jb["P3"]), criterion="deterministic J_bar ordering",
+                     numbers=dict(J_bound=Jb), summary=f"J_bar {fmt_list(Jb.values())}"))
     worst_eig = min(v["exact_min_rel_eig"] for v in res.values())
     viol = sum(v["mc_violations"] for v in res.values())
     tests = sum(v["mc_tests"] for v in res.values())
-    holds = bool(worst_eig > -1e-9 and viol == 0)
-    out.append(dict(reading=rname, claim="M_i(k) bounds the true error covariance Sigma_i(k)", holds=holds,
-                    criterion="exact: smallest eigenvalue of M - Sigma >= -1e-9 * max eig M for every node, step, "
-                              "case; Monte Carlo: tr(empirical cov) <= tr M + z * sqrt(2 tr(S^2)/R), z Bonferroni "
-                              "over nodes and steps at 1 % per case",
-                    numbers=dict(min_rel_eig_M_minus_Sigma=worst_eig, mc_violations=viol, mc_tests=tests,
-                                 mc_worst_excess_sigma={k: v["mc_worst_excess_sigma"] for k, v in res.items()},
-                                 bound_over_exact={k: v["J_bound"] / v["J_exact"] for k, v in res.items()},
-                                 anees_with_exact_Sigma_frac_inside_99pct={k: v["anees_exact_frac_inside"]
-                                                                           for k, v in res.items()},
-                                 anees_with_M_median={k: v["anees_M_median"] for k, v in res.items()})))
+    out.append(Claim(id="M-bounds-Sigma", context=ctx, text="M_i(k) bounds the true error covariance Sigma_i(k)",
+                     holds=bool(worst_eig > -1e-9 and viol == 0),
+                     criterion="exact: smallest eigenvalue of M - Sigma >= -1e-9 * max eig M for every node, step, "
+                               "case; Monte Carlo: tr(empirical cov) <= tr M + z * sqrt(2 tr(S^2)/R), z Bonferroni "
+                               "over nodes and steps at 1 % per case",
+                     numbers=dict(min_rel_eig_M_minus_Sigma=worst_eig, mc_violations=viol, mc_tests=tests,
+                                  mc_worst_excess_sigma={k: v["mc_worst_excess_sigma"] for k, v in res.items()},
+                                  bound_over_exact={k: v["J_bound"] / v["J_exact"] for k, v in res.items()},
+                                  anees_with_exact_Sigma_frac_inside_99pct={k: v["anees_exact_frac_inside"]
+                                                                            for k, v in res.items()},
+                                  anees_with_M_median={k: v["anees_M_median"] for k, v in res.items()}),
+                     summary=f"min relative eigenvalue {fmt(worst_eig)}; {viol}/{tests} Monte Carlo violations"))
     Jx = {k: v["J_exact"] for k, v in res.items()}
-    holds = bool(Jx["Tbest_bound+P1"] <= min(Jx[f"{t}+P1"] for t in T_SETS))
-    out.append(dict(reading=rname, claim="searching T for the lowest bound gives a more accurate estimator than T1-T3",
-                    holds=holds, criterion="exact J (eq. 14) of the bound-optimal set <= exact J of T1, T2, T3 (P1)",
-                    numbers=dict(J_exact=Jx, admissible_sets=rsum["admissible_selection_sets"],
-                                 best_T_by_bound=rsum["best_T_by_bound"], best_T_by_exact=rsum["best_T_by_exact"],
-                                 rank_by_bound=rsum["rank_by_bound"], rank_by_exact=rsum["rank_by_exact"])))
+    out.append(Claim(id="search-beats-T1-T3", context=ctx,
+                     text="searching T for the lowest bound gives a more accurate estimator than T1-T3",
+                     holds=bool(Jx["Tbest_bound+P1"] <= min(Jx[f"{t}+P1"] for t in T_SETS)),
+                     criterion="exact J (eq. 14) of the bound-optimal set <= exact J of T1, T2, T3 (P1)",
+                     numbers=dict(J_exact=Jx, admissible_sets=rsum["admissible_selection_sets"],
+                                  best_T_by_bound=rsum["best_T_by_bound"], best_T_by_exact=rsum["best_T_by_exact"],
+                                  rank_by_bound=rsum["rank_by_bound"], rank_by_exact=rsum["rank_by_exact"]),
+                     summary=f"exact J {fmt(Jx['Tbest_bound+P1'])} vs T1-T3 "
+                             f"{fmt_list(Jx[f'{t}+P1'] for t in T_SETS)}"))
     return out
 
 
-def _write_tables(out_dir: pathlib.Path, rows: list[dict], summary: dict) -> None:
-    keys = list(rows[0].keys())
-    with open(out_dir / "table.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    lines = [f"# Seed 000 paper-mode reproduction ({summary['runs']} runs, seed {summary['seed']}, "
-             f"horizon {summary['horizon_s']:g} s)", "",
+def rows(readings: dict[str, dict]) -> list[dict]:
+    """table.csv rows: one per reading and case."""
+    out = []
+    for rname, r in readings.items():
+        for key, c in r["res"].items():
+            out.append(dict(reading=rname, dt_s=r["dt"], steps=r["steps"], case=key, J_emp=c["J_emp"],
+                            J_emp_ci95=1.96 * c["J_emp_se"], J_exact=c["J_exact"], J_bound=c["J_bound"],
+                            bound_over_exact=c["J_bound"] / c["J_exact"],
+                            max_final_tr_M=max(c["final_tr_M"]), max_final_tr_exact=max(c["final_tr_exact"]),
+                            rms_err_max_node_m=max(c["rms_node_m"]), mc_bound_violations=c["mc_violations"],
+                            bytes_recv_per_node_step=c["bytes_per_step_received"][0]))
+    return out
+
+
+def markdown(readings: dict[str, dict], claims: list[Claim], *, runs: int, seed: int) -> list[str]:
+    lines = [f"# Seed 000 paper-mode reproduction ({runs} runs, seed {seed}, horizon {fmt(HORIZON_S)} s)", "",
              "J_emp: Monte Carlo J of eq. 12 (CI95 half-width); J_exact: eq. 14 from the exact covariance; "
-             "J_bound: eq. 16.", "",
-             "| reading | dt s | steps | case | J_emp | ±CI95 | J_exact | J_bound | bound/exact | max node RMS m | MC bound viol. | bytes recv/node/step |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['reading']} | {r['dt_s']:g} | {r['steps']} | {r['case']} | {r['J_emp']:.4g} | "
-                     f"{r['J_emp_ci95']:.2g} | {r['J_exact']:.4g} | {r['J_bound']:.4g} | {r['bound_over_exact']:.3g} | "
-                     f"{r['rms_err_max_node_m']:.3f} | {r['mc_bound_violations']} | {r['bytes_recv_per_node_step']} |")
+             "J_bound: eq. 16.", ""]
+    lines += markdown_table(["reading", "dt s", "steps", "case", "J_emp", "±CI95", "J_exact", "J_bound", "bound/exact",
+                             "max node RMS m", "MC bound viol.", "bytes recv/node/step"],
+                            [[r["reading"], r["dt_s"], r["steps"], r["case"], r["J_emp"], fmt(r["J_emp_ci95"], 2),
+                              r["J_exact"], r["J_bound"], r["bound_over_exact"], r["rms_err_max_node_m"],
+                              r["mc_bound_violations"], r["bytes_recv_per_node_step"]] for r in rows(readings)])
     lines.append("")
-    for rname, rs in summary["readings"].items():
+    for rname, r in readings.items():
+        rs = r["summary"]
         lines += [f"## {rname}", f"- admissible selection sets: {rs['admissible_selection_sets']} (enumerated)",
-                  f"- best by bound J_bar = {rs['best_T_by_bound_Jbound']:.4g}: {rs['best_T_by_bound']}",
-                  f"- best by exact J = {rs['best_T_by_exact_J']:.4g}: {rs['best_T_by_exact']}",
+                  f"- best by bound J_bar = {fmt(rs['best_T_by_bound_Jbound'])}: {rs['best_T_by_bound']}",
+                  f"- best by exact J = {fmt(rs['best_T_by_exact_J'])}: {rs['best_T_by_exact']}",
                   f"- ranks of T1-T3 among all sets, by bound: {rs['rank_by_bound']}, by exact J: {rs['rank_by_exact']}",
                   ""]
-    lines += ["## Claims", ""]
-    for c in summary["claims"]:
-        lines.append(f"- [{c['reading']}] {c['claim']}: **{'holds' if c['holds'] else 'does not hold'}**")
-    (out_dir / "table.md").write_text("\n".join(lines) + "\n")
+    return lines + claims_section(claims)
 
 
-def _plots(plt, pdir: pathlib.Path, rname: str, dt: float, res: dict) -> None:
-    c = res["T1+P1"]
-    t = np.arange(c["truth0"].shape[0]) * dt
-    fig, axs = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
-    for a, ax in enumerate(axs):
-        ax.plot(t, c["truth0"][:, a], "k-", lw=2, label="truth")
-        for i in range(N):
-            ax.plot(t, c["xhat0"][:, i, a], lw=0.8, label=f"UAV {i + 1}")
-        ax.set_ylabel(f"{'xyz'[a]} [m]")
-    axs[0].legend(ncol=5, fontsize=7)
-    axs[-1].set_xlabel("t [s]")
-    fig.suptitle(f"Fig. 2 analogue, T1 P1, reading {rname} (run 0)")
-    fig.tight_layout()
-    fig.savefig(pdir / f"{rname}_fig2_tracking.png", dpi=110)
-    plt.close(fig)
-    for name, keys in (("fig3_J_vs_T", ["T1+P1", "T2+P1", "T3+P1", "Tbest_bound+P1", "Tbest_exact+P1"]),
-                       ("fig4_J_vs_P", ["T1+P1", "T1+P2", "T1+P3"])):
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-        for k in keys:
-            (ln,) = a1.plot(t, res[k]["cum_emp"], label=f"{k} MC")
-            a1.plot(t, res[k]["cum_exact"], "--", color=ln.get_color(), lw=0.8)
-            a2.semilogy(t, res[k]["cum_bound"], color=ln.get_color(), label=k)
-        a1.set_title("J(k), eq. 12: Monte Carlo (solid), exact (dashed)")
-        a2.set_title("bound J_bar(k), eq. 16")
-        for ax in (a1, a2):
-            ax.set_xlabel("t [s]")
-            ax.legend(fontsize=7)
-        fig.suptitle(f"{name.replace('_', ' ')}, reading {rname}")
-        fig.tight_layout()
-        fig.savefig(pdir / f"{rname}_{name}.png", dpi=110)
-        plt.close(fig)
-    fig, axs = plt.subplots(1, N, figsize=(14, 3.5), sharey=True)
-    for i, ax in enumerate(axs):
-        ax.semilogy(t, c["tr_M"][:, i], label="tr M_i")
-        ax.semilogy(t, c["tr_Sig"][:, i], "--", label="tr Sigma_i exact")
-        ax.semilogy(t, c["tr_emp"][:, i], ":", label="tr Sigma_i MC")
-        ax.set_title(f"UAV {i + 1}")
-        ax.set_xlabel("t [s]")
-    axs[0].legend(fontsize=7)
-    fig.suptitle(f"bound vs true error covariance, T1 P1, reading {rname}")
-    fig.tight_layout()
-    fig.savefig(pdir / f"{rname}_bound_vs_cov.png", dpi=110)
-    plt.close(fig)
+def write_plots(pdir: Path, readings: dict[str, dict]) -> None:
+    for rname, r in readings.items():
+        res, c = r["res"], r["res"]["T1+P1"]
+        t = np.arange(c["truth0"].shape[0]) * r["dt"]
+        bplots.tracking(pdir / f"{rname}_fig2_tracking.png", t, c["truth0"], c["xhat0"],
+                        f"Fig. 2 analogue, T1 P1, reading {rname} (run 0)")
+        for name, keys in (("fig3_J_vs_T", ["T1+P1", "T2+P1", "T3+P1", "Tbest_bound+P1", "Tbest_exact+P1"]),
+                           ("fig4_J_vs_P", ["T1+P1", "T1+P2", "T1+P3"])):
+            bplots.cumulative_J(pdir / f"{rname}_{name}.png", t, res, keys,
+                                emp_title="J(k), eq. 12: Monte Carlo (solid), exact (dashed)",
+                                bound_title="bound J_bar(k), eq. 16",
+                                suptitle=f"{name.replace('_', ' ')}, reading {rname}")
+        bplots.bound_vs_cov(pdir / f"{rname}_bound_vs_cov.png", t,
+                            [("tr M_i", "-", c["tr_M"]), ("tr Sigma_i exact", "--", c["tr_Sig"]),
+                             ("tr Sigma_i MC", ":", c["tr_emp"])],
+                            f"bound vs true error covariance, T1 P1, reading {rname}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("out_dir", type=pathlib.Path)
-    ap.add_argument("--runs", type=int, default=500)
-    ap.add_argument("--seed", type=int, default=0)
-    a = ap.parse_args(argv)
-    if a.runs < 2:
-        print("error: --runs must be >= 2", file=sys.stderr)
-        return 2
-    reproduce_paper(a.out_dir, a.runs, a.seed)
-    print((a.out_dir / "table.md").read_text())
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+def write(out_dir: Path, readings: dict[str, dict], claims: list[Claim], *, runs: int, seed: int) -> dict:
+    """paper/: table.md, table.csv, claims.json, plots/; returns claims.json's content."""
+    out_dir = Path(out_dir)
+    (out_dir / "plots").mkdir(parents=True, exist_ok=True)
+    write_plots(out_dir / "plots", readings)
+    table = rows(readings)
+    write_csv(out_dir / "table.csv", list(table[0]), [list(r.values()) for r in table])
+    write_markdown(out_dir / "table.md", markdown(readings, claims, runs=runs, seed=seed))
+    return write_claims(out_dir / "claims.json", claims, paper="000", mode="paper", runs=runs, seed=seed,
+                        horizon_s=HORIZON_S)

@@ -1,7 +1,8 @@
 """`testbed reproduce coop`: seed 001 (Chen et al. 2020), factor-graph cooperative navigation.
 
 Runs scenario `coop-fg` (18 UAVs, 3 RTK, GNSS + UWB, 1 Hz epochs, 300 s) over `runs` seeds with
-testbed.sweep (run i: seed 1 + i, one full run directory each under OUT/runs/), then writes:
+testbed.sweep (run i: seed 1 + i, the scenario's seed + i, in OUT/runs/run-XXX; testbed.reproduce.runs),
+then writes:
 - Table 3: mean number of UWB neighbours and RTK neighbours per UAV (over the epochs of run 0; the
   geometry is the same in every run, only the noise changes);
 - Table 4: per-UAV RMSE of GNSS only, one optimization, message iteration and the centralized
@@ -10,7 +11,7 @@ testbed.sweep (run i: seed 1 + i, one full run directory each under OUT/runs/), 
 - figure 6 (plots/fig6_error_vs_time.png): position error against time in run 0 for four SPP
   UAVs chosen like the paper's UAVs 1, 7, 12, 13 (testbed.pipelines.coop.choose_four: different
   neighbour counts);
-- table.md, table.csv, claims.json (each claim with its numbers and `holds`).
+- table.md, table.csv, claims.json (each claim with its numbers and `holds`; testbed.report).
 Also: the GTSAM check of the centralized solution (every epoch of run 0), the effect of the round
 cap (the first `CAP_EPOCHS` epochs of run 0 re-solved with CAP_LARGE rounds) and, if obstacles are
 enabled (default), a one-run NLOS experiment: pillars in the box, least squares vs Huber.
@@ -23,25 +24,29 @@ claim). Rank correlations: scipy.stats.spearmanr, one-sided, alpha = 0.05, over 
 Round cap: the paper's scheme needs hundreds of rounds per epoch (seeded run: median ~230, 36 %
 of the epochs reach 300); the scenario caps them at pipeline.max_rounds = 300 with tol = 1 mm. The
 reproduction measures what the cap costs (claims.json `cap_effect`).
+
+Shape (as every reproduction): `compute` (runs -> `CoopResults`), `decide` (numbers -> claims),
+`write` (files through testbed.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
-import csv
-import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.stats import spearmanr
 
+from estimators.factor_graph import CoopProblem, solve_centralized
 from testbed.config import from_dict, to_dict
 from testbed.log import load_log
 from testbed.metrics import anees_interval, mean_ci, paired_test
 from testbed.pipelines import coop
 from testbed.plots import compare_bars
-from testbed.runner import write_json
+from testbed.report import Claim, Undefined, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, \
+    write_markdown
+from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 from testbed.scenario import Scenario, load
-from testbed.sweep import sweep
+from testbed.simulate import simulate
 
 VARIANTS = ("gnss_only", "one_shot", "iterated", "centralized")
 PAPER_UAVS = (1, 7, 12, 13)
@@ -74,13 +79,14 @@ def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
         t = paired_test(a[:, i], b[:, i]) if runs > 1 else None
         ok = bool(pa[i] < pb[i]) if t is None else bool(t["mean_diff"] < 0 and t["p_one_sided"] < alpha)
         per.append({"uav": i + 1, "rmse_a_m": float(pa[i]), "rmse_b_m": float(pb[i]), "factor": float(pb[i] / pa[i]),
-                    "p_one_sided": None if t is None else t["p_one_sided"], "better": ok})
+                    "p_one_sided": Undefined("1 run: no paired test") if t is None else t["p_one_sided"],
+                    "better": ok})
     return {"per_uav": per, "uavs_better": int(sum(p["better"] for p in per)), "uavs": n}
 
 
 def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
     """Centralized solution and marginals vs GTSAM on every epoch of a run."""
-    from estimators.factor_graph import CoopProblem, solve_centralized
+    # lazy: GTSAM is a heavy optional dependency, loaded only for this check
     from estimators.gtsam_reference import solve_gtsam
 
     Sg = coop.gnss_covariances(cfg, ep.is_rtk)
@@ -127,8 +133,6 @@ def _cap_effect(cfg, ep: coop.Epochs, seed: int, est: coop.CoopEstimates) -> dic
 
 def _nlos_experiment(scenario: Scenario, seed: int) -> dict:
     """One run with pillars in the box: NLOS ranges from mj_ray; least squares vs Huber."""
-    from testbed.simulate import simulate
-
     table = to_dict(scenario)
     table["world"]["obstacles"] = [dict(o) for o in NLOS_OBSTACLES]
     table["duration"] = min(NLOS_DURATION, scenario.duration)
@@ -147,174 +151,228 @@ def _nlos_experiment(scenario: Scenario, seed: int) -> dict:
     return out
 
 
-def _rank_claim(claim_id: str, what: str, rho, counts: np.ndarray, factors: np.ndarray) -> dict:
+def _rank_claim(claim_id: str, what: str, rho, counts: np.ndarray, factors: np.ndarray) -> Claim:
     """Claim "the improvement grows with the number of <what>": one-sided Spearman rank
     correlation rho (scipy result) of the iterated improvement factors with the counts, over the
     SPP UAVs, at ALPHA_RANK."""
-    return {"id": claim_id, "paper": f"the improvement grows with the number of {what}",
-            "numbers": {"spearman_rho": float(rho.statistic), "p_one_sided": float(rho.pvalue),
-                        "uavs": int(counts.size), what.lower().replace(" ", "_"): [float(x) for x in counts],
-                        "factor_iterated": [float(x) for x in factors]},
-            "test": f"Spearman rank correlation over the SPP UAVs, one-sided, alpha = {ALPHA_RANK}",
-            "holds": bool(rho.statistic > 0 and rho.pvalue < ALPHA_RANK)}
+    return Claim(id=claim_id, text=f"the improvement grows with the number of {what}",
+                 numbers={"spearman_rho": float(rho.statistic), "p_one_sided": float(rho.pvalue),
+                          "uavs": int(counts.size), what.lower().replace(" ", "_"): [float(x) for x in counts],
+                          "factor_iterated": [float(x) for x in factors]},
+                 criterion=f"Spearman rank correlation over the SPP UAVs, one-sided, alpha = {ALPHA_RANK}",
+                 holds=bool(rho.statistic > 0 and rho.pvalue < ALPHA_RANK),
+                 summary=f"rho = {fmt(rho.statistic)}, p = {fmt(rho.pvalue)}")
 
 
-def _fmt(x: float, nd: int = 3) -> str:
-    return f"{x:.{nd}f}"
+@dataclass(frozen=True, kw_only=True, slots=True)
+class CoopResults:
+    """What the runs gave (compute's output, decide's and write's input).
+
+    rmse: {variant: (runs, N) m} per-run per-UAV RMSE; metrics: metrics.json of every run; epochs,
+    est0: run 0's epochs and estimates; neighbours, rtk_neighbours: (N,) mean counts over run 0;
+    four: the figure 6 UAVs (1-based); gtsam, cap: the GTSAM check and the round-cap effect (run 0);
+    nlos: the NLOS experiment or None.
+    """
+
+    scenario: Scenario
+    motion: str
+    runs: int
+    metrics: list[dict]
+    rmse: dict[str, np.ndarray]
+    epochs: coop.Epochs
+    est0: coop.CoopEstimates
+    neighbours: np.ndarray
+    rtk_neighbours: np.ndarray
+    four: list[int]
+    gtsam: dict
+    cap: dict
+    nlos: dict | None
+
+    @property
+    def pooled(self) -> dict[str, np.ndarray]:
+        """{variant: (N,) m} RMSE pooled over runs."""
+        return {w: _pooled(self.rmse[w]) for w in VARIANTS}
+
+    @property
+    def factor(self) -> dict[str, np.ndarray]:
+        """{variant: (N,)} improvement factor RMSE_gnss / RMSE_variant (pooled), variants after GNSS."""
+        p = self.pooled
+        return {w: p["gnss_only"] / p[w] for w in VARIANTS[1:]}
+
+    @property
+    def spp(self) -> np.ndarray:
+        return ~self.epochs.is_rtk
 
 
-def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
-              workers: int | None = None, nlos: bool = True) -> dict:
-    """Seed 001 reproduction into `out` (see the module docstring); returns the claims summary."""
-    out = Path(out)
+def compute(out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None,
+            nlos: bool) -> CoopResults:
+    """The Monte Carlo (OUT/runs/run-XXX) and the run-0 analyses (GTSAM check, cap effect, NLOS)."""
     scenario = load("coop-fg", motion=motion, duration=duration)
     cfg = scenario.pipeline
-    sweep(scenario, runs, out / "runs", workers=workers, force=True, progress=False)
-    run_dirs = [out / "runs" / f"run-{i:03d}" for i in range(runs)]
-    metrics = [json.loads((d / "metrics.json").read_text()) for d in run_dirs]
-    R = {w: np.array([m["estimators"][w]["rmse_position_m"] for m in metrics]) for w in VARIANTS}
-    pooled = {w: _pooled(R[w]) for w in VARIANTS}
-    n = R["gnss_only"].shape[1]
-
+    run_dirs = sweep_runs(scenario, runs, out / "runs", workers=workers)
+    metrics = load_metrics(run_dirs)
     # run 0 again, for the geometry (Table 3), figure 6, the GTSAM check and the cap effect
     ep = coop.epochs_from_log(load_log(run_dirs[0]), scenario.vehicles)
     nb, nr = coop.neighbour_counts(ep)
-    spp = ~ep.is_rtk
-    four = list(cfg.plot_uavs) or coop.choose_four(ep)
     est0 = coop.estimate(cfg, ep, scenario.seed)
-    (out / "plots").mkdir(exist_ok=True)
-    coop.plot_error_vs_time(est0, four, out / "plots" / "fig6_error_vs_time.png",
-                            f"Figure 6 (run 0, seed {scenario.seed}): position error, UAVs {four}")
-    stats = [mean_ci(R[w].mean(axis=1)) for w in VARIANTS]
-    compare_bars(list(VARIANTS), np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
-                 np.array([s[2] for s in stats]), out / "plots" / "rmse_mean.png",
-                 title=f"Mean per-UAV RMSE over {runs} runs (95 % CI)", ylabel="RMSE [m]")
+    return CoopResults(
+        scenario=scenario, motion=motion, runs=runs, metrics=metrics,
+        rmse={w: np.array([m["estimators"][w]["rmse_position_m"] for m in metrics]) for w in VARIANTS},
+        epochs=ep, est0=est0, neighbours=nb, rtk_neighbours=nr, four=list(cfg.plot_uavs) or coop.choose_four(ep),
+        gtsam=_gtsam_check(cfg, ep), cap=_cap_effect(cfg, ep, scenario.seed, est0),
+        nlos=_nlos_experiment(scenario, scenario.seed) if nlos else None)
 
-    # ------------------------------------------------------------------------------- tables
-    factor = {w: pooled["gnss_only"] / pooled[w] for w in VARIANTS[1:]}
-    header = ["uav", "rtk", "neighbours", "rtk_neighbours", "rmse_gnss_m", "rmse_one_shot_m", "rmse_iterated_m",
-              "rmse_centralized_m", "factor_one_shot", "factor_iterated", "factor_centralized"]
-    rows = [[i + 1, bool(ep.is_rtk[i]), nb[i], nr[i], pooled["gnss_only"][i], pooled["one_shot"][i],
-             pooled["iterated"][i], pooled["centralized"][i], factor["one_shot"][i], factor["iterated"][i],
-             factor["centralized"][i]] for i in range(n)]
-    with open(out / "table.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        for r in rows:
-            w.writerow([r[0], int(r[1])] + [repr(float(x)) for x in r[2:]])
-    md = [f"# Seed 001 reproduction: coop-fg, {motion}, {runs} run(s) of {scenario.duration:g} s "
-          f"({ep.time.size} epochs each), seeds {scenario.seed}..{scenario.seed + runs - 1}", "",
-          "## Table 3: neighbours per UAV (mean over the epochs of run 0; UWB/data link within 100 m)", "",
-          "| UAV | RTK | neighbours | RTK neighbours |", "|---|---|---|---|"]
-    md += [f"| {r[0]} | {'yes' if r[1] else ''} | {r[2]:.2f} | {r[3]:.2f} |" for r in rows]
-    md += ["", "## Table 4: position RMSE per UAV (m, pooled over runs) and improvement factor over GNSS only", "",
-           "| UAV | GNSS only | one optimization | message iteration | centralized | x one | x iter | x central |",
-           "|---|---|---|---|---|---|---|---|"]
-    md += [f"| {r[0]}{' (RTK)' if r[1] else ''} | {_fmt(r[4])} | {_fmt(r[5])} | {_fmt(r[6])} | {_fmt(r[7])} | "
-           f"{r[8]:.2f} | {r[9]:.2f} | {r[10]:.2f} |" for r in rows]
-    mean_row = [float(np.mean(pooled[w])) for w in VARIANTS]
-    md += [f"| mean | {' | '.join(_fmt(x) for x in mean_row)} | | | |", ""]
-    agg = {w: metrics[0]["estimators"][w] for w in VARIANTS}
-    md += ["Run 0: " + "; ".join(f"{w}: {agg[w]['iterations_mean']:.1f} iterations/epoch, "
-                                   f"{agg[w]['messages_per_epoch']:.0f} messages/epoch, ANEES {agg[w]['anees']:.2f}"
-                                   for w in VARIANTS), ""]
 
-    # ------------------------------------------------------------------------------- claims
+def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str,
+                  note: str = "") -> Claim:
+    return Claim(id=claim_id, text=text, numbers={"uavs_better": c["uavs_better"], "uavs": c["uavs"], **numbers,
+                                                  "per_uav": c["per_uav"]},
+                 criterion=test_note, holds=c["uavs_better"] == c["uavs"], summary=summary, note=note)
+
+
+def decide(res: CoopResults) -> list[Claim]:
+    """The paper's claims (and the testbed's own) from the numbers, with the module's criteria."""
+    R, pooled, spp, runs = res.rmse, res.pooled, res.spp, res.runs
+    n = R["gnss_only"].shape[1]
     alpha = 0.01 / n
+    mean_row = [float(np.mean(pooled[w])) for w in VARIANTS]
     c_every = _better(R["iterated"], R["gnss_only"], alpha)
-    c_every_spp = sum(p["better"] for p, s in zip(c_every["per_uav"], spp) if s)
+    c_every_spp = int(sum(p["better"] for p, s in zip(c_every["per_uav"], spp) if s))
     c_one = _better(R["one_shot"], R["gnss_only"], alpha)
     c_iter = _better(R["iterated"], R["one_shot"], alpha)
-    fac = factor["iterated"]
+    fac = res.factor["iterated"]
+    nb, nr = res.neighbours, res.rtk_neighbours
     rho_n = spearmanr(nb[spp], fac[spp], alternative="greater")
     rho_r = spearmanr(nr[spp], fac[spp], alternative="greater")
+    four = res.four
     f4 = [float(fac[u - 1]) for u in four]
     lo_o, hi_o = min(PAPER_FACTORS) / ORDER_SLACK, max(PAPER_FACTORS) * ORDER_SLACK
-    gt = _gtsam_check(cfg, ep)
-    cap = _cap_effect(cfg, ep, scenario.seed, est0)
-    cen = metrics[0]["estimators"]["centralized"]
-    it = metrics[0]["estimators"]["iterated"]
-    anees_it = float(np.mean([m["estimators"]["iterated"]["anees_spp"] for m in metrics]))
-    anees_c = float(np.mean([m["estimators"]["centralized"]["anees_spp"] for m in metrics]))
-    jn = float(np.mean([m["estimators"]["centralized"]["anees_joint"] for m in metrics]))
-    K = ep.time.size
+    gt = res.gtsam
+    est = [m["estimators"] for m in res.metrics]
+    anees_it = float(np.mean([e["iterated"]["anees_spp"] for e in est]))
+    anees_c = float(np.mean([e["centralized"]["anees_spp"] for e in est]))
+    jn = float(np.mean([e["centralized"]["anees_joint"] for e in est]))
+    K = res.epochs.time.size
     jlo, jhi = anees_interval(3 * n, K * runs)
     hi3 = anees_interval(3, K * runs * int(spp.sum()))[1]
     test_note = (f"paired one-sided t test over {runs} runs, alpha = 0.01/{n}" if runs > 1
                  else "1 run: decided on the point values, no test")
-    claims = [
-        {"id": "cooperation_improves_every_uav",
-         "paper": "cooperation improves the positioning of every UAV",
-         "numbers": {"uavs_better": c_every["uavs_better"], "uavs": n, "spp_uavs_better": int(c_every_spp),
-                     "spp_uavs": int(spp.sum()), "per_uav": c_every["per_uav"]},
-         "test": test_note, "holds": c_every["uavs_better"] == n,
-         "note": "iterated vs GNSS only; RTK UAVs (2-3 cm fixes) gain little from 10 cm ranges to SPP neighbours"},
-        {"id": "one_optimization_helps",
-         "paper": "one optimization without message iteration already improves the accuracy",
-         "numbers": {"uavs_better": c_one["uavs_better"], "uavs": n, "mean_rmse_gnss_m": mean_row[0],
-                     "mean_rmse_one_shot_m": mean_row[1], "per_uav": c_one["per_uav"]},
-         "test": test_note, "holds": c_one["uavs_better"] == n},
-        {"id": "iteration_helps_more",
-         "paper": "message iteration improves further over one optimization",
-         "numbers": {"uavs_better": c_iter["uavs_better"], "uavs": n, "mean_rmse_one_shot_m": mean_row[1],
-                     "mean_rmse_iterated_m": mean_row[2], "per_uav": c_iter["per_uav"]},
-         "test": test_note, "holds": c_iter["uavs_better"] == n},
+    return [
+        _better_claim("cooperation_improves_every_uav", "cooperation improves the positioning of every UAV", c_every,
+                      {"spp_uavs_better": c_every_spp, "spp_uavs": int(spp.sum())}, test_note,
+                      f"{c_every['uavs_better']}/{n} UAVs better than GNSS only ({c_every_spp}/{int(spp.sum())} SPP)",
+                      note="iterated vs GNSS only; RTK UAVs (2-3 cm fixes) gain little from 10 cm ranges to SPP "
+                           "neighbours"),
+        _better_claim("one_optimization_helps", "one optimization without message iteration already improves the "
+                      "accuracy", c_one, {"mean_rmse_gnss_m": mean_row[0], "mean_rmse_one_shot_m": mean_row[1]},
+                      test_note, f"{c_one['uavs_better']}/{n} UAVs; mean {fmt(mean_row[0])} -> {fmt(mean_row[1])} m"),
+        _better_claim("iteration_helps_more", "message iteration improves further over one optimization", c_iter,
+                      {"mean_rmse_one_shot_m": mean_row[1], "mean_rmse_iterated_m": mean_row[2]}, test_note,
+                      f"{c_iter['uavs_better']}/{n} UAVs; mean {fmt(mean_row[1])} -> {fmt(mean_row[2])} m"),
         _rank_claim("improvement_grows_with_neighbours", "neighbours", rho_n, nb[spp], fac[spp]),
         _rank_claim("improvement_grows_with_rtk_neighbours", "RTK neighbours", rho_r, nr[spp], fac[spp]),
-        {"id": "improvement_factors_3_to_7",
-         "paper": "after iteration the RMSE of UAVs 1, 7, 12, 13 fell 3.37x, 4.53x, 7.38x, 6.35x",
-         "numbers": {"uavs": four, "neighbours": [float(nb[u - 1]) for u in four],
-                     "rtk_neighbours": [float(nr[u - 1]) for u in four], "factors": f4,
-                     "paper_uavs": list(PAPER_UAVS), "paper_factors": list(PAPER_FACTORS),
-                     "accepted_range": [lo_o, hi_o]},
-         "test": f"every factor within [min/{ORDER_SLACK}, max*{ORDER_SLACK}] of the paper's 3.37-7.38",
-         "holds": bool(all(lo_o <= f <= hi_o for f in f4))},
-        {"id": "centralized_equals_gtsam",
-         "paper": "(testbed) our centralized Gauss-Newton equals GTSAM's on the same graph",
-         "numbers": gt, "test": gt["criterion"], "holds": gt["holds"]},
-        {"id": "distributed_covariance_overconfident",
-         "paper": "(SPEC open question) re-using neighbours' estimates makes the distributed covariance over-confident",
-         "numbers": {"anees_spp_iterated": anees_it, "anees_spp_centralized": anees_c,
-                     "anees_joint_centralized": jn, "joint_dof": 3 * n,
-                     "interval_99_upper_3dof": hi3, "joint_interval_99": [jlo, jhi],
-                     "anees_iterated_run0": it["anees"], "anees_centralized_run0": cen["anees"]},
-         "test": "iterated ANEES (3 dof, SPP UAVs) above the upper end of the 99 % interval of a consistent "
-                 "estimator (samples taken as independent) while the centralized joint ANEES (54 dof, independent "
-                 "epochs) is inside its 99 % interval",
-         "holds": bool(anees_it > hi3 and jlo <= jn <= jhi)},
+        Claim(id="improvement_factors_3_to_7",
+              text="after iteration the RMSE of UAVs 1, 7, 12, 13 fell 3.37x, 4.53x, 7.38x, 6.35x",
+              numbers={"uavs": four, "neighbours": [float(nb[u - 1]) for u in four],
+                       "rtk_neighbours": [float(nr[u - 1]) for u in four], "factors": f4,
+                       "paper_uavs": list(PAPER_UAVS), "paper_factors": list(PAPER_FACTORS),
+                       "accepted_range": [lo_o, hi_o]},
+              criterion=f"every factor within [min/{ORDER_SLACK}, max*{ORDER_SLACK}] of the paper's 3.37-7.38",
+              holds=bool(all(lo_o <= f <= hi_o for f in f4)),
+              summary=f"UAVs {four}: {fmt_list(f4)}x (paper {fmt_list(PAPER_FACTORS)}; accepted "
+                      f"{fmt(lo_o)}-{fmt(hi_o)})"),
+        Claim(id="centralized_equals_gtsam",
+              text="(testbed) our centralized Gauss-Newton equals GTSAM's on the same graph",
+              numbers=gt, criterion=gt["criterion"], holds=gt["holds"],
+              summary=f"max |dx| {fmt(gt['max_position_diff_m'])} m, max cov rel diff {fmt(gt['max_cov_rel_diff'])} "
+                      f"({gt['epochs']} epochs)"),
+        Claim(id="distributed_covariance_overconfident",
+              text="(SPEC open question) re-using neighbours' estimates makes the distributed covariance "
+                   "over-confident",
+              numbers={"anees_spp_iterated": anees_it, "anees_spp_centralized": anees_c,
+                       "anees_joint_centralized": jn, "joint_dof": 3 * n,
+                       "interval_99_upper_3dof": hi3, "joint_interval_99": [jlo, jhi],
+                       "anees_iterated_run0": est[0]["iterated"]["anees"],
+                       "anees_centralized_run0": est[0]["centralized"]["anees"]},
+              criterion="iterated ANEES (3 dof, SPP UAVs) above the upper end of the 99 % interval of a consistent "
+                        "estimator (samples taken as independent) while the centralized joint ANEES (54 dof, "
+                        "independent epochs) is inside its 99 % interval",
+              holds=bool(anees_it > hi3 and jlo <= jn <= jhi),
+              summary=f"ANEES iterated {fmt(anees_it)} vs centralized {fmt(anees_c)} (3 dof); joint {fmt(jn)} in "
+                      f"({fmt(jlo)}, {fmt(jhi)})"),
     ]
-    extra = {"cap_effect": cap}
-    if nlos:
-        extra["nlos_experiment"] = _nlos_experiment(scenario, scenario.seed)
-    gap = float(np.mean(pooled["iterated"][spp] / pooled["centralized"][spp]))
-    extra["iterated_over_centralized_rmse_spp_mean_ratio"] = gap
 
-    md += ["## Claims", "", "| claim | numbers | holds |", "|---|---|---|"]
-    short = {
-        "cooperation_improves_every_uav": f"{c_every['uavs_better']}/{n} UAVs better than GNSS only ({c_every_spp}/{int(spp.sum())} SPP)",
-        "one_optimization_helps": f"{c_one['uavs_better']}/{n} UAVs; mean {mean_row[0]:.3f} -> {mean_row[1]:.3f} m",
-        "iteration_helps_more": f"{c_iter['uavs_better']}/{n} UAVs; mean {mean_row[1]:.3f} -> {mean_row[2]:.3f} m",
-        "improvement_grows_with_neighbours": f"rho = {rho_n.statistic:.2f}, p = {rho_n.pvalue:.3g}",
-        "improvement_grows_with_rtk_neighbours": f"rho = {rho_r.statistic:.2f}, p = {rho_r.pvalue:.3g}",
-        "improvement_factors_3_to_7": f"UAVs {four}: " + ", ".join(f"{f:.2f}x" for f in f4) + f" (paper 3.37, 4.53, 7.38, 6.35; accepted {lo_o:.2f}-{hi_o:.2f})",
-        "centralized_equals_gtsam": f"max |dx| {gt['max_position_diff_m']:.1e} m, max cov rel diff {gt['max_cov_rel_diff']:.1e} ({gt['epochs']} epochs)",
-        "distributed_covariance_overconfident": f"ANEES iterated {anees_it:.1f} vs centralized {anees_c:.2f} (3 dof); joint {jn:.1f} in ({jlo:.1f}, {jhi:.1f})",
-    }
-    md += [f"| {c['id']} | {short[c['id']]} | {c['holds']} |" for c in claims]
-    md += ["", f"Round cap: {cap['cap']} rounds, tol {cap['tol_m'] * 1e3:g} mm: {100 * cap['capped_fraction']:.0f} % of the first "
-           f"{cap['epochs']} epochs hit the cap; with {cap['large_cap']} rounds they need {cap['rounds_large_mean']:.0f} on average "
-           f"(max {cap['rounds_large_max']}); SPP RMSE {cap['rmse_spp_capped_m']:.3f} m (capped) vs {cap['rmse_spp_large_m']:.3f} m "
-           f"(uncapped) vs centralized {cap['rmse_spp_centralized_m']:.3f} m; largest position change {cap['max_position_change_m']:.3f} m."]
-    if nlos:
-        nx = extra["nlos_experiment"]
-        md += ["", f"NLOS experiment ({nx['duration_s']:g} s, 3 pillars): {100 * nx['nlos_fraction']:.1f} % NLOS ranges, mean NLOS range "
-               f"error {nx['nlos_error_mean_m']:.2f} m. SPP mean RMSE least squares / Huber: iterated "
-               f"{nx['none']['iterated']['rmse_position_spp_mean_m']:.3f} / {nx['huber']['iterated']['rmse_position_spp_mean_m']:.3f} m, "
-               f"centralized {nx['none']['centralized']['rmse_position_spp_mean_m']:.3f} / "
-               f"{nx['huber']['centralized']['rmse_position_spp_mean_m']:.3f} m (GNSS only {nx['none']['gnss_only']['rmse_position_spp_mean_m']:.3f} m)."]
-    (out / "table.md").write_text("\n".join(md) + "\n")
-    summary = {"paper": "001", "scenario": scenario.name, "motion": motion, "runs": runs,
-               "seeds": [scenario.seed + i for i in range(runs)], "epochs_per_run": int(K),
-               "round_cap": cfg.max_rounds, "claims": claims, **extra}
-    write_json(out / "claims.json", summary)
-    return summary
+
+TABLE_COLUMNS = ["uav", "rtk", "neighbours", "rtk_neighbours", "rmse_gnss_m", "rmse_one_shot_m", "rmse_iterated_m",
+                 "rmse_centralized_m", "factor_one_shot", "factor_iterated", "factor_centralized"]
+
+
+def _rows(res: CoopResults) -> list[list]:
+    """Table 3 and 4 per UAV, in TABLE_COLUMNS order."""
+    p, f = res.pooled, res.factor
+    return [[i + 1, bool(res.epochs.is_rtk[i]), res.neighbours[i], res.rtk_neighbours[i]]
+            + [p[w][i] for w in VARIANTS] + [f[w][i] for w in VARIANTS[1:]] for i in range(res.neighbours.size)]
+
+
+def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
+    sc, runs, rows = res.scenario, res.runs, _rows(res)
+    md = [f"# Seed 001 reproduction: coop-fg, {res.motion}, {runs} run(s) of {fmt(sc.duration)} s "
+          f"({res.epochs.time.size} epochs each), seeds {sc.seed}..{sc.seed + runs - 1}", "",
+          "## Table 3: neighbours per UAV (mean over the epochs of run 0; UWB/data link within 100 m)", ""]
+    md += markdown_table(["UAV", "RTK", "neighbours", "RTK neighbours"],
+                         [[r[0], "yes" if r[1] else "", r[2], r[3]] for r in rows])
+    md += ["", "## Table 4: position RMSE per UAV (m, pooled over runs) and improvement factor over GNSS only", ""]
+    mean_row = [float(np.mean(res.pooled[w])) for w in VARIANTS]
+    md += markdown_table(["UAV", "GNSS only", "one optimization", "message iteration", "centralized", "x one",
+                          "x iter", "x central"],
+                         [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows] + [["mean", *mean_row, "", "", ""]])
+    agg = res.metrics[0]["estimators"]
+    md += ["", "Run 0: " + "; ".join(f"{w}: {fmt(agg[w]['iterations_mean'])} iterations/epoch, "
+                                     f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt(agg[w]['anees'])}"
+                                     for w in VARIANTS), ""]
+    md += claims_section(claims)
+    cap = res.cap
+    md += ["", f"Round cap: {cap['cap']} rounds, tol {fmt(cap['tol_m'] * 1e3)} mm: {fmt(100 * cap['capped_fraction'])} % "
+           f"of the first {cap['epochs']} epochs hit the cap; with {cap['large_cap']} rounds they need "
+           f"{fmt(cap['rounds_large_mean'])} on average (max {cap['rounds_large_max']}); SPP RMSE "
+           f"{fmt(cap['rmse_spp_capped_m'])} m (capped) vs {fmt(cap['rmse_spp_large_m'])} m (uncapped) vs centralized "
+           f"{fmt(cap['rmse_spp_centralized_m'])} m; largest position change {fmt(cap['max_position_change_m'])} m."]
+    if res.nlos is not None:
+        nx = res.nlos
+        spp_rmse = {(r, w): fmt(nx[r][w]["rmse_position_spp_mean_m"]) for r in ("none", "huber") for w in nx[r]}
+        md += ["", f"NLOS experiment ({fmt(nx['duration_s'])} s, 3 pillars): {fmt(100 * nx['nlos_fraction'])} % NLOS "
+               f"ranges, mean NLOS range error {fmt(nx['nlos_error_mean_m'])} m. SPP mean RMSE least squares / Huber: "
+               f"iterated {spp_rmse['none', 'iterated']} / {spp_rmse['huber', 'iterated']} m, centralized "
+               f"{spp_rmse['none', 'centralized']} / {spp_rmse['huber', 'centralized']} m (GNSS only "
+               f"{spp_rmse['none', 'gnss_only']} m)."]
+    return md
+
+
+def write(out: Path, res: CoopResults, claims: list[Claim]) -> dict:
+    """plots/ (figure 6, mean RMSE bars), table.md, table.csv, claims.json; returns claims.json's content."""
+    sc, runs = res.scenario, res.runs
+    coop.plot_error_vs_time(res.est0, res.four, out / "plots" / "fig6_error_vs_time.png",
+                            f"Figure 6 (run 0, seed {sc.seed}): position error, UAVs {res.four}")
+    stats = [mean_ci(res.rmse[w].mean(axis=1)) for w in VARIANTS]
+    compare_bars(list(VARIANTS), np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
+                 np.array([s[2] for s in stats]), out / "plots" / "rmse_mean.png",
+                 title=f"Mean per-UAV RMSE over {runs} runs (95 % CI)", ylabel="RMSE [m]")
+    write_csv(out / "table.csv", TABLE_COLUMNS, _rows(res))
+    write_markdown(out / "table.md", _markdown(res, claims))
+    spp = res.spp
+    extra = {"cap_effect": res.cap}
+    if res.nlos is not None:
+        extra["nlos_experiment"] = res.nlos
+    extra["iterated_over_centralized_rmse_spp_mean_ratio"] = float(
+        np.mean(res.pooled["iterated"][spp] / res.pooled["centralized"][spp]))
+    return write_claims(out / "claims.json", claims, paper="001", scenario=sc.name, motion=res.motion, runs=runs,
+                        seeds=seeds(sc.seed, runs), epochs_per_run=int(res.epochs.time.size),
+                        round_cap=sc.pipeline.max_rounds, **extra)
+
+
+def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
+              workers: int | None = None, nlos: bool = True) -> dict:
+    """Seed 001 reproduction into `out` (see the module docstring); returns claims.json's content."""
+    out = Path(out)
+    res = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, nlos=nlos)
+    return write(out, res, decide(res))

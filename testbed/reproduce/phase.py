@@ -1,6 +1,7 @@
 """`testbed reproduce phase`: seed 003 (Pan, Yin, Xu 2023), eight formations, claims decided.
 
-Every scenario `phase-*` runs N Monte Carlo seeds (seed, seed + 1, ...) through testbed.sweep. The
+Every scenario `phase-*` runs N Monte Carlo seeds through testbed.sweep (run i: the scenario's seed
++ i, in OUT/runs/<scenario>/run-XXX; testbed.reproduce.runs). The
 same seed index gives the same noise draws and initial error in every formation (each stream's
 generator depends only on the seed and its name), so formations are compared run by run (paired).
 
@@ -20,26 +21,28 @@ Claim criteria (fixed before any result was looked at):
   the position over the last 100 s, p < 0.05; "slightly better": better, with
   mean(A) / mean(B) in [0.5, 1);
 - "about equal": mean(A) / mean(B) of the same score in [0.8, 1.25].
+
+Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenario), `decide`
+(numbers -> claims), `write` (files through testbed.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
-import csv
-import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 
+from testbed import scenario as scenario_mod
 from testbed.metrics import mean_ci, paired_test
+from testbed.plots import compare_bars
+from testbed.report import Claim, claims_section, fmt, fmt_list, fmt_pm, markdown_table, write_claims, write_csv, \
+    write_markdown
+from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 
 SCENARIOS = ("phase-line-h000", "phase-cross-h000", "phase-vobtuse-h000", "phase-vacute-h000",
              "phase-line-h100", "phase-line-h600", "phase-vobtuse-h100", "phase-vobtuse-h600")
 FRACTION = 0.95
 CMP_KEY = "rmse_position_last_100s_m"
-
-
-def _runs(sweep_dir: Path) -> list[dict]:
-    return [json.loads(p.read_text())["estimators"]["ekf"] for p in sorted(sweep_dir.glob("run-*/metrics.json"))]
 
 
 def _within(runs: list[dict], level: float, axes=(0, 1, 2), key="max_abs_position_error_last_100s_m") -> dict:
@@ -68,8 +71,26 @@ def _pcrb_axes(runs: list[dict]) -> list[float]:
     return np.mean([r["pcrb_sigma_position_final_m"] for r in runs], axis=0).tolist()
 
 
-def claims(R: dict[str, list[dict]]) -> list[dict]:
-    """The paper's claims (SPEC seed 003) decided with the module's criteria."""
+
+def _within_text(what: str, level: float, unit: str = "m") -> str:
+    return (f"max |{what}| over the last 100 s below {level:g} {unit} on every axis named, in at least "
+            f"{FRACTION:.0%} of the runs")
+
+
+def _within_summary(*named: tuple[str, dict], unit: str = "m") -> str:
+    return "; ".join(f"{name}{fmt(100 * w['fraction_of_runs'])} % of runs within, worst {fmt_list(w['max_abs_worst'])} "
+                     f"{unit}" for name, w in named)
+
+
+def _equal_claim(claim_id: str, text: str, a: list[dict], b: list[dict]) -> Claim:
+    eq = _equal(a, b)
+    return Claim(id=claim_id, text=text, numbers=eq, criterion=f"mean({CMP_KEY}) ratio in [0.8, 1.25]",
+                 holds=eq["holds"], summary=f"ratio {fmt(eq['ratio_of_means'])}")
+
+
+def decide(R: dict[str, list[dict]]) -> list[Claim]:
+    """The paper's claims (SPEC seed 003) decided with the module's criteria. R: {scenario: the EKF
+    scores of every run}."""
     out = []
     line = R["phase-line-h000"]
     fin = np.array([r["position_error_final_m"] for r in line])
@@ -77,31 +98,44 @@ def claims(R: dict[str, list[dict]]) -> list[dict]:
     rms_fin, rms_mid = np.sqrt((fin ** 2).mean(0)), np.sqrt((mid ** 2).mean(0))
     div = {ax: bool(rms_fin[i] > rms_mid[i] and rms_fin[i] > 0.03) for ax, i in (("x (paper X)", 0), ("z (paper Y)", 2))}
     acc = _within(line, 0.03, axes=(1,))
-    out.append({"id": "line-h000-xy-diverge-z-accurate", "claim": "line H000: X and Y errors diverge, Z stays accurate",
-                "numbers": {"rms_final_error_m": rms_fin.tolist(), "rms_mid_error_m": rms_mid.tolist(), "diverges": div,
-                            "z_accurate": acc, "pcrb_sigma_final_m": _pcrb_axes(line)},
-                "holds": bool(all(div.values()) and acc["holds"])})
+    out.append(Claim(id="line-h000-xy-diverge-z-accurate", text="line H000: X and Y errors diverge, Z stays accurate",
+                     numbers={"rms_final_error_m": rms_fin.tolist(), "rms_mid_error_m": rms_mid.tolist(),
+                              "diverges": div, "z_accurate": acc, "pcrb_sigma_final_m": _pcrb_axes(line)},
+                     criterion="x and z (paper X, Y): RMS over runs of the final error above the RMS at mid-run and "
+                               "above 0.03 m; y (paper Z): " + _within_text("position error", 0.03),
+                     holds=bool(all(div.values()) and acc["holds"]),
+                     summary=f"RMS final {fmt_list(rms_fin)} m vs mid {fmt_list(rms_mid)} m; "
+                             + _within_summary(("y: ", acc))))
     v = _within(line, 0.005, key="max_abs_velocity_error_last_100s_mps")
-    out.append({"id": "line-h000-velocity", "claim": "line H000: velocity error within +/-0.005 m/s after it settles",
-                "numbers": v, "holds": v["holds"]})
+    out.append(Claim(id="line-h000-velocity", text="line H000: velocity error within +/-0.005 m/s after it settles",
+                     numbers=v, criterion=_within_text("velocity error", 0.005, "m/s"), holds=v["holds"],
+                     summary=_within_summary(("", v), unit="m/s")))
     c = _within(R["phase-cross-h000"], 0.01)
-    out.append({"id": "cross-h000-0.01", "claim": "cross H000: all three position errors within +/-0.01 m",
-                "numbers": {**c, "pcrb_sigma_final_m": _pcrb_axes(R["phase-cross-h000"])}, "holds": c["holds"]})
+    out.append(Claim(id="cross-h000-0.01", text="cross H000: all three position errors within +/-0.01 m",
+                     numbers={**c, "pcrb_sigma_final_m": _pcrb_axes(R["phase-cross-h000"])},
+                     criterion=_within_text("position error", 0.01), holds=c["holds"],
+                     summary=_within_summary(("", c))))
     ob, ac = _within(R["phase-vobtuse-h000"], 0.03), _within(R["phase-vacute-h000"], 0.03)
-    out.append({"id": "v-h000-0.03", "claim": "obtuse and acute V H000: within +/-0.03 m",
-                "numbers": {"vobtuse": ob, "vacute": ac}, "holds": ob["holds"] and ac["holds"]})
-    eq = _equal(R["phase-vobtuse-h000"], R["phase-vacute-h000"])
-    out.append({"id": "v-h000-equal", "claim": "obtuse and acute V H000: about equal", "numbers": eq, "holds": eq["holds"]})
+    out.append(Claim(id="v-h000-0.03", text="obtuse and acute V H000: within +/-0.03 m",
+                     numbers={"vobtuse": ob, "vacute": ac}, criterion=_within_text("position error", 0.03) + ", both",
+                     holds=ob["holds"] and ac["holds"], summary=_within_summary(("obtuse: ", ob), ("acute: ", ac))))
+    out.append(_equal_claim("v-h000-equal", "obtuse and acute V H000: about equal", R["phase-vobtuse-h000"],
+                            R["phase-vacute-h000"]))
     l1, l6 = _within(R["phase-line-h100"], 0.03), _within(R["phase-line-h600"], 0.03)
-    out.append({"id": "line-h100-h600-converge", "claim": "line H100 and H600 converge",
-                "numbers": {"h100": l1, "h600": l6}, "holds": l1["holds"] and l6["holds"]})
+    out.append(Claim(id="line-h100-h600-converge", text="line H100 and H600 converge", numbers={"h100": l1, "h600": l6},
+                     criterion=_within_text("position error", 0.03) + ", both", holds=l1["holds"] and l6["holds"],
+                     summary=_within_summary(("H100: ", l1), ("H600: ", l6))))
+    better_text = f"paired one-sided t test of the per-run {CMP_KEY}, p < 0.05"
     b = _better(R["phase-line-h600"], R["phase-line-h100"])
-    out.append({"id": "line-h600-better", "claim": "line: H600 better than H100", "numbers": b, "holds": b["holds"]})
+    out.append(Claim(id="line-h600-better", text="line: H600 better than H100", numbers=b, criterion=better_text,
+                     holds=b["holds"], summary=f"p = {fmt(b['p_one_sided'])}, ratio {fmt(b['ratio_of_means'])}"))
     b = _better(R["phase-vobtuse-h600"], R["phase-vobtuse-h100"])
     b["holds"] = bool(b["holds"] and 0.5 <= b["ratio_of_means"] < 1.0)
-    out.append({"id": "vobtuse-h600-slightly-better", "claim": "obtuse V: H600 slightly better than H100", "numbers": b, "holds": b["holds"]})
-    eq = _equal(R["phase-vobtuse-h100"], R["phase-vobtuse-h000"])
-    out.append({"id": "vobtuse-h100-equal-h000", "claim": "obtuse V: H100 about equal to H000", "numbers": eq, "holds": eq["holds"]})
+    out.append(Claim(id="vobtuse-h600-slightly-better", text="obtuse V: H600 slightly better than H100", numbers=b,
+                     criterion=better_text + ", and the ratio of the means in [0.5, 1)", holds=b["holds"],
+                     summary=f"p = {fmt(b['p_one_sided'])}, ratio {fmt(b['ratio_of_means'])}"))
+    out.append(_equal_claim("vobtuse-h100-equal-h000", "obtuse V: H100 about equal to H000", R["phase-vobtuse-h100"],
+                            R["phase-vobtuse-h000"]))
     return out
 
 
@@ -111,7 +145,9 @@ COLS = [("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos 
         ("anees_state18", "ANEES (18)"), ("anees_body6_actual_cov", "ANEES body vs P_act (6)")]
 
 
-def table(R: dict[str, list[dict]], out: Path) -> None:
+def _table_rows(R: dict[str, list[dict]]) -> list[dict]:
+    """Per scenario: mean and std (ddof 1) over runs of every COLS score; max abs position error over
+    the last 100 s per axis, (mean, worst) over runs."""
     rows = []
     for name, runs in R.items():
         row = {"scenario": name, "runs": len(runs)}
@@ -121,48 +157,59 @@ def table(R: dict[str, list[dict]], out: Path) -> None:
         mx = np.array([r["max_abs_position_error_last_100s_m"] for r in runs])
         row["max_abs_last_100s"] = (mx.mean(0), mx.max(0))
         rows.append(row)
-    with open(out / "table.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["scenario", "runs"] + [f"{k}_{s}" for k, _ in COLS for s in ("mean", "std")]
-                   + [f"max_abs_pos_last_100s_{a}_{s}" for s in ("mean", "worst") for a in "xyz"])
-        for r in rows:
-            w.writerow([r["scenario"], r["runs"]] + [repr(v) for k, _ in COLS for v in r[k]]
-                       + [repr(float(v)) for v in np.concatenate(r["max_abs_last_100s"])])
-    lines = ["| scenario | runs | " + " | ".join(h for _, h in COLS) + " | max abs pos last 100 s x / y / z [m] (mean; worst) |",
-             "|---" * (len(COLS) + 3) + "|"]
-    for r in rows:
-        cells = [f"{r[k][0]:.4g} ± {r[k][1]:.2g}" for k, _ in COLS]
-        m, wst = r["max_abs_last_100s"]
-        cells.append(" / ".join(f"{v:.4f}" for v in m) + "; " + " / ".join(f"{v:.4f}" for v in wst))
-        lines.append(f"| {r['scenario']} | {r['runs']} | " + " | ".join(cells) + " |")
-    lines.append("")
-    lines.append("mean ± std over runs; RMSE over t >= 10 s; axes of N: x forward, y left, z up (paper X = x, Y = z, Z = -y).")
-    (out / "table.md").write_text("\n".join(lines) + "\n")
+    return rows
+
+
+def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int) -> dict:
+    """table.md, table.csv, plots/rmse_last_100s.png, claims.json; returns claims.json's content."""
+    rows = _table_rows(R)
+    write_csv(out / "table.csv",
+              ["scenario", "runs"] + [f"{k}_{s}" for k, _ in COLS for s in ("mean", "std")]
+              + [f"max_abs_pos_last_100s_{a}_{s}" for s in ("mean", "worst") for a in "xyz"],
+              [[r["scenario"], r["runs"]] + [v for k, _ in COLS for v in r[k]]
+               + np.concatenate(r["max_abs_last_100s"]).tolist() for r in rows])
+    md = [f"# Seed 003 reproduction: eight formations, {motion}, {runs} run(s) each, seeds "
+          f"{base_seed}..{base_seed + runs - 1}", ""]
+    md += markdown_table(["scenario", "runs"] + [h for _, h in COLS]
+                         + ["max abs pos last 100 s x / y / z [m] (mean; worst)"],
+                         [[r["scenario"], r["runs"]] + [fmt_pm(*r[k]) for k, _ in COLS]
+                          + [fmt_list(r["max_abs_last_100s"][0], " / ") + "; "
+                             + fmt_list(r["max_abs_last_100s"][1], " / ")] for r in rows])
+    md += ["", "mean ± std over runs; RMSE over t >= 10 s; axes of N: x forward, y left, z up "
+               "(paper X = x, Y = z, Z = -y).", ""]
+    write_markdown(out / "table.md", md + claims_section(claims))
+    stats = [mean_ci(np.array([r[CMP_KEY] for r in R[n]])) for n in R]
+    compare_bars([n.removeprefix("phase-") for n in R], np.array([s[0] for s in stats]),
+                 np.array([s[1] for s in stats]), np.array([s[2] for s in stats]), out / "plots" / "rmse_last_100s.png",
+                 title=f"seed 003: position RMSE over the last 100 s ({runs} runs, 95% CI)", ylabel="m")
+    return write_claims(out / "claims.json", claims, paper="003", scenarios=list(R), motion=motion, runs=runs,
+                        seeds=seeds(base_seed, runs))
+
+
+def compute(out: Path, *, runs: int, motion: str, duration: float | None,
+            workers: int | None) -> tuple[dict[str, list[dict]], int]:
+    """Sweep every formation (OUT/runs/<scenario>/run-XXX) and copy run 0's error figures to
+    OUT/plots/; returns ({scenario: the EKF scores of every run}, the base seed)."""
+    R: dict[str, list[dict]] = {}
+    base = set()
+    for name in SCENARIOS:
+        sc = scenario_mod.load(name, motion=motion, duration=duration)
+        base.add(sc.seed)
+        dirs = sweep_runs(sc, runs, out / "runs" / name, workers=workers, progress=True)
+        R[name] = [m["estimators"]["ekf"] for m in load_metrics(dirs)]
+        for fig in ("position_error.png", "velocity_error.png"):
+            src = dirs[0] / "plots" / fig
+            if src.exists():
+                shutil.copy(src, out / "plots" / f"{name}-{fig}")
+    if len(base) != 1:  # the paired comparisons need the same seed index to mean the same draws
+        raise ValueError(f"phase scenarios must share one seed, got {sorted(base)}")
+    return R, base.pop()
 
 
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
               workers: int | None = None) -> dict:
-    from testbed import scenario as scenario_mod
-    from testbed.plots import compare_bars
-    from testbed.sweep import sweep
-
+    """Seed 003 reproduction into `out` (see the module docstring); returns claims.json's content."""
     out = Path(out)
     (out / "plots").mkdir(parents=True, exist_ok=True)
-    R: dict[str, list[dict]] = {}
-    for name in SCENARIOS:
-        sc = scenario_mod.load(name, motion=motion, duration=duration)
-        d = out / "runs" / name
-        sweep(sc, runs, d, workers=workers, force=True, progress=True)
-        R[name] = _runs(d)
-        for fig in ("position_error.png", "velocity_error.png"):
-            src = d / "run-000" / "plots" / fig
-            if src.exists():
-                shutil.copy(src, out / "plots" / f"{name}-{fig}")
-    table(R, out)
-    stats = [mean_ci(np.array([r[CMP_KEY] for r in R[n]])) for n in SCENARIOS]
-    compare_bars([n.removeprefix("phase-") for n in SCENARIOS], np.array([s[0] for s in stats]),
-                 np.array([s[1] for s in stats]), np.array([s[2] for s in stats]), out / "plots" / "rmse_last_100s.png",
-                 title=f"seed 003: position RMSE over the last 100 s ({runs} runs, 95% CI)", ylabel="m")
-    cl = claims(R)
-    (out / "claims.json").write_text(json.dumps(cl, indent=2) + "\n")
-    return {"runs": runs, "motion": motion, "claims": cl}
+    R, base_seed = compute(out, runs=runs, motion=motion, duration=duration, workers=workers)
+    return write(out, R, decide(R), runs=runs, motion=motion, base_seed=base_seed)

@@ -1,6 +1,7 @@
 """`testbed reproduce visnav`: seed 004 (Jin et al. 2017) Monte Carlo of EKF, CKF, HCKF, MCKF, RHCF.
 
-Design. Run i simulates the built-in `visnav` scenario with seed 1 + i twice, from the same seed:
+Design. Run i simulates the built-in `visnav` scenario with seed 1 + i (the scenario's seed + i,
+testbed.reproduce.runs; in memory, no run directories) twice, from the same seed:
 with the paper's glint noise (camera preset paper004: with probability 0.1 a LOS sample has
 5 x the nominal 3500 micro-rad std) and Gaussian (`sensors.camera.glint_prob = 0`). The camera
 draws the same standard normals and the same glint coin flips in both, so the two cases differ
@@ -21,19 +22,31 @@ Also run (short): the other motion mode (2 runs, both noise cases) and the pixel
 (1 run, 10 s): finite, scored, shown in the table.
 
 Outputs: table.md, table.csv, claims.json, runs.json (every run's metrics), plots/.
+
+Shape (as every reproduction): `compute` (runs -> `VisnavResults`), `decide` (numbers -> claims),
+`write` (files through testbed.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
-import csv
-import json
 import multiprocessing as mp
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
+
+from testbed import scenario as scenario_mod
+from testbed.metrics import mean_ci, paired_test
+from testbed.pipelines.visnav import metrics_of, run_all
+from testbed.plots import compare_bars, error_envelope, save
+from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, write_claims, write_csv, write_json, \
+    write_markdown
+from testbed.reproduce.runs import seeds
+from testbed.simulate import simulate
 
 from testbed.environment import apply_defaults
 
@@ -45,16 +58,13 @@ CLAIM_PAIRS = (("rhcf", "mckf"), ("mckf", "hckf"), ("hckf", "ekf"))
 ALPHA = 0.05
 GAUSSIAN_COST_LIMIT = 0.05
 DEFAULT_DURATION = 60.0
-BASE_SEED = 1
 
 
 def _scenario(seed: int, motion: str, duration: float, case: str, mode: str = "geometric"):
-    from testbed import scenario as sc
-
     over = {"sensors.camera.mode": f'"{mode}"'}
     if case == "gaussian":
         over["sensors.camera.glint_prob"] = "0.0"
-    return sc.load("visnav", overrides=over, seed=seed, motion=motion, duration=duration)
+    return scenario_mod.load("visnav", overrides=over, seed=seed, motion=motion, duration=duration)
 
 
 def one_run(args: tuple) -> dict:
@@ -63,9 +73,6 @@ def one_run(args: tuple) -> dict:
     args = (seed, motion, duration, cases, mode, keep_full). Returns {case: {"metrics": {filter: ...},
     "t": (E,), "norms": {filter: (E, 3) [|dp| m, |dv| m/s, attitude deg]}, "full": {...} if keep_full}}.
     """
-    from testbed.pipelines.visnav import metrics_of, run_all
-    from testbed.simulate import simulate
-
     seed, motion, duration, cases, mode, keep_full = args
     out = {}
     for case in cases:
@@ -103,14 +110,45 @@ def _run_many(jobs: list[tuple], workers: int) -> list[dict]:
     return results  # type: ignore[return-value]
 
 
+@dataclass(frozen=True, kw_only=True, slots=True)
+class VisnavResults:
+    """What the runs gave. results: one_run's output per Monte Carlo run (run i: seed meta["seeds"][i]);
+    extra: {label: {case: {filter: metrics}}} of the short extra runs; meta: runs, duration, motion,
+    workers, wall_s, seeds."""
+
+    results: list[dict]
+    extra: dict
+    meta: dict
+
+
+def compute(*, runs: int, motion: str, duration: float, workers: int) -> VisnavResults:
+    """The Monte Carlo (both noise cases per seed) and the extra runs (other motion, pixel camera)."""
+    t0 = time.perf_counter()
+    base = scenario_mod.load("visnav").seed
+    run_seeds = seeds(base, runs)
+    jobs = [(seed, motion, duration, CASES, "geometric", i == 0) for i, seed in enumerate(run_seeds)]
+    print(f"visnav: {runs} runs x {len(CASES)} noise cases x {len(FILTERS)} filters, {duration:g} s, {motion}", file=sys.stderr)
+    results = _run_many(jobs, workers)
+    other = "flown" if motion == "prescribed" else "prescribed"
+    print(f"visnav: {other} motion (2 runs) and the pixel camera path (1 run, 10 s)", file=sys.stderr)
+    extra_jobs = [(seed, other, duration, CASES, "geometric", False) for seed in seeds(base, 2)]
+    extra_jobs.append((base, motion, min(10.0, duration), ("glint",), "pixels", False))
+    extra_res = _run_many(extra_jobs, workers)
+    extra = {f"{other} motion, run {i} (seed {base + i})": {c: r[c]["metrics"] for c in CASES}
+             for i, r in enumerate(extra_res[:2])}
+    extra[f"pixel camera path, {motion}, 10 s (seed {base}; no added noise: rendering + detection error)"] = {
+        "pixels": extra_res[2]["glint"]["metrics"]}
+    meta = {"runs": runs, "duration": duration, "motion": motion, "workers": workers,
+            "wall_s": time.perf_counter() - t0, "seeds": run_seeds}
+    return VisnavResults(results=results, extra=extra, meta=meta)
+
+
 def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
     return np.array([r[case]["metrics"][name][key] for r in results])
 
 
 def summarize(results: list[dict], case: str) -> dict:
     """Per filter: mean and 95 % interval of each RMSE, mean ANEES, time per step, runs finite."""
-    from testbed.metrics import mean_ci
-
     table = {}
     for name in FILTERS:
         row = {}
@@ -124,10 +162,9 @@ def summarize(results: list[dict], case: str) -> dict:
     return table
 
 
-def judge_claims(results: list[dict]) -> list[dict]:
+def decide(res: VisnavResults) -> list[Claim]:
     """The paper's ordering under glint (paired tests) and the Gaussian cost of robustness."""
-    from testbed.metrics import mean_ci, paired_test
-
+    results = res.results
     level = ALPHA / (len(CLAIM_PAIRS) * len(QUANTITIES))
     comparisons, ok = [], True
     for key, label, unit in QUANTITIES:
@@ -139,83 +176,75 @@ def judge_claims(results: list[dict]) -> list[dict]:
                                 "mean_a": float(_col(results, "glint", a, key).mean()),
                                 "mean_b": float(_col(results, "glint", b, key).mean()),
                                 **test, "level": level, "holds": holds})
-    claims = [{
-        "id": "glint-ordering",
-        "claim": "under glint noise RHCF is most accurate in relative position, velocity and attitude, then MCKF, then HCKF, then EKF (paper figs. 5-7)",
-        "test": f"one-sided paired t test of per-run RMSE for each adjacent pair and quantity; each p < {ALPHA}/{len(comparisons)} (Bonferroni)",
-        "runs": len(results),
-        "holds": bool(ok),
-        "comparisons": comparisons,
-    }]
+    claims = [Claim(
+        id="glint-ordering",
+        text="under glint noise RHCF is most accurate in relative position, velocity and attitude, then MCKF, then "
+             "HCKF, then EKF (paper figs. 5-7)",
+        criterion=f"one-sided paired t test of per-run RMSE for each adjacent pair and quantity; each p < "
+                  f"{ALPHA}/{len(comparisons)} (Bonferroni)",
+        holds=bool(ok), numbers={"runs": len(results), "comparisons": comparisons},
+        summary=f"{sum(c['holds'] for c in comparisons)}/{len(comparisons)} comparisons significant; largest p "
+                f"{fmt(max(c['p_one_sided'] for c in comparisons))}")]
     cost, ok2 = [], True
     for key, label, unit in QUANTITIES:
         for a, b in (("rhcf", "hckf"), ("mckf", "ekf")):
             xa, xb = _col(results, "gaussian", a, key), _col(results, "gaussian", b, key)
-            rel = xa / xb - 1.0
-            m, lo, hi = mean_ci(rel)
+            m, lo, hi = mean_ci(xa / xb - 1.0)
             holds = bool(hi < GAUSSIAN_COST_LIMIT)
             ok2 &= holds
             cost.append({"quantity": label, "robust": a, "baseline": b, "mean_rel_change": m,
                          "ci95": [lo, hi], "mean_robust": float(xa.mean()), "mean_baseline": float(xb.mean()),
                          "holds": holds})
-    claims.append({
-        "id": "gaussian-cost",
-        "claim": "with Gaussian noise the robust filters cost little: RHCF vs HCKF and MCKF vs EKF",
-        "test": f"upper bound of the 95 % interval of the mean per-run relative RMSE change < +{GAUSSIAN_COST_LIMIT:.0%}",
-        "runs": len(results),
-        "holds": bool(ok2),
-        "comparisons": cost,
-    })
+    claims.append(Claim(
+        id="gaussian-cost",
+        text="with Gaussian noise the robust filters cost little: RHCF vs HCKF and MCKF vs EKF",
+        criterion=f"upper bound of the 95 % interval of the mean per-run relative RMSE change < "
+                  f"+{GAUSSIAN_COST_LIMIT:.0%}",
+        holds=bool(ok2), numbers={"runs": len(results), "comparisons": cost},
+        summary=f"largest upper bound {fmt(100 * max(c['ci95'][1] for c in cost))} %"))
     return claims
 
 
-def _fmt(v: dict, digits: int) -> str:
-    return f"{v['mean']:.{digits}f} [{v['lo']:.{digits}f}, {v['hi']:.{digits}f}]"
-
-
-def write_tables(out: Path, summaries: dict, meta: dict, extra: dict) -> None:
-    """table.md (human) and table.csv (every number) of the Monte Carlo and the extra runs."""
-    lines = [f"# Seed 004 reproduction: {meta['runs']} runs x {meta['duration']:g} s, motion {meta['motion']}, geometric camera",
+def _markdown(summaries: dict, meta: dict, extra: dict, claims: list[Claim]) -> list[str]:
+    lines = [f"# Seed 004 reproduction: {meta['runs']} runs x {fmt(meta['duration'])} s, motion {meta['motion']}, "
+             f"geometric camera, seeds {meta['seeds'][0]}..{meta['seeds'][-1]}",
              "", "RMSE over the run (mean over runs [95 % interval]); ANEES of the 9 navigation states "
              "(expected 9); time per camera epoch (one update + two 20 Hz predicts).", ""]
-    rows = []
     for case, summ in summaries.items():
-        lines += [f"## {case}", "", "| filter | position (m) | velocity (m/s) | attitude (deg) | ANEES | ms/epoch | finite runs |",
-                  "|---|---|---|---|---|---|---|"]
-        for name, r in summ.items():
-            lines.append(f"| {name} | {_fmt(r['rmse_position_m'], 4)} | {_fmt(r['rmse_velocity_mps'], 4)} | "
-                         f"{_fmt(r['rmse_attitude_deg'], 3)} | {r['anees']:.2f} | {r['time_per_step_ms']:.2f} | {r['finite_runs']} |")
-            for key, _, _ in QUANTITIES:
-                rows.append([case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]])
-            rows.append([case, name, "anees", r["anees"], "", ""])
-            rows.append([case, name, "time_per_step_ms", r["time_per_step_ms"], "", ""])
+        lines += [f"## {case}", ""]
+        lines += markdown_table(["filter", "position (m)", "velocity (m/s)", "attitude (deg)", "ANEES", "ms/epoch",
+                                 "finite runs"],
+                                [[name] + [fmt_ci(**r[key]) for key, _, _ in QUANTITIES]
+                                 + [r["anees"], r["time_per_step_ms"], r["finite_runs"]] for name, r in summ.items()])
         lines.append("")
     for label, ex in extra.items():
-        lines += [f"## {label}", "", "| case | filter | position (m) | velocity (m/s) | attitude (deg) | ANEES |", "|---|---|---|---|---|---|"]
-        for case, per in ex.items():
-            for name, m in per.items():
-                lines.append(f"| {case} | {name} | {m['rmse_position_m']:.4f} | {m['rmse_velocity_mps']:.4f} | "
-                             f"{m['rmse_attitude_deg']:.3f} | {m['anees']:.2f} |")
-                for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg", "anees"):
-                    rows.append([f"{label}/{case}", name, key, m[key], "", ""])
+        lines += [f"## {label}", ""]
+        lines += markdown_table(["case", "filter", "position (m)", "velocity (m/s)", "attitude (deg)", "ANEES"],
+                                [[case, name, m["rmse_position_m"], m["rmse_velocity_mps"], m["rmse_attitude_deg"],
+                                  m["anees"]] for case, per in ex.items() for name, m in per.items()])
         lines.append("")
-    lines.append(f"Wall time: {meta['wall_s']:.0f} s with {meta['workers']} worker(s).")
-    (out / "table.md").write_text("\n".join(lines) + "\n")
-    with open(out / "table.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["case", "filter", "score", "mean", "ci95_lo", "ci95_hi"])
-        w.writerows(rows)
+    lines += [f"Wall time: {fmt(meta['wall_s'])} s with {meta['workers']} worker(s).", ""]
+    return lines + claims_section(claims)
+
+
+def _csv_rows(summaries: dict, extra: dict) -> list[list]:
+    rows = []
+    for case, summ in summaries.items():
+        for name, r in summ.items():
+            rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
+            rows += [[case, name, key, r[key], None, None] for key in ("anees", "time_per_step_ms")]
+    for label, ex in extra.items():
+        rows += [[f"{label}/{case}", name, key, m[key], None, None] for case, per in ex.items()
+                 for name, m in per.items() for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg",
+                                                        "anees")]
+    return rows
 
 
 def _rms_curves(results: list[dict], case: str, path: Path) -> Path:
     """RMS over runs of the error norms against time, all filters (like the paper's figs. 5-7)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     t = results[0][case]["t"]
-    fig, axes = plt.subplots(3, 1, figsize=(7.5, 7.0), sharex=True)
+    fig = Figure(figsize=(7.5, 7.0))
+    axes = fig.subplots(3, 1, sharex=True)
     for i, (_, label, unit) in enumerate(QUANTITIES):
         for j, name in enumerate(FILTERS):
             n = np.array([r[case]["norms"][name][:, i] for r in results])
@@ -225,17 +254,11 @@ def _rms_curves(results: list[dict], case: str, path: Path) -> Path:
     axes[0].set_title(f"RMS error over {len(results)} runs ({case})")
     axes[0].legend(ncol=5, fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def write_plots(out: Path, results: list[dict], summaries: dict) -> None:
-    from testbed.plots import compare_bars, error_envelope
-
     plots = out / "plots"
-    plots.mkdir(exist_ok=True)
     t = results[0]["glint"]["t"]
     err, sig = results[0]["glint"]["full"]["rhcf"]
     for sl, label, unit, conv in ((slice(0, 3), "position", "m", 1.0), (slice(3, 6), "velocity", "m/s", 1.0),
@@ -252,6 +275,24 @@ def write_plots(out: Path, results: list[dict], summaries: dict) -> None:
                          title=f"RMSE of relative {label}, {case} noise, {len(results)} runs (95 % CI)", ylabel=unit)
 
 
+def write(out: Path, res: VisnavResults, claims: list[Claim]) -> dict:
+    """table.md, table.csv, plots/, claims.json and runs.json (every run's metrics); returns the
+    summary (per-case tables, claims.json's content, meta)."""
+    meta, results = res.meta, res.results
+    summaries = {case: summarize(results, case) for case in CASES}
+    write_markdown(out / "table.md", _markdown(summaries, meta, res.extra, claims))
+    write_csv(out / "table.csv", ["case", "filter", "score", "mean", "ci95_lo", "ci95_hi"],
+              _csv_rows(summaries, res.extra))
+    write_plots(out, results, summaries)
+    doc = write_claims(out / "claims.json", claims, paper="004", scenario="visnav", motion=meta["motion"],
+                       runs=meta["runs"], duration_s=meta["duration"], seeds=meta["seeds"])
+    runs_out = [{"seed": seed, **{c: {"metrics": r[c]["metrics"], "glint_fraction": r[c]["glint_fraction"],
+                                      "leds_per_epoch": r[c]["leds_per_epoch"]} for c in CASES}}
+                for seed, r in zip(meta["seeds"], results)]
+    write_json(out / "runs.json", {"meta": meta, "runs": runs_out, "extra": res.extra})
+    return {"summary": summaries, "claims": doc["claims"], "meta": meta}
+
+
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
               workers: int | None = None) -> dict:
     """Run the Monte Carlo and write table.md/csv, claims.json, runs.json and plots/ into out."""
@@ -259,30 +300,5 @@ def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: flo
     out.mkdir(parents=True, exist_ok=True)
     duration = DEFAULT_DURATION if duration is None else float(duration)
     workers = max(1, min(workers or min(2, os.cpu_count() or 1), runs))
-    t0 = time.perf_counter()
-    jobs = [(BASE_SEED + i, motion, duration, CASES, "geometric", i == 0) for i in range(runs)]
-    print(f"visnav: {runs} runs x {len(CASES)} noise cases x {len(FILTERS)} filters, {duration:g} s, {motion}", file=sys.stderr)
-    results = _run_many(jobs, workers)
-    other = "flown" if motion == "prescribed" else "prescribed"
-    print(f"visnav: {other} motion (2 runs) and the pixel camera path (1 run, 10 s)", file=sys.stderr)
-    extra_jobs = [(BASE_SEED + i, other, duration, CASES, "geometric", False) for i in range(2)]
-    extra_jobs.append((BASE_SEED, motion, min(10.0, duration), ("glint",), "pixels", False))
-    extra_res = _run_many(extra_jobs, workers)
-    wall = time.perf_counter() - t0
-
-    summaries = {case: summarize(results, case) for case in CASES}
-    claims = judge_claims(results)
-    extra = {f"{other} motion, run {i} (seed {BASE_SEED + i})": {c: r[c]["metrics"] for c in CASES}
-             for i, r in enumerate(extra_res[:2])}
-    extra[f"pixel camera path, {motion}, 10 s (seed {BASE_SEED}; no added noise: rendering + detection error)"] = {
-        "pixels": extra_res[2]["glint"]["metrics"]}
-    meta = {"runs": runs, "duration": duration, "motion": motion, "workers": workers, "wall_s": wall,
-            "seeds": [BASE_SEED + i for i in range(runs)]}
-    write_tables(out, summaries, meta, extra)
-    write_plots(out, results, summaries)
-    (out / "claims.json").write_text(json.dumps(claims, indent=2) + "\n")
-    runs_out = [{"seed": BASE_SEED + i, **{c: {"metrics": r[c]["metrics"], "glint_fraction": r[c]["glint_fraction"],
-                                               "leds_per_epoch": r[c]["leds_per_epoch"]} for c in CASES}}
-                for i, r in enumerate(results)]
-    (out / "runs.json").write_text(json.dumps({"meta": meta, "runs": runs_out, "extra": extra}, indent=1) + "\n")
-    return {"summary": summaries, "claims": claims, "meta": meta}
+    res = compute(runs=runs, motion=motion, duration=duration, workers=workers)
+    return write(out, res, decide(res))

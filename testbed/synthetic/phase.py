@@ -1,4 +1,4 @@
-"""Pure-numpy synthetic data for the seed-003 estimator tests (no MuJoCo; tests only).
+"""Pure-numpy synthetic data of seed 003 (carrier phase): masters, the eq. 31 follower, measurements.
 
 Masters hover (zero velocity, identity attitude) in a formation in the navigation frame N (FLU,
 z up; origin = body origin of the master on the symmetry axis). The follower flies the paper's

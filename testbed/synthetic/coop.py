@@ -1,6 +1,6 @@
 """Seeded synthetic epochs of the factor-graph cooperative navigation problem (seed 001), pure numpy.
 
-Used by the tests (tests/coop_synthetic.py re-exports it) and by `testbed bench estimators`
+Used by the tests and by `testbed bench estimators`
 (`epoch_factory`). No physics: for the physics-in-the-loop epochs run the scenario coop-fg.
 
 Geometry: n UAVs uniformly in a box (default 200 m east x 200 m north x 100 m up, the paper's
@@ -104,7 +104,7 @@ def make_epoch(n: int = 18, seed: int = 0, *, n_rtk: int = 3, box=BOX, max_range
 
 
 def epoch_factory(n_rtk: int = 3):
-    """make_epoch(n, seed) -> (truth (n, 3) m, CoopProblem) for testbed.bench_estimators.bench_factor_graph:
+    """make_epoch(n, seed) -> (truth (n, 3) m, CoopProblem) for testbed.bench.estimators.bench_factor_graph:
     a random connected swarm with the box scaled to the density of 18 UAVs in 200 x 200 x 100 m."""
 
     def factory(n: int, seed: int):

@@ -1,4 +1,4 @@
-"""A tiny synthetic truth + IMU + LOS generator for the seed-004 filter tests (pure numpy).
+"""A tiny synthetic truth + IMU + LOS generator of seed 004 (INS + vision), pure numpy.
 
 Independent of the filter's model code paths where it matters: the truth comes from analytic
 world-frame trajectories of two vehicles (world z-up, bodies FLU), the IMU readings from their

@@ -1,0 +1,57 @@
+"""The decide step of the reproductions on hand-made numbers (no runs): each claim follows its
+stated criterion, and claims.json is strict JSON even when a statistic cannot exist."""
+import json
+
+import numpy as np
+
+from testbed.reproduce import phase
+from testbed.report import NULL_SUFFIX, write_claims
+
+
+def _ekf_scores(max_abs_pos: float, rmse: float, rng: np.random.Generator) -> dict:
+    """One run's EKF scores with the keys phase.decide reads."""
+    return {
+        "max_abs_position_error_last_100s_m": [max_abs_pos] * 3,
+        "max_abs_velocity_error_last_100s_mps": [0.001] * 3,
+        "rmse_position_last_100s_m": rmse * (1 + 0.01 * rng.standard_normal()),
+        "position_error_final_m": [0.1, 0.001, 0.1],
+        "position_error_mid_m": [0.01, 0.001, 0.01],
+        "pcrb_sigma_position_final_m": [0.01, 0.01, 0.01],
+    }
+
+
+def _phase_runs(runs: int, cross_max: float) -> dict[str, list[dict]]:
+    rng = np.random.default_rng(0)
+    rmse = {"phase-line-h600": 0.01, "phase-line-h100": 0.02, "phase-vobtuse-h600": 0.015,
+            "phase-vobtuse-h100": 0.02, "phase-vobtuse-h000": 0.02, "phase-vacute-h000": 0.02}
+    return {name: [_ekf_scores(cross_max if name == "phase-cross-h000" else 0.02, rmse.get(name, 0.02), rng)
+                   for _ in range(runs)] for name in phase.SCENARIOS}
+
+
+def test_phase_claims_follow_their_criteria():
+    claims = {c.id: c for c in phase.decide(_phase_runs(10, cross_max=0.005))}
+    assert list(claims)[:3] == [
+        "line-h000-xy-diverge-z-accurate", "line-h000-velocity", "cross-h000-0.01"]
+    assert claims["cross-h000-0.01"].holds and claims["line-h000-velocity"].holds
+    assert claims["line-h000-xy-diverge-z-accurate"].holds
+    assert claims["v-h000-equal"].holds and claims["vobtuse-h100-equal-h000"].holds
+    assert claims["line-h600-better"].holds  # 0.01 vs 0.02 m over 10 paired runs
+    assert claims["vobtuse-h600-slightly-better"].holds  # ratio 0.75
+    assert claims["v-h000-0.03"].holds  # 0.02 < 0.03 m in every run
+    assert all(c.criterion and c.summary for c in claims.values())
+    worse = {c.id: c for c in phase.decide(_phase_runs(10, cross_max=0.02))}
+    assert not worse["cross-h000-0.01"].holds
+    assert worse["cross-h000-0.01"].numbers["fraction_of_runs"] == 0.0
+
+
+def test_phase_claims_of_one_run_are_strict_json(tmp_path):
+    """With one run the paired t test has no statistic: the verdict is False and claims.json says why."""
+    claims = phase.decide(_phase_runs(1, cross_max=0.005))
+    better = next(c for c in claims if c.id == "line-h600-better")
+    assert better.holds is False
+    write_claims(tmp_path / "claims.json", claims, paper="003", runs=1)
+    text = (tmp_path / "claims.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    doc = json.loads(text)
+    numbers = next(c for c in doc["claims"] if c["id"] == "line-h600-better")["numbers"]
+    assert numbers["p_one_sided"] is None and numbers["p_one_sided" + NULL_SUFFIX]
