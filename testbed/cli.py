@@ -26,7 +26,6 @@ from pathlib import Path
 
 from testbed.environment import apply_defaults
 from testbed.errors import TestbedError, UsageError
-from testbed.report import fmt
 
 
 class _Parser(argparse.ArgumentParser):
@@ -114,6 +113,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"{name:22s} {scenario.load(name).description}")
         return 0
     if args.command == "run":
+        from testbed.report import fmt
         from testbed.runner import run
 
         sc = _load(args)
