@@ -26,14 +26,14 @@ from __future__ import annotations
 
 import csv
 import json
-import multiprocessing as mp
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from testbed.workers import run_parallel
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_mps", "velocity", "m/s"),
@@ -93,11 +93,9 @@ def _run_many(jobs: list[tuple], workers: int) -> list[dict]:
             results[i] = one_run(job)
             print(f"  run {i + 1}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            futures = [pool.submit(one_run, job) for job in jobs]
-            for i, fut in enumerate(futures):
-                results[i] = fut.result()
-                print(f"  run {i + 1}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+        for n, (i, r) in enumerate(run_parallel(one_run, jobs, workers), 1):  # workers stop with us (testbed.workers)
+            results[i] = r
+            print(f"  run {n}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     return results  # type: ignore[return-value]
 
 
