@@ -3,16 +3,17 @@
     testbed list
     testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
                 [--set key=value ...] [--video] [--force]
-    testbed render DIR [--out FILE] [--width W --height H --fps F --speed X --max-seconds S
+    testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
-    testbed sweep SCENARIO --runs N [--workers K] --out DIR [run options]
+    testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [run options]
     testbed bench physics|sensors|estimators [--json FILE]
-    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--runs N] [--motion M]
-    testbed demo [--out DIR]
+    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M]
+    testbed demo [--out DIR] [--force]
 
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
 an output location that is not the testbed's, an OS error such as a full disk) prints one line
-`testbed: error: ...` and exits with code 2, leaving no run directory behind. SIGINT, SIGTERM and
+`testbed: error: ...` and exits with code 2, leaving no run directory behind. Output directories
+follow testbed.outdir: only a directory the testbed wrote (its `.testbed` marker) is ever replaced. SIGINT, SIGTERM and
 SIGHUP stop the command cleanly (temporary files removed, workers stopped, one line) with exit code
 128 + the signal number; a closed stdout (`testbed list | head -1`) ends it quietly.
 """
@@ -143,7 +144,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "sweep":
         from testbed.sweep import sweep
 
-        summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume)
+        summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
+                        progress=sys.stderr.isatty())
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":

@@ -526,7 +526,9 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     out = Path(out) if out is not None else run_dir / "video.mp4"
     if fps <= 0 or speed <= 0:
         raise ValueError(f"fps and speed must be positive, got fps={fps}, speed={speed}")
-    if out.exists() and not force:  # before any work; new_file checks again, atomically
+    if out.is_dir():  # before any work; new_file checks again, atomically
+        raise RunError(f"{out}: is a directory; give a file name")
+    if out.exists() and not force:
         raise RunError(f"{out}: already exists (use --force to replace it)")
     backend = choose_backend()
     if backend is not None:

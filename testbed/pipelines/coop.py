@@ -294,9 +294,11 @@ def score(est: CoopEstimates) -> dict:
             "anees_interval_99": [lo, hi],
             "epochs": int(K),
         }
-        for group, mask in (("spp", spp), ("rtk", ~spp)):  # strict JSON: a score that cannot exist is null, the reason beside it
-            if not mask.any():
-                s[f"rmse_position_{group}_mean_m_null_reason"] = s[f"anees_{group}_null_reason"] = f"no {group.upper()} vehicle in this scenario"
+        # strict JSON: a score that cannot exist is null, with the reason beside it
+        why = {f"{k}_{g}{u}": f"no {g.upper()} vehicle in this scenario" for g, m in (("spp", spp), ("rtk", ~spp)) if not m.any()
+               for k, u in (("rmse_position", "_mean_m"), ("anees", ""))}
+        if why:
+            s["null_reasons"] = why
         if w == "centralized":
             jlo, jhi = anees_interval(3 * n, K)
             s["anees_joint"] = float(np.mean(est.joint_nees))
