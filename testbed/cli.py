@@ -13,9 +13,10 @@
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
 an output location that is not the testbed's, an OS error such as a full disk) prints one line
 `testbed: error: ...` and exits with code 2, leaving no run directory behind. Output directories
-follow testbed.outdir: only a directory the testbed wrote (its `.testbed` marker) is ever replaced. SIGINT, SIGTERM and
-SIGHUP stop the command cleanly (temporary files removed, workers stopped, one line) with exit code
-128 + the signal number; a closed stdout (`testbed list | head -1`) ends it quietly.
+follow testbed.outdir: only a directory the testbed wrote (its `.testbed` marker) is ever replaced.
+SIGINT, SIGTERM and SIGHUP stop the command cleanly (temporary files removed, workers stopped, one
+line) with exit code 128 + the signal number; a closed stdout (`testbed list | head -1`) ends it
+quietly.
 """
 from __future__ import annotations
 
@@ -178,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"testbed: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:
-        what = " ".join(argv[:2]) or "testbed"
+        what = " ".join(a for a in argv[:2] if not a.startswith("-")) or "testbed"
         detail = getattr(e, "detail", "") or "temporary files removed"
         print(f"testbed: {what} interrupted by {getattr(e, 'name', 'SIGINT')}: {detail}", file=sys.stderr)
         return exit_code(e)

@@ -30,7 +30,7 @@ from typing import Iterator
 
 from testbed import __version__
 from testbed.errors import RunError, UsageError
-from testbed.interrupt import signals_held
+from testbed.interrupt import Interrupted, signals_held
 
 MARKER = ".testbed"
 WRITER = "testbed"
@@ -246,6 +246,8 @@ class Output:
             self.lock.release()
             if not self.done and not self.existed:
                 self._remove_created()
+        if isinstance(exc, Interrupted) and not self.done and str(self.path) in exc.detail:  # what it kept is gone too
+            raise Interrupted(exc.signum, f"{self.out} not written; temporary files removed") from None
         if isinstance(exc, OSError):  # the user's path and the OS's reason, never the temporary name
             raise RunError(os_reason(self.out, exc).replace(str(self.path), str(self.out))) from None
         if isinstance(exc, RunError) and self.path != self.out and str(self.path) in str(exc):

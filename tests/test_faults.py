@@ -134,6 +134,31 @@ def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_id
     assert _debris(tmp_path) == []
 
 
+@pytest.mark.parametrize("cmd", [["reproduce", "phase", "--runs", "2", "--duration", "1", "--workers", "2"], ["demo"]])
+def test_sigterm_mid_reproduce_or_demo_removes_everything_and_stops_workers(tmp_path, cmd):
+    p = _start(tmp_path, *cmd, "--out", "o")
+    _wait_for(lambda: any(t.glob(".*.testbed-tmp.*") for t in _tmp_dirs(tmp_path, "o")), "a run inside the output")
+    time.sleep(0.5)
+    workers = _children(p.pid)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 128 + signal.SIGTERM
+    line = err.splitlines()[-1]
+    assert line.startswith(f"testbed: {' '.join(cmd[:2])} interrupted by SIGTERM: ") and "kept in" not in line, line
+    _wait_for(lambda: _gone(workers), "the workers to stop", timeout=5.0)
+    assert os.listdir(tmp_path) == []
+
+
+def test_sigint_mid_render_removes_the_partial_video(tmp_path):
+    assert _testbed(tmp_path, "run", "bandwidth", "--duration", "2", "--out", "r").returncode == 0
+    p = _start(tmp_path, "render", "r", "--width", "64", "--height", "48", "--speed", "0.01")
+    _wait_for(lambda: list((tmp_path / "r").glob(".video.mp4.testbed-tmp.*")), "the partial video")
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 130 and err.splitlines()[-1] == "testbed: render r interrupted by SIGINT: temporary files removed"
+    assert not (tmp_path / "r" / "video.mp4").exists() and _debris(tmp_path) == []
+
+
 def test_resume_refuses_a_different_scenario(tmp_path):
     assert _testbed(tmp_path, "sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw").returncode == 0
     q = _testbed(tmp_path, "sweep", "bandwidth", "--runs", "2", "--duration", "0.6", "--out", "sw", "--resume")
