@@ -3,15 +3,20 @@
     testbed list
     testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
                 [--set key=value ...] [--video] [--force]
-    testbed render DIR [--out FILE] [--width W --height H --fps F --speed X --max-seconds S
+    testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
-    testbed sweep SCENARIO --runs N [--workers K] --out DIR [run options]
+    testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [run options]
     testbed bench physics|sensors|estimators [--json FILE]
-    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--runs N] [--motion M]
-    testbed demo [--out DIR]
+    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M]
+    testbed demo [--out DIR] [--force]
 
-A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output)
-prints one line `testbed: error: ...` and exits with code 2, leaving no run directory behind.
+A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
+an output location that is not the testbed's, an OS error such as a full disk) prints one line
+`testbed: error: ...` and exits with code 2, leaving no run directory behind. Output directories
+follow testbed.outdir: only a directory the testbed wrote (its `.testbed` marker) is ever replaced.
+SIGINT, SIGTERM and SIGHUP stop the command cleanly (temporary files removed, workers stopped, one
+line) with exit code 128 + the signal number; a closed stdout (`testbed list | head -1`) ends it
+quietly.
 
 Imports: this module loads only the standard library and light testbed modules at the top; each
 command imports what it needs inside `_dispatch` (numpy, mujoco, scipy, matplotlib come with
@@ -21,11 +26,15 @@ environment (testbed.environment) is set before numpy or mujoco load.
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 from pathlib import Path
 
 from testbed.environment import apply_defaults
 from testbed.errors import TestbedError, UsageError
+from testbed.interrupt import exit_code, signals_raise
+from testbed.outdir import out_arg
 
 
 class _Parser(argparse.ArgumentParser):
@@ -65,13 +74,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="simulate a scenario and write its run directory")
     _add_run_options(p)
-    p.add_argument("--out", type=Path, required=True, help="run directory to write")
+    p.add_argument("--out", type=out_arg, required=True, help="run directory to write")
     p.add_argument("--video", action="store_true", help="also render video.mp4")
-    p.add_argument("--force", action="store_true", help="replace an existing run directory")
+    p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
 
     p = sub.add_parser("render", help="render a run directory to video.mp4 (headless)")
     p.add_argument("run_dir", type=Path)
-    p.add_argument("--out", type=Path, help="output MP4 (default RUN_DIR/video.mp4)")
+    p.add_argument("--out", type=out_arg, help="output MP4 (default RUN_DIR/video.mp4)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("--width", type=int, default=960)
     p.add_argument("--height", type=int, default=540)
     p.add_argument("--fps", type=int, default=30)
@@ -84,8 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--runs", type=int, required=True)
     p.add_argument("--workers", type=int, help="worker processes (default: all cores)")
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--force", action="store_true")
+    p.add_argument("--out", type=out_arg, required=True)
+    p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
+    p.add_argument("--resume", action="store_true", help="finish an interrupted sweep at --out, skipping its finished runs")
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
     p.add_argument("what", choices=["physics", "sensors", "estimators"])
@@ -93,14 +104,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
     p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--out", type=out_arg, required=True)
+    p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--runs", type=int, help="Monte Carlo runs (default: the paper's reproduction default)")
     p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
     p.add_argument("--duration", type=float, help="shorten every run (seconds)")
     p.add_argument("--workers", type=int)
 
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
-    p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    p.add_argument("--out", type=out_arg, default=Path("runs/demo"), help="an earlier demo here is replaced")
+    p.add_argument("--force", action="store_true", help="replace another earlier output of the testbed")
     return parser
 
 
@@ -117,11 +130,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.runner import run
 
         sc = _load(args)
-        metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty())
-        if args.video:
-            from testbed.render import render_run
-
-            render_run(args.out, progress=sys.stderr.isatty())
+        metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty(), video=args.video)
         rmse = ", ".join(f"{x:.3g}" for x in metrics["tracking_rmse_m"])
         print(f"{sc.name} ({sc.motion}, seed {sc.seed}) -> {args.out}  tracking RMSE [m]: {rmse}")
         for name, est in metrics["estimators"].items():
@@ -136,13 +145,15 @@ def _dispatch(args: argparse.Namespace) -> int:
         out = render_run(
             args.run_dir, args.out, width=args.width, height=args.height, fps=args.fps, speed=args.speed,
             max_seconds=args.max_seconds, shadow_size=args.shadow_size, samples=args.samples, progress=sys.stderr.isatty(),
+            force=args.force,
         )
         print(out)
         return 0
     if args.command == "sweep":
         from testbed.sweep import sweep
 
-        summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force)
+        summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
+                        progress=sys.stderr.isatty())
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
@@ -153,26 +164,40 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "reproduce":
         from testbed.reproduce import reproduce
 
-        reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers)
+        reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
+                  force=args.force)
         return 0
     if args.command == "demo":
         from testbed.demo import demo
 
-        demo(args.out)
+        demo(args.out, force=args.force)
         return 0
     raise UsageError(f"unknown command {args.command!r}")
 
 
 def main(argv: list[str] | None = None) -> int:
     apply_defaults()  # before any command imports numpy or mujoco
+    argv = sys.argv[1:] if argv is None else argv
     try:
-        return _dispatch(build_parser().parse_args(argv))
+        with signals_raise():
+            code = _dispatch(build_parser().parse_args(argv))
+            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+            return code
     except TestbedError as e:
         print(f"testbed: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("testbed: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        what = " ".join(a for a in argv[:2] if not a.startswith("-")) or "testbed"
+        detail = getattr(e, "detail", "") or "temporary files removed"
+        print(f"testbed: {what} interrupted by {getattr(e, 'name', 'SIGINT')}: {detail}", file=sys.stderr)
+        return exit_code(e)
+    except BrokenPipeError:  # the reader went away (`testbed list | head -1`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
+    except OSError as e:  # disk full, read-only, permission denied, ...: the path and the OS's reason
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"testbed: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -2,15 +2,17 @@
 
 Writes into OUT (default runs/demo): one run directory per paper scenario (short horizons),
 the bandwidth paper-mode reproduction with a small Monte Carlo, a video of the carrier-phase
-formation flown under MuJoCo dynamics, and `OUT/summary.md` listing what was produced.
+formation flown under MuJoCo dynamics, and `OUT/summary.md` listing what was produced. OUT follows
+testbed.outdir: an earlier demo is replaced (never a directory the testbed did not write), other
+testbed outputs only with force.
 """
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 
 from testbed import scenario
+from testbed.outdir import Output, marker
 from testbed.report import fmt
 from testbed.render import render_run
 from testbed.reproduce import reproduce
@@ -27,11 +29,16 @@ DEMO_RUNS = [
 VIDEO_RUN = "phase-cross-h000"
 
 
-def demo(out: Path) -> None:
-    out = Path(out)
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+def demo(out: Path, *, force: bool = False) -> None:
+    final = Path(out)
+    again = (marker(final) or {}).get("kind") == "demo"
+    with Output(final, kind="demo", force=force or again) as o:
+        _demo(o.path)
+        o.commit()
+    print(f"demo results in {final}/summary.md")
+
+
+def _demo(out: Path) -> None:
     lines = ["# Demo results", ""]
     for name, motion, seconds in DEMO_RUNS:
         t0 = time.perf_counter()
@@ -48,4 +55,3 @@ def demo(out: Path) -> None:
     video = render_run(out / VIDEO_RUN, width=640, height=360, max_seconds=30.0, progress=True)
     lines.append(f"- video: `{video.relative_to(out)}`")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    print(f"demo results in {out}/summary.md")

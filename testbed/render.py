@@ -53,6 +53,10 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.errors import RunError
+from testbed.outdir import new_file
+from testbed.workers import worker_init
+
 INSTALL_HINT = (
     "install the EGL libraries (Debian/Ubuntu: apt-get install libegl1 libopengl0 libgl1-mesa-dri) "
     "or OSMesa (apt-get install libosmesa6), then run again; MUJOCO_GL=egl|osmesa chooses the backend"
@@ -125,10 +129,16 @@ def _delegate(backend: str, call: dict) -> Path:
     """Run one render call in a subprocess with MUJOCO_GL=backend; returns the written path."""
     env = {**os.environ, "MUJOCO_GL": backend}
     env.pop("PYOPENGL_PLATFORM", None)
-    p = subprocess.run([sys.executable, "-m", "testbed.render", "--call", json.dumps(call)], env=env, stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen([sys.executable, "-m", "testbed.render", "--call", json.dumps(call)], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        stdout, _ = p.communicate()
+    finally:  # interrupted: SIGTERM lets the child remove its partial file
+        if p.poll() is None:
+            p.terminate()
+            p.wait()
     if p.returncode != 0:
         raise RenderError(f"rendering with MUJOCO_GL={backend} in a subprocess failed (exit code {p.returncode})")
-    return Path(p.stdout.strip().splitlines()[-1])
+    return Path(stdout.strip().splitlines()[-1])
 
 
 # --------------------------------------------------------------------------------- the replay
@@ -496,7 +506,7 @@ def _trails(times: np.ndarray, pos: np.ndarray, f: int, n_frames: int, points: i
 
 def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, height: int = 540, fps: int = 30, speed: float = 1.0,
                max_seconds: float | None = None, shadow_size: int = 1024, samples: int = 0, pip_vehicle: int | None = None,
-               progress: bool = False, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True) -> Path:
+               progress: bool = False, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True, force: bool = False) -> Path:
     """Render a run directory to an MP4; returns its path (default `run_dir/video.mp4`).
 
     Video time runs at `speed` x simulated time from the first logged instant; frame k shows
@@ -506,7 +516,8 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     pip_vehicle: 1-based vehicle whose `uav{i}/cam` is shown in the corner; None = from
     scenario.toml (vehicle 1 when paper = "004", else none); 0 = none. trail: trail length in
     video seconds (0 = none); marker_px: on-screen radius (px) of the markers of far vehicles;
-    labels: write vehicle numbers. The file is written beside `out` and renamed when complete.
+    labels: write vehicle numbers. The file is written beside `out` and renamed when complete; an
+    existing `out` is refused (RunError) unless force.
     """
     import imageio.v2 as imageio
     from tqdm import tqdm
@@ -515,10 +526,15 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     out = Path(out) if out is not None else run_dir / "video.mp4"
     if fps <= 0 or speed <= 0:
         raise ValueError(f"fps and speed must be positive, got fps={fps}, speed={speed}")
+    if out.is_dir():  # before any work; new_file checks again, atomically
+        raise RunError(f"{out}: is a directory; give a file name")
+    if out.exists() and not force:
+        raise RunError(f"{out}: already exists (use --force to replace it)")
     backend = choose_backend()
     if backend is not None:
         call = dict(fn="render_run", run_dir=str(run_dir), out=str(out), width=width, height=height, fps=fps, speed=speed, max_seconds=max_seconds,
-                    shadow_size=shadow_size, samples=samples, pip_vehicle=pip_vehicle, progress=progress, trail=trail, marker_px=marker_px, labels=labels)
+                    shadow_size=shadow_size, samples=samples, pip_vehicle=pip_vehicle, progress=progress, trail=trail, marker_px=marker_px, labels=labels,
+                    force=force)
         return _delegate(backend, call)
     replay = _Replay(run_dir)
     t0, t1 = float(replay.time[0]), float(replay.time[-1])
@@ -531,23 +547,19 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     track = camera_track(times, pos, aspect=width / height, smooth=0.75 * fps)
     painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle),
                        style=_Style(marker_px=marker_px, labels=labels))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.stem}.partial.mp4")
-    writer = imageio.get_writer(partial, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=2, quality=None,
-                                output_params=["-crf", "20", "-preset", "veryfast"], ffmpeg_log_level="error")
     trail_frames = int(round(trail * fps))
     try:
-        for f in tqdm(range(n_frames), desc=f"render {replay.meta['name']}", unit="frame", disable=not progress, leave=False):
-            overlay = [replay.meta["name"], f"t = {times[f]:7.2f} s" + (f"   x{speed:g}" if speed != 1 else "")]
-            img = painter.frame(float(times[f]), track.lookat[f], float(track.distance[f]), track.azimuth, track.elevation,
-                                _trails(times, pos, f, trail_frames), overlay)
-            writer.append_data(img)
-        writer.close()
-        os.replace(partial, out)
-    except BaseException:
-        writer.close()
-        partial.unlink(missing_ok=True)
-        raise
+        with new_file(out, force=force, suffix=".mp4") as partial:
+            writer = imageio.get_writer(partial, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=2, quality=None,
+                                        output_params=["-crf", "20", "-preset", "veryfast"], ffmpeg_log_level="error")
+            try:
+                for f in tqdm(range(n_frames), desc=f"render {replay.meta['name']}", unit="frame", disable=not progress, leave=False):
+                    overlay = [replay.meta["name"], f"t = {times[f]:7.2f} s" + (f"   x{speed:g}" if speed != 1 else "")]
+                    img = painter.frame(float(times[f]), track.lookat[f], float(track.distance[f]), track.azimuth, track.elevation,
+                                        _trails(times, pos, f, trail_frames), overlay)
+                    writer.append_data(img)
+            finally:
+                writer.close()
     finally:
         painter.close()
     return out
@@ -605,6 +617,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     try:
         if a.call:
+            worker_init(os.getppid())  # SIGTERM cleans up; dies with the parent that delegated
             kw = json.loads(a.call)
             fn = {"render_run": render_run, "save_frame": save_frame}[kw.pop("fn")]
             print(fn(**kw))
@@ -616,7 +629,7 @@ def main(argv: list[str] | None = None) -> int:
             print(save_frame(a.run_dir, a.frame, a.out or a.run_dir / f"frame_{a.frame:g}.png", **common))
         else:
             print(render_run(a.run_dir, a.out, fps=a.fps, speed=a.speed, max_seconds=a.max_seconds, progress=True, **common))
-    except (RenderError, ValueError) as e:
+    except (RenderError, ValueError, RunError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0

@@ -14,13 +14,14 @@ reads back to the same float).
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from testbed import outdir
 
 SIG = 4  # significant digits of a value shown to a person
 SIG_SPREAD = 2  # significant digits of a spread (std, interval half-width)
@@ -218,9 +219,9 @@ def jsonable(obj: Mapping) -> dict:
 
 
 def write_json(path: Path, obj: Mapping) -> Path:
-    """Strict JSON (allow_nan=False) of `jsonable(obj)`, indented, newline at the end."""
+    """Strict JSON of `jsonable(obj)` through the one JSON writer (outdir.write_json)."""
     path = Path(path)
-    path.write_text(json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n")
+    outdir.write_json(path, jsonable(obj))
     return path
 
 

@@ -2,15 +2,12 @@
 
 `run(scenario, out)` simulates, runs the scenario's estimator pipeline, and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
-`timing.json` (wall-clock costs, when a pipeline reports them) and `plots/` into a temporary sibling
-directory that is renamed to `out` only when everything succeeded: an interrupted or failed run
-leaves nothing half-written.
+`timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
+`.testbed` into a temporary sibling directory that is renamed to `out` only when everything
+succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-written.
 """
 from __future__ import annotations
 
-import json
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +15,7 @@ import numpy as np
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
 from testbed.log import save_npz
+from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
@@ -40,26 +38,15 @@ def split_timing(estimators: dict) -> tuple[dict, dict]:
     return scores, {name: t for name, t in timing.items() if t}
 
 
-def prepare_out(out: Path, force: bool) -> None:
-    """Refuse to overwrite an existing non-empty run directory unless forced."""
-    if out.exists() and not out.is_dir():
-        raise RunError(f"{out}: exists and is not a directory")
-    if out.exists() and any(out.iterdir()) and not force:
-        raise RunError(f"{out}: already exists and is not empty (use --force to replace it)")
+def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = False, plots: bool = True,
+        video: bool = False) -> dict:
+    """Simulate `scenario` and write its run directory at `out`; returns the metrics.
 
-
-def write_json(path: Path, obj: object) -> None:
-    path.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
-
-
-def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = False, plots: bool = True) -> dict:
-    """Simulate `scenario` and write its run directory at `out`; returns the metrics."""
-    out = Path(out)
-    prepare_out(out, force)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    tmp.chmod(0o755)
-    try:
+    `out` follows testbed.outdir (refused if not ours; replaced only with force); video: also
+    render `video.mp4` before the directory is put in place.
+    """
+    with Output(Path(out), kind="run", force=force) as o:
+        tmp = o.path
         log, physics = simulate(scenario, progress=progress)
         metrics = {
             "scenario": scenario.name,
@@ -80,13 +67,12 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         write_json(tmp / "metrics.json", metrics)
         if timing:
             write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        if video:
+            from testbed.render import render_run  # lazy: the renderer loads OpenGL, only for --video
+
+            render_run(tmp, progress=progress)
+        o.commit()
     return metrics
 
 
-__all__ = ["run", "RunError", "ConfigError", "tracking_rmse"]
+__all__ = ["run", "RunError", "ConfigError", "tracking_rmse", "write_json"]

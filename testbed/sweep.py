@@ -4,30 +4,37 @@ Run i uses seed `scenario.seed + i` and writes `OUT/run-XXX/` (a full run direct
 deterministic in its seed, so the results are bit-identical to running the seeds one by one.
 The `metrics.json` files are aggregated into `OUT/summary.csv` and `OUT/summary.json`: mean,
 std (ddof=1), min, max and count of every numeric score, keyed by its dotted path
-(`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`).
+(`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk.
+`OUT/sweep.toml` is the swept scenario (run i: its seed + i). Ctrl-C, SIGTERM or SIGHUP stop every
+worker at once; the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
+"runs_done": k`, no summary.csv) and `testbed sweep ... --resume` finishes the sweep.
 """
 from __future__ import annotations
 
 import csv
-import multiprocessing as mp
+import io
+import json
 import os
-import shutil
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import signal
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from testbed import scenario as scenario_mod
 from testbed.config import from_dict, to_dict
-from testbed.environment import apply_defaults
-from testbed.runner import RunError, prepare_out, run, write_json
+from testbed.errors import RunError
+from testbed.interrupt import Interrupted
+from testbed.outdir import Output, marker, write_json, write_text
+from testbed.runner import run
 from testbed.scenario import Scenario
+from testbed.workers import run_parallel
 
 
-def _one(args: tuple[dict, int, str]) -> dict:
+def _one(args: tuple[dict, int, str]) -> None:
     table, seed, out = args
     scenario = from_dict(Scenario, {**table, "seed": seed}, "sweep")
-    return run(scenario, Path(out), force=True, progress=False)
+    run(scenario, Path(out), progress=False)
 
 
 def flatten(obj: object, prefix: str = "") -> dict[str, float]:
@@ -61,38 +68,71 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
     return summary
 
 
-def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = None, force: bool = False, progress: bool = True) -> dict:
-    """Run `runs` seeds of `scenario` into `out/run-XXX`, aggregate, return the summary."""
+def _complete(run_dir: Path) -> bool:
+    """A run directory the testbed finished (it appears only by a rename when complete)."""
+    return marker(run_dir) is not None and (run_dir / "metrics.json").is_file()
+
+
+def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> dict:
+    """summary.json (+ summary.csv when all runs are done) from the runs' metrics.json on disk."""
+    summary = summarize([json.loads((d / f"run-{i:03d}" / "metrics.json").read_text()) for i in done])
+    doc = {"scenario": scenario.name, "runs": runs, "seeds": [scenario.seed + i for i in done], "scores": summary}
+    if len(done) < runs:  # marked incomplete; `--resume` finishes it
+        write_json(d / "summary.json", {**doc, "incomplete": True, "runs_done": len(done)})
+        (d / "summary.csv").unlink(missing_ok=True)
+        return summary
+    write_json(d / "summary.json", doc)
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(["score", "mean", "std", "min", "max", "n"])
+    for k, s in summary.items():
+        w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"]])
+    write_text(d / "summary.csv", buf.getvalue())
+    return summary
+
+
+def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = None, force: bool = False,
+          resume: bool = False, progress: bool = True) -> dict:
+    """Run `runs` seeds of `scenario` into `out/run-XXX`, aggregate, return the summary.
+
+    `out` follows testbed.outdir. Interrupted (Ctrl-C, SIGTERM, SIGHUP): the workers stop, the
+    finished runs are kept at `out` with summary.json marked incomplete (unless `out` held an
+    earlier output, which is then left as it was), and the Interrupted exception says so.
+    resume: continue the incomplete sweep at `out` (same scenario), skipping finished runs; the
+    final summary is byte-identical to an uninterrupted sweep's.
+    """
     if runs < 1:
         raise RunError(f"--runs must be at least 1, got {runs}")
     out = Path(out)
-    prepare_out(out, force)
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
-    workers = max(1, min(workers or os.cpu_count() or 1, runs))
-    table = to_dict(scenario)
-    jobs = [(table, scenario.seed + i, str(out / f"run-{i:03d}")) for i in range(runs)]
-    results: list[dict | None] = [None] * runs
-    bar = tqdm(total=runs, desc=f"sweep {scenario.name}", unit="run", disable=not progress)
-    if workers == 1:
-        for i, job in enumerate(jobs):
-            results[i] = _one(job)
-            bar.update()
-    else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=apply_defaults) as pool:
-            futures = {pool.submit(_one, job): i for i, job in enumerate(jobs)}
-            for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
+    spec = scenario_mod.dumps(scenario)
+    with Output(out, kind="sweep", force=force, resume=resume) as o:
+        d = o.path
+        if o.resume and (d / "sweep.toml").read_text() != spec:
+            raise RunError(f"{out}: was swept with a different scenario ({out / 'sweep.toml'}); cannot resume it with this one")
+        if not o.resume:
+            write_text(d / "sweep.toml", spec)
+        table = to_dict(scenario)
+        done = [i for i in range(runs) if _complete(d / f"run-{i:03d}")]
+        todo = [i for i in range(runs) if i not in done]
+        jobs = [(table, scenario.seed + i, str(d / f"run-{i:03d}")) for i in todo]
+        bar = tqdm(total=runs, initial=len(done), desc=f"sweep {scenario.name}", unit="run", disable=not progress)
+        workers = max(1, min(workers or os.cpu_count() or 1, runs))
+        try:
+            for k, _ in run_parallel(_one, jobs, workers):
+                done.append(todo[k])
                 bar.update()
-    bar.close()
-    summary = summarize(results)  # type: ignore[arg-type]
-    write_json(out / "summary.json", {"scenario": scenario.name, "runs": runs, "seeds": [j[1] for j in jobs], "scores": summary})
-    with open(out / "summary.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["score", "mean", "std", "min", "max", "n"])
-        for k, s in summary.items():
-            w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"]])
+        except KeyboardInterrupt as e:
+            bar.close()
+            if done and (o.resume or not o.existed):
+                _write_summary(d, scenario, runs, sorted(done))
+                o.commit()
+                kept = f"{len(done)} of {runs} runs kept in {out} (summary.json marked incomplete; continue with --resume)"
+            else:
+                kept = f"no run kept; {out} left as it was" if o.existed else "no run finished; nothing kept"
+            raise Interrupted(getattr(e, "signum", signal.SIGINT), kept) from None
+        bar.close()
+        summary = _write_summary(d, scenario, runs, sorted(done))
+        o.commit()
     return summary
 
 

@@ -205,19 +205,24 @@ def score(est: CoopEstimates) -> dict:
         s = {
             "rmse_position_m": [float(x) for x in per_uav],
             "rmse_position_mean_m": float(np.mean(per_uav)),
-            "rmse_position_spp_mean_m": float(np.mean(per_uav[spp])),
-            "rmse_position_rtk_mean_m": float(np.mean(per_uav[~spp])) if (~spp).any() else float("nan"),
+            "rmse_position_spp_mean_m": _masked_mean(per_uav, spp),
+            "rmse_position_rtk_mean_m": _masked_mean(per_uav, ~spp),
             "iterations_mean": float(np.mean(est.rounds[w])),
             "iterations_max": int(np.max(est.rounds[w])),
             "converged_fraction": float(np.mean(est.converged[w])),
             "messages_per_epoch": float(np.mean(est.messages[w])),
             "bytes_per_epoch": float(np.mean(est.bytes[w])),
             "anees": anees(err, est.cov[w]),
-            "anees_spp": float(np.mean(ne[:, spp])),
-            "anees_rtk": float(np.mean(ne[:, ~spp])) if (~spp).any() else float("nan"),
+            "anees_spp": _masked_mean(ne, spp),
+            "anees_rtk": _masked_mean(ne, ~spp),
             "anees_interval_99": [lo, hi],
             "epochs": int(K),
         }
+        # strict JSON: a score that cannot exist is null, with the reason beside it
+        why = {f"{k}_{g}{u}": f"no {g.upper()} vehicle in this scenario" for g, m in (("spp", spp), ("rtk", ~spp)) if not m.any()
+               for k, u in (("rmse_position", "_mean_m"), ("anees", ""))}
+        if why:
+            s["null_reasons"] = why
         if w == "centralized":
             jlo, jhi = anees_interval(3 * n, K)
             s["anees_joint"] = float(np.mean(est.joint_nees))
@@ -227,6 +232,11 @@ def score(est: CoopEstimates) -> dict:
     nl = np.concatenate(ep.nlos) if ep.nlos else np.zeros(0, bool)
     out["iterated"]["nlos_fraction"] = float(nl.mean()) if nl.size else 0.0
     return out
+
+
+def _masked_mean(x: np.ndarray, mask: np.ndarray) -> float | None:
+    """Mean of x[..., mask] (mask: (N,) bool over vehicles, the last axis of x); None if mask is empty."""
+    return float(np.mean(x[..., mask])) if mask.any() else None
 
 
 def neighbour_counts(epochs: Epochs) -> tuple[np.ndarray, np.ndarray]:

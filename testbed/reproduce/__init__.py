@@ -14,17 +14,19 @@ import importlib
 from pathlib import Path
 
 from testbed.errors import UsageError
+from testbed.outdir import Output
 
 DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20}
 
 
 def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "prescribed",
-              duration: float | None = None, workers: int | None = None) -> dict:
+              duration: float | None = None, workers: int | None = None, force: bool = False) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     module = importlib.import_module(f"testbed.reproduce.{paper}")
-    return module.reproduce(out, runs=runs, motion=motion, duration=duration, workers=workers)
+    with Output(Path(out), kind=f"reproduce-{paper}", force=force) as o:
+        result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers)
+        o.commit()
+    return result

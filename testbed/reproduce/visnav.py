@@ -28,11 +28,9 @@ Shape (as every reproduction): `compute` (runs -> `VisnavResults`), `decide` (nu
 """
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,8 +45,7 @@ from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, w
     write_markdown
 from testbed.reproduce.runs import seeds
 from testbed.simulate import simulate
-
-from testbed.environment import apply_defaults
+from testbed.workers import run_parallel
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_mps", "velocity", "m/s"),
@@ -102,11 +99,9 @@ def _run_many(jobs: list[tuple], workers: int) -> list[dict]:
             results[i] = one_run(job)
             print(f"  run {i + 1}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=apply_defaults) as pool:
-            futures = [pool.submit(one_run, job) for job in jobs]
-            for i, fut in enumerate(futures):
-                results[i] = fut.result()
-                print(f"  run {i + 1}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+        for n, (i, r) in enumerate(run_parallel(one_run, jobs, workers), 1):  # workers stop with us (testbed.workers)
+            results[i] = r
+            print(f"  run {n}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     return results  # type: ignore[return-value]
 
 

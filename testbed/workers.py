@@ -1,0 +1,80 @@
+"""Worker processes that stop with their parent.
+
+`run_parallel(fn, jobs, workers)` yields `(index, fn(job))` as jobs complete, in worker processes
+(spawned; one process per worker) or in this process when workers == 1. On any exception in the
+parent (Ctrl-C, SIGTERM, an error) every worker is terminated at once: a worker turns SIGTERM into
+SystemExit so that its own output writer removes its temporary directory. Workers ignore SIGINT and
+SIGHUP (the terminal sends them to the whole process group; the parent decides) and die with their
+parent even when it is killed outright: prctl(PR_SET_PDEATHSIG, SIGTERM) on Linux, else a thread
+watching getppid().
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Callable, Iterator, Sequence
+
+from testbed.environment import apply_defaults
+from testbed.interrupt import signals_held
+
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def die_with_parent(parent: int) -> None:
+    """Make this process receive SIGTERM when process `parent` (its parent) dies."""
+    ok = False
+    if sys.platform.startswith("linux"):
+        try:
+            ok = ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            ok = False
+    if not ok:
+        threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    if os.getppid() != parent:  # it died before we asked
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def worker_init(parent: int) -> None:
+    """Pool initializer: the process defaults (testbed.environment) and the signal dispositions of a
+    worker (see the module docstring)."""
+    apply_defaults()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    die_with_parent(parent)
+
+
+def _indexed(fn: Callable, item: tuple[int, object]) -> tuple[int, object]:
+    return item[0], fn(item[1])
+
+
+def run_parallel(fn: Callable, jobs: Sequence, workers: int) -> Iterator[tuple[int, object]]:
+    """Yield (i, fn(jobs[i])) in order of completion; `fn` must be importable (spawned workers)."""
+    if workers <= 1 or len(jobs) <= 1:
+        for i, job in enumerate(jobs):
+            yield i, fn(job)
+        return
+    pool = mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=worker_init, initargs=(os.getpid(),))
+    try:
+        yield from pool.imap_unordered(functools.partial(_indexed, fn), enumerate(jobs))
+        pool.close()
+    finally:
+        with signals_held():
+            pool.terminate()
+            pool.join()

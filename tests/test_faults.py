@@ -1,0 +1,267 @@
+"""Faults: signals mid-run and mid-sweep, killed parents, concurrent writers, full and read-only disks,
+closed pipes. Every case ends in one line and a known exit code, with nothing half-written left.
+
+The commands run as subprocesses (`python -m testbed`, this checkout first on PYTHONPATH) in a
+temporary working directory; short bandwidth runs keep each case to seconds.
+"""
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from testbed.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _env() -> dict:
+    return {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def _start(cwd: Path, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "testbed", *args], cwd=cwd, env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _testbed(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "testbed", *args], cwd=cwd, env=_env(), capture_output=True, text=True, timeout=300)
+
+
+def _wait_for(cond, what: str, timeout: float = 120.0) -> None:
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+def _stat(pid: int) -> tuple[str, int] | None:
+    """(state, ppid) of a live process, None if it is gone."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()
+    return fields[0], int(fields[1])
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit() and (st := _stat(int(p.name))) is not None and st[1] == pid:
+            out.append(int(p.name))
+    return out
+
+
+def _gone(pids: list[int]) -> bool:
+    return all((st := _stat(p)) is None or st[0] in "ZX" for p in pids)
+
+
+def _debris(root: Path) -> list[str]:
+    return [str(p.relative_to(root)) for p in root.rglob("*") if ".testbed-" in p.name]
+
+
+def _tmp_dirs(cwd: Path, name: str) -> list[Path]:
+    return [p for p in cwd.glob(f".{name}.testbed-tmp.*") if p.is_dir()]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_signal_mid_run_removes_the_temporary_directory(tmp_path, sig):
+    p = _start(tmp_path, "run", "bandwidth", "--duration", "60", "--out", "r")
+    _wait_for(lambda: _tmp_dirs(tmp_path, "r"), "the run's temporary directory")
+    time.sleep(0.5)  # inside the simulation
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 128 + sig
+    assert err.splitlines() == [f"testbed: run bandwidth interrupted by {sig.name}: temporary files removed"]
+    assert sorted(os.listdir(tmp_path)) == []
+
+
+def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(tmp_path):
+    p = _start(tmp_path, "run", "bandwidth", "--duration", "60", "--out", "r")
+    _wait_for(lambda: _tmp_dirs(tmp_path, "r"), "the run's temporary directory")
+    stale = _tmp_dirs(tmp_path, "r")[0]
+    p.kill()
+    p.communicate()
+    assert not (tmp_path / "r").exists()
+    assert all(n.startswith(".r.testbed-") for n in os.listdir(tmp_path))
+    assert stale.name.endswith(str(p.pid))  # recognisable: it names the dead writer
+    q = _testbed(tmp_path, "run", "bandwidth", "--duration", "0.5", "--out", "r")
+    assert q.returncode == 0, q.stderr
+    assert q.stderr.splitlines() == [f"testbed: removed {stale.name} (left by pid {p.pid}, which died)"]
+    assert sorted(os.listdir(tmp_path)) == ["r"] and _debris(tmp_path) == []
+
+
+def _sweep_args(out: str) -> list[str]:
+    return ["sweep", "bandwidth", "--runs", "4", "--workers", "2", "--duration", "1.5", "--out", out]
+
+
+@pytest.mark.slow  # three sweeps, ~40 s
+def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_identical(tmp_path):
+    p = _start(tmp_path, *_sweep_args("sw"))
+    _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
+              "a finished run")
+    workers = _children(p.pid)
+    assert len(workers) >= 2
+    p.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    _wait_for(lambda: _gone(workers), "the workers to stop", timeout=5.0)
+    assert time.monotonic() - t0 < 5.0
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 130
+    done = sorted(d.name for d in (tmp_path / "sw").glob("run-*"))
+    assert 1 <= len(done) < 4
+    assert err.splitlines()[-1] == (f"testbed: sweep bandwidth interrupted by SIGINT: {len(done)} of 4 runs kept in sw "
+                                    "(summary.json marked incomplete; continue with --resume)")
+    summary = json.loads((tmp_path / "sw" / "summary.json").read_text())
+    assert summary["incomplete"] is True and summary["runs_done"] == len(done)
+    assert not (tmp_path / "sw" / "summary.csv").exists()
+    assert _debris(tmp_path) == []
+    before = {d: (tmp_path / "sw" / d / "log.npz").stat().st_mtime_ns for d in done}
+
+    q = _testbed(tmp_path, *_sweep_args("sw"), "--resume")
+    assert q.returncode == 0, q.stderr
+    assert {d: (tmp_path / "sw" / d / "log.npz").stat().st_mtime_ns for d in done} == before  # finished runs not redone
+    r = _testbed(tmp_path, *_sweep_args("whole"))
+    assert r.returncode == 0, r.stderr
+    for f in ["summary.json", "summary.csv", "sweep.toml", *(f"run-{i:03d}/metrics.json" for i in range(4))]:
+        assert (tmp_path / "sw" / f).read_bytes() == (tmp_path / "whole" / f).read_bytes(), f
+    assert _debris(tmp_path) == []
+
+
+@pytest.mark.parametrize("cmd", [["reproduce", "phase", "--runs", "2", "--duration", "1", "--workers", "2"], ["demo"]])
+def test_sigterm_mid_reproduce_or_demo_removes_everything_and_stops_workers(tmp_path, cmd):
+    p = _start(tmp_path, *cmd, "--out", "o")
+    _wait_for(lambda: any(t.glob(".*.testbed-tmp.*") for t in _tmp_dirs(tmp_path, "o")), "a run inside the output")
+    time.sleep(0.5)
+    workers = _children(p.pid)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 128 + signal.SIGTERM
+    line = err.splitlines()[-1]
+    assert line.startswith(f"testbed: {' '.join(cmd[:2])} interrupted by SIGTERM: ") and "kept in" not in line, line
+    _wait_for(lambda: _gone(workers), "the workers to stop", timeout=5.0)
+    assert os.listdir(tmp_path) == []
+
+
+def test_sigint_mid_render_removes_the_partial_video(tmp_path):
+    assert _testbed(tmp_path, "run", "bandwidth", "--duration", "2", "--out", "r").returncode == 0
+    p = _start(tmp_path, "render", "r", "--width", "64", "--height", "48", "--speed", "0.01")
+    _wait_for(lambda: list((tmp_path / "r").glob(".video.mp4.testbed-tmp.*")), "the partial video")
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 130 and err.splitlines()[-1] == "testbed: render r interrupted by SIGINT: temporary files removed"
+    assert not (tmp_path / "r" / "video.mp4").exists() and _debris(tmp_path) == []
+
+
+def test_resume_refuses_a_different_scenario(tmp_path):
+    assert _testbed(tmp_path, "sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw").returncode == 0
+    q = _testbed(tmp_path, "sweep", "bandwidth", "--runs", "2", "--duration", "0.6", "--out", "sw", "--resume")
+    assert q.returncode == 2 and q.stderr.splitlines() == [
+        "testbed: error: sw: was swept with a different scenario (sw/sweep.toml); cannot resume it with this one"]
+
+
+def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path):
+    p = _start(tmp_path, "sweep", "bandwidth", "--runs", "4", "--workers", "2", "--duration", "30", "--out", "sw")
+    _wait_for(lambda: any(t.glob(".run-*.testbed-tmp.*") for t in _tmp_dirs(tmp_path, "sw")), "a run in a worker")
+    workers = _children(p.pid)
+    assert len(workers) >= 2
+    p.kill()
+    p.communicate()
+    t0 = time.monotonic()
+    _wait_for(lambda: _gone(workers), "the orphaned workers to exit", timeout=5.0)
+    assert time.monotonic() - t0 < 5.0
+    assert not (tmp_path / "sw").exists()
+    q = _testbed(tmp_path, "sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw")
+    assert q.returncode == 0, q.stderr
+    assert _debris(tmp_path) == []
+
+
+def test_two_writers_of_one_output_exactly_one_wins(tmp_path):
+    a = _start(tmp_path, "run", "bandwidth", "--duration", "8", "--out", "r")
+    _wait_for(lambda: (tmp_path / ".r.testbed-lock").is_file() and _tmp_dirs(tmp_path, "r"), "the first writer's lock")
+    b = _testbed(tmp_path, "run", "bandwidth", "--duration", "0.5", "--out", "r", "--force")
+    assert b.returncode == 2
+    (line,) = b.stderr.splitlines()
+    assert line.startswith("testbed: error: r: is being written by ") and f"pid {a.pid} (testbed run bandwidth --duration 8" in line
+    a.communicate(timeout=120)
+    assert a.returncode == 0
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["duration_s"] == 8.0
+    assert sorted(os.listdir(tmp_path)) == ["r"]
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS, errno.EACCES])
+def test_os_errors_while_writing_are_one_line_and_leave_nothing(tmp_path, monkeypatch, capsys, code):
+    import testbed.runner
+
+    def failing_save(path, log):
+        raise OSError(code, os.strerror(code), str(path))
+
+    monkeypatch.setattr(testbed.runner, "save_npz", failing_save)
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "bandwidth", "--duration", "0.5", "--out", "deep/r"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line == f"testbed: error: deep/r: {os.strerror(code)} (deep/r/log.npz)"
+    assert os.listdir(tmp_path) == []  # not even the parent it created
+
+
+@pytest.fixture
+def tmpfs(tmp_path):
+    """mount(options) -> a small tmpfs under tmp_path (skips where mounting is not allowed)."""
+    mounted = []
+
+    def mount(options: str) -> Path:
+        d = tmp_path / f"mnt{len(mounted)}"
+        d.mkdir()
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(d)], capture_output=True)
+        if r.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()} (the in-process ENOSPC/EROFS test covers it)")
+        mounted.append(d)
+        return d
+
+    yield mount
+    for d in mounted:
+        subprocess.run(["umount", str(d)], check=False)
+
+
+@pytest.mark.parametrize("cmd", [["run"], ["sweep", "--runs", "2", "--workers", "2"]])
+def test_full_disk_is_one_line_and_leaves_nothing(tmp_path, tmpfs, cmd):
+    small = tmpfs("size=64k")
+    q = _testbed(tmp_path, cmd[0], "bandwidth", "--duration", "4", *cmd[1:], "--out", f"{small.name}/out")
+    assert q.returncode == 2, q.stderr
+    (line,) = q.stderr.splitlines()
+    assert line.startswith(f"testbed: error: {small.name}/out") and "No space left on device" in line, line
+    assert os.listdir(small) == []
+
+
+def test_read_only_disk_is_one_line_and_leaves_nothing(tmp_path, tmpfs):
+    ro = tmpfs("size=64k,ro")
+    q = _testbed(tmp_path, "run", "bandwidth", "--duration", "0.5", "--out", f"{ro.name}/r")
+    assert q.returncode == 2
+    (line,) = q.stderr.splitlines()
+    assert line.startswith(f"testbed: error: {ro.name}/r: Read-only file system"), line
+    assert os.listdir(ro) == []
+
+
+@pytest.mark.parametrize("out", ["/proc/testbed-run", "/proc/self/run"])
+def test_a_path_under_proc_is_one_line(tmp_path, capsys, monkeypatch, out):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "bandwidth", "--duration", "0.5", "--out", out]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"testbed: error: {out}: ")
+
+
+def test_closed_pipe_ends_quietly(tmp_path):
+    p = subprocess.Popen([sys.executable, "-m", "testbed", "list"], cwd=tmp_path, env=_env(), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()  # the reader is gone before the first line (`testbed list | head -0`)
+    err = p.stderr.read()
+    assert p.wait(timeout=60) == 128 + signal.SIGPIPE
+    assert err == b""
+    q = subprocess.run(f"{sys.executable} -m testbed list | head -1", shell=True, cwd=tmp_path, env=_env(), capture_output=True)
+    assert len(q.stdout.splitlines()) == 1 and q.stderr == b""
