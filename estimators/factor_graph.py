@@ -53,6 +53,7 @@ from scipy.sparse import linalg as splinalg
 
 from estimators.core import symmetrize
 from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd
+from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
 __all__ = [
@@ -382,9 +383,6 @@ class CentralizedResult:
     method: str = "gn"
 
 
-#: relative cost change at the round-off level of the cost sum: steps this small are judged by
-#: their length, not by the cost (which cannot resolve them)
-_ROUNDOFF = 1e-14
 _DIVERGED_M = 1e5  # a local step this large (metres) means the iteration diverged
 _DENSE_LIMIT = DENSE_LIMIT  # below this many unknowns the dense Cholesky beats the sparse LU
 
@@ -590,85 +588,23 @@ def solve_centralized(
 
 def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_iter: int, step_tol: float,
                    cost_tol: float, max_halvings: int, covariance: str, lm_lambda: float) -> CentralizedResult:
-    """Gauss-Newton or Levenberg-Marquardt on the general graph (fixed nodes, optional priors,
-    robust losses as IRLS weights re-evaluated at every iterate).
-
-    LM (Marquardt's scaling, Nielsen's damping update): solve (N + lam D) Delta = g with
-    N = A^T A, g = A^T b, D = diag(N); the gain ratio q = (F(x) - F(x + Delta)) / (L(0) - L(Delta)),
-    L(0) - L(Delta) = Delta^T (lam D Delta + g) / 2, decides: q > 0 accepts and
-    lam *= max(1/3, 1 - (2q - 1)^3), else lam *= nu, nu *= 2 (Madsen, Nielsen, Tingleff 2004,
-    "Methods for non-linear least squares problems", eq. 2.21 and algorithm 3.16).
-    Convergence: an accepted step whose largest component is below step_tol (m) or whose relative
-    cost decrease is below cost_tol. Steps whose predicted decrease is below the round-off of the
-    cost (_ROUNDOFF relative) are accepted if the cost does not rise by more than round-off, so
-    that tight step tolerances can be met (the history may then rise by round-off).
-    GN: a singular normal matrix stops the solve unconverged.
-    The gauge check factors the undamped N at the solution (estimators.graph.linear).
-    """
+    """Gauss-Newton or Levenberg-Marquardt (estimators.graph.lm) on the general graph: fixed
+    nodes, optional priors, robust losses as IRLS weights re-evaluated at every iterate. The
+    gauge check factors the undamped N at the solution (estimators.graph.linear)."""
     n = problem.n
     free = ~problem.fixed
-    X = np.array(problem.gnss_pos if x0 is None else x0, dtype=float)
-    X[problem.fixed] = problem.gnss_pos[problem.fixed]
-    f = _general_cost(problem, X, losses)
-    history = [f]
-    converged = False
-    it = 0
-    lam, nu = None, 2.0
-    A, b = _general_system(problem, X, losses)
-    N, g = (A.T @ A).tocsc(), A.T @ b
-    while it < max_iter:
-        it += 1
-        if method == "lm":
-            D = np.maximum(N.diagonal(), 1e-12 * max(N.diagonal().max(initial=0.0), 1e-300))
-            lam = lm_lambda if lam is None else lam
-            fac = factor_spd(N + sparse.diags(lam * D))
-            if not fac.ok:
-                lam, nu = lam * nu, nu * 2.0
-                continue
-            delta = fac.solve(g)
-            X_new = X.copy()
-            X_new[free] += delta.reshape(-1, 3)
-            f_new = _general_cost(problem, X_new, losses)
-            pred = 0.5 * float(delta @ (lam * D * delta + g))
-            q = (f - f_new) / pred if pred > 0 else -1.0
-            if pred <= _ROUNDOFF * f and f_new <= f * (1.0 + _ROUNDOFF):
-                q = 1.0  # the cost cannot tell this step apart: take it, the step test decides
-            if q <= 0:
-                lam, nu = lam * nu, nu * 2.0
-                if lam > 1e16:  # no decrease even for a vanishing step: at a minimum to round-off
-                    converged = bool(np.abs(delta).max() < step_tol)
-                    break
-                continue
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3)
-            nu = 2.0
-            step = np.abs(delta).max()
-        else:
-            fac = factor_spd(N)
-            if not fac.ok:
-                it -= 1
-                break
-            delta = fac.solve(g).reshape(-1, 3)
-            t = 1.0
-            for _ in range(max_halvings + 1):
-                X_new = X.copy()
-                X_new[free] += t * delta
-                f_new = _general_cost(problem, X_new, losses)
-                if f_new <= f * (1.0 + _ROUNDOFF):
-                    break
-                t *= 0.5
-            else:
-                converged = bool(np.abs(delta).max() < step_tol)
-                it -= 1
-                break
-            step = t * np.abs(delta).max()
-        small = step < step_tol or f - f_new < cost_tol * max(f, 1e-300)
-        X, f = X_new, f_new
-        history.append(f)
-        A, b = _general_system(problem, X, losses)
-        N, g = (A.T @ A).tocsc(), A.T @ b
-        if small:
-            converged = True
-            break
+    X0 = np.array(problem.gnss_pos if x0 is None else x0, dtype=float)
+    X0[problem.fixed] = problem.gnss_pos[problem.fixed]
+
+    def retract(X, delta):
+        X = X.copy()
+        X[free] += delta.reshape(-1, 3)
+        return X
+
+    res = minimize(X0, lambda X: _general_cost(problem, X, losses), lambda X: _general_system(problem, X, losses),
+                   retract, method=method, max_iter=max_iter, step_tol=step_tol, cost_tol=cost_tol,
+                   max_halvings=max_halvings, lm_lambda=lm_lambda)
+    X, f, it, converged, history, N = res.x, res.cost, res.iterations, res.converged, res.history, res.N
     fac = factor_spd(N)
     observable = fac.observable
     if not observable:
