@@ -11,6 +11,8 @@ Modules:
     bandwidth       seed 000: bandwidth-limited distributed fusion (FusionFilter), bound M,
                     selection search.
     factor_graph    seed 001: GNSS + UWB factor graph, centralized and distributed solvers.
+    graph           factor-graph machinery: losses, sparse solves with a gauge check, GN/LM,
+                    and a general graph (points, poses, biases, height, motion factors).
     gtsam_reference seed 001: the same centralized problem solved with GTSAM (reference only).
     cubature        seed 004: third- and fifth-degree spherical-radial cubature rules.
     sigma_filters   seed 004: EKF, CKF, HCKF, MCKF, RHCF on one model interface.

@@ -43,6 +43,7 @@ This module never imports mujoco, testbed or gtsam.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,11 +51,16 @@ from scipy import linalg, sparse
 from scipy.sparse import linalg as splinalg
 
 from estimators.core import symmetrize
+from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd
+from estimators.graph.lm import minimize
+from estimators.graph.losses import Loss, loss_rho, loss_weight
 
 __all__ = [
     "CoopProblem",
     "CentralizedResult",
     "DistributedResult",
+    "GaugeWarning",
+    "Loss",
     "HUBER_DELTA",
     "MESSAGE_BYTES",
     "gnss_h",
@@ -75,6 +81,10 @@ __all__ = [
 HUBER_DELTA = 1.345
 #: Payload of one broadcast: position (3) + unique covariance entries (6), float64.
 MESSAGE_BYTES = (3 + 6) * 8
+#: Levenberg term (m^-2) of the local step of a node without a prior (distributed solver).
+LOCAL_DAMPING = 1e-9
+#: Broadcast variance (m^2) of a node that has neither a prior nor an estimate yet.
+NO_INFO_VAR = 1e9
 
 
 # ----------------------------------------------------------------------------------------------
@@ -89,6 +99,11 @@ class CoopProblem:
     edges: (m, 2) int, UAV index pairs (i, j), i != j, each unordered pair at most once.
     ranges: (m,) measured UWB distances d_ij, metres.
     range_sigma: (m,) range standard deviations sigma_d, metres (a scalar is broadcast).
+    prior: (n,) bool or None (all True): node i has the GNSS factor (gnss_pos[i], gnss_cov[i]);
+        for a node without it gnss_pos[i] is only the default initial guess and gnss_cov[i] is
+        ignored (any value).
+    fixed: (n,) bool or None (all False): node i is known (an anchor, a robot with a known
+        position) and held at gnss_pos[i]; it is not a variable, its prior is ignored.
     """
 
     gnss_pos: np.ndarray
@@ -96,6 +111,8 @@ class CoopProblem:
     edges: np.ndarray
     ranges: np.ndarray
     range_sigma: np.ndarray
+    prior: np.ndarray | None = None
+    fixed: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         z = np.asarray(self.gnss_pos, dtype=float)
@@ -114,6 +131,16 @@ class CoopProblem:
             raise ValueError("CoopProblem: edge indices out of range or self-loops")
         if np.any(s <= 0):
             raise ValueError("CoopProblem: range_sigma must be positive")
+        prior = np.ones(n, bool) if self.prior is None else np.asarray(self.prior, dtype=bool).reshape(-1)
+        fixed = np.zeros(n, bool) if self.fixed is None else np.asarray(self.fixed, dtype=bool).reshape(-1)
+        if prior.shape != (n,) or fixed.shape != (n,):
+            raise ValueError(f"CoopProblem: prior and fixed must be ({n},) bool, got {prior.shape}, {fixed.shape}")
+        if not (prior | fixed).all():
+            # the covariance of a node without a prior is never used: make it harmless
+            cov = cov.copy()
+            cov[~(prior | fixed)] = np.eye(3)
+        object.__setattr__(self, "prior", prior)
+        object.__setattr__(self, "fixed", fixed)
         object.__setattr__(self, "gnss_pos", z)
         object.__setattr__(self, "gnss_cov", cov)
         object.__setattr__(self, "edges", e)
@@ -129,6 +156,11 @@ class CoopProblem:
     def m(self) -> int:
         """Number of range factors."""
         return self.edges.shape[0]
+
+    @property
+    def is_plain(self) -> bool:
+        """Every node has its prior and none is fixed (the seed 001 problem)."""
+        return bool(self.prior.all() and not self.fixed.any())
 
 
 # ----------------------------------------------------------------------------------------------
@@ -154,14 +186,28 @@ def range_jacobian(p_i: np.ndarray, p_j: np.ndarray) -> tuple[np.ndarray, np.nda
     """(dh/dp_i, dh/dp_j) of the range factor: (..., 3) each, unitless.
 
     dh/dp_i = u = (p_i - p_j) / |p_i - p_j| (unit vector from j to i), dh/dp_j = -u.
-    Undefined for coincident points (the swarm keeps a separation; a zero distance raises).
+    At coincident points (co-located initial guesses) the range is not differentiable; any unit
+    vector is a valid subgradient direction, and `coincident_directions` gives each factor of the
+    batch its own fixed one, so that co-located nodes separate in different directions.
     """
     diff = np.asarray(p_i, float) - np.asarray(p_j, float)
     r = np.linalg.norm(diff, axis=-1, keepdims=True)
     if np.any(r == 0.0):
-        raise ValueError("range_jacobian: coincident positions")
+        zero = r[..., 0] == 0.0
+        diff = np.where(zero[..., None], coincident_directions(diff.shape[:-1]), diff)
+        r = np.where(zero[..., None], 1.0, r)
     u = diff / r
     return u, -u
+
+
+def coincident_directions(shape: tuple[int, ...]) -> np.ndarray:
+    """Deterministic unit vectors (*shape, 3), one per element: a golden-angle spiral on the
+    sphere indexed by the element's flat index (directions of co-located range factors)."""
+    k = np.arange(int(np.prod(shape, dtype=np.int64))) + 0.5
+    z = 1.0 - 2.0 * ((k * 0.6180339887498949) % 1.0)
+    phi = k * 2.399963229728653  # golden angle, rad
+    rho = np.sqrt(1.0 - z * z)
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1).reshape(tuple(shape) + (3,))
 
 
 def huber_weight(r: np.ndarray, delta: float | None) -> np.ndarray:
@@ -194,8 +240,83 @@ def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, n
     return r, u
 
 
-def cost(problem: CoopProblem, X: np.ndarray, huber: float | None = None) -> float:
-    """Objective 1/2 sum |b_k|^2 (Huber on the range terms if huber is a threshold). X: (n, 3) m."""
+#: factor types of the seed 001 graph, the keys of a `losses` mapping
+FACTOR_TYPES = ("gnss", "range")
+
+
+def _check_losses(losses) -> dict:
+    """{factor type: Loss} from a mapping with keys in FACTOR_TYPES (missing: least squares)."""
+    losses = dict(losses or {})
+    bad = set(losses) - set(FACTOR_TYPES)
+    if bad:
+        raise ValueError(f"losses: unknown factor types {sorted(bad)}; known: {FACTOR_TYPES}")
+    for k, v in losses.items():
+        if not isinstance(v, Loss):
+            raise ValueError(f"losses[{k!r}] must be a Loss, got {v!r}")
+    return losses
+
+
+def _robust_terms(problem: CoopProblem, X: np.ndarray, losses: dict):
+    """Whitened residuals of the general graph at X (n, 3), with their IRLS weights.
+
+    Returns (pri (p,) nodes with a prior that are free, W (p, 3, 3) their sqrt information,
+    bg (p, 3) whitened GNSS residuals, wg (p,) their weights, r (m,) whitened range residuals,
+    u (m, 3) unit vectors j -> i, wr (m,) their weights).
+    """
+    pri = np.flatnonzero(problem.prior & ~problem.fixed)
+    W = _gnss_sqrt_info(problem.gnss_cov[pri])
+    bg = np.einsum("nab,nb->na", W, problem.gnss_pos[pri] - X[pri])
+    wg = loss_weight(losses.get("gnss"), np.linalg.norm(bg, axis=1))
+    r, u = _range_residuals(problem, X)
+    wr = loss_weight(losses.get("range"), r)
+    return pri, W, bg, wg, r, u, wr
+
+
+def _general_cost(problem: CoopProblem, X: np.ndarray, losses: dict) -> float:
+    """Robust objective sum rho(|b_k|) over the GNSS factors of free nodes and the ranges."""
+    pri, W, bg, _, r, _, _ = _robust_terms(problem, X, losses)
+    return float(np.sum(loss_rho(losses.get("gnss"), np.linalg.norm(bg, axis=1)))
+                 + np.sum(loss_rho(losses.get("range"), r)))
+
+
+def _general_system(problem: CoopProblem, X: np.ndarray, losses: dict) -> tuple[sparse.csr_matrix, np.ndarray]:
+    """IRLS-weighted whitened system of the general graph: A ((3p + m) x 3f) over the f free nodes
+    (column block of free node i: its rank among the free nodes), b (3p + m,). Rows of a factor are
+    scaled by sqrt(w) (see estimators.graph.losses); columns of fixed nodes are dropped."""
+    m = problem.m
+    col = np.cumsum(~problem.fixed) - 1  # block column of each free node
+    nf = int((~problem.fixed).sum())
+    pri, W, bg, wg, r, u, wr = _robust_terms(problem, X, losses)
+    sg, sr = np.sqrt(wg), np.sqrt(wr)
+    p = pri.size
+    # eq. 13-14: whitening, A_k = Sigma_k^{-1/2} H_k, b_k = Sigma_k^{-1/2} (z_k - h_k(x0)), times sqrt(w_k)
+    rows_g = np.repeat(np.arange(3 * p).reshape(p, 3), 3, axis=1).reshape(-1)
+    cols_g = np.tile((3 * col[pri])[:, None, None] + np.arange(3), (1, 3, 1)).reshape(-1)
+    vals_g = (sg[:, None, None] * W).reshape(-1)
+    coef = (sr / problem.range_sigma)[:, None] * u
+    i, j = problem.edges[:, 0], problem.edges[:, 1]
+    rows_r = np.repeat(3 * p + np.arange(m), 3)
+    keep_i, keep_j = np.repeat(~problem.fixed[i], 3), np.repeat(~problem.fixed[j], 3)
+    cols_i = (3 * col[i][:, None] + np.arange(3)).reshape(-1)
+    cols_j = (3 * col[j][:, None] + np.arange(3)).reshape(-1)
+    rows = np.concatenate([rows_g, rows_r[keep_i], rows_r[keep_j]])
+    cols = np.concatenate([cols_g, cols_i[keep_i], cols_j[keep_j]])
+    vals = np.concatenate([vals_g, coef.reshape(-1)[keep_i], -coef.reshape(-1)[keep_j]])
+    A = sparse.csr_matrix((vals, (rows, cols)), shape=(3 * p + m, 3 * nf))
+    b = np.concatenate([(sg[:, None] * bg).reshape(-1), sr * r])
+    return A, b
+
+
+def cost(problem: CoopProblem, X: np.ndarray, huber: float | None = None, *, losses=None) -> float:
+    """Objective 1/2 sum |b_k|^2 (Huber on the range terms if huber is a threshold). X: (n, 3) m.
+
+    With `losses` ({factor type: Loss}, see FACTOR_TYPES) or a problem with fixed nodes or missing
+    priors: the robust objective of the general graph, sum of rho(|b_k|) over its factors.
+    """
+    if losses is not None or not problem.is_plain:
+        if huber is not None:
+            raise ValueError("cost: give either huber or losses")
+        return _general_cost(problem, X, _check_losses(losses))
     W = _gnss_sqrt_info(problem.gnss_cov)
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X)
     r, _ = _range_residuals(problem, X)
@@ -242,8 +363,12 @@ class CentralizedResult:
 
     positions: (n, 3) metres ENU; cov: (n, 3, 3) marginal covariances m^2 (None if not asked);
     cov_full: (3n, 3n) joint covariance (A^T A)^-1 or None; cost: final objective; iterations:
-    accepted Gauss-Newton steps; converged: stopped on the step/cost tolerances (never on a cost
-    increase); history: objective after each accepted iteration (first entry: initial cost).
+    accepted Gauss-Newton steps (Levenberg-Marquardt: linear solves, rejected ones included);
+    converged: stopped on the step/cost tolerances (never on a cost increase, never on the
+    iteration cap); history: objective after each accepted iteration (first entry: initial cost);
+    observable: the normal matrix at the solution has no zero pivot (no gauge freedom; when False
+    a GaugeWarning was issued and cov, cov_full are NaN); method: "gn" or "lm".
+    Fixed nodes keep their given position and a zero covariance.
     """
 
     positions: np.ndarray
@@ -253,10 +378,12 @@ class CentralizedResult:
     iterations: int
     converged: bool
     history: tuple[float, ...]
+    observable: bool = True
+    method: str = "gn"
 
 
 _DIVERGED_M = 1e5  # a local step this large (metres) means the iteration diverged
-_DENSE_LIMIT = 600  # below this many unknowns the dense Cholesky beats the sparse LU
+_DENSE_LIMIT = DENSE_LIMIT  # below this many unknowns the dense Cholesky beats the sparse LU
 
 
 def _solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> np.ndarray:
@@ -366,8 +493,18 @@ def solve_centralized(
     cost_tol: float = 1e-12,
     max_halvings: int = 30,
     covariance: str = "marginal",
+    method: str = "gn",
+    losses=None,
+    lm_lambda: float = 1e-4,
 ) -> CentralizedResult:
     """Gauss-Newton on the stacked whitened system (eqs. 13-16) with backtracking step control.
+
+    method: "gn" (Gauss-Newton with step halving, the default of seed 001) or "lm"
+    (Levenberg-Marquardt, see `_solve_general`; lm_lambda: initial damping relative to diag(N)).
+    losses: {factor type: Loss} (FACTOR_TYPES: "gnss", "range"), robust losses as IRLS weights;
+    exclusive with huber (the Newton-Huber path below). A problem with fixed nodes or nodes
+    without a prior, `losses` or method "lm" take the general path `_solve_general`.
+    max_iter: the iteration cap; reaching it is a result (converged=False), never an exception.
 
     problem: the epoch; x0: (n, 3) initial positions, metres (default: the GNSS fixes);
     huber: Huber threshold on whitened range residuals (e.g. HUBER_DELTA) or None for least squares;
@@ -385,6 +522,16 @@ def solve_centralized(
     """
     if covariance not in ("marginal", "full", "none"):
         raise ValueError(f"solve_centralized: covariance must be marginal, full or none, got {covariance!r}")
+    if method not in ("gn", "lm"):
+        raise ValueError(f"solve_centralized: method must be 'gn' or 'lm', got {method!r}")
+    if huber is not None and losses is not None:
+        raise ValueError("solve_centralized: give either huber (Newton-Huber on ranges) or losses (IRLS)")
+    if method == "lm" or losses is not None or not problem.is_plain:
+        if huber is not None:
+            losses = {"range": Loss(kind="huber", scale=huber)}
+        return _solve_general(problem, x0, method=method, losses=_check_losses(losses), max_iter=max_iter,
+                              step_tol=step_tol, cost_tol=cost_tol, max_halvings=max_halvings,
+                              covariance=covariance, lm_lambda=lm_lambda)
     X = np.array(problem.gnss_pos if x0 is None else x0, dtype=float)
     if huber is not None:
         # start the robust solve from the least-squares optimum: there only the outlying ranges
@@ -436,6 +583,53 @@ def solve_centralized(
         else:
             cov = _marginal_blocks((A.T @ A).tocsc(), n)
     return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history))
+
+
+def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_iter: int, step_tol: float,
+                   cost_tol: float, max_halvings: int, covariance: str, lm_lambda: float) -> CentralizedResult:
+    """Gauss-Newton or Levenberg-Marquardt (estimators.graph.lm) on the general graph: fixed
+    nodes, optional priors, robust losses as IRLS weights re-evaluated at every iterate. The
+    gauge check factors the undamped N at the solution (estimators.graph.linear)."""
+    n = problem.n
+    free = ~problem.fixed
+    X0 = np.array(problem.gnss_pos if x0 is None else x0, dtype=float)
+    X0[problem.fixed] = problem.gnss_pos[problem.fixed]
+
+    def retract(X, delta):
+        X = X.copy()
+        X[free] += delta.reshape(-1, 3)
+        return X
+
+    res = minimize(X0, lambda X: _general_cost(problem, X, losses), lambda X: _general_system(problem, X, losses),
+                   retract, method=method, max_iter=max_iter, step_tol=step_tol, cost_tol=cost_tol,
+                   max_halvings=max_halvings, lm_lambda=lm_lambda)
+    X, f, it, converged, history, N = res.x, res.cost, res.iterations, res.converged, res.history, res.N
+    fac = factor_spd(N)
+    observable = fac.observable
+    if not observable:
+        warnings.warn(f"solve_centralized: the problem is unobservable (gauge freedom; smallest relative "
+                      f"pivot {fac.min_pivot_ratio:.1e}): the estimate is one of many optima", GaugeWarning,
+                      stacklevel=3)
+    cov = cov_full = None
+    if covariance != "none":
+        nf = int(free.sum())
+        cov = np.zeros((n, 3, 3))
+        full_free = None
+        if not observable:
+            cov[free] = np.nan
+            full_free = np.full((3 * nf, 3 * nf), np.nan)
+        elif covariance == "full" or 3 * nf <= _DENSE_LIMIT:
+            full_free = fac.solve(np.eye(3 * nf))
+            full_free = 0.5 * (full_free + full_free.T)
+            idx = np.arange(nf)
+            cov[free] = full_free.reshape(nf, 3, nf, 3)[idx, :, idx, :]
+        else:
+            cov[free] = _marginal_blocks(N, nf)
+        if covariance == "full":
+            sel = np.flatnonzero(np.repeat(free, 3))
+            cov_full = np.zeros((3 * n, 3 * n))
+            cov_full[np.ix_(sel, sel)] = full_free
+    return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history), observable, method)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -532,6 +726,8 @@ def solve_distributed(
     max_age: int | None = None,
     local_solver: str = "schur",
     damping: float = 1.0,
+    x0: np.ndarray | None = None,
+    cov0: np.ndarray | None = None,
 ) -> DistributedResult:
     """The paper's distributed message iteration (section 2.3.2, Table 1), synchronous rounds.
 
@@ -554,6 +750,14 @@ def solve_distributed(
     damping: fraction in (0, 1] of the local Gauss-Newton step applied (1 = the paper). Undamped
     "fixed" iterations can oscillate and diverge on this nonlinear problem (measured: 1 of 3
     seeded 18-UAV epochs); 0.5 removes the oscillating modes of the Jacobi iteration.
+    x0, cov0: warm start, (n, 3) m and (n, 3, 3) m^2 (e.g. the previous epoch's estimates moved by
+    the motion model): the first linearization point and the round-0 broadcast instead of the
+    GNSS fix and its covariance (cov0 None: the GNSS covariance, or NO_INFO_VAR I for a node
+    without a prior). The GNSS factors stay at the fixes.
+    Fixed nodes (problem.fixed) broadcast their known position with a zero covariance and never
+    move. A node without a prior has no GNSS factor; its local step gets a Levenberg term
+    LOCAL_DAMPING I (m^-2) so that it is defined with fewer than three neighbours (the step is
+    then zero along the unobserved directions and the covariance ~ 1/LOCAL_DAMPING there).
     """
     if mode not in ("gnss", "single", "iterate"):
         raise ValueError(f"solve_distributed: unknown mode {mode!r}")
@@ -567,11 +771,21 @@ def solve_distributed(
         raise ValueError(f"solve_distributed: damping must be in (0, 1], got {damping}")
     if loss_prob > 0.0 and rng is None:
         raise ValueError("solve_distributed: loss_prob > 0 needs an rng (numpy Generator)")
+    if local_solver == "qr" and not problem.is_plain:
+        raise ValueError("solve_distributed: local_solver='qr' needs every node with a prior and none fixed")
     n, m = problem.n, problem.m
     z, Sg = problem.gnss_pos, problem.gnss_cov
     info_g = np.linalg.inv(Sg)
-    X = z.copy()
-    P = Sg.copy()
+    X = z.copy() if x0 is None else np.array(x0, dtype=float).reshape(n, 3)
+    P = Sg.copy() if cov0 is None else np.array(cov0, dtype=float).reshape(n, 3, 3)
+    plain = problem.is_plain
+    if not plain:
+        no_prior = ~problem.prior & ~problem.fixed
+        info_g[no_prior] = LOCAL_DAMPING * np.eye(3)
+        if cov0 is None:
+            P[no_prior] = NO_INFO_VAR * np.eye(3)
+        X[problem.fixed] = z[problem.fixed]
+        P[problem.fixed] = 0.0
     hist = [X.copy()]
     steps: list[float] = []
     if mode == "gnss":
@@ -628,6 +842,9 @@ def solve_distributed(
             w = huber_weight(res / np.sqrt(s2), huber) / s2
             Lam = info_g.copy()
             g = np.einsum("nab,nb->na", info_g, z - X)
+            if not plain:
+                g[no_prior] = 0.0  # Levenberg term: damping only, no pull towards gnss_pos
+                Lam[problem.fixed] = np.eye(3)  # fixed nodes do not solve (their step is zeroed)
             # eq. 16 (local): (A_i^T A_i) Delta_i = A_i^T b_i, accumulated factor by factor
             np.add.at(Lam, dst[v], w[:, None, None] * u[:, :, None] * u[:, None, :])
             np.add.at(g, dst[v], (w * res)[:, None] * u)
@@ -637,6 +854,9 @@ def solve_distributed(
             Ci = np.linalg.inv(c)
             P_new = np.einsum("nba,nbc->nac", Ci, Ci)
         dX = damping * dX
+        if not plain:
+            dX[problem.fixed] = 0.0
+            P_new[problem.fixed] = 0.0
         X = X + dX
         P = 0.5 * (P_new + np.swapaxes(P_new, 1, 2))
         hist.append(X.copy())

@@ -22,7 +22,7 @@ from estimators.factor_graph import (
     solve_distributed,
     whitened_system,
 )
-from testbed.synthetic.coop import is_connected, make_epoch
+from testbed.synthetic.coop import is_connected, make_epoch, nlos_epoch
 
 gtsam_reference = pytest.importorskip("estimators.gtsam_reference")
 
@@ -274,11 +274,7 @@ def test_huber_reduces_error_under_nlos_bias():
     K = 40
     wins = 0
     for s in range(K):
-        ep0 = make_epoch(18, seed=2000 + s)
-        e0 = ep0.problem.edges
-        cand = np.flatnonzero(~ep0.is_rtk[e0[:, 0]] & ~ep0.is_rtk[e0[:, 1]])
-        k = int(np.random.default_rng(s).choice(cand))
-        ep = make_epoch(18, seed=2000 + s, nlos={k: 5.0})
+        ep, k = nlos_epoch(s)
         p = ep.problem
         ls = solve_centralized(p, covariance="none")
         hb = solve_centralized(p, huber=HUBER_DELTA, covariance="none")

@@ -112,3 +112,13 @@ def epoch_factory(n_rtk: int = 3):
         return ep.truth, ep.problem
 
     return factory
+
+
+def nlos_epoch(seed: int, bias: float = 5.0) -> tuple[SyntheticEpoch, int]:
+    """An 18-UAV epoch (make_epoch seed 2000 + seed) whose range k between two SPP UAVs (drawn
+    with Generator(seed)) carries a +bias metres NLOS error. Returns (epoch, k)."""
+    ep0 = make_epoch(18, seed=2000 + seed)
+    e0 = ep0.problem.edges
+    cand = np.flatnonzero(~ep0.is_rtk[e0[:, 0]] & ~ep0.is_rtk[e0[:, 1]])
+    k = int(np.random.default_rng(seed).choice(cand))
+    return make_epoch(18, seed=2000 + seed, nlos={k: bias}), k
