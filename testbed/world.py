@@ -81,7 +81,7 @@ def _attach_vehicles(spec: mujoco.MjSpec, template: mujoco.MjSpec, n: int) -> No
     such blocks hold 100..199, and so on. Every attach goes into a spec of at most ten children,
     O(n log n) in all (4 s for 1000 vehicles). The compiled model is the same as with one by one
     attaching (vehicles in numerical order; the blocks' frames are identities); the scene XML has
-    the blocks' nested frames and default classes.
+    the blocks' nested default classes.
     """
     for k in range(len(str(n))):  # vehicles with k + 1 digits
         for a in range(1, 10):
@@ -106,12 +106,13 @@ def build(scenario: Scenario) -> "Physics":
         spec.worldbody.add_site(name=f"anchor{k}", pos=p, size=[0.05, 0, 0], rgba=[1, 0.8, 0.1, 1], group=4)
         spec.worldbody.add_geom(
             name=f"anchor{k}_mast", type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[p[0], p[1], p[2] / 2],
-            size=[0.03, max(p[2] / 2, 0.01), 0], material="anchor", contype=0, conaffinity=0, group=1,
+            size=[0.03, max(p[2] / 2, 0.01), 0], material="anchor", contype=0, conaffinity=0, group=2,
         )
+    environment = spec.find_default("arena")  # group 0: drawn, colliding (models/arena.xml)
     for k, ob in enumerate(w.obstacles, start=1):
         gtype = mujoco.mjtGeom.mjGEOM_BOX if ob.type == "box" else mujoco.mjtGeom.mjGEOM_CYLINDER
         half = np.radians(ob.yaw_deg) / 2
-        spec.worldbody.add_geom(name=f"obstacle{k}", type=gtype, pos=ob.pos, size=ob.size, quat=[np.cos(half), 0, 0, np.sin(half)], material="obstacle")
+        spec.worldbody.add_geom(environment, name=f"obstacle{k}", type=gtype, pos=ob.pos, size=ob.size, quat=[np.cos(half), 0, 0, np.sin(half)], material="obstacle")
     # Scene extent for the free camera and clipping planes (znear/zfar are in units of extent).
     pts = ref0.pos[0]
     extent = float(max(10.0, np.ptp(pts, axis=0).max(), *(np.abs(np.array(w.anchors)).max(axis=0) if w.anchors else [0])))
