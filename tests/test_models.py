@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from testbed import scenario
-from testbed.bench import swarm_scenario
+from testbed.bench.sensors import arena_swarm
+from testbed.bench.swarm import swarm_scenario
 from testbed.reference import GRAVITY
-from testbed.sensors.bench import swarm_scenario as sensor_swarm_scenario
 from testbed.simulate import simulate
 from testbed.world import MODELS, _attach, _attach_vehicles, _vehicle_spec, _vehicle_template, build
 
@@ -27,7 +27,7 @@ def _scenes() -> dict[str, "scenario.Scenario"]:
     scenes = {f"{name}/{motion}": scenario.load(name, {}, motion=motion, duration=SHORT_S)
               for name in scenario.builtin_names() for motion in ("prescribed", "flown")}
     scenes.update({f"bench-swarm-{n}": swarm_scenario(n, SHORT_S) for n in (1, 6, 12)})
-    scenes["sensor-bench-swarm"] = sensor_swarm_scenario(SHORT_S, {"imu": {}, "gnss": {}, "uwb": {"max_range": 100.0}})
+    scenes["sensor-bench-swarm"] = arena_swarm(SHORT_S, {"imu": {}, "gnss": {}, "uwb": {"max_range": 100.0}})
     return scenes
 
 
