@@ -169,8 +169,9 @@ def test_resume_refuses_a_different_scenario(tmp_path):
 def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path):
     p = _start(tmp_path, "sweep", "bandwidth", "--runs", "4", "--workers", "2", "--duration", "30", "--out", "sw")
     _wait_for(lambda: any(t.glob(".run-*.testbed-tmp.*") for t in _tmp_dirs(tmp_path, "sw")), "a run in a worker")
+    # the pool's processes (resource tracker + 2 workers) may still be starting: wait for them
+    _wait_for(lambda: len(_children(p.pid)) >= 3, "the sweep's worker processes")
     workers = _children(p.pid)
-    assert len(workers) >= 2
     p.kill()
     p.communicate()
     t0 = time.monotonic()
