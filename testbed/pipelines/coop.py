@@ -13,10 +13,13 @@ and there is no lever arm (the estimator knows no attitude to rotate one). Truth
 
 Inputs of the estimators, nothing else: `gnss/value` with the receiver's solution type
 `gnss/rtk` (a real receiver reports its fix type), `uwb/value`, `uwb/src`, `uwb/dst`, and the
-"known" noise model of [pipeline] (gnss_sigma_*, rtk_sigma_*, range_sigma, clock_ppm): a
-mismatch between these and the sensor tables is the configurable error of the known quantities.
-The UWB clock scale factor is absorbed: sigma_k^2 = range_sigma^2 + (clock_ppm 1e-6 d_k)^2 / 2
-(two-way ranging averages both clocks; <= 1.4 mm at 100 m). `uwb/nlos` is truth (scoring only).
+"known" noise model of [pipeline] (gnss_sigma_*, rtk_sigma_*, range_sigma, clock_ppm, twr_mode,
+reply_time, antenna_delay_sigma): a mismatch between these and the sensor tables is the
+configurable error of the known quantities. The two-way ranging clock and antenna-delay errors are
+absorbed as white: sigma_k^2 = range_sigma^2 + twr_range_variance(d_k) (range_sigmas;
+testbed.sensors.noise, docs/sensors.md): (clock_ppm 1e-6 d_k)^2 / 2 + 2 antenna_delay_sigma^2 for
+"scale" and "ds-twr" (<= 1.4 mm of clock at 100 m), plus the reply-time term for "ss-twr".
+`uwb/nlos` is truth (scoring only).
 
 Estimators (metrics.json `estimators.*`):
 - gnss_only: the fix itself, covariance = the known GNSS covariance;
@@ -41,6 +44,7 @@ import numpy as np
 
 from testbed.config import ConfigError, check
 from testbed.pipelines import register
+from testbed.sensors.noise import twr_range_variance
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
@@ -51,8 +55,10 @@ class CoopConfig:
 
     gnss_sigma_h, gnss_sigma_v / rtk_sigma_h, rtk_sigma_v: the GNSS noise the estimators assume,
     1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`).
-    range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock scale factor
-    (ppm, 1 sigma per device), absorbed into the range variance.
+    range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock frequency offset
+    (ppm, 1 sigma per device); twr_mode ("scale" | "ss-twr" | "ds-twr"), reply_time (s) and
+    antenna_delay_sigma (m of range per device, 1 sigma): the assumed two-way ranging scheme;
+    clock and antenna-delay errors are absorbed into the range variance (range_sigmas).
     robust: "none" (least squares) or "huber" range factors, threshold huber_delta (in sigmas).
     neighbour_model: "prior" (the paper: neighbours' broadcasts as priors with their covariances)
     or "fixed" (neighbours fixed, block-Jacobi: converges to the centralized optimum, slower).
@@ -72,6 +78,9 @@ class CoopConfig:
     rtk_sigma_v: float = 0.03
     range_sigma: float = 0.10
     clock_ppm: float = 20.0
+    twr_mode: Literal["scale", "ss-twr", "ds-twr"] = "scale"
+    reply_time: float = 330e-6
+    antenna_delay_sigma: float = 0.0
     robust: Literal["none", "huber"] = "none"
     huber_delta: float = 1.345
     neighbour_model: Literal["prior", "fixed"] = "prior"
@@ -87,7 +96,8 @@ class CoopConfig:
     def check(self) -> None:
         for k in ("gnss_sigma_h", "gnss_sigma_v", "rtk_sigma_h", "rtk_sigma_v", "range_sigma", "huber_delta", "tol"):
             check(getattr(self, k) > 0, k, f"must be positive, got {getattr(self, k)}")
-        check(self.clock_ppm >= 0, "clock_ppm", f"must be >= 0, got {self.clock_ppm}")
+        for k in ("clock_ppm", "reply_time", "antenna_delay_sigma"):
+            check(getattr(self, k) >= 0, k, f"must be >= 0, got {getattr(self, k)}")
         check(0 < self.damping <= 1, "damping", f"must be in (0, 1], got {self.damping}")
         check(self.max_rounds >= 1, "max_rounds", f"must be at least 1, got {self.max_rounds}")
         check(0 <= self.message_loss < 1, "message_loss", f"must be in [0, 1), got {self.message_loss}")
@@ -216,6 +226,12 @@ def gnss_covariances(cfg: CoopConfig, is_rtk: np.ndarray) -> np.ndarray:
     return cov
 
 
+def range_sigmas(cfg: CoopConfig, d: np.ndarray) -> np.ndarray:
+    """Range standard deviations (m) the estimators assume for ranges d (m): the white noise plus the
+    two-way ranging clock and antenna-delay variance of the known model, absorbed as white."""
+    return np.sqrt(cfg.range_sigma ** 2 + twr_range_variance(cfg.twr_mode, d, cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma))
+
+
 def estimate(cfg: CoopConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
     """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
     from estimators.core import nees
@@ -236,8 +252,7 @@ def estimate(cfg: CoopConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) ->
     joint = np.full(K, np.nan)
     for k in range(K):
         e, d = epochs.edges[k], epochs.ranges[k]
-        # clock scale factor absorbed: var = sigma_d^2 + (ppm 1e-6 d)^2 / 2 (mean of two clocks)
-        sig = np.sqrt(cfg.range_sigma ** 2 + 0.5 * (cfg.clock_ppm * 1e-6 * d) ** 2)
+        sig = range_sigmas(cfg, d)
         prob = CoopProblem(gnss_pos=epochs.gnss[k], gnss_cov=Sg, edges=e, ranges=d, range_sigma=sig)
         silent = {cfg.silent_uav - 1: 0} if cfg.silent_uav and epochs.time[k] >= cfg.silent_from_s else None
         for w in which:
