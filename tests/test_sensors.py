@@ -474,8 +474,8 @@ def test_presets_fill_and_resolve():
     sc = scenario({"imu": {"preset": "paper004", "gyro": {"noise_density": 1e-4}}, "gnss": {"rtk_vehicles": [2]}})
     imu = sc.sensors.imu
     assert imu.gyro.noise_density == 1e-4  # explicit key wins
-    assert imu.gyro.bias == pytest.approx(0.1 * math.pi / 180 / 3600)  # 0.1 deg/h
-    assert imu.accel.bias == pytest.approx(250e-6 * 9.80665)
+    assert imu.gyro.bias_sigma == pytest.approx(0.1 * math.pi / 180 / 3600)  # 0.1 deg/h, drawn per vehicle
+    assert imu.accel.bias_sigma == pytest.approx(250e-6 * 9.80665)
     assert imu.accel.noise_density == pytest.approx(50e-6 * 9.80665)
     assert imu.gyro.noise_density != pytest.approx(0.08 * math.pi / 180 / 60)
     resolved = to_dict(sc)

@@ -255,8 +255,10 @@ class CoopPipelineConfig(_PipelineConfig):
 
     gnss_sigma_h, gnss_sigma_v / rtk_sigma_h, rtk_sigma_v: the GNSS noise the estimators assume,
     1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`).
-    range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock scale factor
-    (ppm, 1 sigma per device), absorbed into the range variance.
+    range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock frequency offset
+    (ppm, 1 sigma per device); twr_mode ("scale" | "ss-twr" | "ds-twr"), reply_time (s) and
+    antenna_delay_sigma (m of range per device, 1 sigma): the assumed two-way ranging scheme;
+    clock and antenna-delay errors are absorbed into the range variance (pipelines.coop.range_sigmas).
     robust: "none" (least squares) or "huber" range factors, threshold huber_delta (in sigmas).
     neighbour_model: "prior" (the paper: neighbours' broadcasts as priors with their covariances)
     or "fixed" (neighbours fixed, block-Jacobi: converges to the centralized optimum, slower).
@@ -276,6 +278,9 @@ class CoopPipelineConfig(_PipelineConfig):
     rtk_sigma_v: float = 0.03
     range_sigma: float = 0.10
     clock_ppm: float = 20.0
+    twr_mode: Literal["scale", "ss-twr", "ds-twr"] = "scale"
+    reply_time: float = 330e-6
+    antenna_delay_sigma: float = 0.0
     robust: Literal["none", "huber"] = "none"
     huber_delta: float = 1.345
     neighbour_model: Literal["prior", "fixed"] = "prior"
@@ -292,6 +297,8 @@ class CoopPipelineConfig(_PipelineConfig):
         for k in ("gnss_sigma_h", "gnss_sigma_v", "rtk_sigma_h", "rtk_sigma_v", "range_sigma", "huber_delta", "tol"):
             in_range(self, k, 0, lo_open=True)
         in_range(self, "clock_ppm", 0, unit="ppm")
+        in_range(self, "reply_time", 0, unit="s")
+        in_range(self, "antenna_delay_sigma", 0, unit="m")
         in_range(self, "damping", 0, 1, lo_open=True)
         in_range(self, "max_rounds", 1)
         in_range(self, "message_loss", 0, 1, hi_open=True)

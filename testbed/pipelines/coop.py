@@ -13,10 +13,13 @@ and there is no lever arm (the estimator knows no attitude to rotate one). Truth
 
 Inputs of the estimators, nothing else: `gnss/value` with the receiver's solution type
 `gnss/rtk` (a real receiver reports its fix type), `uwb/value`, `uwb/src`, `uwb/dst`, and the
-"known" noise model of [pipeline] (gnss_sigma_*, rtk_sigma_*, range_sigma, clock_ppm): a
-mismatch between these and the sensor tables is the configurable error of the known quantities.
-The UWB clock scale factor is absorbed: sigma_k^2 = range_sigma^2 + (clock_ppm 1e-6 d_k)^2 / 2
-(two-way ranging averages both clocks; <= 1.4 mm at 100 m). `uwb/nlos` is truth (scoring only).
+"known" noise model of [pipeline] (gnss_sigma_*, rtk_sigma_*, range_sigma, clock_ppm, twr_mode,
+reply_time, antenna_delay_sigma): a mismatch between these and the sensor tables is the
+configurable error of the known quantities. The two-way ranging clock and antenna-delay errors are
+absorbed as white: sigma_k^2 = range_sigma^2 + twr_range_variance(d_k) (range_sigmas;
+testbed.sensors.noise, docs/sensors.md): (clock_ppm 1e-6 d_k)^2 / 2 + 2 antenna_delay_sigma^2 for
+"scale" and "ds-twr" (<= 1.4 mm of clock at 100 m), plus the reply-time term for "ss-twr".
+`uwb/nlos` is truth (scoring only).
 
 Estimators (metrics.json `estimators.*`):
 - gnss_only: the fix itself, covariance = the known GNSS covariance;
@@ -40,6 +43,7 @@ from estimators.factor_graph import CoopProblem, solve_centralized, solve_distri
 from testbed.errors import ConfigError
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.rng import stream_rng
+from testbed.sensors.noise import twr_range_variance
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
@@ -143,6 +147,12 @@ def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
     return cov
 
 
+def range_sigmas(cfg: CoopPipelineConfig, d: np.ndarray) -> np.ndarray:
+    """Range standard deviations (m) the estimators assume for ranges d (m): the white noise plus the
+    two-way ranging clock and antenna-delay variance of the known model, absorbed as white."""
+    return np.sqrt(cfg.range_sigma ** 2 + twr_range_variance(cfg.twr_mode, d, cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma))
+
+
 def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
     """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
 
@@ -160,8 +170,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
     joint = np.full(K, np.nan)
     for k in range(K):
         e, d = epochs.edges[k], epochs.ranges[k]
-        # clock scale factor absorbed: var = sigma_d^2 + (ppm 1e-6 d)^2 / 2 (mean of two clocks)
-        sig = np.sqrt(cfg.range_sigma ** 2 + 0.5 * (cfg.clock_ppm * 1e-6 * d) ** 2)
+        sig = range_sigmas(cfg, d)
         prob = CoopProblem(gnss_pos=epochs.gnss[k], gnss_cov=Sg, edges=e, ranges=d, range_sigma=sig)
         silent = {cfg.silent_uav - 1: 0} if cfg.silent_uav and epochs.time[k] >= cfg.silent_from_s else None
         for w in which:

@@ -93,8 +93,7 @@ def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
     dpos, dcov, dlm = 0.0, 0.0, 0.0
     for k in range(ep.time.size):
         d = ep.ranges[k]
-        sig = np.sqrt(cfg.range_sigma ** 2 + 0.5 * (cfg.clock_ppm * 1e-6 * d) ** 2)
-        prob = CoopProblem(gnss_pos=ep.gnss[k], gnss_cov=Sg, edges=ep.edges[k], ranges=d, range_sigma=sig)
+        prob = CoopProblem(gnss_pos=ep.gnss[k], gnss_cov=Sg, edges=ep.edges[k], ranges=d, range_sigma=coop.range_sigmas(cfg, d))
         ours = solve_centralized(prob)
         Xg, Pg = solve_gtsam(prob)
         Xl, _ = solve_gtsam(prob, optimizer="lm", marginals=False)

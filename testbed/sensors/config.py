@@ -90,8 +90,12 @@ class UwbConfig:
 
     anchor_links: tag-to-anchor ranges; tag_links: tag-to-tag (every pair once). max_range (m):
     true distance beyond which no range is made. noise (m, 1 sigma, white); loss_prob: packet
-    loss per measurement; clock_ppm: 1 sigma of each device's clock scale factor (ppm), range x
-    (1 + (k_src + k_dst)/2 1e-6); link_bias_sigma: constant per-link bias, 1 sigma (m).
+    loss per measurement; clock_ppm: 1 sigma of each device's clock frequency offset (ppm);
+    mode: how the clocks enter the range (testbed.sensors.uwb): "scale" (range x
+    (1 + (k_src + k_dst)/2 1e-6)), "ss-twr" (single-sided two-way ranging, the responder replies
+    after reply_time (s) on its own clock) or "ds-twr" (asymmetric double-sided);
+    antenna_delay_sigma: 1 sigma (m of range) of each device's constant antenna-delay residual;
+    link_bias_sigma: constant per-link bias, 1 sigma (m).
     LOS by mj_ray between the two sites through geoms of groups `los_groups` (0: obstacles and
     floor, 3: vehicle collision boxes), ignoring both end vehicles. nlos: what a blocked link does
     ("bias": + nlos_bias_per_m x blocked span + Exp(mean nlos_bias_mean), noise x
@@ -109,6 +113,9 @@ class UwbConfig:
     noise: float | None = None
     loss_prob: float | None = None
     clock_ppm: float | None = None
+    mode: Literal["scale", "ss-twr", "ds-twr"] | None = None
+    reply_time: float | None = None
+    antenna_delay_sigma: float | None = None
     link_bias_sigma: float | None = None
     nlos: Literal["bias", "drop", "ignore"] | None = None
     nlos_bias_mean: float | None = None
@@ -122,7 +129,7 @@ class UwbConfig:
         _check_rate(self)
         in_range(self, "max_range", 0, lo_open=True, unit="m")
         require(all(0 <= g <= 5 for g in self.los_groups), "los_groups", self.los_groups, f"geom groups are 0..5, got {list(self.los_groups)}")
-        for k in ("noise", "clock_ppm", "link_bias_sigma", "nlos_bias_mean", "nlos_bias_per_m", "outlier_sigma"):
+        for k in ("noise", "clock_ppm", "reply_time", "antenna_delay_sigma", "link_bias_sigma", "nlos_bias_mean", "nlos_bias_per_m", "outlier_sigma"):
             in_range(self, k, 0)
         in_range(self, "nlos_noise_factor", 1)
         for k in ("loss_prob", "outlier_prob"):

@@ -12,7 +12,21 @@ phi = exp(-dt / tau) (exact discretisation).
 """
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
+
+
+def device_rng(stream: np.random.Generator, device: str) -> np.random.Generator:
+    """The child generator of one device (e.g. "uav2", "anchor1") inside a sensor stream.
+
+    Spawned from the stream's own SeedSequence (testbed.rng.stream_rng: one per scenario seed and
+    stream name) with the device name's CRC-32 appended to its spawn key: a device's draws depend
+    only on (seed, stream, device), so adding a vehicle or an anchor never changes another one's.
+    """
+    ss = stream.bit_generator.seed_seq
+    key = zlib.crc32(device.encode("utf-8"))
+    return np.random.default_rng(np.random.SeedSequence(entropy=ss.entropy, spawn_key=(*ss.spawn_key, key)))
 
 
 def white(density: float | np.ndarray, dt: float, normals: np.ndarray) -> np.ndarray:
@@ -78,6 +92,50 @@ class TriadErrors:
         if e.noise_density > 0:
             out += white(e.noise_density, dt, normals[:, 0])
         return out
+
+
+C_LIGHT = 299_792_458.0  # m/s
+
+
+def twr_range(mode: str, d: np.ndarray, ppm_a: np.ndarray, ppm_b: np.ndarray, reply_time: float) -> np.ndarray:
+    """Range (m) that two-way ranging reports for true distances d (m), without noise or delays.
+
+    A (the initiator, `src`) and B (the responder, `dst`) have clock frequency offsets ppm_a,
+    ppm_b (ppm): a clock with offset e = 1e-6 ppm reads (1 + e) t after a true time t. Exact
+    timestamp arithmetic; the first-order forms and the derivation are in docs/sensors.md.
+      "scale":  d (1 + 1e-6 (ppm_a + ppm_b) / 2)            (the first-order double-sided form)
+      "ss-twr": (1 + e_A) d + (c T_reply / 2) (e_A - e_B) / (1 + e_B)
+                ~ d + e_A d + c T_reply (e_A - e_B) / 2, T_reply = reply_time (s) on B's clock
+      "ds-twr": d (1 + e_A)(1 + e_B) / (1 + (e_A + e_B) / 2)  ~ d (1 + (e_A + e_B) / 2)
+    d, ppm_a, ppm_b: (L,) per link.
+    """
+    if mode == "scale":
+        return d * (1.0 + 1e-6 * (ppm_a + ppm_b) / 2)
+    ea, eb = 1e-6 * ppm_a, 1e-6 * ppm_b
+    if mode == "ss-twr":
+        # T_round (A's clock) = (1 + e_A)(2 tof + T_reply / (1 + e_B)); range = c (T_round - T_reply) / 2
+        return (1.0 + ea) * d + 0.5 * C_LIGHT * reply_time * (ea - eb) / (1.0 + eb)
+    if mode == "ds-twr":
+        # asymmetric DS-TWR: tof = (R_A R_B - D_A D_B) / (R_A + R_B + D_A + D_B), each interval on its own clock
+        return d * (1.0 + ea) * (1.0 + eb) / (1.0 + 0.5 * (ea + eb))
+    raise ValueError(f"unknown two-way ranging mode {mode!r}")
+
+
+def twr_range_variance(mode: str, d: np.ndarray, clock_ppm: float, reply_time: float, antenna_delay_sigma: float) -> np.ndarray:
+    """Variance (m^2) of the clock and antenna-delay error of a two-way range of true length d (m),
+    to first order, with independent per-device clock offsets ~ N(0, clock_ppm^2) (ppm) and
+    antenna delays ~ N(0, antenna_delay_sigma^2) (m); the white range noise is not included.
+      "scale", "ds-twr": (s d)^2 / 2 + 2 sigma_ad^2
+      "ss-twr":          s^2 ((d + h)^2 + h^2) + 2 sigma_ad^2,  h = c T_reply / 2
+    with s = 1e-6 clock_ppm. d: (L,) m.
+    """
+    s = 1e-6 * clock_ppm
+    if mode == "ss-twr":
+        h = 0.5 * C_LIGHT * reply_time
+        clock = s ** 2 * ((d + h) ** 2 + h ** 2)
+    else:
+        clock = 0.5 * (s * d) ** 2
+    return clock + 2.0 * antenna_delay_sigma ** 2
 
 
 def allan_deviation(y: np.ndarray, dt: float, m: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ ARW_DEG_SQRT_H = DEG / 60.0  # rad/s/sqrt(Hz) per deg/sqrt(h): 1 sqrt(h) = 60 sq
 # Keys of one instrument (accel or gyro), per axis, SI:
 #   noise_density   white noise density N (m/s^2/sqrt(Hz) or rad/s/sqrt(Hz)); sample sigma N/sqrt(dt)
 #   bias            constant bias, the same on every axis and vehicle (m/s^2 or rad/s)
-#   bias_sigma      turn-on bias 1 sigma, drawn per vehicle and axis at start
+#   bias_sigma      turn-on bias 1 sigma, drawn per vehicle (own child stream) and axis at start
 #   bias_walk       bias random-walk density K (unit/s/sqrt(Hz) = unit/sqrt(s)); eq. 2/4 eta_u
 #   gm_sigma, gm_tau  first-order Gauss-Markov bias: steady-state 1 sigma and time constant (s)
 #   scale_sigma     scale-factor error 1 sigma (dimensionless), diagonal of K_g / K_a (eqs. 1, 3)
@@ -33,10 +33,13 @@ IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
     # micro-g/sqrt(h) is not a noise-density unit; read as 50 micro-g/sqrt(Hz) (a navigation-grade
     # accelerometer; the literal /60 reading would give 0.8 micro-g/sqrt(Hz), implausibly good).
     # The gyro 0.08 deg/sqrt(h) is an angle random walk: 0.08/60 deg/s/sqrt(Hz).
-    # Biases are constant (eq. 2/4 with eta_u = 0, "b_a constant in the paper's run").
+    # Biases are constant in time (eq. 2/4 with eta_u = 0, "b_a constant in the paper's run"), and
+    # the paper's 250 micro-g / 0.1 deg/h are their 1 sigma: each vehicle and axis draws its own
+    # turn-on bias from N(0, sigma^2), the prior the filter assumes. (One fixed value on every
+    # vehicle would cancel in the relative problem and flatter every filter.)
     "paper004": {
-        "accel": {**_ZERO_INSTR, "noise_density": 50.0 * UG, "bias": 250.0 * UG},
-        "gyro": {**_ZERO_INSTR, "noise_density": 0.08 * ARW_DEG_SQRT_H, "bias": 0.1 * DPH},
+        "accel": {**_ZERO_INSTR, "noise_density": 50.0 * UG, "bias_sigma": 250.0 * UG},
+        "gyro": {**_ZERO_INSTR, "noise_density": 0.08 * ARW_DEG_SQRT_H, "bias_sigma": 0.1 * DPH},
     },
     # Bosch BMI088 (data sheet BST-BMI088-DS001, Table 1 "accelerometer" / Table 2 "gyroscope"),
     # typical values, each datasheet +/- tolerance taken as 1 sigma:
@@ -69,19 +72,37 @@ IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
 }
 
 # ------------------------------------------------------------------------------------- UWB
+# Clock and antenna-delay keys (testbed.sensors.uwb has the equations):
+#   mode                "scale" (range x (1 + mean of the two clock offsets): the first-order
+#                       double-sided model, kept as the default of the SPEC presets), "ss-twr"
+#                       or "ds-twr" (the exact timestamp arithmetic of both two-way schemes)
+#   clock_ppm           1 sigma of each device's crystal frequency offset (ppm)
+#   reply_time          responder's reply delay of SS-TWR (s, on its own clock); DS-TWR (the
+#                       asymmetric formula) does not depend on it
+#   antenna_delay_sigma 1 sigma of each device's antenna-delay residual, as range (m): a range
+#                       between devices A and B carries b_A + b_B
+DW1000_REPLY_TIME = 330e-6  # s: the DW1000 SS-TWR example responder's delay, 330 UWB microseconds (~0.34 ms)
 UWB_PRESETS: dict[str, dict[str, float | str]] = {
-    "ideal": dict(noise=0.0, loss_prob=0.0, clock_ppm=0.0, link_bias_sigma=0.0, nlos="ignore",
+    "ideal": dict(noise=0.0, loss_prob=0.0, clock_ppm=0.0, mode="scale", reply_time=DW1000_REPLY_TIME,
+                  antenna_delay_sigma=0.0, link_bias_sigma=0.0, nlos="ignore",
                   nlos_bias_mean=0.0, nlos_bias_per_m=0.0, nlos_noise_factor=1.0, outlier_prob=0.0, outlier_sigma=0.0),
     # Seed 001 (SPEC defaults for its lost Table 2): 0.10 m white noise, 20 ppm crystal scale
     # factor; the paper has no NLOS: the physics still flags blocked links, which get the DW1000
     # NLOS model below.
-    "paper001": dict(noise=0.10, loss_prob=0.0, clock_ppm=20.0, link_bias_sigma=0.0, nlos="bias",
+    "paper001": dict(noise=0.10, loss_prob=0.0, clock_ppm=20.0, mode="scale", reply_time=DW1000_REPLY_TIME,
+                     antenna_delay_sigma=0.0, link_bias_sigma=0.0, nlos="bias",
                      nlos_bias_mean=0.3, nlos_bias_per_m=1.0, nlos_noise_factor=3.0, outlier_prob=0.0, outlier_sigma=0.0),
     # A Decawave DW1000-class two-way ranging radio: +/-10 cm LOS accuracy (DW1000 data sheet),
-    # 20 ppm crystal, 5 cm per-link antenna-delay residual, 2 % packet loss; NLOS: exponential
-    # excess delay with mean 0.3 m plus 1 m per m of blocking material ((sqrt(eps_r) - 1) ~ 1 for
-    # concrete/brick), 3x noise; 1 % gross outliers of 3 m (multipath lock-on to a late path).
-    "dw1000": dict(noise=0.10, loss_prob=0.02, clock_ppm=20.0, link_bias_sigma=0.05, nlos="bias",
+    # 38.4 MHz reference crystal of the +/-20 ppm class (taken as 1 sigma, untrimmed), asymmetric
+    # double-sided TWR (Decawave APS013, the scheme its application notes recommend against the
+    # clock error of SS-TWR, APS011), antenna delay calibrated per unit (DW1000 user manual,
+    # "antenna delay calibration"; APS014) to a residual of 3.5 cm per device (the 5 cm per link
+    # of this preset's earlier per-link model split over the two ends, 5 / sqrt(2)), 2 % packet
+    # loss; NLOS: exponential excess delay with mean 0.3 m plus 1 m per m of blocking material
+    # ((sqrt(eps_r) - 1) ~ 1 for concrete/brick), 3x noise; 1 % gross outliers of 3 m
+    # (multipath lock-on to a late path).
+    "dw1000": dict(noise=0.10, loss_prob=0.02, clock_ppm=20.0, mode="ds-twr", reply_time=DW1000_REPLY_TIME,
+                   antenna_delay_sigma=0.035, link_bias_sigma=0.0, nlos="bias",
                    nlos_bias_mean=0.3, nlos_bias_per_m=1.0, nlos_noise_factor=3.0, outlier_prob=0.01, outlier_sigma=3.0),
 }
 

@@ -14,17 +14,27 @@ reaches down to a plane) are ray-cast (Physics.segments_may_hit); the others are
 Blocked span: distance between the first hit seen from each end (a second ray from the
 destination), i.e. the length of the segment inside/between blocking geoms.
 
-Range model (m), per measurement:
-  value = d (1 + 1e-6 (k_src + k_dst) / 2) + c_link + s e1 + [NLOS] (nlos_bias_per_m span +
+Range model (m), per measurement, src = initiator A, dst = responder B:
+  value = twr(d, k_A, k_B) + b_A + b_B + c_link + s e1 + [NLOS] (nlos_bias_per_m span +
           nlos_bias_mean E) + [outlier] outlier_sigma e2
-with d the true distance between the sites, k per-device clock scale factors ~ N(0, clock_ppm^2)
-(two-way ranging averages both clocks), c_link ~ N(0, link_bias_sigma^2) constant per link,
-s = noise (x nlos_noise_factor when NLOS), E ~ Exp(1), e1, e2 ~ N(0, 1); outlier with probability
-outlier_prob; the measurement is lost with probability loss_prob; nlos = "drop" drops NLOS links,
-"ignore" only flags them. The same number of random draws is made at every sample.
+with d the true distance between the sites, k per-device clock frequency offsets ~
+N(0, clock_ppm^2) (ppm), twr the two-way ranging arithmetic of `mode`
+(testbed.sensors.noise.twr_range: "scale" d (1 + 1e-6 (k_A + k_B)/2); "ss-twr" adds
+c T_reply (e_A - e_B)/2; "ds-twr" the asymmetric double-sided formula), b per-device antenna-delay
+residuals ~ N(0, antenna_delay_sigma^2) (constant), c_link ~ N(0, link_bias_sigma^2) constant per
+link, s = noise (x nlos_noise_factor when NLOS), E ~ Exp(1), e1, e2 ~ N(0, 1); outlier with
+probability outlier_prob; the measurement is lost with probability loss_prob; nlos = "drop" drops
+NLOS links, "ignore" only flags them. The same number of random draws is made at every sample.
+
+Seeding: the stream's generator draws, in order, D clock offsets ("scale" mode), L link biases,
+then each sample's normals, exponentials and uniforms, in every mode. In "ss-twr" and "ds-twr"
+each device's clock offset, and in every mode its antenna delay, come from the device's own child
+stream device_rng(stream, device name) (its first and second normal): adding a device never
+changes another device's clock or delay.
 
 Log: uwb/value, uwb/clean (M, 1) m; uwb/nlos (M,) bool; uwb/outlier (M,) bool; uwb/span (M,)
-m (0 when LOS); src/dst site names. Per device (D,): uwb/devices names, uwb/clock_ppm.
+m (0 when LOS); src/dst site names. Per device (D,): uwb/devices names, uwb/clock_ppm, and
+uwb/antenna_delay (m) when mode is not "scale" or antenna_delay_sigma > 0.
 """
 from __future__ import annotations
 
@@ -32,6 +42,7 @@ import numpy as np
 
 from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import UwbConfig
+from testbed.sensors.noise import device_rng, twr_range
 from testbed.world import Physics
 
 END_TOLERANCE = 1e-3  # m: hits this close to the far end (e.g. the floor under a ground anchor) do not block
@@ -63,7 +74,11 @@ class Uwb:
         D, L = len(names), len(src)
         self.ppm = cfg.clock_ppm * rng.standard_normal(D)
         self.link_bias = cfg.link_bias_sigma * rng.standard_normal(L)
-        self.scale = 1.0 + 1e-6 * (self.ppm[self.src] + self.ppm[self.dst]) / 2
+        own = np.array([device_rng(rng, name).standard_normal(2) for name in names]).reshape(D, 2)  # (clock, delay)
+        if cfg.mode != "scale":
+            self.ppm = cfg.clock_ppm * own[:, 0]
+        self.antenna_delay = cfg.antenna_delay_sigma * own[:, 1]  # (D,) m of range per device
+        self.link_offset = self.antenna_delay[self.src] + self.antenna_delay[self.dst] + self.link_bias  # (L,) m
         self.groups = np.array([1 if g in cfg.los_groups else 0 for g in range(6)], dtype=np.uint8)
         self.geom_body = physics.model.geom_bodyid.copy()
         self.blockers = physics.ray_targets(self.groups)  # geoms the LOS rays can hit
@@ -100,7 +115,7 @@ class Uwb:
         outlier = u[0, links] < cfg.outlier_prob
         keep = u[1, links] >= cfg.loss_prob
         sigma = np.full(len(links), cfg.noise)
-        value = d * self.scale[links] + self.link_bias[links]
+        value = twr_range(cfg.mode, d, self.ppm[self.src[links]], self.ppm[self.dst[links]], cfg.reply_time) + self.link_offset[links]
         if cfg.nlos == "bias":
             sigma[nlos] *= cfg.nlos_noise_factor
             value = value + nlos * (cfg.nlos_bias_per_m * span + cfg.nlos_bias_mean * expo[links])
@@ -119,4 +134,6 @@ class Uwb:
         out = self.rec.arrays()
         out["uwb/devices"] = self.devices.astype(str)
         out["uwb/clock_ppm"] = self.ppm.copy()
+        if self.cfg.mode != "scale" or self.cfg.antenna_delay_sigma > 0:
+            out["uwb/antenna_delay"] = self.antenna_delay.copy()
         return out
