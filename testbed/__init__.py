@@ -11,6 +11,8 @@ The Python API (docs/api.md), loaded on first use so that `import testbed` stays
 Importing it has no side effect; the command line sets its environment (testbed.environment).
 """
 
+import importlib
+
 __version__ = "0.1.0"
 
 _API = ("Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run")
@@ -19,10 +21,9 @@ __all__ = [*_API, "__version__"]
 
 def __getattr__(name: str):
     if name in _API:
-        # lazy: testbed.api loads numpy and mujoco, which `import testbed` must not
-        from testbed import api
-
-        return getattr(api, name)
+        # lazy: testbed.api loads numpy and mujoco, which `import testbed` must not; by name, as
+        # a facade: testbed.api depends on modules that read testbed.__version__ (no real cycle)
+        return getattr(importlib.import_module("testbed.api"), name)
     raise AttributeError(f"module 'testbed' has no attribute {name!r}")
 
 
