@@ -9,6 +9,7 @@
     testbed bench physics|sensors|estimators [--json FILE]
     testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M]
     testbed demo [--out DIR] [--force]
+    testbed schema
 
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
 an output location that is not the testbed's, an OS error such as a full disk) prints one line
@@ -114,6 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
     p.add_argument("--out", type=out_arg, default=Path("runs/demo"), help="an earlier demo here is replaced")
     p.add_argument("--force", action="store_true", help="replace another earlier output of the testbed")
+
+    sub.add_parser("schema", help="print every scenario key with type, unit, default and range (docs/scenario.md)")
     return parser
 
 
@@ -171,6 +174,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.demo import demo
 
         demo(args.out, force=args.force)
+        return 0
+    if args.command == "schema":
+        from testbed.schema import markdown
+
+        print(markdown(), end="")
         return 0
     raise UsageError(f"unknown command {args.command!r}")
 

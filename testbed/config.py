@@ -17,6 +17,7 @@ dotted path (`world.anchors[2]`, `sensors.uwb.noise`).
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
 import types
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
@@ -109,37 +110,79 @@ def to_dict(obj: Any) -> Any:
     """Dataclass -> plain TOML-ready table, every field written out (None fields omitted)."""
     if dataclasses.is_dataclass(obj):
         return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj) if getattr(obj, f.name) is not None}
-    if isinstance(obj, tuple):
+    if isinstance(obj, (tuple, list)):
         return [to_dict(v) for v in obj]
     return obj
 
 
-def set_dotted(data: dict, dotted: str, raw: str, file: str) -> None:
+_KEY_PART = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*|\d+")
+_INDEX = re.compile(r"\[(\d+)\]")
+
+
+def parse_key(dotted: str) -> list[str | int] | None:
+    """`world.obstacles[0].size` -> ['world', 'obstacles', 0, 'size']; None if malformed.
+
+    List elements are addressed by a 0-based index in brackets (`trajectory.offsets[2]`,
+    `world.anchors[1][2]`) or, as before, by a dotted number (`world.anchors.1`).
+    """
+    out: list[str | int] = []
+    for part in dotted.split("."):
+        name, _, rest = part.partition("[")
+        rest = "[" + rest if rest else ""
+        if not _KEY_PART.fullmatch(name) or _INDEX.sub("", rest):
+            return None
+        out.append(int(name) if name.isdigit() else name)
+        out.extend(int(i) for i in _INDEX.findall(rest))
+    return out
+
+
+def format_key(parts: list[str | int]) -> str:
+    """Inverse of parse_key, indices in brackets: ['world', 'anchors', 1] -> 'world.anchors[1]'."""
+    return "".join(f"[{p}]" if isinstance(p, int) else (f".{p}" if i else p) for i, p in enumerate(parts))
+
+
+def set_dotted(data: dict, dotted: str, raw: Any, file: str) -> None:
     """Apply a CLI override `dotted.key=value` to a TOML table in place.
 
-    The key must already exist (after defaults are written out); the value is parsed as TOML, or
-    taken as a string if it does not parse.
+    dotted: a key that must already exist once defaults are written out; list elements by 0-based
+    index, `world.obstacles[0].size` or `trajectory.offsets[2]` (see parse_key). raw: a string is
+    parsed as a TOML value, or taken as a string if it does not parse; any other Python value
+    (from the Python API) is used as it is. The new table is validated by the caller (from_dict).
     """
-    keys = dotted.split(".")
+    parts = parse_key(dotted)
+    if not parts:
+        raise ConfigError(f"{file}: --set {dotted}: malformed key (expected e.g. world.truth_rate or world.obstacles[0].size)")
     node: Any = data
-    for i, k in enumerate(keys[:-1]):
-        if isinstance(node, list) and k.isdigit() and int(k) < len(node):
-            node = node[int(k)]
-        elif isinstance(node, dict) and k in node:
-            node = node[k]
-        else:
-            raise ConfigError(f"{file}: --set {dotted}: no key {'.'.join(keys[: i + 1])!r} in the scenario")
-    last = keys[-1]
-    if not isinstance(node, dict) or last not in node:
-        raise ConfigError(f"{file}: --set {dotted}: no key {dotted!r} in the scenario")
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw
-    node[last] = value
+    for i, k in enumerate(parts):
+        last = i == len(parts) - 1
+        if isinstance(node, list) and isinstance(k, int):
+            if k >= len(node):
+                raise ConfigError(f"{file}: --set {dotted}: no key {format_key(parts[: i + 1])!r} in the scenario "
+                                  f"({format_key(parts[:i])} has {len(node)} element{'s' if len(node) != 1 else ''})")
+        elif not (isinstance(node, dict) and isinstance(k, str) and k in node):
+            shown = format_key(parts[: i + 1]) if not last else format_key(parts)
+            raise ConfigError(f"{file}: --set {dotted}: no key {shown!r} in the scenario")
+        if last:
+            break
+        node = node[k]
+    if isinstance(raw, str):
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+    else:
+        value = to_dict(raw)
+    node[parts[-1]] = value
 
 
 # ------------------------------------------------------------------------------ validation
+
+
+def key(default: Any = dataclasses.MISSING, *, unit: str = "", range: str = "") -> Any:
+    """A configuration field with its unit (and, for a check that is not an interval, its
+    allowed range in words) declared for `testbed schema`; in_range declares the others."""
+    meta = {k: v for k, v in (("unit", unit), ("range", range)) if v}
+    return dataclasses.field(default=default, metadata=meta)
 
 
 def join_key(prefix: str, key: str) -> str:
@@ -159,27 +202,41 @@ def require(cond: bool, key: str, value: object, reason: str) -> None:
         raise FieldError("", key, value, reason)
 
 
+# While testbed.schema.declared_ranges builds configurations, every in_range call records here
+# {(dataclass, field): (lo, hi, lo_open, hi_open, unit)}; None (no recording) otherwise.
+RANGES: dict[tuple[type, str], tuple] | None = None
+
+
 def in_range(obj: object, key: str, lo: float | None = None, hi: float | None = None, *,
              lo_open: bool = False, hi_open: bool = False, unit: str = "") -> None:
     """Require field `key` of obj (a number, or every number of a tuple) to lie in an interval.
 
     lo, hi: bounds (None = unbounded); lo_open, hi_open: exclude the bound. The one place for
     "a number in a range" checks, so that checks of finiteness can be added here once.
+    Also the declaration of the range and unit that `testbed schema` prints (see RANGES).
     """
+    if RANGES is not None:
+        RANGES.setdefault((type(obj), key), (lo, hi, lo_open, hi_open, unit))
     value = getattr(obj, key)
     values = value if isinstance(value, tuple) else (value,)
     ok = all((lo is None or (v > lo if lo_open else v >= lo)) and (hi is None or (v < hi if hi_open else v <= hi)) for v in values)
     if ok:
         return
-    u = f" {unit}" if unit else ""
-    if hi is None:
-        want = ("positive" if lo == 0 else f"> {lo:g}{u}") if lo_open else f">= {lo:g}{u}"
-    elif lo is None:
-        want = f"< {hi:g}{u}" if hi_open else f"<= {hi:g}{u}"
-    else:
-        want = f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}"
+    want = describe_range(lo, hi, lo_open, hi_open, unit)
     got = list(value) if isinstance(value, tuple) else value
     raise FieldError("", key, value, f"must be {want}, got {got}")
+
+
+def describe_range(lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False, unit: str = "") -> str:
+    """An interval for people: 'positive', '>= 0 m', 'in [0, 1)', '<= 5 s'."""
+    u = f" {unit}" if unit else ""
+    if hi is None and lo is None:
+        return "any"
+    if hi is None:
+        return ("positive" if lo == 0 else f"> {lo:g}{u}") if lo_open else f">= {lo:g}{u}"
+    if lo is None:
+        return f"< {hi:g}{u}" if hi_open else f"<= {hi:g}{u}"
+    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}"
 
 
 def whole_ratio(a: float, b: float) -> bool:

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 import tomli_w
 
-from testbed.config import from_dict, in_range, require, set_dotted, to_dict, whole_ratio
+from testbed.config import from_dict, in_range, key, require, set_dotted, to_dict, whole_ratio
 from testbed.errors import ConfigError
 from testbed.pipelines.config import PipelineConfig
 from testbed.sensors.config import SensorsConfig
@@ -36,8 +36,8 @@ class Obstacle:
     """
 
     type: Literal["box", "cylinder"]
-    pos: Vec3
-    size: Vec3
+    pos: Vec3 = key(unit="m")
+    size: Vec3 = key(unit="m")
     yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
@@ -55,12 +55,12 @@ class World:
     positions (m, world); obstacles: static obstacles.
     """
 
-    timestep: float = 0.0025
-    control_rate: float = 200.0
-    truth_rate: float = 10.0
-    antenna_a: float = 1.0
-    antenna_b: float = 1.0
-    anchors: tuple[Vec3, ...] = ()
+    timestep: float = key(0.0025, unit="s")
+    control_rate: float = key(200.0, unit="Hz")
+    truth_rate: float = key(10.0, unit="Hz")
+    antenna_a: float = key(1.0, unit="m")
+    antenna_b: float = key(1.0, unit="m")
+    anchors: tuple[Vec3, ...] = key((), unit="m")
     obstacles: tuple[Obstacle, ...] = ()
 
     def __post_init__(self) -> None:
@@ -93,17 +93,17 @@ class PhaseFormation:
 
     kind: Literal["phase-formation"]
     formation: Literal["line", "cross", "vobtuse", "vacute"]
-    heights: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-    spacing: float = 100.0
-    nav_origin: Vec3 = (0.0, 0.0, 100.0)
-    master_velocity: Vec3 = (0.0, 0.0, 0.0)
-    follower_start: Vec3 = (-200.0, 200.0, 150.0)
-    follower_velocity: Vec3 = (4.0, -4.0, 3.0)
+    heights: tuple[float, float, float, float, float] = key((0.0, 0.0, 0.0, 0.0, 0.0), unit="m")
+    spacing: float = key(100.0, unit="m")
+    nav_origin: Vec3 = key((0.0, 0.0, 100.0), unit="m")
+    master_velocity: Vec3 = key((0.0, 0.0, 0.0), unit="m/s")
+    follower_start: Vec3 = key((-200.0, 200.0, 150.0), unit="m")
+    follower_velocity: Vec3 = key((4.0, -4.0, 3.0), unit="m/s")
     yaw_amp_deg: float = -5.0
     pitch_amp_deg: float = -10.0
     roll_amp_deg: float = 2.5
     attitude_freq_hz: float = 0.005
-    attitude_phase: float = math.pi / 2
+    attitude_phase: float = key(math.pi / 2, unit="rad")
 
     def __post_init__(self) -> None:
         in_range(self, "spacing", 0, lo_open=True)
@@ -121,9 +121,9 @@ class StraightLine:
     """
 
     kind: Literal["straight-line"]
-    start: Vec3
-    velocity: Vec3
-    offsets: tuple[Vec3, ...]
+    start: Vec3 = key(unit="m")
+    velocity: Vec3 = key(unit="m/s")
+    offsets: tuple[Vec3, ...] = key(unit="m")
 
     def __post_init__(self) -> None:
         require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
@@ -145,10 +145,10 @@ class SwarmBox:
     """
 
     kind: Literal["swarm-box"]
-    bases: tuple[Vec3, ...]
-    amplitude: Vec3 = (6.0, 6.0, 3.0)
-    period_min: float = 60.0
-    period_max: float = 120.0
+    bases: tuple[Vec3, ...] = key(unit="m")
+    amplitude: Vec3 = key((6.0, 6.0, 3.0), unit="m")
+    period_min: float = key(60.0, unit="s")
+    period_max: float = key(120.0, unit="s", range=">= period_min")
     rtk: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
@@ -181,14 +181,14 @@ class LeaderFollower:
     """
 
     kind: Literal["leader-follower"]
-    leader_start: Vec3 = (0.0, 0.0, 30.0)
-    leader_velocity: Vec3 = (5.0, 0.0, 0.0)
-    follower_offset: Vec3 = (-20.0, 0.0, 0.0)
-    weave_amp: float = 3.0
-    weave_period: float = 40.0
-    heave_amp: float = 1.0
+    leader_start: Vec3 = key((0.0, 0.0, 30.0), unit="m")
+    leader_velocity: Vec3 = key((5.0, 0.0, 0.0), unit="m/s")
+    follower_offset: Vec3 = key((-20.0, 0.0, 0.0), unit="m")
+    weave_amp: float = key(3.0, unit="m")
+    weave_period: float = key(40.0, unit="s")
+    heave_amp: float = key(1.0, unit="m")
     yaw_amp_deg: float = 10.0
-    yaw_period: float = 30.0
+    yaw_period: float = key(30.0, unit="s")
 
     def __post_init__(self) -> None:
         in_range(self, "weave_period", 0, lo_open=True)
@@ -208,9 +208,9 @@ class Waypoints:
     """
 
     kind: Literal["waypoints"]
-    points: tuple[Vec3, ...]
-    times: tuple[float, ...]
-    offsets: tuple[Vec3, ...] = ((0.0, 0.0, 0.0),)
+    points: tuple[Vec3, ...] = key(unit="m")
+    times: tuple[float, ...] = key(unit="s", range="from 0, increasing")
+    offsets: tuple[Vec3, ...] = key(((0.0, 0.0, 0.0),), unit="m")
     yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
@@ -252,7 +252,7 @@ class Disturbance:
 
     accel_density: float = 0.0
     angular_accel_density: float = 0.0
-    vehicles: tuple[int, ...] = ()
+    vehicles: tuple[int, ...] = key((), range="distinct vehicle numbers; empty = all")
 
     def __post_init__(self) -> None:
         in_range(self, "accel_density", 0, unit="m^2/s^3")
@@ -272,10 +272,10 @@ class Control:
     kx (1/s^2), kv (1/s) position and velocity; kr (1/s^2), kw (1/s) attitude and rate.
     """
 
-    kx: float = 4.0
-    kv: float = 3.0
-    kr: float = 60.0
-    kw: float = 14.0
+    kx: float = key(4.0, unit="1/s^2")
+    kv: float = key(3.0, unit="1/s")
+    kr: float = key(60.0, unit="1/s^2")
+    kw: float = key(14.0, unit="1/s")
 
     def __post_init__(self) -> None:
         for key in ("kx", "kv", "kr", "kw"):
@@ -289,8 +289,8 @@ class Scenario:
     name: str
     description: str
     paper: Literal["003", "004", "000", "001", "none"] = "none"
-    seed: int = 0
-    duration: float
+    seed: int = key(0, range=">= 0")
+    duration: float = key(unit="s")
     motion: Literal["prescribed", "flown"] = "prescribed"
     world: World = field(default_factory=World)
     control: Control = field(default_factory=Control)
@@ -341,11 +341,11 @@ def _read_table(name_or_path: str) -> tuple[dict, str]:
         raise ConfigError(f"{label}: malformed TOML: {e}") from None
 
 
-def load(name_or_path: str, overrides: dict[str, str] | None = None, **top: object) -> Scenario:
+def load(name_or_path: str, overrides: dict[str, object] | None = None, **top: object) -> Scenario:
     """Load a built-in scenario by name or a TOML file by path, apply overrides, validate.
 
-    overrides: dotted key -> raw TOML value, as from `--set key=value` (the key must exist once
-    defaults are written out). top: seed, motion, duration given on the command line (None = keep).
+    overrides: dotted key -> raw TOML value, as from `--set key=value`, or a Python value (the
+    key must exist once defaults are written out; list elements `world.obstacles[0].size`). top: seed, motion, duration given on the command line (None = keep).
     Raises ConfigError with one line naming the file, key and value.
     """
     data, label = _read_table(name_or_path)
