@@ -278,8 +278,8 @@ class Control:
     kw: float = key(14.0, unit="1/s")
 
     def __post_init__(self) -> None:
-        for key in ("kx", "kv", "kr", "kw"):
-            in_range(self, key, 0, lo_open=True)
+        for gain in ("kx", "kv", "kr", "kw"):
+            in_range(self, gain, 0, lo_open=True)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -352,8 +352,8 @@ def load(name_or_path: str, overrides: dict[str, object] | None = None, **top: o
     scenario = from_dict(Scenario, data, label)
     if overrides:
         resolved = to_dict(scenario)
-        for key, raw in overrides.items():
-            set_dotted(resolved, key, raw, label)
+        for dotted, raw in overrides.items():
+            set_dotted(resolved, dotted, raw, label)
         scenario = from_dict(Scenario, resolved, label)
     changes = {k: v for k, v in top.items() if v is not None}
     if changes:
