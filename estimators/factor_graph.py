@@ -2,7 +2,7 @@
 
 Variables: the 3-D positions p_i (ENU, metres, local frame of the scenario origin) of all n UAVs
 at one epoch, stacked as x = [p_0; p_1; ...; p_{n-1}] (3n,).
-Factors (SPEC, seed 001):
+Factors (seed 001, docs/papers.md):
 - GNSS factor per UAV i: z_i = p_i + n_i, n_i ~ N(0, Sigma_i) (Sigma_i: (3, 3) m^2, diagonal
   (s_h^2, s_h^2, s_v^2) for SPP 1.5/3.0 m or RTK 0.02/0.03 m, any SPD matrix accepted);
 - range factor per pair (i, j) within ranging distance: d_ij = |p_i - p_j| + e, e ~ N(0, sigma_d^2)

@@ -1,6 +1,6 @@
 """Seed 003 estimator: EKF on carrier-phase ranges/range rates from M three-antenna masters.
 
-Paper: Pan, Yin, Xu, Ordnance Industry Automation 2023 (shared/seeds/003), eq. 13-31.
+Paper: Pan, Yin, Xu, Ordnance Industry Automation 2023 (docs/papers.md), eq. 13-31.
 State, frames, units and the measurement row ordering are documented in `estimators.phase_model`.
 Pure numpy/scipy: usable on measurements that did not come from MuJoCo.
 

@@ -1,7 +1,7 @@
 """Seed 003 models: carrier-phase ranges between three-antenna UAVs, and the antenna <-> body maps.
 
 Paper: Pan, Yin, Xu, "A new method for relative positioning of UAV group ...", Ordnance Industry
-Automation 2023 (shared/seeds/003). Pure numpy; no mujoco, no testbed.
+Automation 2023 (docs/papers.md). Pure numpy; no mujoco, no testbed.
 
 Frames and conventions (the testbed's, not the paper's)
 -------------------------------------------------------

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg, sparse
 
-from estimators.core import skew
+from estimators.so3 import skew
 from estimators.graph.linear import GaugeWarning, factor_spd
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight

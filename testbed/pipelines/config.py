@@ -39,7 +39,7 @@ class TrackingPipelineConfig(_PipelineConfig):
 
 
 # ------------------------------------------------------------------------------ seed 003 phase
-# SPEC seed 003 initial error and covariance, paper frame (x fwd, y up, z right) mapped to ours
+# seed 003 (docs/papers.md) initial error and covariance, paper frame (x fwd, y up, z right) mapped to ours
 # (x fwd, y left, z up) as (x, -z, y).
 PAPER_POS_ERROR = (-1.33500, 1.68219, -1.62100)  # m      (paper -1.33500, -1.62100, -1.68219)
 PAPER_VEL_ERROR = (0.81860, -0.74150, 0.68610)  # m/s    (paper 0.81860, 0.68610, 0.74150)

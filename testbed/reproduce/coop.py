@@ -297,7 +297,7 @@ def decide(res: CoopResults) -> list[Claim]:
               summary=f"max |dx| {fmt(gt['max_position_diff_m'])} m, max cov rel diff {fmt(gt['max_cov_rel_diff'])} "
                       f"({gt['epochs']} epochs)"),
         Claim(id="distributed_covariance_overconfident",
-              text="(SPEC open question) re-using neighbours' estimates makes the distributed covariance "
+              text="(the paper's open question, docs/papers.md) re-using neighbours' estimates makes the distributed covariance "
                    "over-confident",
               numbers={"anees_spp_iterated": anees_it, "anees_spp_centralized": anees_c,
                        "anees_joint_centralized": jn, "joint_dof": 3 * n,

@@ -89,7 +89,7 @@ def _equal_claim(claim_id: str, text: str, a: list[dict], b: list[dict]) -> Clai
 
 
 def decide(R: dict[str, list[dict]]) -> list[Claim]:
-    """The paper's claims (SPEC seed 003) decided with the module's criteria. R: {scenario: the EKF
+    """The paper's claims (seed 003, docs/papers.md) decided with the module's criteria. R: {scenario: the EKF
     scores of every run}."""
     out = []
     line = R["phase-line-h000"]

@@ -13,7 +13,7 @@ from estimators.phase_ekf import PhaseMeasurement
 from estimators.phase_model import antenna_offsets, antenna_state_from_body, measurement_model
 from estimators.so3 import rot_zyx, rot_zyx_dot
 
-SPACING = 100.0  # m, adjacent masters (SPEC seed 003)
+SPACING = 100.0  # m, adjacent masters (seed 003, docs/papers.md)
 SIGMA_RANGE = 0.05  # m, 1 sigma (paper: 0.15 m is 3 sigma)
 SIGMA_RATE = 0.1  # m/s, 1 sigma (paper: 0.3 m/s is 3 sigma)
 F_ATT = 1.0 / 200.0  # Hz, eq. 31
@@ -68,6 +68,6 @@ def measurements(states: np.ndarray, X0: np.ndarray, V0: np.ndarray, rng: np.ran
     return out
 
 
-# SPEC seed 003 initial covariance, paper frame -> ours (x, -z, y): diagonal entries permuted
+# seed 003 (docs/papers.md) initial covariance, paper frame -> ours (x, -z, y): diagonal entries permuted
 P0_POS = np.diag([1.87306, 3.70352, 3.14771])  # m^2
 P0_VEL = np.diag([0.69928, 0.50587, 0.46008])  # m^2/s^2
