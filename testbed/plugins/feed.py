@@ -12,6 +12,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from testbed.config import to_dict
 from testbed.errors import PluginError
 from testbed.plugins.api import Context, Measurement
 from testbed.plugins.collect import Collector, Track
@@ -35,10 +36,14 @@ def declared_sigma(scenario: Scenario, name: str, log: dict[str, np.ndarray]) ->
     if name == "uwb" and cfg is not None:
         return np.full((rows, 1), float(cfg.noise))
     if name == "gnss" and cfg is not None:
-        def total(e):
-            return np.hypot([e.noise_h, e.noise_h, e.noise_v], [e.bias_h, e.bias_h, e.bias_v])
-        return np.where(log["gnss/rtk"][:, None], total(cfg.rtk), total(cfg.receiver))
+        return np.where(log["gnss/rtk"][:, None], gnss_sigma(to_dict(cfg.rtk)), gnss_sigma(to_dict(cfg.receiver)))
     return None
+
+
+def gnss_sigma(errors: dict) -> np.ndarray:
+    """(3,) m declared (east, north, up) sigma of a GNSS error table (as Context.sensors holds it):
+    white noise and Gauss-Markov bias combined, sqrt(noise^2 + bias^2)."""
+    return np.hypot([errors["noise_h"]] * 2 + [errors["noise_v"]], [errors["bias_h"]] * 2 + [errors["bias_v"]])
 
 
 def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement]:

@@ -25,7 +25,12 @@ from testbed.plugins.spec import EstimatorSpec
 GROUP = "testbed.estimators"
 
 # name -> "module:Class"; the same table as [project.entry-points."testbed.estimators"]
-BUILTIN: dict[str, str] = {}
+BUILTIN: dict[str, str] = {
+    "coop.gnss_only": "testbed.plugins.builtin_coop:GnssOnly",
+    "coop.one_shot": "testbed.plugins.builtin_coop:OneShot",
+    "coop.iterated": "testbed.plugins.builtin_coop:Iterated",
+    "coop.centralized": "testbed.plugins.builtin_coop:Centralized",
+}
 
 
 @dataclass(frozen=True, slots=True)

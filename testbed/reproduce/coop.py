@@ -339,9 +339,11 @@ def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
                          [[r[0], "yes" if r[1] else "", r[2], r[3]] for r in rows])
     md += ["", "## Table 4: position RMSE per UAV (m, pooled over runs) and improvement factor over GNSS only", ""]
     mean_row = [float(np.mean(res.pooled[w])) for w in VARIANTS]
+    plug = list(res.plugins or {})  # plugin estimators (--estimator): one more column each
     md += markdown_table(["UAV", "GNSS only", "one optimization", "message iteration", "centralized", "x one",
-                          "x iter", "x central"],
-                         [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows] + [["mean", *mean_row, "", "", ""]])
+                          "x iter", "x central", *plug],
+                         [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows]
+                         + [["mean", *mean_row, "", "", "", *(float(np.nanmean(res.plugins[k])) for k in plug)]])
     agg = res.metrics[0]["estimators"]
     md += ["", "Run 0: " + "; ".join(f"{w}: {fmt(agg[w]['iterations_mean'])} iterations/epoch, "
                                      f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt(agg[w]['anees'])}"
