@@ -1,13 +1,14 @@
 """The `testbed` command line (also `python -m testbed`).
 
     testbed list
+    testbed estimators
     testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
-                [--set key=value ...] [--video] [--force]
+                [--set key=value ...] [--estimator ENTRY ...] [--video] [--force]
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [run options]
     testbed bench physics|sensors|estimators [--json FILE]
-    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M]
+    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
     testbed demo [--out DIR] [--force]
     testbed schema
 
@@ -49,6 +50,12 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--motion", choices=["prescribed", "flown"], help="motion mode (default: the scenario's)")
     p.add_argument("--duration", type=float, help="run length in seconds (default: the scenario's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario key, e.g. --set world.truth_rate=20")
+    _add_estimator_option(p)
+
+
+def _add_estimator_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--estimator", action="append", default=[], metavar="ENTRY",
+                   help="also run and score this estimator (a name from `testbed estimators`, package.module:Name or file.py:Name); repeatable")
 
 
 def _overrides(items: list[str]) -> dict[str, str]:
@@ -64,7 +71,20 @@ def _overrides(items: list[str]) -> dict[str, str]:
 def _load(args: argparse.Namespace):
     from testbed import scenario  # lazy: see the module docstring
 
-    return scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)
+    sc = scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)
+    return _with_estimators(sc, args.estimator)
+
+
+def _with_estimators(sc, entries: list[str]):
+    """The scenario plus one [[estimators]] table per --estimator, every entry loaded (checked) now."""
+    import dataclasses
+
+    from testbed.plugins.loading import resolve
+    from testbed.plugins.spec import EstimatorSpec
+
+    sc = dataclasses.replace(sc, estimators=sc.estimators + tuple(EstimatorSpec(entry=e) for e in entries))
+    resolve(sc.estimators)  # exit 2 on a bad entry before anything is simulated
+    return sc
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     sub.add_parser("list", help="list the built-in scenarios")
+    sub.add_parser("estimators", help="list the registered estimators with one-line descriptions")
 
     p = sub.add_parser("run", help="simulate a scenario and write its run directory")
     _add_run_options(p)
@@ -111,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
     p.add_argument("--duration", type=float, help="shorten every run (seconds)")
     p.add_argument("--workers", type=int)
+    _add_estimator_option(p)
 
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
     p.add_argument("--out", type=out_arg, default=Path("runs/demo"), help="an earlier demo here is replaced")
@@ -127,6 +149,12 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         for name in scenario.builtin_names():
             print(f"{name:22s} {scenario.load(name).description}")
+        return 0
+    if args.command == "estimators":
+        from testbed.plugins.loading import description, load_class, registered
+
+        for name, target in registered().items():
+            print(f"{name:22s} {description(load_class(name))}  ({target})")
         return 0
     if args.command == "run":
         from testbed.report import fmt
@@ -167,8 +195,13 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "reproduce":
         from testbed.reproduce import reproduce
 
+        from testbed.plugins.loading import resolve
+        from testbed.plugins.spec import EstimatorSpec
+
+        specs = tuple(EstimatorSpec(entry=e) for e in args.estimator)
+        resolve(specs)  # exit 2 on a bad entry before anything is simulated
         reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
-                  force=args.force)
+                  force=args.force, estimators=specs)
         return 0
     if args.command == "demo":
         from testbed.demo import demo
@@ -193,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
             return code
     except TestbedError as e:
         print(f"testbed: error: {e}", file=sys.stderr)
-        return 2
+        return e.exit_code  # 2, or 1 for a plugin that failed during the run
     except KeyboardInterrupt as e:
         what = " ".join(a for a in argv[:2] if not a.startswith("-")) or "testbed"
         detail = getattr(e, "detail", "") or "temporary files removed"

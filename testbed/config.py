@@ -81,6 +81,10 @@ def _convert(tp: Any, value: Any, file: str, path: str) -> Any:
         if not isinstance(value, str):
             raise _fail(file, path, f"expected a string, got {value!r}")
         return value
+    if tp is dict:  # a free table (e.g. an estimator's params), passed through as parsed
+        if not isinstance(value, dict):
+            raise _fail(file, path, f"expected a table, got {value!r}")
+        return value
     raise TypeError(f"unsupported field type {tp} at {path}")
 
 

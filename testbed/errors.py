@@ -1,4 +1,5 @@
-"""The user-facing errors of the testbed: each is one line on stderr and exit code 2.
+"""The user-facing errors of the testbed: each is one line on stderr and exit code 2 (1 for a
+plugin estimator that failed during a run).
 
 Raised anywhere below the command line, caught only in `testbed.cli.main`. A message names the
 file, the dotted key and the offending value where there is one; it never needs a traceback.
@@ -10,6 +11,7 @@ class TestbedError(Exception):
     """A mistake the user can fix (exit code 2): one line, no traceback."""
 
     __test__ = False  # not a pytest test class despite the name
+    exit_code = 2
 
 
 class UsageError(TestbedError):
@@ -35,3 +37,13 @@ class FieldError(ConfigError):
 
 class RunError(TestbedError):
     """A problem with an output location (exists, not ours, not writable)."""
+
+
+class PluginError(TestbedError):
+    """A plugin estimator failed during a run (raised, returned NaN or a wrong shape): exit code 1.
+
+    The message names the estimator, the time and what was wrong. A plugin that cannot be
+    loaded or lacks the protocol is a UsageError (exit 2), found before anything is simulated.
+    """
+
+    exit_code = 1

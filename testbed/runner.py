@@ -1,6 +1,7 @@
 """Writing a run directory (the data contract) atomically.
 
-`run(scenario, out)` simulates, runs the scenario's estimator pipeline, and writes
+`run(scenario, out)` simulates, runs the scenario's estimator pipeline and its plugin estimators
+(`[[estimators]]`, testbed.plugins), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
 `.testbed` into a temporary sibling directory that is renamed to `out` only when everything
@@ -17,6 +18,8 @@ from testbed.errors import ConfigError, RunError
 from testbed.log import save_npz
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
+from testbed.plugins.loading import resolve
+from testbed.plugins.run import run_estimators
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
 
@@ -45,6 +48,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     `out` follows testbed.outdir (refused if not ours; replaced only with force); video: also
     render `video.mp4` before the directory is put in place.
     """
+    plugins = resolve(scenario.estimators)  # a bad plugin entry stops here, before anything is written
     with Output(Path(out), kind="run", force=force) as o:
         tmp = o.path
         log, physics = simulate(scenario, progress=progress)
@@ -60,6 +64,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         }
         (tmp / "plots").mkdir()
         estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
+        estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators)))
         metrics["estimators"], timing = split_timing(estimators)
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())

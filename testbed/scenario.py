@@ -20,6 +20,7 @@ import tomli_w
 from testbed.config import from_dict, in_range, key, require, set_dotted, to_dict, whole_ratio
 from testbed.errors import ConfigError
 from testbed.pipelines.config import PipelineConfig
+from testbed.plugins.spec import EstimatorSpec
 from testbed.sensors.config import SensorsConfig
 
 Vec3 = tuple[float, float, float]
@@ -298,6 +299,7 @@ class Scenario:
     disturbance: Disturbance = field(default_factory=Disturbance)
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
     pipeline: PipelineConfig | None = None
+    estimators: tuple[EstimatorSpec, ...] = ()  # plugin estimators scored beside the pipeline
 
     def __post_init__(self) -> None:
         in_range(self, "duration", 0, lo_open=True, unit="s")

@@ -153,14 +153,40 @@ def range_sigmas(cfg: CoopPipelineConfig, d: np.ndarray) -> np.ndarray:
     return np.sqrt(cfg.range_sigma ** 2 + twr_range_variance(cfg.twr_mode, d, cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma))
 
 
+def epoch_problem(cfg: CoopPipelineConfig, gnss: np.ndarray, gnss_cov: np.ndarray, edges: np.ndarray,
+                  ranges: np.ndarray) -> CoopProblem:
+    """One epoch's problem: fixes (N, 3) m with known covariances (N, 3, 3), edges (m, 2), ranges (m,) m."""
+    return CoopProblem(gnss_pos=gnss, gnss_cov=gnss_cov, edges=edges, ranges=ranges, range_sigma=range_sigmas(cfg, ranges))
+
+
+def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rng: np.random.Generator):
+    """Estimator `w` on one epoch at time t (s): (result, rounds, converged, messages, bytes).
+
+    result has positions (N, 3), cov (N, 3, 3) and, for "centralized", cov_full (3N, 3N); rng: the
+    message-loss draws (used only when cfg.message_loss > 0 and w is a distributed variant)."""
+    n = prob.gnss_pos.shape[0]
+    huber = cfg.huber_delta if cfg.robust == "huber" else None
+    if w == "centralized":
+        res = solve_centralized(prob, huber=huber, covariance="full")
+        # every UAV uploads its fix + covariance (9 floats) and the ranges it initiated
+        # (value + neighbour id): n messages, 8 (9 n + 2 m) bytes
+        return res, res.iterations, res.converged, n, 8 * (9 * n + 2 * prob.m)
+    silent = {cfg.silent_uav - 1: 0} if cfg.silent_uav and t >= cfg.silent_from_s else None
+    mode = {"gnss_only": "gnss", "one_shot": "single", "iterated": "iterate"}[w]
+    loss = cfg.message_loss if mode != "gnss" else 0.0
+    res = solve_distributed(prob, mode=mode, neighbour_model=cfg.neighbour_model, max_rounds=cfg.max_rounds,
+                            tol=cfg.tol, huber=huber, silent_from=silent, loss_prob=loss,
+                            rng=rng if loss > 0 else None, max_age=None if cfg.max_age < 0 else cfg.max_age,
+                            damping=cfg.damping)
+    return res, res.rounds, res.converged, res.messages, res.bytes_sent
+
+
 def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
     """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
 
     K, n = epochs.gnss.shape[:2]
     rng = stream_rng(seed, "links")
     Sg = gnss_covariances(cfg, epochs.is_rtk)
-    huber = cfg.huber_delta if cfg.robust == "huber" else None
-    max_age = None if cfg.max_age < 0 else cfg.max_age
     pos = {w: np.empty((K, n, 3)) for w in which}
     cov = {w: np.empty((K, n, 3, 3)) for w in which}
     rounds = {w: np.zeros(K, dtype=np.int64) for w in which}
@@ -169,28 +195,12 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
     conv = {w: np.ones(K, dtype=bool) for w in which}
     joint = np.full(K, np.nan)
     for k in range(K):
-        e, d = epochs.edges[k], epochs.ranges[k]
-        sig = range_sigmas(cfg, d)
-        prob = CoopProblem(gnss_pos=epochs.gnss[k], gnss_cov=Sg, edges=e, ranges=d, range_sigma=sig)
-        silent = {cfg.silent_uav - 1: 0} if cfg.silent_uav and epochs.time[k] >= cfg.silent_from_s else None
+        prob = epoch_problem(cfg, epochs.gnss[k], Sg, epochs.edges[k], epochs.ranges[k])
         for w in which:
-            if w == "centralized":
-                res = solve_centralized(prob, huber=huber, covariance="full")
-                pos[w][k], cov[w][k] = res.positions, res.cov
-                rounds[w][k], conv[w][k] = res.iterations, res.converged
-                # every UAV uploads its fix + covariance (9 floats) and the ranges it initiated
-                # (value + neighbour id): n messages, 8 (9 n + 2 m) bytes
-                messages[w][k], nbytes[w][k] = n, 8 * (9 * n + 2 * prob.m)
-                joint[k] = float(nees((res.positions - epochs.truth[k]).reshape(-1), res.cov_full))
-                continue
-            mode = {"gnss_only": "gnss", "one_shot": "single", "iterated": "iterate"}[w]
-            loss = cfg.message_loss if mode != "gnss" else 0.0
-            res = solve_distributed(prob, mode=mode, neighbour_model=cfg.neighbour_model, max_rounds=cfg.max_rounds,
-                                    tol=cfg.tol, huber=huber, silent_from=silent, loss_prob=loss,
-                                    rng=rng if loss > 0 else None, max_age=max_age, damping=cfg.damping)
+            res, rounds[w][k], conv[w][k], messages[w][k], nbytes[w][k] = solve_epoch(cfg, w, prob, epochs.time[k], rng)
             pos[w][k], cov[w][k] = res.positions, res.cov
-            rounds[w][k], conv[w][k] = res.rounds, res.converged
-            messages[w][k], nbytes[w][k] = res.messages, res.bytes_sent
+            if w == "centralized":
+                joint[k] = float(nees((res.positions - epochs.truth[k]).reshape(-1), res.cov_full))
     return CoopEstimates(epochs, pos, cov, rounds, messages, nbytes, conv, joint)
 
 

@@ -20,13 +20,19 @@ DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20}
 
 
 def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "prescribed",
-              duration: float | None = None, workers: int | None = None, force: bool = False) -> dict:
-    """Dispatch to the paper's reproduction; returns its summary (claims included)."""
+              duration: float | None = None, workers: int | None = None, force: bool = False,
+              estimators: tuple = ()) -> dict:
+    """Dispatch to the paper's reproduction; returns its summary (claims included).
+
+    estimators: plugin EstimatorSpecs run beside the paper's (coop only: extra table columns)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
+    if estimators and paper != "coop":
+        raise UsageError(f"--estimator: reproduce {paper} does not take plugin estimators yet (reproduce coop does)")
     module = importlib.import_module(f"testbed.reproduce.{paper}")
+    extra = {"estimators": tuple(estimators)} if estimators else {}
     with Output(Path(out), kind=f"reproduce-{paper}", force=force) as o:
-        result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers)
+        result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers, **extra)
         o.commit()
     return result

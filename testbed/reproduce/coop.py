@@ -186,6 +186,7 @@ class CoopResults:
     gtsam: dict
     cap: dict
     nlos: dict | None
+    plugins: dict = None  # {plugin key: (N,) m per-UAV RMSE pooled over runs}; empty without --estimator
 
     @property
     def pooled(self) -> dict[str, np.ndarray]:
@@ -204,9 +205,10 @@ class CoopResults:
 
 
 def compute(out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None,
-            nlos: bool) -> CoopResults:
-    """The Monte Carlo (OUT/runs/run-XXX) and the run-0 analyses (GTSAM check, cap effect, NLOS)."""
-    scenario = load("coop-fg", motion=motion, duration=duration)
+            nlos: bool, estimators: tuple = ()) -> CoopResults:
+    """The Monte Carlo (OUT/runs/run-XXX) and the run-0 analyses (GTSAM check, cap effect, NLOS).
+    estimators: plugin EstimatorSpecs scored in every run (their uwb-site RMSE becomes a column)."""
+    scenario = replace(load("coop-fg", motion=motion, duration=duration), estimators=tuple(estimators))
     cfg = scenario.pipeline
     run_dirs = sweep_runs(scenario, runs, out / "runs", workers=workers)
     metrics = load_metrics(run_dirs)
@@ -219,7 +221,15 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None, worker
         rmse={w: np.array([m["estimators"][w]["rmse_position_m"] for m in metrics]) for w in VARIANTS},
         epochs=ep, est0=est0, neighbours=nb, rtk_neighbours=nr, four=list(cfg.plot_uavs) or coop.choose_four(ep),
         gtsam=_gtsam_check(cfg, ep), cap=_cap_effect(cfg, ep, scenario.seed, est0),
-        nlos=_nlos_experiment(scenario, scenario.seed) if nlos else None)
+        nlos=_nlos_experiment(replace(scenario, estimators=()), scenario.seed) if nlos else None,
+        plugins={s.key: _plugin_rmse(metrics, s.key, scenario.vehicles) for s in estimators})
+
+
+def _plugin_rmse(metrics: list[dict], key: str, n: int) -> np.ndarray:
+    """(N,) m: a plugin's RMSE of each UAV's uwb site, pooled over runs (NaN where it gave none)."""
+    per_run = np.array([[m["estimators"][key]["targets"].get(f"uav{i}/uwb", {}).get("position", {}).get("rmse_m", np.nan)
+                         for i in range(1, n + 1)] for m in metrics])
+    return _pooled(per_run)
 
 
 def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str,
@@ -310,7 +320,13 @@ def _rows(res: CoopResults) -> list[list]:
     """Table 3 and 4 per UAV, in TABLE_COLUMNS order."""
     p, f = res.pooled, res.factor
     return [[i + 1, bool(res.epochs.is_rtk[i]), res.neighbours[i], res.rtk_neighbours[i]]
-            + [p[w][i] for w in VARIANTS] + [f[w][i] for w in VARIANTS[1:]] for i in range(res.neighbours.size)]
+            + [p[w][i] for w in VARIANTS] + [f[w][i] for w in VARIANTS[1:]] + [r[i] for r in (res.plugins or {}).values()]
+            for i in range(res.neighbours.size)]
+
+
+def _columns(res: CoopResults) -> list[str]:
+    """TABLE_COLUMNS plus one rmse_<plugin>_m column per plugin estimator."""
+    return TABLE_COLUMNS + [f"rmse_{k}_m" for k in (res.plugins or {})]
 
 
 def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
@@ -322,13 +338,19 @@ def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
                          [[r[0], "yes" if r[1] else "", r[2], r[3]] for r in rows])
     md += ["", "## Table 4: position RMSE per UAV (m, pooled over runs) and improvement factor over GNSS only", ""]
     mean_row = [float(np.mean(res.pooled[w])) for w in VARIANTS]
+    plug = list(res.plugins or {})  # plugin estimators (--estimator): one more column each
     md += markdown_table(["UAV", "GNSS only", "one optimization", "message iteration", "centralized", "x one",
-                          "x iter", "x central"],
-                         [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows] + [["mean", *mean_row, "", "", ""]])
+                          "x iter", "x central", *plug],
+                         [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows]
+                         + [["mean", *mean_row, "", "", "", *(float(np.nanmean(res.plugins[k])) for k in plug)]])
     agg = res.metrics[0]["estimators"]
     md += ["", "Run 0: " + "; ".join(f"{w}: {fmt(agg[w]['iterations_mean'])} iterations/epoch, "
                                      f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt(agg[w]['anees'])}"
                                      for w in VARIANTS), ""]
+    if plug:  # plugin estimators (--estimator): their own scores, same runs
+        md[-1:-1] = ["Plugin estimators, run 0: " + "; ".join(
+            f"{k}: mean RMSE {fmt(agg[k].get('rmse_position_mean_m'))} m, ANEES {fmt(agg[k].get('anees_position'))}"
+            for k in plug)]
     md += claims_section(claims)
     cap = res.cap
     md += ["", f"Round cap: {cap['cap']} rounds, tol {fmt(cap['tol_m'] * 1e3)} mm: {fmt(100 * cap['capped_fraction'])} % "
@@ -356,7 +378,7 @@ def write(out: Path, res: CoopResults, claims: list[Claim]) -> dict:
     compare_bars(list(VARIANTS), np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
                  np.array([s[2] for s in stats]), out / "plots" / "rmse_mean.png",
                  title=f"Mean per-UAV RMSE over {runs} runs (95 % CI)", ylabel="RMSE [m]")
-    write_csv(out / "table.csv", TABLE_COLUMNS, _rows(res))
+    write_csv(out / "table.csv", _columns(res), _rows(res))
     write_markdown(out / "table.md", _markdown(res, claims))
     spp = res.spp
     extra = {"cap_effect": res.cap}
@@ -370,8 +392,9 @@ def write(out: Path, res: CoopResults, claims: list[Claim]) -> dict:
 
 
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
-              workers: int | None = None, nlos: bool = True) -> dict:
-    """Seed 001 reproduction into `out` (see the module docstring); returns claims.json's content."""
+              workers: int | None = None, nlos: bool = True, estimators: tuple = ()) -> dict:
+    """Seed 001 reproduction into `out` (see the module docstring); returns claims.json's content.
+    estimators: plugin EstimatorSpecs, one more column of Table 4 each."""
     out = Path(out)
-    res = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, nlos=nlos)
+    res = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, nlos=nlos, estimators=estimators)
     return write(out, res, decide(res))

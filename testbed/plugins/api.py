@@ -1,0 +1,102 @@
+"""The estimator protocol: what the testbed gives a plugin, and what a plugin gives back.
+
+A plugin is a class (see docs/estimators.md)
+
+    class MyEstimator:
+        description = "one line"                         # optional, shown by `testbed estimators`
+        def __init__(self, context: Context, params: dict): ...
+        def process(self, m: Measurement) -> Iterable[Estimate]: ...
+        def finish(self) -> Iterable[Estimate]: ...      # optional
+        def health(self) -> dict[str, int]: ...          # optional counts, e.g. covariance_repairs
+
+The testbed constructs it once per run with the `Context` (everything an estimator may know:
+geometry, declared sensor models, prior, its params, a random generator), then calls `process`
+with every `Measurement` in order of arrival (time of validity + latency), one at a time, and
+`finish` once at the end. Nothing else is given: never truth, never the simulator's state. The
+same class therefore runs offline on a log, on recorded data, or online inside a simulation.
+
+Frames and units: world frame ENU (m), bodies FLU; quaternions wxyz, body-to-world, as MuJoCo.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+Quantity = Literal["position", "velocity", "attitude"]
+
+# value length of each estimated quantity
+VALUE_SIZE: dict[str, int] = {"position": 3, "velocity": 3, "attitude": 4}
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Measurement:
+    """One sensor sample, as the receiving estimator sees it.
+
+    stream: log stream name ("gnss", "uwb", "imu", "phase", "camera"); time: time of validity (s);
+    arrival: time + the stream's latency (s), the feeding order; value: (d,) in the stream's units
+    (uwb: range m; gnss: antenna position m world; see docs/sensors.md); src, dst: site names
+    ("uav3/uwb", "anchor2"), dst "" for a per-vehicle stream; sigma: the declared 1-sigma noise
+    (d,) in the units of value, or None when the stream declares none. Arrays are read-only.
+    """
+
+    stream: str
+    time: float
+    arrival: float
+    value: np.ndarray
+    src: str
+    dst: str = ""
+    sigma: np.ndarray | None = None
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Estimate:
+    """One estimate produced by an estimator.
+
+    time: time of validity (s); target: a body ("uav3") or a site ("uav3/uwb");
+    quantity: "position" (m), "velocity" (m/s) or "attitude" (quaternion wxyz, body-to-world);
+    frame: "world" (the only frame scored today); value: (3,) or (4,) for attitude;
+    cov: optional (3, 3) covariance (m^2, (m/s)^2; attitude: rad^2 in the body tangent space,
+    the error being log(R_true^T R_est)).
+    """
+
+    time: float
+    target: str
+    quantity: Quantity
+    value: np.ndarray
+    cov: np.ndarray | None = None
+    frame: Literal["world"] = "world"
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Context:
+    """What an estimator may legitimately know about a run, given to its constructor.
+
+    vehicles: body names ("uav1", ...); sites: {site: (body, lever arm (3,) m body frame)} for every
+    vehicle site; anchors: {name: (3,) m world}; sensors: {stream: declared model: rate_hz (Hz),
+    latency (s) and the noise parameters of the scenario's [sensors.NAME] table};
+    prior: {target: (mean, cov)} the prior the built-in estimators get (empty when they get none);
+    params: this estimator's params table; duration: run length (s); seed: the scenario seed;
+    rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
+    """
+
+    vehicles: tuple[str, ...]
+    sites: dict[str, tuple[str, np.ndarray]]
+    anchors: dict[str, np.ndarray]
+    sensors: dict[str, dict]
+    prior: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    params: dict = field(default_factory=dict)
+    duration: float
+    seed: int
+    rng: np.random.Generator
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """The protocol a plugin implements (`finish`, `health` and `description` are optional)."""
+
+    def __init__(self, context: Context, params: dict) -> None: ...
+
+    def process(self, m: Measurement) -> Iterable[Estimate] | None: ...

@@ -1,0 +1,100 @@
+"""Checking and collecting the estimates one estimator returns.
+
+An estimate must be an `Estimate` of a known target (a vehicle body or one of its sites), a
+known quantity, frame "world", a finite time within the run, a finite value of the right shape
+(attitude: a unit quaternion to 1e-6, renormalized) and, if given, a finite symmetric positive
+definite (3, 3) covariance. Anything else is a PluginError naming the estimator, when and what.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from testbed.errors import PluginError
+from testbed.plugins.api import VALUE_SIZE, Estimate
+from testbed.plugins.loading import Plugin
+
+
+@dataclass(frozen=True, slots=True)
+class Series:
+    """The estimates of one (target, quantity), sorted by time: time (K,) s, value (K, d),
+    cov (K, 3, 3) with NaN where an estimate had none, has_cov (K,) bool."""
+
+    time: np.ndarray
+    value: np.ndarray
+    cov: np.ndarray
+    has_cov: np.ndarray
+
+
+# {(target, quantity): Series}
+Track = dict[tuple[str, str], Series]
+
+
+class Collector:
+    """Validates estimates as they come and builds the Track at the end."""
+
+    def __init__(self, plugin: Plugin, targets: set[str], duration: float):
+        self.plugin, self.targets, self.duration = plugin, targets, duration
+        self._rows: dict[tuple[str, str], list[tuple[float, np.ndarray, np.ndarray | None]]] = {}
+
+    def _fail(self, where: str, e: object, reason: str) -> PluginError:
+        what = f"{e.target} {e.quantity}" if isinstance(e, Estimate) else type(e).__name__
+        return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: estimate of {what}: {reason}")
+
+    def add(self, estimates: list, where: str) -> None:
+        for e in estimates:
+            self._add(e, where)
+
+    def _add(self, e: object, where: str) -> None:
+        if not isinstance(e, Estimate):
+            raise self._fail(where, e, "not a testbed.plugins.Estimate")
+        if e.quantity not in VALUE_SIZE:
+            raise self._fail(where, e, f"quantity must be one of {list(VALUE_SIZE)}")
+        if e.target not in self.targets:
+            raise self._fail(where, e, "unknown target (a vehicle such as 'uav1' or a site such as 'uav1/uwb')")
+        if e.frame != "world":
+            raise self._fail(where, e, f"frame {e.frame!r} is not scored (only 'world')")
+        t = float(e.time)
+        if not np.isfinite(t) or not -1e-9 <= t <= self.duration + 1e-9:
+            raise self._fail(where, e, f"time {t} s is outside the run [0, {self.duration:g}] s")
+        value = np.asarray(e.value, dtype=float)
+        d = VALUE_SIZE[e.quantity]
+        if value.shape != (d,):
+            raise self._fail(where, e, f"value has shape {value.shape}, expected ({d},)")
+        if not np.all(np.isfinite(value)):
+            raise self._fail(where, e, f"value is not finite: {value.tolist()}")
+        if e.quantity == "attitude":
+            norm = float(np.linalg.norm(value))
+            if abs(norm - 1.0) > 1e-6:
+                raise self._fail(where, e, f"quaternion norm {norm:.9g} is not 1")
+            value = value / norm
+        cov = None
+        if e.cov is not None:
+            cov = np.asarray(e.cov, dtype=float)
+            if cov.shape != (3, 3):
+                raise self._fail(where, e, f"cov has shape {cov.shape}, expected (3, 3)")
+            if not np.all(np.isfinite(cov)):
+                raise self._fail(where, e, "cov is not finite")
+            if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(cov).max()))):
+                raise self._fail(where, e, "cov is not symmetric")
+            if np.linalg.eigvalsh(cov)[0] <= 0.0:
+                raise self._fail(where, e, "cov is not positive definite")
+        self._rows.setdefault((e.target, e.quantity), []).append((t, value, cov))
+
+    def track(self) -> Track:
+        out = {}
+        for key, rows in sorted(self._rows.items(), key=lambda kv: natural(kv[0][0]) + [kv[0][1]]):
+            order = sorted(range(len(rows)), key=lambda i: rows[i][0])  # stable: ties keep arrival order
+            time = np.array([rows[i][0] for i in order])
+            value = np.stack([rows[i][1] for i in order])
+            has = np.array([rows[i][2] is not None for i in order])
+            cov = np.stack([rows[i][2] if rows[i][2] is not None else np.full((3, 3), np.nan) for i in order])
+            out[key] = Series(time, value, cov, has)
+        return out
+
+
+def natural(name: str) -> list:
+    """Sort key putting uav2 before uav10."""
+    return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name)]

@@ -1,0 +1,104 @@
+"""Measurements of a run log in order of arrival, and feeding them to one estimator.
+
+Only the measured columns of each stream are fed (`NAME/time`, `arrival`, `value`, `src`, `dst`)
+with the declared sigma of the scenario's sensor table; the truth columns of the log (`clean`,
+`nlos`, `outlier`, `span`, `state_index`, `truth/*`, `qpos`) never reach an estimator.
+Order: by arrival time, then time of validity, then stream name, then log row (deterministic).
+"""
+from __future__ import annotations
+
+import time as wallclock
+from collections.abc import Iterator
+
+import numpy as np
+
+from testbed.config import to_dict
+from testbed.errors import PluginError
+from testbed.plugins.api import Context, Measurement
+from testbed.plugins.collect import Collector, Track
+from testbed.plugins.loading import Plugin
+from testbed.scenario import Scenario
+
+
+def stream_names(log: dict[str, np.ndarray]) -> list[str]:
+    """Streams of the data contract present in a log (those with NAME/arrival), sorted."""
+    return sorted(k[: -len("/arrival")] for k in log if k.endswith("/arrival"))
+
+
+def declared_sigma(scenario: Scenario, name: str, log: dict[str, np.ndarray]) -> np.ndarray | None:
+    """(M, d) declared 1-sigma per row of stream `name`, or None when the stream declares none.
+
+    uwb: the range noise (m); gnss: the receiver class's (east, north, up) white noise and
+    Gauss-Markov bias combined, sqrt(noise^2 + bias^2) (m), by the fix type the receiver reports.
+    """
+    cfg = getattr(scenario.sensors, name, None)
+    rows = log[f"{name}/time"].shape[0]
+    if name == "uwb" and cfg is not None:
+        return np.full((rows, 1), float(cfg.noise))
+    if name == "gnss" and cfg is not None:
+        return np.where(log["gnss/rtk"][:, None], gnss_sigma(to_dict(cfg.rtk)), gnss_sigma(to_dict(cfg.receiver)))
+    return None
+
+
+def gnss_sigma(errors: dict) -> np.ndarray:
+    """(3,) m declared (east, north, up) sigma of a GNSS error table (as Context.sensors holds it):
+    white noise and Gauss-Markov bias combined, sqrt(noise^2 + bias^2)."""
+    return np.hypot([errors["noise_h"]] * 2 + [errors["noise_v"]], [errors["bias_h"]] * 2 + [errors["bias_v"]])
+
+
+def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement]:
+    """Every measurement of the log in feeding order (see the module docstring); arrays read-only."""
+    names = stream_names(log)
+    cols = []
+    for name in names:
+        value = np.array(log[f"{name}/value"], dtype=float)
+        value.flags.writeable = False
+        sigma = declared_sigma(scenario, name, log)
+        if sigma is not None:
+            sigma = np.array(sigma, dtype=float)
+            sigma.flags.writeable = False
+        cols.append((name, log[f"{name}/time"], log[f"{name}/arrival"], value, log[f"{name}/src"], log[f"{name}/dst"], sigma))
+    if not cols:
+        return
+    arrival = np.concatenate([c[2] for c in cols])
+    tov = np.concatenate([c[1] for c in cols])
+    sid = np.concatenate([np.full(c[1].shape[0], i) for i, c in enumerate(cols)])
+    row = np.concatenate([np.arange(c[1].shape[0]) for c in cols])
+    for k in np.lexsort((row, sid, tov, arrival)).tolist():
+        name, t, a, value, src, dst, sigma = cols[sid[k]]
+        r = row[k]
+        yield Measurement(stream=name, time=float(t[r]), arrival=float(a[r]), value=value[r], src=str(src[r]),
+                          dst=str(dst[r]), sigma=None if sigma is None else sigma[r])
+
+
+def _call(plugin: Plugin, what: str, fn, *args):
+    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and time."""
+    try:
+        out = fn(*args)
+        return [] if out is None else list(out)
+    except Exception as e:
+        msg = f"{type(e).__name__}: {e}".splitlines()[0]
+        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {what}: raised {msg}") from None
+
+
+def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tuple[Track, dict, float]:
+    """Construct the estimator, feed every measurement, finish; returns (estimates, health, wall ms).
+
+    Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
+    """
+    t0 = wallclock.perf_counter()
+    est = _call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
+    targets = set(context.vehicles) | set(context.sites)
+    col = Collector(plugin, targets, context.duration)
+    for m in feed:
+        what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
+        col.add(_call(plugin, what, est.process, m), what)
+    if callable(getattr(est, "finish", None)):
+        col.add(_call(plugin, "in finish()", est.finish), "in finish()")
+    health = {}
+    if callable(getattr(est, "health", None)):
+        raw = _call(plugin, "in health()", lambda: [est.health()])[0]
+        if not isinstance(raw, dict) or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in raw.values()):
+            raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) health(): expected {{name: int}}, got {raw!r}"[:300])
+        health = {str(k): int(v) for k, v in raw.items()}
+    return col.track(), health, (wallclock.perf_counter() - t0) * 1e3

@@ -1,0 +1,42 @@
+"""Running a scenario's plugin estimators on a run log and scoring them (the runner's one call).
+
+Each plugin gets its own Context, the same measurements in the same order (testbed.plugins.feed),
+and is scored by testbed.plugins.score against the log's truth; its figures overlay every plugin
+of the run. The result is merged into metrics.json `estimators` under each plugin's key.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from testbed.errors import ConfigError
+from testbed.plugins.context import make_context
+from testbed.plugins.feed import measurements, run_plugin
+from testbed.plugins.loading import Plugin
+from testbed.plugins.score import plot_errors, score
+from testbed.plugins.truth import Truth
+from testbed.scenario import Scenario
+from testbed.world import Physics
+
+
+def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],
+                   plots_dir: Path | None, taken: set[str] = frozenset()) -> dict:
+    """{key: scores} of every plugin (wall time under `wall_ms`, which the runner moves to
+    timing.json). taken: keys the pipeline already uses (a clash is a ConfigError)."""
+    if not plugins:
+        return {}
+    feed = list(measurements(scenario, log))
+    out, shown = {}, {}
+    for p in plugins:
+        if p.key in taken:
+            raise ConfigError(f"estimator {p.entry!r}: the name {p.key!r} is taken by the {scenario.pipeline.kind} pipeline; "
+                              "give it another name ([[estimators]] name)")
+        ctx = make_context(scenario, physics, p.key, p.params)
+        track, health, wall_ms = run_plugin(p, ctx, feed)
+        scores, errs = score(track, Truth(log, ctx))
+        out[p.key] = {"entry": p.entry, **scores, **({"health": health} if health else {}), "wall_ms": wall_ms}
+        shown[p.key] = (track, errs)
+    if plots_dir is not None:
+        plot_errors(shown, Path(plots_dir))
+    return out

@@ -1,0 +1,59 @@
+"""Truth of a body or site at arbitrary times, interpolated from a run log (scoring only).
+
+The log holds each vehicle's base-body pose and twist at the logged ticks (`time`, `truth/pos`,
+`truth/quat`, `truth/vel`, `truth/omega`). At a time t between two logged ticks: position and
+velocity are interpolated linearly, attitude by slerp, body rates linearly; exact at a logged
+tick (every sensor sample is one). A site adds its lever arm l (body frame):
+p_site = p + R l, v_site = v + R (omega x l); a site's attitude is its vehicle's.
+Errors: position/velocity estimate minus truth (world); attitude log(R_true^T R_est) (rad, body).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from testbed.plugins.api import Context
+
+
+class Truth:
+    """Interpolated truth of one run. log: the run log; context: for the site lever arms."""
+
+    def __init__(self, log: dict[str, np.ndarray], context: Context):
+        self.t = np.asarray(log["time"], float)
+        self.pos, self.vel, self.omega = log["truth/pos"], log["truth/vel"], log["truth/omega"]
+        self.quat = log["truth/quat"]
+        self.index = {name: i for i, name in enumerate(context.vehicles)}
+        self.sites = context.sites
+
+    def _lin(self, arr: np.ndarray, i: int, t: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(t, self.t, arr[:, i, a]) for a in range(arr.shape[2])], axis=1)
+
+    def _rot(self, i: int, t: np.ndarray) -> Rotation:
+        rots = Rotation.from_quat(self.quat[:, i], scalar_first=True)
+        if self.t.size == 1:
+            return Rotation.concatenate([rots] * t.size)
+        return Slerp(self.t, rots)(np.clip(t, self.t[0], self.t[-1]))
+
+    def at(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
+        """True value (K, 3) of position (m) / velocity (m/s), or (K, 4) wxyz attitude, at times t (K,)."""
+        body, arm = self.sites[target] if target in self.sites else (target, None)
+        arm = None if arm is None else np.array(arm, float)  # a writable copy (scipy needs one)
+        i = self.index[body]
+        if quantity == "attitude":
+            return self._rot(i, t).as_quat(scalar_first=True)
+        base = self._lin(self.pos if quantity == "position" else self.vel, i, t)
+        if arm is None:
+            return base
+        R = self._rot(i, t)
+        if quantity == "position":
+            return base + R.apply(arm)
+        return base + R.apply(np.cross(self._lin(self.omega, i, t), arm))
+
+
+def errors(truth: Truth, target: str, quantity: str, t: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Estimate minus truth (K, 3): m, m/s, or the attitude error rotation vector (rad, body)."""
+    true = truth.at(target, quantity, t)
+    if quantity != "attitude":
+        return value - true
+    r_est = Rotation.from_quat(value, scalar_first=True)
+    return (Rotation.from_quat(true, scalar_first=True).inv() * r_est).as_rotvec()

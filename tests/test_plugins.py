@@ -1,0 +1,227 @@
+"""Estimators as plugins: loading, feeding in arrival order, truth for scoring, errors, docs example."""
+import json
+import re
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from testbed import scenario
+from testbed.cli import main
+from testbed.errors import PluginError, UsageError
+from testbed.config import to_dict
+from testbed.plugins import EstimatorSpec
+from testbed.plugins.context import make_context
+from testbed.plugins.feed import measurements, run_plugin
+from testbed.plugins.loading import Plugin, load_class
+from testbed.plugins.truth import Truth
+from testbed.simulate import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def coop_run():
+    sc = scenario.load("coop-fg", duration=3.0, overrides={"sensors.uwb.latency": "0.05"})
+    log, physics = simulate(sc)
+    return sc, log, physics
+
+
+def _write(tmp_path: Path, body: str, name: str = "plug.py") -> Path:
+    path = tmp_path / name
+    path.write_text("import numpy as np\nfrom testbed.plugins import Estimate\n\n" + textwrap.dedent(body))
+    return path
+
+
+def test_uwb_ekf_example_is_scored_beside_the_built_ins(tmp_path, capsys):
+    out = tmp_path / "D"
+    assert main(["run", "coop-fg", "--estimator", str(ROOT / "examples/uwb_ekf.py") + ":UwbEkf", "--duration", "5",
+                 "--out", str(out)]) == 0
+    est = json.loads((out / "metrics.json").read_text())["estimators"]
+    assert {"gnss_only", "centralized", "UwbEkf"} <= set(est)
+    ekf = est["UwbEkf"]
+    assert ekf["estimates"] == 18 * 6  # every vehicle's uwb site at each of the 6 epochs
+    assert 0 < ekf["rmse_position_mean_m"] < est["gnss_only"]["rmse_position_mean_m"]
+    lo, hi = ekf["anees_position_interval_95"]
+    assert 0 < lo < 3 < hi and np.isfinite(ekf["anees_position"])
+    assert set(ekf["targets"]) == {f"uav{i}/uwb" for i in range(1, 19)}
+    assert "wall_ms" not in ekf and "wall_ms" in json.loads((out / "timing.json").read_text())["estimators"]["UwbEkf"]
+    assert (out / "plots" / "estimators_position_uav1_uwb.png").is_file()
+    assert "UwbEkf: rmse_position_mean_m" in capsys.readouterr().out
+
+
+def test_site_truth_from_body_pose_and_lever_arm_equals_the_physics(coop_run):
+    sc, log, physics = coop_run
+    ctx = make_context(sc, physics, "t", {})
+    truth = Truth(log, ctx)
+    for v in (1, 7, 18):
+        rows = log["gnss/vehicle"] == v
+        got = truth.at(f"uav{v}/uwb", "position", log["gnss/time"][rows])
+        np.testing.assert_allclose(got, log["gnss/clean"][rows], atol=1e-9)
+    assert ctx.sites["uav2/uwb"][0] == "uav2" and np.linalg.norm(ctx.sites["uav2/uwb"][1]) > 0.05
+
+
+def test_measurements_come_in_arrival_order_without_truth(coop_run):
+    sc, log, _ = coop_run
+    feed = list(measurements(sc, log))
+    assert len(feed) == log["gnss/time"].size + log["uwb/time"].size
+    arrival = np.array([m.arrival for m in feed])
+    assert np.all(np.diff(arrival) >= 0)
+    uwb = [m for m in feed if m.stream == "uwb"]
+    np.testing.assert_allclose([m.arrival - m.time for m in uwb], 0.05, atol=1e-12)  # the configured latency
+    # the first epoch's GNSS (latency 0) comes before its UWB ranges (latency 50 ms)
+    assert feed[0].stream == "gnss" and feed[18].stream == "uwb"
+    m = uwb[0]
+    assert m.dst.startswith("uav") and m.sigma.tolist() == [sc.sensors.uwb.noise]
+    assert not m.value.flags.writeable and not hasattr(m, "clean")
+
+
+def test_plugin_written_from_the_docs_example_alone_runs(tmp_path):
+    text = (ROOT / "docs/estimators.md").read_text()
+    code = re.findall(r"```python\n(.*?)```", text, re.S)[0]
+    (tmp_path / "my_gnss_filter.py").write_text(code)
+    toml = re.findall(r"```toml\n(.*?)```", text, re.S)[0]
+    sc_file = tmp_path / "sc.toml"
+    base = (ROOT / "testbed/scenarios/coop-fg.toml").read_text()
+    sc_file.write_text(base + "\n" + toml.replace("my_gnss_filter.py", str(tmp_path / "my_gnss_filter.py")))
+    out = tmp_path / "run"
+    assert main(["run", str(sc_file), "--duration", "3", "--out", str(out)]) == 0
+    est = json.loads((out / "metrics.json").read_text())["estimators"]
+    rw = est["rw"]
+    assert rw["entry"].endswith("my_gnss_filter.py:GnssRandomWalk") and rw["estimates"] == 18 * 4
+    # filtering the fixes over time beats the single fixes on the SPP vehicles
+    assert rw["rmse_position_mean_m"] < est["gnss_only"]["rmse_position_mean_m"]
+
+
+def test_scenario_params_reach_the_plugin(coop_run, tmp_path):
+    sc, log, physics = coop_run
+    path = _write(tmp_path, """
+        class Echo:
+            def __init__(self, context, params):
+                self.offset = params["offset"]
+                assert context.params == params and context.rng.random() < 1
+            def process(self, m):
+                if m.stream == "gnss":
+                    yield Estimate(time=m.time, target=m.src, quantity="position", value=m.value + self.offset)
+    """)
+    spec = EstimatorSpec(entry=f"{path}:Echo", params={"offset": 2.0})
+    plugin = Plugin(spec.key, spec.entry, load_class(spec.entry), spec.params)
+    track, health, _ = run_plugin(plugin, make_context(sc, physics, spec.key, spec.params), list(measurements(sc, log)))
+    s = track[("uav1/uwb", "position")]
+    np.testing.assert_allclose(s.value - 2.0, log["gnss/value"][log["gnss/vehicle"] == 1])
+    assert not s.has_cov.any() and health == {}
+
+
+@pytest.mark.parametrize("entry, message", [
+    ("nowhere.py:X", "no such file"),
+    ("{p}:Missing", "has no 'Missing'"),
+    ("{p}:NoProcess", "lacks the protocol: no method process"),
+    ("{p}:BadInit", "cannot be called with two arguments"),
+    ("no_such_package_xyz.mod:X", "cannot import no_such_package_xyz.mod: ModuleNotFoundError"),
+    ("justaname", "expected a registered name"),
+])
+def test_bad_entries_exit_2_before_simulating(tmp_path, capsys, entry, message):
+    path = _write(tmp_path, """
+        class NoProcess:
+            def __init__(self, context, params): pass
+        class BadInit:
+            def __init__(self): pass
+            def process(self, m): return []
+    """)
+    out = tmp_path / "out"
+    assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", entry.format(p=path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("testbed: error: estimator ") and message in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("body, message", [
+    ("raise RuntimeError('boom')", "at t = 0 s (gnss uav1/uwb): raised RuntimeError: boom"),
+    ("return [Estimate(time=m.time, target='uav1', quantity='position', value=np.full(3, np.nan))]", "value is not finite"),
+    ("return [Estimate(time=m.time, target='uav1', quantity='position', value=np.zeros(2))]", "value has shape (2,), expected (3,)"),
+    ("return [Estimate(time=m.time, target='uav99', quantity='position', value=np.zeros(3))]", "unknown target"),
+    ("return [Estimate(time=m.time, target='uav1', quantity='position', value=np.zeros(3), cov=-np.eye(3))]", "not positive definite"),
+    ("return [m]", "not a testbed.plugins.Estimate"),
+])
+def test_a_failing_plugin_exits_1_naming_it_and_the_time(tmp_path, capsys, body, message):
+    path = _write(tmp_path, f"""
+        class Bad:
+            def __init__(self, context, params): pass
+            def process(self, m):
+                {body}
+    """)
+    out = tmp_path / "out"
+    assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", f"{path}:Bad"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"testbed: error: estimator 'Bad' ({path}:Bad) ") and message in err and err.count("\n") == 1
+    assert not out.exists() and not list(tmp_path.glob(".*out*"))
+
+
+def test_duplicate_names_are_refused():
+    from testbed.plugins.loading import resolve
+
+    with pytest.raises(UsageError, match="a second estimator named 'UwbEkf'"):
+        resolve([EstimatorSpec(entry=f"{ROOT}/examples/uwb_ekf.py:UwbEkf")] * 2)
+
+
+def test_plugin_error_is_exit_code_1_and_usage_error_2():
+    assert PluginError("x").exit_code == 1 and UsageError("x").exit_code == 2
+
+
+def test_builtins_are_declared_as_entry_points_and_listed(capsys):
+    import tomllib
+
+    from testbed.plugins import loading
+
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["testbed.estimators"]
+    assert declared == loading.BUILTIN
+    assert main(["estimators"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in out] == sorted(declared)
+    assert all(len(line.split()) > 3 for line in out)  # each with its description
+
+
+def test_an_installed_entry_point_is_registered(monkeypatch):
+    from importlib.metadata import EntryPoint
+
+    from testbed.plugins import loading
+
+    ep = EntryPoint("third.party", "testbed.plugins.builtin_coop:GnssOnly", loading.GROUP)
+    monkeypatch.setattr(loading, "entry_points", lambda group: [ep] if group == loading.GROUP else [])
+    assert loading.registered()["third.party"] == ep.value
+    assert loading.load_class("third.party").__name__ == "GnssOnly"
+
+
+def test_coop_builtins_as_protocol_estimators_equal_the_pipeline(tmp_path):
+    """Fed measurement by measurement, the four seed 001 estimators give the pipeline's scores."""
+    sc = scenario.load("coop-fg", duration=4.0)
+    names = ("gnss_only", "one_shot", "iterated", "centralized")
+    # the same known noise model and solver settings as the scenario's pipeline
+    params = {k: v for k, v in to_dict(sc.pipeline).items() if k != "kind"}
+    sc = __import__("dataclasses").replace(sc, estimators=tuple(EstimatorSpec(entry=f"coop.{w}", params=params) for w in names))
+    from testbed.runner import run
+
+    est = run(sc, tmp_path / "r", plots=False)["estimators"]
+    for w in names:
+        p = est[f"coop.{w}"]
+        per_uav = [p["targets"][f"uav{i}/uwb"]["position"]["rmse_m"] for i in range(1, 19)]
+        np.testing.assert_allclose(per_uav, est[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(p["anees_position"], est[w]["anees"], rtol=1e-12)
+        assert p["estimates"] == 18 * 5 and p["health"]["nonconverged_epochs"] <= 5
+
+
+def test_sweep_and_reproduce_take_plugins(tmp_path):
+    ekf = f"{ROOT}/examples/uwb_ekf.py:UwbEkf"
+    assert main(["sweep", "coop-fg", "--runs", "2", "--workers", "1", "--duration", "2", "--estimator", ekf,
+                 "--out", str(tmp_path / "s")]) == 0
+    scores = json.loads((tmp_path / "s" / "summary.json").read_text())["scores"]
+    assert scores["estimators.UwbEkf.rmse_position_mean_m"]["n"] == 2
+    from testbed.reproduce import coop as rep
+
+    out = tmp_path / "rep"
+    out.mkdir()
+    rep.reproduce(out, runs=1, duration=3.0, workers=1, nlos=False, estimators=(EstimatorSpec(entry=ekf),))
+    head, *rows = (out / "table.csv").read_text().strip().splitlines()
+    assert head.endswith(",rmse_UwbEkf_m") and len(rows) == 18 and all(float(r.split(",")[-1]) > 0 for r in rows)
+    assert "UwbEkf" in (out / "table.md").read_text()
