@@ -6,6 +6,7 @@ The Python API (docs/api.md), loaded on first use so that `import testbed` stays
     run(scenario, out=None, *, force=False, plots=True, progress=False, video=False) -> Run
     load_run(path) -> Run
     builtin_scenarios() -> list[str]
+    score(estimates, run, *, name="estimates") -> dict   # testbed.plugins.Estimate objects
     Run, Stream, Truth: the classes those return (testbed.api, testbed.stream, testbed.truth)
 
 Importing it has no side effect; the command line sets its environment (testbed.environment).
@@ -15,7 +16,7 @@ import importlib
 
 __version__ = "0.1.0"
 
-_API = ("Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run")
+_API = ("Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run", "score")
 __all__ = [*_API, "__version__"]
 
 

@@ -19,14 +19,20 @@ import json
 import tempfile
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import mujoco
 import numpy as np
 
-from testbed import runner, scenario as scenario_mod
+from testbed import runner, scenario as scenario_mod, world
 from testbed.errors import RunError
 from testbed.log import load_log
+from testbed.plugins.api import Estimate
+from testbed.plugins.collect import Collector
+from testbed.plugins.context import make_context
+from testbed.plugins.loading import Plugin
+from testbed.plugins.score import score as score_track
+from testbed.plugins.truth import Truth as PluginTruth
 from testbed.scenario import Scenario
 from testbed.stream import Stream, make_stream, stream_names
 from testbed.truth import Truth, object_truth
@@ -108,11 +114,6 @@ class Run:
         and scene.xml. KeyError if the scene has no such site or body."""
         return object_truth(self.model, name, self.time, self.log["qpos"], self.log["qvel"])
 
-    # ----------------------------------------------------------------------------------------
-    # SCORING: `score(estimates, run)` (issue 14, section 2) is wired here by the lead once the
-    # estimator plugin protocol (Estimate, testbed scoring) lands; not available yet.
-    # ----------------------------------------------------------------------------------------
-
     def close(self) -> None:
         """Remove the directory of a temporary run (no effect on a run written to `out`)."""
         if self._tmp is not None:
@@ -159,3 +160,21 @@ def load_run(path: str | Path) -> Run:
 
 
 __all__ = ["Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run"]
+
+
+def score(estimates: Iterable[Estimate], run: Run, *, name: str = "estimates") -> dict:
+    """Score estimates made outside the testbed (testbed.plugins.Estimate objects: a body or site
+    of `run`, position m / velocity m/s / attitude wxyz, world frame, optional covariance) against
+    the run's truth with the metrics every estimator gets (testbed.plugins.score: RMSE total, per
+    axis and per target, ANEES with its chi-square 95 % interval where a covariance is given).
+
+    Returns the dict metrics.json would hold for an estimator called `name`. A bad estimate (unknown
+    target, wrong shape, NaN, time outside the run, a covariance that is not SPD) raises PluginError.
+    """
+    physics = world.build(run.scenario)
+    context = make_context(run.scenario, physics, name, {})
+    collector = Collector(Plugin(key=name, entry="testbed.score", cls=object), set(context.vehicles) | set(context.sites),
+                          run.scenario.duration)
+    collector.add(list(estimates), "in testbed.score")
+    scores, _ = score_track(collector.track(), PluginTruth(run.log, context))
+    return scores
