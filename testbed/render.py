@@ -28,7 +28,7 @@ What a frame shows
 - A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
 
 Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
-(`testbed/__init__.py` sets `egl` unless the user chose). If the renderer cannot be created in
+(the command line sets `egl` unless the user chose, testbed/environment.py). If the renderer cannot be created in
 this process, the backends egl and osmesa are probed each in a fresh subprocess; the first that
 works renders the job in a subprocess (`python -m testbed.render ...` with that `MUJOCO_GL`).
 If none works, `RenderError` says which system libraries to install.
@@ -51,7 +51,11 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
+import imageio.v2 as imageio
 import numpy as np
+from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+from tqdm import tqdm
 
 from testbed.errors import RunError
 from testbed.outdir import new_file
@@ -63,6 +67,14 @@ INSTALL_HINT = (
 )
 BACKENDS = ("egl", "osmesa")
 FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo's free-camera default)
+
+
+def _mujoco():
+    """MuJoCo, imported on first use (lazy on purpose): it fixes its OpenGL backend from MUJOCO_GL
+    when first imported, and this module may choose the backend before that (module docstring)."""
+    import mujoco
+
+    return mujoco
 
 
 class RenderError(RuntimeError):
@@ -79,7 +91,7 @@ def _probe_in_process() -> tuple[bool, str]:
     global _IN_PROCESS
     if _IN_PROCESS is None:
         try:
-            import mujoco
+            mujoco = _mujoco()
 
             with mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16) as r:
                 r.render()
@@ -151,7 +163,7 @@ class _Replay:
     """
 
     def __init__(self, run_dir: Path):
-        import mujoco
+        mujoco = _mujoco()
 
         run_dir = Path(run_dir)
         for name in ("scene.xml", "log.npz"):
@@ -177,7 +189,7 @@ class _Replay:
 
     def _vehicle_rgba(self, i: int) -> np.ndarray:
         """(4,) colour of vehicle i's frame material (the per-vehicle palette colour)."""
-        import mujoco
+        mujoco = _mujoco()
 
         mid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_MATERIAL, f"uav{i}/frame")
         rgba = self.model.mat_rgba[mid].copy() if mid >= 0 else np.array([0.9, 0.2, 0.2, 1.0], np.float32)
@@ -193,7 +205,7 @@ class _Replay:
         unit. Outside the log the first or last row is held. Then mj_forward (or only
         mj_kinematics when forward is False).
         """
-        import mujoco
+        mujoco = _mujoco()
 
         m, d = self.model, self.data
         k = int(np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, self.time.size - 1))
@@ -270,7 +282,6 @@ def camera_track(times: np.ndarray, pos: np.ndarray, *, aspect: float, smooth: f
        ahead of a growing spread instead of lagging behind it; never below `min_distance` m.
     aspect: width / height of the picture; fovy: vertical field of view, deg.
     """
-    from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
     F = len(times)
     sigma = max(smooth, 1e-6)
@@ -321,7 +332,7 @@ class _Painter:
     """Two offscreen renderers (tracking view, PiP) and the drawing of one composed frame."""
 
     def __init__(self, replay: _Replay, width: int, height: int, *, shadow_size: int, samples: int, pip_vehicle: int | None, style: _Style):
-        import mujoco
+        mujoco = _mujoco()
 
         for name, v in (("width", width), ("height", height)):
             if v < 16 or v % 2:
@@ -363,7 +374,6 @@ class _Painter:
 
         trails: (N, P, 3) m world, each vehicle's recent positions (oldest first), or None.
         """
-        import cv2
 
         rp, m = self.replay, self.replay.model
         rp.set_time(t)
@@ -449,7 +459,7 @@ class _Projection:
 
 def _add_sphere(scn, pos: np.ndarray, radius: float, rgba: np.ndarray) -> None:
     """Append a decorative sphere (radius m, world pos (3,) m) to an mjvScene if there is room."""
-    import mujoco
+    mujoco = _mujoco()
 
     if scn.ngeom >= scn.maxgeom:
         return
@@ -462,7 +472,7 @@ def _add_sphere(scn, pos: np.ndarray, radius: float, rgba: np.ndarray) -> None:
 
 def _add_line(scn, a: np.ndarray, b: np.ndarray, width_px: float, rgba: np.ndarray) -> None:
     """Append a line segment a -> b (3,) m world, width in pixels, to an mjvScene if there is room."""
-    import mujoco
+    mujoco = _mujoco()
 
     if scn.ngeom >= scn.maxgeom:
         return
@@ -475,7 +485,6 @@ def _add_line(scn, a: np.ndarray, b: np.ndarray, width_px: float, rgba: np.ndarr
 
 def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float) -> None:
     """White text with a dark outline, legible on sky and on grass (img RGB, modified in place)."""
-    import cv2
 
     th = max(1, round(scale * 2))
     # The outline is the same text shifted by one pixel in eight directions: a thicker stroke
@@ -519,8 +528,6 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     labels: write vehicle numbers. The file is written beside `out` and renamed when complete; an
     existing `out` is refused (RunError) unless force.
     """
-    import imageio.v2 as imageio
-    from tqdm import tqdm
 
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else run_dir / "video.mp4"
@@ -571,7 +578,6 @@ def save_frame(run_dir: Path, t: float, path: Path, *, width: int = 960, height:
 
     Options as for `render_run`. Returns the path.
     """
-    import imageio.v2 as imageio
 
     path = Path(path)
     backend = choose_backend()

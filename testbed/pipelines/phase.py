@@ -67,6 +67,7 @@ from estimators.phase_model import antenna_state_from_body, body_from_antennas, 
 from estimators.so3 import euler_from_rotation, rot_zyx, rot_zyx_dot, skew
 from testbed.errors import ConfigError
 from testbed.pipelines.config import PhasePipelineConfig
+from testbed.reference import evaluate
 from testbed.rng import stream_rng
 
 
@@ -188,8 +189,6 @@ def initial_prior(cfg: PhasePipelineConfig, scenario, inp: PhaseInputs, rng: np.
     """Prior on the 18-state at the first epoch: the planned (reference) follower state in N plus
     the initial error (drawn from the prior covariance, or the paper's fixed error).
     Returns (Gaussian prior, P0 (18, 18), error added (18,))."""
-    # lazy: testbed.reference imports testbed.scenario, which imports this module for its config
-    from testbed.reference import evaluate
 
     ref = evaluate(scenario.trajectory, inp.times[0])
     f = inp.follower - 1
