@@ -9,8 +9,9 @@ Supported field types: bool, int, float (an int is accepted), str, Literal[...],
 and other homogeneous tuples, nested dataclasses, tuples of dataclasses, `X | None`, and unions of
 dataclasses discriminated by a `kind: Literal[...]` field.
 
-Every number is finite and at most `MAX_MAGNITUDE` in size: `_convert` refuses NaN, +-inf and
-anything larger for every int and float field (no key of the testbed has a meaning for them; a
+Every number is finite and at most `MAX_MAGNITUDE` in size, and a non-zero float at least
+`MIN_MAGNITUDE`: `_convert` refuses NaN, +-inf, anything larger and denormal-like specks for every
+int and float field (no key of the testbed has a meaning for them; a
 key that one day gives inf a meaning must say so in its dataclass docstring and be exempted
 here), and `in_range` refuses non-finite values of fields set in code. So a product or a square of
 two configuration numbers never overflows, and no later computation meets a NaN from the input.
@@ -34,6 +35,9 @@ from testbed.errors import ConfigError, FieldError
 # Largest magnitude of any configuration number (SI units): 1e9 m, s, Hz, m^2/s^3, ... is beyond
 # every physical use of every key, and squares (1e18) and products stay far from overflow.
 MAX_MAGNITUDE = 1e9
+# Smallest magnitude of a non-zero float: below every physical value of a key (1e-9 rad/s gyro
+# biases) and far from underflow when squared or inverted (5e-324 as a period overflows 1 / T).
+MIN_MAGNITUDE = 1e-12
 
 
 def _fail(file: str, path: str, msg: str, value: object = None) -> FieldError:
@@ -88,8 +92,8 @@ def _convert(tp: Any, value: Any, file: str, path: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise _fail(file, path, f"expected a number, got {value!r}")
-        if not (math.isfinite(value) and abs(value) <= MAX_MAGNITUDE):
-            raise _fail(file, path, f"must be a finite number of magnitude at most {MAX_MAGNITUDE:g}, got {value!r}", value)
+        if not (math.isfinite(value) and (value == 0 or MIN_MAGNITUDE <= abs(value) <= MAX_MAGNITUDE)):
+            raise _fail(file, path, f"must be a finite number, 0 or of magnitude in [{MIN_MAGNITUDE:g}, {MAX_MAGNITUDE:g}], got {value!r}", value)
         return float(value)
     if tp is str:
         if not isinstance(value, str):

@@ -119,7 +119,7 @@ class PhaseFormation:
         in_range(self, "pitch_amp_deg", -90, 90, lo_open=True, hi_open=True, unit="deg")
         in_range(self, "yaw_amp_deg", -180, 180, unit="deg")
         in_range(self, "roll_amp_deg", -180, 180, unit="deg")
-        in_range(self, "attitude_freq_hz", 0, unit="Hz")
+        in_range(self, "attitude_freq_hz", 0, 1, unit="Hz")
 
     @property
     def vehicles(self) -> int:
@@ -174,7 +174,7 @@ class SwarmBox:
             require(d.min() > reach, "bases", self.bases,
                     f"two bases are {d.min():.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
         require(all(1 <= r <= n for r in self.rtk), "rtk", self.rtk, f"vehicle numbers must be in 1..{n}, got {list(self.rtk)}")
-        in_range(self, "period_min", 0, lo_open=True, unit="s")
+        in_range(self, "period_min", 1, unit="s")
         in_range(self, "period_max", self.period_min, unit="s (period_min)")
 
     @property
@@ -204,8 +204,8 @@ class LeaderFollower:
     yaw_period: float = 30.0
 
     def __post_init__(self) -> None:
-        in_range(self, "weave_period", 0, lo_open=True)
-        in_range(self, "yaw_period", 0, lo_open=True)
+        in_range(self, "weave_period", 1, unit="s")
+        in_range(self, "yaw_period", 1, unit="s")
 
     @property
     def vehicles(self) -> int:
@@ -230,8 +230,8 @@ class Waypoints:
         require(len(self.points) >= 2, "points", self.points, "need at least two waypoints")
         require(len(self.times) == len(self.points), "times", self.times,
                 f"need one time per waypoint ({len(self.points)}), got {len(self.times)}")
-        require(self.times[0] == 0 and all(b > a for a, b in zip(self.times, self.times[1:])), "times", self.times,
-                f"must start at 0 and increase, got {list(self.times)}")
+        require(self.times[0] == 0 and all(b >= a + 0.01 for a, b in zip(self.times, self.times[1:])), "times", self.times,
+                f"must start at 0 and increase by at least 0.01 s, got {list(self.times)}")
         require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
 
     @property

@@ -50,7 +50,7 @@ CASES = [
     ("duration-neg", ["run", "visnav", "--out", "out", "--duration", "-1"], "argument --duration"),
     ("steps-over-1e9", ["run", "visnav", "--out", "out", "--duration", "1e7"], "duration: 1e+07 s is 4e+09 physics steps"),
     ("timestep-denormal", _set("visnav", "world.timestep=5e-324"), "visnav.toml: world.timestep"),
-    ("timestep-tiny-rate-huge", _set("visnav", "world.timestep=1e-300", "world.control_rate=1e298"), "world.control_rate"),
+    ("timestep-tiny-rate-huge", _set("visnav", "world.timestep=1e-300", "world.control_rate=1e298"), "world.timestep"),
     ("velocity-nan", _set("visnav", "trajectory.leader_velocity=[nan, 0.0, 0.0]"), "trajectory.leader_velocity[0]"),
     ("velocity-inf", _set("bandwidth", "trajectory.velocity=[inf, 0.5, 0.5]"), "trajectory.velocity[0]"),
     ("follower-velocity-nan", _set("phase-cross-h000", "trajectory.follower_velocity=[0.0, nan, 0.0]"), "trajectory.follower_velocity[1]"),
