@@ -69,7 +69,9 @@ def _writable_file(text: str) -> Path:
     """argparse type: a file path that can be written (its directory exists and is writable)."""
     path = Path(text)
     parent = path.parent
-    if not text or path.is_dir():
+    if not text:
+        raise argparse.ArgumentTypeError("an empty path")
+    if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a directory, not a file")
     if not parent.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: the directory {parent} does not exist")

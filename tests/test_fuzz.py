@@ -15,6 +15,7 @@ Seeded (derandomize) with a fixed number of examples that fits CI; TESTBED_FUZZ=
 from __future__ import annotations
 
 import contextlib
+import copy
 import io
 import json
 import math
@@ -38,7 +39,7 @@ DURATION = "0.3"  # s of simulated time per example
 TIME_LIMIT_S = 120  # per example (wall clock, on a shared machine): a hang fails the test
 RUN_FILES = ("scenario.toml", "scene.xml", "log.npz", "metrics.json")
 
-settings.register_profile("ci", max_examples=40, derandomize=True, database=None, deadline=None,
+settings.register_profile("ci", max_examples=80, derandomize=True, database=None, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 settings.register_profile("slow", max_examples=600, derandomize=True, database=None, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -79,7 +80,7 @@ def _mutate(table: dict, data: st.DataObject) -> None:
     actions += ["empty", "lengthen"] if isinstance(value, list) else []
     action = data.draw(st.sampled_from(actions), label="action")
     if action == "replace":
-        parent[key] = data.draw(st.sampled_from(BAD_VALUES), label="value")  # type: ignore[index]
+        parent[key] = copy.deepcopy(data.draw(st.sampled_from(BAD_VALUES), label="value"))  # type: ignore[index]
     elif action == "delete":
         del parent[key]  # type: ignore[arg-type]
     elif action == "rename":
@@ -143,7 +144,7 @@ def check_outcome(code: int, err: str, cwd: Path, inputs: set[str], out: Path) -
 @settings(PROFILE)
 @given(name=st.sampled_from(NAMES), flown=st.booleans(), data=st.data())
 def test_mutated_builtin_scenarios_exit_0_complete_or_2_in_one_line(name, flown, data):
-    table = json.loads(json.dumps(TABLES[name]))  # a deep copy of plain TOML values
+    table = copy.deepcopy(TABLES[name])
     for _ in range(data.draw(st.integers(1, 3), label="mutations")):
         _mutate(table, data)
     with tempfile.TemporaryDirectory() as tmp:
