@@ -28,15 +28,16 @@ environment (testbed.environment) is set before numpy or mujoco load.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
 from pathlib import Path
 
 from testbed.environment import apply_defaults
-from testbed.errors import TestbedError, UsageError
+from testbed.errors import FieldError, TestbedError, UsageError
 from testbed.interrupt import exit_code, signals_raise
-from testbed.outdir import out_arg
+from testbed.outdir import check_new_file, out_arg
 
 
 class _Parser(argparse.ArgumentParser):
@@ -44,11 +45,62 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
+# ------------------------------------------------------------------ argument types (checked once)
+# Each returns the converted value or raises ArgumentTypeError; argparse then reports one line
+# naming the flag and the value (`testbed run: argument --duration: must be ... got 'nan'`).
+
+
+def _number(parse, ok, want: str, kind: str):
+    """argparse type: parse(text), which must satisfy ok(value); want, kind: for the message."""
+    def convert(text: str):
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {want}, got {text!r}")
+        return value
+    return convert
+
+
+def _int_in(lo: int, hi: int, *, even: bool = False):
+    """argparse type: an integer in [lo, hi] (even if asked)."""
+    return _number(int, lambda v: lo <= v <= hi and not (even and v % 2),
+                   f"{'an even integer' if even else 'an integer'} in [{lo}, {hi}]", "an integer")
+
+
+def _float_in(lo: float, hi: float):
+    """argparse type: a finite number in (lo, hi]."""
+    return _number(float, lambda v: math.isfinite(v) and lo < v <= hi, f"a finite number in ({lo:g}, {hi:g}]", "a number")
+
+
+def _writable_file(text: str) -> Path:
+    """argparse type: a file path that can be written (its directory exists and is writable)."""
+    path = Path(text)
+    parent = path.parent
+    if not text:
+        raise argparse.ArgumentTypeError("an empty path")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a directory, not a file")
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: the directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise argparse.ArgumentTypeError(f"{text}: not writable")
+    return path
+
+
+SEED = _int_in(0, 10**9)  # the scenario's `seed` range (testbed.config.MAX_MAGNITUDE)
+DURATION = _float_in(0, 1e9)  # s; the physics step count is bounded by the scenario (scenario.MAX_STEPS)
+RUNS = _int_in(1, 100_000)
+WORKERS = _int_in(1, 1024)
+
+
 def _add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", help="built-in scenario name (see `testbed list`) or path to a TOML file")
-    p.add_argument("--seed", type=int, help="scenario seed (default: the scenario's)")
+    p.add_argument("scenario", help="built-in scenario name (see `testbed list`), or a TOML file named by a path "
+                                    "with a '/' or a .toml suffix (./bandwidth names a local file, bandwidth the built-in)")
+    p.add_argument("--seed", type=SEED, help="scenario seed, 0..1e9 (default: the scenario's)")
     p.add_argument("--motion", choices=["prescribed", "flown"], help="motion mode (default: the scenario's)")
-    p.add_argument("--duration", type=float, help="run length in seconds (default: the scenario's)")
+    p.add_argument("--duration", type=DURATION, help="run length in seconds (default: the scenario's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario key, e.g. --set world.truth_rate=20")
     _add_estimator_option(p)
 
@@ -69,9 +121,22 @@ def _overrides(items: list[str]) -> dict[str, str]:
 
 
 def _load(args: argparse.Namespace):
-    from testbed import scenario  # lazy: see the module docstring
+    """The scenario of a run or sweep, checked whole before anything is simulated: its values
+    (testbed.scenario.load) and its reference paths' clearance (testbed.reference.clearance)."""
+    from testbed import reference, scenario  # lazy: see the module docstring
 
+    builtin, label = scenario.resolve(args.scenario)
     sc = scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)
+    if builtin and Path(args.scenario).exists():
+        print(f"testbed: note: {args.scenario!r} is the built-in scenario, not the local {args.scenario!r} "
+              f"(a file is named by a path: ./{args.scenario})", file=sys.stderr)
+    problem = reference.clearance(sc) if sc.world.clearance != "off" else None
+    if problem is not None:
+        key, reason = problem
+        how = 'set world.clearance = "warn" (or "off") to run it anyway'
+        if sc.world.clearance == "error":
+            raise FieldError(label, key, None, f"{reason}; {how}")
+        print(f"testbed: warning: {label}: {key}: {reason} (world.clearance = \"warn\")", file=sys.stderr)
     return _with_estimators(sc, args.estimator)
 
 
@@ -104,34 +169,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", type=Path)
     p.add_argument("--out", type=out_arg, help="output MP4 (default RUN_DIR/video.mp4)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
-    p.add_argument("--width", type=int, default=960)
-    p.add_argument("--height", type=int, default=540)
-    p.add_argument("--fps", type=int, default=30)
-    p.add_argument("--speed", type=float, default=1.0, help="playback speed, x real time")
-    p.add_argument("--max-seconds", type=float, help="render at most this much simulated time")
-    p.add_argument("--shadow-size", type=int, default=1024, help="shadow map size (smaller is faster on llvmpipe)")
-    p.add_argument("--samples", type=int, default=0, help="multisampling (0 is fastest on llvmpipe)")
+    p.add_argument("--width", type=_int_in(16, 7680, even=True), default=960, help="pixels, even, 16..7680")
+    p.add_argument("--height", type=_int_in(16, 4320, even=True), default=540, help="pixels, even, 16..4320")
+    p.add_argument("--fps", type=_int_in(1, 240), default=30, help="frames per second, 1..240")
+    p.add_argument("--speed", type=_float_in(0, 1e4), default=1.0, help="playback speed, x real time, in (0, 1e4]")
+    p.add_argument("--max-seconds", type=_float_in(0, 1e9), help="render at most this much simulated time (s, > 0)")
+    p.add_argument("--shadow-size", type=_int_in(0, 16384), default=1024, help="shadow map size, 0..16384 (smaller is faster on llvmpipe)")
+    p.add_argument("--samples", type=_int_in(0, 16), default=0, help="multisampling, 0..16 (0 is fastest on llvmpipe)")
 
     p = sub.add_parser("sweep", help="Monte Carlo: run N seeds in parallel and aggregate metrics")
     _add_run_options(p)
-    p.add_argument("--runs", type=int, required=True)
-    p.add_argument("--workers", type=int, help="worker processes (default: all cores)")
+    p.add_argument("--runs", type=RUNS, required=True)
+    p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1 (default: all cores)")
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--resume", action="store_true", help="finish an interrupted sweep at --out, skipping its finished runs")
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
     p.add_argument("what", choices=["physics", "sensors", "estimators"])
-    p.add_argument("--json", type=Path, help="write the figures to this JSON file")
+    p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
     p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
-    p.add_argument("--runs", type=int, help="Monte Carlo runs (default: the paper's reproduction default)")
+    p.add_argument("--runs", type=RUNS, help="Monte Carlo runs (default: the paper's reproduction default)")
     p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
-    p.add_argument("--duration", type=float, help="shorten every run (seconds)")
-    p.add_argument("--workers", type=int)
+    p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
+    p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
     _add_estimator_option(p)
 
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
@@ -169,10 +234,12 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"  {name}: " + ", ".join(f"{k} {fmt(est[k])}" for k in keys))
         return 0
     if args.command == "render":
-        from testbed.render import render_run
+        from testbed.render import check_run_dir, render_run
 
         if not (args.run_dir / "scene.xml").is_file() or not (args.run_dir / "log.npz").is_file():
             raise UsageError(f"{args.run_dir}: not a run directory (needs scene.xml and log.npz)")
+        check_new_file(args.out or args.run_dir / "video.mp4", force=args.force)  # the user's file first
+        check_run_dir(args.run_dir)
         out = render_run(
             args.run_dir, args.out, width=args.width, height=args.height, fps=args.fps, speed=args.speed,
             max_seconds=args.max_seconds, shadow_size=args.shadow_size, samples=args.samples, progress=sys.stderr.isatty(),

@@ -9,6 +9,13 @@ Supported field types: bool, int, float (an int is accepted), str, Literal[...],
 and other homogeneous tuples, nested dataclasses, tuples of dataclasses, `X | None`, and unions of
 dataclasses discriminated by a `kind: Literal[...]` field.
 
+Every number is finite and at most `MAX_MAGNITUDE` in size, and a non-zero float at least
+`MIN_MAGNITUDE`: `_convert` refuses NaN, +-inf, anything larger and denormal-like specks for every
+int and float field (no key of the testbed has a meaning for them; a
+key that one day gives inf a meaning must say so in its dataclass docstring and be exempted
+here), and `in_range` refuses non-finite values of fields set in code. So a product or a square of
+two configuration numbers never overflows, and no later computation meets a NaN from the input.
+
 Validation cannot be skipped: every configuration dataclass checks its values in `__post_init__`
 (so `dataclasses.replace` re-checks too) with `require` / `in_range`, which raise `FieldError`
 naming the key relative to that dataclass. `from_dict` re-raises it with the file and the full
@@ -17,6 +24,7 @@ dotted path (`world.anchors[2]`, `sensors.uwb.noise`).
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import tomllib
 import types
@@ -25,9 +33,16 @@ from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 from testbed.errors import ConfigError, FieldError
 
 
-def _fail(file: str, path: str, msg: str) -> ConfigError:
-    where = f"{file}: " if file else ""
-    return ConfigError(f"{where}{path}: {msg}" if path else f"{where}{msg}")
+# Largest magnitude of any configuration number (SI units): 1e9 m, s, Hz, m^2/s^3, ... is beyond
+# every physical use of every key, and squares (1e18) and products stay far from overflow.
+MAX_MAGNITUDE = 1e9
+# Smallest magnitude of a non-zero float: below every physical value of a key (1e-9 rad/s gyro
+# biases) and far from underflow when squared or inverted (5e-324 as a period overflows 1 / T).
+MIN_MAGNITUDE = 1e-12
+
+
+def _fail(file: str, path: str, msg: str, value: object = None) -> FieldError:
+    return FieldError(file, path, value, msg)
 
 
 def _is_union(tp: Any) -> bool:
@@ -46,7 +61,7 @@ def _convert(tp: Any, value: Any, file: str, path: str) -> Any:
             if not isinstance(value, dict) or "kind" not in value:
                 raise _fail(file, path, "expected a table with a 'kind' key")
             kinds = {get_args(get_type_hints(a)["kind"])[0]: a for a in args}
-            if value["kind"] not in kinds:
+            if not isinstance(value["kind"], str) or value["kind"] not in kinds:
                 raise _fail(file, f"{path}.kind", f"unknown kind {value['kind']!r}; expected one of {sorted(kinds)}")
             return _convert(kinds[value["kind"]], value, file, path)
         raise TypeError(f"unsupported union {tp}")
@@ -72,10 +87,14 @@ def _convert(tp: Any, value: Any, file: str, path: str) -> Any:
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise _fail(file, path, f"expected an integer, got {value!r}")
+        if abs(value) > MAX_MAGNITUDE:
+            raise _fail(file, path, f"{value} is out of range (at most {MAX_MAGNITUDE:g} in magnitude)", value)
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise _fail(file, path, f"expected a number, got {value!r}")
+        if not (math.isfinite(value) and (value == 0 or MIN_MAGNITUDE <= abs(value) <= MAX_MAGNITUDE)):
+            raise _fail(file, path, f"must be a finite number, 0 or of magnitude in [{MIN_MAGNITUDE:g}, {MAX_MAGNITUDE:g}], got {value!r}", value)
         return float(value)
     if tp is str:
         if not isinstance(value, str):
@@ -216,19 +235,21 @@ def in_range(obj: object, key: str, lo: float | None = None, hi: float | None = 
     """Require field `key` of obj (a number, or every number of a tuple) to lie in an interval.
 
     lo, hi: bounds (None = unbounded); lo_open, hi_open: exclude the bound. The one place for
-    "a number in a range" checks, so that checks of finiteness can be added here once.
+    "a number in a range" checks: a NaN or an infinity is refused here too (whatever the bounds),
+    so a value set in code is held to what `from_dict` enforces on a file.
     Also the declaration of the range and unit that `testbed schema` prints (see RANGES).
     """
     if RANGES is not None:
         RANGES.setdefault((type(obj), key), (lo, hi, lo_open, hi_open, unit))
     value = getattr(obj, key)
     values = value if isinstance(value, tuple) else (value,)
-    ok = all((lo is None or (v > lo if lo_open else v >= lo)) and (hi is None or (v < hi if hi_open else v <= hi)) for v in values)
+    ok = all(math.isfinite(v) for v in values) and all((lo is None or (v > lo if lo_open else v >= lo)) and (hi is None or (v < hi if hi_open else v <= hi)) for v in values)
     if ok:
         return
     want = describe_range(lo, hi, lo_open, hi_open, unit)
     got = list(value) if isinstance(value, tuple) else value
-    raise FieldError("", key, value, f"must be {want}, got {got}")
+    finite = "" if all(math.isfinite(v) for v in values) else "finite and "
+    raise FieldError("", key, value, f"must be {finite}{want}, got {got}")
 
 
 def describe_range(lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False, unit: str = "") -> str:
@@ -244,6 +265,11 @@ def describe_range(lo: float | None, hi: float | None, lo_open: bool = False, hi
 
 
 def whole_ratio(a: float, b: float) -> bool:
-    """Is a / b a whole number >= 1 (to 1e-9)? For rates that must divide each other."""
+    """Is a / b a whole number >= 1 (to 1e-9)? For rates that must divide each other.
+
+    False for a ratio beyond 1e12 or not finite (no rate of the testbed divides another that often).
+    """
     ratio = a / b
+    if not (math.isfinite(ratio) and abs(ratio) <= 1e12):
+        return False
     return abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1

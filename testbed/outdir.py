@@ -299,6 +299,14 @@ def write_json(path: Path, obj: object) -> None:
     write_text(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
 
 
+def check_new_file(out: Path, *, force: bool) -> None:
+    """Refuse a file output that is a directory, or that exists unless force (RunError)."""
+    if out.is_dir():
+        raise RunError(f"{out}: is a directory; give a file name")
+    if out.exists() and not force:
+        raise RunError(f"{out}: already exists (use --force to replace it)")
+
+
 @contextmanager
 def new_file(out: Path, *, force: bool, suffix: str = "") -> Iterator[Path]:
     """Write one file: yields a temporary sibling path (ending in `suffix`), put at `out` on success.
@@ -306,10 +314,7 @@ def new_file(out: Path, *, force: bool, suffix: str = "") -> Iterator[Path]:
     Refuses an existing `out` unless force (checked first and again, atomically, at the end).
     """
     out = Path(out)
-    if out.is_dir():
-        raise RunError(f"{out}: is a directory; give a file name")
-    if out.exists() and not force:
-        raise RunError(f"{out}: already exists (use --force to replace it)")
+    check_new_file(out, force=force)
     try:
         make_parent(out)
     except OSError as e:

@@ -12,11 +12,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from testbed.scenario import LeaderFollower, PhaseFormation, StraightLine, SwarmBox, Trajectory, Waypoints
+from testbed.scenario import LeaderFollower, Obstacle, PhaseFormation, Scenario, StraightLine, SwarmBox, Trajectory, Waypoints
 
 GRAVITY = 9.81  # m/s^2, as in models/arena.xml
+# m: circumscribed radius of a vehicle's collision box (models/quadrotor.xml: half extents
+# 0.6 x 0.6 x 0.12 m centred 0.02 m above the body origin): sqrt(0.6^2 + 0.6^2 + 0.14^2).
+AIRFRAME_RADIUS = 0.86
+CLEARANCE_CHUNK = 4096  # reference instants per vectorized clearance test
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,3 +206,69 @@ def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True, flat: bo
     ha = 1e-3
     alpha = (_omega(tr, t + ha, 1e-5, flat) - _omega(tr, t - ha, 1e-5, flat)) / (2 * ha)
     return RefState(pos, vel, acc, quat, omega, alpha, yaw)
+
+
+# ------------------------------------------------------------------------------- clearance
+
+
+def clearance(sc: Scenario) -> tuple[str, str] | None:
+    """Does the reference path of `sc` hit the floor, an obstacle or another vehicle?
+
+    Sampled at the truth rate over the whole run (t = k / world.truth_rate s), each vehicle a
+    sphere of AIRFRAME_RADIUS about its reference position: the floor (z = 0) must stay below it,
+    each obstacle outside it, and two vehicles at least 2 AIRFRAME_RADIUS apart (a neighbour
+    search, `_close_pair`). Returns the first problem found as (dotted key, reason), or None.
+    Between samples nothing is checked: a path that crosses an obstacle thinner than the
+    distance flown in 1 / truth_rate can pass.
+    """
+    n = int(np.floor(sc.duration * sc.world.truth_rate + 1e-9)) + 1
+    for k0 in range(0, n, CLEARANCE_CHUNK):
+        t = np.arange(k0, min(n, k0 + CLEARANCE_CHUNK)) / sc.world.truth_rate
+        pos = _pva(sc.trajectory, t)[0]  # (K, N, 3) m
+        low = pos[..., 2] < AIRFRAME_RADIUS
+        if low.any():
+            k, i = np.argwhere(low)[0]
+            return "trajectory", (f"vehicle {i + 1}'s reference is at z = {pos[k, i, 2]:.2f} m at t = {t[k]:g} s: "
+                                  f"through or within the airframe radius {AIRFRAME_RADIUS} m of the floor")
+        for m, ob in enumerate(sc.world.obstacles):
+            d = _obstacle_distance(ob, pos)
+            if (d < AIRFRAME_RADIUS).any():
+                k, i = np.argwhere(d < AIRFRAME_RADIUS)[0]
+                return f"world.obstacles[{m}]", (f"vehicle {i + 1}'s reference passes {d[k, i]:.2f} m from this {ob.type} "
+                                                 f"at t = {t[k]:g} s, inside its airframe radius {AIRFRAME_RADIUS} m")
+        pair = _close_pair(pos, 2 * AIRFRAME_RADIUS)
+        if pair is not None:
+            k, i, j = pair
+            return "trajectory", (f"vehicles {i + 1} and {j + 1} are {np.linalg.norm(pos[k, i] - pos[k, j]):.2f} m apart at "
+                                  f"t = {t[k]:g} s, closer than two airframe radii ({2 * AIRFRAME_RADIUS:.2f} m)")
+    return None
+
+
+def _obstacle_distance(ob: Obstacle, pos: np.ndarray) -> np.ndarray:
+    """Distance (m) from points pos (..., 3) world to the surface of `ob` (0 inside it)."""
+    d = pos - np.array(ob.pos)
+    if ob.type == "cylinder":  # axis along world z: size = (radius, half height, unused)
+        radial = np.maximum(np.hypot(d[..., 0], d[..., 1]) - ob.size[0], 0.0)
+        return np.hypot(radial, np.maximum(np.abs(d[..., 2]) - ob.size[1], 0.0))
+    c, s = np.cos(np.radians(ob.yaw_deg)), np.sin(np.radians(ob.yaw_deg))
+    local = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)  # box frame
+    return np.linalg.norm(np.maximum(np.abs(local) - np.array(ob.size), 0.0), axis=-1)
+
+
+def _close_pair(pos: np.ndarray, r: float) -> tuple[int, int, int] | None:
+    """The first (k, i, j), i < j, with |pos[k, i] - pos[k, j]| < r, or None; pos (K, N, 3) m.
+
+    One k-d tree over all K N points with the sample index as a fourth coordinate spaced 10 r
+    apart, so only points of the same instant can be neighbours: O(K N log(K N)), no loop over
+    vehicles or instants.
+    """
+    K, N, _ = pos.shape
+    if N < 2:
+        return None
+    pts = np.concatenate([pos.reshape(-1, 3), np.repeat(np.arange(K) * 10.0 * r, N)[:, None]], axis=1)
+    pairs = cKDTree(pts).query_pairs(r * (1 - 1e-12), output_type="ndarray")
+    if pairs.size == 0:
+        return None
+    first = pairs[np.lexsort((pairs.max(1), pairs.min(1)))[0]]
+    k, i = divmod(int(first.min()), N)
+    return k, i, int(first.max()) % N

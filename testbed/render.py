@@ -48,6 +48,7 @@ import os
 import subprocess
 import sys
 import tomllib
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +61,8 @@ from tqdm import tqdm
 from testbed.errors import RunError
 from testbed.outdir import new_file
 from testbed.workers import worker_init
+
+from testbed.errors import UsageError
 
 INSTALL_HINT = (
     "install the EGL libraries (Debian/Ubuntu: apt-get install libegl1 libopengl0 libgl1-mesa-dri) "
@@ -169,11 +172,17 @@ class _Replay:
         for name in ("scene.xml", "log.npz"):
             if not (run_dir / name).is_file():
                 raise RenderError(f"{run_dir}: not a run directory (no {name})")
-        self.model = mujoco.MjModel.from_xml_path(str(run_dir / "scene.xml"))
+        try:
+            self.model = mujoco.MjModel.from_xml_path(str(run_dir / "scene.xml"))
+        except ValueError as e:  # MuJoCo's XML and compile errors
+            raise RenderError(f"{run_dir / 'scene.xml'}: not a readable MuJoCo model: {_one_line(e)}") from None
         self.data = mujoco.MjData(self.model)
-        with np.load(run_dir / "log.npz", allow_pickle=False) as z:
-            self.time = np.asarray(z["time"], float)
-            self.qpos = np.asarray(z["qpos"], float)
+        try:
+            with np.load(run_dir / "log.npz", allow_pickle=False) as z:
+                self.time = np.asarray(z["time"], float)
+                self.qpos = np.asarray(z["qpos"], float)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+            raise RenderError(f"{run_dir / 'log.npz'}: not a readable run log (time and qpos arrays): {_one_line(e)}") from None
         if self.qpos.shape != (self.time.size, self.model.nq) or self.time.size == 0:
             raise RenderError(f"{run_dir}: log.npz qpos {self.qpos.shape} does not match time ({self.time.size},) and scene nq={self.model.nq}")
         ids = []
@@ -226,6 +235,19 @@ class _Replay:
             self.set_time(float(t), forward=False)
             out[f] = self.data.xpos[self.body_ids]
         return out
+
+
+def _one_line(e: Exception) -> str:
+    return " ".join(str(e).split())[:300] or type(e).__name__
+
+
+def check_run_dir(run_dir: Path) -> None:
+    """Raise UsageError (one line naming the file) unless render can read run_dir's scene.xml
+    and log.npz: checked in the calling process, before any renderer or subprocess starts."""
+    try:
+        _Replay(run_dir)
+    except RenderError as e:
+        raise UsageError(str(e)) from None
 
 
 def _read_meta(run_dir: Path) -> dict:

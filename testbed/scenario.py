@@ -2,12 +2,13 @@
 
 A scenario names the world (vehicles, anchors, obstacles), the motion (a reference trajectory
 flown `prescribed` or `flown`), the sensors and the estimator pipeline. Built-in scenarios live in
-`testbed/scenarios/*.toml`; any path is accepted too. Units: metres, seconds, radians unless a key
+`testbed/scenarios/*.toml`; a file is named by a path (see `resolve`). Units: metres, seconds, radians unless a key
 says `_deg` or `_hz`. Frames: world ENU (x east, y north, z up); vehicle bodies FLU.
 """
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -24,6 +25,9 @@ from testbed.plugins.spec import EstimatorSpec
 from testbed.sensors.config import SensorsConfig
 
 Vec3 = tuple[float, float, float]
+# Most physics steps (duration / world.timestep) a run may take: ~1e9 steps is hours of compute
+# and the per-tick log arrays grow with it; beyond that a value is a mistake (a duration of 1e12 s).
+MAX_STEPS = 1e9
 
 # ------------------------------------------------------------------------------------- world
 
@@ -54,6 +58,9 @@ class World:
     every sensor rate; truth_rate: rate (Hz) at which truth is logged even when no sensor samples;
     antenna_a, antenna_b: nose and wing-tip antenna lever arms (m, seed 003); anchors: UWB anchor
     positions (m, world); obstacles: static obstacles.
+    clearance: what a reference path that comes closer than the airframe radius to the floor, an
+    obstacle or another vehicle does (checked before simulating, testbed.reference.clearance):
+    "error" (default: the run is refused), "warn" (one line on stderr, the run goes on), "off".
     """
 
     timestep: float = key(0.0025, unit="s")
@@ -63,13 +70,14 @@ class World:
     antenna_b: float = key(1.0, unit="m")
     anchors: tuple[Vec3, ...] = key((), unit="m")
     obstacles: tuple[Obstacle, ...] = ()
+    clearance: Literal["error", "warn", "off"] = "error"
 
     def __post_init__(self) -> None:
-        in_range(self, "timestep", 0, 0.01, lo_open=True, unit="s")
+        in_range(self, "timestep", 1e-6, 0.01, unit="s")
         in_range(self, "control_rate", 0, lo_open=True)
         require(whole_ratio(1.0, self.control_rate * self.timestep), "control_rate", self.control_rate,
                 f"{self.control_rate} Hz is not a whole number of {self.timestep} s steps")
-        in_range(self, "truth_rate", 0, lo_open=True)
+        in_range(self, "truth_rate", 0, self.control_rate, lo_open=True, unit="Hz (world.control_rate)")
         in_range(self, "antenna_a", 0, lo_open=True)
         in_range(self, "antenna_b", 0, lo_open=True)
 
@@ -108,6 +116,11 @@ class PhaseFormation:
 
     def __post_init__(self) -> None:
         in_range(self, "spacing", 0, lo_open=True)
+        # eq. 31 Euler angles (ZYX): a pitch of 90 deg is the gimbal singularity
+        in_range(self, "pitch_amp_deg", -90, 90, lo_open=True, hi_open=True, unit="deg")
+        in_range(self, "yaw_amp_deg", -180, 180, unit="deg")
+        in_range(self, "roll_amp_deg", -180, 180, unit="deg")
+        in_range(self, "attitude_freq_hz", 0, 1, unit="Hz")
 
     @property
     def vehicles(self) -> int:
@@ -162,7 +175,7 @@ class SwarmBox:
             require(d.min() > reach, "bases", self.bases,
                     f"two bases are {d.min():.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
         require(all(1 <= r <= n for r in self.rtk), "rtk", self.rtk, f"vehicle numbers must be in 1..{n}, got {list(self.rtk)}")
-        in_range(self, "period_min", 0, lo_open=True, unit="s")
+        in_range(self, "period_min", 1, unit="s")
         in_range(self, "period_max", self.period_min, unit="s (period_min)")
 
     @property
@@ -192,8 +205,8 @@ class LeaderFollower:
     yaw_period: float = key(30.0, unit="s")
 
     def __post_init__(self) -> None:
-        in_range(self, "weave_period", 0, lo_open=True)
-        in_range(self, "yaw_period", 0, lo_open=True)
+        in_range(self, "weave_period", 1, unit="s")
+        in_range(self, "yaw_period", 1, unit="s")
 
     @property
     def vehicles(self) -> int:
@@ -218,8 +231,8 @@ class Waypoints:
         require(len(self.points) >= 2, "points", self.points, "need at least two waypoints")
         require(len(self.times) == len(self.points), "times", self.times,
                 f"need one time per waypoint ({len(self.points)}), got {len(self.times)}")
-        require(self.times[0] == 0 and all(b > a for a, b in zip(self.times, self.times[1:])), "times", self.times,
-                f"must start at 0 and increase, got {list(self.times)}")
+        require(self.times[0] == 0 and all(b >= a + 0.01 for a, b in zip(self.times, self.times[1:])), "times", self.times,
+                f"must start at 0 and increase by at least 0.01 s, got {list(self.times)}")
         require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
 
     @property
@@ -303,6 +316,10 @@ class Scenario:
 
     def __post_init__(self) -> None:
         in_range(self, "duration", 0, lo_open=True, unit="s")
+        steps = self.duration / self.world.timestep
+        require(steps <= MAX_STEPS, "duration", self.duration,
+                f"{self.duration:g} s is {steps:.3g} physics steps of world.timestep {self.world.timestep:g} s, "
+                f"more than the {MAX_STEPS:.0e} a run may take")
         require(self.seed >= 0, "seed", self.seed, f"must be a non-negative integer, got {self.seed}")
         bad = [v for v in self.disturbance.vehicles if v > self.vehicles]
         require(not bad, "disturbance.vehicles", self.disturbance.vehicles,
@@ -311,7 +328,7 @@ class Scenario:
         # pipeline has the sensors it needs (keys dotted from the scenario root)
         self.sensors.cross_check(self.world.control_rate, self.vehicles, "sensors")
         if self.pipeline is not None:
-            self.pipeline.cross_check(self.sensors, self.vehicles)
+            self.pipeline.cross_check(self)
 
     @property
     def vehicles(self) -> int:
@@ -326,17 +343,38 @@ def builtin_names() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files("testbed.scenarios").iterdir() if p.name.endswith(".toml"))
 
 
+def resolve(name_or_path: str) -> tuple[bool, str]:
+    """Which scenario `name_or_path` names: (built-in?, label for messages).
+
+    Unambiguous by its spelling, never by what happens to exist in the working directory: a path
+    contains a `/` or ends in `.toml` (`./bandwidth`, `my.toml`); anything else is the name of a
+    built-in scenario (`bandwidth`), even if a file or directory of that name is here too.
+    """
+    if "/" in name_or_path or os.sep in name_or_path or name_or_path.endswith(".toml"):
+        return False, name_or_path
+    return True, f"{name_or_path}.toml"
+
+
 def _read_table(name_or_path: str) -> tuple[dict, str]:
-    path = Path(name_or_path)
-    if path.suffix == ".toml" or path.exists():
-        if not path.is_file():
-            raise ConfigError(f"{name_or_path}: no such scenario file")
-        text, label = path.read_text(), str(path)
+    builtin, label = resolve(name_or_path)
+    if builtin:
+        res = resources.files("testbed.scenarios") / label
+        if not name_or_path or not res.is_file():
+            hint = f"; a scenario file is named by a path: ./{name_or_path}" if name_or_path and Path(name_or_path).exists() else ""
+            raise ConfigError(f"unknown scenario {name_or_path!r}; built-in: {', '.join(builtin_names())}{hint}")
+        raw = res.read_bytes()
     else:
-        res = resources.files("testbed.scenarios") / f"{name_or_path}.toml"
-        if not res.is_file():
-            raise ConfigError(f"unknown scenario {name_or_path!r}; built-in: {', '.join(builtin_names())}")
-        text, label = res.read_text(), f"{name_or_path}.toml"
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise ConfigError(f"{label}: {'is a directory, not' if path.is_dir() else 'no such'} scenario file")
+        try:
+            raw = path.read_bytes()
+        except OSError as e:
+            raise ConfigError(f"{label}: cannot read: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{label}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}); TOML files are UTF-8") from None
     try:
         return tomllib.loads(text), label
     except tomllib.TOMLDecodeError as e:

@@ -122,7 +122,7 @@ def test_schema_lists_every_key_of_every_builtin_scenario_with_type_and_default(
     keys = set().union(*(_leaf_keys(to_dict(scenario.load(n))) for n in scenario.builtin_names()))
     missing = {k for k in keys - set(rows) if not any(r.startswith(f"{k}[i].") for r in rows)}  # [] of tables
     assert not missing, sorted(missing)
-    assert rows["world.timestep"][1:] == ("float", "s", "0.0025", "in (0, 0.01]")
+    assert rows["world.timestep"][1:] == ("float", "s", "0.0025", "in [1e-06, 0.01]")
     assert rows["sensors.uwb.loss_prob"][3:] == ("preset", "in [0, 1)")
     assert rows["world.obstacles[i].type"][4] == 'one of "box", "cylinder"'
 

@@ -2,15 +2,16 @@
 
 Configuration only (dataclasses and their validation), so that the scenario schema loads without
 the pipelines' compute modules, scipy or mujoco. Each table checks its own values in
-`__post_init__` and, through `cross_check(sensors, vehicles)`, what it needs from the rest of the
-scenario (called by `Scenario.__post_init__`; keys dotted from the scenario root). The compute
+`__post_init__` and, through `cross_check(scenario)`, what it needs from the rest of the
+scenario (called by `Scenario.__post_init__`, so before anything is simulated; keys dotted from
+the scenario root). The compute
 side of each kind lives in testbed.pipelines.{phase,visnav,bandwidth,coop}.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -25,10 +26,17 @@ class _PipelineConfig:
 
     __slots__ = ()
 
-    def cross_check(self, sensors: SensorsConfig, vehicles: int) -> None:
-        """Check what the pipeline needs from the scenario's sensors and vehicles (nothing here).
+    def cross_check(self, sc: Any) -> None:
+        """Check what the pipeline needs from the rest of scenario `sc` (nothing here).
 
-        Raises FieldError naming the key from the scenario root (`pipeline.silent_uav`)."""
+        sc: the testbed.scenario.Scenario being built (its sensors, world, trajectory and vehicle
+        count; not imported: that module imports this one). Raises FieldError naming the key
+        from the scenario root (`pipeline.silent_uav`)."""
+
+
+def _needs(sensors: SensorsConfig, kind: str, *streams: str) -> None:
+    for name in streams:
+        require(getattr(sensors, name) is not None, f"sensors.{name}", None, f"pipeline {kind} needs the [sensors.{name}] stream")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -108,9 +116,17 @@ class PhasePipelineConfig(_PipelineConfig):
         in_range(self, "score_start", 0, unit="s")
         in_range(self, "last_window", 0, lo_open=True, unit="s")
 
+    def cross_check(self, sc: Any) -> None:
+        """phase-ekf needs the carrier-phase stream, and its navigation frame is a master's."""
+        _needs(sc.sensors, "phase-ekf", "phase")
+        masters = sc.sensors.phase.masters
+        require(self.nav_master in masters, "pipeline.nav_master", self.nav_master,
+                f"{self.nav_master} is not one of the phase masters {list(masters)} (sensors.phase.masters)")
+
 
 # ------------------------------------------------------------------------------ seed 004 visnav
 FILTER_NAMES = ("ekf", "ckf", "hckf", "mckf", "rhcf")
+N_LEDS = 4  # LED beacons led1..led4 of models/quadrotor.xml
 # The paper's sensor figures (section 3.1): the values of estimators.visnav.PAPER_*, not imported
 # because that module loads scipy (tests/test_architecture.py checks that they agree).
 PAPER_ACCEL_BIAS = 250e-6 * 9.80665  # 250 micro-g -> m/s^2
@@ -178,7 +194,22 @@ class VisNavPipelineConfig(_PipelineConfig):
             in_range(self, k, 0)
         for k in ("los_sigma", "init_sigma_pos", "init_sigma_vel", "init_sigma_att_deg", "kernel_sigma", "mc_tol"):
             in_range(self, k, 0, lo_open=True)
-        in_range(self, "mc_max_iter", 1)
+        in_range(self, "mc_max_iter", 1, 10_000)
+
+    def cross_check(self, sc: Any) -> None:
+        """visnav needs the IMU on both vehicles and the camera; the predict grid must divide the
+        IMU rate and contain every camera epoch; every LED the camera can report needs a position."""
+        _needs(sc.sensors, "visnav", "imu", "camera")
+        imu, cam = sc.sensors.imu, sc.sensors.camera
+        require(whole_ratio(imu.rate_hz, self.predict_rate_hz), "pipeline.predict_rate_hz", self.predict_rate_hz,
+                f"{self.predict_rate_hz:g} Hz must divide the IMU rate {imu.rate_hz:g} Hz (sensors.imu.rate_hz)")
+        require(whole_ratio(self.predict_rate_hz, cam.rate_hz), "pipeline.predict_rate_hz", self.predict_rate_hz,
+                f"{self.predict_rate_hz:g} Hz must be a multiple of the camera rate {cam.rate_hz:g} Hz (sensors.camera.rate_hz)")
+        missing = [v for v in (cam.leader, cam.follower) if imu.vehicles and v not in imu.vehicles]
+        require(not missing, "sensors.imu.vehicles", imu.vehicles,
+                f"{list(imu.vehicles)}: the visnav pipeline needs IMUs on the camera's leader {cam.leader} and follower {cam.follower}")
+        require(len(self.led_pos) >= N_LEDS, "pipeline.led_pos", self.led_pos,
+                f"{len(self.led_pos)} positions, but the follower carries {N_LEDS} LEDs (led1..led{N_LEDS}) the camera can report")
 
 
 # --------------------------------------------------------------------------- seed 000 bandwidth
@@ -246,6 +277,28 @@ class BandwidthPipelineConfig(_PipelineConfig):
         in_range(self, "drop_prob", 0, 1, hi_open=True)
         in_range(self, "fail_node", 0, N_NODES)
         in_range(self, "fail_time", 0, unit="s")
+        require(self.selection == "search" or self.budget == 5, "budget", self.budget,
+                f"the paper's {self.selection} is for budget 5, got {self.budget}; use selection = \"search\"")
+
+    def cross_check(self, sc: Any) -> None:
+        """bandwidth estimates the point of a straight-line formation of N_NODES UAVs; its epochs
+        must be logged instants; in uwb mode it needs the UWB stream and every world anchor known."""
+        require(sc.trajectory.kind == "straight-line", "trajectory.kind", sc.trajectory.kind,
+                "pipeline bandwidth estimates the point of a \"straight-line\" formation")
+        require(sc.vehicles == N_NODES, "trajectory.offsets", sc.trajectory.offsets,
+                f"pipeline bandwidth fuses {N_NODES} UAVs, the trajectory has {sc.vehicles}")
+        rate = sc.world.control_rate
+        step = self.dt * rate  # controller ticks per filter epoch
+        periods = [rate / sc.world.truth_rate] + ([rate / sc.sensors.uwb.rate_hz] if sc.sensors.uwb else [])
+        require(any(whole_ratio(step, round(p)) for p in periods), "pipeline.dt", self.dt,
+                f"{self.dt:g} s epochs are not logged instants; use a multiple of the truth period 1/world.truth_rate "
+                f"{1 / sc.world.truth_rate:g} s")
+        if self.measurements == "uwb":
+            _needs(sc.sensors, "bandwidth (measurements = \"uwb\")", "uwb")
+            period = 1.0 / sc.sensors.uwb.rate_hz
+            require(whole_ratio(self.dt, period), "pipeline.dt", self.dt, f"{self.dt:g} s is not a multiple of the UWB period {period:g} s")
+            require(len(self.anchors) == len(sc.world.anchors), "pipeline.anchors", self.anchors,
+                    f"{len(self.anchors)} known anchors but the world has {len(sc.world.anchors)} (world.anchors)")
 
 
 # ------------------------------------------------------------------------------ seed 001 coop-fg
@@ -308,12 +361,13 @@ class CoopPipelineConfig(_PipelineConfig):
         require(len(self.plot_uavs) in (0, 4) and all(u >= 1 for u in self.plot_uavs), "plot_uavs", self.plot_uavs,
                 f"must be empty or four 1-based UAV numbers, got {list(self.plot_uavs)}")
 
-    def cross_check(self, sensors: SensorsConfig, vehicles: int) -> None:
-        """coop-fg needs GNSS at the UWB tag, UWB tag-to-tag links sampled at every GNSS epoch,
-        and vehicle numbers that exist."""
-        require(sensors.gnss is not None, "sensors.gnss", None, "pipeline coop-fg needs the [sensors.gnss] stream")
-        require(sensors.uwb is not None, "sensors.uwb", None, "pipeline coop-fg needs the [sensors.uwb] stream")
-        gnss, uwb = sensors.gnss, sensors.uwb
+    def cross_check(self, sc: Any) -> None:
+        """coop-fg needs GNSS at the UWB tag on every UAV, UWB tag-to-tag links sampled at every
+        GNSS epoch, and vehicle numbers that exist."""
+        _needs(sc.sensors, "coop-fg", "gnss", "uwb")
+        gnss, uwb, vehicles = sc.sensors.gnss, sc.sensors.uwb, sc.vehicles
+        require(not gnss.vehicles or set(gnss.vehicles) >= set(range(1, vehicles + 1)), "sensors.gnss.vehicles", gnss.vehicles,
+                f"{list(gnss.vehicles)}: coop-fg needs a GNSS fix of every UAV at every epoch (empty = all)")
         require(gnss.antenna == "uwb", "sensors.gnss.antenna", gnss.antenna,
                 f"{gnss.antenna!r}; the coop-fg factor graph has one point per UAV, the UWB tag: set antenna = \"uwb\"")
         require(whole_ratio(uwb.rate_hz, gnss.rate_hz), "sensors.uwb.rate_hz", uwb.rate_hz,

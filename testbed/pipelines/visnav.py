@@ -270,8 +270,9 @@ def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], o
     truth = true_relative_state(log, cam.leader, cam.follower, inputs.cam_state)
     truth0 = true_relative_state(log, cam.leader, cam.follower, np.array([int(np.argmin(np.abs(log["time"] - inputs.t[0])))]))[0]
     prior = initial_belief(cfg, model, truth0, scenario.seed)
-    if inputs.cam_step[0] != 0:
-        raise ValueError("visnav: the first camera epoch must coincide with the first IMU sample")
+    if inputs.cam_step.size == 0 or inputs.cam_step[0] != 0:  # a scenario the filters cannot start on: one line, exit 2
+        raise ConfigError(f"{scenario.name}: sensors.camera: the leader's camera sees no LED of the follower at t = {inputs.t[0]:g} s; "
+                          "the visnav filters start from a camera epoch at the first IMU sample")
     epochs = camera_epochs(inputs)
     tracks, scores = {}, {}
     for name in cfg.filters:
