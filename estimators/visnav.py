@@ -65,24 +65,10 @@ import numpy as np
 
 from estimators.so3 import quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat, skew, so3_right_jacobian
 from estimators.sigma_filters import ComposedFilter, FunctionMeasurement, ManifoldGaussian
+from estimators.visnav_paper import (  # the paper's values (section 3.1), SI units
+    PAPER_ACCEL_BIAS, PAPER_ACCEL_NOISE, PAPER_FOCAL_LENGTH, PAPER_GYRO_BIAS, PAPER_GYRO_NOISE, PAPER_VISION_SIGMA,
+)
 
-# --------------------------------------------------------------------------------------------
-# Units and the paper's values (section 3.1)
-# --------------------------------------------------------------------------------------------
-G0 = 9.80665                        # m/s^2 per g
-DEG = np.pi / 180.0
-HOUR = 3600.0
-
-PAPER_ACCEL_BIAS = 250e-6 * G0                    # 250 micro-g -> m/s^2
-# printed "50 micro-g/sqrt(h)", not a noise-density unit: read as 50 micro-g/sqrt(Hz), as the
-# paper004 IMU preset and the pipeline do (docs/sensors.md; the literal reading is 0.8 ug/sqrt(Hz))
-PAPER_ACCEL_NOISE = 50e-6 * G0                    # 50 micro-g/sqrt(Hz) -> m/s/sqrt(s)
-PAPER_GYRO_BIAS = 0.1 * DEG / HOUR                # 0.1 deg/h -> rad/s
-PAPER_GYRO_NOISE = 0.08 * DEG / np.sqrt(HOUR)     # 0.08 deg/sqrt(h) -> rad/sqrt(s)
-PAPER_VISION_SIGMA = 3500e-6                      # rad
-PAPER_FOCAL_LENGTH = 1.0                          # m
-PAPER_GLINT_RATE = 0.1                            # contamination probability
-PAPER_GLINT_SCALE = 5.0                           # std of the contaminating component / nominal
 
 # state layout
 P_, V_, Q_ = slice(0, 3), slice(3, 6), slice(6, 10)

@@ -9,12 +9,12 @@ side of each kind lives in testbed.pipelines.{phase,visnav,bandwidth,coop}.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
+from estimators.visnav_paper import PAPER_ACCEL_BIAS, PAPER_ACCEL_NOISE, PAPER_GYRO_BIAS, PAPER_GYRO_NOISE, PAPER_VISION_SIGMA
 from testbed.config import in_range, require, whole_ratio
 from testbed.sensors.config import SensorsConfig
 
@@ -127,13 +127,6 @@ class PhasePipelineConfig(_PipelineConfig):
 # ------------------------------------------------------------------------------ seed 004 visnav
 FILTER_NAMES = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 N_LEDS = 4  # LED beacons led1..led4 of models/quadrotor.xml
-# The paper's sensor figures (section 3.1): the values of estimators.visnav.PAPER_*, not imported
-# because that module loads scipy (tests/test_architecture.py checks that they agree).
-PAPER_ACCEL_BIAS = 250e-6 * 9.80665  # 250 micro-g -> m/s^2
-PAPER_ACCEL_NOISE = 50e-6 * 9.80665  # 50 micro-g/sqrt(Hz) -> m/s/sqrt(s)
-PAPER_GYRO_BIAS = 0.1 * (math.pi / 180.0) / 3600.0  # 0.1 deg/h -> rad/s
-PAPER_GYRO_NOISE = 0.08 * (math.pi / 180.0) / math.sqrt(3600.0)  # 0.08 deg/sqrt(h) -> rad/sqrt(s)
-PAPER_VISION_SIGMA = 3500e-6  # rad
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -18,9 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.so3 import quat_log, rotmat_to_quat
-from estimators.visnav import (
-    G0, PAPER_GLINT_RATE, PAPER_GLINT_SCALE, RelNavModel, VisNavConfig, make_state, tangent_basis,
-)
+from estimators.visnav import RelNavModel, VisNavConfig, make_state, tangent_basis
+from estimators.visnav_paper import G0, PAPER_GLINT_RATE, PAPER_GLINT_SCALE
 
 G_W = np.array([0.0, 0.0, -G0])
 

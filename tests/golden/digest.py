@@ -14,6 +14,8 @@ import json
 import tempfile
 from pathlib import Path
 
+from testbed.environment import apply_defaults
+
 DIGESTS = Path(__file__).with_name("digests.json")
 DURATION_S = 4.0
 FILES = ("metrics.json", "log.npz")
@@ -35,6 +37,7 @@ def compute() -> dict[str, dict[str, str]]:
 
 
 def main() -> None:
+    apply_defaults()  # single-threaded BLAS as in the CLI and the tests: digests depend on it
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--update", action="store_true", help="rewrite the stored digests")
     args = parser.parse_args()
