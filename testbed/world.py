@@ -14,6 +14,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from scipy.spatial import cKDTree
 
 from testbed.reference import RefState, evaluate
 from testbed.scenario import Scenario
@@ -387,27 +388,50 @@ class Physics:
         Conservative (never False where a ray along the segment hits such a geom): a plane only
         when an end point lies within SEGMENT_MARGIN above it or below; any other geom when the
         segment meets its bounding box (geom_aabb, geom frame) grown by SEGMENT_MARGIN, by the
-        separating-axis test of a segment and a box (three box axes, three cross products).
+        separating-axis test of a segment and a box (three box axes, three cross products). The
+        test runs only on the (segment, box) pairs whose bounding spheres meet, found with a k-d
+        tree of the box centres: cost O((G + L) log G + pairs), not O(G L).
         """
         d = self.data
+        start, end = np.asarray(start, float), np.asarray(end, float)
+        ignore = np.asarray(ignore).reshape(len(start), -1)
+        hit = np.zeros(len(start), dtype=bool)
+        if len(start) == 0:
+            return hit
+        mid, half = 0.5 * (start + end), 0.5 * (end - start)
+        for g in np.flatnonzero(targets.plane):  # planes: local z up
+            Rt = d.geom_xmat[targets.ids[g]].reshape(3, 3).T
+            z = Rt[2] @ (mid - d.geom_xpos[targets.ids[g]]).T
+            touch = z - np.abs(Rt[2] @ half.T) <= SEGMENT_MARGIN
+            hit |= touch & (ignore != targets.body[g]).all(axis=1)
+        box = np.flatnonzero(~targets.plane)
+        if len(box) == 0:
+            return hit
+        ids = targets.ids[box]
+        R = d.geom_xmat[ids].reshape(-1, 3, 3)
+        centre = d.geom_xpos[ids] + (R @ targets.centre[box][:, :, None])[:, :, 0]  # (B, 3) world
+        radius = np.linalg.norm(targets.half[box], axis=1)
+        reach = np.linalg.norm(half, axis=1) + radius.max() + SEGMENT_MARGIN
+        near = cKDTree(centre).query_ball_point(mid, reach)
+        link = np.repeat(np.arange(len(start)), [len(n) for n in near])
+        if len(link) == 0:
+            return hit
+        geom = np.concatenate(near).astype(int)
+        keep = (targets.body[box][geom][:, None] != ignore[link]).all(axis=1)
+        link, geom = link[keep], geom[keep]
         # world-to-geom rotations with rows x, y, z, x, y: components [1:4] and [2:5] of a rotated
-        # vector are its cyclic shifts (for the cross products)
-        cyc = [0, 1, 2, 0, 1]
-        Rt = d.geom_xmat[targets.ids].reshape(-1, 3, 3).transpose(0, 2, 1)[:, cyc]  # (G, 5, 3)
-        c = Rt @ d.geom_xpos[targets.ids][:, :, None] + targets.centre[:, cyc, None]  # (G, 5, 1)
-        # segment midpoint (from the box centre) and half-vector in each geom's frame: (G, 5, L)
-        mid = Rt @ (0.5 * (start + end)).T - c
-        e = Rt @ (0.5 * (end - start)).T
+        # vector are its cyclic shifts (for the cross products); midpoint and half-vector of the
+        # segment in each geom's frame, from the box centre: (K, 5)
+        Rt = R[geom].transpose(0, 2, 1)[:, [0, 1, 2, 0, 1]]
+        m = (Rt @ (mid[link] - centre[geom])[:, :, None])[:, :, 0]
+        e = (Rt @ half[link][:, :, None])[:, :, 0]
         ae = np.abs(e)
-        h = targets.half[:, cyc, None]
-        apart = (np.abs(mid[:, :3]) > h[:, :3] + ae[:, :3]).any(axis=1)
-        cross = mid[:, 1:4] * e[:, 2:5] - mid[:, 2:5] * e[:, 1:4]
+        h = targets.half[box][geom][:, [0, 1, 2, 0, 1]]
+        apart = (np.abs(m[:, :3]) > h[:, :3] + ae[:, :3]).any(axis=1)
+        cross = m[:, 1:4] * e[:, 2:5] - m[:, 2:5] * e[:, 1:4]
         apart |= (np.abs(cross) > h[:, 1:4] * ae[:, 2:5] + h[:, 2:5] * ae[:, 1:4]).any(axis=1)
-        below = mid[:, 2] - ae[:, 2] <= SEGMENT_MARGIN  # planes: local z up
-        hit = np.where(targets.plane[:, None], below, ~apart)  # (G, L)
-        for body in np.asarray(ignore).T:
-            hit &= targets.body[:, None] != body
-        return hit.any(axis=0)
+        hit[link[~apart]] = True
+        return hit
 
     # ---------------------------------------------------------------- vehicle states
     @property
