@@ -16,7 +16,6 @@ from typing import Literal
 
 import numpy as np
 import tomli_w
-from scipy.spatial import cKDTree
 
 from testbed.config import from_dict, in_range, require, set_dotted, to_dict, whole_ratio
 from testbed.errors import ConfigError
@@ -161,14 +160,19 @@ class SwarmBox:
 
 
 def _check_swarm(tr: "SwarmBox | SwarmGrid", key: str) -> None:
-    """Checks shared by the swarm trajectories: vehicles, separation of the bases (a k-d tree,
-    not all pairs), rtk numbers, periods. key: the field reported for the bases."""
+    """Checks shared by the swarm trajectories: vehicles, separation of the bases (all pairs, in
+    blocks of rows so that memory stays small; no scipy here: the schema loads without it), rtk
+    numbers, periods. key: the field reported for the bases."""
     b = np.asarray(tr.bases, dtype=float).reshape(-1, 3)
     n = len(b)
     require(n > 0, key, getattr(tr, key), "at least one vehicle is needed")
     if n > 1:
         reach = 2 * float(np.linalg.norm(tr.amplitude)) + 2.5
-        d = float(cKDTree(b).query(b, k=2)[0][:, 1].min())
+        d = np.inf
+        for r0 in range(0, n, 256):
+            block = np.linalg.norm(b[r0 : r0 + 256, None] - b[None], axis=-1)
+            block[np.arange(len(block)), r0 + np.arange(len(block))] = np.inf
+            d = min(d, float(block.min()))
         require(d > reach, key, getattr(tr, key),
                 f"two bases are {d:.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
     require(all(1 <= r <= n for r in tr.rtk), "rtk", tr.rtk, f"vehicle numbers must be in 1..{n}, got {list(tr.rtk)}")

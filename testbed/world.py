@@ -33,7 +33,7 @@ def rotor_route(scenario: Scenario) -> str:
     return "joint" if scenario.motion == "flown" and scenario.vehicles >= JOINT_ROUTE_MIN_VEHICLES else "site"
 
 
-def _vehicle_template(scenario: Scenario, rotors: str) -> mujoco.MjSpec:
+def _vehicle_template(scenario: Scenario, rotors: str = "site") -> mujoco.MjSpec:
     """One quadrotor with the antennas moved to the scenario's lever arms, without its keyframe,
     its rotors transmitted by `rotors` ("site" as in the file, or "joint": _rotors_through_joint).
 
@@ -411,12 +411,18 @@ class Physics:
         R = d.geom_xmat[ids].reshape(-1, 3, 3)
         centre = d.geom_xpos[ids] + (R @ targets.centre[box][:, :, None])[:, :, 0]  # (B, 3) world
         radius = np.linalg.norm(targets.half[box], axis=1)
-        reach = np.linalg.norm(half, axis=1) + radius.max() + SEGMENT_MARGIN
-        near = cKDTree(centre).query_ball_point(mid, reach)
-        link = np.repeat(np.arange(len(start)), [len(n) for n in near])
+        # candidate pairs: boxes up to twice the median size (airframes) from the k-d tree, the
+        # few larger ones (obstacles) with every segment
+        large = radius > 2 * np.median(radius)
+        small = np.flatnonzero(~large)
+        reach = np.linalg.norm(half, axis=1) + radius[small].max(initial=0.0) + SEGMENT_MARGIN
+        near = cKDTree(centre[small]).query_ball_point(mid, reach) if len(small) else [[]] * len(start)
+        counts = np.fromiter(map(len, near), dtype=int, count=len(near))
+        link = np.concatenate([np.repeat(np.arange(len(start)), counts), np.repeat(np.arange(len(start)), large.sum())])
         if len(link) == 0:
             return hit
-        geom = np.concatenate(near).astype(int)
+        geom = np.concatenate([small[np.concatenate(near).astype(int)] if counts.sum() else np.empty(0, dtype=int),
+                               np.tile(np.flatnonzero(large), len(start))])
         keep = (targets.body[box][geom][:, None] != ignore[link]).all(axis=1)
         link, geom = link[keep], geom[keep]
         # world-to-geom rotations with rows x, y, z, x, y: components [1:4] and [2:5] of a rotated

