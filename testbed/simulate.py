@@ -9,7 +9,7 @@ reference, and every due sensor samples the physics state of that instant.
 - flown: the controller commands the rotors every tick; `mj_step1` (position and velocity
   stages), controller, `mj_step2` (acceleration stage, then integration) so sensors see the state
   of the tick itself; the remaining physics steps of the tick hold the command. With the joint
-  rotor route (large flown swarms, testbed.world.rotor_route) every physics step is split the
+  rotor route (large swarms, testbed.world.rotor_route) every physics step is split the
   same way to add the thrust along the current body z (testbed.thrust).
 
 A scenario's [disturbance] (testbed.disturbance) is added to the played-back motion in prescribed
