@@ -7,7 +7,7 @@
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [run options]
-    testbed bench physics|sensors|estimators [--json FILE]
+    testbed bench physics|sensors|estimators [--json FILE] [--vehicles N,N,...]
     testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
     testbed demo [--out DIR] [--force]
     testbed schema
@@ -152,6 +152,17 @@ def _with_estimators(sc, entries: list[str]):
     return sc
 
 
+def _vehicle_counts(text: str) -> tuple[int, ...]:
+    """--vehicles: comma-separated positive vehicle counts, e.g. 18,100,300,1000."""
+    try:
+        counts = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated vehicle counts such as 18,100, got {text!r}") from None
+    if not counts or min(counts) < 1:
+        raise argparse.ArgumentTypeError(f"vehicle counts must be >= 1, got {text!r}")
+    return counts
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="testbed", description="MuJoCo physics-in-the-loop testbed for cooperative navigation of UAV swarms")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -188,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
     p.add_argument("what", choices=["physics", "sensors", "estimators"])
     p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
+    p.add_argument("--vehicles", type=_vehicle_counts, metavar="N[,N...]",
+                   help="swarm sizes (physics: default 1,6,18,50; sensors: default 18)")
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
     p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
@@ -257,7 +270,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "bench":
         from testbed.bench.run import bench
 
-        bench(args.what, args.json)
+        bench(args.what, args.json, vehicles=args.vehicles)
         return 0
     if args.command == "reproduce":
         from testbed.reproduce import reproduce

@@ -54,8 +54,8 @@ class GeometricController:
         self.J = physics.vehicle_inertia
         ids = physics.actuator_idx[0]
         # Mixer: [f, Mx, My, Mz] = A @ thrusts; rotor site at (x, y) in the body frame, thrust
-        # along body z, drag torque gear[5] * thrust about body z.
-        xy = m.site_pos[m.actuator_trnid[ids, 0], :2]
+        # along body z, drag torque gear[5] * thrust about body z (gear[5] in both rotor routes).
+        xy = m.site_pos[physics.rotor_site_idx[0], :2]
         A = np.vstack([np.ones(4), xy[:, 1], -xy[:, 0], m.actuator_gear[ids, 5]])
         mix_inv = np.linalg.inv(A)
         self.mix_f = self.mass * mix_inv[:, 0]

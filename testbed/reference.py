@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from testbed.scenario import LeaderFollower, Obstacle, PhaseFormation, Scenario, StraightLine, SwarmBox, Trajectory, Waypoints
+from testbed.scenario import LeaderFollower, Obstacle, PhaseFormation, Scenario, StraightLine, SwarmBox, SwarmGrid, Trajectory, Waypoints
 
 GRAVITY = 9.81  # m/s^2, as in models/arena.xml
 # m: circumscribed radius of a vehicle's collision box (models/quadrotor.xml: half extents
@@ -72,8 +72,8 @@ def _pva(tr: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
         base = np.array(tr.start) + np.array(tr.offsets)
         v = np.broadcast_to(np.array(tr.velocity), base.shape)
         return base + v * tt, np.broadcast_to(v, (K, *base.shape)).copy(), np.zeros((K, *base.shape))
-    if isinstance(tr, SwarmBox):
-        n = len(tr.bases)
+    if isinstance(tr, (SwarmBox, SwarmGrid)):
+        n = tr.vehicles
         i = np.arange(n)
         period = tr.period_min + (tr.period_max - tr.period_min) * (i / max(n - 1, 1))
         w = (2 * np.pi / period)[:, None]  # (N, 1) rad/s

@@ -166,21 +166,88 @@ class SwarmBox:
     rtk: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
-        n = len(self.bases)
-        require(n > 0, "bases", self.bases, "at least one vehicle is needed")
-        b = np.array(self.bases)
-        if n > 1:
-            d = np.linalg.norm(b[:, None] - b[None], axis=-1) + np.eye(n) * 1e9
-            reach = 2 * float(np.linalg.norm(self.amplitude)) + 2.5
-            require(d.min() > reach, "bases", self.bases,
-                    f"two bases are {d.min():.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
-        require(all(1 <= r <= n for r in self.rtk), "rtk", self.rtk, f"vehicle numbers must be in 1..{n}, got {list(self.rtk)}")
-        in_range(self, "period_min", 1, unit="s")
-        in_range(self, "period_max", self.period_min, unit="s (period_min)")
+        _check_swarm(self, "bases")
 
     @property
     def vehicles(self) -> int:
         return len(self.bases)
+
+
+def _check_swarm(tr: "SwarmBox | SwarmGrid", key: str) -> None:
+    """Checks shared by the swarm trajectories: vehicles, separation of the bases (all pairs, in
+    blocks of rows so that memory stays small; no scipy here: the schema loads without it), rtk
+    numbers, periods. key: the field reported for the bases."""
+    b = np.asarray(tr.bases, dtype=float).reshape(-1, 3)
+    n = len(b)
+    require(n > 0, key, getattr(tr, key), "at least one vehicle is needed")
+    if n > 1:
+        reach = 2 * float(np.linalg.norm(tr.amplitude)) + 2.5
+        d = np.inf
+        for r0 in range(0, n, 256):
+            block = np.linalg.norm(b[r0 : r0 + 256, None] - b[None], axis=-1)
+            block[np.arange(len(block)), r0 + np.arange(len(block))] = np.inf
+            d = min(d, float(block.min()))
+        require(d > reach, key, getattr(tr, key),
+                f"two bases are {d:.1f} m apart, closer than 2|amplitude| + 2.5 m = {reach:.1f} m: vehicles could collide")
+    require(all(1 <= r <= n for r in tr.rtk), "rtk", tr.rtk, f"vehicle numbers must be in 1..{n}, got {list(tr.rtk)}")
+    in_range(tr, "period_min", 1, unit="s")
+    in_range(tr, "period_max", tr.period_min, unit="s (period_min)")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class SwarmGrid:
+    """A large swarm in formation: `count` vehicles on a grid, each oscillating as in swarm-box.
+
+    Base of vehicle i (0-based): origin + spacing * (i mod columns, (i // columns) mod rows,
+    i // (columns rows)) (m, world): rows of `columns` along x, layers of `rows` rows along y,
+    layers stacked along z. columns = 0: ceil(sqrt(count)); rows = 0: as many as one layer needs.
+    Scale it with `--set trajectory.count=N`. Motion about the bases, amplitude and periods as
+    SwarmBox. rtk_corners: the vehicles at the corners of the first layer carry RTK receivers
+    (`rtk`, 1-based, whatever the count).
+    """
+
+    kind: Literal["swarm-grid"]
+    count: int
+    spacing: Vec3 = (40.0, 40.0, 30.0)
+    origin: Vec3 = (20.0, 20.0, 30.0)
+    columns: int = 0
+    rows: int = 0
+    amplitude: Vec3 = (6.0, 6.0, 3.0)
+    period_min: float = 60.0
+    period_max: float = 120.0
+    rtk_corners: bool = True
+
+    def __post_init__(self) -> None:
+        require(self.count >= 1, "count", self.count, f"at least one vehicle is needed, got {self.count}")
+        require(self.columns >= 0 and self.rows >= 0, "columns", (self.columns, self.rows), "columns and rows must be >= 0 (0: automatic)")
+        _check_swarm(self, "spacing")
+
+    @property
+    def vehicles(self) -> int:
+        return self.count
+
+    @property
+    def _shape(self) -> tuple[int, int]:
+        cols = self.columns or math.ceil(math.sqrt(self.count))
+        return cols, self.rows or math.ceil(self.count / cols)
+
+    @property
+    def rtk(self) -> tuple[int, ...]:
+        """1-based numbers of the RTK vehicles: the corners of the first layer (rtk_corners)."""
+        if not self.rtk_corners:
+            return ()
+        cols, rows = self._shape
+        last_row = (min(self.count, cols * rows) - 1) // cols * cols  # 0-based first of the last row
+        corners = {0, min(cols, self.count) - 1, last_row, min(last_row + cols, self.count) - 1}
+        return tuple(sorted(i + 1 for i in corners))
+
+    @property
+    def bases(self) -> np.ndarray:
+        """(count, 3) base points, world, m (class docstring)."""
+        cols, rows = self._shape
+        i = np.arange(self.count)
+        ijk = np.stack([i % cols, (i // cols) % rows, i // (cols * rows)], axis=1)
+        return np.array(self.origin) + np.array(self.spacing) * ijk
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -240,7 +307,7 @@ class Waypoints:
         return len(self.offsets)
 
 
-Trajectory = PhaseFormation | StraightLine | SwarmBox | LeaderFollower | Waypoints
+Trajectory = PhaseFormation | StraightLine | SwarmBox | SwarmGrid | LeaderFollower | Waypoints
 
 # ----------------------------------------------------------------------------------- scenario
 

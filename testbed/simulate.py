@@ -8,7 +8,9 @@ reference, and every due sensor samples the physics state of that instant.
   reference and `mj_inverse` computes site poses, velocities and accelerometer/gyro readings.
 - flown: the controller commands the rotors every tick; `mj_step1` (position and velocity
   stages), controller, `mj_step2` (acceleration stage, then integration) so sensors see the state
-  of the tick itself; the remaining physics steps of the tick hold the command.
+  of the tick itself; the remaining physics steps of the tick hold the command. With the joint
+  rotor route (large swarms, testbed.world.rotor_route) every physics step is split the
+  same way to add the thrust along the current body z (testbed.thrust).
 
 A scenario's [disturbance] (testbed.disturbance) is added to the played-back motion in prescribed
 mode and applied as an external force and torque, held over each tick, in flown mode.
@@ -27,6 +29,7 @@ from testbed.reference import attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors.suite import make_sensors
 from testbed.sensors.base import Sensor
+from testbed.thrust import BodyForces
 from testbed.world import Physics, build
 
 CHUNK = 1000  # reference instants evaluated per vectorized call
@@ -125,12 +128,11 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
     v = physics.views()
     pos, vel, rotation, omega, thrust = v.pos, v.vel, v.rotation, v.omega, v.ctrl
     qpos, qvel = log["qpos"], log["qvel"]
-    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
+    step1, step2 = mujoco.mj_step1, mujoco.mj_step2
     rest = sched.substeps - 1  # physics steps of a tick after the controller's
     times = sched.times
+    forces = BodyForces(physics)
     if dist is not None:
-        xfrc = physics.data.xfrc_applied
-        bodies = physics.body_ids[dist.index]
         mass, inertia = physics.vehicle_mass, physics.vehicle_inertia
     tick = 0
     row = 0
@@ -147,7 +149,8 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
             step1(m, d)
             controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
             if dist is not None:
-                xfrc[bodies] = wrench(dist, tick, mass, inertia, rotation[dist.index])
+                forces.hold(dist.index, wrench(dist, tick, mass, inertia, rotation[dist.index]))
+            forces.apply()
             tick += 1
             if is_logged:
                 qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
@@ -158,7 +161,7 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
             else:
                 step2(m, d)
             if rest:
-                step(m, d, nstep=rest)
+                forces.step(m, d, rest)
         bar.update(len(t))
 
 

@@ -14,17 +14,29 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from scipy.spatial import cKDTree
 
 from testbed.reference import RefState, evaluate
 from testbed.scenario import Scenario
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
+JOINT_ROUTE_MIN_VEHICLES = 12  # swarms of this size or more use the rotor joint route (measured crossover, docs/models.md)
 SEGMENT_MARGIN = 1e-6  # m: bounding boxes grown by this in Physics.segments_may_hit (rounding)
 PALETTE = [(0.85, 0.25, 0.2), (0.2, 0.45, 0.85), (0.25, 0.7, 0.3), (0.85, 0.6, 0.15), (0.6, 0.3, 0.75), (0.2, 0.7, 0.75)]
 
 
-def _vehicle_template(scenario: Scenario) -> mujoco.MjSpec:
-    """One quadrotor with the antennas moved to the scenario's lever arms, without its keyframe.
+def rotor_route(scenario: Scenario) -> str:
+    """How the scene transmits rotor thrust: "site" (site transmission, self-explaining, cost
+    quadratic in the vehicle count) or "joint" (free-joint moment gear + thrust in xfrc_applied,
+    linear): the joint route for swarms of JOINT_ROUTE_MIN_VEHICLES or more, where it is faster.
+    Both motion modes: prescribed runs apply no rotor force, but mj_inverse evaluates the
+    transmissions at every logged instant (81 ms per call at 1000 vehicles with the site route)."""
+    return "joint" if scenario.vehicles >= JOINT_ROUTE_MIN_VEHICLES else "site"
+
+
+def _vehicle_template(scenario: Scenario, rotors: str = "site") -> mujoco.MjSpec:
+    """One quadrotor with the antennas moved to the scenario's lever arms, without its keyframe,
+    its rotors transmitted by `rotors` ("site" as in the file, or "joint": _rotors_through_joint).
 
     The model's `hover` keyframe describes one vehicle alone, not the scene: it is deleted here,
     before attaching (deleting the attached copies from the scene costs O(N) each).
@@ -38,7 +50,30 @@ def _vehicle_template(scenario: Scenario) -> mujoco.MjSpec:
         start = np.array(q.geom(f"boom{k}").fromto[:3])
         q.geom(f"boom{k}").fromto = np.concatenate([start, tip])
     q.delete(q.key("hover"))
+    if rotors == "joint":
+        _rotors_through_joint(q)
     return q
+
+
+def _rotors_through_joint(q: mujoco.MjSpec) -> None:
+    """Rotor actuators transmitted through the vehicle's free joint (the joint route, docs/models.md).
+
+    Each rotor's site transmission (force ctrl along body z at the rotor site, drag torque
+    gear[5] ctrl about body z) becomes a joint transmission whose 6-D gear holds only the rotor's
+    moment about the centre of mass, in the body frame (the free joint's rotational dofs):
+    (0, 0, 0, r x e3 + gear[5] e3) with r the site position from the centre of mass (body frame,
+    m). The thrust force itself (sum of ctrl along body z, world frame) cannot go through the free
+    joint, whose translational gear acts in the world frame: testbed.thrust adds it to
+    xfrc_applied at every physics step. The rotor sites stay (the mixer and the viewer use them).
+    """
+    com = np.array(q.body("base").ipos)
+    for k in range(1, 5):
+        act = q.actuator(f"rotor{k}")
+        moment = np.cross(np.array(q.site(f"rotor{k}").pos) - com, [0.0, 0.0, 1.0])
+        moment[2] += act.gear[5]
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.target = "root"
+        act.gear = np.concatenate([np.zeros(3), moment])
 
 
 def _vehicle_spec(template: mujoco.MjSpec, number: int) -> mujoco.MjSpec:
@@ -93,15 +128,31 @@ def _attach_vehicles(spec: mujoco.MjSpec, template: mujoco.MjSpec, n: int) -> No
                 _attach(spec, _vehicle_block(template, n, a, k), f"uav{a}")
 
 
-def build(scenario: Scenario) -> "Physics":
+ROUTE_NOTE = (
+    "Rotor thrust route 'joint': each actuator uav{i}/rotor{k} (ctrl = thrust, N) acts through the free "
+    "joint uav{i}/root with a gear holding only the rotor's moment about the centre of mass (body frame). "
+    "The thrust force, the sum of the four ctrl along body z, is added by the testbed to xfrc_applied at "
+    "every step (testbed/thrust.py): in a plain viewer the rotors turn the vehicle but do not lift it. "
+    "Sites uav{i}/rotor{k} mark the rotors. See docs/models.md."
+)
+
+
+def build(scenario: Scenario, rotors: str | None = None) -> "Physics":
     """Compile the scene of a scenario, placed at the reference's initial state (in flown mode
     with the flat attitude a quadrotor has on that path: a prescribed attitude such as eq. 31's
-    cannot be held in flight and would start the run with a levelling transient)."""
+    cannot be held in flight and would start the run with a levelling transient).
+
+    rotors: "site" or "joint" (see rotor_route, which chooses when None)."""
+    rotors = rotors or rotor_route(scenario)
+    if rotors not in ("site", "joint"):
+        raise ValueError(f"rotors must be 'site' or 'joint', got {rotors!r}")
     spec = mujoco.MjSpec.from_file(str(MODELS / "arena.xml"))
+    if rotors == "joint":  # the scene explains its route to whoever opens scene.xml
+        spec.add_text(name="rotor_route", data=ROUTE_NOTE)
     w = scenario.world
     spec.option.timestep = w.timestep
     ref0 = evaluate(scenario.trajectory, 0.0, flat=scenario.motion == "flown")
-    _attach_vehicles(spec, _vehicle_template(scenario), scenario.vehicles)
+    _attach_vehicles(spec, _vehicle_template(scenario, rotors), scenario.vehicles)
     for k, p in enumerate(w.anchors, start=1):
         spec.worldbody.add_site(name=f"anchor{k}", pos=p, size=[0.05, 0, 0], rgba=[1, 0.8, 0.1, 1], group=4)
         spec.worldbody.add_geom(
@@ -146,7 +197,8 @@ class StateViews:
 
     pos, vel: (N, 3) world, m and m/s (qpos, qvel); omega: (N, 3) body frame, rad/s (qvel);
     rotation: (N, 3, 3) body-to-world (xmat, valid after the position stage); ctrl: (N, 4) rotor
-    thrusts rotor1..rotor4, N (writable). Valid while that MjData lives.
+    thrusts rotor1..rotor4, N (writable); xfrc: (N, 6) the vehicle bodies' xfrc_applied, world
+    force (N) and torque (N m) at the centre of mass (writable). Valid while that MjData lives.
     """
 
     pos: np.ndarray
@@ -154,6 +206,7 @@ class StateViews:
     omega: np.ndarray
     rotation: np.ndarray
     ctrl: np.ndarray
+    xfrc: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,6 +255,8 @@ class Physics:
         self._qvel_idx = self.dof_adr[:, None] + np.arange(6)
         self.body_ids = np.array([m.body(f"uav{i}/base").id for i in range(1, self.n + 1)])
         self.actuator_idx = np.array([[m.actuator(f"uav{i}/rotor{k}").id for k in range(1, 5)] for i in range(1, self.n + 1)])
+        self.rotor_site_idx = np.array([[m.site(f"uav{i}/rotor{k}").id for k in range(1, 5)] for i in range(1, self.n + 1)])
+        self.rotor_route = "joint" if m.actuator_trntype[self.actuator_idx[0, 0]] == mujoco.mjtTrn.mjTRN_JOINT else "site"
         acc = [m.sensor(f"uav{i}/accelerometer") for i in range(1, self.n + 1)]
         gyr = [m.sensor(f"uav{i}/gyro") for i in range(1, self.n + 1)]
         self._acc_idx = np.array([s.adr[0] for s in acc])[:, None] + np.arange(3)
@@ -334,27 +389,56 @@ class Physics:
         Conservative (never False where a ray along the segment hits such a geom): a plane only
         when an end point lies within SEGMENT_MARGIN above it or below; any other geom when the
         segment meets its bounding box (geom_aabb, geom frame) grown by SEGMENT_MARGIN, by the
-        separating-axis test of a segment and a box (three box axes, three cross products).
+        separating-axis test of a segment and a box (three box axes, three cross products). The
+        test runs only on the (segment, box) pairs whose bounding spheres meet, found with a k-d
+        tree of the box centres: cost O((G + L) log G + pairs), not O(G L).
         """
         d = self.data
+        start, end = np.asarray(start, float), np.asarray(end, float)
+        ignore = np.asarray(ignore).reshape(len(start), -1)
+        hit = np.zeros(len(start), dtype=bool)
+        if len(start) == 0:
+            return hit
+        mid, half = 0.5 * (start + end), 0.5 * (end - start)
+        for g in np.flatnonzero(targets.plane):  # planes: local z up
+            Rt = d.geom_xmat[targets.ids[g]].reshape(3, 3).T
+            z = Rt[2] @ (mid - d.geom_xpos[targets.ids[g]]).T
+            touch = z - np.abs(Rt[2] @ half.T) <= SEGMENT_MARGIN
+            hit |= touch & (ignore != targets.body[g]).all(axis=1)
+        box = np.flatnonzero(~targets.plane)
+        if len(box) == 0:
+            return hit
+        ids = targets.ids[box]
+        R = d.geom_xmat[ids].reshape(-1, 3, 3)
+        centre = d.geom_xpos[ids] + (R @ targets.centre[box][:, :, None])[:, :, 0]  # (B, 3) world
+        radius = np.linalg.norm(targets.half[box], axis=1)
+        # candidate pairs: boxes up to twice the median size (airframes) from the k-d tree, the
+        # few larger ones (obstacles) with every segment
+        large = radius > 2 * np.median(radius)
+        small = np.flatnonzero(~large)
+        reach = np.linalg.norm(half, axis=1) + radius[small].max(initial=0.0) + SEGMENT_MARGIN
+        near = cKDTree(centre[small]).query_ball_point(mid, reach) if len(small) else [[]] * len(start)
+        counts = np.fromiter(map(len, near), dtype=int, count=len(near))
+        link = np.concatenate([np.repeat(np.arange(len(start)), counts), np.repeat(np.arange(len(start)), large.sum())])
+        if len(link) == 0:
+            return hit
+        geom = np.concatenate([small[np.concatenate(near).astype(int)] if counts.sum() else np.empty(0, dtype=int),
+                               np.tile(np.flatnonzero(large), len(start))])
+        keep = (targets.body[box][geom][:, None] != ignore[link]).all(axis=1)
+        link, geom = link[keep], geom[keep]
         # world-to-geom rotations with rows x, y, z, x, y: components [1:4] and [2:5] of a rotated
-        # vector are its cyclic shifts (for the cross products)
-        cyc = [0, 1, 2, 0, 1]
-        Rt = d.geom_xmat[targets.ids].reshape(-1, 3, 3).transpose(0, 2, 1)[:, cyc]  # (G, 5, 3)
-        c = Rt @ d.geom_xpos[targets.ids][:, :, None] + targets.centre[:, cyc, None]  # (G, 5, 1)
-        # segment midpoint (from the box centre) and half-vector in each geom's frame: (G, 5, L)
-        mid = Rt @ (0.5 * (start + end)).T - c
-        e = Rt @ (0.5 * (end - start)).T
+        # vector are its cyclic shifts (for the cross products); midpoint and half-vector of the
+        # segment in each geom's frame, from the box centre: (K, 5)
+        Rt = R[geom].transpose(0, 2, 1)[:, [0, 1, 2, 0, 1]]
+        m = (Rt @ (mid[link] - centre[geom])[:, :, None])[:, :, 0]
+        e = (Rt @ half[link][:, :, None])[:, :, 0]
         ae = np.abs(e)
-        h = targets.half[:, cyc, None]
-        apart = (np.abs(mid[:, :3]) > h[:, :3] + ae[:, :3]).any(axis=1)
-        cross = mid[:, 1:4] * e[:, 2:5] - mid[:, 2:5] * e[:, 1:4]
+        h = targets.half[box][geom][:, [0, 1, 2, 0, 1]]
+        apart = (np.abs(m[:, :3]) > h[:, :3] + ae[:, :3]).any(axis=1)
+        cross = m[:, 1:4] * e[:, 2:5] - m[:, 2:5] * e[:, 1:4]
         apart |= (np.abs(cross) > h[:, 1:4] * ae[:, 2:5] + h[:, 2:5] * ae[:, 1:4]).any(axis=1)
-        below = mid[:, 2] - ae[:, 2] <= SEGMENT_MARGIN  # planes: local z up
-        hit = np.where(targets.plane[:, None], below, ~apart)  # (G, L)
-        for body in np.asarray(ignore).T:
-            hit &= targets.body[:, None] != body
-        return hit.any(axis=0)
+        hit[link[~apart]] = True
+        return hit
 
     # ---------------------------------------------------------------- vehicle states
     @property
@@ -392,6 +476,7 @@ class Physics:
         return StateViews(
             pos=qpos[:, :3], vel=qvel[:, :3], omega=qvel[:, 3:],
             rotation=_rows(d.xmat, self.body_ids, 1).reshape(-1, 3, 3), ctrl=_rows(d.ctrl, first_rotor, 4),
+            xfrc=_rows(d.xfrc_applied, self.body_ids, 1)[:, 0],
         )
 
     @property

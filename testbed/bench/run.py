@@ -8,7 +8,7 @@ from pathlib import Path
 import mujoco
 
 from testbed.bench.estimators import bench_estimators
-from testbed.bench.physics import bench_physics
+from testbed.bench.physics import SIZES, bench_physics
 from testbed.bench.sensors import bench_sensors
 
 
@@ -20,19 +20,20 @@ def _print_table(title: str, rows: list[dict]) -> None:
         print("  ".join(f"{r[k]:>18.4g}" if isinstance(r[k], float) else f"{str(r[k]):>18s}" for k in keys))
 
 
-def bench(what: str, json_path: Path | None = None) -> dict:
-    """Run one benchmark family, print its table, optionally write JSON; returns the figures."""
+def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | None = None) -> dict:
+    """Run one benchmark family, print its table, optionally write JSON; returns the figures.
+    vehicles: swarm sizes (physics, sensors; None: the family's default)."""
     if what == "physics":
-        rows = bench_physics()
-        _print_table("physics: flown mode (Lee controller, 200 Hz) vs bare mj_step, real-time factor (one core)", rows)
-        result = {"physics": rows}
+        out = bench_physics(vehicles or SIZES)
+        _print_table("physics: flown mode (Lee controller, 200 Hz) vs bare mj_step; wall-clock and CPU real-time factors (one core)", out["rows"])
+        print(f"growth exponent of CPU cost ~ N^b: {out['growth_exponent']}")
+        result = {"physics": out["rows"], "physics_growth_exponent": out["growth_exponent"]}
     elif what == "sensors":
-        result = {"sensors": bench_sensors(repeat=3)}
-        for k, rows in result["sensors"].items():
-            if isinstance(rows, list) and rows:
-                _print_table(f"sensors: {k}", rows)
-            else:
-                print(f"sensors: {k}: {rows}")
+        runs = [bench_sensors(vehicles=n, repeat=3 if n <= 18 else 1) for n in vehicles or (18,)]
+        result = {"sensors": runs[0] if len(runs) == 1 else runs}
+        for out in runs:
+            for k, rows in out.items():
+                print(f"sensors ({out['vehicles']} vehicles): {k}: {rows}")
     elif what == "estimators":
         result = {"estimators": bench_estimators()}
         for k, rows in result["estimators"].items():

@@ -89,7 +89,10 @@ class UwbConfig:
     """[sensors.uwb]: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
 
     anchor_links: tag-to-anchor ranges; tag_links: tag-to-tag (every pair once). max_range (m):
-    true distance beyond which no range is made. noise (m, 1 sigma, white); loss_prob: packet
+    true distance beyond which no range is made. link_search: "all-pairs" (every link fixed at
+    the start, random draws for all of them at every sample: O(N^2)) or "in-range" (tag pairs
+    within max_range found at every sample with a k-d tree, draws only for those: large swarms;
+    testbed.sensors.uwb). noise (m, 1 sigma, white); loss_prob: packet
     loss per measurement; clock_ppm: 1 sigma of each device's clock frequency offset (ppm);
     mode: how the clocks enter the range (testbed.sensors.uwb): "scale" (range x
     (1 + (k_src + k_dst)/2 1e-6)), "ss-twr" (single-sided two-way ranging, the responder replies
@@ -109,6 +112,7 @@ class UwbConfig:
     anchor_links: bool = True
     tag_links: bool = True
     max_range: float = 100.0
+    link_search: Literal["all-pairs", "in-range"] = "all-pairs"
     los_groups: tuple[int, ...] = (0, 3)
     noise: float | None = None
     loss_prob: float | None = None

@@ -7,7 +7,7 @@ Rates and vehicle numbers were checked when the scenario was built (SensorsConfi
 from __future__ import annotations
 
 from testbed.rng import stream_rng
-from testbed.scenario import Scenario, SwarmBox
+from testbed.scenario import Scenario, SwarmBox, SwarmGrid
 from testbed.sensors.base import Sensor
 from testbed.sensors.camera import Camera
 from testbed.sensors.gnss import Gnss
@@ -35,7 +35,7 @@ def make_sensors(scenario: Scenario, physics: Physics) -> list[Sensor]:
     if cfg.phase is not None:
         out.append(Phase(cfg.phase, physics, stream_rng(seed, "phase"), ticks(cfg.phase.phase_rate_hz), tick))
     if cfg.gnss is not None:
-        rtk = scenario.trajectory.rtk if isinstance(scenario.trajectory, SwarmBox) else ()
+        rtk = scenario.trajectory.rtk if isinstance(scenario.trajectory, (SwarmBox, SwarmGrid)) else ()
         out.append(Gnss(cfg.gnss, physics, stream_rng(seed, "gnss"), ticks(cfg.gnss.rate_hz), tick, rtk))
     if cfg.camera is not None:
         out.append(Camera(cfg.camera, physics, stream_rng(seed, "camera"), ticks(cfg.camera.rate_hz)))

@@ -1,8 +1,12 @@
 """UWB stream `uwb`: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
 
-Links (fixed at start, in this order): every tag to every anchor (src = "uav{i}/uwb",
-dst = "anchor{k}"), then every tag pair once (src = "uav{i}/uwb", dst = "uav{j}/uwb", i < j).
-At each sample, a link whose true distance exceeds max_range makes no measurement.
+Links, in this order: every tag to every anchor (src = "uav{i}/uwb", dst = "anchor{k}"), then
+tag pairs once (src = "uav{i}/uwb", dst = "uav{j}/uwb", i < j, by i then j). link_search
+"all-pairs": every tag pair, fixed at the start; random draws are made for every link at every
+sample (O(N^2) per sample). "in-range": at every sample only the tag pairs within max_range
+(scipy cKDTree.query_pairs, O(N log N + links)), draws only for these, and a pair's constant
+bias drawn when it first comes into range. At each sample, a link whose true distance exceeds
+max_range makes no measurement.
 
 Line of sight: one mj_multiRay per source tag towards its in-range link ends, through the geoms
 of `los_groups` (default 0: obstacles and floor, 3: vehicle collision boxes; visual geoms and
@@ -39,6 +43,7 @@ uwb/antenna_delay (m) when mode is not "scale" or antenna_delay_sigma > 0.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import UwbConfig
@@ -65,12 +70,13 @@ class Uwb:
             for i in range(N):
                 for k in range(A):
                     src.append(A + i), dst.append(k)
-        if cfg.tag_links:
+        self.in_range = cfg.link_search == "in-range"
+        if cfg.tag_links and not self.in_range:
             for i in range(N):
                 for j in range(i + 1, N):
                     src.append(A + i), dst.append(A + j)
-        self.src, self.dst = np.array(src, dtype=int), np.array(dst, dtype=int)
-        self.src_names, self.dst_names = self.devices[self.src], self.devices[self.dst]
+        self.n_anchors = A
+        self.src, self.dst = np.array(src, dtype=int), np.array(dst, dtype=int)  # the fixed links
         D, L = len(names), len(src)
         self.ppm = cfg.clock_ppm * rng.standard_normal(D)
         self.link_bias = cfg.link_bias_sigma * rng.standard_normal(L)
@@ -78,55 +84,76 @@ class Uwb:
         if cfg.mode != "scale":
             self.ppm = cfg.clock_ppm * own[:, 0]
         self.antenna_delay = cfg.antenna_delay_sigma * own[:, 1]  # (D,) m of range per device
-        self.link_offset = self.antenna_delay[self.src] + self.antenna_delay[self.dst] + self.link_bias  # (L,) m
+        # in-range tag pairs seen so far: keys src * D + dst (sorted) and their constant biases
+        self._pair_keys, self._pair_bias = np.empty(0, dtype=int), np.empty(0)
         self.groups = np.array([1 if g in cfg.los_groups else 0 for g in range(6)], dtype=np.uint8)
         self.geom_body = physics.model.geom_bodyid.copy()
         self.blockers = physics.ray_targets(self.groups)  # geoms the LOS rays can hit
         self.rec = Recorder("uwb", {**common_keys(1), "nlos": ((), "?"), "outlier": ((), "?"), "span": ((), "f8")})
 
-    def line_of_sight(self, physics: Physics, P: np.ndarray, links: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """NLOS flags and blocked spans (m) of links (indices into the link list), P (D, 3)."""
-        src, dst = self.src[links], self.dst[links]
+    def links(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Candidate links of this sample: src, dst (L,) device indices and constant biases (L,)
+        m, from device positions P (D, 3) world, m (module docstring: link order)."""
+        if not (self.in_range and self.cfg.tag_links):
+            return self.src, self.dst, self.link_bias
+        A = self.n_anchors
+        # pairs within max_range (a hair more: the exact test on the distance follows in sample)
+        pairs = cKDTree(P[A:]).query_pairs(self.cfg.max_range * (1 + 1e-9), output_type="ndarray")
+        pairs = A + pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))] if len(pairs) else np.empty((0, 2), dtype=int)
+        keys = pairs[:, 0] * len(self.devices) + pairs[:, 1]
+        new = np.setdiff1d(keys, self._pair_keys, assume_unique=True)
+        if len(new):  # pairs in range for the first time: their constant bias (in key order)
+            keys_all = np.concatenate([self._pair_keys, new])
+            bias_all = np.concatenate([self._pair_bias, self.cfg.link_bias_sigma * self.rng.standard_normal(len(new))])
+            order = np.argsort(keys_all)
+            self._pair_keys, self._pair_bias = keys_all[order], bias_all[order]
+        bias = self._pair_bias[np.searchsorted(self._pair_keys, keys)]
+        return (np.concatenate([self.src, pairs[:, 0]]), np.concatenate([self.dst, pairs[:, 1]]),
+                np.concatenate([self.link_bias, bias]))
+
+    def line_of_sight(self, physics: Physics, P: np.ndarray, src: np.ndarray, dst: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """NLOS flags and blocked spans (m) of links src -> dst (L,) (device indices), P (D, 3)."""
         # rays only where a blocking geom's bounding box meets the link (the rest are clear)
         cast = np.flatnonzero(physics.segments_may_hit(self.blockers, P[src], P[dst], self.dev_body[np.stack([src, dst], axis=1)]))
-        first = np.full(len(links), np.inf)
-        gid = np.full(len(links), -1)
+        first = np.full(len(src), np.inf)
+        gid = np.full(len(src), -1)
         first[cast], gid[cast] = physics.rays(P, src[cast], P[dst[cast]], self.groups, self.dev_body)
         hit_body = np.where(gid >= 0, self.geom_body[np.maximum(gid, 0)], -2)
         nlos = np.isfinite(first) & (first < d - END_TOLERANCE) & (hit_body != self.dev_body[dst])
-        span = np.zeros(len(links))
+        span = np.zeros(len(src))
         if self.cfg.nlos_bias_per_m > 0:
             for k in np.flatnonzero(nlos):
-                l = links[k]
-                back, _ = physics.ray(P[self.dst[l]], P[self.src[l]], self.groups, self.dev_body[self.dst[l]])
+                back, _ = physics.ray(P[dst[k]], P[src[k]], self.groups, self.dev_body[dst[k]])
                 span[k] = max(0.0, d[k] - first[k] - (back if np.isfinite(back) else 0.0))
         return nlos, span
 
     def sample(self, physics: Physics, t: float, state_index: int) -> None:
-        cfg, L = self.cfg, len(self.src)
+        cfg = self.cfg
         P = physics.data.site_xpos[self.site_ids]
-        dist = np.linalg.norm(P[self.dst] - P[self.src], axis=1)
+        src, dst, link_bias = self.links(P)
+        L = len(src)
+        dist = np.linalg.norm(P[dst] - P[src], axis=1)
         e = self.rng.standard_normal((2, L))
         expo = self.rng.exponential(1.0, L)
         u = self.rng.random((2, L))
         links = np.flatnonzero(dist <= cfg.max_range)
         d = dist[links]
-        nlos, span = self.line_of_sight(physics, P, links, d)
+        src, dst = src[links], dst[links]
+        nlos, span = self.line_of_sight(physics, P, src, dst, d)
         outlier = u[0, links] < cfg.outlier_prob
         keep = u[1, links] >= cfg.loss_prob
         sigma = np.full(len(links), cfg.noise)
-        value = twr_range(cfg.mode, d, self.ppm[self.src[links]], self.ppm[self.dst[links]], cfg.reply_time) + self.link_offset[links]
+        value = twr_range(cfg.mode, d, self.ppm[src], self.ppm[dst], cfg.reply_time) + (self.antenna_delay[src] + self.antenna_delay[dst] + link_bias[links])
         if cfg.nlos == "bias":
             sigma[nlos] *= cfg.nlos_noise_factor
             value = value + nlos * (cfg.nlos_bias_per_m * span + cfg.nlos_bias_mean * expo[links])
         elif cfg.nlos == "drop":
             keep &= ~nlos
         value = value + sigma * e[0, links] + outlier * cfg.outlier_sigma * e[1, links]
-        k = links[keep]
-        M = len(k)
+        M = int(keep.sum())
         self.rec.add(
             time=np.full(M, t), arrival=np.full(M, t + cfg.latency), state_index=np.full(M, state_index),
-            value=value[keep][:, None], clean=d[keep][:, None], src=self.src_names[k], dst=self.dst_names[k],
+            value=value[keep][:, None], clean=d[keep][:, None], src=self.devices[src[keep]], dst=self.devices[dst[keep]],
             nlos=nlos[keep], outlier=outlier[keep], span=span[keep],
         )
 
