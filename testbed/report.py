@@ -136,25 +136,32 @@ class Claim:
         return out
 
     def test_line(self) -> str:
-        """The verdict's test in one line: name, statistic, p-value or interval, n, level."""
-        if not self.test:
-            return ""
-        parts = [self.test]
-        if self.statistic is not None:
-            parts.append(f"statistic {fmt(self.statistic)}")
-        if self.p_value is not None:
-            parts.append(f"p = {fmt(self.p_value, 3)}")
-        if self.interval is not None:
-            lvl = f"{fmt(100 * self.level, 3)} % " if self.level is not None else ""
-            parts.append(f"{lvl}interval [{fmt(self.interval[0])}, {fmt(self.interval[1])}]")
-        if self.n is not None:
-            parts.append(f"n = {self.n}")
-        return "; ".join(parts)
+        """The verdict's test in one line (`format_test`)."""
+        return format_test(self.test, self.statistic, self.p_value, self.interval, self.n, self.level)
 
     def label(self) -> str:
         """The claim's name in a table: id, then its context in brackets."""
         ctx = ", ".join(str(v) for v in self.context.values())
         return f"{self.id} [{ctx}]" if ctx else self.id
+
+
+def format_test(name: str, statistic: float | None = None, p_value: float | None = None,
+                interval: Sequence[float] | None = None, n: int | None = None, level: float | None = None) -> str:
+    """A claim's test in one line: name; statistic; p-value; interval at its level; n ("" if no test)."""
+    if not name:
+        return ""
+    parts = [name]
+    if statistic is not None:
+        parts.append(f"statistic {fmt(statistic)}")
+    if p_value is not None:
+        parts.append(f"p = {fmt(p_value, 3)}")
+    if interval is not None:
+        lvl = f"{fmt(100 * level, 3)} % " if level is not None else ""
+        lo, hi = (fmt(x) if x is not None else e for x, e in zip(interval, ("-inf", "inf")))  # JSON: inf read back as null
+        parts.append(f"{lvl}interval [{lo}, {hi}]")
+    if n is not None:
+        parts.append(f"n = {n}")
+    return "; ".join(parts)
 
 
 def claims_section(claims: Sequence[Claim], heading: str = "## Claims") -> list[str]:

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from testbed.reproduce import phase
+from testbed.reproduce import phase, visnav
 from testbed.report import NULL_SUFFIX, write_claims
 
 
@@ -73,3 +73,25 @@ def test_phase_claims_of_one_run_are_strict_json(tmp_path):
     assert numbers["p_value"] is None and numbers["p_value" + NULL_SUFFIX]
     test = next(c for c in doc["claims"] if c["id"] == "line-h600-better")["test"]
     assert test["n"] == 1 and test["p_value"] is None
+
+
+def _visnav_results(runs: int, glint_scale: list[float], rng: np.random.Generator) -> list[dict]:
+    def case(scale):
+        return {"metrics": {n: {k: s * (1 + 0.05 * rng.random()) for k, _, _ in visnav.QUANTITIES}
+                            for n, s in zip(visnav.FILTERS, scale)}}
+    return [{"glint": case(glint_scale), "gaussian": case([1.0] * 5)} for _ in range(runs)]
+
+
+def test_visnav_claims_are_decided_by_their_named_tests():
+    rng = np.random.default_rng(3)
+    ok = visnav.decide(visnav.VisnavResults(results=_visnav_results(12, [5, 5, 4, 3, 2], rng), extra={}, meta={}))
+    assert [c.holds for c in ok] == [True, True]
+    assert ok[0].test.startswith("9 x Wilcoxon") and ok[0].n == 12 and ok[0].p_value < 0.05 / 9
+    assert "non-inferiority" in ok[1].test and ok[1].p_value < 0.025
+    # MCKF no better than HCKF: the ordering fails; the robust filters 20 % worse: the cost claim fails
+    bad = _visnav_results(12, [5, 5, 4, 4, 2], rng)
+    for r in bad:
+        for k, _, _ in visnav.QUANTITIES:
+            r["gaussian"]["metrics"]["rhcf"][k] *= 1.2
+    no = visnav.decide(visnav.VisnavResults(results=bad, extra={}, meta={}))
+    assert [c.holds for c in no] == [False, False]
