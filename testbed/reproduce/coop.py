@@ -369,6 +369,7 @@ def write(out: Path, res: CoopResults, claims: list[Claim]) -> dict:
     """plots/ (figure 6, mean RMSE bars, run 0's error curves with 3-sigma envelopes), table.md,
     table.csv, claims.json; returns claims.json's content."""
     sc, runs = res.scenario, res.runs
+    (out / "plots").mkdir(parents=True, exist_ok=True)
     for f in sorted((out / "runs" / run_name(0) / "plots").glob("*_envelope.png")):
         shutil.copy(f, out / "plots" / f"run0_{f.name}")
     coop.plot_error_vs_time(res.est0, res.four, out / "plots" / "fig6_error_vs_time.png",
