@@ -19,8 +19,9 @@ enabled (default), a one-run NLOS experiment: pillars in the box, least squares 
 Statistics: per UAV, the per-run RMSEs of two variants are compared with a one-sided Wilcoxon
 signed-rank test (testbed.stats.wilcoxon_paired: per-run RMSEs are positive and skewed, the
 signed-rank test does not assume normal differences) at alpha = 0.01 / 18 (Bonferroni over the
-UAVs; needs >= 13 runs to be able to reach it); with a single run the test is not available and the
-claim is decided on the point values only (said so in the claim). Rank correlations: scipy.stats.spearmanr, one-sided, alpha = 0.05, over the 15 SPP UAVs.
+UAVs; the exact test can reach it from 11 runs on: min p = 2^-n); with a single run the test is
+not available and the claim is decided on the point values only (said so in the claim). Rank
+correlations: scipy.stats.spearmanr, one-sided, alpha = 0.05, over the 15 SPP UAVs.
 
 Round cap: the paper's scheme needs hundreds of rounds per epoch (seeded run: median ~230, 36 %
 of the epochs reach 300); the scenario caps them at pipeline.max_rounds = 300 with tol = 1 mm. The
