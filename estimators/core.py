@@ -124,7 +124,8 @@ class Filter(Protocol):
 class Health:
     """What the steps of one epoch repaired or refused (counts).
 
-    covariance_repairs: covariances that were not positive definite and were repaired;
+    covariance_repairs: covariances that were not positive definite, or not symmetric beyond
+    round-off (core.symmetrize), and were repaired;
     rejected_measurements: measurement rows rejected by a gate;
     nonconverged_iterations: iterative updates stopped at their iteration limit unconverged.
     """
@@ -202,6 +203,14 @@ class Track:
         """(E, ..., n, n) the recorded covariances stacked."""
         return np.stack([b.cov for b in self.beliefs])
 
+    def health(self) -> dict[str, int]:
+        """The run's health counts for metrics.json: covariance_repairs and rejected_measurements
+        (totals over the epochs), nonconverged_steps (epochs with an iterative update stopped
+        unconverged at its limit)."""
+        return {"covariance_repairs": int(self.covariance_repairs.sum()),
+                "rejected_measurements": int(self.rejected_measurements.sum()),
+                "nonconverged_steps": int(np.count_nonzero(self.nonconverged_iterations))}
+
 
 class Stepper:
     """The driver one epoch at a time: `step(epoch)` predicts to the epoch, updates, records.
@@ -257,8 +266,15 @@ def drive(filter: Filter, prior: Any, epochs: Iterable[Epoch], t0: float | None 
 # ------------------------------------------------------------------------------------------------
 # Cholesky (LAPACK directly) and the dense Kalman numerics
 # ------------------------------------------------------------------------------------------------
+SYMMETRY_ROUNDOFF = 1e-9  # relative asymmetry max|P - P^T| / max|P| still counted as round-off
+
+
 def symmetrize(P: np.ndarray) -> np.ndarray:
-    """(P + P^T) / 2: removes the round-off asymmetry of a covariance product."""
+    """(P + P^T) / 2: removes the round-off asymmetry of a covariance product. An asymmetry beyond
+    round-off (max|P - P^T| > SYMMETRY_ROUNDOFF * max|P|) is a repair and is counted (`tally`)."""
+    A = P - P.T
+    if np.abs(A).max(initial=0.0) > SYMMETRY_ROUNDOFF * np.abs(P).max(initial=0.0):
+        tally(covariance_repairs=1)
     return 0.5 * (P + P.T)
 
 

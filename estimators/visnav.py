@@ -360,9 +360,13 @@ class RelNavModel:
         return FunctionMeasurement(y, R, h, jac)
 
     def focal_noise(self, ab: np.ndarray) -> np.ndarray:
-        """Eq. 8 covariance blocks (K, 2, 2) m^2 at focal-plane points ab (K, 2)."""
+        """Eq. 8 covariance blocks (K, 2, 2) m^2 at focal-plane points ab (K, 2) m.
+
+        Eq. 8's a, b are the normalised coordinates alpha / f, beta / f (the camera model,
+        testbed/sensors/camera.py, draws its noise there); sigma = focal_sigma is in m on the plane.
+        """
         c = self.config
-        a, b = ab[:, 0], ab[:, 1]
+        a, b = ab[:, 0] / c.focal_length, ab[:, 1] / c.focal_length
         d = c.focal_d
         # eq. 8
         s = c.focal_sigma ** 2 / (1.0 + d * (a * a + b * b))

@@ -90,6 +90,13 @@ class Claim:
     non-finite floats are converted by `write_json`); summary: the decisive numbers in one line,
     for the verdict table; note: a remark for the reader; context: keys that locate the claim
     (e.g. {"mode": "paper", "reading": "a_dt1"}).
+
+    Verdict fields (issue 15: every claim decided by a stated test), shown on the verdict line:
+    test: the test's name (e.g. "Wilcoxon signed-rank (less)", "Clopper-Pearson (upper)", or
+    "deterministic comparison" when nothing is sampled); statistic; p_value (None when the test
+    gives an interval only); interval: (lo, hi) at `level`; n: the sample size (Monte Carlo runs);
+    level: confidence level of the interval or 1 - alpha of the decision; paper_value: the paper's
+    own number or words for the quantity, shown beside ours (`summary`).
     """
 
     id: str
@@ -100,6 +107,13 @@ class Claim:
     summary: str = ""
     note: str = ""
     context: Mapping[str, str] = field(default_factory=dict)
+    test: str = ""
+    statistic: float | None = None
+    p_value: float | None = None
+    interval: tuple[float, float] | None = None
+    n: int | None = None
+    level: float | None = None
+    paper_value: str = ""
 
     def __post_init__(self) -> None:
         if not isinstance(self.holds, bool):
@@ -113,7 +127,17 @@ class Claim:
             out["summary"] = self.summary
         if self.note:
             out["note"] = self.note
+        if self.test:
+            out["test"] = {"name": self.test, "statistic": self.statistic, "p_value": self.p_value,
+                           "interval": list(self.interval) if self.interval is not None else None,
+                           "n": self.n, "level": self.level}
+        if self.paper_value:
+            out["paper_value"] = self.paper_value
         return out
+
+    def test_line(self) -> str:
+        """The verdict's test in one line (`format_test`)."""
+        return format_test(self.test, self.statistic, self.p_value, self.interval, self.n, self.level)
 
     def label(self) -> str:
         """The claim's name in a table: id, then its context in brackets."""
@@ -121,12 +145,33 @@ class Claim:
         return f"{self.id} [{ctx}]" if ctx else self.id
 
 
+def format_test(name: str, statistic: float | None = None, p_value: float | None = None,
+                interval: Sequence[float] | None = None, n: int | None = None, level: float | None = None) -> str:
+    """A claim's test in one line: name; statistic; p-value; interval at its level; n ("" if no test)."""
+    if not name:
+        return ""
+    parts = [name]
+    if statistic is not None:
+        parts.append(f"statistic {fmt(statistic)}")
+    if p_value is not None:
+        parts.append(f"p = {fmt(p_value, 3)}")
+    if interval is not None:
+        lvl = f"{fmt(100 * level, 3)} % " if level is not None else ""
+        lo, hi = (fmt(x) if x is not None else e for x, e in zip(interval, ("-inf", "inf")))  # JSON: inf read back as null
+        parts.append(f"{lvl}interval [{lo}, {hi}]")
+    if n is not None:
+        parts.append(f"n = {n}")
+    return "; ".join(parts)
+
+
 def claims_section(claims: Sequence[Claim], heading: str = "## Claims") -> list[str]:
-    """Markdown lines: the verdict table (claim, the paper's words, numbers, criterion, verdict)."""
-    rows = [[c.label(), c.text, c.summary, c.criterion, f"**{verdict(c.holds)}**"] for c in claims]
+    """Markdown lines: the verdict table (claim, the paper's words and number, ours, criterion,
+    test with statistic, p-value or interval and n, verdict)."""
+    rows = [[c.label(), c.text, c.paper_value, c.summary, c.criterion, c.test_line(), f"**{verdict(c.holds)}**"]
+            for c in claims]
     held = sum(c.holds for c in claims)
     return [heading, "", f"{held} of {len(claims)} claims hold.", "",
-            *markdown_table(["claim", "paper", "numbers", "criterion", "verdict"], rows)]
+            *markdown_table(["claim", "paper", "paper's number", "ours", "criterion", "test", "verdict"], rows)]
 
 
 # ------------------------------------------------------------------------------- tables

@@ -227,7 +227,11 @@ def test_run_directory_metrics_plots_and_reproducibility(tmp_path):
     ekf = json.loads((tmp_path / "a" / "metrics.json").read_text())["estimators"]["ekf"]
     for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg", "anees", "pcrb_rmse_position_m"):
         assert np.isfinite(ekf[key]), key
-    assert len(ekf["max_abs_position_error_last_100s_m"]) == 3 and len(ekf["max_abs_velocity_error_last_100s_mps"]) == 3
+    # a 12 s run does not cover the 100 s window: no window score under a name it would not deserve
+    assert not any("last_100s" in k for k in ekf) and ekf["last_window_s"] == 100.0
+    assert "shorter than last_window" in ekf["last_window_omitted_reason"]
+    assert {"covariance_repairs", "rejected_measurements", "nonconverged_steps"} <= set(ekf)
+    assert ekf["rejected_measurements"] == ekf["gate_rejected_rows"]
     assert (tmp_path / "a" / "plots" / "position_error.png").stat().st_size > 10_000
     assert (tmp_path / "a" / "plots" / "velocity_error.png").stat().st_size > 10_000
     assert m1 == m2
@@ -287,3 +291,19 @@ def test_bad_pipeline_values_are_one_line_config_errors(key, value):
     with pytest.raises(ConfigError) as e:
         scenario_mod.load(NAME, overrides={key: value})
     assert key.split(".")[1] in str(e.value) and "\n" not in str(e.value)
+
+
+def test_window_scores_are_named_by_the_window_they_cover():
+    """pipeline.last_window = 5 s on an 8 s run: the window scores are `*_last_5s_*`, computed over
+    exactly the epochs t >= t_last - 5 s; no `last_100s` name appears."""
+    sc = scenario_mod.load(NAME, duration=8.0, overrides={"pipeline.last_window": "5.0"})
+    log, _ = simulate(sc)
+    metrics, series = P.estimate(sc, log)
+    keys = P.window_keys(5.0)
+    assert keys["rmse"] == "rmse_position_last_5s_m" and not any("last_100s" in k for k in metrics)
+    t, e = series["t"], series["err"]
+    last = t >= t[-1] - 5.0 + 1e-9
+    assert 0 < last.sum() < t.size
+    assert np.array_equal(metrics[keys["max_abs_position"]], np.abs(e[last, :3]).max(axis=0).tolist())
+    assert metrics[keys["rmse"]] == pytest.approx(float(np.sqrt(np.mean(np.sum(e[last, :3] ** 2, axis=1)))), rel=1e-12)
+    assert "last_window_omitted_reason" not in metrics

@@ -3,18 +3,20 @@ stated criterion, and claims.json is strict JSON even when a statistic cannot ex
 import json
 
 import numpy as np
+import pytest
 
-from testbed.reproduce import phase
+from testbed.reproduce import phase, visnav
 from testbed.report import NULL_SUFFIX, write_claims
 
 
 def _ekf_scores(max_abs_pos: float, rmse: float, rng: np.random.Generator) -> dict:
     """One run's EKF scores with the keys phase.decide reads."""
     return {
+        "last_window_s": 100.0,
         "max_abs_position_error_last_100s_m": [max_abs_pos] * 3,
         "max_abs_velocity_error_last_100s_mps": [0.001] * 3,
         "rmse_position_last_100s_m": rmse * (1 + 0.01 * rng.standard_normal()),
-        "position_error_final_m": [0.1, 0.001, 0.1],
+        "position_error_final_m": [0.1 * (1 + 0.1 * rng.random()), 0.001, 0.1 * (1 + 0.1 * rng.random())],
         "position_error_mid_m": [0.01, 0.001, 0.01],
         "pcrb_sigma_position_final_m": [0.01, 0.01, 0.01],
     }
@@ -29,19 +31,33 @@ def _phase_runs(runs: int, cross_max: float) -> dict[str, list[dict]]:
 
 
 def test_phase_claims_follow_their_criteria():
-    claims = {c.id: c for c in phase.decide(_phase_runs(10, cross_max=0.005))}
+    claims = {c.id: c for c in phase.decide(_phase_runs(20, cross_max=0.005))}
     assert list(claims)[:3] == [
         "line-h000-xy-diverge-z-accurate", "line-h000-velocity", "cross-h000-0.01"]
     assert claims["cross-h000-0.01"].holds and claims["line-h000-velocity"].holds
     assert claims["line-h000-xy-diverge-z-accurate"].holds
-    assert claims["v-h000-equal"].holds and claims["vobtuse-h100-equal-h000"].holds
-    assert claims["line-h600-better"].holds  # 0.01 vs 0.02 m over 10 paired runs
+    assert claims["v-h000-equal"].holds and claims["vobtuse-h100-equal-h000"].holds  # TOST, ratio 1 +- 1 %
+    assert claims["line-h600-better"].holds  # 0.01 vs 0.02 m over 20 paired runs
     assert claims["vobtuse-h600-slightly-better"].holds  # ratio 0.75
     assert claims["v-h000-0.03"].holds  # 0.02 < 0.03 m in every run
-    assert all(c.criterion and c.summary for c in claims.values())
-    worse = {c.id: c for c in phase.decide(_phase_runs(10, cross_max=0.02))}
+    for c in claims.values():  # every verdict names its test, its sample size and a p-value or interval
+        assert c.criterion and c.summary and c.test and c.n == 20, c.id
+        assert c.p_value is not None or c.interval is not None, c.id
+    cp = claims["cross-h000-0.01"]
+    assert cp.test.startswith("Clopper-Pearson") and cp.interval[1] == pytest.approx(1 - 0.05 ** (1 / 20))
+    assert claims["line-h600-better"].test.startswith("Wilcoxon") and claims["line-h600-better"].p_value < 1e-5
+    assert claims["v-h000-equal"].test.startswith("TOST")
+    worse = {c.id: c for c in phase.decide(_phase_runs(20, cross_max=0.02))}
     assert not worse["cross-h000-0.01"].holds
-    assert worse["cross-h000-0.01"].numbers["fraction_of_runs"] == 0.0
+    assert worse["cross-h000-0.01"].numbers["violations"] == 20
+    # too few runs to show a bound: no violation in 10 runs gives an upper bound 0.26 > 0.15
+    few = {c.id: c for c in phase.decide(_phase_runs(10, cross_max=0.005))}
+    assert not few["cross-h000-0.01"].holds and few["cross-h000-0.01"].numbers["violations"] == 0
+    # "about equal" fails when the ratio is 1.5 (outside the x1.25 margin)
+    R = _phase_runs(20, cross_max=0.005)
+    R["phase-vacute-h000"] = [dict(r, rmse_position_last_100s_m=1.5 * r["rmse_position_last_100s_m"])
+                              for r in R["phase-vacute-h000"]]
+    assert not {c.id: c for c in phase.decide(R)}["v-h000-equal"].holds
 
 
 def test_phase_claims_of_one_run_are_strict_json(tmp_path):
@@ -54,4 +70,28 @@ def test_phase_claims_of_one_run_are_strict_json(tmp_path):
     assert "NaN" not in text and "Infinity" not in text
     doc = json.loads(text)
     numbers = next(c for c in doc["claims"] if c["id"] == "line-h600-better")["numbers"]
-    assert numbers["p_one_sided"] is None and numbers["p_one_sided" + NULL_SUFFIX]
+    assert numbers["p_value"] is None and numbers["p_value" + NULL_SUFFIX]
+    test = next(c for c in doc["claims"] if c["id"] == "line-h600-better")["test"]
+    assert test["n"] == 1 and test["p_value"] is None
+
+
+def _visnav_results(runs: int, glint_scale: list[float], rng: np.random.Generator) -> list[dict]:
+    def case(scale):
+        return {"metrics": {n: {k: s * (1 + 0.05 * rng.random()) for k, _, _ in visnav.QUANTITIES}
+                            for n, s in zip(visnav.FILTERS, scale)}}
+    return [{"glint": case(glint_scale), "gaussian": case([1.0] * 5)} for _ in range(runs)]
+
+
+def test_visnav_claims_are_decided_by_their_named_tests():
+    rng = np.random.default_rng(3)
+    ok = visnav.decide(visnav.VisnavResults(results=_visnav_results(12, [5, 5, 4, 3, 2], rng), extra={}, meta={}))
+    assert [c.holds for c in ok] == [True, True]
+    assert ok[0].test.startswith("9 x Wilcoxon") and ok[0].n == 12 and ok[0].p_value < 0.05 / 9
+    assert "non-inferiority" in ok[1].test and ok[1].p_value < 0.025
+    # MCKF no better than HCKF: the ordering fails; the robust filters 20 % worse: the cost claim fails
+    bad = _visnav_results(12, [5, 5, 4, 4, 2], rng)
+    for r in bad:
+        for k, _, _ in visnav.QUANTITIES:
+            r["gaussian"]["metrics"]["rhcf"][k] *= 1.2
+    no = visnav.decide(visnav.VisnavResults(results=bad, extra={}, meta={}))
+    assert [c.holds for c in no] == [False, False]

@@ -152,3 +152,6 @@ def test_reproduce_writes_tables_claims_and_plots(tmp_path):
     assert all(isinstance(c["holds"], bool) for c in claims)
     assert len(claims[0]["numbers"]["comparisons"]) == 9
     assert summary["meta"]["runs"] == 2
+    assert all(c["test"]["name"] and c["test"]["n"] == 2 for c in claims)
+    assert "testbed reproduce visnav" in (tmp_path / "report.md").read_text()
+    assert "data:image/png;base64," in (tmp_path / "report.html").read_text()

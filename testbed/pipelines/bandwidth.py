@@ -154,7 +154,8 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     carry a leading run axis R (:func:`stack_runs`): the runs are filtered together (vectorized;
     faults need per-run generators and are refused then); every output below gains that axis.
     Returns the arrays of :func:`measurements` plus xhat (K+1, N, 3) m; M (K+1, N, 3, 3) m^2;
-    comm: estimators.bandwidth.CommLog; S, P: nominal masks and weights; W (3, 3) per step.
+    comm: estimators.bandwidth.CommLog; S, P: nominal masks and weights; W (3, 3) per step;
+    health: the driver's health counts (core.Track.health), also in metrics.json.
     """
     cfg: BandwidthPipelineConfig = scenario.pipeline
     label = f"{scenario.name}.toml"
@@ -213,7 +214,7 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     ax = len(batch)
     xh = [b.xhat for b in track.beliefs]
     Ms = [b.M for b in track.beliefs]
-    return dict(meas, xhat=np.stack(xh, ax), M=np.stack(Ms, ax), comm=comm, S=S, P=P, W=W)
+    return dict(meas, xhat=np.stack(xh, ax), M=np.stack(Ms, ax), comm=comm, S=S, P=P, W=W, health=track.health())
 
 
 def scores(est: dict) -> dict:
@@ -253,6 +254,7 @@ def scores(est: dict) -> dict:
         "bytes_received_per_step": [float(v) for v in mean_bytes.sum(0)],
         "budget_bytes_per_step": [float(BYTES_PER_COMPONENT * b) for b in comm.budget],
         "within_budget": comm.within_budget(),
+        **est["health"],
     }
 
 

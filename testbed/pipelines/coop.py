@@ -26,6 +26,8 @@ Estimators (metrics.json `estimators.*`):
 - one_shot: the paper's distributed scheme, one broadcast of the GNSS fixes + one local step;
 - iterated: message iteration until every position change < tol or max_rounds (cap);
 - centralized: Gauss-Newton on the whole graph (estimators.factor_graph.solve_centralized).
+Each has `nonconverged_steps`: epochs whose solver stopped at its iteration or round cap
+unconverged (counted, never hidden; converged_fraction is the complement over the epochs).
 Faults (item 7): `silent_uav` stops broadcasting from `silent_from_s` on (it still receives,
 computes and ranges); each directed delivery is lost with probability `message_loss`, drawn from
 `stream_rng(seed, "links")`; receivers keep a neighbour's last message for `max_age` rounds
@@ -229,6 +231,7 @@ def score(est: CoopEstimates) -> dict:
             "iterations_mean": float(np.mean(est.rounds[w])),
             "iterations_max": int(np.max(est.rounds[w])),
             "converged_fraction": float(np.mean(est.converged[w])),
+            "nonconverged_steps": int(np.count_nonzero(~est.converged[w])),
             "messages_per_epoch": float(np.mean(est.messages[w])),
             "bytes_per_epoch": float(np.mean(est.bytes[w])),
             "anees": anees(err, est.cov[w]),

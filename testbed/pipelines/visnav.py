@@ -32,14 +32,13 @@ metrics.json that is not bit-identical between two runs of the same seed.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from estimators.core import Epoch, Track, drive, nees
-from estimators.sigma_filters import ManifoldGaussian, SpdRepairWarning, make_filter
+from estimators.sigma_filters import ManifoldGaussian, make_filter
 from estimators.so3 import quat_conj, quat_exp, quat_mul, quat_to_rotmat
 from estimators.visnav import (
     CameraFilter,
@@ -189,9 +188,8 @@ def run_filter(name: str, cfg: VisNavPipelineConfig, model, epochs: list[Epoch],
     counts, wall time of the predicts and updates per epoch)."""
     filt = CameraFilter(make_filter(name, model, kernel_sigma=cfg.kernel_sigma, tol=cfg.mc_tol,
                                     max_iter=cfg.mc_max_iter), cfg.measurement)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SpdRepairWarning)  # counted by the driver: track.covariance_repairs
-        return drive(filt, prior, epochs)
+    # repairs warn (SpdRepairWarning, not silenced) and are counted: metrics_of's covariance_repairs
+    return drive(filt, prior, epochs)
 
 
 def true_relative_state(log: dict, leader: int, follower: int, idx: np.ndarray) -> np.ndarray:
@@ -256,6 +254,7 @@ def metrics_of(track: Track, sc: Scored) -> dict:
         "final_nees": float(sc.nees[-1]),
         "epochs": int(E),
         "finite": finite,
+        **track.health(),
     }
 
 

@@ -10,13 +10,15 @@ same IMU and camera noise, same initial error, stream "init"). Default horizon 6
 has 120 s; 60 s keeps `--runs 50` within ~15-25 min on two cores), 10 Hz camera, 20 Hz predict.
 
 Claim (paper figs. 5-7): under glint noise RHCF is most accurate in relative position, velocity
-and attitude, then MCKF, then HCKF, then EKF. Judged on the per-run RMSEs by one-sided paired t
-tests (testbed.metrics.paired_test) of rhcf < mckf, mckf < hckf, hckf < ekf for each of the three
-quantities: 9 comparisons, each must have p < 0.05 / 9 (Bonferroni, family level 0.05). The
-claim holds only if all 9 do. Also reported: the Gaussian case, where the robust filters "should
-cost little": the mean paired RMSE change of RHCF vs HCKF and MCKF vs EKF with its 95 % interval;
-holds if the upper bound of every relative change is below +5 % (threshold stated here, before
-the runs).
+and attitude, then MCKF, then HCKF, then EKF. Judged on the per-run RMSEs by one-sided Wilcoxon
+signed-rank tests (testbed.stats.wilcoxon_paired; per-run RMSEs are skewed by the glint runs, the
+signed-rank test does not assume normal differences) of rhcf < mckf, mckf < hckf, hckf < ekf for
+each of the three quantities: 9 comparisons, each must have p < 0.05 / 9 (Bonferroni, family level
+0.05). The claim holds only if all 9 do. Also reported: the Gaussian case, where the robust filters
+"should cost little": a non-inferiority test per comparison (RHCF vs HCKF and MCKF vs EKF, three
+quantities): one-sided paired t test (testbed.stats.paired_t) of the mean per-run relative RMSE
+change against the margin GAUSSIAN_COST_LIMIT = +5 % (stated here, before the runs), p < 0.025
+each (the same decision as the upper end of a two-sided 95 % interval below +5 %).
 
 Also run (short): the other motion mode (2 runs, both noise cases) and the pixel camera path
 (1 run, 10 s): finite, scored, shown in the table.
@@ -38,13 +40,14 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from testbed import scenario as scenario_mod
-from testbed.metrics import mean_ci, paired_test
+from testbed.metrics import mean_ci
 from testbed.pipelines.visnav import metrics_of, run_all
 from testbed.plots import compare_bars, error_envelope, save
 from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, write_claims, write_csv, write_json, \
     write_markdown
 from testbed.reproduce.runs import seeds
 from testbed.simulate import simulate
+from testbed.stats import paired_t, wilcoxon_paired
 from testbed.workers import run_parallel
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
@@ -52,7 +55,9 @@ QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_mps", "veloc
               ("rmse_attitude_deg", "attitude", "deg"))
 CASES = ("glint", "gaussian")
 CLAIM_PAIRS = (("rhcf", "mckf"), ("mckf", "hckf"), ("hckf", "ekf"))
-ALPHA = 0.05
+ALPHA = 0.05  # family level of the 9 ordering tests (Bonferroni: 0.05 / 9 each)
+# "costs little": the non-inferiority margin, +5 % RMSE, fixed before any run: below the run-to-run spread
+# of one filter's RMSE and far below the 20-50 % gains the paper reports under glint.
 GAUSSIAN_COST_LIMIT = 0.05
 DEFAULT_DURATION = 60.0
 
@@ -161,42 +166,52 @@ def decide(res: VisnavResults) -> list[Claim]:
     """The paper's ordering under glint (paired tests) and the Gaussian cost of robustness."""
     results = res.results
     level = ALPHA / (len(CLAIM_PAIRS) * len(QUANTITIES))
-    comparisons, ok = [], True
+    comparisons, tests, ok = [], [], True
     for key, label, unit in QUANTITIES:
         for a, b in CLAIM_PAIRS:
-            test = paired_test(_col(results, "glint", a, key), _col(results, "glint", b, key))
-            holds = bool(np.isfinite(test["p_one_sided"]) and test["p_one_sided"] < level)
+            test = wilcoxon_paired(_col(results, "glint", a, key), _col(results, "glint", b, key),
+                                   alternative="less", level=1 - level)
+            holds = bool(np.isfinite(test.p_value) and test.p_value < level)
             ok &= holds
+            tests.append(test)
             comparisons.append({"quantity": label, "unit": unit, "better": a, "worse": b,
                                 "mean_a": float(_col(results, "glint", a, key).mean()),
                                 "mean_b": float(_col(results, "glint", b, key).mean()),
-                                **test, "level": level, "holds": holds})
+                                **test.to_json(), "alpha": level, "holds": holds})
+    worst = max(tests, key=lambda t: t.p_value if np.isfinite(t.p_value) else np.inf)
     claims = [Claim(
         id="glint-ordering",
         text="under glint noise RHCF is most accurate in relative position, velocity and attitude, then MCKF, then "
              "HCKF, then EKF (paper figs. 5-7)",
-        criterion=f"one-sided paired t test of per-run RMSE for each adjacent pair and quantity; each p < "
-                  f"{ALPHA}/{len(comparisons)} (Bonferroni)",
+        criterion=f"one-sided Wilcoxon signed-rank test of the per-run RMSE for each adjacent pair and quantity; "
+                  f"each p < {ALPHA}/{len(comparisons)} (Bonferroni)",
         holds=bool(ok), numbers={"runs": len(results), "comparisons": comparisons},
-        summary=f"{sum(c['holds'] for c in comparisons)}/{len(comparisons)} comparisons significant; largest p "
-                f"{fmt(max(c['p_one_sided'] for c in comparisons))}")]
-    cost, ok2 = [], True
+        paper_value="RHCF < MCKF < HCKF < EKF",
+        summary=f"{sum(c['holds'] for c in comparisons)}/{len(comparisons)} comparisons significant",
+        **{**worst.claim_fields(), "test": f"{len(tests)} x {worst.test}, Bonferroni; the largest p shown"})]
+    cost, ok2, cost_tests = [], True, []
     for key, label, unit in QUANTITIES:
         for a, b in (("rhcf", "hckf"), ("mckf", "ekf")):
             xa, xb = _col(results, "gaussian", a, key), _col(results, "gaussian", b, key)
-            m, lo, hi = mean_ci(xa / xb - 1.0)
-            holds = bool(hi < GAUSSIAN_COST_LIMIT)
+            rel = xa / xb - 1.0
+            t = paired_t(rel, np.full(rel.size, GAUSSIAN_COST_LIMIT), alternative="less", level=0.975)
+            holds = bool(np.isfinite(t.p_value) and t.p_value < 0.025)
             ok2 &= holds
-            cost.append({"quantity": label, "robust": a, "baseline": b, "mean_rel_change": m,
-                         "ci95": [lo, hi], "mean_robust": float(xa.mean()), "mean_baseline": float(xb.mean()),
-                         "holds": holds})
+            cost_tests.append(t)
+            upper = GAUSSIAN_COST_LIMIT + t.interval[1] if t.interval is not None else float("nan")
+            cost.append({"quantity": label, "robust": a, "baseline": b, "mean_rel_change": float(rel.mean()),
+                         "upper_975": upper, "mean_robust": float(xa.mean()), "mean_baseline": float(xb.mean()),
+                         **t.to_json(), "holds": holds})
+    worst = max(cost_tests, key=lambda t: t.p_value if np.isfinite(t.p_value) else np.inf)
     claims.append(Claim(
         id="gaussian-cost",
         text="with Gaussian noise the robust filters cost little: RHCF vs HCKF and MCKF vs EKF",
-        criterion=f"upper bound of the 95 % interval of the mean per-run relative RMSE change < "
-                  f"+{GAUSSIAN_COST_LIMIT:.0%}",
-        holds=bool(ok2), numbers={"runs": len(results), "comparisons": cost},
-        summary=f"largest upper bound {fmt(100 * max(c['ci95'][1] for c in cost))} %"))
+        criterion=f"non-inferiority: one-sided paired t test of the mean per-run relative RMSE change against "
+                  f"+{GAUSSIAN_COST_LIMIT:.0%}, p < 0.025 for each of the {len(cost)} comparisons",
+        holds=bool(ok2), numbers={"runs": len(results), "comparisons": cost}, paper_value="cost little",
+        summary=f"largest upper bound of the relative change {fmt(100 * max(c['upper_975'] for c in cost))} %",
+        **{**worst.claim_fields(), "test": f"{len(cost_tests)} x {worst.test} (non-inferiority); the largest p shown",
+           "interval": None}))
     return claims
 
 

@@ -1,0 +1,57 @@
+"""Issue 15 defect 4: repairs and non-convergence are counted (core.Track.health -> metrics.json),
+never silenced."""
+import warnings
+
+import numpy as np
+import pytest
+
+from estimators.core import Epoch, Gaussian, counting, drive, symmetrize, tally
+from estimators.sigma_filters import SpdRepairWarning, ensure_spd
+from estimators.visnav import RelNavModel
+from testbed import scenario
+from testbed.pipelines import visnav as pv
+
+
+def test_symmetrize_counts_asymmetry_beyond_roundoff_only():
+    P = np.array([[2.0, 0.5], [0.5, 1.0]])
+    with counting() as h:
+        symmetrize(P + np.array([[0.0, 1e-15], [0.0, 0.0]]))  # round-off
+    assert h.covariance_repairs == 0
+    with counting() as h:
+        S = symmetrize(P + np.array([[0.0, 1e-3], [0.0, 0.0]]))  # beyond round-off
+    assert h.covariance_repairs == 1 and np.array_equal(S, S.T)
+
+
+class _Faulty:
+    """Predict repairs a covariance at every epoch; update rejects 2 rows and reports one
+    non-converged iteration on every second epoch (counts through core.tally)."""
+
+    def predict(self, b, dt, u=None):
+        return Gaussian(b.mean, ensure_spd(np.diag([1.0, -1.0]), what="test covariance"))
+
+    def update(self, b, m):
+        tally(rejected_measurements=2, nonconverged_iterations=int(m % 2 == 0))
+        return b
+
+
+def test_track_health_totals_reach_metrics():
+    prior = Gaussian(np.zeros(2), np.eye(2))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        track = drive(_Faulty(), prior, [Epoch(float(k), k) for k in range(1, 6)], t0=0.0)
+    assert track.health() == {"covariance_repairs": 5, "rejected_measurements": 10, "nonconverged_steps": 2}
+    assert sum(issubclass(x.category, SpdRepairWarning) for x in w) == 5
+
+
+def test_visnav_run_filter_does_not_silence_repair_warnings(monkeypatch):
+    """The pipeline used to wrap the driver in warnings.simplefilter("ignore", SpdRepairWarning)."""
+    sc = scenario.load("visnav")
+    model = RelNavModel(pv.estimator_config(sc.pipeline, sc.seed, 1.0))
+
+    def fake_drive(filt, prior, epochs):
+        ensure_spd(np.diag([1.0, -1.0]))
+        return "track"
+
+    monkeypatch.setattr(pv, "drive", fake_drive)
+    with pytest.warns(SpdRepairWarning):
+        assert pv.run_filter("ekf", sc.pipeline, model, [], None) == "track"
