@@ -5,8 +5,7 @@ from scipy.stats import norm
 
 from estimators import bandwidth as bw
 from estimators.core import Epoch, drive, kalman_gain
-from testbed.reproduce.bandwidth_paper import P_SETS, T_SETS
-from testbed.synthetic.bandwidth import M0_PAPER, X0_PAPER, paper_model, simulate
+from testbed.synthetic.bandwidth import M0_PAPER, P_SETS, T_SETS, X0_PAPER, paper_model, simulate
 
 BUDGET = [5, 5, 5, 5]
 

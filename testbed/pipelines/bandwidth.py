@@ -42,19 +42,11 @@ from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 from testbed.rng import stream_rng
+from testbed.synthetic.bandwidth import P_SETS, T_SETS
 
 
 
 # ---------------------------------------------------------------------------------- helpers
-
-
-def paper_sets():
-    """The paper's T1-T3 (masks (4, 4, 3)) and P1-P3 ((4, 4)), from the paper-mode reproduction."""
-    # lazy: testbed.reproduce (its paper-mode module) imports the pipelines; a module-level import
-    # here would be an import cycle
-    from testbed.reproduce.bandwidth_paper import P_SETS, T_SETS
-
-    return T_SETS, P_SETS
 
 
 def _epoch_index(times: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -166,7 +158,6 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     n = 3
     W = np.diag(cfg.process_noise) * (cfg.dt if cfg.w_reading == "rate" else 1.0)
     A, B = np.eye(n), np.asarray(cfg.velocity, float) * cfg.dt
-    T_SETS, P_SETS = paper_sets()
     P = P_SETS[cfg.weights] if weights is None else np.asarray(weights, float)
     M0 = np.diag(cfg.M0)
     budget = [cfg.budget] * N_NODES

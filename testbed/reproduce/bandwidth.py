@@ -38,7 +38,8 @@ from testbed.report import Claim, claims_section, fmt, fmt_list, markdown_table,
     write_markdown
 from testbed.reproduce import bandwidth_paper as paper_mode
 from testbed.reproduce import bandwidth_plots as bplots
-from testbed.reproduce.bandwidth_paper import P_SETS, T_SETS, _fmt_T
+from testbed.reproduce.bandwidth_paper import _fmt_T
+from testbed.synthetic.bandwidth import P_SETS, T_SETS
 from testbed.reproduce.runs import run_name, seeds, sweep_runs
 from testbed.stats import paired_t
 

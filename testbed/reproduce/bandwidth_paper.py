@@ -40,7 +40,7 @@ from testbed.reproduce import bandwidth_plots as bplots
 from testbed.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, \
     write_markdown
 from testbed.stats import paired_t
-from testbed.synthetic.bandwidth import M0_PAPER, V_PAPER, VEL_PAPER, X0_PAPER, N, n, paper_model, simulate
+from testbed.synthetic.bandwidth import M0_PAPER, P_SETS, T_SETS, V_PAPER, VEL_PAPER, X0_PAPER, N, n, paper_model, simulate
 
 BUDGET = [5, 5, 5, 5]
 HORIZON_S = 50.0
@@ -48,36 +48,6 @@ READINGS = {"a_dt1": dict(dt=1.0, w_rate=False), "b_dt0.1": dict(dt=0.1, w_rate=
 # "significantly different / lower": paired t test of the per-run J (eq. 12, a sum of many squared errors:
 # near-normal differences) beyond 3 standard errors (two-sided p ~ 0.3 %), fixed before the runs
 Z_PAIR = 3.0
-
-
-def _sel(T21, T31, T41, T32, T42, T43) -> np.ndarray:
-    """Masks (N, N, n) from the paper's listing (T_ji for j > i, 1-based; T_ij = T_ji)."""
-    S = np.zeros((N, N, n))
-    for i in range(N):
-        S[i, i] = 1.0
-    for (j, i), d in {(2, 1): T21, (3, 1): T31, (4, 1): T41, (3, 2): T32, (4, 2): T42, (4, 3): T43}.items():
-        S[j - 1, i - 1] = S[i - 1, j - 1] = d
-    return S
-
-
-# Section 2: T1, T2, T3 (diagonals), each listed entry transcribed; the symmetric ones follow eq. 5.
-T_SETS = {
-    "T1": _sel(T21=[0, 1, 0], T31=[1, 1, 0], T41=[0, 1, 1], T32=[1, 1, 0], T42=[0, 1, 1], T43=[0, 1, 0]),
-    "T2": _sel(T21=[1, 0, 0], T31=[1, 0, 1], T41=[1, 0, 1], T32=[1, 0, 1], T42=[1, 0, 1], T43=[0, 0, 1]),
-    "T3": _sel(T21=[1, 0, 0], T31=[0, 1, 1], T41=[1, 1, 0], T32=[0, 1, 1], T42=[1, 0, 1], T43=[1, 0, 0]),
-}
-# P[i, j] = p_ij (1-based in the paper). All three are symmetric, so the index order is moot.
-P_SETS = {
-    "P1": np.full((N, N), 0.25),
-    "P2": np.array([[0.45, 0.15, 0.15, 0.25],
-                    [0.15, 0.45, 0.25, 0.15],
-                    [0.15, 0.25, 0.45, 0.15],
-                    [0.25, 0.15, 0.15, 0.45]]),
-    "P3": np.array([[0.65, 0.15, 0.15, 0.05],
-                    [0.15, 0.65, 0.05, 0.15],
-                    [0.15, 0.05, 0.65, 0.15],
-                    [0.05, 0.15, 0.15, 0.65]]),
-}
 
 
 def _fmt_T(S: np.ndarray) -> str:

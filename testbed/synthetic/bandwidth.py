@@ -3,7 +3,8 @@ measurements y_i = C_i x + v_i and the estimator, as one seeded, vectorized Mont
 
 The paper's section 2: 4 nodes, n = 3, A = I3, C_i = I3, known input B = [0.5 0.5 0.5] m/s (motion
 along x = y = z), W = diag(0.02, 0.05, 0.03), V = diag(0.03, 0.04, 0.02) m^2, x(0) = [10 10 10] m,
-M(0) = diag(0.19, 0.09, 0.08) m^2. No physics: for the physics-in-the-loop measurements run the
+M(0) = diag(0.19, 0.09, 0.08) m^2; its selection sets T1-T3 and weight sets P1-P3 (T_SETS, P_SETS). No
+physics: for the physics-in-the-loop measurements run the
 scenario `bandwidth`. Used by `testbed reproduce bandwidth` (paper mode) and the tests.
 """
 from __future__ import annotations
@@ -81,3 +82,33 @@ def simulate(model: bw.NetworkModel, net: bw.FusionNetwork, *, mu0: np.ndarray, 
     comm = bw.CommLog(components=np.stack(comps) if comps else np.zeros((0, N, N)), budget=budget)
     Mh = np.stack(Ms, 1) if faults is not None else np.stack([m[0] for m in Ms])
     return SimResult(truth=np.stack(xs, 1), xhat=np.stack(xh, 1), M=Mh, comm=comm)
+
+
+def _sel(T21, T31, T41, T32, T42, T43) -> np.ndarray:
+    """Masks (N, N, n) from the paper's listing (T_ji for j > i, 1-based; T_ij = T_ji)."""
+    S = np.zeros((N, N, n))
+    for i in range(N):
+        S[i, i] = 1.0
+    for (j, i), d in {(2, 1): T21, (3, 1): T31, (4, 1): T41, (3, 2): T32, (4, 2): T42, (4, 3): T43}.items():
+        S[j - 1, i - 1] = S[i - 1, j - 1] = d
+    return S
+
+
+# Section 2: T1, T2, T3 (diagonals), each listed entry transcribed; the symmetric ones follow eq. 5.
+T_SETS = {
+    "T1": _sel(T21=[0, 1, 0], T31=[1, 1, 0], T41=[0, 1, 1], T32=[1, 1, 0], T42=[0, 1, 1], T43=[0, 1, 0]),
+    "T2": _sel(T21=[1, 0, 0], T31=[1, 0, 1], T41=[1, 0, 1], T32=[1, 0, 1], T42=[1, 0, 1], T43=[0, 0, 1]),
+    "T3": _sel(T21=[1, 0, 0], T31=[0, 1, 1], T41=[1, 1, 0], T32=[0, 1, 1], T42=[1, 0, 1], T43=[1, 0, 0]),
+}
+# P[i, j] = p_ij (1-based in the paper). All three are symmetric, so the index order is moot.
+P_SETS = {
+    "P1": np.full((N, N), 0.25),
+    "P2": np.array([[0.45, 0.15, 0.15, 0.25],
+                    [0.15, 0.45, 0.25, 0.15],
+                    [0.15, 0.25, 0.45, 0.15],
+                    [0.25, 0.15, 0.15, 0.45]]),
+    "P3": np.array([[0.65, 0.15, 0.15, 0.05],
+                    [0.15, 0.65, 0.05, 0.15],
+                    [0.15, 0.05, 0.65, 0.15],
+                    [0.05, 0.15, 0.15, 0.65]]),
+}
