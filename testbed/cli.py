@@ -5,9 +5,11 @@
                 [--set key=value ...] [--video] [--force]
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
-    testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [run options]
+    testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
+                [--address ADDR]] [run options]
     testbed bench physics|sensors|estimators [--json FILE]
     testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M]
+                [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
 
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
@@ -40,6 +42,13 @@ from testbed.outdir import out_arg
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, exit 2, no usage dump
         raise UsageError(f"{self.prog}: {message}")
+
+
+def _add_backend_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="where the runs execute: local worker processes (default) or Ray tasks (docs/cluster.md)")
+    p.add_argument("--address", help="Ray cluster to join (HOST:PORT of the head, or 'auto' on a cluster node; "
+                   "default: start Ray on this machine); needs --backend ray")
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
@@ -97,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--resume", action="store_true", help="finish an interrupted sweep at --out, skipping its finished runs")
+    _add_backend_options(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
     p.add_argument("what", choices=["physics", "sensors", "estimators"])
@@ -110,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
     p.add_argument("--duration", type=float, help="shorten every run (seconds)")
     p.add_argument("--workers", type=int)
+    _add_backend_options(p)
 
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
     p.add_argument("--out", type=out_arg, default=Path("runs/demo"), help="an earlier demo here is replaced")
@@ -153,7 +164,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.sweep import sweep
 
         summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
-                        progress=sys.stderr.isatty())
+                        progress=sys.stderr.isatty(), backend=args.backend, address=args.address)
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
@@ -165,7 +176,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.reproduce import reproduce
 
         reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
-                  force=args.force)
+                  force=args.force, backend=args.backend, address=args.address)
         return 0
     if args.command == "demo":
         from testbed.demo import demo
