@@ -12,6 +12,8 @@ directory after its task and stops with one line if it cannot see it (testbed.sw
 runs with testbed.environment's defaults (single-threaded BLAS) in its environment, so a run gives
 the same bytes on a Ray worker as in a local worker process.
 
+A task whose worker process or node dies is rerun by Ray (SYSTEM_RETRIES times, on any node); after
+that the failure is a TaskLost, which a sweep handles like an interrupt (finished runs kept).
 Stopping (Ctrl-C, SIGTERM, SIGHUP, an error in the driver): every unfinished task is cancelled. A
 running task gets a KeyboardInterrupt (its output writer removes its temporary directory); tasks
 still running after CANCEL_GRACE_S are killed (force), which may leave a temporary directory named
@@ -27,12 +29,20 @@ from testbed.environment import DEFAULTS, apply_defaults
 from testbed.errors import RunError, TestbedError
 from testbed.interrupt import signals_held
 
-__all__ = ["CANCEL_GRACE_S", "connect", "run_ray"]
+__all__ = ["CANCEL_GRACE_S", "SYSTEM_RETRIES", "TaskLost", "connect", "run_ray"]
 
 #: seconds a cancelled task gets to unwind (remove its temporary directory) before it is killed
 CANCEL_GRACE_S = 3.0
+#: times Ray reruns a task whose worker or node died (system failures only; an error of the run
+#: itself is never retried)
+SYSTEM_RETRIES = 3
 #: seconds of one wait for finished tasks
 WAIT_S = 0.2
+
+
+class TaskLost(RunError):
+    """A Ray task failed for a reason outside the run (its node died more than SYSTEM_RETRIES times,
+    the cluster went away): the sweep keeps its finished runs, as on an interrupt."""
 
 
 def _task(fn: Callable, job: object) -> object:
@@ -91,7 +101,7 @@ def run_ray(fn: Callable, jobs: Sequence, workers: int | None, address: str | No
     if not jobs:
         return
     ray, started = connect(address)
-    remote = ray.remote(num_cpus=1, max_retries=0)(_task).options(runtime_env={"env_vars": _task_env()})
+    remote = ray.remote(num_cpus=1, max_retries=SYSTEM_RETRIES)(_task).options(runtime_env={"env_vars": _task_env()})
     cap = len(jobs) if not workers else max(1, workers)
     index: dict = {}
     queue = list(range(len(jobs)))
@@ -109,6 +119,8 @@ def run_ray(fn: Callable, jobs: Sequence, workers: int | None, address: str | No
                 except ray.exceptions.RayTaskError as e:
                     # a user-facing error of the run stays one line; anything else keeps Ray's traceback
                     raise (e.cause if isinstance(e.cause, TestbedError) else e.as_instanceof_cause()) from None
+                except ray.exceptions.RayError as e:  # worker, node or cluster lost
+                    raise TaskLost(f"Ray lost job {i}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
                 yield i, value
     finally:
         with signals_held():

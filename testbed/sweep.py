@@ -6,7 +6,7 @@ The `metrics.json` files are aggregated into `OUT/summary.csv` and `OUT/summary.
 std (ddof=1), min, max and count of every numeric score, keyed by its dotted path
 (`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk.
 `OUT/sweep.toml` is the swept scenario (run i: its seed + i). Ctrl-C, SIGTERM or SIGHUP stop every
-worker at once; the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
+worker at once (and so does a Ray task lost for good, testbed.cluster.TaskLost); the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
 "runs_done": k`, no summary.csv) and `testbed sweep ... --resume` finishes the sweep.
 Backends (testbed.workers): a local process pool (default) or Ray tasks (`--backend ray`, on this
 machine or a cluster; testbed.cluster). The runs and the summary are the same bytes either way.
@@ -24,6 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from testbed import scenario as scenario_mod
+from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
 from testbed.errors import RunError
 from testbed.interrupt import Interrupted
@@ -133,7 +134,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
                                    "--out must be on a file system shared by every node")
                 done.append(todo[k])
                 bar.update()
-        except KeyboardInterrupt as e:
+        except (KeyboardInterrupt, TaskLost) as e:
             bar.close()
             if done and (o.resume or not o.existed):
                 _write_summary(d, scenario, runs, sorted(done))
@@ -141,6 +142,8 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
                 kept = f"{len(done)} of {runs} runs kept in {out} (summary.json marked incomplete; continue with --resume)"
             else:
                 kept = f"no run kept; {out} left as it was" if o.existed else "no run finished; nothing kept"
+            if isinstance(e, TaskLost):
+                raise RunError(f"{e}; {kept}") from None
             raise Interrupted(getattr(e, "signum", signal.SIGINT), kept) from None
         bar.close()
         summary = _write_summary(d, scenario, runs, sorted(done))
