@@ -400,7 +400,7 @@ def _solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None =
         return linalg.cho_solve(linalg.cho_factor(N.toarray()), g)
     order = narrow_band(N)
     if order is not None:  # banded Cholesky after reverse Cuthill-McKee (estimators.graph.banded)
-        fac = factor_banded(N, order)
+        fac = factor_banded(N)
         if fac is None:
             raise np.linalg.LinAlgError("_solve_normal: A^T A is not positive definite")
         return fac.solve(g)
@@ -457,7 +457,7 @@ def _marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
     nv = N.shape[0]
     order = narrow_band(N)
     if order is not None:
-        fac = factor_banded(N, order)
+        fac = factor_banded(N)
         if fac is None:
             raise np.linalg.LinAlgError("_marginal_blocks: N is not positive definite")
         return selected_inverse_diag(fac)

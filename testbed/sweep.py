@@ -136,6 +136,8 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
                 bar.update()
         except (KeyboardInterrupt, TaskLost) as e:
             bar.close()
+            # runs that completed while the others were being stopped count as well
+            done = [i for i in range(runs) if _complete(d / f"run-{i:03d}")]
             if done and (o.resume or not o.existed):
                 _write_summary(d, scenario, runs, sorted(done))
                 o.commit()

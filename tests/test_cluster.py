@@ -8,7 +8,9 @@ import pytest
 import ray
 
 from testbed import scenario
-from testbed.errors import UsageError
+from testbed import sweep as sweep_mod
+from testbed.cluster import TaskLost
+from testbed.errors import RunError, UsageError
 from testbed.sweep import sweep
 from testbed.workers import backend
 from tests.test_faults import _debris, _start, _testbed, _tmp_dirs, _wait_for
@@ -39,6 +41,21 @@ def test_backend_choices_are_checked():
         pass
     with pytest.raises(UsageError, match="--address 'auto' needs --backend ray"), backend("local", "auto"):
         pass
+
+
+def test_a_task_lost_for_good_keeps_the_finished_runs(tmp_path, monkeypatch):
+    def first_then_lost(fn, jobs, workers):
+        fn(jobs[0])
+        yield 0, None
+        raise TaskLost("Ray lost job 1: NodeDiedError")
+
+    monkeypatch.setattr(sweep_mod, "run_parallel", first_then_lost)
+    sc = scenario.load("bandwidth", duration=0.5, seed=3)
+    with pytest.raises(RunError, match=r"Ray lost job 1: NodeDiedError; 1 of 2 runs kept in .*--resume"):
+        sweep(sc, 2, tmp_path / "sw", progress=False)
+    summary = json.loads((tmp_path / "sw" / "summary.json").read_text())
+    assert summary["incomplete"] is True and summary["runs_done"] == 1 and summary["seeds"] == [3]
+    assert _debris(tmp_path) == []
 
 
 @pytest.mark.slow  # starts Ray twice from the command line, ~2 min on a loaded machine

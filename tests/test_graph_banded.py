@@ -29,7 +29,7 @@ def test_banded_solve_pivots_and_marginals_equal_the_dense_ones():
     order = narrow_band(N)
     assert order is not None and order.width < 40  # a chain: narrow band after RCM
     assert band_order(N) is order  # cached per pattern
-    fac = factor_banded(N, order)
+    fac = factor_banded(N)
     Nd = N.toarray()
     g = np.random.default_rng(1).normal(size=(N.shape[0], 2))
     assert np.allclose(fac.solve(g), np.linalg.solve(Nd, g), rtol=1e-10, atol=1e-12)

@@ -15,9 +15,7 @@ Never imports mujoco, testbed or gtsam.
 """
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass
-from hashlib import blake2b
 
 import numpy as np
 from scipy import linalg, sparse
@@ -27,7 +25,7 @@ __all__ = ["BandOrder", "BandedFactor", "band_order", "factor_banded", "selected
 
 #: orderings kept (one per sparsity pattern)
 _CACHE_SIZE = 8
-_cache: OrderedDict[bytes, "BandOrder"] = OrderedDict()
+_cache: list[tuple[np.ndarray, np.ndarray, "BandOrder"]] = []  # (indptr, indices, order), newest last
 #: columns per block of the selected inversion (dense kernels on (w + b) x b panels)
 _PANEL = 48
 
@@ -35,10 +33,14 @@ _PANEL = 48
 @dataclass(frozen=True, slots=True)
 class BandOrder:
     """perm: (k,) new position -> unknown (P N P^T = N[perm][:, perm]); width: half bandwidth w of
-    the permuted matrix (nonzeros at |r - c| <= w)."""
+    the permuted matrix (nonzeros at |r - c| <= w); lower: (nnz,) bool, the entries of the
+    pattern's CSC data (sorted indices) that land on or below the diagonal after permuting;
+    scatter: their flat indices in the (w + 1, k) banded storage."""
 
     perm: np.ndarray
     width: int
+    lower: np.ndarray
+    scatter: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,51 +65,50 @@ class BandedFactor:
         return out
 
 
-def _pattern_key(N: sparse.csc_matrix) -> bytes:
-    h = blake2b(digest_size=16)
-    h.update(np.asarray(N.shape, np.int64).tobytes())
-    h.update(np.ascontiguousarray(N.indptr, np.int64).tobytes())
-    h.update(np.ascontiguousarray(N.indices, np.int64).tobytes())
-    return h.digest()
+def _canonical(N) -> sparse.csc_matrix:
+    """N as CSC with sorted indices (the data order the cached scatter indices refer to)."""
+    N = sparse.csc_matrix(N)
+    if not N.has_sorted_indices:
+        N = N.sorted_indices()
+    return N
 
 
 def band_order(N) -> BandOrder:
-    """Reverse Cuthill-McKee ordering of the symmetric pattern of N (k, k) and its half bandwidth,
-    cached per pattern (explicit zeros count as nonzeros)."""
-    N = sparse.csc_matrix(N)
-    N.sort_indices()
-    key = _pattern_key(N)
-    hit = _cache.get(key)
-    if hit is not None:
-        _cache.move_to_end(key)
-        return hit
+    """Reverse Cuthill-McKee ordering of the symmetric pattern of N (k, k), its half bandwidth and
+    the scatter of N's entries into banded storage, cached per pattern (explicit zeros count as
+    nonzeros; a pattern is recognised by comparing its index arrays, not by a hash)."""
+    N = _canonical(N)
+    for k, (indptr, indices, hit) in enumerate(_cache):
+        if indptr.shape == N.indptr.shape and indices.shape == N.indices.shape and \
+                np.array_equal(indptr, N.indptr) and np.array_equal(indices, N.indices):
+            _cache.append(_cache.pop(k))
+            return hit
     pattern = sparse.csr_matrix((np.ones(N.nnz), N.indices, N.indptr), shape=N.shape)
     perm = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
     inv = np.empty_like(perm)
     inv[perm] = np.arange(perm.size)
-    coo = pattern.tocoo()
-    width = int(np.abs(inv[coo.row] - inv[coo.col]).max(initial=0))
-    order = BandOrder(perm, width)
-    _cache[key] = order
-    if len(_cache) > _CACHE_SIZE:
-        _cache.popitem(last=False)
+    # entries of the CSC data in order: row indices[p], column c for indptr[c] <= p < indptr[c + 1]
+    r = inv[N.indices]
+    c = inv[np.repeat(np.arange(N.shape[1]), np.diff(N.indptr))]
+    width = int(np.abs(r - c).max(initial=0))
+    lower = r >= c
+    # LAPACK lower banded storage: cb[r - c, c] = L[r, c], flat index (r - c) k + c
+    scatter = (r[lower] - c[lower]) * N.shape[0] + c[lower]
+    order = BandOrder(perm, width, lower, scatter)
+    _cache.append((N.indptr.copy(), N.indices.copy(), order))
+    del _cache[:-_CACHE_SIZE]
     return order
 
 
-def factor_banded(N, order: BandOrder | None = None) -> BandedFactor | None:
-    """Banded Cholesky of the SPD N (k, k) in the ordering `order` (default: band_order(N));
-    None if N is not positive definite."""
-    N = sparse.csc_matrix(N)
-    order = band_order(N) if order is None else order
-    inv = np.empty_like(order.perm)
-    inv[order.perm] = np.arange(order.perm.size)
-    coo = N.tocoo()
-    r, c = inv[coo.row], inv[coo.col]
-    low = r >= c
+def factor_banded(N) -> BandedFactor | None:
+    """Banded Cholesky of the SPD N (k, k) in the ordering band_order(N); None if N is not positive
+    definite."""
+    N = _canonical(N)
+    order = band_order(N)
     cb = np.zeros((order.width + 1, N.shape[0]))
-    cb[r[low] - c[low], c[low]] = coo.data[low]
+    cb.flat[order.scatter] = N.data[order.lower]
     try:
-        cb = linalg.cholesky_banded(cb, lower=True, check_finite=False)
+        cb = linalg.cholesky_banded(cb, lower=True, check_finite=False, overwrite_ab=True)
     except linalg.LinAlgError:
         return None
     return BandedFactor(order, cb)

@@ -76,7 +76,7 @@ def factor_spd(N) -> SpdFactor:
     Ns = sparse.csc_matrix(N)
     order = narrow_band(Ns)
     if order is not None:
-        fac = factor_banded(Ns, order)
+        fac = factor_banded(Ns)
         if fac is None:
             return SpdFactor(False, 0.0, None)
         return SpdFactor(True, float(np.min(fac.pivots() / diag)), fac.solve)
