@@ -51,7 +51,8 @@ from scipy import linalg, sparse
 from scipy.sparse import linalg as splinalg
 
 from estimators.core import symmetrize
-from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd
+from estimators.graph.banded import factor_banded, selected_inverse_diag
+from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd, narrow_band
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
@@ -389,13 +390,20 @@ _DENSE_LIMIT = DENSE_LIMIT  # below this many unknowns the dense Cholesky beats 
 def _solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> np.ndarray:
     """Delta of eq. 16, A^T C A Delta = A^T b, C = diag(curv) (identity if None).
 
-    Dense Cholesky for small systems, sparse LU otherwise.
+    Dense Cholesky for small systems, a banded Cholesky after a reverse Cuthill-McKee ordering when
+    the band is narrow (estimators.graph.linear.narrow_band), sparse LU otherwise.
     """
     Ac = A if curv is None else sparse.diags(curv) @ A
     N = (A.T @ Ac).tocsc()
     g = A.T @ b
     if N.shape[0] <= _DENSE_LIMIT:
         return linalg.cho_solve(linalg.cho_factor(N.toarray()), g)
+    order = narrow_band(N)
+    if order is not None:  # banded Cholesky after reverse Cuthill-McKee (estimators.graph.banded)
+        fac = factor_banded(N)
+        if fac is None:
+            raise np.linalg.LinAlgError("_solve_normal: A^T A is not positive definite")
+        return fac.solve(g)
     return splinalg.splu(N, permc_spec="MMD_AT_PLUS_A").solve(g)
 
 
@@ -434,7 +442,9 @@ def _covariance(A: sparse.csr_matrix) -> np.ndarray:
 def _marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
     """Diagonal 3x3 blocks of N^-1 (n, 3, 3), m^2, for a sparse SPD N (3n, 3n), without the full inverse.
 
-    Selected inverse (Takahashi, Fagan, Chen 1973) on a sparse LDL^T factor, supernode by supernode:
+    A narrow band after reverse Cuthill-McKee: the banded Cholesky and its selected inverse
+    (estimators.graph.banded). Otherwise:
+    selected inverse (Takahashi, Fagan, Chen 1973) on a sparse LDL^T factor, supernode by supernode:
     SuperLU with a symmetric fill-reducing ordering and no pivoting gives P N P^T = L D L^T (L unit
     lower, U = D L^T). Z = N^-1 satisfies Z L = L^-T D^-1 (upper triangular), so for a supernode of
     columns J with the rows S below it (struct of L):
@@ -445,6 +455,12 @@ def _marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
     Falls back to the dense inverse if SuperLU permuted rows and columns differently.
     """
     nv = N.shape[0]
+    order = narrow_band(N)
+    if order is not None:
+        fac = factor_banded(N)
+        if fac is None:
+            raise np.linalg.LinAlgError("_marginal_blocks: N is not positive definite")
+        return selected_inverse_diag(fac)
     lu = splinalg.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     if not np.array_equal(lu.perm_r, lu.perm_c):
         full = linalg.cho_solve(linalg.cho_factor(N.toarray()), np.eye(nv))

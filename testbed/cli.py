@@ -6,9 +6,11 @@
                 [--set key=value ...] [--estimator ENTRY ...] [--video] [--force]
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
-    testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [run options]
+    testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
+                [--address ADDR]] [run options]
     testbed bench physics|sensors|estimators [--json FILE] [--vehicles N,N,...]
     testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
+                [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
     testbed schema
 
@@ -93,6 +95,13 @@ SEED = _int_in(0, 10**9)  # the scenario's `seed` range (testbed.config.MAX_MAGN
 DURATION = _float_in(0, 1e9)  # s; the physics step count is bounded by the scenario (scenario.MAX_STEPS)
 RUNS = _int_in(1, 100_000)
 WORKERS = _int_in(1, 1024)
+
+
+def _add_backend_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="where the runs execute: local worker processes (default) or Ray tasks (docs/cluster.md)")
+    p.add_argument("--address", help="Ray cluster to join (HOST:PORT of the head, or 'auto' on a cluster node; "
+                   "default: start Ray on this machine); needs --backend ray")
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
@@ -195,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--resume", action="store_true", help="finish an interrupted sweep at --out, skipping its finished runs")
+    _add_backend_options(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
     p.add_argument("what", choices=["physics", "sensors", "estimators"])
@@ -211,6 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
     p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
     _add_estimator_option(p)
+    _add_backend_options(p)
 
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
     p.add_argument("--out", type=out_arg, default=Path("runs/demo"), help="an earlier demo here is replaced")
@@ -264,7 +275,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.sweep import sweep
 
         summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
-                        progress=sys.stderr.isatty())
+                        progress=sys.stderr.isatty(), backend=args.backend, address=args.address)
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
@@ -281,7 +292,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         specs = tuple(EstimatorSpec(entry=e) for e in args.estimator)
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
         reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
-                  force=args.force, estimators=specs)
+                  force=args.force, estimators=specs, backend=args.backend, address=args.address)
         return 0
     if args.command == "demo":
         from testbed.demo import demo

@@ -6,8 +6,10 @@ The `metrics.json` files are aggregated into `OUT/summary.csv` and `OUT/summary.
 std (ddof=1), min, max and count of every numeric score, keyed by its dotted path
 (`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk.
 `OUT/sweep.toml` is the swept scenario (run i: its seed + i). Ctrl-C, SIGTERM or SIGHUP stop every
-worker at once; the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
+worker at once (and so does a Ray task lost for good, testbed.cluster.TaskLost); the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
 "runs_done": k`, no summary.csv) and `testbed sweep ... --resume` finishes the sweep.
+Backends (testbed.workers): a local process pool (default) or Ray tasks (`--backend ray`, on this
+machine or a cluster; testbed.cluster). The runs and the summary are the same bytes either way.
 """
 from __future__ import annotations
 
@@ -22,13 +24,14 @@ import numpy as np
 from tqdm import tqdm
 
 from testbed import scenario as scenario_mod
+from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
 from testbed.errors import RunError
 from testbed.interrupt import Interrupted
 from testbed.outdir import Output, marker, write_json, write_text
 from testbed.runner import run
 from testbed.scenario import Scenario
-from testbed.workers import run_parallel
+from testbed.workers import backend as use_backend, current_backend, run_parallel
 
 
 def _one(args: tuple[dict, int, str]) -> None:
@@ -92,7 +95,7 @@ def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> d
 
 
 def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = None, force: bool = False,
-          resume: bool = False, progress: bool = True) -> dict:
+          resume: bool = False, progress: bool = True, backend: str | None = None, address: str | None = None) -> dict:
     """Run `runs` seeds of `scenario` into `out/run-XXX`, aggregate, return the summary.
 
     `out` follows testbed.outdir. Interrupted (Ctrl-C, SIGTERM, SIGHUP): the workers stop, the
@@ -100,9 +103,15 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
     earlier output, which is then left as it was), and the Interrupted exception says so.
     resume: continue the incomplete sweep at `out` (same scenario), skipping finished runs; the
     final summary is byte-identical to an uninterrupted sweep's.
+    backend, address: "local" or "ray" and the Ray address (testbed.workers.backend); None keeps the
+    caller's choice (a reproduction's). With Ray, `out` must be on a path every node shares, and
+    workers caps the tasks in flight (None: all).
     """
     if runs < 1:
         raise RunError(f"--runs must be at least 1, got {runs}")
+    if backend is not None:
+        with use_backend(backend, address):
+            return sweep(scenario, runs, out, workers=workers, force=force, resume=resume, progress=progress)
     out = Path(out)
     spec = scenario_mod.dumps(scenario)
     with Output(out, kind="sweep", force=force, resume=resume) as o:
@@ -116,19 +125,27 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         todo = [i for i in range(runs) if i not in done]
         jobs = [(table, scenario.seed + i, str(d / f"run-{i:03d}")) for i in todo]
         bar = tqdm(total=runs, initial=len(done), desc=f"sweep {scenario.name}", unit="run", disable=not progress)
-        workers = max(1, min(workers or os.cpu_count() or 1, runs))
+        if current_backend() == "local" or workers:
+            workers = max(1, min(workers or os.cpu_count() or 1, runs))
         try:
             for k, _ in run_parallel(_one, jobs, workers):
+                if not _complete(d / f"run-{todo[k]:03d}"):  # written on another node, not shared
+                    raise RunError(f"{out}: run-{todo[k]:03d} finished but is not visible here; with --backend ray, "
+                                   "--out must be on a file system shared by every node")
                 done.append(todo[k])
                 bar.update()
-        except KeyboardInterrupt as e:
+        except (KeyboardInterrupt, TaskLost) as e:
             bar.close()
+            # runs that completed while the others were being stopped count as well
+            done = [i for i in range(runs) if _complete(d / f"run-{i:03d}")]
             if done and (o.resume or not o.existed):
                 _write_summary(d, scenario, runs, sorted(done))
                 o.commit()
                 kept = f"{len(done)} of {runs} runs kept in {out} (summary.json marked incomplete; continue with --resume)"
             else:
                 kept = f"no run kept; {out} left as it was" if o.existed else "no run finished; nothing kept"
+            if isinstance(e, TaskLost):
+                raise RunError(f"{e}; {kept}") from None
             raise Interrupted(getattr(e, "signum", signal.SIGINT), kept) from None
         bar.close()
         summary = _write_summary(d, scenario, runs, sorted(done))

@@ -4,8 +4,8 @@
   ExtendedKalmanFilter doing the same update (same h, Jacobian, R);
 - visnav: seed 004 CKF and HCKF step (predict + 4-LED update, n = 21) vs filterpy's
   CubatureKalmanFilter and UnscentedKalmanFilter on the same model (bench_visnav);
-- factor_graph: seed 001 centralized solve vs GTSAM for 18, 100 and 1000 UAVs, and distributed
-  rounds to converge (bench_factor_graph).
+- factor_graph: seed 001 centralized solve (and with marginal covariances) vs GTSAM for 18, 100 and
+  1000 UAVs, and the rounds of the distributed schemes, the accelerated one included (bench_factor_graph).
 Timings are the median of repeated calls on one core (single-threaded BLAS).
 """
 from __future__ import annotations
@@ -18,6 +18,7 @@ from filterpy.kalman import CubatureKalmanFilter, ExtendedKalmanFilter, MerweSca
 from estimators import phase_ekf as pe
 from estimators.core import NO_GATE, Gaussian
 from estimators.factor_graph import solve_centralized, solve_distributed
+from estimators.graph.flooding import solve_flooding
 from estimators.gtsam_reference import solve_gtsam as reference
 from estimators.phase_model import antenna_offsets, measurement_model, stack_rows
 from estimators.sigma_filters import ManifoldGaussian, make_filter
@@ -190,43 +191,53 @@ def bench_visnav(repeats: int = 30) -> list[dict]:
 
 
 # ---- seed 001 (coop) --------------------------------------------------------------------------
-def bench_factor_graph(n_list=(18, 100, 1000), seed: int = 0, *, tol: float = 1e-4, max_rounds: int = 3000) -> list[dict]:
+def bench_factor_graph(n_list=(18, 100, 1000), seed: int = 0, *, tol: float = 1e-4, max_rounds: int = 3000,
+                       repeats: int = 3) -> list[dict]:
     """Seed 001, random connected swarms of 18, 100 and 1000 UAVs (testbed.synthetic.coop, density of 18
-    UAVs in 200 x 200 x 100 m, 3 RTK): our centralized Gauss-Newton solve time (median of 3) and with
-    marginal covariances (sparse selected inverse) next to GTSAM's (Gauss-Newton; gtsam.Marginals),
-    their largest position difference, accuracy against the generated positions, and the rounds the
-    distributed message iteration needs (every change < tol m, cap max_rounds): the paper's scheme
-    ("prior", undamped) and the consistent block-Jacobi ("fixed", damping 0.5), with their gap to
-    the centralized solution. Times in seconds; not a test."""
+    UAVs in 200 x 200 x 100 m, 3 RTK): our centralized Gauss-Newton solve (dense Cholesky up to 600
+    unknowns, banded Cholesky after reverse Cuthill-McKee above) and the same with marginal
+    covariances (selected inverse), next to GTSAM's (Gauss-Newton; gtsam.Marginals), timed
+    interleaved (median of `repeats`, one call of each per round, so load changes hit both alike);
+    their largest position difference and accuracy against the generated positions. Distributed:
+    the rounds the paper's scheme ("prior", undamped) and the consistent block-Jacobi ("fixed",
+    damping 0.5) need (every change < tol m, cap max_rounds), and the accelerated option (flooding,
+    estimators.graph.flooding: rounds until every UAV holds the centralized answer, bytes sent), each
+    with its gap to the centralized solution. Times in seconds; not a test."""
     make_epoch = epoch_factory()
     out = []
     for n in n_list:
         truth, prob = make_epoch(n, seed)
         c = solve_centralized(prob, covariance="none")
-        t_ours = _median_time(lambda: solve_centralized(prob, covariance="none"), 3)
-        t0 = time.perf_counter()
-        solve_centralized(prob, covariance="marginal")
-        t_ours_cov = time.perf_counter() - t0
+        t = _interleaved_median_times({
+            "ours": lambda: solve_centralized(prob, covariance="none"),
+            "ours_cov": lambda: solve_centralized(prob, covariance="marginal"),
+            "gtsam": lambda: reference(prob, marginals=False),
+            "gtsam_cov": lambda: reference(prob, marginals=True),
+        }, repeats)
         row = {
             "n": n, "m": prob.m, "mean_degree": 2 * prob.m / n,
-            "ours_solve_s": t_ours, "ours_solve_with_cov_s": t_ours_cov, "ours_iterations": c.iterations,
+            "ours_solve_s": t["ours"], "ours_solve_with_cov_s": t["ours_cov"], "ours_iterations": c.iterations,
+            "gtsam_solve_s": t["gtsam"], "gtsam_solve_with_cov_s": t["gtsam_cov"],
+            "speedup_vs_gtsam": t["gtsam"] / t["ours"], "speedup_with_cov_vs_gtsam": t["gtsam_cov"] / t["ours_cov"],
             "rmse_gnss_m": float(np.sqrt(np.mean(np.sum((prob.gnss_pos - truth) ** 2, 1)))),
             "rmse_centralized_m": float(np.sqrt(np.mean(np.sum((c.positions - truth) ** 2, 1)))),
         }
-        row["gtsam_solve_s"] = _median_time(lambda: reference(prob, marginals=False), 3)
-        t0 = time.perf_counter()
-        Xg, _ = reference(prob, marginals=True)
-        row["gtsam_solve_with_cov_s"] = time.perf_counter() - t0
+        Xg, _ = reference(prob, marginals=False)
         row["max_pos_diff_vs_gtsam_m"] = float(np.abs(Xg - c.positions).max())
-        for model, damping in (("prior", 1.0), ("fixed", 0.5)):
+        runs = {
+            "prior": lambda: solve_distributed(prob, neighbour_model="prior", damping=1.0, max_rounds=max_rounds, tol=tol),
+            "fixed": lambda: solve_distributed(prob, neighbour_model="fixed", damping=0.5, max_rounds=max_rounds, tol=tol),
+            "flooding": lambda: solve_flooding(prob, covariance="none"),
+        }
+        for name, solve in runs.items():
             t0 = time.perf_counter()
-            dres = solve_distributed(prob, neighbour_model=model, damping=damping, max_rounds=max_rounds, tol=tol)
-            row[f"dist_{model}_s"] = time.perf_counter() - t0
-            row[f"dist_{model}_rounds"] = dres.rounds
-            row[f"dist_{model}_converged"] = dres.converged
-            row[f"dist_{model}_bytes"] = dres.bytes_sent
-            row[f"dist_{model}_gap_to_central_m"] = float(np.linalg.norm(dres.positions - c.positions, axis=1).max())
-            row[f"dist_{model}_rmse_m"] = float(np.sqrt(np.mean(np.sum((dres.positions - truth) ** 2, 1))))
+            dres = solve()
+            row[f"dist_{name}_s"] = time.perf_counter() - t0
+            row[f"dist_{name}_rounds"] = dres.rounds
+            row[f"dist_{name}_converged"] = dres.converged
+            row[f"dist_{name}_bytes"] = dres.bytes_sent
+            row[f"dist_{name}_gap_to_central_m"] = float(np.linalg.norm(dres.positions - c.positions, axis=1).max())
+            row[f"dist_{name}_rmse_m"] = float(np.sqrt(np.mean(np.sum((dres.positions - truth) ** 2, 1))))
         out.append(row)
     return out
 

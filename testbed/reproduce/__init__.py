@@ -9,7 +9,8 @@ full precision), `DIR/claims.json` (strict JSON: the reproduction's context and 
 and `DIR/plots/`. Monte Carlo run i uses the scenario's seed + i (testbed.reproduce.runs).
 Every claim carries the test that decided it (testbed.stats; `test` in claims.json). Then
 testbed.reproduce.document writes `DIR/report.md` and the self-contained `DIR/report.html`: the
-command and seeds, the versions, the verdicts with their tests, the figures and the tables.
+command and seeds, the versions, the verdicts with their tests, the figures and the tables. The runs
+go to a local process pool or, with `backend="ray"`, to Ray tasks (testbed.workers, testbed.cluster).
 """
 from __future__ import annotations
 
@@ -19,16 +20,18 @@ from pathlib import Path
 from testbed.errors import UsageError
 from testbed.outdir import Output
 from testbed.reproduce.document import write_report
+from testbed.workers import backend as use_backend
 
 DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20}
 
 
 def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "prescribed",
               duration: float | None = None, workers: int | None = None, force: bool = False,
-              estimators: tuple = ()) -> dict:
+              estimators: tuple = (), backend: str = "local", address: str | None = None) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
 
-    estimators: plugin EstimatorSpecs run beside the paper's (coop only: extra table columns)."""
+    estimators: plugin EstimatorSpecs run beside the paper's (coop only: extra table columns);
+    backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
@@ -36,7 +39,7 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "
         raise UsageError(f"--estimator: reproduce {paper} does not take plugin estimators yet (reproduce coop does)")
     module = importlib.import_module(f"testbed.reproduce.{paper}")
     extra = {"estimators": tuple(estimators)} if estimators else {}
-    with Output(Path(out), kind=f"reproduce-{paper}", force=force) as o:
+    with use_backend(backend, address), Output(Path(out), kind=f"reproduce-{paper}", force=force) as o:
         result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers, **extra)
         write_report(o.path, paper=paper, command=command(paper, out, runs=runs, motion=motion, duration=duration,
                                                           workers=workers, estimators=tuple(estimators)))

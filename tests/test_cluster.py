@@ -1,0 +1,84 @@
+"""Ray backend of sweeps and reproductions: the same bytes as the local process pool, clean stops,
+--resume. A local Ray instance with 2 CPUs (started here, or by the command under test)."""
+import json
+import signal
+import time
+
+import pytest
+import ray
+
+from testbed import scenario
+from testbed import sweep as sweep_mod
+from testbed.cluster import TaskLost
+from testbed.errors import RunError, UsageError
+from testbed.sweep import sweep
+from testbed.workers import backend
+from tests.test_faults import _debris, _start, _testbed, _tmp_dirs, _wait_for
+
+FILES = ["summary.json", "summary.csv", "sweep.toml", *(f"run-{i:03d}/{f}" for i in range(3)
+                                                        for f in ("metrics.json", "log.npz"))]
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+def test_ray_sweep_is_byte_identical_to_the_local_pool(tmp_path, local_ray):
+    sc = scenario.load("bandwidth", duration=1.0, seed=3)
+    by_ray = sweep(sc, 3, tmp_path / "ray", backend="ray", progress=False)
+    local = sweep(sc, 3, tmp_path / "local", workers=2, progress=False)
+    assert by_ray == local and local["tracking_rmse_m.0"]["n"] == 3
+    for f in FILES:
+        assert (tmp_path / "ray" / f).read_bytes() == (tmp_path / "local" / f).read_bytes(), f
+    assert _debris(tmp_path) == []
+
+
+def test_backend_choices_are_checked():
+    with pytest.raises(UsageError, match="--backend 'slurm'"), backend("slurm"):
+        pass
+    with pytest.raises(UsageError, match="--address 'auto' needs --backend ray"), backend("local", "auto"):
+        pass
+
+
+def test_a_task_lost_for_good_keeps_the_finished_runs(tmp_path, monkeypatch):
+    def first_then_lost(fn, jobs, workers):
+        fn(jobs[0])
+        yield 0, None
+        raise TaskLost("Ray lost job 1: NodeDiedError")
+
+    monkeypatch.setattr(sweep_mod, "run_parallel", first_then_lost)
+    sc = scenario.load("bandwidth", duration=0.5, seed=3)
+    with pytest.raises(RunError, match=r"Ray lost job 1: NodeDiedError; 1 of 2 runs kept in .*--resume"):
+        sweep(sc, 2, tmp_path / "sw", progress=False)
+    summary = json.loads((tmp_path / "sw" / "summary.json").read_text())
+    assert summary["incomplete"] is True and summary["runs_done"] == 1 and summary["seeds"] == [3]
+    assert _debris(tmp_path) == []
+
+
+@pytest.mark.slow  # starts Ray twice from the command line, ~2 min on a loaded machine
+def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tmp_path):
+    args = ["sweep", "bandwidth", "--runs", "3", "--duration", "1.0", "--seed", "3", "--backend", "ray"]
+    p = _start(tmp_path, *args, "--out", "sw")
+    _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
+              "a finished run", timeout=240.0)
+    p.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    _, err = p.communicate(timeout=60)
+    assert time.monotonic() - t0 < 30.0
+    assert p.returncode == 130, err
+    done = sorted(d.name for d in (tmp_path / "sw").glob("run-*"))
+    assert 1 <= len(done) <= 3
+    summary = json.loads((tmp_path / "sw" / "summary.json").read_text())
+    if len(done) < 3:
+        assert summary["incomplete"] is True and summary["runs_done"] == len(done)
+    assert _debris(tmp_path) == []
+    q = _testbed(tmp_path, *args, "--out", "sw", "--resume")
+    assert q.returncode == 0, q.stderr
+    r = _testbed(tmp_path, *args[:-2], "--workers", "2", "--out", "whole")
+    assert r.returncode == 0, r.stderr
+    for f in FILES:
+        assert (tmp_path / "sw" / f).read_bytes() == (tmp_path / "whole" / f).read_bytes(), f
+    assert _debris(tmp_path) == []
