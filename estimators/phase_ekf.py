@@ -279,7 +279,7 @@ class PhaseEkf:
 class AnalyzedGaussian(Gaussian):
     """A belief that also carries the ACTUAL error covariance of the filter that produced it.
 
-    actual: (n, n) covariance of this filter's error if the truth had no random acceleration
+    actual: (n, n) covariance of this filter's error if the motion had no random acceleration
     (`PhaseEkfCovarianceAnalysis`); info: the UpdateInfo of the update that produced the belief
     (None after a predict); mean and cov as in core.Gaussian.
     """
@@ -289,10 +289,10 @@ class AnalyzedGaussian(Gaussian):
 
 
 class PhaseEkfCovarianceAnalysis(PhaseEkf):
-    """PhaseEkf that also propagates its actual error covariance for a truth without process noise.
+    """PhaseEkf that also propagates its actual error covariance for a motion without process noise.
 
     Covariance analysis of a suboptimal filter (Gelb 1974, ch. 7): with the filter's own gains K_k
-    and Jacobians H_k, the error of a truth with zero process noise has covariance
+    and Jacobians H_k, the error for a motion with zero process noise has covariance
         P_act,k|k-1 = Phi P_act Phi^T,   P_act,k = (I - K H) P_act,k|k-1 (I - K H)^T + K R K^T.
     The filter's P (with Q = q ...) is >= P_act, so its NEES is low on the eq. 31 truth, whose
     body has no acceleration at all; NEES against P_act is the consistency check that accounts for
