@@ -294,7 +294,7 @@ class PhaseEkfCovarianceAnalysis(PhaseEkf):
     Covariance analysis of a suboptimal filter (Gelb 1974, ch. 7): with the filter's own gains K_k
     and Jacobians H_k, the error for a motion with zero process noise has covariance
         P_act,k|k-1 = Phi P_act Phi^T,   P_act,k = (I - K H) P_act,k|k-1 (I - K H)^T + K R K^T.
-    The filter's P (with Q = q ...) is >= P_act, so its NEES is low on the eq. 31 truth, whose
+    The filter's P (with Q = q ...) is >= P_act, so its NEES is low on the eq. 31 motion, whose
     body has no acceleration at all; NEES against P_act is the consistency check that accounts for
     it. Beliefs are AnalyzedGaussian (start from AnalyzedGaussian(mean, P0, P0)); the filter's own
     mean and cov are exactly PhaseEkf's.
