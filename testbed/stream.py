@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.config import to_dict
 from testbed.scenario import Scenario
 
 _COMMON = ("time", "arrival", "state_index", "value", "clean", "src", "dst")
@@ -70,11 +71,16 @@ def stream_names(log: dict[str, np.ndarray]) -> list[str]:
     return sorted(k.partition("/")[0] for k in log if k.endswith("/value") and k.count("/") == 1)
 
 
+def stream_arrays(name: str, log: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The arrays of stream `name` keyed without the prefix: {"time": ..., "value": ..., ...}."""
+    return {k.partition("/")[2]: v for k, v in log.items() if k.startswith(f"{name}/")}
+
+
 def make_stream(name: str, log: dict[str, np.ndarray], scenario: Scenario) -> Stream:
     """The Stream `name` of a log written for `scenario`; KeyError naming the streams present."""
     if f"{name}/value" not in log:
         raise KeyError(f"no stream {name!r} in this run; streams: {', '.join(stream_names(log)) or 'none'}")
-    arrays = {k.partition("/")[2]: v for k, v in log.items() if k.startswith(f"{name}/")}
+    arrays = stream_arrays(name, log)
     return Stream(
         name=name, **{k: arrays[k] for k in _COMMON},
         sigma=declared_sigma(name, arrays, scenario), nlos=arrays.get("nlos") if name == "uwb" else None,
@@ -82,11 +88,19 @@ def make_stream(name: str, log: dict[str, np.ndarray], scenario: Scenario) -> St
     )
 
 
-def declared_sigma(name: str, arrays: dict[str, np.ndarray], scenario: Scenario) -> np.ndarray | None:
-    """(M, d) 1-sigma white noise of each row as the scenario's [sensors.NAME] table declares it.
+def gnss_sigma(errors: dict) -> np.ndarray:
+    """(3,) m declared (east, north, up) 1-sigma of a GNSS receiver error table (a dict, as
+    `to_dict` or the plugins' Context.sensors give it): white noise and Gauss-Markov bias
+    combined, sqrt(noise^2 + bias^2)."""
+    return np.hypot([errors["noise_h"]] * 2 + [errors["noise_v"]], [errors["bias_h"]] * 2 + [errors["bias_v"]])
 
-    uwb: `noise` (m). gnss: (noise_h, noise_h, noise_v) m of the row's receiver table (rtk or
-    receiver). imu: noise_density / sqrt(dt), dt = 1 / rate_hz, accel then gyro. phase:
+
+def declared_sigma(name: str, arrays: dict[str, np.ndarray], scenario: Scenario) -> np.ndarray | None:
+    """(M, d) 1-sigma of each row as the scenario's [sensors.NAME] table declares it: what a
+    Stream carries and what an estimator plugin is told (testbed.plugins.feed).
+
+    uwb: `noise` (m). gnss: gnss_sigma of the row's receiver table (rtk or receiver), by the fix
+    type the receiver reports. imu: noise_density / sqrt(dt), dt = 1 / rate_hz, accel then gyro. phase:
     phase_noise as a phase (2 pi phase_noise / lambda rad), as a range (m) and, for the eq. 7
     rate, sqrt(2) phase_noise / (rate_periods T) m/s with T = 1 / phase_rate_hz. camera: None.
     """
@@ -98,7 +112,7 @@ def declared_sigma(name: str, arrays: dict[str, np.ndarray], scenario: Scenario)
         return np.full((m, 1), cfg.noise)
     if name == "gnss":
         rtk = arrays["rtk"][:, None]
-        return np.where(rtk, [[cfg.rtk.noise_h] * 2 + [cfg.rtk.noise_v]], [[cfg.receiver.noise_h] * 2 + [cfg.receiver.noise_v]])
+        return np.where(rtk, gnss_sigma(to_dict(cfg.rtk)), gnss_sigma(to_dict(cfg.receiver)))
     if name == "imu":
         root_dt = np.sqrt(1.0 / cfg.rate_hz)
         return np.tile([cfg.accel.noise_density / root_dt] * 3 + [cfg.gyro.noise_density / root_dt] * 3, (m, 1))

@@ -21,7 +21,7 @@ from testbed.config import from_dict
 from testbed.pipelines.coop import epoch_problem, gnss_covariances, solve_epoch
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.feed import gnss_sigma
+from testbed.stream import gnss_sigma
 
 
 class _CoopEpochs:

@@ -12,38 +12,12 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from testbed.config import to_dict
 from testbed.errors import PluginError
 from testbed.plugins.api import Context, Measurement
 from testbed.plugins.collect import Collector, Track
 from testbed.plugins.loading import Plugin
 from testbed.scenario import Scenario
-
-
-def stream_names(log: dict[str, np.ndarray]) -> list[str]:
-    """Streams of the data contract present in a log (those with NAME/arrival), sorted."""
-    return sorted(k[: -len("/arrival")] for k in log if k.endswith("/arrival"))
-
-
-def declared_sigma(scenario: Scenario, name: str, log: dict[str, np.ndarray]) -> np.ndarray | None:
-    """(M, d) declared 1-sigma per row of stream `name`, or None when the stream declares none.
-
-    uwb: the range noise (m); gnss: the receiver class's (east, north, up) white noise and
-    Gauss-Markov bias combined, sqrt(noise^2 + bias^2) (m), by the fix type the receiver reports.
-    """
-    cfg = getattr(scenario.sensors, name, None)
-    rows = log[f"{name}/time"].shape[0]
-    if name == "uwb" and cfg is not None:
-        return np.full((rows, 1), float(cfg.noise))
-    if name == "gnss" and cfg is not None:
-        return np.where(log["gnss/rtk"][:, None], gnss_sigma(to_dict(cfg.rtk)), gnss_sigma(to_dict(cfg.receiver)))
-    return None
-
-
-def gnss_sigma(errors: dict) -> np.ndarray:
-    """(3,) m declared (east, north, up) sigma of a GNSS error table (as Context.sensors holds it):
-    white noise and Gauss-Markov bias combined, sqrt(noise^2 + bias^2)."""
-    return np.hypot([errors["noise_h"]] * 2 + [errors["noise_v"]], [errors["bias_h"]] * 2 + [errors["bias_v"]])
+from testbed.stream import declared_sigma, stream_arrays, stream_names
 
 
 def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement]:
@@ -53,7 +27,7 @@ def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Mea
     for name in names:
         value = np.array(log[f"{name}/value"], dtype=float)
         value.flags.writeable = False
-        sigma = declared_sigma(scenario, name, log)
+        sigma = declared_sigma(name, stream_arrays(name, log), scenario)
         if sigma is not None:
             sigma = np.array(sigma, dtype=float)
             sigma.flags.writeable = False
