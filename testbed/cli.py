@@ -149,14 +149,20 @@ def _load(args: argparse.Namespace):
     return _with_estimators(sc, args.estimator)
 
 
+def _estimator_specs(entries: list[str]) -> tuple:
+    """One [[estimators]] table (EstimatorSpec) per --estimator ENTRY."""
+    from testbed.plugins.spec import EstimatorSpec
+
+    return tuple(EstimatorSpec(entry=e) for e in entries)
+
+
 def _with_estimators(sc, entries: list[str]):
     """The scenario plus one [[estimators]] table per --estimator, every entry loaded (checked) now."""
     import dataclasses
 
     from testbed.plugins.loading import resolve
-    from testbed.plugins.spec import EstimatorSpec
 
-    sc = dataclasses.replace(sc, estimators=sc.estimators + tuple(EstimatorSpec(entry=e) for e in entries))
+    sc = dataclasses.replace(sc, estimators=sc.estimators + _estimator_specs(entries))
     resolve(sc.estimators)  # exit 2 on a bad entry before anything is simulated
     return sc
 
@@ -284,12 +290,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         bench(args.what, args.json, vehicles=args.vehicles)
         return 0
     if args.command == "reproduce":
+        from testbed.plugins.loading import resolve
         from testbed.reproduce import reproduce
 
-        from testbed.plugins.loading import resolve
-        from testbed.plugins.spec import EstimatorSpec
-
-        specs = tuple(EstimatorSpec(entry=e) for e in args.estimator)
+        specs = _estimator_specs(args.estimator)
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
         reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
                   force=args.force, estimators=specs, backend=args.backend, address=args.address)

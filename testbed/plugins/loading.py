@@ -2,8 +2,7 @@
 
 Registered estimators come from the Python entry-point group `testbed.estimators` (a package
 declares `[project.entry-points."testbed.estimators"] name = "module:Class"`). The built-ins are
-declared there in pyproject.toml; `BUILTIN` repeats that table (tests keep the two equal) so a
-checkout whose installed metadata predates an entry still finds them.
+declared there in pyproject.toml (after editing that table, reinstall: `make setup` does).
 
 Everything here runs before a run simulates anything: an entry that cannot be imported or whose
 class lacks the protocol is a UsageError (exit 2), naming the entry and what is wrong.
@@ -24,15 +23,6 @@ from testbed.plugins.spec import EstimatorSpec
 
 GROUP = "testbed.estimators"
 
-# name -> "module:Class"; the same table as [project.entry-points."testbed.estimators"]
-BUILTIN: dict[str, str] = {
-    "coop.gnss_only": "testbed.plugins.builtin_coop:GnssOnly",
-    "coop.one_shot": "testbed.plugins.builtin_coop:OneShot",
-    "coop.iterated": "testbed.plugins.builtin_coop:Iterated",
-    "coop.centralized": "testbed.plugins.builtin_coop:Centralized",
-}
-
-
 @dataclass(frozen=True, slots=True)
 class Plugin:
     """A loaded estimator: key (metrics.json name), entry as given, its class and params."""
@@ -44,10 +34,8 @@ class Plugin:
 
 
 def registered() -> dict[str, str]:
-    """Every registered estimator: {name: "module:Class"}, installed entry points over BUILTIN."""
-    found = dict(BUILTIN)
-    found.update({ep.name: ep.value for ep in entry_points(group=GROUP)})
-    return dict(sorted(found.items()))
+    """Every registered estimator: {name: "module:Class"}, from the installed entry points."""
+    return dict(sorted((ep.name, ep.value) for ep in entry_points(group=GROUP)))
 
 
 def description(cls: type) -> str:
