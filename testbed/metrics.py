@@ -50,17 +50,3 @@ def mean_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
         return m, m, m
     h = float(student_t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
     return m, m - h, m + h
-
-
-def paired_test(a: np.ndarray, b: np.ndarray) -> dict:
-    """Paired comparison of two scores over the same runs: is a < b?
-
-    Returns mean difference a - b, its standard error, t statistic, one-sided p-value of
-    H0: mean(a - b) >= 0 (Student t), and the fraction of runs where a < b.
-    """
-    d = np.asarray(a, float) - np.asarray(b, float)
-    n = d.size
-    se = float(d.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
-    tstat = float(d.mean() / se) if n > 1 and se > 0 else float("nan")
-    p = float(student_t.cdf(tstat, n - 1)) if np.isfinite(tstat) else float("nan")
-    return {"mean_diff": float(d.mean()), "se": se, "t": tstat, "p_one_sided": p, "frac_a_better": float(np.mean(d < 0)), "runs": int(n)}

@@ -16,15 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from estimators.core import chi2_interval, nees
+from testbed.metrics import rmse
 from testbed.plugins.collect import Series, Track, natural
 from testbed.plugins.truth import Truth, errors
 
 UNIT = {"position": "m", "velocity": "m_s", "attitude": "deg"}
 SCALE = {"position": 1.0, "velocity": 1.0, "attitude": float(np.degrees(1.0))}
-
-
-def _rms(e: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum(e**2, axis=-1))))
 
 
 def _axis(e: np.ndarray) -> list[float]:
@@ -34,7 +31,7 @@ def _axis(e: np.ndarray) -> list[float]:
 def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.ndarray]:
     """Scores of one series (see module docstring); returns (dict, NEES of the samples with a cov)."""
     u, k = UNIT[quantity], SCALE[quantity]
-    out = {"samples": int(s.time.size), f"rmse_{u}": _rms(err) * k, f"rmse_axis_{u}": [x * k for x in _axis(err)]}
+    out = {"samples": int(s.time.size), f"rmse_{u}": rmse(err) * k, f"rmse_axis_{u}": [x * k for x in _axis(err)]}
     ne = nees(err[s.has_cov], s.cov[s.has_cov]) if s.has_cov.any() else np.zeros(0)
     if ne.size:
         lo, hi = chi2_interval(3, int(ne.size), 0.95)
@@ -59,7 +56,7 @@ def score(track: Track, truth: Truth) -> tuple[dict, dict]:
         e_all = np.concatenate([r[0] for r in rows])
         ne_all = np.concatenate([r[1] for r in rows])
         out[f"rmse_{q}_mean_{u}"] = float(np.mean([r[2] for r in rows]))
-        out[f"rmse_{q}_{u}"] = _rms(e_all) * k
+        out[f"rmse_{q}_{u}"] = rmse(e_all) * k
         out[f"rmse_{q}_axis_{u}"] = [x * k for x in _axis(e_all)]
         if ne_all.size:
             lo, hi = chi2_interval(3, int(ne_all.size), 0.95)
