@@ -81,12 +81,6 @@ def stack_rows(ranges: np.ndarray, range_rates: np.ndarray) -> np.ndarray:
     return np.concatenate([ranges.reshape(M, 9), range_rates.reshape(M, 9)], axis=1).reshape(-1)
 
 
-def unstack_rows(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of `stack_rows`: (18 M,) -> ranges (M, 3, 3), range rates (M, 3, 3)."""
-    z = np.asarray(z).reshape(-1, 2, 3, 3)
-    return z[:, 0], z[:, 1]
-
-
 def row_label(row: int) -> tuple[int, str, int, int]:
     """(master m, 'range' | 'range_rate', master slot i, follower antenna j), all 0-based, of a row."""
     m, rem = divmod(int(row), ROWS_PER_MASTER)
