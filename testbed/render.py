@@ -42,6 +42,7 @@ the shipped arena the shadow size costs nothing; multisampling roughly halves th
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -58,7 +59,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 from tqdm import tqdm
 
-from testbed.errors import RunError
+from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
 from testbed.workers import worker_init
 
@@ -80,8 +81,9 @@ def _mujoco():
     return mujoco
 
 
-class RenderError(RuntimeError):
-    """Rendering is impossible here (no OpenGL backend) or the run directory cannot be rendered."""
+class RenderError(TestbedError):
+    """Rendering is impossible here (no OpenGL backend) or the run directory cannot be rendered:
+    one line and exit code 2 on the command line."""
 
 
 # ------------------------------------------------------------------------------ backend choice
@@ -587,8 +589,13 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
                     img = painter.frame(float(times[f]), track.lookat[f], float(track.distance[f]), track.azimuth, track.elevation,
                                         _trails(times, pos, f, trail_frames), overlay)
                     writer.append_data(img)
-            finally:
-                writer.close()
+            except BaseException:
+                # interrupted or failed: the partial file is discarded, so a writer that cannot close
+                # cleanly (ffmpeg stopped mid-frame) must not replace the reason we are unwinding
+                with contextlib.suppress(Exception):
+                    writer.close()
+                raise
+            writer.close()
     finally:
         painter.close()
     return out
