@@ -37,10 +37,6 @@ PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 def _exit_on_sigterm(signum: int, frame: object) -> None:
-    if not threading.main_thread().is_alive():
-        # the worker is already shutting down (atexit callbacks run after the main thread stopped):
-        # nothing of ours is left to clean, and raising here would print "Exception ignored" traces
-        os._exit(128 + signum)
     raise SystemExit(128 + signum)
 
 
@@ -110,9 +106,6 @@ def run_parallel(fn: Callable, jobs: Sequence, workers: int | None) -> Iterator[
         for i, job in enumerate(jobs):
             yield i, fn(job)
         return
-    # the pool's resource tracker (started now) inherits this: a worker terminated while holding one
-    # of the pool's semaphores makes it warn at exit that it cleans them up, which is expected here
-    os.environ.setdefault("PYTHONWARNINGS", "ignore::UserWarning:multiprocessing.resource_tracker")
     pool = mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=worker_init, initargs=(os.getpid(),))
     try:
         yield from pool.imap_unordered(functools.partial(_indexed, fn), enumerate(jobs))
