@@ -89,6 +89,9 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
         log["ctrl"] = ctrl
     for s in sensors:
         log.update(s.arrays())
+        held = getattr(s, "held_arrays", None)  # per logged instant, held between samples (gnss fix state)
+        if held is not None:
+            log.update(held(K))
     return log, physics
 
 

@@ -100,7 +100,8 @@ def declared_sigma(name: str, arrays: dict[str, np.ndarray], scenario: Scenario)
     Stream carries and what an estimator plugin is told (testbed.plugins.feed).
 
     uwb: `noise` (m). gnss: gnss_sigma of the row's receiver table (rtk or receiver), by the fix
-    type the receiver reports. imu: noise_density / sqrt(dt), dt = 1 / rate_hz, accel then gyro. phase:
+    type the receiver reports; with [sensors.gnss.sky] the logged `gnss/sigma`, that sigma scaled
+    by the DOP of the row's visible satellites (testbed.sensors.gnss). imu: noise_density / sqrt(dt), dt = 1 / rate_hz, accel then gyro. phase:
     phase_noise as a phase (2 pi phase_noise / lambda rad), as a range (m) and, for the eq. 7
     rate, sqrt(2) phase_noise / (rate_periods T) m/s with T = 1 / phase_rate_hz. camera: None.
     """
@@ -111,6 +112,8 @@ def declared_sigma(name: str, arrays: dict[str, np.ndarray], scenario: Scenario)
     if name == "uwb":
         return np.full((m, 1), cfg.noise)
     if name == "gnss":
+        if "sigma" in arrays:  # sky visibility: the DOP-scaled sigma of each row, as logged
+            return arrays["sigma"]
         rtk = arrays["rtk"][:, None]
         return np.where(rtk, gnss_sigma(to_dict(cfg.rtk)), gnss_sigma(to_dict(cfg.receiver)))
     if name == "imu":

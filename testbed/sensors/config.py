@@ -221,13 +221,51 @@ class GnssErrors:
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
+class SkyConfig:
+    """[sensors.gnss.sky]: GNSS availability and accuracy by sky visibility (testbed.sensors.sky).
+
+    enabled: off by default (the receivers then always have a fix with the tables' sigmas).
+    satellites: constellation size, all above elevation_mask_deg at t = 0 (deg). Each satellite
+    moves along a great circle of the sky at rate_deg_s (deg/s; 0.0083 deg/s = 30 deg/h, the
+    apparent motion of a GPS satellite); it is used only above the mask. Drawn from the stream
+    "constellation". A satellite is blocked when the ray from the antenna towards it meets a geom
+    of `groups` (0: obstacles and floor; 3 adds the other airframes) within ray_length (m).
+    Accuracy: the receiver tables' noise and bias hold at the reference geometry hdop_ref,
+    vdop_ref; a fix of the visible set scales them by HDOP / hdop_ref (east, north) and
+    VDOP / vdop_ref (up). Fewer than min_satellites visible (4: three position coordinates and
+    the clock) means no fix: no row.
+    """
+
+    enabled: bool = False
+    satellites: int = 10
+    elevation_mask_deg: float = 10.0
+    rate_deg_s: float = 0.0083
+    hdop_ref: float = 1.0
+    vdop_ref: float = 1.5
+    groups: tuple[int, ...] = (0,)
+    ray_length: float = 1000.0
+    min_satellites: int = 4
+
+    def __post_init__(self) -> None:
+        in_range(self, "satellites", 1, 64)
+        in_range(self, "elevation_mask_deg", 0, 90, hi_open=True, unit="deg")
+        in_range(self, "rate_deg_s", 0, 1, unit="deg/s")
+        in_range(self, "hdop_ref", 0, lo_open=True)
+        in_range(self, "vdop_ref", 0, lo_open=True)
+        require(all(0 <= g <= 5 for g in self.groups), "groups", self.groups, f"geom groups are 0..5, got {list(self.groups)}")
+        in_range(self, "ray_length", 0, lo_open=True, unit="m")
+        in_range(self, "min_satellites", 4)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class GnssConfig:
     """[sensors.gnss]: position of each vehicle's antenna in the world (ENU) frame.
 
     antenna: "uwb" (the uwb site on the mast, default) or "body" (the body origin / CoM).
     vehicles: 1-based numbers with a receiver (empty = all). rtk_vehicles: those using the `rtk`
     error table (empty: the swarm-box trajectory's `rtk` list if any). receiver / rtk: error
-    tables [sensors.gnss.receiver], [sensors.gnss.rtk].
+    tables [sensors.gnss.receiver], [sensors.gnss.rtk]. sky: visibility of a seeded
+    constellation, DOP-scaled accuracy and no fix under cover ([sensors.gnss.sky], off by default).
     """
 
     rate_hz: float = 5.0
@@ -237,6 +275,7 @@ class GnssConfig:
     rtk_vehicles: tuple[int, ...] = ()
     receiver: GnssErrors = field(default_factory=lambda: GnssErrors(preset="spp"))
     rtk: GnssErrors = field(default_factory=lambda: GnssErrors(preset="rtk"))
+    sky: SkyConfig = field(default_factory=SkyConfig)
 
     def __post_init__(self) -> None:
         _check_rate(self)

@@ -36,7 +36,8 @@ def make_sensors(scenario: Scenario, physics: Physics) -> list[Sensor]:
         out.append(Phase(cfg.phase, physics, stream_rng(seed, "phase"), ticks(cfg.phase.phase_rate_hz), tick))
     if cfg.gnss is not None:
         rtk = scenario.trajectory.rtk if isinstance(scenario.trajectory, (SwarmBox, SwarmGrid)) else ()
-        out.append(Gnss(cfg.gnss, physics, stream_rng(seed, "gnss"), ticks(cfg.gnss.rate_hz), tick, rtk))
+        out.append(Gnss(cfg.gnss, physics, stream_rng(seed, "gnss"), ticks(cfg.gnss.rate_hz), tick, rtk,
+                        stream_rng(seed, "constellation")))
     if cfg.camera is not None:
         out.append(Camera(cfg.camera, physics, stream_rng(seed, "camera"), ticks(cfg.camera.rate_hz)))
     return out
