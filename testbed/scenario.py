@@ -20,6 +20,7 @@ import tomli_w
 
 from testbed.config import from_dict, in_range, key, require, set_dotted, to_dict, whole_ratio
 from testbed.errors import ConfigError
+from testbed.network_config import NetworkConfig
 from testbed.pipelines.config import PipelineConfig
 from testbed.plugins.spec import EstimatorSpec
 from testbed.sensors.config import SensorsConfig
@@ -378,6 +379,7 @@ class Scenario:
     trajectory: Trajectory
     disturbance: Disturbance = field(default_factory=Disturbance)
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
+    network: NetworkConfig | None = None  # [network]: the links between vehicles; none = ideal
     pipeline: PipelineConfig | None = None
     estimators: tuple[EstimatorSpec, ...] = ()  # plugin estimators scored beside the pipeline
 

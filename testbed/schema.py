@@ -21,6 +21,7 @@ import types
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 from testbed import config
+from testbed.network_config import NetworkConfig
 from testbed.scenario import Scenario, builtin_names, load
 
 HEADER = """# Scenario keys
@@ -43,6 +44,7 @@ def declared_ranges() -> dict[tuple[type, str], tuple]:
     try:
         for name in builtin_names():
             load(name)
+        NetworkConfig()  # optional tables no built-in scenario sets
         return config.RANGES
     finally:
         config.RANGES = None

@@ -1,0 +1,156 @@
+"""The network model (issue 18 part 2): loss against its stated probability (Clopper-Pearson),
+Gilbert-Elliott stationary loss and burst length against theory, latency percentiles, range limit,
+bandwidth budget, per-link seeding, the [network] table at the boundary.
+
+Tolerances are derived from the sample sizes: K_SIGMA standard errors, or a 99.9 % exact
+binomial interval."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from testbed.config import from_dict
+from testbed.errors import ConfigError
+from testbed.network import Network, NetworkConfig, stationary_loss
+from testbed.rng import stream_rng
+from testbed.stats import clopper_pearson
+
+K_SIGMA = 5.0
+LEVEL = 0.999
+
+
+def net(n: int = 2, **cfg) -> Network:
+    return Network(NetworkConfig(**cfg), n, stream_rng(7, "network"))
+
+
+def outcomes(network: Network, m: int, src: int = 0, dst: int = 1, dt: float = 0.01) -> np.ndarray:
+    """(m,) bool delivered, m messages src -> dst every dt seconds."""
+    return np.array([network.send(k * dt, src, dst, 10, k) for k in range(m)])
+
+
+def test_ideal_network_delivers_everything_at_once():
+    nw = Network(None, 3, stream_rng(0, "network"))
+    assert nw.broadcast(1.0, 0, 72, "x") == 2
+    got = nw.receive(1.0, 2)
+    assert [(m.src, m.dst, m.sent, m.arrival, m.payload) for m in got] == [(0, 2, 1.0, 1.0, "x")]
+    s = nw.stats()
+    assert s["sent"] == 2 and s["dropped"] == 0 and s["latency_max_s"] == 0.0
+
+
+def test_independent_drop_fraction_is_inside_the_binomial_interval():
+    p, m = 0.2, 4000
+    ok = outcomes(net(loss_prob=p), m)
+    ci = clopper_pearson(int((~ok).sum()), m, level=LEVEL, sided="two-sided").interval
+    assert ci[0] <= p <= ci[1], ci
+    assert stationary_loss(NetworkConfig(loss_prob=p)) == pytest.approx(p)
+
+
+def _runs(lost: np.ndarray) -> np.ndarray:
+    """Lengths of the runs of consecutive True."""
+    x = np.concatenate([[0], lost.astype(int), [0]])
+    d = np.diff(x)
+    return np.flatnonzero(d == -1) - np.flatnonzero(d == 1)
+
+
+def test_gilbert_elliott_stationary_loss_and_burst_length_match_theory():
+    p, r, m = 0.05, 0.25, 40000
+    ok = outcomes(net(ge_p=p, ge_r=r), m)
+    lost = ~ok
+    pi_b = p / (p + r)  # stationary probability of the bad state = loss (bad loses all, good none)
+    assert stationary_loss(NetworkConfig(ge_p=p, ge_r=r)) == pytest.approx(pi_b)
+    # variance of the mean of a two-state chain: pi (1 - pi) / m * (1 + lam) / (1 - lam), lam = 1 - p - r
+    lam = 1 - p - r
+    se = math.sqrt(pi_b * (1 - pi_b) / m * (1 + lam) / (1 - lam))
+    assert abs(lost.mean() - pi_b) < K_SIGMA * se, (lost.mean(), pi_b, se)
+    # bursts: geometric with mean 1 / r and variance (1 - r) / r^2
+    bursts = _runs(lost)
+    se_b = math.sqrt((1 - r) / r**2 / len(bursts))
+    assert abs(bursts.mean() - 1 / r) < K_SIGMA * se_b, (bursts.mean(), 1 / r, se_b)
+    # independent losses have bursts of mean 1 / (1 - q) at the same loss rate: clearly shorter
+    iid = _runs(~outcomes(net(loss_prob=pi_b), m))
+    assert iid.mean() < 1 / (1 - pi_b) + K_SIGMA * math.sqrt(pi_b / (1 - pi_b) ** 2 / len(iid)) < bursts.mean()
+
+
+def _quantile_se(q: float, m: int, density: float) -> float:
+    """Standard error of the sample q-quantile of m draws with density `density` there."""
+    return math.sqrt(q * (1 - q) / m) / density
+
+
+@pytest.mark.parametrize("model", ["normal", "lognormal"])
+def test_latency_percentiles_as_configured(model):
+    base, jit, shape, m = 0.05, 0.005, 0.5, 5000
+    nw = net(latency=base, jitter=jit, jitter_model=model, jitter_shape=shape)
+    assert outcomes(nw, m).all()
+    s = nw.stats()
+    for q, key in ((0.5, "latency_p50_s"), (0.95, "latency_p95_s")):
+        z = norm.ppf(q)
+        if model == "normal":
+            want, dens = base + jit * z, norm.pdf(z) / jit
+        else:  # base + jit exp(shape z): the quantile maps through the monotone transform
+            want = base + jit * math.exp(shape * z)
+            dens = norm.pdf(z) / (jit * shape * math.exp(shape * z))
+        assert abs(s[key] - want) < K_SIGMA * _quantile_se(q, m, dens), (key, s[key], want)
+    assert s["latency_max_s"] >= s["latency_p95_s"] >= s["latency_p50_s"] > 0
+
+
+def test_receive_hands_over_in_arrival_order_only_what_has_arrived():
+    nw = net(latency=0.1, jitter=0.05)
+    for k in range(50):
+        nw.send(0.0, 0, 1, 10, k)
+    early = nw.receive(0.1, 1)
+    late = nw.receive(10.0, 1)
+    arr = [m.arrival for m in early + late]
+    assert arr == sorted(arr) and all(a <= 0.1 for a in arr[: len(early)]) and all(m.arrival > 0.1 for m in late)
+    assert len(early) + len(late) == 50 and nw.receive(20.0, 1) == []
+    assert nw.stats()["delivered"] == 50 and nw.stats()["in_flight"] == 0
+
+
+def test_range_limit_and_nlos_loss():
+    nw = net(n=3, max_range=100.0, nlos_loss=1.0)
+    nw.set_geometry(0.0, np.array([[0.0, 0, 0], [60.0, 0, 0], [150.0, 0, 0]]))
+    arrival = nw.multicast(0.0, 0, np.array([1, 2]), 10, None)
+    assert np.isfinite(arrival[0]) and np.isinf(arrival[1]) and nw.stats()["dropped_range"] == 1
+    los = np.ones((3, 3), bool)
+    los[0, 1] = False
+    nw.set_geometry(1.0, np.array([[0.0, 0, 0], [60.0, 0, 0], [50.0, 0, 0]]), los)
+    assert nw.broadcast(1.0, 0, 10, None) == 1  # 0 -> 1 blocked (NLOS, lost surely), 0 -> 2 clear
+    assert nw.stats()["dropped_loss"] == 1
+
+
+@pytest.mark.parametrize("side", ["send", "receive"])
+def test_bandwidth_budget_is_respected(side):
+    rate, size, dt, T = 1000.0, 100, 0.01, 10.0  # 10 kB/s offered against 1 kB/s
+    nw = net(n=3, bandwidth=rate, budget_on=side)
+    for k in range(int(T / dt)):
+        nw.broadcast(k * dt, 0, size, k)
+    s = nw.stats()
+    got = s["queued"] / 2 * size  # bytes paid by each paying bucket (the sender's, or each receiver's)
+    span = (int(T / dt) - 1) * dt  # first to last message, s
+    # a token bucket (full at the start, depth = 1 s of rate) never passes more than depth +
+    # rate span, and a saturated one passes all but less than one message of it
+    assert rate * span + rate - size < got <= rate * span + rate, got
+    if side == "send":
+        assert s["queued"] % 2 == 0  # a broadcast is paid once and reaches both or none
+    assert s["dropped_budget"] == s["sent"] - s["queued"]
+
+
+def test_links_are_seeded_independently():
+    a = outcomes(net(n=3, loss_prob=0.3), 500)
+    nw = net(n=3, loss_prob=0.3)
+    b = []
+    for k in range(500):  # the same link, with traffic on another link in between
+        nw.send(k * 0.01, 0, 2, 10, None)
+        b.append(nw.send(k * 0.01, 0, 1, 10, None))
+    assert np.array_equal(a, b)
+
+
+def test_network_table_is_checked_at_the_boundary():
+    with pytest.raises(ConfigError, match=r"f.toml.*network.loss_prob.*1.5"):
+        from_dict(NetworkConfig, {"loss_prob": 1.5}, "f.toml", "network")
+    with pytest.raises(ConfigError, match=r"network.jitter_model"):
+        from_dict(NetworkConfig, {"jitter_model": "pareto"}, "f.toml", "network")
+    with pytest.raises(ConfigError, match=r"network.burst_bytes"):
+        from_dict(NetworkConfig, {"burst_bytes": 10.0}, "f.toml", "network")
