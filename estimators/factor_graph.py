@@ -55,6 +55,7 @@ from estimators.graph.banded import factor_banded, selected_inverse_diag
 from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd, narrow_band
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
+from estimators.transport import Transport
 
 __all__ = [
     "CoopProblem",
@@ -744,6 +745,7 @@ def solve_distributed(
     damping: float = 1.0,
     x0: np.ndarray | None = None,
     cov0: np.ndarray | None = None,
+    transport: Transport | None = None,
 ) -> DistributedResult:
     """The paper's distributed message iteration (section 2.3.2, Table 1), synchronous rounds.
 
@@ -759,6 +761,9 @@ def solve_distributed(
     silent_from: {uav: round} - the UAV stops broadcasting from that round on (0 = never sends);
     it keeps receiving and computing.
     loss_prob: probability that one directed delivery is lost, drawn with `rng` (required if > 0).
+    transport: the channel of the broadcasts (estimators.transport.Transport; None = ideal): each
+    round, the directed messages still alive after silence and loss_prob go through
+    transport.deliver(round, src, dst, MESSAGE_BYTES), and only those it delivers are used.
     max_age: receivers drop a neighbour's message (and the range factor) once it is older than
     max_age rounds; None keeps the last message forever.
     local_solver: "schur" (vectorized closed form) or "qr" (per-UAV literal QR, eqs. 17-19; only
@@ -831,6 +836,9 @@ def solve_distributed(
         ok = sending[src]
         if loss_prob > 0.0:
             ok &= rng.random(2 * m) >= loss_prob
+        if transport is not None:
+            alive = np.flatnonzero(ok)
+            ok[alive] = transport.deliver(rnd, src[alive], dst[alive], MESSAGE_BYTES)
         deliveries += int(ok.sum())
         tab_pos[ok] = X[src[ok]]
         tab_cov[ok] = P[src[ok]]

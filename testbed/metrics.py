@@ -50,3 +50,21 @@ def mean_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
         return m, m, m
     h = float(student_t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
     return m, m - h, m + h
+
+
+def network_summary(stats: dict[str, float], **extra: float) -> dict:
+    """The `network` object of metrics.json from testbed.network.Network.stats() (and extra counts
+    such as `late`): counts and bytes as integers, latencies in s; strict JSON: a latency or a
+    fraction that cannot exist (nothing was sent or queued) is null with the reason beside it."""
+    out: dict = {}
+    why = {}
+    for k, v in {**stats, **extra}.items():
+        if k.startswith("latency_") or k == "drop_fraction":
+            out[k] = None if np.isnan(v) else float(v)
+            if out[k] is None:
+                why[k] = "no message was sent" if k == "drop_fraction" else "no message was queued"
+        else:
+            out[k] = int(v)
+    if why:
+        out["null_reasons"] = why
+    return out

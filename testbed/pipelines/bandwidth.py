@@ -29,6 +29,16 @@ probability per step (stream "links"); `fail_node` (1-based, 0 = none) stops sen
 `fail_time` s. A lost component is compensated by the receiver's own prediction (eq. 6 with that
 T entry 0) and M follows the realised loss pattern.
 
+Network ([network] set; testbed.network, docs/network.md): at every step k each directed
+message j -> i of the delivered design (after the faults above) is sent at t_k through a network
+of N nodes (stream "network") with its size, 8 bytes per selected component; it is used at step
+k only if it arrives by t_k + dt, else its components are compensated as a loss. The channel's
+geometry is the vehicles' true positions at t_k (all LOS). The paper's budget t_i is one instance
+of the network's: budget_on = "receive", bandwidth = 8 t_i / dt bytes/s, burst_bytes = 8 t_i
+passes exactly the designs that respect t_i (every node receives 8 t_i bytes at each step and the
+bucket refills that much per step); a smaller bandwidth drops what does not fit. metrics.json
+then has `network` (messages sent / dropped / bytes, latency percentiles).
+
 Truth (scoring only): x_true(t_k) = mean_i (truth/pos_i(t_k) - d_i), d_i the scenario's vehicle
 offsets; prescribed: exactly start + velocity t.
 """
@@ -40,6 +50,7 @@ from estimators import bandwidth as bw
 from estimators.bandwidth import BYTES_PER_COMPONENT, uwb_pseudo_measurement
 from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
+from testbed.network import Network
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 from testbed.rng import stream_rng
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
@@ -180,18 +191,24 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     faults = bw.LinkFaults(drop_prob=cfg.drop_prob, failed=failed) if (cfg.drop_prob > 0 or failed) else None
     rng_links = stream_rng(scenario.seed, "links")
 
-    if batch and faults is not None:
-        raise ValueError("estimate: batched runs cannot use link faults (per-run generators)")
+    if batch and (faults is not None or scenario.network is not None):
+        raise ValueError("estimate: batched runs cannot use link faults or a [network] (per-run generators)")
     x_init = meas["x_init"]
     prior = bw.FusionState(xhat=np.broadcast_to(x_init[..., None, :], batch + (N_NODES, n)).copy(),
                            M=np.broadcast_to(M0, batch + (N_NODES, n, n)).copy())
     C = (np.eye(n),) * N_NODES
     # what actually arrives at each step: the nominal design with this step's dropped messages
     delivered = []
+    t = meas["t"]
+    network = None if scenario.network is None else Network(scenario.network, N_NODES, stream_rng(scenario.seed, "network"))
     for k in range(K):
         Sn, Pk = net.at(k)
-        delivered.append((faults.effective(Sn, k, rng_links, 1)[0] if faults is not None else Sn, Pk))
-    t = meas["t"]
+        Se = faults.effective(Sn, k, rng_links, 1)[0] if faults is not None else Sn
+        if network is not None:
+            if log is not None:  # the physical channel: true positions at t_k (no log: no range limit)
+                network.set_geometry(t[k], log["truth/pos"][np.searchsorted(log["time"], t[k] - 1e-9)])
+            Se = through_network(network, Se, float(t[k]), cfg.dt)
+        delivered.append((Se, Pk))
     # V_i(k) of each run (batched V broadcasts through eqs. 15 and 18)
     epochs = [Epoch(float(t[k]), bw.NodeMeasurements(y=tuple(y[k][..., i, :] for i in range(N_NODES)),
                                                      V=tuple(V[k][..., i, :, :] for i in range(N_NODES)),
@@ -205,7 +222,24 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     ax = len(batch)
     xh = [b.xhat for b in track.beliefs]
     Ms = [b.M for b in track.beliefs]
-    return dict(meas, xhat=np.stack(xh, ax), M=np.stack(Ms, ax), comm=comm, S=S, P=P, W=W, health=track.health())
+    out = dict(meas, xhat=np.stack(xh, ax), M=np.stack(Ms, ax), comm=comm, S=S, P=P, W=W, health=track.health())
+    if network is not None:
+        out["network"] = network.stats()
+    return out
+
+
+def through_network(network: Network, S: np.ndarray, t: float, dt: float) -> np.ndarray:
+    """Masks (N, N, n) of what arrives in time: each directed message j -> i of design S sent at
+    t (s), BYTES_PER_COMPONENT per selected component, kept only if it arrives by t + dt."""
+    comps = bw.link_components(S)
+    Se = S.copy()
+    for j, i in zip(*np.nonzero(comps)):
+        arrival = network.multicast(t, int(j), np.array([i]), int(BYTES_PER_COMPONENT * comps[j, i]), None)[0]
+        if not arrival <= t + dt:
+            Se[j, i] = 0.0
+    for i in range(len(S)):
+        network.receive(t + dt, i)
+    return Se
 
 
 def scores(est: dict) -> dict:
@@ -227,7 +261,7 @@ def scores(est: dict) -> dict:
     comm = est["comm"]
     mean_bytes = comm.bytes.mean(0) if comm.components.size else np.zeros((N_NODES, N_NODES))
     avail = est["available"]
-    return {
+    out = {
         "measurements_used": int(avail.sum()),
         "measurement_epochs_missing": int((~avail).sum()),
         "steps": int(est["K"]),
@@ -247,6 +281,11 @@ def scores(est: dict) -> dict:
         "within_budget": comm.within_budget(),
         **est["health"],
     }
+    if "network" in est:
+        from testbed.metrics import network_summary  # lazy: scipy.stats, only with a [network]
+
+        out["network"] = network_summary(est["network"])
+    return out
 
 
 def run(scenario, log, plots_dir):

@@ -32,10 +32,18 @@ Faults (item 7): `silent_uav` stops broadcasting from `silent_from_s` on (it sti
 computes and ranges); each directed delivery is lost with probability `message_loss`, drawn from
 `stream_rng(seed, "links")`; receivers keep a neighbour's last message for `max_age` rounds
 (-1 = for the whole epoch). Tables start empty at every epoch.
+Network ([network] set; testbed.network, docs/network.md): the broadcasts of one_shot and
+iterated go through a network of their own (streams "network/one_shot", "network/iterated"),
+round r of the epoch at t_k starting at t_k + r round_s; a message is used in its round only if
+it arrives within the round (testbed.network.RoundTransport). The channel uses the physical
+geometry of the epoch: the uwb sites' positions (`gnss/clean`) for the range limit and the
+epoch's ranged pairs' `uwb/nlos` for NLOS (pairs not ranged count as LOS). metrics.json then
+has `network` (messages sent / dropped / bytes, latency percentiles, late) under each of the two.
+Without [network] nothing changes (ideal channel).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +51,7 @@ import numpy as np
 from estimators.core import nees
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
 from testbed.errors import ConfigError
+from testbed.network import Network, NetworkConfig, RoundTransport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.rng import stream_rng
 from testbed.sensors.noise import twr_range_variance
@@ -127,7 +136,8 @@ class CoopEstimates:
 
     pos, cov: {name: (K, N, 3) m ENU, (K, N, 3, 3) m^2}; rounds, messages, bytes: {name: (K,)};
     converged: {name: (K,) bool}; joint_nees: (K,) centralized NEES of all 3N coordinates with
-    the full covariance (3N dof); epochs: the input.
+    the full covariance (3N dof); epochs: the input; network: {name: Network.stats() plus `late`}
+    of the estimators whose messages went through [network] (empty without it).
     """
 
     epochs: Epochs
@@ -138,6 +148,7 @@ class CoopEstimates:
     bytes: dict
     converged: dict
     joint_nees: np.ndarray
+    network: dict = field(default_factory=dict)
 
 
 def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
@@ -161,11 +172,13 @@ def epoch_problem(cfg: CoopPipelineConfig, gnss: np.ndarray, gnss_cov: np.ndarra
     return CoopProblem(gnss_pos=gnss, gnss_cov=gnss_cov, edges=edges, ranges=ranges, range_sigma=range_sigmas(cfg, ranges))
 
 
-def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rng: np.random.Generator):
+def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rng: np.random.Generator,
+                transport: RoundTransport | None = None):
     """Estimator `w` on one epoch at time t (s): (result, rounds, converged, messages, bytes).
 
     result has positions (N, 3), cov (N, 3, 3) and, for "centralized", cov_full (3N, 3N); rng: the
-    message-loss draws (used only when cfg.message_loss > 0 and w is a distributed variant)."""
+    message-loss draws (used only when cfg.message_loss > 0 and w is a distributed variant);
+    transport: the channel of a distributed variant's broadcasts (None: ideal)."""
     n = prob.gnss_pos.shape[0]
     huber = cfg.huber_delta if cfg.robust == "huber" else None
     if w == "centralized":
@@ -179,12 +192,25 @@ def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rn
     res = solve_distributed(prob, mode=mode, neighbour_model=cfg.neighbour_model, max_rounds=cfg.max_rounds,
                             tol=cfg.tol, huber=huber, silent_from=silent, loss_prob=loss,
                             rng=rng if loss > 0 else None, max_age=None if cfg.max_age < 0 else cfg.max_age,
-                            damping=cfg.damping)
+                            damping=cfg.damping, transport=transport)
     return res, res.rounds, res.converged, res.messages, res.bytes_sent
 
 
-def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS) -> CoopEstimates:
-    """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss stream)."""
+NETWORKED = ("one_shot", "iterated")  # the estimators whose messages travel over [network]
+
+
+def epoch_los(epochs: Epochs, k: int, n: int) -> np.ndarray:
+    """(n, n) bool line of sight at epoch k: False for the pairs ranged NLOS, True otherwise."""
+    los = np.ones((n, n), bool)
+    e = epochs.edges[k][epochs.nlos[k]]
+    los[e[:, 0], e[:, 1]] = los[e[:, 1], e[:, 0]] = False
+    return los
+
+
+def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMATORS,
+             network: NetworkConfig | None = None) -> CoopEstimates:
+    """Run the estimators `which` on every epoch. seed: the scenario seed (message-loss and
+    network streams); network: the scenario's [network] (None: ideal, module docstring)."""
 
     K, n = epochs.gnss.shape[:2]
     rng = stream_rng(seed, "links")
@@ -196,14 +222,23 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
     nbytes = {w: np.zeros(K, dtype=np.int64) for w in which}
     conv = {w: np.ones(K, dtype=bool) for w in which}
     joint = np.full(K, np.nan)
+    nets = {} if network is None else {w: Network(network, n, stream_rng(seed, f"network/{w}")) for w in which if w in NETWORKED}
+    late = dict.fromkeys(nets, 0)
     for k in range(K):
         prob = epoch_problem(cfg, epochs.gnss[k], Sg, epochs.edges[k], epochs.ranges[k])
         for w in which:
-            res, rounds[w][k], conv[w][k], messages[w][k], nbytes[w][k] = solve_epoch(cfg, w, prob, epochs.time[k], rng)
+            transport = None
+            if w in nets:
+                nets[w].set_geometry(epochs.time[k], epochs.truth[k], epoch_los(epochs, k, n))
+                transport = RoundTransport(nets[w], epochs.time[k], network.round_s)
+            res, rounds[w][k], conv[w][k], messages[w][k], nbytes[w][k] = solve_epoch(cfg, w, prob, epochs.time[k], rng, transport)
+            if transport is not None:
+                late[w] += transport.late
             pos[w][k], cov[w][k] = res.positions, res.cov
             if w == "centralized":
                 joint[k] = float(nees((res.positions - epochs.truth[k]).reshape(-1), res.cov_full))
-    return CoopEstimates(epochs, pos, cov, rounds, messages, nbytes, conv, joint)
+    stats = {w: {**nw.stats(), "late": float(late[w])} for w, nw in nets.items()}
+    return CoopEstimates(epochs, pos, cov, rounds, messages, nbytes, conv, joint, stats)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -212,7 +247,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
 def score(est: CoopEstimates) -> dict:
     """The `estimators` object of metrics.json (see the module docstring for the keys)."""
     # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
-    from testbed.metrics import anees, anees_interval, rmse
+    from testbed.metrics import anees, anees_interval, network_summary, rmse
 
     ep = est.epochs
     K, n = ep.gnss.shape[:2]
@@ -245,6 +280,8 @@ def score(est: CoopEstimates) -> dict:
                for k, u in (("rmse_position", "_mean_m"), ("anees", ""))}
         if why:
             s["null_reasons"] = why
+        if w in est.network:
+            s["network"] = network_summary(est.network[w])
         if w == "centralized":
             jlo, jhi = anees_interval(3 * n, K)
             s["anees_joint"] = float(np.mean(est.joint_nees))
@@ -332,7 +369,7 @@ def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Pa
 def run(scenario, log, plots_dir):
     """Pipeline entry: (scenario, run log, plots dir or None) -> metrics.json `estimators`."""
     ep = epochs_from_log(log, scenario.vehicles)
-    est = estimate(scenario.pipeline, ep, scenario.seed)
+    est = estimate(scenario.pipeline, ep, scenario.seed, network=scenario.network)
     scores = score(est)
     uavs = list(scenario.pipeline.plot_uavs) or choose_four(ep)
     if plots_dir is not None:
