@@ -7,16 +7,23 @@ binomial interval."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.stats import norm
 
+from estimators.factor_graph import MESSAGE_BYTES, solve_distributed
 from testbed.config import from_dict
 from testbed.errors import ConfigError
 from testbed.network import Network, NetworkConfig, stationary_loss
+from testbed.pipelines import bandwidth as pb
+from testbed.pipelines import coop
 from testbed.rng import stream_rng
+from testbed.scenario import load
+from testbed.simulate import simulate
 from testbed.stats import clopper_pearson
+from testbed.synthetic.coop import make_epoch
 
 K_SIGMA = 5.0
 LEVEL = 0.999
@@ -154,3 +161,56 @@ def test_network_table_is_checked_at_the_boundary():
         from_dict(NetworkConfig, {"jitter_model": "pareto"}, "f.toml", "network")
     with pytest.raises(ConfigError, match=r"network.burst_bytes"):
         from_dict(NetworkConfig, {"burst_bytes": 10.0}, "f.toml", "network")
+
+
+# ------------------------------------------------------------------- the estimators over it
+class _Stub:
+    """A transport that delivers everything or nothing, counting its calls."""
+
+    def __init__(self, deliver_all: bool):
+        self.all, self.calls = deliver_all, 0
+
+    def deliver(self, rnd, src, dst, nbytes):
+        self.calls += 1
+        assert nbytes == MESSAGE_BYTES and len(src) == len(dst)
+        return np.full(len(src), self.all)
+
+
+def test_distributed_solver_uses_only_what_the_transport_delivers():
+    prob = make_epoch(8, seed=4).problem
+    ideal = solve_distributed(prob, mode="iterate", max_rounds=20)
+    everything = _Stub(True)
+    same = solve_distributed(prob, mode="iterate", max_rounds=20, transport=everything)
+    assert np.array_equal(same.positions, ideal.positions) and everything.calls == same.rounds
+    cut = solve_distributed(prob, mode="iterate", max_rounds=20, transport=_Stub(False))
+    assert cut.deliveries == 0 and np.allclose(cut.positions, prob.gnss_pos)  # nothing heard: own fix only
+
+
+def test_seed000_budget_is_one_instance_of_the_network_budget():
+    sc = load("bandwidth", duration=3.0)
+    log, _ = simulate(sc)
+    dt, b = sc.pipeline.dt, sc.pipeline.budget
+    ref = pb.estimate(sc, log)
+    exact = pb.estimate(replace(sc, network=NetworkConfig(budget_on="receive", bandwidth=8 * b / dt, burst_bytes=8 * b)), log)
+    assert np.array_equal(exact["xhat"], ref["xhat"]) and exact["network"]["dropped"] == 0
+    tight = pb.estimate(replace(sc, network=NetworkConfig(budget_on="receive", bandwidth=8 * (b - 1) / dt, burst_bytes=8 * (b - 1))), log)
+    assert tight["network"]["dropped_budget"] > 0 and tight["comm"].received.max() <= b - 1
+    assert pb.scores(tight)["network"]["bytes_delivered"] <= 8 * (b - 1) * 4 * (tight["K"] + 1)
+
+
+def test_seed001_messages_over_the_network():
+    sc = load("coop-fg", duration=2.0)
+    log, _ = simulate(sc)
+    ep = coop.epochs_from_log(log, sc.vehicles)
+    which = ("one_shot", "iterated")
+    ideal = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which))
+    default = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which, network=NetworkConfig()))
+    assert "network" not in ideal["iterated"]
+    for w in which:
+        assert default[w]["rmse_position_m"] == ideal[w]["rmse_position_m"]
+        assert default[w]["network"]["dropped"] == 0 and default[w]["network"]["latency_max_s"] == 0.0
+    lossy = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which,
+                                     network=NetworkConfig(loss_prob=0.5, latency=0.004, jitter=0.002)))
+    s = lossy["iterated"]["network"]
+    assert s["sent"] > 0 and s["dropped"] == s["dropped_loss"] > 0 and s["late"] >= 0
+    assert 0.003 < s["latency_p50_s"] < 0.005 and lossy["iterated"]["rmse_position_m"] != ideal["iterated"]["rmse_position_m"]
