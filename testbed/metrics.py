@@ -68,3 +68,11 @@ def network_summary(stats: dict[str, float], **extra: float) -> dict:
     if why:
         out["null_reasons"] = why
     return out
+
+
+def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
+    """UWB links served per second by a [sensors.uwb.schedule] (two-way exchanges, lost or not)
+    over a run of `duration` s; None when the run has no schedule (every link every sample)."""
+    if "uwb/served" not in log:
+        return None
+    return float(log["uwb/served"].sum()) / duration

@@ -16,6 +16,7 @@ import numpy as np
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
 from testbed.log import save_npz
+from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.loading import resolve
@@ -62,6 +63,8 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             "mujoco_warnings": physics.warnings(),
             "estimators": {},
         }
+        if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
+            metrics["uwb_pairs_served_per_s"] = rate
         (tmp / "plots").mkdir()
         estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
         estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators)))

@@ -20,7 +20,8 @@ from testbed.network import Network, NetworkConfig, stationary_loss
 from testbed.pipelines import bandwidth as pb
 from testbed.pipelines import coop
 from testbed.rng import stream_rng
-from testbed.scenario import load
+from testbed.metrics import ranging_rate
+from testbed.scenario import Scenario, load
 from testbed.simulate import simulate
 from testbed.stats import clopper_pearson
 from testbed.synthetic.coop import make_epoch
@@ -214,3 +215,49 @@ def test_seed001_messages_over_the_network():
     s = lossy["iterated"]["network"]
     assert s["sent"] > 0 and s["dropped"] == s["dropped_loss"] > 0 and s["late"] >= 0
     assert 0.003 < s["latency_p50_s"] < 0.005 and lossy["iterated"]["rmse_position_m"] != ideal["iterated"]["rmse_position_m"]
+
+
+# --------------------------------------------------------------------- scheduled UWB ranging
+def _ranging(policy: str, slot: float = 0.02, rate: float = 10.0, duration: float = 2.0):
+    offsets = [[5.0 * i, 3.0 * (i % 2), 0.0] for i in range(6)]  # 6 vehicles: P = 15 tag pairs
+    sc = from_dict(Scenario, {
+        "name": "sched", "description": "test", "seed": 2, "duration": duration,
+        "trajectory": {"kind": "straight-line", "start": [0.0, 0.0, 5.0], "velocity": [0.5, 0.0, 0.0], "offsets": offsets},
+        "sensors": {"uwb": {"preset": "ideal", "rate_hz": rate, "schedule": {"policy": policy, "slot_s": slot}}},
+    }, "test")
+    log, _ = simulate(sc)
+    pairs = [set(zip(log["uwb/src"][log["uwb/state_index"] == k], log["uwb/dst"][log["uwb/state_index"] == k]))
+             for k in np.unique(log["uwb/state_index"])]
+    return sc, log, pairs
+
+
+def test_schedule_serves_one_pair_per_slot():
+    slot, rate = 0.02, 10.0
+    sc, log, pairs = _ranging("round_robin", slot, rate)
+    S = math.floor(1 / (rate * slot))  # 5 exchanges per 0.1 s cycle
+    assert (log["uwb/served"] == S).all() and all(len(p) == S for p in pairs)
+    per_s = ranging_rate(log, sc.duration)
+    samples = len(log["uwb/served"])  # 0, 0.1, ..., 2.0 s
+    assert per_s == pytest.approx(S * samples / sc.duration)
+    assert S * rate <= 1 / slot < (S + 1) * rate  # pairs per second = 1 / slot, to the rounding of S
+    _, full, every = _ranging("all")
+    assert "uwb/served" not in full and ranging_rate(full, sc.duration) is None and all(len(p) == 15 for p in every)
+
+
+def test_round_robin_serves_every_pair_within_ceil_p_over_s_samples():
+    _, _, pairs = _ranging("round_robin")
+    P, S = 15, 5
+    window = math.ceil(P / S)
+    for k in range(len(pairs) - window + 1):
+        assert len(set().union(*pairs[k : k + window])) == P
+
+
+def test_nearest_serves_the_nearest_pairs():
+    _, log, pairs = _ranging("nearest")
+    _, full, _ = _ranging("all")
+    for k, served in zip(np.unique(log["uwb/state_index"]), pairs):
+        rows = full["uwb/state_index"] == k
+        d = full["uwb/clean"][rows, 0]
+        names = list(zip(full["uwb/src"][rows], full["uwb/dst"][rows]))
+        near = {names[i] for i in np.argsort(d, kind="stable")[:5]}
+        assert served == near

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from typing import Literal
 
-from testbed.config import in_range, join_key, require, whole_ratio
+from testbed.config import in_range, join_key, key, require, whole_ratio
 from testbed.sensors.presets import CAMERA_PRESETS, GNSS_PRESETS, IMU_PRESETS, PHASE_PRESETS, UWB_PRESETS
 
 
@@ -85,6 +85,24 @@ class ImuConfig:
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
+class UwbSchedule:
+    """[sensors.uwb.schedule]: which links are ranged at each UWB sample (testbed.sensors.uwb).
+
+    policy "all" (default): every candidate link at every sample. Otherwise one two-way exchange
+    takes slot_s seconds, so a cycle of 1 / rate_hz s serves S = floor(1 / (rate_hz slot_s))
+    links: "round_robin" the next S in-range links in a fixed order (tag-anchor and tag-tag
+    links by source, then destination), continuing after the last one served; "nearest" the S
+    in-range links of smallest true distance (far links may never be served).
+    """
+
+    policy: Literal["all", "round_robin", "nearest"] = "all"
+    slot_s: float = key(0.001, unit="s")
+
+    def __post_init__(self) -> None:
+        in_range(self, "slot_s", 0, lo_open=True, unit="s")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class UwbConfig:
     """[sensors.uwb]: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
 
@@ -103,7 +121,8 @@ class UwbConfig:
     floor, 3: vehicle collision boxes), ignoring both end vehicles. nlos: what a blocked link does
     ("bias": + nlos_bias_per_m x blocked span + Exp(mean nlos_bias_mean), noise x
     nlos_noise_factor; "drop": not reported; "ignore": only flagged). Gross outliers: probability
-    outlier_prob, N(0, outlier_sigma^2) added.
+    outlier_prob, N(0, outlier_sigma^2) added. schedule: which links each sample serves
+    ([sensors.uwb.schedule]; default all).
     """
 
     preset: Literal["paper001", "dw1000", "ideal"] = "paper001"
@@ -127,9 +146,12 @@ class UwbConfig:
     nlos_noise_factor: float | None = None
     outlier_prob: float | None = None
     outlier_sigma: float | None = None
+    schedule: UwbSchedule = field(default_factory=UwbSchedule)
 
     def __post_init__(self) -> None:
         _fill(self, UWB_PRESETS[self.preset])
+        require(self.schedule.policy == "all" or self.schedule.slot_s * self.rate_hz <= 1, "schedule.slot_s", self.schedule.slot_s,
+                f"one slot must fit in the {1 / self.rate_hz:g} s cycle of rate_hz = {self.rate_hz:g} Hz")
         _check_rate(self)
         in_range(self, "max_range", 0, lo_open=True, unit="m")
         require(all(0 <= g <= 5 for g in self.los_groups), "los_groups", self.los_groups, f"geom groups are 0..5, got {list(self.los_groups)}")

@@ -36,6 +36,13 @@ each device's clock offset, and in every mode its antenna delay, come from the d
 stream device_rng(stream, device name) (its first and second normal): adding a device never
 changes another device's clock or delay.
 
+Scheduling ([sensors.uwb.schedule], policy not "all"): each two-way exchange takes slot_s, so a
+sample serves S = floor(1 / (rate_hz slot_s)) of its in-range links (round robin in key order
+src * D + dst continuing after the last key served, or the S nearest), chosen after the random
+draws (the draws are the same under every policy) and before the ray casts; a served link may
+still be lost or dropped as NLOS (it used its slot). Log: uwb/served_time (T,) s and
+uwb/served (T,) links served at each of the T samples.
+
 Log: uwb/value, uwb/clean (M, 1) m; uwb/nlos (M,) bool; uwb/outlier (M,) bool; uwb/span (M,)
 m (0 when LOS); src/dst site names. Per device (D,): uwb/devices names, uwb/clock_ppm, and
 uwb/antenna_delay (m) when mode is not "scale" or antenna_delay_sigma > 0.
@@ -90,6 +97,10 @@ class Uwb:
         self.geom_body = physics.model.geom_bodyid.copy()
         self.blockers = physics.ray_targets(self.groups)  # geoms the LOS rays can hit
         self.rec = Recorder("uwb", {**common_keys(1), "nlos": ((), "?"), "outlier": ((), "?"), "span": ((), "f8")})
+        sched = cfg.schedule
+        self.slots = None if sched.policy == "all" else int(np.floor(1.0 / (cfg.rate_hz * sched.slot_s) + 1e-9))
+        self._rr_last = -1  # key of the last link served by round robin
+        self._served: list[tuple[float, int]] = []  # (sample time s, links served)
 
     def links(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Candidate links of this sample: src, dst (L,) device indices and constant biases (L,)
@@ -137,6 +148,9 @@ class Uwb:
         expo = self.rng.exponential(1.0, L)
         u = self.rng.random((2, L))
         links = np.flatnonzero(dist <= cfg.max_range)
+        if self.slots is not None:
+            links = self.scheduled(links, src, dst, dist)
+            self._served.append((t, len(links)))
         d = dist[links]
         src, dst = src[links], dst[links]
         nlos, span = self.line_of_sight(physics, P, src, dst, d)
@@ -157,8 +171,28 @@ class Uwb:
             nlos=nlos[keep], outlier=outlier[keep], span=span[keep],
         )
 
+    def scheduled(self, links: np.ndarray, src: np.ndarray, dst: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """The in-range candidate links (indices into src, dst, dist) this sample serves, in link
+        order: at most self.slots of them by the schedule's policy (module docstring)."""
+        S = self.slots
+        if len(links) <= S:
+            if len(links) and self.cfg.schedule.policy == "round_robin":
+                self._rr_last = int((src[links] * len(self.devices) + dst[links]).max())
+            return links
+        if self.cfg.schedule.policy == "nearest":
+            return np.sort(links[np.argsort(dist[links], kind="stable")[:S]])
+        keys = src[links] * len(self.devices) + dst[links]
+        order = np.argsort(keys, kind="stable")
+        first = int(np.searchsorted(keys[order], self._rr_last, side="right"))
+        take = order[(first + np.arange(S)) % len(links)]
+        self._rr_last = int(keys[take[-1]])
+        return np.sort(links[take])
+
     def arrays(self) -> dict[str, np.ndarray]:
         out = self.rec.arrays()
+        if self.slots is not None:
+            served = np.array(self._served, dtype=float).reshape(-1, 2)
+            out["uwb/served_time"], out["uwb/served"] = served[:, 0], served[:, 1].astype(np.int64)
         out["uwb/devices"] = self.devices.astype(str)
         out["uwb/clock_ppm"] = self.ppm.copy()
         if self.cfg.mode != "scale" or self.cfg.antenna_delay_sigma > 0:
