@@ -45,9 +45,11 @@ def score(track: Track, truth: Truth) -> tuple[dict, dict]:
     errs: dict = {}
     pooled: dict[str, list] = {}
     for (target, q), s in track.items():
-        e = errors(truth, target, q, s.time, s.value)
+        e = errors(truth, target, q, s.time, s.value, s.frame)
         errs[(target, q)] = e
         sc, ne = score_series(e, s, q)
+        if s.frame != "world":
+            sc["frame"] = s.frame
         targets.setdefault(target, {})[q] = sc
         pooled.setdefault(q, []).append((e, ne, sc[f"rmse_{UNIT[q]}"]))
     out: dict = {"estimates": int(sum(s.time.size for s in track.values()))}
