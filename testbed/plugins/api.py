@@ -87,8 +87,8 @@ class Context:
     (empty when they get none; testbed.plugins.context.priors lists them per pipeline kind);
     pipeline: the scenario's [pipeline] table with every default written out ({} without one):
     the built-in estimators' settings, their defaults when `params` does not override them;
-    params: this estimator's params table; duration: run length (s); seed: the scenario seed;
-    rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
+    params: this estimator's params table; duration: run length (s); motion: "prescribed"
+    (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
     """
 
     vehicles: tuple[str, ...]
@@ -99,6 +99,7 @@ class Context:
     pipeline: dict = field(default_factory=dict)
     params: dict = field(default_factory=dict)
     duration: float
+    motion: str = "prescribed"
     seed: int
     rng: np.random.Generator
 
