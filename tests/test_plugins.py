@@ -334,3 +334,23 @@ def test_bandwidth_builtin_equals_the_pipeline():
         np.testing.assert_array_equal(s.time, est["t"])
         np.testing.assert_allclose(s.value, est["xhat"][:, i] + offsets[i], rtol=0, atol=1e-12)
         np.testing.assert_allclose(s.cov, est["M"][:, i], rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("paper, group", [("phase", "phase-cross-h000"), ("visnav", "gaussian")])
+def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
+    path = _write(tmp_path, """
+        class Origin:
+            description = "every measuring site at the world origin"
+            def __init__(self, context, params): pass
+            def process(self, m):
+                return [Estimate(time=m.time, target=m.src, quantity="position", value=np.zeros(3))]
+    """)
+    out = tmp_path / "rep"
+    assert main(["reproduce", paper, "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
+                 "--estimator", f"{path}:Origin"]) == 0
+    md = (out / "table.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith(f"| {group} | Origin | 2 | "))
+    assert float(row.split("|")[4].split("±")[0]) > 1.0  # metres from the origin
+    assert "Plugin estimators" in (out / "report.md").read_text()
+    head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
+    assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)
