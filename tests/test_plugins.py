@@ -1,4 +1,5 @@
 """Estimators as plugins: loading, feeding in arrival order, truth for scoring, errors, docs example."""
+import dataclasses
 import json
 import re
 import textwrap
@@ -10,7 +11,6 @@ import pytest
 from testbed import scenario
 from testbed.cli import main
 from testbed.errors import PluginError, UsageError
-from testbed.config import to_dict
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
 from testbed.plugins.feed import measurements, run_plugin
@@ -169,17 +169,35 @@ def test_plugin_error_is_exit_code_1_and_usage_error_2():
     assert PluginError("x").exit_code == 1 and UsageError("x").exit_code == 2
 
 
-def test_builtins_are_declared_as_entry_points_and_listed(capsys):
+def _declared() -> dict[str, str]:
     import tomllib
+
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["testbed.estimators"]
+
+
+def test_builtins_are_installed_as_declared():
+    """The installed entry points are this pyproject's (fails until `make setup` reinstalls)."""
+    from testbed.plugins import loading
+
+    declared = _declared()
+    assert {k: v for k, v in loading.registered().items() if k in declared} == declared, "reinstall: make setup"
+
+
+def test_every_declared_builtin_loads_and_is_listed(monkeypatch, capsys):
+    from importlib.metadata import EntryPoint
 
     from testbed.plugins import loading
 
-    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["testbed.estimators"]
-    assert {k: v for k, v in loading.registered().items() if k in declared} == declared
+    declared = _declared()
+    assert {"phase.ekf", "bandwidth.fusion"} | {f"visnav.{f}" for f in ("ekf", "ckf", "hckf", "mckf", "rhcf")} \
+        | {f"coop.{w}" for w in ("gnss_only", "one_shot", "iterated", "centralized")} <= set(declared)
+    eps = [EntryPoint(k, v, loading.GROUP) for k, v in declared.items()]
+    monkeypatch.setattr(loading, "entry_points", lambda group: eps if group == loading.GROUP else [])
     assert main(["estimators"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert [line.split()[0] for line in out] == sorted(declared)
     assert all(len(line.split()) > 3 for line in out)  # each with its description
+    assert all(loading.load_class(k).__name__ == v.rpartition(":")[2] for k, v in declared.items())
 
 
 def test_an_installed_entry_point_is_registered(monkeypatch):
@@ -195,11 +213,11 @@ def test_an_installed_entry_point_is_registered(monkeypatch):
 
 def test_coop_builtins_as_protocol_estimators_equal_the_pipeline(tmp_path):
     """Fed measurement by measurement, the four seed 001 estimators give the pipeline's scores."""
-    sc = scenario.load("coop-fg", duration=4.0)
+    # a non-default known ranging model: the plugins take the scenario's [pipeline] without params
+    sc = scenario.load("coop-fg", duration=4.0, overrides={"pipeline.twr_mode": "ds-twr", "pipeline.antenna_delay_sigma": "0.02"})
     names = ("gnss_only", "one_shot", "iterated", "centralized")
-    # the same known noise model and solver settings as the scenario's pipeline
-    params = {k: v for k, v in to_dict(sc.pipeline).items() if k != "kind"}
-    sc = __import__("dataclasses").replace(sc, estimators=tuple(EstimatorSpec(entry=f"coop.{w}", params=params) for w in names))
+    sc = dataclasses.replace(sc, estimators=tuple(EstimatorSpec(entry=f"testbed.plugins.builtin_coop:{c}", name=f"coop.{w}")
+                                                  for w, c in zip(names, ("GnssOnly", "OneShot", "Iterated", "Centralized"))))
     from testbed.runner import run
 
     est = run(sc, tmp_path / "r", plots=False)["estimators"]
@@ -225,3 +243,114 @@ def test_sweep_and_reproduce_take_plugins(tmp_path):
     head, *rows = (out / "table.csv").read_text().strip().splitlines()
     assert head.endswith(",rmse_UwbEkf_m") and len(rows) == 18 and all(float(r.split(",")[-1]) > 0 for r in rows)
     assert "UwbEkf" in (out / "table.md").read_text()
+
+
+def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
+    from testbed.plugins.builtin_coop import Centralized
+
+    sc, _, physics = coop_run
+    sc = dataclasses.replace(sc, pipeline=dataclasses.replace(sc.pipeline, twr_mode="ss-twr", range_sigma=0.2))
+    est = Centralized(make_context(sc, physics, "c", {}), {})
+    assert (est.cfg.twr_mode, est.cfg.range_sigma) == ("ss-twr", 0.2)
+    est = Centralized(make_context(sc, physics, "c", {"range_sigma": 0.3}), {"range_sigma": 0.3})
+    assert (est.cfg.twr_mode, est.cfg.range_sigma) == ("ss-twr", 0.3)
+    with pytest.raises(Exception, match="estimator coop.centralized params"):
+        Centralized(make_context(sc, physics, "c", {}), {"range_sigma": -1.0})
+
+
+def _feed(sc, log, physics, cls, key="p"):
+    """Run one plugin class through the testbed's feed on a log: its Track and its scores."""
+    from testbed.plugins.context import priors
+    from testbed.plugins.run import scenario_bound
+    from testbed.plugins.score import score
+
+    plugin = Plugin(key, key, cls, {})
+    ctx = make_context(sc, physics, key, {}, priors(sc, log))
+    track, health, _ = run_plugin(plugin, ctx, list(measurements(sc, log)))
+    return track, score(track, Truth(log, ctx), scenario_bound(sc, log))[0], health
+
+
+def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
+    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it."""
+    from testbed.pipelines import phase
+    from testbed.plugins.builtin_phase import PhaseEkf
+
+    sc = scenario.load("phase-cross-h000", duration=4.0)  # shorter than score_start: every epoch scored
+    log, physics = simulate(sc)
+    cfg, inp, q, prior, _, meas = phase.prepare(sc, log)
+    ref = phase.run_filter(cfg, q, prior, meas, inp.times)
+    p, v, R, Rd = inp.nav_pose
+    track, sc_plug, health = _feed(sc, log, physics, PhaseEkf)
+    pos, vel = track[("uav6", "position")], track[("uav6", "velocity")]
+    np.testing.assert_array_equal(pos.time, inp.times)
+    pN, vN = ref.mean @ phase.BODY_POS.T, ref.mean @ phase.BODY_PV[3:].T
+    np.testing.assert_allclose(pos.value, p + np.einsum("kij,kj->ki", R, pN), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(vel.value, v + np.einsum("kij,kj->ki", R, vN) + np.einsum("kij,kj->ki", Rd, pN), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(pos.cov, R @ (phase.BODY_POS @ ref.cov @ phase.BODY_POS.T) @ np.swapaxes(R, 1, 2),
+                               rtol=1e-9, atol=1e-15)
+    want = phase.run(sc, log, None)["ekf"]
+    for key, got in (("rmse_position_m", sc_plug["rmse_position_m"]), ("rmse_velocity_mps", sc_plug["rmse_velocity_m_s"]),
+                     ("rmse_attitude_deg", sc_plug["rmse_attitude_deg"]), ("pcrb_rmse_position_m", sc_plug["pcrb_rmse_position_m"])):
+        np.testing.assert_allclose(got, want[key], rtol=1e-9, err_msg=key)
+    assert sc_plug["targets"]["uav6"]["position"]["pcrb_samples"] == inp.times.size
+    assert health["rejected_measurements"] == int(ref.rejected_measurements.sum())
+
+
+@pytest.mark.parametrize("name", ["ekf", "rhcf"])
+def test_visnav_builtins_equal_the_pipeline_relative_to_the_leader(name):
+    from testbed.pipelines import visnav
+    from testbed.plugins import builtin_visnav
+
+    sc = scenario.load("visnav", duration=3.0)
+    log, physics = simulate(sc)
+    model, inputs, prior = visnav.prepare(sc, log)
+    ref = visnav.run_filter(name, sc.pipeline, model, visnav.camera_epochs(inputs), prior)
+    track, scores, _ = _feed(sc, log, physics, getattr(builtin_visnav, name.capitalize()))
+    for q, sl in (("position", slice(0, 3)), ("velocity", slice(3, 6)), ("attitude", slice(6, 10))):
+        s = track[("uav2", q)]
+        assert s.frame == "uav1"
+        np.testing.assert_array_equal(s.time, ref.t)
+        np.testing.assert_allclose(s.value, ref.mean[:, sl], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(s.cov, ref.cov[:, sl.start:sl.start + 3, sl.start:sl.start + 3], rtol=1e-12, atol=1e-15)
+    # the testbed's truth relative to the leader is the pipeline's: the same RMSEs
+    want = visnav.metrics_of(ref, visnav.score_track(model, ref, visnav.true_relative_state(
+        log, 1, 2, inputs.cam_state)))
+    for key, got in (("rmse_position_m", "rmse_position_m"), ("rmse_velocity_mps", "rmse_velocity_m_s"),
+                     ("rmse_attitude_deg", "rmse_attitude_deg")):
+        np.testing.assert_allclose(scores[got], want[key], rtol=1e-9, err_msg=key)
+
+
+def test_bandwidth_builtin_equals_the_pipeline():
+    from testbed.pipelines import bandwidth
+    from testbed.plugins.builtin_bandwidth import Fusion
+
+    sc = scenario.load("bandwidth", duration=2.0)
+    log, physics = simulate(sc)
+    est = bandwidth.estimate(sc, log)
+    _, offsets = bandwidth.known_config(sc.pipeline, sc.seed)
+    track, _, _ = _feed(sc, log, physics, Fusion)
+    for i in range(4):
+        s = track[(f"uav{i + 1}/uwb", "position")]
+        np.testing.assert_array_equal(s.time, est["t"])
+        np.testing.assert_allclose(s.value, est["xhat"][:, i] + offsets[i], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(s.cov, est["M"][:, i], rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("paper, group", [("phase", "phase-cross-h000"), ("visnav", "gaussian")])
+def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
+    path = _write(tmp_path, """
+        class Origin:
+            description = "every measuring site at the world origin"
+            def __init__(self, context, params): pass
+            def process(self, m):
+                return [Estimate(time=m.time, target=m.src, quantity="position", value=np.zeros(3))]
+    """)
+    out = tmp_path / "rep"
+    assert main(["reproduce", paper, "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
+                 "--estimator", f"{path}:Origin"]) == 0
+    md = (out / "table.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith(f"| {group} | Origin | 2 | "))
+    assert float(row.split("|")[4].split("±")[0]) > 1.0  # metres from the origin
+    assert "Plugin estimators" in (out / "report.md").read_text()
+    head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
+    assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)

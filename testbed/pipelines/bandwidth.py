@@ -113,11 +113,7 @@ def measurements(scenario, log: dict) -> dict:
     K = int(np.floor(scenario.duration / cfg.dt + 1e-9))
     t = np.arange(K + 1) * cfg.dt
     n = 3
-    rng_known = stream_rng(scenario.seed, "known-config")
-    anchors = np.asarray(cfg.anchors, float)
-    anchors = anchors + cfg.anchor_error * rng_known.standard_normal(anchors.shape)
-    offsets = np.asarray(cfg.offsets, float)
-    offsets = offsets + cfg.offset_error * rng_known.standard_normal(offsets.shape)
+    anchors, offsets = known_config(cfg, scenario.seed)
     truth = truth_formation_point(scenario, log, t)
 
     if cfg.measurements == "uwb":
@@ -138,9 +134,22 @@ def measurements(scenario, log: dict) -> dict:
         V = np.broadcast_to(Vp, (K + 1, N_NODES, n, n)).copy()
         avail = np.ones((K + 1, N_NODES), bool)
 
-    M0 = np.diag(cfg.M0)
-    x_init = np.asarray(cfg.x0, float) + np.linalg.cholesky(M0) @ stream_rng(scenario.seed, "init").standard_normal(n)
-    return dict(t=t, truth=truth, y=y, V=V, available=avail, K=K, x_init=x_init)
+    return dict(t=t, truth=truth, y=y, V=V, available=avail, K=K, x_init=initial_estimate(cfg, scenario.seed))
+
+
+def known_config(cfg: BandwidthPipelineConfig, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The anchor positions (A, 3) m and tag offsets (N, 3) m the estimator knows, with their
+    configured errors drawn once from the stream "known-config" (anchors first)."""
+    rng_known = stream_rng(seed, "known-config")
+    anchors = np.asarray(cfg.anchors, float)
+    anchors = anchors + cfg.anchor_error * rng_known.standard_normal(anchors.shape)
+    offsets = np.asarray(cfg.offsets, float)
+    return anchors, offsets + cfg.offset_error * rng_known.standard_normal(offsets.shape)
+
+
+def initial_estimate(cfg: BandwidthPipelineConfig, seed: int) -> np.ndarray:
+    """x0 + N(0, M0) (3,) m, stream "init": every node's initial estimate of the formation point."""
+    return np.asarray(cfg.x0, float) + np.linalg.cholesky(np.diag(cfg.M0)) @ stream_rng(seed, "init").standard_normal(3)
 
 
 def stack_runs(metas: list[dict]) -> dict:

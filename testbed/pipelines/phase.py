@@ -342,8 +342,9 @@ def plot(series: dict, plots_dir, name: str) -> None:
     error_envelope(t, e[:, 3:], s[:, 3:], plots_dir / "velocity_error.png", title=f"{name}: body velocity error (nav frame)", ylabel="m/s", labels=lab)
 
 
-def estimate(scenario, log: dict) -> tuple[dict, dict]:
-    """Run the seed 003 EKF on a run log and score it: (estimators.ekf metrics, plot series)."""
+def prepare(scenario, log: dict) -> tuple:
+    """What the filter starts from on a run log: (cfg, inputs, q, prior Gaussian, P0 (18, 18),
+    measurements); the prior is also the one the phase.ekf plugin gets (testbed.plugins.context)."""
     cfg: PhasePipelineConfig = scenario.pipeline
     ph = scenario.sensors.phase
     if ph is None or "phase/time" not in log:
@@ -354,10 +355,29 @@ def estimate(scenario, log: dict) -> tuple[dict, dict]:
         raise ConfigError(f"{scenario.name}: pipeline.nav_master: {e}") from None
     q = process_noise_model(cfg, scenario.motion)
     prior, P0, _ = initial_prior(cfg, scenario, inp, stream_rng(scenario.seed, "init"))
-    meas = measurement_epochs(cfg, inp)
+    return cfg, inp, q, prior, P0, measurement_epochs(cfg, inp)
+
+
+def true_states(scenario, log: dict, cfg: PhasePipelineConfig, inp: PhaseInputs):
+    """truth_in_nav at the phase epochs (scoring only): body (K, 12), R_N_follower, 18-states."""
+    return truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower, scenario.world.antenna_a, scenario.world.antenna_b)
+
+
+def position_bound(scenario, log: dict) -> tuple[np.ndarray, np.ndarray, int]:
+    """The PCRB of the follower's body position for plugin scores (scoring only): epoch times
+    (K,) s, bound (K, 3, 3) m^2 in world axes (N rotated by the nav master's true attitude), the
+    follower's number."""
+    cfg, inp, q, _, P0, meas = prepare(scenario, log)
+    bound = BODY_POS @ phase_pcrb(cfg, q, true_states(scenario, log, cfg, inp)[2], inp, meas, P0) @ BODY_POS.T
+    R = Rotation.from_quat(log["truth/quat"][inp.state_index, cfg.nav_master - 1], scalar_first=True).as_matrix()
+    return inp.times, R @ bound @ np.swapaxes(R, 1, 2), inp.follower
+
+
+def estimate(scenario, log: dict) -> tuple[dict, dict]:
+    """Run the seed 003 EKF on a run log and score it: (estimators.ekf metrics, plot series)."""
+    cfg, inp, q, prior, P0, meas = prepare(scenario, log)
     track = run_filter(cfg, q, prior, meas, inp.times)
-    body, RN, states = truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
-                                    scenario.world.antenna_a, scenario.world.antenna_b)
+    body, RN, states = true_states(scenario, log, cfg, inp)
     bound = phase_pcrb(cfg, q, states, inp, meas, P0)
     metrics, series = score(cfg, track, states, body, RN, bound)
     metrics = {"q_m2ps3": q.antenna, "q_translation_m2ps3": q.translation, "q_rotation_rad2ps3": q.rotation, "rate_rows": cfg.rate_rows, "init": cfg.init, **metrics}

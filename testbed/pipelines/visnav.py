@@ -258,17 +258,25 @@ def metrics_of(track: Track, sc: Scored) -> dict:
     }
 
 
-def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], object]:
-    """Run every configured filter on the log; returns tracks, their scores and the model."""
+def prepare(scenario, log: dict) -> tuple:
+    """What the filters start from on a run log: (model, inputs, prior ManifoldGaussian at the
+    first IMU sample); the prior is also the one the visnav.* plugins get (testbed.plugins.context)."""
     cfg: VisNavPipelineConfig = scenario.pipeline
     cam, imu = scenario.sensors.camera, scenario.sensors.imu
     if cam is None or imu is None:
         raise ConfigError(f"sensors: the visnav pipeline needs [sensors.imu] and [sensors.camera] (scenario {scenario.name})")
     model = RelNavModel(estimator_config(cfg, scenario.seed, cam.focal_length))
     inputs = build_inputs(cfg, log, cam.leader, cam.follower, imu.rate_hz)
-    truth = true_relative_state(log, cam.leader, cam.follower, inputs.cam_state)
     truth0 = true_relative_state(log, cam.leader, cam.follower, np.array([int(np.argmin(np.abs(log["time"] - inputs.t[0])))]))[0]
-    prior = initial_belief(cfg, model, truth0, scenario.seed)
+    return model, inputs, initial_belief(cfg, model, truth0, scenario.seed)
+
+
+def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], object]:
+    """Run every configured filter on the log; returns tracks, their scores and the model."""
+    cfg: VisNavPipelineConfig = scenario.pipeline
+    cam = scenario.sensors.camera
+    model, inputs, prior = prepare(scenario, log)
+    truth = true_relative_state(log, cam.leader, cam.follower, inputs.cam_state)
     if inputs.cam_step.size == 0 or inputs.cam_step[0] != 0:  # a scenario the filters cannot start on: one line, exit 2
         raise ConfigError(f"{scenario.name}: sensors.camera: the leader's camera sees no LED of the follower at t = {inputs.t[0]:g} s; "
                           "the visnav filters start from a camera epoch at the first IMU sample")

@@ -39,7 +39,11 @@ class Measurement:
     arrival: time + the stream's latency (s), the feeding order; value: (d,) in the stream's units
     (uwb: range m; gnss: antenna position m world; see docs/sensors.md); src, dst: site names
     ("uav3/uwb", "anchor2"), dst "" for a per-vehicle stream; sigma: the declared 1-sigma noise
-    (d,) in the units of value, or None when the stream declares none. Arrays are read-only.
+    (d,) in the units of value, or None when the stream declares none; extra: the stream's other
+    measured columns of this row by name (feed.MEASURED_EXTRA: gnss `rtk` (fix type); phase
+    `master_pos`, `master_vel` (3,) m, m/s world (the src master antenna from the master's own
+    navigation solution), `rate_periods` (periods in the eq. 7 window), `wavelength` m, `slip`;
+    empty for the other streams). Arrays are read-only.
     """
 
     stream: str
@@ -49,6 +53,7 @@ class Measurement:
     src: str
     dst: str = ""
     sigma: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -57,9 +62,10 @@ class Estimate:
 
     time: time of validity (s); target: a body ("uav3") or a site ("uav3/uwb");
     quantity: "position" (m), "velocity" (m/s) or "attitude" (quaternion wxyz, body-to-world);
-    frame: "world" (the only frame scored today); value: (3,) or (4,) for attitude;
-    cov: optional (3, 3) covariance (m^2, (m/s)^2; attitude: rad^2 in the body tangent space,
-    the error being log(R_true^T R_est)).
+    frame: "world" (ENU), or a vehicle body "uavJ" for a state relative to that vehicle, in its
+    body axes: position R_J^T (p - p_J), velocity R_J^T (v - v_J), attitude R_J^T R (one frame
+    per target and quantity); value: (3,) or (4,) for attitude; cov: optional (3, 3) covariance
+    (m^2, (m/s)^2; attitude: rad^2 in the body tangent space, the error being log(R_true^T R_est)).
     """
 
     time: float
@@ -67,7 +73,7 @@ class Estimate:
     quantity: Quantity
     value: np.ndarray
     cov: np.ndarray | None = None
-    frame: Literal["world"] = "world"
+    frame: str = "world"
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -77,9 +83,12 @@ class Context:
     vehicles: body names ("uav1", ...); sites: {site: (body, lever arm (3,) m body frame)} for every
     vehicle site; anchors: {name: (3,) m world}; sensors: {stream: declared model: rate_hz (Hz),
     latency (s) and the noise parameters of the scenario's [sensors.NAME] table};
-    prior: {target: (mean, cov)} the prior the built-in estimators get (empty when they get none);
-    params: this estimator's params table; duration: run length (s); seed: the scenario seed;
-    rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
+    prior: {target: (mean, cov)} the prior the built-in estimators get, in their own state
+    (empty when they get none; testbed.plugins.context.priors lists them per pipeline kind);
+    pipeline: the scenario's [pipeline] table with every default written out ({} without one):
+    the built-in estimators' settings, their defaults when `params` does not override them;
+    params: this estimator's params table; duration: run length (s); motion: "prescribed"
+    (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
     """
 
     vehicles: tuple[str, ...]
@@ -87,8 +96,10 @@ class Context:
     anchors: dict[str, np.ndarray]
     sensors: dict[str, dict]
     prior: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    pipeline: dict = field(default_factory=dict)
     params: dict = field(default_factory=dict)
     duration: float
+    motion: str = "prescribed"
     seed: int
     rng: np.random.Generator
 

@@ -7,8 +7,8 @@ as the coop-fg pipeline (testbed.pipelines.coop.solve_epoch); estimates are each
 `uav{i}/uwb` site position with its covariance. Ranges at instants without GNSS fixes are not
 part of an epoch and are ignored, as in the pipeline.
 
-params: the coop-fg [pipeline] keys (the known noise model and solver settings; defaults as
-there). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
+params: the coop-fg [pipeline] keys (the known noise model and solver settings); a key not given
+takes the scenario's own [pipeline] value on a coop-fg scenario (testbed.plugins.settings). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
 sets by the fix type the receiver reports. Message loss (params message_loss > 0) draws from the
 estimator's own Context.rng, not the pipeline's shared "links" stream, so only loss-free runs
 match the pipeline number for number (a test checks that they do).
@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.config import from_dict
 from testbed.pipelines.coop import epoch_problem, gnss_covariances, solve_epoch
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.settings import settings
 from testbed.stream import gnss_sigma
 
 
@@ -30,7 +30,7 @@ class _CoopEpochs:
     variant = ""
 
     def __init__(self, context: Context, params: dict):
-        self.cfg = from_dict(CoopPipelineConfig, {"kind": "coop-fg", **params}, f"estimator coop.{self.variant} params")
+        self.cfg = settings(CoopPipelineConfig, "coop-fg", context, params, f"coop.{self.variant}")
         self.n = len(context.vehicles)
         self.index = {f"{v}/uwb": i for i, v in enumerate(context.vehicles)}
         gnss = context.sensors.get("gnss", {})

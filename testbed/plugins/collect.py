@@ -1,7 +1,8 @@
 """Checking and collecting the estimates one estimator returns.
 
 An estimate must be an `Estimate` of a known target (a vehicle body or one of its sites), a
-known quantity, frame "world", a finite time within the run, a finite value of the right shape
+known quantity, frame "world" or a vehicle body (the same for every estimate of one target and
+quantity), a finite time within the run, a finite value of the right shape
 (attitude: a unit quaternion to 1e-6, renormalized) and, if given, a finite symmetric positive
 definite (3, 3) covariance. Anything else is a PluginError naming the estimator, when and what.
 """
@@ -20,12 +21,14 @@ from testbed.plugins.loading import Plugin
 @dataclass(frozen=True, slots=True)
 class Series:
     """The estimates of one (target, quantity), sorted by time: time (K,) s, value (K, d),
-    cov (K, 3, 3) with NaN where an estimate had none, has_cov (K,) bool."""
+    cov (K, 3, 3) with NaN where an estimate had none, has_cov (K,) bool; frame: "world" or the
+    vehicle body the values are relative to (Estimate.frame)."""
 
     time: np.ndarray
     value: np.ndarray
     cov: np.ndarray
     has_cov: np.ndarray
+    frame: str = "world"
 
 
 # {(target, quantity): Series}
@@ -35,9 +38,10 @@ Track = dict[tuple[str, str], Series]
 class Collector:
     """Validates estimates as they come and builds the Track at the end."""
 
-    def __init__(self, plugin: Plugin, targets: set[str], duration: float):
-        self.plugin, self.targets, self.duration = plugin, targets, duration
+    def __init__(self, plugin: Plugin, targets: set[str], duration: float, frames: set[str] = frozenset({"world"})):
+        self.plugin, self.targets, self.duration, self.frames = plugin, targets, duration, frames
         self._rows: dict[tuple[str, str], list[tuple[float, np.ndarray, np.ndarray | None]]] = {}
+        self._frame: dict[tuple[str, str], str] = {}
 
     def _fail(self, where: str, e: object, reason: str) -> PluginError:
         what = f"{e.target} {e.quantity}" if isinstance(e, Estimate) else type(e).__name__
@@ -54,8 +58,12 @@ class Collector:
             raise self._fail(where, e, f"quantity must be one of {list(VALUE_SIZE)}")
         if e.target not in self.targets:
             raise self._fail(where, e, "unknown target (a vehicle such as 'uav1' or a site such as 'uav1/uwb')")
-        if e.frame != "world":
-            raise self._fail(where, e, f"frame {e.frame!r} is not scored (only 'world')")
+        if e.frame not in self.frames:
+            raise self._fail(where, e, f"frame {e.frame!r} is not scored ('world' or a vehicle such as 'uav1')")
+        if e.frame == e.target:
+            raise self._fail(where, e, f"a target relative to itself (frame {e.frame!r})")
+        if self._frame.setdefault((e.target, e.quantity), e.frame) != e.frame:
+            raise self._fail(where, e, f"frame {e.frame!r} after {self._frame[(e.target, e.quantity)]!r}: one frame per target and quantity")
         t = float(e.time)
         if not np.isfinite(t) or not -1e-9 <= t <= self.duration + 1e-9:
             raise self._fail(where, e, f"time {t} s is outside the run [0, {self.duration:g}] s")
@@ -91,7 +99,7 @@ class Collector:
             value = np.stack([rows[i][1] for i in order])
             has = np.array([rows[i][2] is not None for i in order])
             cov = np.stack([rows[i][2] if rows[i][2] is not None else np.full((3, 3), np.nan) for i in order])
-            out[key] = Series(time, value, cov, has)
+            out[key] = Series(time, value, cov, has, self._frame[key])
         return out
 
 

@@ -1,4 +1,4 @@
-"""The `Context` of a run: geometry, declared sensor models and priors, nothing measured.
+"""The `Context` of a run: geometry, declared sensor models, the pipeline's settings and priors.
 
 Lever arms are read from the compiled MuJoCo model (forward kinematics at the model's reference
 pose: the vehicles are rigid, so a site's offset in its vehicle's base frame is constant).
@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 
 from testbed.config import to_dict
+from testbed.pipelines import bandwidth, phase, visnav
 from testbed.plugins.api import Context
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
@@ -33,26 +34,47 @@ def lever_arms(physics: Physics) -> dict[str, tuple[str, np.ndarray]]:
     return out
 
 
-def priors(scenario: Scenario) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The prior the scenario's built-in estimators get, by target.
+def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The prior the scenario's built-in estimators get, by target, in their own state (the
+    pipeline's own code computes it, so a built-in plugin starts where its pipeline starts):
 
-    coop-fg (seed 001): none (every epoch is anchored by its GNSS fixes alone). The other
-    pipelines' priors live in their own state parametrizations and are not exposed yet: empty.
+    coop-fg: none (every epoch is anchored by its GNSS fixes alone);
+    phase-ekf: {"uavF": (18,), (18, 18)} the follower's antenna state of estimators.phase_ekf in
+      the navigation frame N at the first phase epoch (planned state + the drawn initial error);
+    visnav: {"uavF": (22,), (21, 21)} the follower's state relative to the leader
+      (estimators.visnav layout) at the first IMU sample (truth + the drawn initial error);
+    bandwidth: {"formation": (3,), (3, 3)} every node's initial estimate of the formation point
+      (m, world) and M(0).
+    Empty without a log or a pipeline.
     """
-    return {}
+    kind = getattr(scenario.pipeline, "kind", None)
+    if log is None or kind not in ("phase-ekf", "visnav", "bandwidth"):
+        return {}
+    if kind == "phase-ekf":
+        _, inp, _, prior, _, _ = phase.prepare(scenario, log)
+        return {f"uav{inp.follower}": (prior.mean, prior.cov)}
+    if kind == "visnav":
+        prior = visnav.prepare(scenario, log)[2]
+        return {f"uav{scenario.sensors.camera.follower}": (prior.mean, prior.cov)}
+    cfg = scenario.pipeline
+    return {"formation": (bandwidth.initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
 
 
-def make_context(scenario: Scenario, physics: Physics, key: str, params: dict) -> Context:
-    """The Context of estimator `key` in this run (its rng: stream "estimator/KEY" of the seed)."""
+def make_context(scenario: Scenario, physics: Physics, key: str, params: dict,
+                 prior: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Context:
+    """The Context of estimator `key` in this run (its rng: stream "estimator/KEY" of the seed).
+    prior: priors(scenario, log), computed once per run (None: none)."""
     anchors = {f"anchor{k}": np.array(p, float) for k, p in enumerate(scenario.world.anchors, start=1)}
     return Context(
         vehicles=tuple(f"uav{i}" for i in range(1, scenario.vehicles + 1)),
         sites=lever_arms(physics),
         anchors=anchors,
         sensors={name: to_dict(cfg) for name, cfg in scenario.sensors.streams().items()},
-        prior=priors(scenario),
+        prior=dict(prior or {}),
+        pipeline=to_dict(scenario.pipeline) if scenario.pipeline is not None else {},
         params=dict(params),
         duration=scenario.duration,
+        motion=scenario.motion,
         seed=scenario.seed,
         rng=stream_rng(scenario.seed, f"estimator/{key}"),
     )

@@ -1,8 +1,9 @@
 """Measurements of a run log in order of arrival, and feeding them to one estimator.
 
-Only the measured columns of each stream are fed (`NAME/time`, `arrival`, `value`, `src`, `dst`)
-with the declared sigma of the scenario's sensor table; the truth columns of the log (`clean`,
-`nlos`, `outlier`, `span`, `state_index`, `truth/*`, `qpos`) never reach an estimator.
+Only the measured columns of each stream are fed (`NAME/time`, `arrival`, `value`, `src`, `dst`,
+and the measured extras of MEASURED_EXTRA) with the declared sigma of the scenario's sensor table;
+the truth columns of the log (`clean`, `nlos`, `outlier`, `span`, `state_index`, `bias`,
+`slip_injected`, `truth/*`, `qpos`) never reach an estimator.
 Order: by arrival time, then time of validity, then stream name, then log row (deterministic).
 """
 from __future__ import annotations
@@ -19,19 +20,31 @@ from testbed.plugins.loading import Plugin
 from testbed.scenario import Scenario
 from testbed.stream import declared_sigma, stream_arrays, stream_names
 
+# per stream, the other columns a receiver really reports (Measurement.extra); never truth
+MEASURED_EXTRA: dict[str, tuple[str, ...]] = {
+    "gnss": ("rtk",),
+    "phase": ("master_pos", "master_vel", "rate_periods", "wavelength", "slip"),
+}
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a = np.array(a)
+    a.flags.writeable = False
+    return a
+
 
 def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement]:
     """Every measurement of the log in feeding order (see the module docstring); arrays read-only."""
     names = stream_names(log)
     cols = []
     for name in names:
-        value = np.array(log[f"{name}/value"], dtype=float)
-        value.flags.writeable = False
+        value = _read_only(np.asarray(log[f"{name}/value"], dtype=float))
         sigma = declared_sigma(name, stream_arrays(name, log), scenario)
         if sigma is not None:
-            sigma = np.array(sigma, dtype=float)
-            sigma.flags.writeable = False
-        cols.append((name, log[f"{name}/time"], log[f"{name}/arrival"], value, log[f"{name}/src"], log[f"{name}/dst"], sigma))
+            sigma = _read_only(np.asarray(sigma, dtype=float))
+        extra = {k: _read_only(log[f"{name}/{k}"]) for k in MEASURED_EXTRA.get(name, ()) if f"{name}/{k}" in log}
+        cols.append((name, log[f"{name}/time"], log[f"{name}/arrival"], value, log[f"{name}/src"], log[f"{name}/dst"], sigma,
+                     extra))
     if not cols:
         return
     arrival = np.concatenate([c[2] for c in cols])
@@ -39,10 +52,11 @@ def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Mea
     sid = np.concatenate([np.full(c[1].shape[0], i) for i, c in enumerate(cols)])
     row = np.concatenate([np.arange(c[1].shape[0]) for c in cols])
     for k in np.lexsort((row, sid, tov, arrival)).tolist():
-        name, t, a, value, src, dst, sigma = cols[sid[k]]
+        name, t, a, value, src, dst, sigma, extra = cols[sid[k]]
         r = row[k]
         yield Measurement(stream=name, time=float(t[r]), arrival=float(a[r]), value=value[r], src=str(src[r]),
-                          dst=str(dst[r]), sigma=None if sigma is None else sigma[r])
+                          dst=str(dst[r]), sigma=None if sigma is None else sigma[r],
+                          extra={c: v[r] for c, v in extra.items()})
 
 
 def _call(plugin: Plugin, what: str, fn, *args):
@@ -63,7 +77,7 @@ def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tup
     t0 = wallclock.perf_counter()
     est = _call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
     targets = set(context.vehicles) | set(context.sites)
-    col = Collector(plugin, targets, context.duration)
+    col = Collector(plugin, targets, context.duration, {"world", *context.vehicles})
     for m in feed:
         what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
         col.add(_call(plugin, what, est.process, m), what)

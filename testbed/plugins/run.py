@@ -1,8 +1,8 @@
 """Running a scenario's plugin estimators on a run log and scoring them (the runner's one call).
 
 Each plugin gets its own Context, the same measurements in the same order (testbed.plugins.feed),
-and is scored by testbed.plugins.score against the log's truth; its figures overlay every plugin
-of the run. The result is merged into metrics.json `estimators` under each plugin's key.
+and is scored by testbed.plugins.score against the log's truth (with the scenario's PCRB where it
+has one: seed 003 phase-ekf); its figures overlay every plugin of the run. The result is merged into metrics.json `estimators` under each plugin's key.
 """
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from testbed.errors import ConfigError
-from testbed.plugins.context import make_context
+from testbed.pipelines.phase import position_bound
+from testbed.plugins.context import make_context, priors
 from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import Plugin
-from testbed.plugins.score import plot_errors, score
+from testbed.plugins.score import Bound, plot_errors, score
 from testbed.plugins.truth import Truth
 from testbed.scenario import Scenario
 from testbed.world import Physics
@@ -27,16 +28,27 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
     if not plugins:
         return {}
     feed = list(measurements(scenario, log))
+    prior = priors(scenario, log)
+    bound = scenario_bound(scenario, log)
     out, shown = {}, {}
     for p in plugins:
         if p.key in taken:
             raise ConfigError(f"estimator {p.entry!r}: the name {p.key!r} is taken by the {scenario.pipeline.kind} pipeline; "
                               "give it another name ([[estimators]] name)")
-        ctx = make_context(scenario, physics, p.key, p.params)
+        ctx = make_context(scenario, physics, p.key, p.params, prior)
         track, health, wall_ms = run_plugin(p, ctx, feed)
-        scores, errs = score(track, Truth(log, ctx))
+        scores, errs = score(track, Truth(log, ctx), bound)
         out[p.key] = {"entry": p.entry, **scores, **({"health": health} if health else {}), "wall_ms": wall_ms}
         shown[p.key] = (track, errs)
     if plots_dir is not None:
-        plot_errors(shown, Path(plots_dir))
+        plot_errors(shown, Path(plots_dir), bound=bound)
     return out
+
+
+def scenario_bound(scenario: Scenario, log: dict[str, np.ndarray]) -> Bound | None:
+    """The scenario's PCRB for plugin scores: seed 003 phase-ekf's, of the follower's body
+    position (testbed.pipelines.phase.position_bound); None for the other scenarios."""
+    if getattr(scenario.pipeline, "kind", None) != "phase-ekf":
+        return None
+    t, B, follower = position_bound(scenario, log)
+    return Bound(f"uav{follower}", t, B)

@@ -6,11 +6,17 @@ mean (ANEES, 3 dof) and the two-sided chi-square 95 % interval of a consistent e
 Summaries over targets, per quantity q with unit u (position m, velocity m_s, attitude deg):
 `rmse_{q}_mean_{u}` (mean over targets of the per-target RMSE, as the built-in coop scores),
 `rmse_{q}_{u}` (pooled over all samples), `rmse_{q}_axis_{u}`, `anees_{q}` (all samples with a
-covariance), `anees_{q}_interval_95`. No PCRB: a bound needs the estimator's own state model,
-which a plugin does not declare (the phase pipeline reports its PCRB under its own name).
+covariance), `anees_{q}_interval_95`.
+PCRB: where the scenario has one (seed 003 phase-ekf: the posterior Cramer-Rao bound of the
+follower's body position, with the scenario's measurement and motion model, computed along the
+true trajectory by testbed.pipelines.phase.position_bound), a world-frame position series of that
+body gets `pcrb_rmse_m` = sqrt(mean trace B) over its estimates at the bound's epochs
+(`pcrb_samples` of them; `rmse_at_pcrb_epochs_m` is its RMSE over the same samples), and the
+summary `pcrb_rmse_position_m`; the error plot overlays +/-3 sqrt(diag B).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +28,24 @@ from testbed.plugins.truth import Truth, errors
 
 UNIT = {"position": "m", "velocity": "m_s", "attitude": "deg"}
 SCALE = {"position": 1.0, "velocity": 1.0, "attitude": float(np.degrees(1.0))}
+
+
+@dataclass(frozen=True, slots=True)
+class Bound:
+    """A scenario's PCRB of one target's world position: time (K,) s, cov (K, 3, 3) m^2."""
+
+    target: str
+    time: np.ndarray
+    cov: np.ndarray
+
+    def at(self, s: Series, target: str, quantity: str) -> tuple[np.ndarray, np.ndarray]:
+        """(indices into s, bound (k, 3, 3)) of the samples of s at the bound's epochs (1e-9 s);
+        empty unless s is the bound's target's world position."""
+        if target != self.target or quantity != "position" or s.frame != "world":
+            return np.zeros(0, int), np.zeros((0, 3, 3))
+        j = np.minimum(np.searchsorted(self.time, s.time - 1e-9), self.time.size - 1)
+        hit = np.flatnonzero(np.abs(self.time[j] - s.time) < 1e-9)
+        return hit, self.cov[j[hit]]
 
 
 def _axis(e: np.ndarray) -> list[float]:
@@ -39,15 +63,24 @@ def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.nd
     return out, ne
 
 
-def score(track: Track, truth: Truth) -> tuple[dict, dict]:
-    """metrics.json scores of one estimator, and its errors {(target, quantity): (K, 3)} for plots."""
+def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict, dict]:
+    """metrics.json scores of one estimator, and its errors {(target, quantity): (K, 3)} for plots.
+    bound: the scenario's PCRB, if it has one (module docstring)."""
     targets: dict = {}
     errs: dict = {}
     pooled: dict[str, list] = {}
+    pcrb: dict[str, float] = {}
     for (target, q), s in track.items():
-        e = errors(truth, target, q, s.time, s.value)
+        e = errors(truth, target, q, s.time, s.value, s.frame)
         errs[(target, q)] = e
         sc, ne = score_series(e, s, q)
+        if s.frame != "world":
+            sc["frame"] = s.frame
+        hit, B = bound.at(s, target, q) if bound is not None else (np.zeros(0, int), None)
+        if hit.size:
+            sc.update({"pcrb_rmse_m": float(np.sqrt(np.mean(np.trace(B, axis1=1, axis2=2)))), "pcrb_samples": int(hit.size),
+                       "rmse_at_pcrb_epochs_m": rmse(e[hit])})
+            pcrb[q] = sc["pcrb_rmse_m"]
         targets.setdefault(target, {})[q] = sc
         pooled.setdefault(q, []).append((e, ne, sc[f"rmse_{UNIT[q]}"]))
     out: dict = {"estimates": int(sum(s.time.size for s in track.values()))}
@@ -62,19 +95,24 @@ def score(track: Track, truth: Truth) -> tuple[dict, dict]:
             lo, hi = chi2_interval(3, int(ne_all.size), 0.95)
             out[f"anees_{q}"] = float(np.mean(ne_all))
             out[f"anees_{q}_interval_95"] = [lo, hi]
+        if q in pcrb:
+            out[f"pcrb_rmse_{q}_{u}"] = pcrb[q]
     out["targets"] = targets
     return out, errs
 
 
-def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targets: int = 2) -> list[Path]:
-    """Per quantity and for the first `max_targets` targets (sorted): every estimator's error per
-    axis against time with its own 3-sigma envelope, overlaid. tracks: {name: (track, errors)}."""
+def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targets: int = 2,
+                bound: Bound | None = None) -> list[Path]:
+    """Per quantity and for the first `max_targets` targets (sorted, the PCRB's target first):
+    every estimator's error per axis against time with its own 3-sigma envelope, overlaid, and the
+    scenario's +/-3 sqrt(diag PCRB) where it has one. tracks: {name: (track, errors)}."""
     from testbed.plots import figure, save  # lazy: matplotlib, only when plots are written
 
     keys = sorted({k for track, _ in tracks.values() for k in track}, key=lambda k: (k[1], k[0]))
     paths = []
     for q in UNIT:
-        for target in sorted({t for t, qq in keys if qq == q}, key=natural)[:max_targets]:
+        first = (bound.target,) if bound is not None and q == "position" else ()
+        for target in sorted({t for t, qq in keys if qq == q}, key=lambda t: (t not in first, natural(t)))[:max_targets]:
             fig = figure(figsize=(8, 6.2))
             axes = fig.subplots(3, 1, sharex=True)
             for c, (name, (track, errs)) in enumerate(tracks.items()):
@@ -86,6 +124,11 @@ def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targ
                     ax.plot(s.time, e[:, a], lw=0.8, color=f"C{c}", label=name)
                     if s.has_cov.any():
                         ax.fill_between(s.time, -3 * sig[:, a], 3 * sig[:, a], color=f"C{c}", alpha=0.15, lw=0)
+            if target in first:
+                pc = 3 * np.sqrt(np.clip(np.diagonal(bound.cov, axis1=1, axis2=2), 0, None))
+                for a, ax in enumerate(axes):
+                    ax.plot(bound.time, pc[:, a], "k--", lw=0.8, label="PCRB ±3σ" if a == 0 else None)
+                    ax.plot(bound.time, -pc[:, a], "k--", lw=0.8)
             for a, ax in enumerate(axes):
                 ax.set_ylabel(f"{'xyz'[a]} [{UNIT[q].replace('_', '/')}]")
                 ax.grid(alpha=0.3)

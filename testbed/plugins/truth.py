@@ -5,7 +5,9 @@ The log holds each vehicle's base-body pose and twist at the logged ticks (`time
 velocity are interpolated linearly, attitude by slerp, body rates linearly; exact at a logged
 tick (every sensor sample is one). A site adds its lever arm l (body frame):
 p_site = p + R l, v_site = v + R (omega x l); a site's attitude is its vehicle's.
-Errors: position/velocity estimate minus truth (world); attitude log(R_true^T R_est) (rad, body).
+Relative to a vehicle J (Estimate.frame "uavJ"): R_J^T (p - p_J), R_J^T (v - v_J), R_J^T R.
+Errors: position/velocity estimate minus truth (in the estimate's frame); attitude
+log(R_true^T R_est) (rad, body).
 """
 from __future__ import annotations
 
@@ -34,8 +36,18 @@ class Truth:
             return Rotation.concatenate([rots] * t.size)
         return Slerp(self.t, rots)(np.clip(t, self.t[0], self.t[-1]))
 
-    def at(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
-        """True value (K, 3) of position (m) / velocity (m/s), or (K, 4) wxyz attitude, at times t (K,)."""
+    def at(self, target: str, quantity: str, t: np.ndarray, frame: str = "world") -> np.ndarray:
+        """True value (K, 3) of position (m) / velocity (m/s), or (K, 4) wxyz attitude, at times t (K,),
+        in the world frame or relative to vehicle `frame` (module docstring)."""
+        x = self._world(target, quantity, t)
+        if frame == "world":
+            return x
+        R = self._rot(self.index[frame], t)
+        if quantity == "attitude":
+            return (R.inv() * Rotation.from_quat(x, scalar_first=True)).as_quat(scalar_first=True)
+        return R.inv().apply(x - self._world(frame, quantity, t))
+
+    def _world(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
         body, arm = self.sites[target] if target in self.sites else (target, None)
         arm = None if arm is None else np.array(arm, float)  # a writable copy (scipy needs one)
         i = self.index[body]
@@ -50,9 +62,9 @@ class Truth:
         return base + R.apply(np.cross(self._lin(self.omega, i, t), arm))
 
 
-def errors(truth: Truth, target: str, quantity: str, t: np.ndarray, value: np.ndarray) -> np.ndarray:
+def errors(truth: Truth, target: str, quantity: str, t: np.ndarray, value: np.ndarray, frame: str = "world") -> np.ndarray:
     """Estimate minus truth (K, 3): m, m/s, or the attitude error rotation vector (rad, body)."""
-    true = truth.at(target, quantity, t)
+    true = truth.at(target, quantity, t, frame)
     if quantity != "attitude":
         return value - true
     r_est = Rotation.from_quat(value, scalar_first=True)

@@ -30,13 +30,12 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "
               estimators: tuple = (), backend: str = "local", address: str | None = None) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
 
-    estimators: plugin EstimatorSpecs run beside the paper's (coop only: extra table columns);
+    estimators: plugin EstimatorSpecs run beside the paper's in every run (coop: one more column of
+    Table 4; phase, visnav, bandwidth: one more row each in table.md, testbed.reproduce.plugins);
     backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
-    if estimators and paper != "coop":
-        raise UsageError(f"--estimator: reproduce {paper} does not take plugin estimators yet (reproduce coop does)")
     module = importlib.import_module(f"testbed.reproduce.{paper}")
     extra = {"estimators": tuple(estimators)} if estimators else {}
     with use_backend(backend, address), Output(Path(out), kind=f"reproduce-{paper}", force=force) as o:

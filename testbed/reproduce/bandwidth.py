@@ -40,7 +40,8 @@ from testbed.reproduce import bandwidth_paper as paper_mode
 from testbed.reproduce import bandwidth_plots as bplots
 from testbed.reproduce.bandwidth_paper import _fmt_T
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
-from testbed.reproduce.runs import run_name, seeds, sweep_runs
+from testbed.reproduce import plugins as plugin_rows
+from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.stats import paired_t
 
 UWB_MAX_RUNS = 100
@@ -53,15 +54,17 @@ PAPER_SEED = 0
 
 
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
-              workers: int | None = None) -> dict:
+              workers: int | None = None, estimators: tuple = ()) -> dict:
     """Both modes into out/paper and out/uwb, gathered in out/ (see the module docstring); returns
-    {"paper": paper/claims.json, "uwb": uwb/claims.json, "claims": claims.json's claims}."""
+    {"paper": paper/claims.json, "uwb": uwb/claims.json, "claims": claims.json's claims}.
+    estimators: plugin EstimatorSpecs scored in every uwb-mode run, one more row each in table.md
+    (testbed.reproduce.plugins; paper mode has no physics run to give them)."""
     out = Path(out)
     readings = paper_mode.compute(runs, PAPER_SEED)
     paper_claims = paper_mode.decide(readings)
     paper = paper_mode.write(out / "paper", readings, paper_claims, runs=runs, seed=PAPER_SEED)
     uwb_res = compute_uwb(out / "uwb", runs=min(runs, UWB_MAX_RUNS), motion=motion,
-                          duration=HORIZON_S if duration is None else duration, workers=workers)
+                          duration=HORIZON_S if duration is None else duration, workers=workers, estimators=estimators)
     uwb_claims = decide_uwb(uwb_res)
     uwb = write_uwb(out / "uwb", uwb_res, uwb_claims)
     claims = paper_claims + uwb_claims
@@ -79,6 +82,11 @@ def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: flo
           "scenario's physics-based UWB ranges): `uwb/`.", ""]
     md += _demote(paper_mode.markdown(readings, paper_claims, runs=runs, seed=PAPER_SEED)) + [""]
     md += _demote(_uwb_markdown(uwb_res, uwb_claims))
+    keys = [e.key for e in estimators]
+    groups = {"uwb mode": [m["estimators"] for m in load_metrics(
+        [out / "uwb" / "runs" / run_name(i) for i in range(uwb_res["context"]["runs"])])]} if keys else {}
+    md += _demote(plugin_rows.markdown(groups, keys, "mode"))
+    plugin_rows.write(out / "table_plugins.csv", groups, keys)
     write_markdown(out / "table.md", md)
     rows = ([dict(mode="paper", **r) for r in paper_mode.rows(readings)]
             + [dict(mode="uwb", **r) for r in _uwb_rows(uwb_res)])
@@ -132,12 +140,13 @@ def _case(scenario, meas: dict, S: np.ndarray, P: np.ndarray) -> dict:
     )
 
 
-def compute_uwb(out: Path, *, runs: int, motion: str, duration: float, workers: int | None) -> dict:
+def compute_uwb(out: Path, *, runs: int, motion: str, duration: float, workers: int | None, estimators: tuple = ()) -> dict:
     """Sweep the `bandwidth` scenario (out/runs/run-XXX) and filter every run for each case.
-    Returns {"res": {case: _case(...)}, "context": JSON-able description of the runs}."""
+    Returns {"res": {case: _case(...)}, "context": JSON-able description of the runs}.
+    estimators: plugin EstimatorSpecs scored in every run too (in its metrics.json)."""
     scenario = scenario_mod.load("bandwidth", motion=motion, duration=duration)
     cfg = scenario.pipeline
-    run_dirs = sweep_runs(scenario, runs, Path(out) / "runs", workers=workers or 2)
+    run_dirs = sweep_runs(dataclasses.replace(scenario, estimators=tuple(estimators)), runs, Path(out) / "runs", workers=workers or 2)
     meas = _load_runs(scenario, run_dirs)
     K = meas["K"]
     # bound-optimal selection for P1 over the horizon (design-time V: run 0, first full epoch)

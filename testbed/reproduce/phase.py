@@ -33,6 +33,7 @@ Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenari
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,8 @@ from testbed.pipelines.phase import window_keys
 from testbed.plots import compare_bars, figure, save
 from testbed.report import Claim, claims_section, fmt, fmt_list, fmt_pm, markdown_table, write_claims, write_csv, \
     write_markdown
-from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
+from testbed.reproduce import plugins as plugin_rows
+from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.stats import clopper_pearson, tost_log_ratio, wilcoxon_paired
 
 SCENARIOS = ("phase-line-h000", "phase-cross-h000", "phase-vobtuse-h000", "phase-vacute-h000",
@@ -237,9 +239,11 @@ def _rmse_vs_pcrb(R: dict[str, list[dict]], path: Path, runs: int) -> Path:
     return save(fig, path)
 
 
-def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int) -> dict:
+def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int,
+          plugins: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = ()) -> dict:
     """table.md, table.csv, plots/rmse_window.png, plots/rmse_vs_pcrb.png, claims.json; returns
-    claims.json's content."""
+    claims.json's content. plugins: {scenario: every run's metrics.json `estimators`} and keys the
+    plugin estimators' names (--estimator): one more row each (testbed.reproduce.plugins)."""
     rows, cols = _table_rows(R), _cols(R)
     w = _window(next(iter(R.values())))
     tag = w.replace(" ", "_")
@@ -260,6 +264,8 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
     if not w.startswith(f"last {PAPER_WINDOW_S:g} s"):
         md += [f"The runs are too short for the paper's last {PAPER_WINDOW_S:g} s: every window score and claim "
                f"uses the {w} instead.", ""]
+    md += plugin_rows.markdown(plugins or {}, list(keys), "scenario")
+    plugin_rows.write(out / "table_plugins.csv", plugins or {}, list(keys))
     write_markdown(out / "table.md", md + claims_section(claims))
     stats = [mean_ci(_scores(R[n])) for n in R]
     compare_bars([n.removeprefix("phase-") for n in R], np.array([s[0] for s in stats]),
@@ -271,9 +277,10 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
 
 
 def compute(out: Path, *, runs: int, motion: str, duration: float | None,
-            workers: int | None) -> tuple[dict[str, list[dict]], int]:
+            workers: int | None, estimators: tuple = ()) -> tuple[dict[str, list[dict]], int]:
     """Sweep every formation (OUT/runs/<scenario>/run-XXX) and copy run 0's error figures to
-    OUT/plots/; returns ({scenario: the EKF scores of every run}, the base seed)."""
+    OUT/plots/; returns ({scenario: the EKF scores of every run}, the base seed). estimators:
+    plugin EstimatorSpecs scored in every run too (plugin_metrics reads them back)."""
     R: dict[str, list[dict]] = {}
     base = set()
     for name in SCENARIOS:
@@ -282,7 +289,7 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None,
             sc = scenario_mod.load(name, motion=motion, duration=duration,
                                    overrides={"pipeline.last_window": repr(0.5 * sc.duration)})
         base.add(sc.seed)
-        dirs = sweep_runs(sc, runs, out / "runs" / name, workers=workers, progress=True)
+        dirs = sweep_runs(replace(sc, estimators=tuple(estimators)), runs, out / "runs" / name, workers=workers, progress=True)
         R[name] = [m["estimators"]["ekf"] for m in load_metrics(dirs)]
         for fig in ("position_error.png", "velocity_error.png"):
             src = dirs[0] / "plots" / fig
@@ -293,10 +300,19 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None,
     return R, base.pop()
 
 
+def plugin_metrics(out: Path, runs: int) -> dict[str, list[dict]]:
+    """{scenario: the metrics.json `estimators` of every run} read back from OUT/runs."""
+    return {name: [m["estimators"] for m in load_metrics([out / "runs" / name / run_name(i) for i in range(runs)])]
+            for name in SCENARIOS}
+
+
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
-              workers: int | None = None) -> dict:
-    """Seed 003 reproduction into `out` (see the module docstring); returns claims.json's content."""
+              workers: int | None = None, estimators: tuple = ()) -> dict:
+    """Seed 003 reproduction into `out` (see the module docstring); returns claims.json's content.
+    estimators: plugin EstimatorSpecs, one more row each (per formation) in table.md."""
     out = Path(out)
     (out / "plots").mkdir(parents=True, exist_ok=True)
-    R, base_seed = compute(out, runs=runs, motion=motion, duration=duration, workers=workers)
-    return write(out, R, decide(R), runs=runs, motion=motion, base_seed=base_seed)
+    R, base_seed = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators)
+    plugins = plugin_metrics(out, runs) if estimators else None
+    return write(out, R, decide(R), runs=runs, motion=motion, base_seed=base_seed, plugins=plugins,
+                 keys=tuple(e.key for e in estimators))

@@ -45,6 +45,9 @@ from testbed.pipelines.visnav import metrics_of, run_all
 from testbed.plots import compare_bars, error_envelope, save
 from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, write_claims, write_csv, write_json, \
     write_markdown
+from testbed.plugins.loading import resolve
+from testbed.plugins.run import run_estimators
+from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import seeds
 from testbed.simulate import simulate
 from testbed.stats import paired_t, wilcoxon_paired
@@ -72,10 +75,12 @@ def _scenario(seed: int, motion: str, duration: float, case: str, mode: str = "g
 def one_run(args: tuple) -> dict:
     """Worker: one seed, the given cases; metrics and error-norm series of every filter.
 
-    args = (seed, motion, duration, cases, mode, keep_full). Returns {case: {"metrics": {filter: ...},
-    "t": (E,), "norms": {filter: (E, 3) [|dp| m, |dv| m/s, attitude deg]}, "full": {...} if keep_full}}.
+    args = (seed, motion, duration, cases, mode, keep_full[, estimators]). Returns {case: {"metrics":
+    {filter: ...}, "t": (E,), "norms": {filter: (E, 3) [|dp| m, |dv| m/s, attitude deg]}, "full": {...}
+    if keep_full, "plugins": {name: scores} of the plugin EstimatorSpecs `estimators` (testbed.plugins)}}.
     """
-    seed, motion, duration, cases, mode, keep_full = args
+    seed, motion, duration, cases, mode, keep_full, *rest = args
+    plugins = resolve(rest[0]) if rest else []
     out = {}
     for case in cases:
         s = _scenario(seed, motion, duration, case, mode)
@@ -92,6 +97,8 @@ def one_run(args: tuple) -> dict:
         }
         if keep_full:
             res["full"] = {n: (scores[n].err, scores[n].sigma) for n in tracks}
+        if plugins:
+            res["plugins"] = run_estimators(s, physics, log, plugins, None)
         out[case] = res
     return out
 
@@ -121,12 +128,13 @@ class VisnavResults:
     meta: dict
 
 
-def compute(*, runs: int, motion: str, duration: float, workers: int) -> VisnavResults:
-    """The Monte Carlo (both noise cases per seed) and the extra runs (other motion, pixel camera)."""
+def compute(*, runs: int, motion: str, duration: float, workers: int, estimators: tuple = ()) -> VisnavResults:
+    """The Monte Carlo (both noise cases per seed) and the extra runs (other motion, pixel camera).
+    estimators: plugin EstimatorSpecs scored in every Monte Carlo run (results[i][case]["plugins"])."""
     t0 = time.perf_counter()
     base = scenario_mod.load("visnav").seed
     run_seeds = seeds(base, runs)
-    jobs = [(seed, motion, duration, CASES, "geometric", i == 0) for i, seed in enumerate(run_seeds)]
+    jobs = [(seed, motion, duration, CASES, "geometric", i == 0, tuple(estimators)) for i, seed in enumerate(run_seeds)]
     print(f"visnav: {runs} runs x {len(CASES)} noise cases x {len(FILTERS)} filters, {duration:g} s, {motion}", file=sys.stderr)
     results = _run_many(jobs, workers)
     other = "flown" if motion == "prescribed" else "prescribed"
@@ -285,30 +293,37 @@ def write_plots(out: Path, results: list[dict], summaries: dict) -> None:
                          title=f"RMSE of relative {label}, {case} noise, {len(results)} runs (95 % CI)", ylabel=unit)
 
 
-def write(out: Path, res: VisnavResults, claims: list[Claim]) -> dict:
+def write(out: Path, res: VisnavResults, claims: list[Claim], keys: tuple[str, ...] = ()) -> dict:
     """table.md, table.csv, plots/, claims.json and runs.json (every run's metrics); returns the
-    summary (per-case tables, claims.json's content, meta)."""
+    summary (per-case tables, claims.json's content, meta). keys: the plugin estimators' names, one
+    more row each per noise case (testbed.reproduce.plugins, table_plugins.csv)."""
     meta, results = res.meta, res.results
     summaries = {case: summarize(results, case) for case in CASES}
-    write_markdown(out / "table.md", _markdown(summaries, meta, res.extra, claims))
+    groups = {case: [r[case].get("plugins", {}) for r in results] for case in CASES}
+    md = _markdown(summaries, meta, res.extra, claims)
+    at = next((i for i, line in enumerate(md) if line.startswith("Wall time")), len(md))
+    write_markdown(out / "table.md", md[:at] + plugin_rows.markdown(groups, list(keys), "case") + md[at:])
+    plugin_rows.write(out / "table_plugins.csv", groups, list(keys))
     write_csv(out / "table.csv", ["case", "filter", "score", "mean", "ci95_lo", "ci95_hi"],
               _csv_rows(summaries, res.extra))
     write_plots(out, results, summaries)
     doc = write_claims(out / "claims.json", claims, paper="004", scenario="visnav", motion=meta["motion"],
                        runs=meta["runs"], duration_s=meta["duration"], seeds=meta["seeds"])
     runs_out = [{"seed": seed, **{c: {"metrics": r[c]["metrics"], "glint_fraction": r[c]["glint_fraction"],
-                                      "leds_per_epoch": r[c]["leds_per_epoch"]} for c in CASES}}
+                                      "leds_per_epoch": r[c]["leds_per_epoch"],
+                                      **({"plugins": r[c]["plugins"]} if "plugins" in r[c] else {})} for c in CASES}}
                 for seed, r in zip(meta["seeds"], results)]
     write_json(out / "runs.json", {"meta": meta, "runs": runs_out, "extra": res.extra})
     return {"summary": summaries, "claims": doc["claims"], "meta": meta}
 
 
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
-              workers: int | None = None) -> dict:
-    """Run the Monte Carlo and write table.md/csv, claims.json, runs.json and plots/ into out."""
+              workers: int | None = None, estimators: tuple = ()) -> dict:
+    """Run the Monte Carlo and write table.md/csv, claims.json, runs.json and plots/ into out.
+    estimators: plugin EstimatorSpecs, one more row each per noise case."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     duration = DEFAULT_DURATION if duration is None else float(duration)
     workers = max(1, min(workers or min(2, os.cpu_count() or 1), runs))
-    res = compute(runs=runs, motion=motion, duration=duration, workers=workers)
-    return write(out, res, decide(res))
+    res = compute(runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators)
+    return write(out, res, decide(res), keys=tuple(e.key for e in estimators))
