@@ -226,3 +226,54 @@ def test_one_antenna_follower_has_no_body_pose_but_a_position():
     assert np.allclose(b.mean[:3], p, atol=1e-9) and b.cov.shape == (6, 6)
     assert body_pose(b, np.zeros((1, 3))) is None
     assert body_pose(Gaussian(np.zeros(18), np.eye(18)), np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])) is None
+
+
+# ------------------------------------------------------------------ the plugin (testbed/plugins/ranging.py)
+def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
+    """Fed one Measurement at a time as by testbed.plugins.feed: uav1's pose on the "pose" stream
+    (known, moving), 6 x 6 UWB ranges, uav2's height. The plugin builds its prior from the first
+    epoch, estimates every antenna and the body (position, attitude) within a few sigma, and skips
+    and counts an epoch that cannot start the filter (ranges with no height: mirror ambiguity)."""
+    from testbed.plugins.api import Context, Measurement
+    from testbed.plugins.ranging import RangingEkfEstimator
+
+    arms1, arms2 = _hexagon(0.4), _hexagon(0.5)
+    sites = {f"uav{b}/ant{k + 1}": (f"uav{b}", a) for b, arms in ((1, arms1), (2, arms2)) for k, a in enumerate(arms)}
+    sites["uav2/imu"] = ("uav2", np.zeros(3))
+    ctx = Context(vehicles=("uav1", "uav2"), sites=sites, anchors={}, sensors={}, duration=30.0, seed=0,
+                  rng=np.random.default_rng(0))
+    est = RangingEkfEstimator(ctx, {"follower": "uav2", "sigma_range": 0.05, "sigma_height": 0.05, "level_sigma": 0.05,
+                                    "q": 1e-6, "q_translation": 1e-3, "q_rotation": 1e-4, "v_sigma": 0.1})
+    assert est.antennas == [f"uav2/ant{k}" for k in range(1, 7)]
+    rng = np.random.default_rng(11)
+    q2 = quat_exp(np.array([0.0, 0.0, 0.7]))
+    R2 = quat_to_rotmat(q2)
+    out = []
+    for k in range(31):
+        t = float(k)
+        p1 = np.array([0.1 * t, 0.0, 1.0])
+        p2 = np.array([2.5 + 0.1 * t, 1.0, 3.0])
+        feed = [Measurement(stream="pose", time=t, arrival=t, value=np.r_[p1, 1.0, 0, 0, 0], src="uav1")]
+        X1, X2 = p1 + arms1, p2 + arms2 @ R2.T
+        for i in range(6):
+            for j in range(6):
+                r = np.linalg.norm(X1[i] - X2[j]) + rng.normal(0, 0.05)
+                feed.append(Measurement(stream="uwb", time=t, arrival=t, value=np.array([r]), src=f"uav1/ant{i + 1}",
+                                        dst=f"uav2/ant{j + 1}", sigma=np.array([0.05])))
+        if k > 0:  # no height at t = 0: that epoch cannot start the filter
+            feed.append(Measurement(stream="height", time=t, arrival=t, value=np.array([p2[2] + rng.normal(0, 0.05)]),
+                                    src="uav2", sigma=np.array([0.05])))
+        for m in feed:
+            out += est.process(m)
+    out += est.finish()
+    assert est.health()["skipped_epochs"] == 1 and min(e.time for e in out) == 1.0
+    last = {(e.target, e.quantity): e for e in out if e.time == 30.0}
+    pos = last[("uav2", "position")]
+    err = pos.value - np.array([5.5, 1.0, 3.0])
+    assert nees(err, pos.cov) < 16.3  # chi2(3) 0.999 quantile
+    att = last[("uav2", "attitude")]
+    e_att = quat_log(rotmat_to_quat(R2.T @ quat_to_rotmat(att.value)))
+    assert nees(e_att, att.cov) < 16.3
+    for j in range(6):
+        a = last[(f"uav2/ant{j + 1}", "position")]
+        assert np.linalg.norm(a.value - (np.array([5.5, 1.0, 3.0]) + R2 @ arms2[j])) < 5 * np.sqrt(np.trace(a.cov))
