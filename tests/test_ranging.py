@@ -22,6 +22,9 @@ from estimators.ranging import (
     transition,
 )
 from estimators.so3 import quat_exp, quat_log, quat_to_rotmat, rotmat_to_quat
+from testbed.plugins.api import Context, Measurement
+from testbed.plugins.loading import check_protocol, load_class
+from testbed.plugins.ranging import RangingEkfEstimator
 
 
 def _central(f, x, h):
@@ -234,8 +237,8 @@ def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
     (known, moving), 6 x 6 UWB ranges, uav2's height. The plugin builds its prior from the first
     epoch, estimates every antenna and the body (position, attitude) within a few sigma, and skips
     and counts an epoch that cannot start the filter (ranges with no height: mirror ambiguity)."""
-    from testbed.plugins.api import Context, Measurement
-    from testbed.plugins.ranging import RangingEkfEstimator
+    entry = "testbed.plugins.ranging:RangingEkfEstimator"  # the entry point the lead registers
+    check_protocol(entry, load_class(entry))
 
     arms1, arms2 = _hexagon(0.4), _hexagon(0.5)
     sites = {f"uav{b}/ant{k + 1}": (f"uav{b}", a) for b, arms in ((1, arms1), (2, arms2)) for k, a in enumerate(arms)}

@@ -119,12 +119,17 @@ class RangingEkfEstimator:
             return float(m.sigma[col])
         return float(default)
 
-    def process(self, m: Measurement) -> list[Estimate]:
+    def _advance(self, t: float | None) -> list[Estimate]:
+        """Solve the buffered epoch once time moves past it (t None: at finish); then buffer at t."""
         out = []
-        if self.t is not None and m.time > self.t:
+        if self.t is not None and (t is None or t > self.t):
             out = self._solve()
             self._reset()
-        self.t = m.time
+        self.t = self.t if t is None else t
+        return out
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        out = self._advance(m.time)
         p = self.p
         if m.stream == p["pose_stream"]:
             if m.src in self.known:
@@ -148,7 +153,7 @@ class RangingEkfEstimator:
         return out
 
     def finish(self) -> list[Estimate]:
-        return self._solve() if self.t is not None else []
+        return self._advance(None)
 
     def health(self) -> dict[str, int]:
         return dict(self.counts)
