@@ -63,6 +63,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from estimators.core import Gaussian
+from estimators.geometry import DegenerateGeometryError, require_span
 
 BYTES_PER_COMPONENT = 8  # float64
 
@@ -615,6 +616,9 @@ def uwb_pseudo_measurement(ranges: np.ndarray, anchors: np.ndarray, range_sigma:
     ranges: (..., m) measured ranges r_k (m) to the anchors a_1..a_m; anchors: (m, 3) known
     positions (m, world ENU), the last one a_m is the reference; m >= 4 and the differences
     a_k - a_m must span 3-D. range_sigma: 1 sigma of each range (m, white, independent).
+    Degenerate geometry is refused, never answered with an arbitrary number: fewer than 4
+    anchors, anchors on one plane (or line), or a ranges array whose last axis is not m raise
+    geometry.DegenerateGeometryError (a ValueError) naming the cause (estimators.geometry).
 
     r_k^2 = |p|^2 - 2 a_k.p + |a_k|^2; subtracting the reference's equation removes |p|^2:
         2 (a_k - a_m)^T p = |a_k|^2 - |a_m|^2 - r_k^2 + r_m^2,   k = 1..m-1   (eqs. 21-22)
@@ -627,6 +631,11 @@ def uwb_pseudo_measurement(ranges: np.ndarray, anchors: np.ndarray, range_sigma:
     a = np.asarray(anchors, float)
     r = np.asarray(ranges, float)
     m = a.shape[0]
+    if r.shape[-1:] != (m,):
+        raise DegenerateGeometryError(f"uwb_pseudo_measurement: {r.shape[-1] if r.ndim else 0} ranges "
+                                      f"for {m} anchors")
+    # eqs. 21-22 need 4 anchors spanning 3-D: coplanar ones leave H^T H singular (to round-off)
+    require_span(a, 3, "uwb_pseudo_measurement: anchors")
     H = 2.0 * (a[:-1] - a[-1])  # (m-1, 3)
     # eq. 22: z_k = |a_k|^2 - |a_m|^2 - r_k^2 + r_m^2
     z = (a[:-1] ** 2).sum(-1) - (a[-1] ** 2).sum() - r[..., :-1] ** 2 + r[..., -1:] ** 2

@@ -127,25 +127,34 @@ class Health:
     covariance_repairs: covariances that were not positive definite, or not symmetric beyond
     round-off (core.symmetrize), and were repaired;
     rejected_measurements: measurement rows rejected by a gate;
-    nonconverged_iterations: iterative updates stopped at their iteration limit unconverged.
+    nonconverged_iterations: iterative updates stopped at their iteration limit unconverged;
+    fallback_updates: iterative updates that failed (no convergence, a factorization error or a
+    non-finite iterate) and were replaced by the plain (non-iterative) update of that step; each
+    is also a nonconverged iteration, so it reaches metrics.json in `nonconverged_steps`;
+    skipped_updates: measurement epochs (or rows) that could not be used at all (degenerate
+    geometry, e.g. a range whose two ends coincide) and were skipped.
     """
 
     covariance_repairs: int = 0
     rejected_measurements: int = 0
     nonconverged_iterations: int = 0
+    fallback_updates: int = 0
+    skipped_updates: int = 0
 
 
 _HEALTH: ContextVar[Health | None] = ContextVar("estimators_core_health", default=None)
 
 
 def tally(*, covariance_repairs: int = 0, rejected_measurements: int = 0,
-          nonconverged_iterations: int = 0) -> None:
+          nonconverged_iterations: int = 0, fallback_updates: int = 0, skipped_updates: int = 0) -> None:
     """Add to the counts of the step in progress (`counting`); does nothing outside one."""
     h = _HEALTH.get()
     if h is not None:
         h.covariance_repairs += covariance_repairs
         h.rejected_measurements += rejected_measurements
         h.nonconverged_iterations += nonconverged_iterations
+        h.fallback_updates += fallback_updates
+        h.skipped_updates += skipped_updates
 
 
 @contextmanager
@@ -182,7 +191,9 @@ class Track:
 
     t: (E,) s; beliefs: the E beliefs after each epoch's update; covariance_repairs,
     rejected_measurements, nonconverged_iterations: (E,) int health counts of each epoch (predicts
-    and update); predict_s, update_s: (E,) wall time (s) of the epoch's predicts and of its update.
+    and update); predict_s, update_s: (E,) wall time (s) of the epoch's predicts and of its update;
+    fallback_updates, skipped_updates: (E,) int, the breakdown of `Health` (fallbacks are also in
+    nonconverged_iterations; neither is in `health()`, whose keys are the metrics.json contract).
     """
 
     t: np.ndarray
@@ -192,6 +203,8 @@ class Track:
     nonconverged_iterations: np.ndarray
     predict_s: np.ndarray
     update_s: np.ndarray
+    fallback_updates: np.ndarray | None = None
+    skipped_updates: np.ndarray | None = None
 
     @property
     def mean(self) -> np.ndarray:
@@ -243,16 +256,17 @@ class Stepper:
             t2 = time.perf_counter()
         self.belief, self.t = b, epoch.t
         self._rows.append((epoch.t, b, health.covariance_repairs, health.rejected_measurements,
-                           health.nonconverged_iterations, t1 - t0, t2 - t1))
+                           health.nonconverged_iterations, t1 - t0, t2 - t1, health.fallback_updates,
+                           health.skipped_updates))
         return b
 
     def track(self) -> Track:
         """The epochs processed so far as a Track."""
-        cols = list(zip(*self._rows)) if self._rows else [()] * 7
-        t, beliefs, rep, rej, nc, tp, tu = cols
+        cols = list(zip(*self._rows)) if self._rows else [()] * 9
+        t, beliefs, rep, rej, nc, tp, tu, fb, sk = cols
         ints = (np.array(c, dtype=int) for c in (rep, rej, nc))
         return Track(np.array(t, dtype=float), tuple(beliefs), *ints, np.array(tp, dtype=float),
-                     np.array(tu, dtype=float))
+                     np.array(tu, dtype=float), np.array(fb, dtype=int), np.array(sk, dtype=int))
 
 
 def drive(filter: Filter, prior: Any, epochs: Iterable[Epoch], t0: float | None = None) -> Track:

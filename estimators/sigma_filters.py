@@ -29,8 +29,9 @@ negative weights of a strongly nonlinear map is indefinite) the covariance is re
 eigenvalue floor applied in correlation coordinates (D^-1 P D^-1, D = sqrt(diag P)), so that
 states of very different units (metres and rad/s biases) each keep their own scale, and a
 ``SpdRepairWarning`` is emitted and the repair is counted (``core.tally``: the driver records
-it in the track's ``covariance_repairs``). A correntropy update that stops at ``max_iter``
-without converging is counted as ``nonconverged_iterations``. The same test guards P_yy before its Cholesky solve. In addition
+it in the track's ``covariance_repairs``). A correntropy update whose fixed point fails (stops at ``max_iter``
+unconverged, LinAlgError, non-finite iterate) falls back to the plain Kalman update for that step and
+is counted as ``nonconverged_iterations`` and ``fallback_updates``. The same test guards P_yy before its Cholesky solve. In addition
 the cubature Kalman update is computed in Joseph form with the *effective* noise
 R_eff = P_yy - H P H^T, H = P_xy^T P^-1; this is algebraically the textbook P - K P_yy K^T and
 stays PSD whenever R_eff is PSD (always, for a rule with positive weights).
@@ -339,11 +340,15 @@ class KalmanUpdate:
     linearize: Callable[[StateSpaceModel, Gaussian, Measurement], Linearization]
 
     def __call__(self, model: StateSpaceModel, belief: Gaussian, meas: Measurement) -> Gaussian:
-        lin = self.linearize(model, belief, meas)
-        K = kalman_gain(lin.Pxy, lin.Pyy)
-        dx = K @ (meas.y - lin.y_pred)
-        P = ensure_spd(joseph_update(belief.cov, K, lin.H, lin.R_eff), what="posterior covariance")
-        return _new_belief(belief, model.boxplus(belief.mean[None, :], dx[None, :])[0], P)
+        return kalman_step(model, belief, meas.y, self.linearize(model, belief, meas))
+
+
+def kalman_step(model: StateSpaceModel, belief: Gaussian, y: np.ndarray, lin: Linearization) -> Gaussian:
+    """The Kalman update of `KalmanUpdate` on a given linearization; y: (m,) the measured vector."""
+    K = kalman_gain(lin.Pxy, lin.Pyy)
+    dx = K @ (y - lin.y_pred)
+    P = ensure_spd(joseph_update(belief.cov, K, lin.H, lin.R_eff), what="posterior covariance")
+    return _new_belief(belief, model.boxplus(belief.mean[None, :], dx[None, :])[0], P)
 
 
 class CorrentropySolution(NamedTuple):
@@ -448,6 +453,14 @@ class CorrentropyUpdate:
     The linearized regression (eq. 30, 32) uses H from ``linearize`` and the nominal R (eq. 33).
     kernel_sigma: kernel width in whitened (standard-deviation) units; tol, max_iter: the
     fixed-point stop; covariance: "joseph" (Chen 2017) or "information" (eq. 48).
+
+    Graceful degradation: when the fixed point fails for a step -- it stops at max_iter
+    unconverged, a factorization raises LinAlgError (e.g. H P~ H^T + R~ indefinite to round-off
+    once the prior's weights hit the floor), or the iterate or its covariance is not finite --
+    the step falls back to the plain Kalman update on the same linearization (`kalman_step`,
+    i.e. the fixed point's own start, eq. 47, with its Joseph covariance) and is counted as one
+    non-converged iteration and one fallback update (core.tally), so that a run never stops on it
+    and the count reaches metrics.json (`nonconverged_steps`).
     """
 
     linearize: Callable[[StateSpaceModel, Gaussian, Measurement], Linearization]
@@ -458,11 +471,16 @@ class CorrentropyUpdate:
 
     def __call__(self, model: StateSpaceModel, belief: Gaussian, meas: Measurement) -> Gaussian:
         lin = self.linearize(model, belief, meas)
-        sol = correntropy_solve(belief.cov, lin.H, lin.R, meas.y - lin.y_pred,
-                                kernel_sigma=self.kernel_sigma, tol=self.tol,
-                                max_iter=self.max_iter, covariance=self.covariance)
-        if not sol.converged:
-            tally(nonconverged_iterations=1)
+        try:
+            sol = correntropy_solve(belief.cov, lin.H, lin.R, meas.y - lin.y_pred,
+                                    kernel_sigma=self.kernel_sigma, tol=self.tol,
+                                    max_iter=self.max_iter, covariance=self.covariance)
+            failed = not (sol.converged and np.isfinite(sol.dx).all() and np.isfinite(sol.P).all())
+        except (np.linalg.LinAlgError, FloatingPointError):
+            failed = True
+        if failed:
+            tally(nonconverged_iterations=1, fallback_updates=1)
+            return kalman_step(model, belief, meas.y, lin)
         P = ensure_spd(sol.P, what="correntropy posterior covariance")
         return _new_belief(belief, model.boxplus(belief.mean[None, :], sol.dx[None, :])[0], P)
 

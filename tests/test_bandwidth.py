@@ -5,6 +5,7 @@ from scipy.stats import norm
 
 from estimators import bandwidth as bw
 from estimators.core import Epoch, drive, kalman_gain
+from estimators.geometry import DegenerateGeometryError
 from testbed.synthetic.bandwidth import M0_PAPER, P_SETS, T_SETS, X0_PAPER, paper_model, simulate
 
 BUDGET = [5, 5, 5, 5]
@@ -243,6 +244,31 @@ def test_uwb_pseudo_measurement_exact_and_V_by_finite_differences():
     # batched ranges give the same as one at a time
     yb, Vb = bw.uwb_pseudo_measurement(np.stack([r, r + 0.05]), a, 0.1)
     assert np.allclose(yb[0], y) and np.allclose(Vb[0], V)
+
+
+def test_uwb_pseudo_measurement_refuses_degenerate_geometry():
+    """Issue 16: coplanar anchors gave a position metres (581 m in the report) from the truth, or
+    a bare LinAlgError; too few ranges went unchecked. Each now raises DegenerateGeometryError
+    naming the cause. 200 random planes: the old Cholesky of H^T H succeeded on round-off for some
+    of them (silently wrong); the rank check refuses all."""
+    rng = np.random.default_rng(1)
+    p = np.array([5.0, 7.0, 3.0])
+    for _ in range(200):
+        nrm = rng.standard_normal(3)
+        e1 = np.cross(nrm, rng.standard_normal(3))
+        e2 = np.cross(nrm, e1)
+        basis = np.stack([e1 / np.linalg.norm(e1), e2 / np.linalg.norm(e2)])
+        a = rng.uniform(-20, 20, (4, 2)) @ basis + rng.uniform(-5, 5, 3)
+        with pytest.raises(DegenerateGeometryError, match="one plane"):
+            bw.uwb_pseudo_measurement(np.linalg.norm(p - a, axis=1), a, 0.1)
+    a = 20.0 * np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [0, 0, 0]])
+    with pytest.raises(DegenerateGeometryError, match="3 points given, at least 4"):
+        bw.uwb_pseudo_measurement(np.linalg.norm(p - a[:3], axis=1), a[:3], 0.1)
+    with pytest.raises(DegenerateGeometryError, match="3 ranges for 4 anchors"):
+        bw.uwb_pseudo_measurement(np.linalg.norm(p - a[:3], axis=1), a, 0.1)
+    # a plane lifted by 1 m at one corner spans 3-D: answered, exactly on noise-free ranges
+    a_ok = np.array([[0.0, 0, 0], [20, 0, 0], [0, 20, 0], [20, 20, 1.0]])
+    assert np.allclose(bw.uwb_pseudo_measurement(np.linalg.norm(p - a_ok, axis=1), a_ok, 0.1)[0], p, atol=1e-8)
 
 
 def test_missing_measurement_predicts_only():

@@ -12,7 +12,7 @@ from estimators.core import Epoch, Gaussian, chi2_interval, counting, drive, is_
 from estimators.cubature import fifth_degree_rule
 from estimators.sigma_filters import (
     CubaturePredict, LinearGaussianModel, LinearMeasurement, ManifoldGaussian, SpdRepairWarning,
-    correntropy_solve, ensure_spd, make_filter, make_mckf,
+    correntropy_solve, ensure_spd, make_ekf, make_filter, make_mckf, make_rhcf,
 )
 from estimators.so3 import quat_exp, quat_to_rotmat
 from estimators.visnav import CameraFilter, CameraFrame, ImuNoise, RelNavModel, VisNavConfig, make_state
@@ -364,3 +364,26 @@ def test_repairs_and_unconverged_correntropy_updates_are_counted():
     many = drive(make_mckf(model, max_iter=50, kernel_sigma=1.0), prior, epochs)
     assert one.nonconverged_iterations.tolist() == [0, 1]
     assert many.nonconverged_iterations.tolist() == [0, 0]
+
+
+def test_correntropy_fixed_point_failure_falls_back_to_the_kalman_update():
+    """A diverged prior (N(0, I)) meets three exact, accurate rows (R = 1e-6 I) that place the
+    state 360 sigma away: the correntropy weights of the prior hit their floor, H P~ H^T + R~ is
+    indefinite to round-off and the fixed point raised LinAlgError (the run stopped). Now the step
+    falls back to the plain Kalman update (the fixed point's start, eq. 47) and is counted as one
+    fallback and one non-converged iteration, for MCKF and RHCF alike."""
+    H, R = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]), 1e-6 * np.eye(3)
+    x_true = np.array([300.0, -200.0])
+    with pytest.raises(np.linalg.LinAlgError):
+        correntropy_solve(np.eye(2), H, R, H @ x_true, kernel_sigma=3.0)
+    model = LinearGaussianModel(np.eye(2), 0.01 * np.eye(2))
+    prior = Gaussian(np.zeros(2), np.eye(2))
+    epochs = [Epoch(0.0, LinearMeasurement(H @ x_true, H, R))]
+    kalman = drive(make_ekf(model), prior, epochs).beliefs[0]
+    for make in (make_mckf, make_rhcf):
+        track = drive(make(model), prior, epochs)
+        assert track.fallback_updates.tolist() == [1] and track.nonconverged_iterations.tolist() == [1]
+        assert track.health()["nonconverged_steps"] == 1
+        b = track.beliefs[0]
+        assert np.allclose(b.mean, kalman.mean, rtol=1e-9, atol=1e-9) and np.allclose(b.cov, kalman.cov, rtol=1e-6)
+        assert np.allclose(b.mean, x_true, atol=1e-2)  # the plain update takes the accurate rows

@@ -1,0 +1,220 @@
+"""The generalized ranging EKF (estimators.ranging) as a protocol estimator, for recorded data.
+
+One follower body is tracked from ranges between its antennas and KNOWN points: the world's
+anchors (Context.anchors) and the antennas of known bodies, whose poses arrive on a pose stream
+(from any source: motion capture, another navigation solution) and whose lever arms come from
+Context.sites. Optional: range rates, a height of the follower (altimeter / barometer).
+
+Streams (names configurable in params):
+- ranges: the streams of `range_streams` {stream: column of value holding the range, m}
+  (default {"uwb": 0, "phase": 1}: the simulator's phase value is [phase, range, rate]);
+  src and dst are site (or anchor) names, one end a follower antenna, the other a known point;
+- range rates (only with use_rates = true): `rate_streams` {stream: column} (default
+  {"range-rate": 0, "phase": 2}), m/s, same src/dst;
+- known poses: `pose_stream` (default "pose"), src = body, value (7,) = position m, quaternion
+  wxyz body to world; the latest pose at or before an epoch is used, and the velocity of a known
+  antenna (for the rates) is the difference of its last two positions;
+- height: `height_stream` (default "height"), src = the follower, value (1,) m: the height of
+  the centroid of its antennas (height_weights in params to say otherwise).
+The sigma of each row is the measurement's declared sigma at that column when given, else
+sigma_range / sigma_range_rate / sigma_height from params.
+
+Epochs: measurements of one time of validity form an epoch, processed when a later one arrives
+(or at finish), never looking ahead. The first epoch whose ranges determine the follower builds
+the prior (estimators.ranging.initial_belief: a rigid pose fix from the lever arms, or a fix per
+antenna); epochs before it, and epochs that cannot be used (degenerate geometry), are skipped
+and counted (health: skipped_epochs). Estimates: each antenna site's position and velocity, and
+the follower body's position, velocity and attitude when its lever arms determine an attitude.
+
+params: follower (default: the only vehicle that is not known and has ranges; required when
+ambiguous), antennas (the follower's site names, default: its sites named "ant*" or "uwb*"),
+known (bodies on the pose stream; default all other vehicles), q, q_translation, q_rotation
+(m^2/s^3, rad^2/s^3), gate_alpha, iterations, sigma_range, sigma_range_rate, sigma_height,
+use_rates, rate_window (s or none), v_sigma (m/s prior per axis), shape_sigma (m), level_sigma
+(rad or none), range_streams, rate_streams, pose_stream, height_stream, height_weights.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.core import Gate, counting
+from estimators.geometry import DegenerateGeometryError
+from estimators.ranging import RangingEkf, RangingEpoch, RangingNoise, body_pose, initial_belief
+from estimators.so3 import quat_to_rotmat
+from testbed.errors import ConfigError
+from testbed.plugins.api import Context, Estimate, Measurement
+
+DEFAULTS = dict(q=1e-3, q_translation=1e-2, q_rotation=1e-2, gate_alpha=1e-3, iterations=1, sigma_range=0.1,
+                sigma_range_rate=0.1, sigma_height=0.1, use_rates=False, rate_window=None, v_sigma=1.0,
+                shape_sigma=0.01, level_sigma=None, range_streams={"uwb": 0, "phase": 1},
+                rate_streams={"range-rate": 0, "phase": 2}, pose_stream="pose", height_stream="height",
+                height_weights=None, follower=None, antennas=None, known=None)
+
+
+def _body(site: str) -> str:
+    return site.split("/", 1)[0]
+
+
+class RangingEkfEstimator:
+    """Generalized ranging EKF: any antennas and lever arms, known poses from any source, height aid."""
+
+    description = "ranging EKF, any antennas/lever arms, known poses from a pose stream, optional rates and height"
+
+    def __init__(self, context: Context, params: dict):
+        unknown = sorted(set(params) - set(DEFAULTS))
+        if unknown:
+            raise ConfigError(f"estimator ranging.ekf params: unknown key(s) {unknown}; known: {sorted(DEFAULTS)}")
+        p = {**DEFAULTS, **params}
+        self.p = p
+        vehicles = list(context.vehicles)
+        follower = p["follower"] or (vehicles[-1] if len(vehicles) == 1 else None)
+        if follower is None and p["known"] is not None:
+            rest = [v for v in vehicles if v not in p["known"]]
+            follower = rest[0] if len(rest) == 1 else None
+        if follower not in vehicles:
+            raise ConfigError(f"estimator ranging.ekf params: follower {p['follower']!r} must name one of {vehicles}")
+        self.follower = follower
+        ants = p["antennas"] or sorted(s for s, (b, _) in context.sites.items()
+                                       if b == follower and s.split("/", 1)[1].startswith(("ant", "uwb")))
+        if not ants or any(a not in context.sites for a in ants):
+            raise ConfigError(f"estimator ranging.ekf params: antennas {ants!r} are not sites of {follower}")
+        self.antennas = list(ants)
+        self.index = {a: k for k, a in enumerate(self.antennas)}
+        self.arms = np.stack([np.asarray(context.sites[a][1], float) for a in self.antennas])
+        self.n = len(self.antennas)
+        self.known = set(p["known"] if p["known"] is not None else [v for v in vehicles if v != follower])
+        self.sites = context.sites
+        self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
+        self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"],
+                                                        rotation=p["q_rotation"]),
+                              gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]))
+        self.poses: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
+        self.belief = None
+        self.t_belief = None
+        self.t = None
+        self.counts = {"skipped_epochs": 0, "skipped_rows": 0, "rejected_measurements": 0, "covariance_repairs": 0}
+        self._reset()
+
+    # -------------------------------------------------------------- bookkeeping
+    def _reset(self) -> None:
+        self.links: list[tuple[int, str, float, float]] = []  # (antenna, known end, range, sigma)
+        self.rates: dict[tuple[int, str], tuple[float, float]] = {}
+        self.height: tuple[float, float] | None = None
+
+    def _known_point(self, name: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """Position and velocity (3,) of a known end at the latest pose, or None if unknown yet."""
+        if name in self.anchors:
+            return self.anchors[name], np.zeros(3)
+        body = _body(name)
+        if body not in self.known or name not in self.sites or not self.poses.get(body):
+            return None
+        arm = np.asarray(self.sites[name][1], float)
+        hist = self.poses[body]
+        X = [p + R @ arm for _, p, R in hist[-2:]]
+        V = (X[-1] - X[0]) / (hist[-1][0] - hist[0][0]) if len(hist) == 2 and hist[-1][0] > hist[0][0] else np.zeros(3)
+        return X[-1], V
+
+    def _sigma(self, m: Measurement, col: int, default: float) -> float:
+        if m.sigma is not None and np.size(m.sigma) > col and np.isfinite(m.sigma[col]) and m.sigma[col] > 0:
+            return float(m.sigma[col])
+        return float(default)
+
+    def _advance(self, t: float | None) -> list[Estimate]:
+        """Solve the buffered epoch once time moves past it (t None: at finish); then buffer at t."""
+        out = []
+        if self.t is not None and (t is None or t > self.t):
+            out = self._solve()
+            self._reset()
+        self.t = self.t if t is None else t
+        return out
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        out = self._advance(m.time)
+        p = self.p
+        if m.stream == p["pose_stream"]:
+            if m.src in self.known:
+                v = np.asarray(m.value, float)
+                hist = self.poses.setdefault(m.src, [])
+                hist.append((m.time, v[:3].copy(), quat_to_rotmat(v[3:7] / np.linalg.norm(v[3:7]))))
+                del hist[:-2]
+        elif m.stream == p["height_stream"] and m.src == self.follower:
+            self.height = (float(m.value[0]), self._sigma(m, 0, p["sigma_height"]))
+        else:
+            ends = [(m.src, m.dst), (m.dst, m.src)]
+            for mine, other in ends:
+                if mine in self.index and other not in self.index:
+                    j = self.index[mine]
+                    if m.stream in p["range_streams"]:
+                        col = int(p["range_streams"][m.stream])
+                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["sigma_range"])))
+                    if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
+                        col = int(p["rate_streams"][m.stream])
+                        self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["sigma_range_rate"]))
+        return out
+
+    def finish(self) -> list[Estimate]:
+        return self._advance(None)
+
+    def health(self) -> dict[str, int]:
+        return dict(self.counts)
+
+    # -------------------------------------------------------------- one epoch
+    def _epoch(self) -> RangingEpoch | None:
+        rows = []
+        for j, other, r, s in self.links:
+            known = self._known_point(other)
+            if known is not None:
+                rate, s_rate = self.rates.get((j, other), (np.nan, 1.0))
+                rows.append((j, known[0], known[1], r, s, rate, s_rate))
+        if not rows:
+            return None
+        j, X, V, r, s, rd, sd = (np.array(c) for c in zip(*rows))
+        use_rates = bool(self.p["use_rates"]) and np.isfinite(rd).any()
+        h = self.height
+        return RangingEpoch(antenna=j.astype(int), known_pos=X, ranges=r, sigma_range=s,
+                            range_rates=rd if use_rates else None, known_vel=V if use_rates else None,
+                            sigma_range_rate=sd, rate_window=self.p["rate_window"],
+                            height=None if h is None else h[0], sigma_height=1.0 if h is None else h[1],
+                            height_weights=None if self.p["height_weights"] is None else np.asarray(self.p["height_weights"], float))
+
+    def _solve(self) -> list[Estimate]:
+        epoch = self._epoch()
+        if epoch is None and self.height is None:
+            return []
+        t = self.t
+        if self.belief is None:
+            if epoch is None:
+                return []
+            p = self.p
+            try:
+                self.belief = initial_belief(epoch, self.n, self.arms, v_cov=p["v_sigma"] ** 2, shape_sigma=p["shape_sigma"],
+                                             level_sigma=p["level_sigma"])
+            except DegenerateGeometryError:
+                self.counts["skipped_epochs"] += 1
+                return []
+            self.t_belief = t
+        with counting() as h:
+            b = self.belief if t == self.t_belief else self.ekf.predict(self.belief, t - self.t_belief)
+            if epoch is not None:
+                b = self.ekf.update(b, epoch)
+        self.belief, self.t_belief = b, t
+        self.counts["skipped_rows"] += h.skipped_updates
+        self.counts["rejected_measurements"] += h.rejected_measurements
+        self.counts["covariance_repairs"] += h.covariance_repairs
+        return self._estimates(t)
+
+    def _estimates(self, t: float) -> list[Estimate]:
+        b, n = self.belief, self.n
+        out = []
+        for a, j in self.index.items():
+            for qty, off in (("position", 0), ("velocity", 3 * n)):
+                sl = slice(off + 3 * j, off + 3 * j + 3)
+                out.append(Estimate(time=t, target=a, quantity=qty, value=b.mean[sl], cov=b.cov[sl, sl]))
+        pose = body_pose(b, self.arms)
+        if pose is not None:
+            f = self.follower
+            out += [Estimate(time=t, target=f, quantity="position", value=pose.position, cov=pose.cov[:3, :3]),
+                    Estimate(time=t, target=f, quantity="attitude", value=pose.quat,
+                             cov=pose.cov[3:6, 3:6]),
+                    Estimate(time=t, target=f, quantity="velocity", value=pose.velocity, cov=pose.cov[6:9, 6:9])]
+        return out
