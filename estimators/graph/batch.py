@@ -142,50 +142,64 @@ class _Layout:
         nr, nh = f.r_epoch.size, f.h_epoch.size
         self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
         self.q_slot = slot[nr + nh:].reshape(-1, 3)
+        self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a), "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b),
+                     "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm), "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm)}
+        self.q_chol = np.linalg.cholesky(f.q_cov) if f.q_epoch.size else None
 
 
-def _ends(p, R, is_pose, epoch, var, arm):
-    """World points (n, 3) of factor ends and their tangent Jacobians (n, 3, 6) (zeros for fixed)."""
-    n = epoch.size
-    free = var >= 0
-    v = np.where(free, var, 0)
-    pv, Rv = p[epoch, v], R[epoch, v]
-    pose = free & is_pose[v]
-    lever = np.where(pose[:, None], arm, 0.0)
-    e = np.where(free[:, None], pv + np.einsum("nij,nj->ni", Rv, lever), arm)
-    J = np.zeros((n, 3, 6))
-    J[:, :, :3] = np.where(free[:, None, None], np.eye(3), 0.0)
-    # d(R exp(dtheta) l)/d dtheta = -R [l]x
-    J[:, :, 3:] = np.where(pose[:, None, None], -Rv @ _skew(lever), 0.0)
-    return e, J
+class _Ends:
+    """Constant data of one list of factor ends: epoch (n,), free (n,) bool, var (n,) (0 where
+    fixed), pose (n,) bool, lever (n, 3) (zero unless a pose), fixed (n, 3) world points."""
+
+    def __init__(self, lay: "_Layout", epoch, var, arm):
+        self.epoch = np.asarray(epoch, np.int64)
+        self.free = np.asarray(var) >= 0
+        self.var = np.where(self.free, var, 0)
+        self.pose = self.free & lay.is_pose[self.var]
+        self.lever = np.where(self.pose[:, None], arm, 0.0)
+        self.fixed = np.where(self.free[:, None], 0.0, arm)
+        self.cols = lay.colmap[self.var]
+
+    def points(self, p, R):
+        """World points (n, 3) and the rotations (n, 3, 3) of the ends' variables."""
+        Rv = R[self.epoch, self.var]
+        e = np.where(self.free[:, None], p[self.epoch, self.var] + np.einsum("nij,nj->ni", Rv, self.lever), self.fixed)
+        return e, Rv
+
+    def row(self, Rv, u):
+        """Tangent Jacobian rows u^T de/dx (n, 6) for directions u (n, 3): [u, l x (R^T u)], since
+        d(R exp(dtheta) l)/d dtheta = -R [l]x and u^T (-R [l]x) = (l x R^T u)^T."""
+        return np.concatenate([u, np.cross(self.lever, np.einsum("nji,nj->ni", Rv, u))], axis=1)
 
 
 def _residuals(f: EpochFactors, lay: _Layout, p, R):
     """Whitened residuals and Jacobian blocks of every factor: list of (kind, epoch, slots, e (n, d),
-    [(var, J (n, d, 6))])."""
+    [(ends, J (n, d, 6))])."""
     out = []
     if f.r_epoch.size:
-        ea, Ja = _ends(p, R, lay.is_pose, f.r_epoch, f.r_a, f.r_arm_a)
-        eb, Jb = _ends(p, R, lay.is_pose, f.r_epoch, f.r_b, f.r_arm_b)
+        A, B = lay.ends["ra"], lay.ends["rb"]
+        ea, Ra = A.points(p, R)
+        eb, Rb = B.points(p, R)
         diff = ea - eb
-        r = np.linalg.norm(diff, axis=1)
+        r = np.sqrt(np.einsum("ni,ni->n", diff, diff))
         safe = r > 0
         u = np.where(safe[:, None], diff / np.where(safe, r, 1.0)[:, None], [0.0, 0.0, 1.0])
         s = f.r_sigma[:, None]
         e = ((f.r_d - r) / f.r_sigma)[:, None]
-        out.append(("range", f.r_epoch, lay.r_slot[:, None], e,
-                    [(f.r_a, (np.einsum("ni,nij->nj", u, Ja) / s)[:, None]),
-                     (f.r_b, (-np.einsum("ni,nij->nj", u, Jb) / s)[:, None])]))
+        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / s)[:, None]), (B, (-B.row(Rb, u) / s)[:, None])]))
     if f.h_epoch.size:
-        eh, Jh = _ends(p, R, lay.is_pose, f.h_epoch, f.h_var, f.h_arm)
+        H = lay.ends["h"]
+        eh, Rh = H.points(p, R)
+        up = np.broadcast_to([0.0, 0.0, 1.0], eh.shape)
         e = ((f.h_z - eh[:, 2]) / f.h_sigma)[:, None]
-        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(f.h_var, Jh[:, 2:3] / f.h_sigma[:, None, None])]))
+        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(H, (H.row(Rh, up) / f.h_sigma[:, None])[:, None])]))
     if f.q_epoch.size:
-        eq, Jq = _ends(p, R, lay.is_pose, f.q_epoch, f.q_var, f.q_arm)
-        L = np.linalg.cholesky(f.q_cov)
+        Q = lay.ends["q"]
+        eq, Rq = Q.points(p, R)
+        J = np.stack([Q.row(Rq, np.broadcast_to(ax, eq.shape)) for ax in np.eye(3)], axis=1)  # (n, 3, 6)
+        e = np.linalg.solve(lay.q_chol, (f.q_z - eq)[..., None])[..., 0]
         # W = L^-1 (W^T W = cov^-1): whitened e = W (z - h), Jacobian W dh/dx
-        e = np.linalg.solve(L, (f.q_z - eq)[..., None])[..., 0]
-        out.append(("prior", f.q_epoch, lay.q_slot, e, [(f.q_var, np.linalg.solve(L, Jq))]))
+        out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol, J))]))
     return out
 
 
@@ -207,11 +221,10 @@ def _system(res, losses, lay: _Layout):
         cost += np.bincount(epoch, loss_rho(losses.get(kind), s), minlength=E)
         sw = np.sqrt(loss_weight(losses.get(kind), s))[:, None]
         b[epoch[:, None], slots] = sw * e
-        for var, Jb in blocks:
-            free = var >= 0
-            cols = lay.colmap[var[free]]  # (n, 6)
+        for ends, Jb in blocks:
+            free = ends.free
             ee, ss = epoch[free], slots[free]
-            J[ee[:, None, None], ss[:, :, None], cols[:, None, :]] = (sw[free, :, None] * Jb[free])
+            J[ee[:, None, None], ss[:, :, None], ends.cols[free][:, None, :]] = (sw[free, :, None] * Jb[free])
     J = J[:, :, :k]
     Jt = np.swapaxes(J, 1, 2)
     return Jt @ J, (Jt @ b[..., None])[..., 0], cost
@@ -273,9 +286,9 @@ def _observability_and_cov(N):
 def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dict | None = None, max_iter: int = 50,
                  step_tol: float = 1e-8, cost_tol: float = 1e-12, lm_lambda: float = 1e-4) -> EpochsResult:
     """Levenberg-Marquardt on every epoch at once from p0 (E, V, 3), R0 (E, V, 3, 3) (see the
-    module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: an
-    accepted step whose largest component is below step_tol or whose relative cost decrease is
-    below cost_tol; max_iter linear solves per epoch at most."""
+    module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: a step
+    (accepted or not) whose largest component is below step_tol, or an accepted step whose
+    relative cost decrease is below cost_tol; max_iter linear solves per epoch at most."""
     losses = dict(losses or {})
     for kind, loss in losses.items():
         if not isinstance(loss, Loss):
@@ -309,9 +322,12 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
         p = np.where(accept[:, None, None], p_new, p)
         R = np.where(accept[:, None, None, None], R_new, R)
+        # a rejected step below step_tol: the minimum is within step_tol (round-off decides the cost)
+        tiny = reject & (step < step_tol)
         # no decrease even for a vanishing step: at a minimum to round-off
         stuck = reject & (lam > 1e16)
-        converged |= small | (stuck & (step < step_tol))
+        converged |= small | tiny
+        stuck |= tiny
         active &= ~(small | stuck) & (iterations < max_iter)
         if accept.any():
             N_new, g_new, c_new = _system(_residuals(f, lay, p, R), losses, lay)
