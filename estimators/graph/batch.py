@@ -203,6 +203,19 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R):
     return out
 
 
+def _subset(f: EpochFactors, keep: np.ndarray) -> EpochFactors:
+    """The factors of the epochs where keep (E,) bool, epochs renumbered in order."""
+    new = np.cumsum(keep) - 1
+    out = {"kinds": f.kinds}
+    for prefix, epoch in (("r_", f.r_epoch), ("h_", f.h_epoch), ("q_", f.q_epoch)):
+        rows = keep[epoch]
+        for name in EpochFactors.__slots__:
+            if name.startswith(prefix):
+                out[name] = getattr(f, name)[rows]
+        out[f"{prefix}epoch"] = new[epoch[rows]]
+    return EpochFactors(**out)
+
+
 def _cost(res, losses, E):
     f = np.zeros(E)
     for kind, epoch, _, e, _ in res:
@@ -293,17 +306,25 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
     for kind, loss in losses.items():
         if not isinstance(loss, Loss):
             raise ValueError(f"solve_epochs: losses[{kind!r}] must be a Loss, got {loss!r}")
-    p = np.array(p0, float)
-    R = np.array(R0, float)
-    E = p.shape[0]
+    P, RR = np.array(p0, float), np.array(R0, float)
+    E0 = P.shape[0]
+    NN = np.zeros((E0,) + (_Layout(f, 0).k,) * 2)
+    CC, ITER, CONV = np.zeros(E0), np.zeros(E0, np.int64), np.zeros(E0, bool)
+    ids = np.arange(E0)
+    p, R, E = P, RR, E0
     lay = _Layout(f, E)
     N, g, cost = _system(_residuals(f, lay, p, R), losses, lay)
-    lam = np.full(E, lm_lambda)
-    nu = np.full(E, 2.0)
-    active = np.ones(E, bool)
-    converged = np.zeros(E, bool)
-    iterations = np.zeros(E, np.int64)
+    lam, nu = np.full(E, lm_lambda), np.full(E, 2.0)
+    active, converged, iterations = np.ones(E, bool), np.zeros(E, bool), np.zeros(E, np.int64)
     while active.any():
+        if active.sum() <= E // 2:  # most epochs done: continue on the others alone
+            P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
+            ids, f = ids[active], _subset(f, active)
+            p, R, N, g, cost = p[active], R[active], N[active], g[active], cost[active]
+            lam, nu, iterations, converged = lam[active], nu[active], iterations[active], converged[active]
+            E = int(active.sum())
+            active = np.ones(E, bool)
+            lay = _Layout(f, E)
         iterations += active
         delta, D = _damped_solve(N, g, lam)
         delta[~active] = 0.0
@@ -334,5 +355,6 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
             N = np.where(accept[:, None, None], N_new, N)
             g = np.where(accept[:, None], g_new, g)
             cost = np.where(accept, c_new, cost)
-    observable, cov = _observability_and_cov(N)
-    return EpochsResult(p, R, cov, lay.offsets, cost, iterations, converged, observable)
+    P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
+    observable, cov = _observability_and_cov(NN)
+    return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable)
