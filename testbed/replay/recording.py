@@ -76,7 +76,7 @@ def _check_names(t: Table, column: str, allowed: set[str], what: str) -> None:
     bad = ~np.isin(t[column], sorted(allowed))
     if bad.any():
         i = int(np.argmax(bad))
-        raise t.error(i, column, f"{t[column][i]!r} is not {what} of the spec")
+        raise t.error(i, column, f"{str(t[column][i])!r} is not {what} of the spec")
 
 
 def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
@@ -85,7 +85,7 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
     for name, t in tables.items():
         for c in ("sigma", "sigma_x", "sigma_y", "sigma_z", "sigma_accel", "sigma_gyro"):
             if c in t.columns and np.any(t[c] <= 0):
-                raise t.error(int(np.argmax(t[c] <= 0)), c, f"must be positive (or empty), got {t[c][np.argmax(t[c] <= 0)]!r}")
+                raise t.error(int(np.argmax(t[c] <= 0)), c, f"must be positive (or empty), got {float(t[c][np.argmax(t[c] <= 0)]):g}")
         if "arrival" in t.columns and np.any(t["arrival"] < t["time"]):
             raise t.error(int(np.argmax(t["arrival"] < t["time"])), "arrival", "is before the row's time")
     if "links" in tables:
@@ -98,7 +98,7 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
             raise t.error(int(np.argmax(same)), "dst", "a link from a site to itself")
         neg = (t["kind"] != "range-rate") & (t["value"] < 0)
         if neg.any():
-            raise t.error(int(np.argmax(neg)), "value", f"a range cannot be negative, got {t['value'][np.argmax(neg)]!r}")
+            raise t.error(int(np.argmax(neg)), "value", f"a range cannot be negative, got {float(t['value'][np.argmax(neg)]):g}")
     if "poses" in tables:
         t = tables["poses"]
         _check_names(t, "kind", set(POSE_KINDS), "a pose kind (gnss, mocap) ")

@@ -124,12 +124,12 @@ def _numbers(table: str, file: str, name: str, raw: np.ndarray, required: bool, 
             try:
                 float(cell or "nan")
             except ValueError:
-                raise ConfigError(f"{where(i)}, column {name}: expected a number, got {cell!r}") from None
+                raise ConfigError(f"{where(i)}, column {name}: expected a number, got {str(cell)!r}") from None
         raise
     bad = ~np.isfinite(out) & ~empty
     if bad.any():
         i = int(np.argmax(bad))
-        raise ConfigError(f"{where(i)}, column {name}: must be a finite number, got {raw[i]!r}")
+        raise ConfigError(f"{where(i)}, column {name}: must be a finite number, got {str(raw[i])!r}")
     return out
 
 
