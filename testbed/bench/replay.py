@@ -132,7 +132,7 @@ def solve_direct(data: dict, start: tuple[np.ndarray, np.ndarray], batch: int) -
     return pos, conv, {"iterations_mean": float(iters.mean()), "iterations_max": int(iters.max())}
 
 
-def bench_replay(duration: float = 3600.0, batch: int = 64, plugin_duration: float = 600.0) -> dict:
+def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: float = 600.0) -> dict:
     """`duration` s of the synthetic recording through the factor graph alone (solve_direct), and
     `plugin_duration` s of it through graph.poses on the plugin path; CPU seconds and accuracy."""
     c0 = time.process_time()
