@@ -8,11 +8,13 @@
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [run options]
-    testbed bench physics|sensors|estimators [--json FILE] [--vehicles N,N,...]
+    testbed bench physics|sensors|estimators|replay [--json FILE] [--vehicles N,N,...]
     testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
                 [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
     testbed schema
+    testbed replay SPEC.toml --out DIR [--estimator ENTRY ...] [--force]
+    testbed export RUN_DIR --out DIR [--force]
 
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
 an output location that is not the testbed's, an OS error such as a full disk) prints one line
@@ -213,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_options(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
-    p.add_argument("what", choices=["physics", "sensors", "estimators"])
+    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay"])
     p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
     p.add_argument("--vehicles", type=_vehicle_counts, metavar="N[,N...]",
                    help="swarm sizes (physics: default 1,6,18,50; sensors: default 18)")
@@ -234,6 +236,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace another earlier output of the testbed")
 
     sub.add_parser("schema", help="print every scenario key with type, unit, default and range (docs/scenario.md)")
+
+    p = sub.add_parser("replay", help="run estimators on a recorded dataset and score them (docs/replay.md)")
+    p.add_argument("spec", type=Path, help="the dataset's spec.toml (its tables lie beside it)")
+    p.add_argument("--out", type=out_arg, required=True, help="replay directory to write")
+    p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
+    _add_estimator_option(p)
+
+    p = sub.add_parser("export", help="write a run directory as a recorded dataset (docs/replay.md)")
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--out", type=out_arg, required=True, help="dataset directory to write")
+    p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     return parser
 
 
@@ -302,6 +315,25 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.demo import demo
 
         demo(args.out, force=args.force)
+        return 0
+    if args.command == "replay":
+        from testbed.replay.run import replay
+        from testbed.report import fmt
+
+        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
+        print(f"{args.spec} -> {args.out}  ({sum(metrics['measurements'].values())} measurements, "
+              f"truth {'yes' if metrics['truth'] else 'no'})")
+        for name, est in metrics["estimators"].items():
+            keys = [k for k in est if k.startswith(("rmse_", "anees_")) and not k.endswith("interval_95")]
+            print(f"  {name}: " + (", ".join(f"{k} {fmt(est[k])}" for k in keys) or f"{est.get('estimates', 0)} estimates"))
+        return 0
+    if args.command == "export":
+        from testbed.replay.export import export
+
+        if not (args.run_dir / "log.npz").is_file() or not (args.run_dir / "scenario.toml").is_file():
+            raise UsageError(f"{args.run_dir}: not a run directory (needs scenario.toml and log.npz)")
+        files = export(args.run_dir, args.out, force=args.force)
+        print(f"{args.run_dir} -> {args.out}: {', '.join(files)}")
         return 0
     if args.command == "schema":
         from testbed.schema import markdown

@@ -38,6 +38,14 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         result = {"estimators": bench_estimators()}
         for k, rows in result["estimators"].items():
             _print_table(f"estimators: {k}", rows)
+    elif what == "replay":
+        from testbed.bench.replay import bench_replay  # lazy: only this family needs the replay package
+
+        out = bench_replay()
+        result = {"replay": out}
+        for k in ("factor_graph", "plugin_path"):
+            print(f"replay ({out['robots']} robots x {out['antennas_per_robot']} antennas, {out['rate_hz']:g} Hz, "
+                  f"batch {out['batch']}): {k}: {out[k]}")
     else:
         raise ValueError(what)
     result["machine"] = {"python": platform.python_version(), "mujoco": mujoco.__version__, "processor": platform.processor() or platform.machine()}

@@ -1,0 +1,360 @@
+"""Many independent small factor graphs (epochs) solved together, vectorized across epochs.
+
+The per-epoch problem is the one estimators.graph.model states for its Range, Height and Prior
+factors, restricted to what recorded multi-robot ranging data needs: every epoch has the same free
+variables (V of them, each a "pose" (6 tangent dofs: dp (3) m world, dtheta (3) rad body,
+retraction p + dp, R exp([dtheta]x)) or a "point" (3 dofs, m world)); a factor's end that is not a
+free variable is a fixed world point (an anchor, a site of a robot whose pose is known at that
+epoch). Factors (whitened, as in estimators.graph.model):
+- range: h = |e_a - e_b|, e = p + R l for a pose with body lever arm l (m), e = p for a point;
+- height: h = e_z, the up coordinate of the (lever-arm) point;
+- prior: h = e (3,) with a full covariance (a GNSS fix of an antenna, m^2).
+Epochs share nothing, so their normal matrices are (E, k, k) dense blocks: Levenberg-Marquardt runs
+on all of them at once with one damping factor per epoch (the update rule of estimators.graph.lm:
+Madsen, Nielsen, Tingleff 2004, eq. 2.21 and algorithm 3.16), robust losses by IRLS
+(estimators.graph.losses), and each epoch stops on its own convergence test. Observability per
+epoch by the relative Cholesky pivots of estimators.graph.linear (GAUGE_RATIO). Non-convergence
+and gauge freedom are results (flags per epoch), never exceptions.
+Never imports mujoco, testbed or gtsam.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.graph.linear import GAUGE_RATIO, factor_spd
+from estimators.graph.lm import ROUNDOFF
+from estimators.graph.losses import Loss, loss_rho, loss_weight
+
+__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch"]
+
+DIMS = {"pose": 6, "point": 3}
+
+
+def so3_exp_batch(w: np.ndarray) -> np.ndarray:
+    """exp([w]x) for rotation vectors w (..., 3) rad -> (..., 3, 3) (Rodrigues, series near 0)."""
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = _skew(w)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]x for v (..., 3) -> (..., 3, 3)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class EpochFactors:
+    """The factors of E epochs over V free variables, as arrays (one row per factor).
+
+    kinds: (V,) "pose" | "point". Range rows: r_epoch (R,) int in [0, E); r_a, r_b (R,) free
+    variable index or -1 for a fixed end; r_arm_a, r_arm_b (R, 3): the body lever arm (m) of a
+    pose end, ignored for a point end, the world point (m) of a fixed end; r_d (R,) m; r_sigma (R,) m.
+    Height rows: h_epoch, h_var (free), h_arm (H, 3), h_z (H,) m up, h_sigma (H,) m.
+    Prior rows: q_epoch, q_var (free), q_arm (P, 3), q_z (P, 3) m world, q_cov (P, 3, 3) m^2.
+    """
+
+    kinds: tuple[str, ...]
+    r_epoch: np.ndarray
+    r_a: np.ndarray
+    r_b: np.ndarray
+    r_arm_a: np.ndarray
+    r_arm_b: np.ndarray
+    r_d: np.ndarray
+    r_sigma: np.ndarray
+    h_epoch: np.ndarray
+    h_var: np.ndarray
+    h_arm: np.ndarray
+    h_z: np.ndarray
+    h_sigma: np.ndarray
+    q_epoch: np.ndarray
+    q_var: np.ndarray
+    q_arm: np.ndarray
+    q_z: np.ndarray
+    q_cov: np.ndarray
+
+    def __post_init__(self) -> None:
+        bad = [k for k in self.kinds if k not in DIMS]
+        if bad:
+            raise ValueError(f"EpochFactors: kinds must be 'pose' or 'point', got {bad}")
+        if np.any((self.r_a == self.r_b) & (self.r_a >= 0)):
+            raise ValueError("EpochFactors: a range between two sites of one free variable carries no information")
+        for name in ("r_d", "r_sigma", "r_arm_a", "r_arm_b", "h_z", "h_sigma", "h_arm", "q_z", "q_cov", "q_arm"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"EpochFactors: {name} is not finite")
+        if np.any(self.r_sigma <= 0) or np.any(self.h_sigma <= 0):
+            raise ValueError("EpochFactors: sigmas must be positive")
+
+    @staticmethod
+    def empty_rows(n: int = 0) -> dict:
+        """Keyword arrays of zero height and prior rows (convenience for range-only problems)."""
+        z = np.zeros(n, np.int64)
+        return {"h_epoch": z, "h_var": z, "h_arm": np.zeros((n, 3)), "h_z": np.zeros(n), "h_sigma": np.ones(n),
+                "q_epoch": z, "q_var": z, "q_arm": np.zeros((n, 3)), "q_z": np.zeros((n, 3)), "q_cov": np.tile(np.eye(3), (n, 1, 1))}
+
+
+@dataclass(frozen=True, slots=True)
+class EpochsResult:
+    """p: (E, V, 3) m world; R: (E, V, 3, 3) body-to-world (identity for points); cov: (E, k, k)
+    tangent-space covariance (NaN where unobservable), unknowns in variable order, a pose's
+    [dp world, dtheta body]; offsets: (V,) first unknown of each variable; cost: (E,) final robust
+    cost; iterations: (E,) linear solves (rejected LM steps included); converged, observable: (E,) bool."""
+
+    p: np.ndarray
+    R: np.ndarray
+    cov: np.ndarray
+    offsets: np.ndarray
+    cost: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    observable: np.ndarray
+
+
+class _Layout:
+    """Column map and row slots of the padded per-epoch Jacobian (E, M, k + 1); column k is a sink
+    for the absent rotation columns of points."""
+
+    def __init__(self, f: EpochFactors, n_epochs: int):
+        dims = np.array([DIMS[k] for k in f.kinds], np.int64)
+        self.offsets = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
+        self.k = int(dims.sum())
+        self.is_pose = np.array([k == "pose" for k in f.kinds], bool)
+        cols = self.offsets[:, None] + np.arange(6)[None, :]
+        self.colmap = np.where(self.is_pose[:, None] | (np.arange(6)[None, :] < 3), cols, self.k)
+        self.E = n_epochs
+        # slots: ranges, then heights, then 3 rows per prior, in order within each epoch
+        epochs = np.concatenate([f.r_epoch, f.h_epoch, np.repeat(f.q_epoch, 3)]).astype(np.int64)
+        order = np.argsort(epochs, kind="stable")
+        counts = np.bincount(epochs, minlength=n_epochs)
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        slot = np.empty_like(epochs)
+        slot[order] = np.arange(epochs.size) - start[epochs[order]]
+        self.M = int(counts.max(initial=0))
+        nr, nh = f.r_epoch.size, f.h_epoch.size
+        self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
+        self.q_slot = slot[nr + nh:].reshape(-1, 3)
+        self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a), "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b),
+                     "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm), "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm)}
+        self.q_chol = np.linalg.cholesky(f.q_cov) if f.q_epoch.size else None
+
+
+class _Ends:
+    """Constant data of one list of factor ends: epoch (n,), free (n,) bool, var (n,) (0 where
+    fixed), pose (n,) bool, lever (n, 3) (zero unless a pose), fixed (n, 3) world points."""
+
+    def __init__(self, lay: "_Layout", epoch, var, arm):
+        self.epoch = np.asarray(epoch, np.int64)
+        self.free = np.asarray(var) >= 0
+        self.var = np.where(self.free, var, 0)
+        self.pose = self.free & lay.is_pose[self.var]
+        self.lever = np.where(self.pose[:, None], arm, 0.0)
+        self.fixed = np.where(self.free[:, None], 0.0, arm)
+        self.cols = lay.colmap[self.var]
+
+    def points(self, p, R):
+        """World points (n, 3) and the rotations (n, 3, 3) of the ends' variables."""
+        Rv = R[self.epoch, self.var]
+        e = np.where(self.free[:, None], p[self.epoch, self.var] + np.einsum("nij,nj->ni", Rv, self.lever), self.fixed)
+        return e, Rv
+
+    def row(self, Rv, u):
+        """Tangent Jacobian rows u^T de/dx (n, 6) for directions u (n, 3): [u, l x (R^T u)], since
+        d(R exp(dtheta) l)/d dtheta = -R [l]x and u^T (-R [l]x) = (l x R^T u)^T."""
+        return np.concatenate([u, np.cross(self.lever, np.einsum("nji,nj->ni", Rv, u))], axis=1)
+
+
+def _residuals(f: EpochFactors, lay: _Layout, p, R):
+    """Whitened residuals and Jacobian blocks of every factor: list of (kind, epoch, slots, e (n, d),
+    [(ends, J (n, d, 6))])."""
+    out = []
+    if f.r_epoch.size:
+        A, B = lay.ends["ra"], lay.ends["rb"]
+        ea, Ra = A.points(p, R)
+        eb, Rb = B.points(p, R)
+        diff = ea - eb
+        r = np.sqrt(np.einsum("ni,ni->n", diff, diff))
+        safe = r > 0
+        u = np.where(safe[:, None], diff / np.where(safe, r, 1.0)[:, None], [0.0, 0.0, 1.0])
+        s = f.r_sigma[:, None]
+        e = ((f.r_d - r) / f.r_sigma)[:, None]
+        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / s)[:, None]), (B, (-B.row(Rb, u) / s)[:, None])]))
+    if f.h_epoch.size:
+        H = lay.ends["h"]
+        eh, Rh = H.points(p, R)
+        up = np.broadcast_to([0.0, 0.0, 1.0], eh.shape)
+        e = ((f.h_z - eh[:, 2]) / f.h_sigma)[:, None]
+        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(H, (H.row(Rh, up) / f.h_sigma[:, None])[:, None])]))
+    if f.q_epoch.size:
+        Q = lay.ends["q"]
+        eq, Rq = Q.points(p, R)
+        J = np.stack([Q.row(Rq, np.broadcast_to(ax, eq.shape)) for ax in np.eye(3)], axis=1)  # (n, 3, 6)
+        e = np.linalg.solve(lay.q_chol, (f.q_z - eq)[..., None])[..., 0]
+        # W = L^-1 (W^T W = cov^-1): whitened e = W (z - h), Jacobian W dh/dx
+        out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol, J))]))
+    return out
+
+
+def _subset(f: EpochFactors, keep: np.ndarray) -> EpochFactors:
+    """The factors of the epochs where keep (E,) bool, epochs renumbered in order."""
+    new = np.cumsum(keep) - 1
+    out = {"kinds": f.kinds}
+    for prefix, epoch in (("r_", f.r_epoch), ("h_", f.h_epoch), ("q_", f.q_epoch)):
+        rows = keep[epoch]
+        for name in EpochFactors.__slots__:
+            if name.startswith(prefix):
+                out[name] = getattr(f, name)[rows]
+        out[f"{prefix}epoch"] = new[epoch[rows]]
+    return EpochFactors(**out)
+
+
+def _cost(res, losses, E):
+    f = np.zeros(E)
+    for kind, epoch, _, e, _ in res:
+        f += np.bincount(epoch, loss_rho(losses.get(kind), np.linalg.norm(e, axis=1)), minlength=E)
+    return f
+
+
+def _system(res, losses, lay: _Layout):
+    """IRLS-weighted normal equations N (E, k, k), g (E, k) and the robust cost (E,)."""
+    E, M, k = lay.E, lay.M, lay.k
+    J = np.zeros((E, M, k + 1))
+    b = np.zeros((E, M))
+    cost = np.zeros(E)
+    for kind, epoch, slots, e, blocks in res:
+        s = np.linalg.norm(e, axis=1)
+        cost += np.bincount(epoch, loss_rho(losses.get(kind), s), minlength=E)
+        sw = np.sqrt(loss_weight(losses.get(kind), s))[:, None]
+        b[epoch[:, None], slots] = sw * e
+        for ends, Jb in blocks:
+            free = ends.free
+            ee, ss = epoch[free], slots[free]
+            J[ee[:, None, None], ss[:, :, None], ends.cols[free][:, None, :]] = (sw[free, :, None] * Jb[free])
+    J = J[:, :, :k]
+    Jt = np.swapaxes(J, 1, 2)
+    return Jt @ J, (Jt @ b[..., None])[..., 0], cost
+
+
+def _retract(lay: _Layout, p, R, delta):
+    """x (+) delta for delta (E, k); a pose: p + dp, R exp(dtheta); a point: p + dp."""
+    cols = lay.colmap  # (V, 6); sink column k reads zero
+    d = np.concatenate([delta, np.zeros((delta.shape[0], 1))], axis=1)[:, cols]  # (E, V, 6)
+    p_new = p + d[..., :3]
+    R_new = np.where(lay.is_pose[None, :, None, None], R @ so3_exp_batch(d[..., 3:]), R)
+    return p_new, R_new
+
+
+def _damped_solve(N, g, lam):
+    """Solve (N + lam D) delta = g per epoch, D = diag(N) floored; returns delta (E, k) and D."""
+    diag = np.diagonal(N, axis1=1, axis2=2)
+    D = np.maximum(diag, 1e-12 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300))
+    A = N + (lam[:, None] * D)[:, :, None] * np.eye(N.shape[1])
+    try:
+        L = np.linalg.cholesky(A)
+        y = np.linalg.solve(L, g[..., None])
+        return np.linalg.solve(np.swapaxes(L, 1, 2), y)[..., 0], D
+    except np.linalg.LinAlgError:  # one epoch numerically indefinite: solve each on its own
+        out = np.zeros_like(g)
+        for i in range(N.shape[0]):
+            fac = factor_spd(A[i])
+            if fac.ok:
+                out[i] = fac.solve(g[i])
+        return out, D
+
+
+def _observability_and_cov(N):
+    """Per epoch: observable (relative pivot of the Cholesky of N above GAUGE_RATIO) and N^-1."""
+    E, k = N.shape[0], N.shape[1]
+    diag = np.diagonal(N, axis1=1, axis2=2)
+    ok = np.all(diag > 0, axis=1) & np.all(np.isfinite(N), axis=(1, 2))
+    Ns = np.where(ok[:, None, None], N, np.eye(k))
+    eps = 1e-13 * np.where(ok[:, None], diag, 1.0)
+    try:
+        L = np.linalg.cholesky(Ns + eps[:, :, None] * np.eye(k))
+    except np.linalg.LinAlgError:
+        L = np.zeros_like(Ns)
+        for i in range(E):
+            fac = factor_spd(Ns[i] + np.diag(eps[i]))
+            if fac.ok:
+                L[i] = np.linalg.cholesky(Ns[i] + np.diag(eps[i]))
+            else:
+                ok[i] = False
+                L[i] = np.eye(k)
+    ratio = np.diagonal(L, axis1=1, axis2=2) ** 2 / np.where(ok[:, None], diag, 1.0)
+    observable = ok & (ratio.min(axis=1, initial=np.inf) > GAUGE_RATIO)
+    Linv = np.linalg.solve(L, np.broadcast_to(np.eye(k), L.shape))  # triangular: L^-1
+    cov = np.swapaxes(Linv, 1, 2) @ Linv
+    cov[~observable] = np.nan
+    return observable, cov
+
+
+def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dict | None = None, max_iter: int = 50,
+                 step_tol: float = 1e-8, cost_tol: float = 1e-12, lm_lambda: float = 1e-4) -> EpochsResult:
+    """Levenberg-Marquardt on every epoch at once from p0 (E, V, 3), R0 (E, V, 3, 3) (see the
+    module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: a step
+    (accepted or not) whose largest component is below step_tol, or an accepted step whose
+    relative cost decrease is below cost_tol; max_iter linear solves per epoch at most."""
+    losses = dict(losses or {})
+    for kind, loss in losses.items():
+        if not isinstance(loss, Loss):
+            raise ValueError(f"solve_epochs: losses[{kind!r}] must be a Loss, got {loss!r}")
+    P, RR = np.array(p0, float), np.array(R0, float)
+    E0 = P.shape[0]
+    NN = np.zeros((E0,) + (_Layout(f, 0).k,) * 2)
+    CC, ITER, CONV = np.zeros(E0), np.zeros(E0, np.int64), np.zeros(E0, bool)
+    ids = np.arange(E0)
+    p, R, E = P, RR, E0
+    lay = _Layout(f, E)
+    N, g, cost = _system(_residuals(f, lay, p, R), losses, lay)
+    lam, nu = np.full(E, lm_lambda), np.full(E, 2.0)
+    active, converged, iterations = np.ones(E, bool), np.zeros(E, bool), np.zeros(E, np.int64)
+    while active.any():
+        if active.sum() <= E // 2:  # most epochs done: continue on the others alone
+            P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
+            ids, f = ids[active], _subset(f, active)
+            p, R, N, g, cost = p[active], R[active], N[active], g[active], cost[active]
+            lam, nu, iterations, converged = lam[active], nu[active], iterations[active], converged[active]
+            E = int(active.sum())
+            active = np.ones(E, bool)
+            lay = _Layout(f, E)
+        iterations += active
+        delta, D = _damped_solve(N, g, lam)
+        delta[~active] = 0.0
+        p_new, R_new = _retract(lay, p, R, delta)
+        f_new = _cost(_residuals(f, lay, p_new, R_new), losses, E)
+        pred = 0.5 * np.einsum("ek,ek->e", delta, lam[:, None] * D * delta + g)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(pred > 0, (cost - f_new) / pred, -1.0)
+        # the cost cannot tell this step apart: take it, the step test decides
+        q = np.where((pred <= ROUNDOFF * cost) & (f_new <= cost * (1.0 + ROUNDOFF)), 1.0, q)
+        accept = active & (q > 0)
+        reject = active & ~accept
+        step = np.abs(delta).max(axis=1, initial=0.0)
+        lam = np.where(accept, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3), np.where(reject, lam * nu, lam))
+        nu = np.where(accept, 2.0, np.where(reject, nu * 2.0, nu))
+        small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
+        p = np.where(accept[:, None, None], p_new, p)
+        R = np.where(accept[:, None, None, None], R_new, R)
+        # a rejected step below step_tol: the minimum is within step_tol (round-off decides the cost)
+        tiny = reject & (step < step_tol)
+        # no decrease even for a vanishing step: at a minimum to round-off
+        stuck = reject & (lam > 1e16)
+        converged |= small | tiny
+        stuck |= tiny
+        active &= ~(small | stuck) & (iterations < max_iter)
+        if accept.any():
+            N_new, g_new, c_new = _system(_residuals(f, lay, p, R), losses, lay)
+            N = np.where(accept[:, None, None], N_new, N)
+            g = np.where(accept[:, None], g_new, g)
+            cost = np.where(accept, c_new, cost)
+    P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
+    observable, cov = _observability_and_cov(NN)
+    return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable)

@@ -1,0 +1,319 @@
+"""`graph.poses`: a per-epoch centralized factor graph over multi-antenna robots, as a plugin estimator.
+
+Each epoch (the measurements of one time of validity, or of one bin of `epoch` seconds) is one
+factor graph (estimators.graph.batch, the factors of estimators.graph.model): a robot measured at
+two or more distinct lever arms is a pose (position m world, attitude body-to-world), a robot
+measured at one site only is a point at that site; anchors (Context.anchors) and robots whose pose
+is known at the epoch (stream "mocap") are fixed. Factors: ranges of streams "uwb" (and "phase" with
+use_phase) between any two sites with their lever arms, GNSS fixes (stream "gnss", a position prior
+on the antenna with the fix's sigma), heights (stream "height", the up coordinate of a site or body).
+Robust loss on the ranges (params loss, loss_scale). Epochs are buffered and solved `batch` at a
+time (Levenberg-Marquardt, all epochs at once); each starts from its GNSS fix where it has one,
+else from the robot's last two estimates extrapolated at constant velocity and body rate (warm
+start), else from params `initial`, else near the epoch's fixed points. Estimates: a pose robot's position and attitude (body), a point robot's site
+position, with the marginal covariances; an epoch that is unobservable (gauge freedom) gives no
+estimate. Counted in health(): epochs, nonconverged_epochs, unobservable_epochs,
+late_measurements (older than the epoch being collected), unused_measurements.
+
+The variable kind of each robot is decided from the sites measured in the first batch of epochs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from estimators.graph.batch import EpochFactors, solve_epochs
+from estimators.graph.model import so3_exp, so3_log
+from estimators.graph.losses import Loss
+from estimators.so3 import quat_to_rotmat, rotmat_to_quat
+from testbed.config import from_dict, in_range, require
+from testbed.plugins.api import Context, Estimate, Measurement
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class GraphParams:
+    """Parameters of graph.poses ([[estimators]] params).
+
+    epoch: s, width of the bins that group measurements into one epoch (0: one epoch per time of
+    validity); batch: epochs solved together; range_sigma, height_sigma: m, for rows without a
+    sigma; use_phase: phase links are ranges too; loss: robust loss of the ranges ("none", "huber",
+    "cauchy") with loss_scale (sigmas); max_iter: LM iterations per epoch; step_tol (m, rad), cost_tol (relative): an epoch has
+    converged when a step is below step_tol or an accepted step lowers the cost by less than cost_tol;
+    initial: {body: [x, y, z] or [x, y, z, qw, qx, qy, qz]} m world, quaternion body-to-world: the
+    starting pose of robots without a fix or an earlier estimate.
+    """
+
+    epoch: float = 0.0
+    batch: int = 16
+    range_sigma: float = 0.1
+    height_sigma: float = 0.1
+    use_phase: bool = False
+    loss: str = "none"
+    loss_scale: float = 1.345
+    max_iter: int = 50
+    step_tol: float = 1e-6
+    cost_tol: float = 1e-9
+    initial: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        in_range(self, "epoch", 0, unit="s")
+        in_range(self, "batch", 1, 100_000)
+        in_range(self, "range_sigma", 0, lo_open=True, unit="m")
+        in_range(self, "height_sigma", 0, lo_open=True, unit="m")
+        require(self.loss in ("none", "huber", "cauchy"), "loss", self.loss, "expected 'none', 'huber' or 'cauchy'")
+        in_range(self, "loss_scale", 0, lo_open=True)
+        in_range(self, "max_iter", 1, 10_000)
+        in_range(self, "step_tol", 0, lo_open=True)
+        in_range(self, "cost_tol", 0, lo_open=True)
+        for body, p in self.initial.items():
+            require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
+                    f"initial.{body}", p, "expected [x, y, z] (m, world) or [x, y, z, qw, qx, qy, qz]")
+            require(len(p) == 3 or abs(float(np.linalg.norm(p[3:])) - 1.0) < 1e-6, f"initial.{body}", p,
+                    "the quaternion wxyz must have unit norm")
+
+
+@dataclass
+class _Epoch:
+    """The measurements of one epoch (times in s; names are sites or bodies)."""
+
+    times: list = field(default_factory=list)
+    ranges: list = field(default_factory=list)   # (src, dst, d m, sigma m)
+    fixes: list = field(default_factory=list)    # (name, z (3,) m, sigma (3,) m)
+    heights: list = field(default_factory=list)  # (name, z m, sigma m)
+    mocap: dict = field(default_factory=dict)    # body -> (p (3,), R (3, 3))
+
+
+class PoseGraph:
+    """Per-epoch centralized factor graph over multi-antenna robots, anchors and known robots."""
+
+    description = "per-epoch factor graph: multi-antenna robot poses, lever arms, anchors, known robots, GNSS, height"
+
+    def __init__(self, context: Context, params: dict):
+        self.p = from_dict(GraphParams, params, "estimator graph.poses params")
+        unknown = sorted(set(self.p.initial) - set(context.vehicles))
+        if unknown:
+            raise ValueError(f"params initial names unknown bodies {unknown}")
+        self.vehicles = context.vehicles
+        self.sites = {s: (b, np.asarray(a, float)) for s, (b, a) in context.sites.items()}
+        self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
+        self.ranging = ("uwb", "phase") if self.p.use_phase else ("uwb",)
+        self.loss = {"range": Loss(kind=self.p.loss, scale=self.p.loss_scale)}
+        self.kind: dict[str, tuple[str, str | None]] | None = None  # body -> ("pose", None) | ("point", site)
+        self.last: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}  # body -> (t, p, R), last estimate
+        self.prev: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}  # the one before
+        self.key = None
+        self.current: _Epoch | None = None
+        self.pending: list[_Epoch] = []
+        self.counts = {"epochs": 0, "nonconverged_epochs": 0, "unobservable_epochs": 0, "late_measurements": 0,
+                       "unused_measurements": 0}
+
+    # ---------------------------------------------------------------- collecting
+    def _bin(self, t: float):
+        return t if self.p.epoch == 0 else int(np.floor(t / self.p.epoch + 1e-9))
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        key = self._bin(m.time)
+        out = []
+        if self.key is not None and key < self.key:
+            self.counts["late_measurements"] += 1
+            return out
+        if self.key is None or key > self.key:
+            if self.current is not None:
+                self.pending.append(self.current)
+                if len(self.pending) >= self.p.batch:
+                    out = self._solve()
+            self.key, self.current = key, _Epoch()
+        ep = self.current
+        ep.times.append(m.time)
+        if m.stream in self.ranging and m.dst:
+            sigma = float(m.sigma[0]) if m.sigma is not None else self.p.range_sigma
+            ep.ranges.append((m.src, m.dst, float(m.value[0]), sigma))
+        elif m.stream == "gnss":
+            sigma = np.asarray(m.sigma, float) if m.sigma is not None else None
+            if sigma is None:
+                self.counts["unused_measurements"] += 1
+            else:
+                ep.fixes.append((m.src, np.asarray(m.value, float), sigma))
+        elif m.stream == "height":
+            ep.heights.append((m.src, float(m.value[0]), float(m.sigma[0]) if m.sigma is not None else self.p.height_sigma))
+        elif m.stream == "mocap" and m.src in self.vehicles:
+            ep.mocap[m.src] = (np.asarray(m.value[:3], float), quat_to_rotmat(np.asarray(m.value[3:], float)))
+        else:
+            self.counts["unused_measurements"] += 1
+        return out
+
+    def finish(self) -> list[Estimate]:
+        if self.current is not None:
+            self.pending.append(self.current)
+            self.current = None
+        return self._solve() if self.pending else []
+
+    def health(self) -> dict[str, int]:
+        return dict(self.counts)
+
+    # ---------------------------------------------------------------- variables
+    def _arm(self, name: str) -> tuple[str | None, np.ndarray]:
+        """(body, lever arm) of a site or body name; (None, world point) for an anchor; (None, None) otherwise."""
+        if name in self.sites:
+            return self.sites[name]
+        if name in self.vehicles:
+            return name, np.zeros(3)
+        return None, self.anchors.get(name)
+
+    def _decide_kinds(self) -> None:
+        arms: dict[str, dict[tuple, str]] = {v: {} for v in self.vehicles}
+        for ep in self.pending:
+            names = [n for r in ep.ranges for n in r[:2]] + [f[0] for f in ep.fixes] + [h[0] for h in ep.heights]
+            for n in names:
+                body, arm = self._arm(n)
+                if body is not None:
+                    arms[body].setdefault(tuple(np.round(arm, 9)), n)
+        self.kind = {}
+        for v, seen in arms.items():
+            if len(seen) >= 2:
+                self.kind[v] = ("pose", None)
+            elif len(seen) == 1:
+                self.kind[v] = ("point", next(iter(seen.values())))
+
+    # ---------------------------------------------------------------- solving
+    def _end(self, name: str, ep: _Epoch, free: dict):
+        """(var index or -1, arm or world point) of a factor end; None if it cannot be used."""
+        body, arm = self._arm(name)
+        if body is None:
+            return None if arm is None else (-1, arm)
+        if body in ep.mocap:
+            p, R = ep.mocap[body]
+            return -1, p + R @ arm
+        if body not in free:
+            return None
+        kind, site = self.kind[body]
+        if kind == "point":  # only the site it stands for (or another name for the same point)
+            return (free[body], np.zeros(3)) if np.allclose(arm, self._arm(site)[1]) else None
+        return free[body], arm
+
+    def _predict(self, body: str, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The robot's pose at t from its last two estimates (constant velocity and body rate), or
+        its last estimate, or None."""
+        if body not in self.last:
+            return None
+        t1, p1, R1 = self.last[body]
+        if body not in self.prev:
+            return p1.copy(), R1
+        t0, p0, R0 = self.prev[body]
+        dt, h = t1 - t0, t - t1
+        return p1 + (p1 - p0) / dt * h, R1 @ so3_exp(so3_log(R0.T @ R1) / dt * h)
+
+    def _initial(self, body: str, ep: _Epoch, t: float, fixed_points: list, index: int) -> tuple[np.ndarray, np.ndarray]:
+        guess = self._predict(body, t)
+        init = self.p.initial.get(body)
+        R = guess[1] if guess is not None else (quat_to_rotmat(np.array(init[3:], float)) if init and len(init) == 7 else np.eye(3))
+        kind, site = self.kind[body]
+        for name, z, _ in ep.fixes:
+            b, arm = self._arm(name)
+            if b == body:
+                return (z - R @ arm if kind == "pose" else z.copy()), R
+        if guess is not None:
+            return guess[0], R
+        if init:
+            return np.array(init[:3], float), R
+        centre = np.mean(fixed_points, axis=0) if fixed_points else np.zeros(3)
+        return centre + np.array([1.0 + index, 0.5 * index, 0.0]), R
+
+    def _factors(self, ep: _Epoch, free: dict, e: int, rows: dict) -> None:
+        for src, dst, d, sigma in ep.ranges:
+            a, b = self._end(src, ep, free), self._end(dst, ep, free)
+            if a is None or b is None or (a[0] < 0 and b[0] < 0) or (a[0] == b[0]):
+                self.counts["unused_measurements"] += 1
+                continue
+            rows["r"].append((e, a[0], b[0], a[1], b[1], d, sigma))
+        for name, z, sigma in ep.fixes:
+            end = self._end(name, ep, free)
+            if end is None or end[0] < 0:
+                self.counts["unused_measurements"] += 1
+                continue
+            rows["q"].append((e, end[0], end[1], z, np.diag(sigma ** 2)))
+        for name, z, sigma in ep.heights:
+            end = self._end(name, ep, free)
+            if end is None or end[0] < 0:
+                self.counts["unused_measurements"] += 1
+                continue
+            rows["h"].append((e, end[0], end[1], z, sigma))
+
+    def _present(self, ep: _Epoch) -> tuple[str, ...]:
+        """Robots with a variable at this epoch: decided, not known by mocap, named by a measurement."""
+        names = {n for r in ep.ranges for n in r[:2]} | {f[0] for f in ep.fixes} | {h[0] for h in ep.heights}
+        bodies = {self._arm(n)[0] for n in names} - {None} - set(ep.mocap)
+        return tuple(v for v in self.vehicles if v in bodies and v in self.kind)
+
+    def _solve(self) -> list[Estimate]:
+        if self.kind is None:
+            self._decide_kinds()
+        groups: dict[tuple, list[_Epoch]] = {}
+        for ep in self.pending:
+            groups.setdefault(self._present(ep), []).append(ep)
+        self.pending = []
+        out = []
+        for present, eps in groups.items():
+            self.counts["epochs"] += len(eps)
+            if present:
+                out += self._solve_group(present, eps)
+            else:
+                self.counts["unobservable_epochs"] += len(eps)
+        return sorted(out, key=lambda est: est.time)
+
+    def _solve_group(self, present: tuple[str, ...], eps: list[_Epoch]) -> list[Estimate]:
+        free = {v: i for i, v in enumerate(present)}
+        kinds = tuple(self.kind[v][0] for v in present)
+        rows: dict[str, list] = {"r": [], "q": [], "h": []}
+        E, V = len(eps), len(present)
+        p0, R0 = np.zeros((E, V, 3)), np.tile(np.eye(3), (E, V, 1, 1))
+        for e, ep in enumerate(eps):
+            self._factors(ep, free, e, rows)
+            fixed = [self.anchors[n] for r in ep.ranges for n in r[:2] if n in self.anchors] + [p for p, _ in ep.mocap.values()]
+            t = float(np.mean(ep.times))
+            for v, i in free.items():
+                p0[e, i], R0[e, i] = self._initial(v, ep, t, fixed, i)
+        f = _factor_arrays(kinds, rows)
+        res = solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol,
+                           cost_tol=self.p.cost_tol)
+        self.counts["nonconverged_epochs"] += int((~res.converged).sum())
+        self.counts["unobservable_epochs"] += int((~res.observable).sum())
+        out = []
+        for e, ep in enumerate(eps):
+            if not res.observable[e]:
+                continue
+            t = float(np.mean(ep.times))
+            for v, i in free.items():
+                o = res.offsets[i]
+                kind, site = self.kind[v]
+                p, R = res.p[e, i], res.R[e, i]
+                cov = res.cov[e]
+                if v in self.last and self.last[v][0] < t:
+                    self.prev[v] = self.last[v]
+                self.last[v] = (t, p, R)
+                if kind == "point":
+                    out.append(Estimate(time=t, target=site, quantity="position", value=p, cov=_sym(cov[o:o + 3, o:o + 3])))
+                else:
+                    out.append(Estimate(time=t, target=v, quantity="position", value=p, cov=_sym(cov[o:o + 3, o:o + 3])))
+                    out.append(Estimate(time=t, target=v, quantity="attitude", value=rotmat_to_quat(R),
+                                        cov=_sym(cov[o + 3:o + 6, o + 3:o + 6])))
+        return out
+
+
+def _sym(c: np.ndarray) -> np.ndarray:
+    return 0.5 * (c + c.T)
+
+
+def _factor_arrays(kinds: tuple[str, ...], rows: dict[str, list]) -> EpochFactors:
+    """EpochFactors from row tuples (see PoseGraph._factors)."""
+    r, q, h = rows["r"], rows["q"], rows["h"]
+    col = lambda rs, k, shape=(): np.array([x[k] for x in rs], float).reshape((len(rs),) + shape)  # noqa: E731
+    idx = lambda rs, k: np.array([x[k] for x in rs], np.int64).reshape(len(rs))  # noqa: E731
+    return EpochFactors(
+        kinds=kinds,
+        r_epoch=idx(r, 0), r_a=idx(r, 1), r_b=idx(r, 2), r_arm_a=col(r, 3, (3,)), r_arm_b=col(r, 4, (3,)),
+        r_d=col(r, 5), r_sigma=col(r, 6),
+        h_epoch=idx(h, 0), h_var=idx(h, 1), h_arm=col(h, 2, (3,)), h_z=col(h, 3), h_sigma=col(h, 4),
+        q_epoch=idx(q, 0), q_var=idx(q, 1), q_arm=col(q, 2, (3,)), q_z=col(q, 3, (3,)), q_cov=col(q, 4, (3, 3)),
+    )

@@ -1,0 +1,57 @@
+"""Per-link residual statistics of a recorded dataset against its truth (metrics.json `links`).
+
+For every (kind, src, dst) of links.csv: the residual measured minus true, where true is the
+distance between the two sites (m) for uwb and phase, and its rate u . (v_src - v_dst) (m/s) for
+range-rate, the sites' positions and velocities from the truth of their bodies and their lever
+arms (testbed.plugins.truth), anchors fixed. samples, mean, std (population), RMSE, in m or m/s.
+A link whose ends lack truth at a row's time (outside the truth's span, no truth velocity for a
+range rate) leaves that row out and counts it under `unscored`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from testbed.replay.recording import RecordedTruth, Recording
+
+
+def _covered(truth: RecordedTruth, end: str, t: np.ndarray, quantity: str) -> np.ndarray:
+    if end in truth.anchors:
+        return np.ones(t.size, bool)
+    if not truth.known(end, quantity):
+        return np.zeros(t.size, bool)
+    lo, hi = truth.span[truth.body_of(end)]
+    return (t >= lo) & (t <= hi)
+
+
+def _true(truth: RecordedTruth, kind: str, src: str, dst: str, t: np.ndarray) -> np.ndarray:
+    diff = truth.at(src, "position", t) - truth.at(dst, "position", t)
+    dist = np.linalg.norm(diff, axis=1)
+    if kind != "range-rate":
+        return dist
+    u = diff / np.where(dist > 0, dist, 1.0)[:, None]
+    return np.einsum("ni,ni->n", u, truth.at(src, "velocity", t) - truth.at(dst, "velocity", t))
+
+
+def link_statistics(rec: Recording, truth: RecordedTruth) -> dict:
+    """{kind: {"SRC->DST": {samples, mean, std, rmse, unscored}}} with units m (m/s for range-rate)."""
+    if "links" not in rec.tables:
+        return {}
+    t = rec.tables["links"]
+    start = rec.spec.window.start
+    out: dict = {}
+    keys = np.char.add(np.char.add(np.char.add(t["kind"], "\n"), np.char.add(t["src"], "->")), t["dst"])
+    for key in sorted(set(keys.tolist())):
+        kind, link = key.split("\n")
+        src, dst = link.split("->")
+        rows = keys == key
+        time = t["time"][rows] - start
+        q = "velocity" if kind == "range-rate" else "position"
+        ok = _covered(truth, src, time, q) & _covered(truth, dst, time, q)
+        res = t["value"][rows][ok] - _true(truth, kind, src, dst, time[ok]) if ok.any() else np.zeros(0)
+        u = "m_s" if kind == "range-rate" else "m"
+        stats = {"samples": int(res.size), "unscored": int((~ok).sum())}
+        if res.size:
+            stats.update({f"mean_{u}": float(res.mean()), f"std_{u}": float(res.std()),
+                          f"rmse_{u}": float(np.sqrt(np.mean(res ** 2)))})
+        out.setdefault(kind, {})[link] = stats
+    return out

@@ -1,0 +1,254 @@
+"""A recorded dataset (docs/replay.md) read whole and checked: its spec, its measurements in feeding
+order as the plugin protocol's Measurements, the Context of each estimator, and its truth.
+
+Streams fed (Measurement.stream, value, sigma; src, dst site or body names):
+- links.csv kind uwb / phase: stream "uwb" / "phase", value (1,) range m; kind range-rate: stream
+  "range-rate", value (1,) m/s; sigma (1,) from the row, None where the row has none.
+- poses.csv kind gnss: stream "gnss", value (3,) antenna (or body) position m world ENU, sigma
+  (3,) m (sigma_x, sigma_y, sigma_z); kind mocap: stream "mocap", value (7,) position m and
+  quaternion wxyz (body to world), sigma (3,) m or None.
+- imu.csv: stream "imu", value (6,) specific force m/s^2 then angular rate rad/s (site frame),
+  sigma (6,) or None. height.csv: stream "height", value (1,) up coordinate m, sigma (1,) or None.
+Times: the files' clock minus window.start; arrival: the row's arrival (default its time).
+Order: as a simulated run's (testbed.plugins.feed): arrival, time, stream name, row of the stream.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from testbed.errors import ConfigError
+from testbed.plugins.api import Context, Measurement
+from testbed.plugins.truth import Truth
+from testbed.replay.spec import ReplaySpec, load_spec
+from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_table
+from testbed.rng import stream_rng
+
+LINK_KINDS = ("uwb", "phase", "range-rate")
+POSE_KINDS = ("gnss", "mocap")
+#: (table, column of the per-row sigma(s), value columns) of the per-site/body tables
+QUAT = ("qw", "qx", "qy", "qz")
+
+
+@dataclass(frozen=True, slots=True)
+class Recording:
+    """spec; directory; tables {name: Table} (rows within the window, times in the files' clock);
+    feed: every Measurement in feeding order."""
+
+    spec: ReplaySpec
+    directory: Path
+    tables: dict[str, Table]
+    feed: list[Measurement]
+
+    @property
+    def duration(self) -> float:
+        return self.spec.window.end - self.spec.window.start
+
+    def context(self, key: str, params: dict) -> Context:
+        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed)."""
+        return Context(
+            vehicles=tuple(self.spec.bodies), sites=self.spec.sites, anchors=self.spec.anchor_points,
+            sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior={}, params=dict(params),
+            duration=self.duration, seed=self.spec.seed, rng=stream_rng(self.spec.seed, f"estimator/{key}"),
+        )
+
+    def counts(self) -> dict[str, int]:
+        """Measurements fed, per stream."""
+        out: dict[str, int] = {}
+        for m in self.feed:
+            out[m.stream] = out.get(m.stream, 0) + 1
+        return dict(sorted(out.items()))
+
+
+def _unit_quaternions(t: Table, rows: np.ndarray) -> None:
+    q = np.stack([t[c] for c in QUAT], axis=1)[rows]
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(~np.isfinite(norm) | (np.abs(norm - 1.0) > 1e-6))
+    if bad.size:
+        i = int(np.flatnonzero(rows)[bad[0]])
+        raise t.error(i, "qw", f"a unit quaternion wxyz is needed here (norm {norm[bad[0]]:.9g})")
+
+
+def _check_names(t: Table, column: str, allowed: set[str], what: str) -> None:
+    bad = ~np.isin(t[column], sorted(allowed))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise t.error(i, column, f"{str(t[column][i])!r} is not {what} of the spec")
+
+
+def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
+    """Meaning of the rows: names known, kinds known, ranges >= 0, sigmas > 0, arrival >= time, quaternions unit."""
+    sites, bodies = set(spec.sites), set(spec.bodies)
+    for name, t in tables.items():
+        for c in ("sigma", "sigma_x", "sigma_y", "sigma_z", "sigma_accel", "sigma_gyro"):
+            if c in t.columns and np.any(t[c] <= 0):
+                raise t.error(int(np.argmax(t[c] <= 0)), c, f"must be positive (or empty), got {float(t[c][np.argmax(t[c] <= 0)]):g}")
+        if "arrival" in t.columns and np.any(t["arrival"] < t["time"]):
+            raise t.error(int(np.argmax(t["arrival"] < t["time"])), "arrival", "is before the row's time")
+    if "links" in tables:
+        t = tables["links"]
+        _check_names(t, "kind", set(LINK_KINDS), "a link kind (uwb, phase, range-rate) ")
+        _check_names(t, "src", sites | set(spec.anchors), "a site (body/site) or an anchor")
+        _check_names(t, "dst", sites | set(spec.anchors), "a site (body/site) or an anchor")
+        same = t["src"] == t["dst"]
+        if same.any():
+            raise t.error(int(np.argmax(same)), "dst", "a link from a site to itself")
+        neg = (t["kind"] != "range-rate") & (t["value"] < 0)
+        if neg.any():
+            raise t.error(int(np.argmax(neg)), "value", f"a range cannot be negative, got {float(t['value'][np.argmax(neg)]):g}")
+    if "poses" in tables:
+        t = tables["poses"]
+        _check_names(t, "kind", set(POSE_KINDS), "a pose kind (gnss, mocap) ")
+        _check_names(t, "body", sites | bodies, "a body or a site")
+        gnss = t["kind"] == "gnss"
+        for c in ("sigma_x", "sigma_y", "sigma_z"):
+            if np.any(gnss & np.isnan(t[c])):
+                raise t.error(int(np.argmax(gnss & np.isnan(t[c]))), c, "a GNSS fix needs its 1-sigma (m)")
+        mocap = t["kind"] == "mocap"
+        if np.any(mocap & ~np.isin(t["body"], sorted(bodies))):
+            raise t.error(int(np.argmax(mocap & ~np.isin(t["body"], sorted(bodies)))), "body", "a mocap pose is of a body, not a site")
+        _unit_quaternions(t, mocap)
+    for name, column in (("imu", "site"), ("height", "site")):
+        if name in tables:
+            _check_names(tables[name], column, sites | bodies, "a body or a site")
+    if "truth" in tables:
+        t = tables["truth"]
+        _check_names(t, "body", bodies, "a body")
+        _unit_quaternions(t, np.ones(len(t), bool))
+        for body in bodies:
+            rows = np.flatnonzero(t["body"] == body)
+            back = np.flatnonzero(np.diff(t["time"][rows]) <= 0)
+            if back.size:
+                raise t.error(int(rows[back[0] + 1]), "time", f"the truth of {body} must be in increasing time")
+
+
+def _stream(name: str, t: Table, rows: np.ndarray, value: np.ndarray, sigma: np.ndarray | None, src: np.ndarray,
+            dst: np.ndarray | None, start: float) -> tuple:
+    """(name, time, arrival, value, src, dst, sigma) of one stream's rows (read-only arrays)."""
+    time = t["time"][rows] - start
+    arrival = (np.where(np.isnan(t["arrival"][rows]), t["time"][rows], t["arrival"][rows]) - start
+               if "arrival" in t.columns else time)
+    value = np.ascontiguousarray(value[rows], dtype=float)
+    value.flags.writeable = False
+    if sigma is not None:
+        sigma = np.ascontiguousarray(sigma[rows], dtype=float)
+        sigma.flags.writeable = False
+    return (name, time, arrival, value, src[rows], np.full(rows.sum(), "") if dst is None else dst[rows], sigma)
+
+
+def _streams(tables: dict[str, Table], start: float) -> list[tuple]:
+    out = []
+    if "links" in tables:
+        t = tables["links"]
+        for kind in LINK_KINDS:
+            rows = t["kind"] == kind
+            if rows.any():
+                sig = t["sigma"][:, None]
+                out.append(_stream(kind, t, rows, t["value"][:, None], sig, t["src"], t["dst"], start))
+    if "poses" in tables:
+        t = tables["poses"]
+        xyz = np.stack([t[c] for c in ("x", "y", "z")], axis=1)
+        sig = np.stack([t[c] for c in ("sigma_x", "sigma_y", "sigma_z")], axis=1)
+        for kind, value in (("gnss", xyz), ("mocap", np.concatenate([xyz, np.stack([t[c] for c in QUAT], axis=1)], axis=1))):
+            rows = t["kind"] == kind
+            if rows.any():
+                out.append(_stream(kind, t, rows, value, sig, t["body"], None, start))
+    if "imu" in tables:
+        t = tables["imu"]
+        value = np.stack([t[c] for c in ("ax", "ay", "az", "gx", "gy", "gz")], axis=1)
+        sig = np.repeat(np.stack([t["sigma_accel"], t["sigma_gyro"]], axis=1), 3, axis=1)
+        out.append(_stream("imu", t, np.ones(len(t), bool), value, sig, t["site"], None, start))
+    if "height" in tables:
+        t = tables["height"]
+        out.append(_stream("height", t, np.ones(len(t), bool), t["value"][:, None], t["sigma"][:, None], t["site"], None, start))
+    return sorted(out, key=lambda s: s[0])
+
+
+def _measurements(streams: list[tuple]) -> list[Measurement]:
+    """Every row in the order of testbed.plugins.feed.measurements (arrival, time, stream, row);
+    a row whose sigma is (partly) missing has sigma None."""
+    if not streams:
+        return []
+    arrival = np.concatenate([s[2] for s in streams])
+    tov = np.concatenate([s[1] for s in streams])
+    sid = np.concatenate([np.full(s[1].shape[0], i) for i, s in enumerate(streams)])
+    row = np.concatenate([np.arange(s[1].shape[0]) for s in streams])
+    has_sigma = [None if s[6] is None else np.all(np.isfinite(s[6]), axis=1) for s in streams]
+    out = []
+    for k in np.lexsort((row, sid, tov, arrival)).tolist():
+        name, t, a, value, src, dst, sigma = streams[sid[k]]
+        r = row[k]
+        sig = sigma[r] if sigma is not None and has_sigma[sid[k]][r] else None
+        out.append(Measurement(stream=name, time=float(t[r]), arrival=float(a[r]), value=value[r], src=str(src[r]),
+                               dst=str(dst[r]), sigma=sig))
+    return out
+
+
+def load_recording(spec_path: Path) -> Recording:
+    """Read spec.toml and the tables beside it, check everything, build the feed; ConfigError on a mistake."""
+    spec_path = Path(spec_path)
+    spec = load_spec(spec_path)
+    directory = spec_path.parent
+    tables = {}
+    for name in SCHEMAS:
+        path = find(directory, name)
+        if path is None:
+            if name in REQUIRED_TABLES:
+                raise ConfigError(f"{directory}: no {name}.csv (or {name}.parquet) beside {spec_path.name}")
+            continue
+        tables[name] = read_table(path, name)
+    _check(spec, tables)
+    w = spec.window
+    for name, t in tables.items():
+        if name != "truth":  # truth is kept whole: interpolation at the window's edges needs its neighbours
+            tables[name] = t.select((t["time"] >= w.start) & (t["time"] <= w.end))
+    feed = _measurements(_streams(tables, w.start))
+    if not feed:
+        raise ConfigError(f"{spec_path}: window [{w.start:g}, {w.end:g}] s holds no measurement of the dataset")
+    return Recording(spec, directory, tables, feed)
+
+
+class RecordedTruth:
+    """Truth of bodies and sites at any time within each body's truth rows (scoring only), by
+    testbed.plugins.truth.Truth per body (linear position/velocity, slerp attitude).
+
+    span: {body: (first, last) time, window clock}; has_velocity: {body: vel and omega given}."""
+
+    def __init__(self, rec: Recording):
+        t = rec.tables["truth"]
+        start = rec.spec.window.start
+        self.by_body: dict[str, Truth] = {}
+        self.span: dict[str, tuple[float, float]] = {}
+        self.has_velocity: dict[str, bool] = {}
+        sites = rec.spec.sites
+        for body in rec.spec.bodies:
+            rows = t["body"] == body
+            if not rows.any():
+                continue
+            col = lambda names: np.stack([t[c][rows] for c in names], axis=1)[:, None, :]  # noqa: E731
+            vel, omega = col(("vx", "vy", "vz")), col(("wx", "wy", "wz"))
+            log = {"time": t["time"][rows] - start, "truth/pos": col(("x", "y", "z")), "truth/quat": col(QUAT),
+                   "truth/vel": vel, "truth/omega": omega}
+            ctx = SimpleNamespace(vehicles=(body,), sites={s: v for s, v in sites.items() if v[0] == body})
+            self.by_body[body] = Truth(log, ctx)
+            self.span[body] = (float(log["time"][0]), float(log["time"][-1]))
+            self.has_velocity[body] = bool(np.all(np.isfinite(vel)) and np.all(np.isfinite(omega)))
+        self.sites = sites
+        self.anchors = rec.spec.anchor_points
+
+    def body_of(self, target: str) -> str:
+        return self.sites[target][0] if target in self.sites else target
+
+    def known(self, target: str, quantity: str) -> bool:
+        """Is there truth for this target and quantity (velocity needs vel and omega rows)?"""
+        body = self.body_of(target)
+        return body in self.by_body and (quantity != "velocity" or self.has_velocity[body])
+
+    def at(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
+        """As testbed.plugins.truth.Truth.at; an anchor's position is its fixed point."""
+        if target in self.anchors:
+            return np.tile(self.anchors[target], (np.size(t), 1)) if quantity == "position" else np.zeros((np.size(t), 3))
+        return self.by_body[self.body_of(target)].at(target, quantity, np.asarray(t, float))

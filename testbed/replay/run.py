@@ -1,0 +1,118 @@
+"""`testbed replay SPEC.toml --out DIR`: run estimators on a recorded dataset and score them.
+
+The estimators are the spec's [[estimators]] (plus any given on the command line), loaded, fed and
+collected by the plugin machinery of a simulated run (testbed.plugins: the same Measurement order,
+the same checks of every Estimate) and scored by the same function (testbed.plugins.score) against
+the dataset's truth when it has one. The output directory follows testbed.outdir (temporary
+sibling, marker, atomic rename) and holds
+- spec.toml: the spec as read (enough, with the dataset, to replay again);
+- metrics.json (strict JSON): window, measurement counts, per-link residual statistics against
+  truth (measured minus true range or range rate: samples, mean, std, RMSE), and per estimator
+  its scores (RMSE, ANEES, per target), health counts and the estimates it made that truth cannot
+  score (outside the truth's time span, a velocity without truth velocity);
+- estimates.npz: every estimate, `KEY/TARGET/QUANTITY/{time,value,cov}` (time in window clock s);
+- timing.json: wall-clock per estimator; plots/: error plots as a simulated run's.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from testbed.errors import ConfigError
+from testbed.log import save_npz
+from testbed.outdir import Output, write_json
+from testbed.plugins.collect import Series, Track
+from testbed.plugins.feed import run_plugin
+from testbed.plugins.loading import resolve
+from testbed.plugins.score import plot_errors, score
+from testbed.plugins.spec import EstimatorSpec
+from testbed.replay.linkstats import link_statistics
+from testbed.replay.recording import RecordedTruth, Recording, load_recording
+
+
+def _scorable(track: Track, truth: RecordedTruth) -> tuple[Track, dict[str, int]]:
+    """The estimates truth can score, and the count of the others per "target quantity"."""
+    keep: Track = {}
+    dropped: dict[str, int] = {}
+    for (target, q), s in track.items():
+        if not truth.known(target, q):
+            dropped[f"{target} {q}"] = int(s.time.size)
+            continue
+        lo, hi = truth.span[truth.body_of(target)]
+        inside = (s.time >= lo) & (s.time <= hi)
+        if not inside.all():
+            dropped[f"{target} {q}"] = int((~inside).sum())
+        if inside.any():
+            keep[(target, q)] = Series(s.time[inside], s.value[inside], s.cov[inside], s.has_cov[inside])
+    return keep, dropped
+
+
+def _arrays(key: str, track: Track) -> dict[str, np.ndarray]:
+    out = {}
+    for (target, q), s in track.items():
+        out[f"{key}/{target}/{q}/time"] = s.time
+        out[f"{key}/{target}/{q}/value"] = s.value
+        out[f"{key}/{target}/{q}/cov"] = s.cov
+    return out
+
+
+def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: Path | None) -> tuple[dict, dict, dict]:
+    """Run and score every estimator on a loaded recording; returns (metrics, estimates arrays,
+    timing). out_dir: where plots/ goes (None: no plots)."""
+    plugins = resolve(specs)
+    truth = RecordedTruth(rec) if "truth" in rec.tables else None
+    w = rec.spec.window
+    metrics: dict = {
+        "description": rec.spec.description,
+        "window_s": [w.start, w.end],
+        "duration_s": rec.duration,
+        "bodies": list(rec.spec.bodies),
+        "measurements": rec.counts(),
+        "truth": truth is not None,
+        "links": link_statistics(rec, truth) if truth is not None else {},
+        "estimators": {},
+    }
+    arrays, timing, shown = {}, {}, {}
+    for p in plugins:
+        track, health, wall_ms = run_plugin(p, rec.context(p.key, p.params), rec.feed)
+        entry: dict = {"entry": p.entry}
+        if truth is not None:
+            scored, unscored = _scorable(track, truth)
+            scores, errs = score(scored, truth)
+            entry.update(scores)
+            entry["unscored_estimates"] = unscored
+            shown[p.key] = (scored, errs)
+        else:
+            entry["estimates"] = int(sum(s.time.size for s in track.values()))
+            entry["unscored_reason"] = "the dataset has no truth table"
+        if health:
+            entry["health"] = health
+        metrics["estimators"][p.key] = entry
+        arrays.update(_arrays(p.key, track))
+        timing[p.key] = {"wall_ms": wall_ms}
+    if out_dir is not None and shown:
+        plot_errors(shown, Path(out_dir) / "plots")
+    return metrics, arrays, timing
+
+
+def replay(spec_path: Path, out: Path, *, estimators: tuple[EstimatorSpec, ...] = (), force: bool = False,
+           plots: bool = True) -> dict:
+    """Read and check the dataset of spec_path, run its estimators (and `estimators`), write the
+    replay directory at `out` (see the module docstring); returns the metrics."""
+    rec = load_recording(Path(spec_path))
+    specs = rec.spec.estimators + tuple(estimators)
+    if not specs:
+        raise ConfigError(f"{spec_path}: no estimator to run: add [[estimators]] tables or --estimator ENTRY")
+    resolve(specs)  # a bad entry stops here, before anything is written
+    with Output(Path(out), kind="replay", force=force) as o:
+        (o.path / "plots").mkdir()
+        metrics, arrays, timing = replay_recording(rec, specs, o.path if plots else None)
+        metrics = {"spec": str(spec_path), **metrics}
+        shutil.copyfile(spec_path, o.path / "spec.toml")
+        write_json(o.path / "metrics.json", metrics)
+        write_json(o.path / "timing.json", {"spec": str(spec_path), "estimators": timing})
+        save_npz(o.path / "estimates.npz", arrays)
+        o.commit()
+    return metrics

@@ -1,0 +1,119 @@
+"""The replay spec (`spec.toml` of a recorded dataset, docs/replay.md): bodies, sites, anchors,
+declared sensor models, the estimators to run and the time window.
+
+Built only through testbed.config.from_dict, so an unknown key, a wrong type or a bad value is a
+FieldError naming the file, the dotted key and the value (exit 2).
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from testbed.config import from_dict, in_range, require
+from testbed.errors import ConfigError
+from testbed.plugins.spec import EstimatorSpec
+
+FORMAT = 1
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Window:
+    """The replayed time window, in the clock of the files (s): rows with start <= time <= end are
+    fed; estimators see time - start, so the replay runs over [0, end - start] like a simulation."""
+
+    start: float = 0.0
+    end: float
+
+    def __post_init__(self) -> None:
+        in_range(self, "start", unit="s")
+        in_range(self, "end", unit="s")
+        require(self.end > self.start, "end", self.end, f"must be after window.start = {self.start:g} s")
+
+
+def _point(value: object) -> bool:
+    return (isinstance(value, (list, tuple)) and len(value) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+
+
+def _check_bodies(bodies: dict) -> None:
+    for body, table in bodies.items():
+        require(_NAME.fullmatch(body) is not None, f"bodies.{body}", body, "letters, digits, '_', '-' and '.' only")
+        require(isinstance(table, dict) and set(table) <= {"sites"}, f"bodies.{body}", table,
+                "expected a table with one key, sites = {NAME = [x, y, z]} (m, body frame)")
+        sites = table.get("sites", {})
+        require(isinstance(sites, dict), f"bodies.{body}.sites", sites, "expected a table {NAME = [x, y, z]}")
+        for site, arm in sites.items():
+            require(_NAME.fullmatch(site) is not None, f"bodies.{body}.sites.{site}", site, "letters, digits, '_', '-' and '.' only")
+            require(_point(arm), f"bodies.{body}.sites.{site}", arm, "expected a lever arm [x, y, z] of finite numbers (m, body frame)")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class ReplaySpec:
+    """One `spec.toml` (docs/replay.md).
+
+    format: the format version (1). description: one line. seed: seeds each estimator's
+    Context.rng (stream "estimator/NAME"). window: the time window. bodies: {body: {sites: {site:
+    [x, y, z] m, body frame FLU}}}, in order (the vehicles of the Context); the site's full name is
+    "body/site". anchors: {name: [x, y, z] m, world ENU}, fixed. sensors: {stream: table} the declared
+    sensor models handed to estimators as Context.sensors (free tables). estimators: [[estimators]]
+    tables as in a scenario (entry, name, params).
+    """
+
+    format: int = FORMAT
+    description: str = ""
+    seed: int = 0
+    window: Window
+    bodies: dict
+    anchors: dict = field(default_factory=dict)
+    sensors: dict = field(default_factory=dict)
+    estimators: tuple[EstimatorSpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        require(self.format == FORMAT, "format", self.format, f"this testbed reads format {FORMAT}")
+        in_range(self, "seed", 0, 10**9)
+        require(bool(self.bodies), "bodies", self.bodies, "name at least one body ([bodies.NAME.sites])")
+        _check_bodies(self.bodies)
+        for name, p in self.anchors.items():
+            require(_NAME.fullmatch(name) is not None, f"anchors.{name}", name, "letters, digits, '_', '-' and '.' only")
+            require(name not in self.bodies, f"anchors.{name}", name, "is also a body name")
+            require(_point(p), f"anchors.{name}", p, "expected a position [x, y, z] of finite numbers (m, world ENU)")
+        for name, table in self.sensors.items():
+            require(isinstance(table, dict), f"sensors.{name}", table, "expected a table (the declared sensor model)")
+
+    @property
+    def sites(self) -> dict[str, tuple[str, np.ndarray]]:
+        """{"body/site": (body, lever arm (3,) m body frame)}, arrays read-only."""
+        out = {}
+        for body, table in self.bodies.items():
+            for site, arm in table.get("sites", {}).items():
+                a = np.array(arm, float)
+                a.flags.writeable = False
+                out[f"{body}/{site}"] = (body, a)
+        return out
+
+    @property
+    def anchor_points(self) -> dict[str, np.ndarray]:
+        """{anchor: (3,) m world}."""
+        return {name: np.array(p, float) for name, p in self.anchors.items()}
+
+
+def load_spec(path: Path) -> ReplaySpec:
+    """Read and check a spec.toml; ConfigError (exit 2) naming the file and key on any mistake."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such spec file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory; name its spec.toml") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a UTF-8 text file") from None
+    return from_dict(ReplaySpec, data, str(path))
