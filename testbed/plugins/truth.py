@@ -42,10 +42,7 @@ class Truth:
         x = self._world(target, quantity, t)
         if frame == "world":
             return x
-        R = self._rot(self.index[frame], t)
-        if quantity == "attitude":
-            return (R.inv() * Rotation.from_quat(x, scalar_first=True)).as_quat(scalar_first=True)
-        return R.inv().apply(x - self._world(frame, quantity, t))
+        return relative(x, quantity, self._rot(self.index[frame], t), lambda: self._world(frame, quantity, t))
 
     def _world(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
         body, arm = self.sites[target] if target in self.sites else (target, None)
@@ -60,6 +57,14 @@ class Truth:
         if quantity == "position":
             return base + R.apply(arm)
         return base + R.apply(np.cross(self._lin(self.omega, i, t), arm))
+
+
+def relative(x: np.ndarray, quantity: str, R: Rotation, x_frame) -> np.ndarray:
+    """World-frame truth x (K, 3) or (K, 4) wxyz expressed relative to a vehicle with attitude R (K
+    rotations) and, for position/velocity, world value x_frame() (K, 3): R^T (x - x_frame), R^T R_x."""
+    if quantity == "attitude":
+        return (R.inv() * Rotation.from_quat(x, scalar_first=True)).as_quat(scalar_first=True)
+    return R.inv().apply(x - x_frame())
 
 
 def errors(truth: Truth, target: str, quantity: str, t: np.ndarray, value: np.ndarray, frame: str = "world") -> np.ndarray:

@@ -19,10 +19,11 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from testbed.errors import ConfigError
 from testbed.plugins.api import Context, Measurement
-from testbed.plugins.truth import Truth
+from testbed.plugins.truth import Truth, relative
 from testbed.replay.spec import ReplaySpec, load_spec
 from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_table
 from testbed.rng import stream_rng
@@ -247,8 +248,16 @@ class RecordedTruth:
         body = self.body_of(target)
         return body in self.by_body and (quantity != "velocity" or self.has_velocity[body])
 
-    def at(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
+    def at(self, target: str, quantity: str, t: np.ndarray, frame: str = "world") -> np.ndarray:
         """As testbed.plugins.truth.Truth.at; an anchor's position is its fixed point."""
+        t = np.asarray(t, float)
+        x = self._world(target, quantity, t)
+        if frame == "world":
+            return x
+        R = Rotation.from_quat(self._world(frame, "attitude", t), scalar_first=True)
+        return relative(x, quantity, R, lambda: self._world(frame, quantity, t))
+
+    def _world(self, target: str, quantity: str, t: np.ndarray) -> np.ndarray:
         if target in self.anchors:
             return np.tile(self.anchors[target], (np.size(t), 1)) if quantity == "position" else np.zeros((np.size(t), 3))
         return self.by_body[self.body_of(target)].at(target, quantity, np.asarray(t, float))
