@@ -225,3 +225,46 @@ def test_flown_on_the_mahony_attitude_stays_within_the_declared_bias_bound(tmp_p
     bound = e_c + 9.81 * d / c.kx
     e = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
     assert e.max() <= bound, f"{e.max():.3f} m > {bound:.3f} m"
+
+
+def test_feedback_vehicles_leaves_the_others_on_truth(tmp_path):
+    """Two vehicles 30 m apart, only uav1 on the estimate: uav2's flight is bit-identical to the
+    all-truth run (the controller and the physics treat each vehicle on its own), uav1's is not."""
+    text = _write(tmp_path, duration=3.0, control='feedback = "estimate:nav"\nfeedback_vehicles = [1]', outages="[]").read_text()
+    text = text.replace('times = [0.0, 12.0, 24.0]', 'times = [0.0, 12.0, 24.0]\noffsets = [[0.0, 0.0, 0.0], [0.0, 30.0, 0.0]]')
+    path = tmp_path / "two.toml"
+    path.write_text(text)
+    sc = scenario_mod.load(str(path))
+    log, track, _ = _fly(sc)
+    truth_log, _ = simulate(dataclasses.replace(sc, control=dataclasses.replace(sc.control, feedback="truth", feedback_vehicles=())))
+    assert np.array_equal(log["truth/pos"][:, 1], truth_log["truth/pos"][:, 1])
+    assert np.array_equal(log["truth/quat"][:, 1], truth_log["truth/quat"][:, 1])
+    assert not np.array_equal(log["truth/pos"][:, 0], truth_log["truth/pos"][:, 0])
+    assert ("uav2", "position") in track  # estimated all the same, just not flown on
+
+
+def test_online_imu_errors_are_the_batch_errors(tmp_path):
+    """The IMU applying its errors sample by sample (online) gives the batch values to rounding
+    (the Gauss-Markov recursion against scipy's lfilter) from the same draws."""
+    from testbed.sensors.suite import make_sensors
+
+    text = _write(tmp_path, duration=3.0).read_text()
+    text = text.replace('times = [0.0, 12.0, 24.0]', 'times = [0.0, 12.0, 24.0]\noffsets = [[0.0, 0.0, 0.0], [0.0, 30.0, 0.0]]')
+    text = text.replace('rate_hz = 100.0\n', 'rate_hz = 100.0\n[sensors.imu.accel]\nbias_walk = 0.001\n', 1)
+    path = tmp_path / "two.toml"
+    path.write_text(text)
+    sc = scenario_mod.load(str(path))  # two vehicles; bmi088: Gauss-Markov biases, plus a walk
+    assert sc.vehicles == 2 and sc.sensors.imu.accel.bias_walk == 0.001 and sc.sensors.imu.gyro.gm_tau > 0
+    physics = build(sc)
+    batch, online = (next(s for s in make_sensors(sc, physics) if s.name == "imu") for _ in range(2))
+    online.online = True
+    rng = np.random.default_rng(3)
+    for k in range(600):  # more than two blocks of normals
+        physics.data.sensordata[:] = rng.normal(0, 3, physics.data.sensordata.shape)
+        batch.sample(physics, k * 0.01, k)
+        online.sample(physics, k * 0.01, k)
+    a, b = batch.arrays(), online.arrays()
+    assert a.keys() == b.keys()
+    assert np.allclose(a["imu/value"], b["imu/value"], rtol=0, atol=1e-12) and np.array_equal(a["imu/clean"], b["imu/clean"])
+    assert np.allclose(a["imu/bias"], b["imu/bias"], rtol=0, atol=1e-12) and np.abs(a["imu/bias"]).max() > 1e-4
+    assert all(np.array_equal(a[k], b[k]) for k in ("imu/time", "imu/src", "imu/vehicle", "imu/state_index"))
