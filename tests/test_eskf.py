@@ -9,26 +9,29 @@ from estimators.so3 import quat_exp
 RNG = np.random.default_rng(7)
 
 
-def _state() -> np.ndarray:
-    x = np.zeros(16)
+def _state(extras: int = 2) -> np.ndarray:
+    """A random nominal state with `extras` extra states (m)."""
+    x = np.zeros(16 + extras)
     x[0:3], x[3:6] = RNG.normal(0, 5, 3), RNG.normal(0, 2, 3)
     x[6:10] = quat_exp(RNG.normal(0, 0.6, 3))
     x[10:13], x[13:16] = RNG.normal(0, 0.2, 3), RNG.normal(0, 0.02, 3)
+    x[16:] = RNG.normal(0, 0.05, extras)
     return x
 
 
 def _numeric(fn, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
     """d fn(x (+) dx) / d dx at dx = 0 by central differences, columns per error component."""
     cols = []
-    for k in range(eskf.N_ERR):
-        d = np.zeros(eskf.N_ERR)
+    n = eskf.error_size(x)
+    for k in range(n):
+        d = np.zeros(n)
         d[k] = h
         cols.append((fn(eskf.inject(x, d)) - fn(eskf.inject(x, -d))) / (2 * h))
     return np.stack(cols, axis=-1)
 
 
 def test_inject_and_difference_are_inverse():
-    x, dx = _state(), RNG.normal(0, 0.1, 15)
+    x, dx = _state(), RNG.normal(0, 0.1, 17)
     assert np.allclose(eskf.difference(eskf.inject(x, dx), x), dx, atol=1e-12)
 
 
@@ -47,12 +50,15 @@ def test_measurement_jacobians():
         x, lever, anchor = _state(), RNG.normal(0, 0.3, 3), RNG.normal(0, 20, 3)
         _, H = eskf.site_position(x, lever)
         assert np.allclose(H, _numeric(lambda z: eskf.site_position(z, lever)[0], x), atol=1e-7)
-        _, Hr = eskf.range_model(x, lever, anchor)
-        assert np.allclose(Hr, _numeric(lambda z: np.array([eskf.range_model(z, lever, anchor)[0]]), x), atol=1e-7)
+        for extras in ((), (1,), (0, 1)):
+            _, Hr = eskf.range_model(x, lever, anchor, extras)
+            assert np.allclose(Hr, _numeric(lambda z: np.array([eskf.range_model(z, lever, anchor, extras)[0]]), x), atol=1e-7)
+        r0, r1 = eskf.range_model(x, lever, anchor)[0], eskf.range_model(x, lever, anchor, (0, 1))[0]
+        assert np.isclose(r1 - r0, x[16] + x[17])
 
 
 def test_update_gate_rejects_and_accepts():
-    x, P = _state(), np.eye(15) * 0.01
+    x, P = _state(), np.eye(17) * 0.01
     s, H = eskf.site_position(x, np.zeros(3))
     gate = 16.27  # chi-square 3 dof, 1e-3
     x1, P1, res = eskf.update(x, P, np.array([0.05, 0.0, 0.0]), H, np.eye(3) * 0.01, gate)

@@ -268,3 +268,26 @@ def test_online_imu_errors_are_the_batch_errors(tmp_path):
     assert np.allclose(a["imu/value"], b["imu/value"], rtol=0, atol=1e-12) and np.array_equal(a["imu/clean"], b["imu/clean"])
     assert np.allclose(a["imu/bias"], b["imu/bias"], rtol=0, atol=1e-12) and np.abs(a["imu/bias"]).max() > 1e-4
     assert all(np.array_equal(a[k], b[k]) for k in ("imu/time", "imu/src", "imu/vehicle", "imu/state_index"))
+
+
+@pytest.mark.parametrize("latency, first_tick", [(0.0, 1), (0.0123, 4)])
+def test_an_estimate_steers_from_the_tick_after_its_measurement_arrived(tmp_path, latency, first_tick):
+    """GNSS at t = 0 with `latency`, ticks of 5 ms: the fix arrives at tick ceil(latency / 5 ms)
+    (0 or 3, at 0.0123 s), is processed at the end of that tick, and the controller uses the
+    estimate from the next tick on (1 or 4); before that, the reference."""
+    text = _write(tmp_path, duration=0.1, entry="tests.loop_plugins:Recording", outages="[]").read_text()
+    path = tmp_path / "late.toml"
+    path.write_text(text.replace("rate_hz = 5.0\n", f"rate_hz = 5.0\nlatency = {latency}\n"))
+    sc = scenario_mod.load(str(path))
+    physics = build(sc)
+    online = in_the_loop(sc, physics, resolve(sc.estimators))
+    used, state = [], online.state
+
+    def spy(pos, vel, ref_pos, ref_vel):
+        p, v = state(pos, vel, ref_pos, ref_vel)
+        used.append(not np.array_equal(p, ref_pos))
+        return p, v
+
+    online.state = spy
+    simulate(sc, physics, feedback=online)
+    assert used.index(True) == first_tick and not any(used[:first_tick]) and all(used[first_tick:])
