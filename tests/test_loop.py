@@ -7,7 +7,9 @@
 - an estimator in the loop that produces nothing or NaN stops the run with one line, exit 1,
   no run directory; bad keys are refused at load with exit 2;
 - the Mahony filter alone: converges on a static tilt; flown, within a bound from the IMU's
-  declared biases.
+  declared biases;
+- an estimate steers from the tick after its measurement arrived; feedback_vehicles leaves the
+  other vehicles' flight bit-identical; the IMU's online errors equal its batch errors.
 (feedback = "truth" stays byte-identical: tests/test_golden.py.)
 """
 from __future__ import annotations
