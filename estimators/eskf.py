@@ -33,7 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.core import cho_solve_upper, cholesky_upper, joseph_update, symmetrize
-from estimators.so3 import quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat, skew, so3_right_jacobian
+from estimators.so3 import (quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat, rot_zyx, rotmat_to_quat, skew,
+                            so3_right_jacobian)
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2, world ENU
 P, V, TH, BA, BG = (slice(3 * k, 3 * k + 3) for k in range(5))  # error-state blocks
@@ -125,6 +126,21 @@ def range_model(x: np.ndarray, lever: np.ndarray, anchor: np.ndarray, extras: tu
         r += float(x[16 + k])
         H[0, N_ERR + k] += 1.0
     return r, H
+
+
+def level(f: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """Attitude q (4,) wxyz of a vehicle at rest from its bias-corrected specific force f (3,)
+    m/s^2 (roll and pitch) and a heading yaw (rad, ZYX), and J (3, 3): the attitude error
+    dtheta = J db_a that an accelerometer bias error db_a (true minus assumed) leaves.
+
+    At rest f = R^T (-g) + b_a, so the levelled body-frame vertical v = f / |f| errs by
+    v - v_true = (I - v v^T) db_a / |f|; with R_true = R Exp(dtheta), v_true = v + v x dtheta, so
+    the tilt part of dtheta is -v x (v_true - v) = [v]x db_a / |f| (the part of db_a along v
+    changes nothing); the heading about v is not measured (J has rank 2)."""
+    roll, pitch = np.arctan2(f[1], f[2]), np.arctan2(-f[0], np.hypot(f[1], f[2]))
+    R = rot_zyx(yaw, pitch, roll)
+    v = f / np.linalg.norm(f)
+    return rotmat_to_quat(R), skew(v) / np.linalg.norm(f)
 
 
 def inject(x: np.ndarray, dx: np.ndarray) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators import eskf
-from estimators.so3 import quat_exp
+from estimators.so3 import quat_exp, quat_to_rotmat
 
 RNG = np.random.default_rng(7)
 
@@ -65,3 +65,26 @@ def test_update_gate_rejects_and_accepts():
     assert res.accepted and x1[0] > x[0] and np.trace(P1) < np.trace(P)
     x2, P2, res = eskf.update(x, P, np.array([5.0, 0.0, 0.0]), H, np.eye(3) * 0.01, gate)
     assert not res.accepted and np.array_equal(x2, x) and res.nis > gate
+
+
+def test_level_and_the_tilt_error_an_accelerometer_bias_leaves():
+    """A vehicle at rest with attitude R reads f = R^T (0, 0, g) + b; levelling the reading with
+    a bias error db gives the tilt error (the part of dtheta across the vertical) J db to first
+    order."""
+    for _ in range(5):
+        q = quat_exp(np.array([*RNG.normal(0, 0.2, 2), RNG.uniform(-3, 3)]))
+        R = quat_to_rotmat(q)
+        f = R.T @ [0.0, 0.0, 9.81]
+        yaw = np.arctan2(R[1, 0], R[0, 0])
+        q0, J = eskf.level(f, yaw)
+        assert np.allclose(quat_to_rotmat(q0), R, atol=1e-12)
+        x0 = np.zeros(16)
+        x0[6:10] = q0
+        for db in (RNG.normal(0, 0.02, 3) for _ in range(3)):
+            qb, _ = eskf.level(f + db, yaw)  # levelled with a bias db not removed
+            xt, xb = x0.copy(), x0.copy()
+            xb[6:10] = qb
+            dtheta = eskf.difference(xt, xb)[eskf.TH]  # R_true = R_est Exp(dtheta)
+            v = f / np.linalg.norm(f)
+            tilt = dtheta - v * (v @ dtheta)  # the ZYX heading held fixed may turn about v: not J's part
+            assert np.allclose(tilt, J @ db, atol=2e-5), (tilt, J @ db)

@@ -8,7 +8,8 @@ sample. A GNSS fix or a UWB range first propagates the filter to its time of val
 updates it (a measurement older than the filter, possible with a latency, updates the current
 state: the delay is not compensated). The filter starts at the vehicle's first GNSS fix: position
 the fix minus the rotated antenna lever arm, velocity 0, roll and pitch levelled from the last
-accelerometer sample, yaw `yaw0`; before that its GNSS and UWB rows are skipped (counted).
+accelerometer sample (less the declared constant bias; its tilt error correlated with the
+accelerometer bias error, estimators.eskf.level), yaw `yaw0`; before that its GNSS and UWB rows are skipped (counted).
 
 Noise: IMU white noise and bias walks from the declared [sensors.imu] table (a Gauss-Markov
 bias of sigma s, time constant tau enters as a walk of density s sqrt(2 / tau)); turn-on and
@@ -32,7 +33,7 @@ from scipy.stats import chi2
 
 from estimators import eskf
 from estimators.core import symmetrize
-from estimators.so3 import rot_zyx, rotmat_to_quat
+from estimators.so3 import quat_to_rotmat
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.sensors.noise import twr_range_variance
 
@@ -125,18 +126,27 @@ class NavEskf:
         ]
 
     def _start(self, f: _Vehicle, m: Measurement, lever: np.ndarray) -> None:
-        """First fix: the initial state and covariance (module docstring)."""
-        a = f.imu[0]
-        roll, pitch = np.arctan2(a[1], a[2]), np.arctan2(-a[0], np.hypot(a[1], a[2]))
-        R = rot_zyx(self.p["yaw0"], pitch, roll)
+        """First fix: the initial state and covariance (module docstring). The levelling error
+        is the accelerometer bias error seen across the vertical (estimators.eskf.level): the
+        initial tilt and accelerometer bias errors are correlated, dtheta = J db_a, plus
+        tilt0_sigma across the vertical (the vehicle not at rest: a drag-free quadrotor's
+        accelerometer reads its thrust axis, so an acceleration a tilts the levelled vertical
+        by a / g, 0.05 rad at 0.5 m/s^2) and yaw0_sigma about it."""
+        p = self.p
+        q, J = eskf.level(f.imu[0] - self.bias0[:3], p["yaw0"])
+        R = quat_to_rotmat(q)
         x = np.zeros(16 + len(self.delay_var))
         x[0:3] = np.asarray(m.value, float) - R @ lever
-        x[6:10] = rotmat_to_quat(R)
+        x[6:10] = q
         x[10:16] = self.bias0
-        sig = self.p
-        var = np.concatenate([np.asarray(m.sigma, float) ** 2, [sig["vel0_sigma"] ** 2] * 3,
-                              [sig["tilt0_sigma"] ** 2] * 2, [sig["yaw0_sigma"] ** 2], self.bias_var, self.delay_var])
-        f.x, f.P, f.t = x, np.diag(var), max(f.t, m.time)
+        P = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
+                                    self.bias_var, self.delay_var]))
+        v = R.T @ [0.0, 0.0, 1.0]  # the vertical in the body frame
+        Pb = P[eskf.BA, eskf.BA]
+        P[eskf.TH, eskf.TH] = J @ Pb @ J.T + p["tilt0_sigma"] ** 2 * (np.eye(3) - np.outer(v, v)) + p["yaw0_sigma"] ** 2 * np.outer(v, v)
+        P[eskf.TH, eskf.BA] = J @ Pb
+        P[eskf.BA, eskf.TH] = (J @ Pb).T
+        f.x, f.P, f.t = x, P, max(f.t, m.time)
 
     def _gnss(self, m: Measurement) -> None:
         body, lever = self._site(m.src)
