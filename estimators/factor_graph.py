@@ -12,7 +12,9 @@ Conventions chosen here (see also the report of the seed):
 - UWB clock scale factor (20 ppm): NOT modelled as a state. Over a <= 100 m link it is a bias of
   at most 20e-6 * 100 m = 2 mm, i.e. a variance (2e-3)^2 = 4e-6 m^2 against sigma_d^2 = 1e-2 m^2
   (0.04 %): it is absorbed into the range noise. A user who wants it can pass a per-link
-  `range_sigma` (m,) = sqrt(sigma_d^2 + (ppm * d)^2); nothing else changes.
+  `range_sigma` (m,) = sqrt(sigma_d^2 + (ppm * d)^2); errors shared by the links of one radio
+  (per-device clock offsets, antenna delays) go into `range_cov`, the joint (m, m) covariance of
+  the ranges, which the centralized least-squares solver whitens with its Cholesky factor.
 - Linearization follows the paper's notation (eqs. 13-16): at the current x0 each factor k gives
   the whitened Jacobian A_k = Sigma_k^{-1/2} dh_k/dx and the whitened prediction error
   b_k = Sigma_k^{-1/2} (z_k - h_k(x0)); the step Delta solves min |A Delta - b|^2, i.e. the normal
