@@ -113,7 +113,9 @@ class CoopProblem:
         or clock offset) correlate ranges of the same epoch; its diagonal must be range_sigma^2.
         Used by the least-squares path of solve_centralized (whitening by its Cholesky factor);
         the distributed scheme treats ranges as independent (range_sigma), and robust losses,
-        fixed nodes and missing priors refuse it (ValueError).
+        fixed nodes and missing priors refuse it (ValueError). Dense: O(m^3) per whitening, meant
+        for one epoch of seed 001 (tens to hundreds of links); a swarm of thousands of links would
+        carry the per-device terms as nuisance variables instead (not implemented).
     """
 
     gnss_pos: np.ndarray

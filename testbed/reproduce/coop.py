@@ -100,7 +100,9 @@ def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
 
 
 def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
-    """Centralized solution and marginals vs GTSAM on every epoch of a run."""
+    """Centralized solution and marginals vs GTSAM on every epoch of a run, on the graph with
+    independent ranges (range_sigmas; GTSAM's range factors are independent): the solver check. The
+    scored centralized estimate also whitens the ranges jointly (coop.range_covariance)."""
     # lazy: GTSAM is a heavy optional dependency, loaded only for this check
     from estimators.gtsam_reference import solve_gtsam
 
