@@ -64,8 +64,9 @@ class PhasePipelineConfig(_PipelineConfig):
     q_translation (m^2/s^3), q_rotation (rad^2/s^3): rigid-body white accelerations of the
       follower, common to its antennas (estimators.phase_ekf.ProcessNoise); 0 = the paper's Q.
       A scenario with a [disturbance] on the follower states its densities here (model-matched).
-    sigma_range: filter range noise, 1 sigma (m); rate rows get sqrt(2) sigma_range / W.
-    rate_rows: "window" | "instantaneous" | "off" (testbed.pipelines.phase).
+    sigma_range: filter range noise, 1 sigma (m); rate rows, if on, get sqrt(2) sigma_range / W.
+    rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already
+      used, docs/models.md) | "window" | "instantaneous" (testbed.pipelines.phase).
     init: "drawn" = initial 18-state error drawn from the initial covariance per run (stream
       "init"); "paper" = the paper's fixed body error on every antenna.
     init_pos_error, init_vel_error: the paper's fixed error (m, m/s, frame N);
@@ -85,7 +86,7 @@ class PhasePipelineConfig(_PipelineConfig):
     q_translation: float = 0.0
     q_rotation: float = 0.0
     sigma_range: float = 0.05
-    rate_rows: Literal["window", "instantaneous", "off"] = "window"
+    rate_rows: Literal["window", "instantaneous", "off"] = "off"
     init: Literal["drawn", "paper"] = "drawn"
     init_pos_error: Vec3 = PAPER_POS_ERROR
     init_vel_error: Vec3 = PAPER_VEL_ERROR
