@@ -100,7 +100,8 @@ def test_visnav_claims_are_decided_by_their_named_tests():
 def _sweep_rows(anees: dict[float, list[float]]) -> list[dict]:
     """Sweep rows of phase_q with the given final body NEES per q (one per seed)."""
     return [{"scenario": "s", "seed": 1000 + i, "q": q, "nees_body6_final": a, "anees": a, "rmse_position_m": 0.01,
-             "pcrb_rmse_position_m": 0.01} for q, values in anees.items() for i, a in enumerate(values)]
+             "pcrb_rmse_position_m": 0.01, "rmse": 0.008, "pcrb_rmse": 0.009, "max_abs_position": [0.01, 0.02, 0.01]}
+            for q, values in anees.items() for i, a in enumerate(values)]
 
 
 def test_phase_q_rule_picks_the_anees_closest_to_dof_on_a_log_scale(tmp_path):
@@ -112,6 +113,8 @@ def test_phase_q_rule_picks_the_anees_closest_to_dof_on_a_log_scale(tmp_path):
     assert phase_q.choose(rows) == 1e-11
     # a log-scale tie (3 and 12 are both a factor 2 from 6): the larger q
     assert phase_q.choose(_sweep_rows({1e-13: [12.0], 1e-9: [3.0]})) == 1e-9
-    # the figure is written
+    # the figure is written, with and without the full-duration sweep
     path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep.png", horizon=20.0)
+    assert path.stat().st_size > 10_000
+    path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep_long.png", horizon=20.0, long=rows)
     assert path.stat().st_size > 10_000

@@ -30,9 +30,9 @@ Claim criteria and tests (fixed before any result was looked at; testbed.stats; 
 Process noise q: every scenario's pipeline.q is the value the stated rule of
 testbed.reproduce.phase_q picks on the calibration seeds 1000..1009 (disjoint from the evaluation
 seeds above). The reproduction re-runs that sweep (`calibrate`: min(runs, 10) calibration seeds,
-horizon phase_q.CALIBRATION_HORIZON_S or the shorter --duration), writes plots/q_sweep.png (ANEES,
-RMSE and PCRB against q) and, in table.md and claims.json (`q_rule`), the rule's q beside the
-scenario's.
+horizon phase_q.CALIBRATION_HORIZON_S or the shorter --duration; and phase-cross-h000 over the full
+duration), writes plots/q_sweep.png (ANEES, RMSE, max error and PCRB against q) and, in table.md and
+claims.json (`q_rule`), the rule's q beside the scenario's.
 
 Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenario), `decide`
 (numbers -> claims), `write` (files through testbed.report); `reproduce` chains them.
@@ -247,13 +247,17 @@ def _rmse_vs_pcrb(R: dict[str, list[dict]], path: Path, runs: int) -> Path:
     return save(fig, path)
 
 
-def calibrate(*, runs: int, motion: str, duration: float | None) -> tuple[dict[str, list[dict]], float]:
-    """The q sweep of testbed.reproduce.phase_q on every formation: ({scenario: sweep rows}, the
-    horizon in s). Seeds: the first min(runs, 10) calibration seeds; horizon: the rule's, or the
-    shorter --duration."""
+LONG_SWEEP = "phase-cross-h000"  # the formation of the paper's tightest claim (+/-0.01 m)
+
+
+def calibrate(*, runs: int, motion: str, duration: float | None) -> tuple[dict[str, list[dict]], float, list[dict]]:
+    """The q sweep of testbed.reproduce.phase_q on every formation and, over the runs' full
+    duration, on LONG_SWEEP: ({scenario: sweep rows}, the horizon in s, the long rows). Seeds: the
+    first min(runs, 10) calibration seeds; horizon: the rule's, or the shorter --duration."""
     horizon = phase_q.CALIBRATION_HORIZON_S if duration is None else min(duration, phase_q.CALIBRATION_HORIZON_S)
     seeds = phase_q.CALIBRATION_SEEDS[:min(runs, len(phase_q.CALIBRATION_SEEDS))]
-    return {name: phase_q.sweep(name, seeds, duration=horizon, motion=motion) for name in SCENARIOS}, horizon
+    return ({name: phase_q.sweep(name, seeds, duration=horizon, motion=motion) for name in SCENARIOS}, horizon,
+            phase_q.sweep(LONG_SWEEP, seeds, duration=duration, motion=motion))
 
 
 def _q_rule(cal: dict[str, list[dict]], motion: str) -> dict[str, dict]:
@@ -266,11 +270,11 @@ def _q_rule(cal: dict[str, list[dict]], motion: str) -> dict[str, dict]:
 
 def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int,
           plugins: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = (),
-          calibration: tuple[dict[str, list[dict]], float] | None = None) -> dict:
+          calibration: tuple[dict[str, list[dict]], float, list[dict]] | None = None) -> dict:
     """table.md, table.csv, plots/rmse_window.png, plots/rmse_vs_pcrb.png, claims.json; returns
     claims.json's content. plugins: {scenario: every run's metrics.json `estimators`} and keys the
     plugin estimators' names (--estimator): one more row each (testbed.reproduce.plugins).
-    calibration: the q sweep and its horizon (`calibrate`): plots/q_sweep.png, the q table,
+    calibration: the q sweeps and the horizon (`calibrate`): plots/q_sweep.png, the q table,
     claims.json `q_rule`."""
     rows, cols = _table_rows(R), _cols(R)
     w = _window(next(iter(R.values())))
@@ -294,7 +298,7 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                f"uses the {w} instead.", ""]
     rule = {}
     if calibration is not None:
-        cal, horizon = calibration
+        cal, horizon, long = calibration
         rule = _q_rule(cal, motion)
         n_cal = len({r["seed"] for rows_ in cal.values() for r in rows_})
         md += [f"Process noise q (testbed.reproduce.phase_q): the rule's q = the grid value whose final body NEES at "
@@ -304,7 +308,8 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                              [[n, f"{v['q_scenario']:g}", f"{v['q_rule']:g}",
                                ", ".join(f"{q}: {a:.2f}" for q, a in v["anees_by_q"].items())] for n, v in rule.items()])
         md += [""]
-        phase_q.plot(cal, {n: v["q_rule"] for n, v in rule.items()}, out / "plots" / "q_sweep.png", horizon=horizon)
+        phase_q.plot(cal, {n: v["q_rule"] for n, v in rule.items()}, out / "plots" / "q_sweep.png", horizon=horizon,
+                     long=long)
     md += plugin_rows.markdown(plugins or {}, list(keys), "scenario")
     plugin_rows.write(out / "table_plugins.csv", plugins or {}, list(keys))
     write_markdown(out / "table.md", md + claims_section(claims))

@@ -83,9 +83,19 @@ def choose(rows: list[dict]) -> float:
     return min(a, key=lambda q: (abs(math.log(a[q] / DOF)), -q))
 
 
-def plot(sweeps: dict[str, list[dict]], chosen: dict[str, float], path: Path, *, horizon: float) -> Path:
-    """plots/q_sweep.png: per scenario the calibration ANEES against q (dof and the chosen q
-    marked); RMSE and PCRB of the body position against q, mean over the seeds."""
+def _mean_by_q(rows: list[dict], key: str, rms: bool = False) -> tuple[list[float], list[float]]:
+    """(qs, mean over the seeds of rows[key] at each q; root mean square if rms)."""
+    qs = sorted({r["q"] for r in rows})
+    vals = [np.array([r[key] for r in rows if r["q"] == q], float) for q in qs]
+    return qs, [float(np.sqrt(np.mean(v ** 2)) if rms else np.mean(v)) for v in vals]
+
+
+def plot(sweeps: dict[str, list[dict]], chosen: dict[str, float], path: Path, *, horizon: float,
+         long: list[dict] | None = None) -> Path:
+    """plots/q_sweep.png. Left: per scenario the calibration ANEES against q (dof and the chosen q
+    marked). Right, with `long` (a sweep of one scenario over its full duration on the calibration
+    seeds): its position RMSE and PCRB over the last window and its ANEES over the run against q;
+    without: RMSE and PCRB of the calibration sweeps."""
     from testbed.plots import figure, save
 
     fig = figure(figsize=(10.0, 3.6))
@@ -95,18 +105,30 @@ def plot(sweeps: dict[str, list[dict]], chosen: dict[str, float], path: Path, *,
         label = name.removeprefix("phase-")
         ax1.plot(list(a), list(a.values()), "o-", color=f"C{i}", ms=3, label=label)
         ax1.plot([chosen[name]], [a[chosen[name]]], "*", color=f"C{i}", ms=11)
-        qs = sorted(a)
-        rm = [np.sqrt(np.mean([r["rmse_position_m"] ** 2 for r in rows if r["q"] == q])) for q in qs]
-        pc = [np.mean([r["pcrb_rmse_position_m"] for r in rows if r["q"] == q]) for q in qs]
-        ax2.plot(qs, rm, "o-", color=f"C{i}", ms=3, label=f"{label} RMSE")
-        ax2.plot(qs, pc, "--", color=f"C{i}", lw=1)
+        if long is None:
+            ax2.plot(*_mean_by_q(rows, "rmse_position_m", rms=True), "o-", color=f"C{i}", ms=3)
+            ax2.plot(*_mean_by_q(rows, "pcrb_rmse_position_m"), "--", color=f"C{i}", lw=1)
     ax1.axhline(DOF, color="k", lw=0.8)
     n = len({r["seed"] for rows in sweeps.values() for r in rows})
     ax1.set(xscale="log", yscale="log", xlabel="q [m^2/s^3]", ylabel="ANEES body (6 dof)",
             title=f"final NEES at {horizon:g} s, {n} calibration seeds (* = rule's q)")
-    ax2.set(xscale="log", yscale="log", xlabel="q [m^2/s^3]", ylabel="m",
-            title="body position RMSE (solid) and PCRB (dashed)")
     ax1.legend(fontsize=7, ncol=2)
+    title = "body position RMSE (solid) and PCRB (dashed)"
+    if long is not None and "rmse" in long[0]:
+        name = long[0]["scenario"]
+        ax2.plot(*_mean_by_q(long, "rmse", rms=True), "o-", color="C0", ms=3, label="RMSE, last window")
+        ax2.plot(*_mean_by_q(long, "pcrb_rmse"), "s--", color="C1", ms=3, label="PCRB, last window")
+        mx = [max(r["max_abs_position"]) for r in long]
+        qs = sorted({r["q"] for r in long})
+        ax2.plot(qs, [np.median([m for m, r in zip(mx, long) if r["q"] == q]) for q in qs], "^:", color="C2", ms=3,
+                 label="median of max |error|, last window")
+        ax2.axvline(chosen.get(name, np.nan), color="k", lw=0.8, ls=":")
+        twin = ax2.twinx()
+        twin.plot(*_mean_by_q(long, "anees"), "d-", color="C3", ms=3, lw=0.8)
+        twin.set_ylabel("ANEES over the run (6 dof)", color="C3")
+        ax2.legend(fontsize=7)
+        title = f"{name.removeprefix('phase-')}, full runs, {len({r['seed'] for r in long})} calibration seeds"
+    ax2.set(xscale="log", yscale="log", xlabel="q [m^2/s^3]", ylabel="m", title=title)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3, which="both")
     return save(fig, path)
@@ -118,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m testbed.reproduce.phase_q", description=main.__doc__)
     p.add_argument("scenarios", nargs="*", default=[n for n in scenario_mod.builtin_names() if n.startswith("phase-")])
     p.add_argument("--plot", type=Path, help="write the figure of the sweep to this PNG")
+    p.add_argument("--long", help="with --plot: also sweep this scenario over its full duration (right panel)")
     args = p.parse_args(argv)
     sweeps, chosen = {}, {}
     for name in args.scenarios:
@@ -126,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: q = {chosen[name]:g}  (ANEES by q: "
               + ", ".join(f"{q:g}: {v:.2f}" for q, v in anees_by_q(sweeps[name]).items()) + ")", flush=True)
     if args.plot is not None:
-        plot(sweeps, chosen, args.plot, horizon=CALIBRATION_HORIZON_S)
+        plot(sweeps, chosen, args.plot, horizon=CALIBRATION_HORIZON_S,
+             long=sweep(args.long, duration=None) if args.long else None)
     return 0
 
 
