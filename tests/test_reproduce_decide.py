@@ -118,3 +118,11 @@ def test_phase_q_rule_picks_the_anees_closest_to_dof_on_a_log_scale(tmp_path):
     assert path.stat().st_size > 10_000
     path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep_long.png", horizon=20.0, long=rows)
     assert path.stat().st_size > 10_000
+
+
+def test_phase_q_command_refuses_an_unknown_scenario_in_one_line(capsys):
+    from testbed.reproduce import phase_q
+
+    assert phase_q.main(["phase-nope"]) == 2
+    err = capsys.readouterr().err
+    assert "phase-nope" in err and err.count("\n") == 1

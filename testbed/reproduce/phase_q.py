@@ -30,12 +30,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from testbed import scenario as scenario_mod
+from testbed.errors import TestbedError
 
 CALIBRATION_SEEDS = tuple(range(1000, 1010))
 CALIBRATION_HORIZON_S = 20.0
@@ -142,6 +144,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plot", type=Path, help="write the figure of the sweep to this PNG")
     p.add_argument("--long", help="with --plot: also sweep this scenario over its full duration (right panel)")
     args = p.parse_args(argv)
+    try:
+        for name in args.scenarios + ([args.long] if args.long else []):
+            scenario_mod.load(name)  # a bad name: one line and exit 2 before anything runs
+    except TestbedError as e:
+        print(f"phase_q: error: {e}", file=sys.stderr)
+        return e.exit_code
     sweeps, chosen = {}, {}
     for name in args.scenarios:
         sweeps[name] = sweep(name)
