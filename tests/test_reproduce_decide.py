@@ -118,6 +118,9 @@ def test_phase_q_rule_picks_the_anees_closest_to_dof_on_a_log_scale(tmp_path):
     assert path.stat().st_size > 10_000
     path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep_long.png", horizon=20.0, long=rows)
     assert path.stat().st_size > 10_000
+    short = [{k: v for k, v in r.items() if k not in ("rmse", "pcrb_rmse", "max_abs_position")} for r in rows]
+    path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep_short.png", horizon=4.0, long=short)
+    assert path.stat().st_size > 10_000
 
 
 def test_phase_q_command_refuses_an_unknown_scenario_in_one_line(capsys):

@@ -97,11 +97,13 @@ def plot(sweeps: dict[str, list[dict]], chosen: dict[str, float], path: Path, *,
     """plots/q_sweep.png. Left: per scenario the calibration ANEES against q (dof and the chosen q
     marked). Right, with `long` (a sweep of one scenario over its full duration on the calibration
     seeds): its position RMSE and PCRB over the last window and its ANEES over the run against q;
-    without: RMSE and PCRB of the calibration sweeps."""
+    without (or if its runs are shorter than the window): RMSE and PCRB of the calibration sweeps."""
     from testbed.plots import figure, save
 
     fig = figure(figsize=(10.0, 3.6))
     ax1, ax2 = fig.subplots(1, 2)
+    if long is not None and "rmse" not in long[0]:  # runs shorter than the window: no window scores
+        long = None
     for i, (name, rows) in enumerate(sweeps.items()):
         a = anees_by_q(rows)
         label = name.removeprefix("phase-")
@@ -116,7 +118,7 @@ def plot(sweeps: dict[str, list[dict]], chosen: dict[str, float], path: Path, *,
             title=f"final NEES at {horizon:g} s, {n} calibration seeds (* = rule's q)")
     ax1.legend(fontsize=7, ncol=2)
     title = "body position RMSE (solid) and PCRB (dashed)"
-    if long is not None and "rmse" in long[0]:
+    if long is not None:
         name = long[0]["scenario"]
         ax2.plot(*_mean_by_q(long, "rmse", rms=True), "o-", color="C0", ms=3, label="RMSE, last window")
         ax2.plot(*_mean_by_q(long, "pcrb_rmse"), "s--", color="C1", ms=3, label="PCRB, last window")
