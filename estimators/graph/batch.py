@@ -27,7 +27,7 @@ from estimators.graph.linear import GAUGE_RATIO, factor_spd
 from estimators.graph.lm import ROUNDOFF
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
-__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch"]
+__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch", "so3_log_batch"]
 
 DIMS = {"pose": 6, "point": 3}
 
@@ -41,6 +41,15 @@ def so3_exp_batch(w: np.ndarray) -> np.ndarray:
     a = np.where(small, 1.0, np.sin(ths) / ths)
     b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
     return np.eye(3) + a * K + b * (K @ K)
+
+
+def so3_log_batch(R: np.ndarray) -> np.ndarray:
+    """Log of rotations R (..., 3, 3) -> rotation vectors (..., 3) rad, |w| < pi (series near 0)."""
+    c = np.clip(0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
+    th = np.arccos(c)[..., None]
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    small = th < 1e-8
+    return v * np.where(small, 0.5, th / (2.0 * np.sin(np.where(small, 1.0, th))))
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -329,7 +338,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         delta, D = _damped_solve(N, g, lam)
         delta[~active] = 0.0
         p_new, R_new = _retract(lay, p, R, delta)
-        f_new = _cost(_residuals(f, lay, p_new, R_new), losses, E)
+        res = _residuals(f, lay, p_new, R_new)  # at the candidates; the system of the accepted ones
+        f_new = _cost(res, losses, E)
         pred = 0.5 * np.einsum("ek,ek->e", delta, lam[:, None] * D * delta + g)
         with np.errstate(divide="ignore", invalid="ignore"):
             q = np.where(pred > 0, (cost - f_new) / pred, -1.0)
@@ -351,10 +361,10 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         stuck |= tiny
         active &= ~(small | stuck) & (iterations < max_iter)
         if accept.any():
-            N_new, g_new, c_new = _system(_residuals(f, lay, p, R), losses, lay)
+            N_new, g_new, _ = _system(res, losses, lay)
             N = np.where(accept[:, None, None], N_new, N)
             g = np.where(accept[:, None], g_new, g)
-            cost = np.where(accept, c_new, cost)
+            cost = np.where(accept, f_new, cost)
     P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
     observable, cov = _observability_and_cov(NN)
     return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable)

@@ -16,13 +16,13 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from estimators.graph.batch import EpochFactors, so3_exp_batch, solve_epochs
-from estimators.graph.model import so3_log
+from estimators.graph.batch import EpochFactors, solve_epochs
+from estimators.graph.warmstart import fit_motion
 from estimators.so3 import rotmat_to_quat
 from testbed.plugins.api import Context, Measurement
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import Plugin
-from testbed.replay.graph import PoseGraph
+from testbed.replay.graph import GraphParams, PoseGraph
 from testbed.rng import stream_rng
 
 RATE_HZ = 10.0
@@ -107,28 +107,27 @@ def _batch_factors(data: dict, epochs: np.ndarray) -> EpochFactors:
     )
 
 
-def solve_direct(data: dict, start: tuple[np.ndarray, np.ndarray], batch: int) -> tuple[np.ndarray, np.ndarray, dict]:
+def solve_direct(data: dict, start: tuple[np.ndarray, np.ndarray], batch: int,
+                 window: float | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """The factor graph alone (no Measurement objects): epochs in batches, each batch started from
-    the previous one's last two solutions extrapolated (constant velocity and body rate), as graph.poses
-    does; returns positions (E, n - 1, 3), converged (E,) and iteration statistics."""
-    E = data["time"].size
-    dt = 1.0 / RATE_HZ
-    pos, conv, iters = np.zeros((E, start[0].shape[0], 3)), np.zeros(E, bool), np.zeros(E, np.int64)
-    last, prev = start, None
+    the constant-velocity and body-rate fit to the solutions of the last `window` s
+    (estimators.graph.warmstart), as graph.poses does; returns positions (E, n - 1, 3), converged
+    (E,) and iteration statistics."""
+    p = GraphParams()  # graph.poses' defaults
+    window = p.motion_window if window is None else window
+    E, t = data["time"].size, data["time"]
+    V = start[0].shape[0]
+    pos, rot = np.zeros((E, V, 3)), np.zeros((E, V, 3, 3))
+    conv, iters = np.zeros(E, bool), np.zeros(E, np.int64)
     for b0 in range(0, E, batch):
         epochs = np.arange(b0, min(E, b0 + batch))
-        h = (epochs - (b0 - 1))[:, None, None] * dt
-        if prev is None:
-            p0, R0 = np.broadcast_to(last[0], (epochs.size,) + last[0].shape), np.broadcast_to(last[1], (epochs.size,) + last[1].shape)
+        if b0 == 0:
+            p0, R0 = np.broadcast_to(start[0], (epochs.size, V, 3)), np.broadcast_to(start[1], (epochs.size, V, 3, 3))
         else:
-            v = (last[0] - prev[0]) / dt
-            w = np.stack([so3_log(prev[1][k].T @ last[1][k]) for k in range(last[1].shape[0])]) / dt
-            p0 = last[0] + v * h
-            R0 = last[1] @ so3_exp_batch(w[None] * h)
-        res = solve_epochs(_batch_factors(data, epochs), p0, R0, step_tol=1e-6, cost_tol=1e-9)
-        pos[epochs], conv[epochs], iters[epochs] = res.p, res.converged, res.iterations
-        prev = (res.p[-2], res.R[-2]) if epochs.size > 1 else last
-        last = (res.p[-1], res.R[-1])
+            recent = np.arange(np.searchsorted(t[:b0], t[b0 - 1] - window - 1e-9), b0)
+            p0, R0 = fit_motion(t[recent], pos[recent], rot[recent]).predict(t[epochs])
+        res = solve_epochs(_batch_factors(data, epochs), p0, R0, step_tol=p.step_tol, cost_tol=p.cost_tol)
+        pos[epochs], rot[epochs], conv[epochs], iters[epochs] = res.p, res.R, res.converged, res.iterations
     return pos, conv, {"iterations_mean": float(iters.mean()), "iterations_max": int(iters.max())}
 
 
