@@ -151,39 +151,55 @@ class _Layout:
         nr, nh = f.r_epoch.size, f.h_epoch.size
         self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
         self.q_slot = slot[nr + nh:].reshape(-1, 3)
-        self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a), "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b),
-                     "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm), "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm)}
+        self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a, self.r_slot[:, None]),
+                     "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b, self.r_slot[:, None]),
+                     "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm, self.h_slot[:, None]),
+                     "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm, self.q_slot)}
         self.q_chol = np.linalg.cholesky(f.q_cov) if f.q_epoch.size else None
 
 
 class _Ends:
     """Constant data of one list of factor ends: epoch (n,), free (n,) bool, var (n,) (0 where
-    fixed), pose (n,) bool, lever (n, 3) (zero unless a pose), fixed (n, 3) world points."""
+    fixed), lever (n, 3) (zero unless a pose), fixed (n, 3) world points; of the free ends only
+    (f of them): at (f,) their rows, flat (f, d, 6) the flat indices of their Jacobian entries in
+    the layout's (E, M, k + 1) array for the factor rows slots (n, d)."""
 
-    def __init__(self, lay: "_Layout", epoch, var, arm):
+    def __init__(self, lay: "_Layout", epoch, var, arm, slots):
         self.epoch = np.asarray(epoch, np.int64)
         self.free = np.asarray(var) >= 0
         self.var = np.where(self.free, var, 0)
-        self.pose = self.free & lay.is_pose[self.var]
-        self.lever = np.where(self.pose[:, None], arm, 0.0)
+        pose = self.free & lay.is_pose[self.var]
+        self.lever = np.where(pose[:, None], arm, 0.0)
         self.fixed = np.where(self.free[:, None], 0.0, arm)
-        self.cols = lay.colmap[self.var]
+        self.at = np.flatnonzero(self.free)
+        self.all_free = self.at.size == self.free.size
+        ef, vf = self.epoch[self.at], self.var[self.at]
+        self.flat = (ef[:, None, None] * lay.M + np.asarray(slots)[self.at][:, :, None]) * (lay.k + 1) + lay.colmap[vf][:, None, :]
 
     def points(self, p, R):
-        """World points (n, 3) and the rotations (n, 3, 3) of the ends' variables."""
-        Rv = R[self.epoch, self.var]
-        e = np.where(self.free[:, None], p[self.epoch, self.var] + np.einsum("nij,nj->ni", Rv, self.lever), self.fixed)
+        """World points (n, 3) of the ends, and the rotations (f, 3, 3) of the free ends' variables."""
+        ef, vf = self.epoch[self.at], self.var[self.at]
+        Rv = R[ef, vf]
+        moving = p[ef, vf] + np.einsum("nij,nj->ni", Rv, self.lever[self.at])
+        if self.all_free:
+            return moving, Rv
+        e = self.fixed.copy()
+        e[self.at] = moving
         return e, Rv
 
     def row(self, Rv, u):
-        """Tangent Jacobian rows u^T de/dx (n, 6) for directions u (n, 3): [u, l x (R^T u)], since
-        d(R exp(dtheta) l)/d dtheta = -R [l]x and u^T (-R [l]x) = (l x R^T u)^T."""
-        return np.concatenate([u, np.cross(self.lever, np.einsum("nji,nj->ni", Rv, u))], axis=1)
+        """Tangent Jacobian rows u^T de/dx (f, 6) of the free ends for directions u (n, 3):
+        [u, l x (R^T u)], since d(R exp(dtheta) l)/d dtheta = -R [l]x and u^T (-R [l]x) = (l x R^T u)^T."""
+        u = u[self.at]
+        a, b = self.lever[self.at], np.einsum("nji,nj->ni", Rv, u)
+        cross = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                          a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+        return np.concatenate([u, cross], axis=1)
 
 
 def _residuals(f: EpochFactors, lay: _Layout, p, R):
     """Whitened residuals and Jacobian blocks of every factor: list of (kind, epoch, slots, e (n, d),
-    [(ends, J (n, d, 6))])."""
+    [(ends, J (f, d, 6) of the ends' free rows)])."""
     out = []
     if f.r_epoch.size:
         A, B = lay.ends["ra"], lay.ends["rb"]
@@ -193,22 +209,22 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R):
         r = np.sqrt(np.einsum("ni,ni->n", diff, diff))
         safe = r > 0
         u = np.where(safe[:, None], diff / np.where(safe, r, 1.0)[:, None], [0.0, 0.0, 1.0])
-        s = f.r_sigma[:, None]
         e = ((f.r_d - r) / f.r_sigma)[:, None]
-        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / s)[:, None]), (B, (-B.row(Rb, u) / s)[:, None])]))
+        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / f.r_sigma[A.at, None])[:, None]),
+                                                                   (B, (-B.row(Rb, u) / f.r_sigma[B.at, None])[:, None])]))
     if f.h_epoch.size:
         H = lay.ends["h"]
         eh, Rh = H.points(p, R)
         up = np.broadcast_to([0.0, 0.0, 1.0], eh.shape)
         e = ((f.h_z - eh[:, 2]) / f.h_sigma)[:, None]
-        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(H, (H.row(Rh, up) / f.h_sigma[:, None])[:, None])]))
+        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(H, (H.row(Rh, up) / f.h_sigma[H.at, None])[:, None])]))
     if f.q_epoch.size:
         Q = lay.ends["q"]
         eq, Rq = Q.points(p, R)
         J = np.stack([Q.row(Rq, np.broadcast_to(ax, eq.shape)) for ax in np.eye(3)], axis=1)  # (n, 3, 6)
         e = np.linalg.solve(lay.q_chol, (f.q_z - eq)[..., None])[..., 0]
         # W = L^-1 (W^T W = cov^-1): whitened e = W (z - h), Jacobian W dh/dx
-        out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol, J))]))
+        out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol[Q.at], J))]))
     return out
 
 
@@ -235,7 +251,7 @@ def _cost(res, losses, E):
 def _system(res, losses, lay: _Layout):
     """IRLS-weighted normal equations N (E, k, k), g (E, k) and the robust cost (E,)."""
     E, M, k = lay.E, lay.M, lay.k
-    J = np.zeros((E, M, k + 1))
+    J = np.zeros(E * M * (k + 1))
     b = np.zeros((E, M))
     cost = np.zeros(E)
     for kind, epoch, slots, e, blocks in res:
@@ -244,10 +260,8 @@ def _system(res, losses, lay: _Layout):
         sw = np.sqrt(loss_weight(losses.get(kind), s))[:, None]
         b[epoch[:, None], slots] = sw * e
         for ends, Jb in blocks:
-            free = ends.free
-            ee, ss = epoch[free], slots[free]
-            J[ee[:, None, None], ss[:, :, None], ends.cols[free][:, None, :]] = (sw[free, :, None] * Jb[free])
-    J = J[:, :, :k]
+            J[ends.flat] = sw[ends.at, :, None] * Jb
+    J = J.reshape(E, M, k + 1)[:, :, :k]
     Jt = np.swapaxes(J, 1, 2)
     return Jt @ J, (Jt @ b[..., None])[..., 0], cost
 

@@ -19,7 +19,7 @@ import numpy as np
 from estimators.graph.batch import EpochFactors, solve_epochs
 from estimators.graph.warmstart import fit_motion
 from estimators.so3 import rotmat_to_quat
-from testbed.plugins.api import Context, Measurement
+from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import Plugin
 from testbed.replay.graph import GraphParams, PoseGraph
@@ -69,12 +69,17 @@ def context(data: dict, seed: int = 0) -> Context:
                    duration=float(data["time"][-1]), seed=seed, rng=stream_rng(seed, "estimator/graph.poses"))
 
 
-def feed(data: dict, known: tuple[int, ...] = (0,)) -> Iterator[Measurement]:
-    """Measurements in feeding order (per epoch: heights, mocap of the known robots, ranges)."""
+def feed(data: dict, known: tuple[int, ...] = (0,), batched: bool = True) -> Iterator[Measurement | MeasurementBatch]:
+    """Measurements in feeding order (per epoch: heights, mocap of the known robots, ranges); the
+    ranges of an epoch as one MeasurementBatch (as testbed.replay feeds a run of rows of one
+    stream), or one Measurement each (batched False)."""
     n = data["pos"].shape[1]
-    src = [f"r{a + 1}/a{i + 1}" for a, i in data["pairs"][:, :2]]
-    dst = [f"r{b + 1}/a{j + 1}" for b, j in data["pairs"][:, 2:]]
-    sig_r, sig_h = np.array([RANGE_SIGMA]), np.array([HEIGHT_SIGMA])
+    P = data["pairs"].shape[0]
+    src = np.array([f"r{a + 1}/a{i + 1}" for a, i in data["pairs"][:, :2]])
+    dst = np.array([f"r{b + 1}/a{j + 1}" for b, j in data["pairs"][:, 2:]])
+    sig_r, sig_h = np.full((P, 1), RANGE_SIGMA), np.array([HEIGHT_SIGMA])
+    for a in (src, dst, sig_r):
+        a.flags.writeable = False
     quat = {(e, a): rotmat_to_quat(data["rot"][e, a]) for e in range(data["time"].size) for a in known}
     for e, t in enumerate(data["time"].tolist()):
         for a in range(n):
@@ -83,9 +88,12 @@ def feed(data: dict, known: tuple[int, ...] = (0,)) -> Iterator[Measurement]:
         for a in known:
             yield Measurement(stream="mocap", time=t, arrival=t, value=np.concatenate([data["pos"][e, a], quat[(e, a)]]),
                               src=f"r{a + 1}")
-        row = data["ranges"][e]
-        for k in range(len(src)):
-            yield Measurement(stream="uwb", time=t, arrival=t, value=row[k:k + 1], src=src[k], dst=dst[k], sigma=sig_r)
+        tt = np.full(P, t)
+        b = MeasurementBatch(stream="uwb", time=tt, arrival=tt, value=data["ranges"][e][:, None], src=src, dst=dst, sigma=sig_r)
+        if batched:
+            yield b
+        else:
+            yield from b.rows()
 
 
 def _batch_factors(data: dict, epochs: np.ndarray) -> EpochFactors:

@@ -9,12 +9,12 @@ Order: by arrival time, then time of validity, then stream name, then log row (d
 from __future__ import annotations
 
 import time as wallclock
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
 from testbed.errors import PluginError
-from testbed.plugins.api import Context, Measurement
+from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.collect import Collector, Track
 from testbed.plugins.loading import Plugin
 from testbed.scenario import Scenario
@@ -59,18 +59,29 @@ def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Mea
                           extra={c: v[r] for c, v in extra.items()})
 
 
-def _call(plugin: Plugin, what: str, fn, *args):
-    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and time."""
+def _call(plugin: Plugin, what, fn, *args):
+    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and
+    `what` (a string, or a Measurement or MeasurementBatch described by _where)."""
     try:
         out = fn(*args)
         return [] if out is None else list(out)
     except Exception as e:
         msg = f"{type(e).__name__}: {e}".splitlines()[0]
-        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {what}: raised {msg}") from None
+        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {_where(what)}: raised {msg}") from None
 
 
-def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tuple[Track, dict, float]:
-    """Construct the estimator, feed every measurement, finish; returns (estimates, health, wall ms).
+def _where(what) -> str:
+    """When, for an error message: a string as is, a measurement's time and link, a batch's span."""
+    if isinstance(what, Measurement):
+        return f"at t = {what.time:.6g} s ({what.stream} {what.src}{' -> ' + what.dst if what.dst else ''})"
+    if isinstance(what, MeasurementBatch):
+        return f"at t = {what.time[0]:.6g} .. {what.time[-1]:.6g} s ({what.stream}, a batch of {len(what)} rows)"
+    return what
+
+
+def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | MeasurementBatch]) -> tuple[Track, dict, float]:
+    """Construct the estimator, feed every measurement (a MeasurementBatch whole to an estimator
+    with process_batch, else row by row), finish; returns (estimates, health, wall ms).
 
     Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
     """
@@ -78,9 +89,18 @@ def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tup
     est = _call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
     targets = set(context.vehicles) | set(context.sites)
     col = Collector(plugin, targets, context.duration, {"world", *context.vehicles})
-    for m in feed:
-        what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
-        col.add(_call(plugin, what, est.process, m), what)
+    batch = getattr(est, "process_batch", None)
+    batch = batch if callable(batch) else None
+    for item in feed:
+        if isinstance(item, MeasurementBatch) and batch is None:
+            for m in item.rows():
+                out = _call(plugin, m, est.process, m)
+                if out:
+                    col.add(out, _where(m))
+            continue
+        out = _call(plugin, item, batch if isinstance(item, MeasurementBatch) else est.process, item)
+        if out:
+            col.add(out, _where(item))
     if callable(getattr(est, "finish", None)):
         col.add(_call(plugin, "in finish()", est.finish), "in finish()")
     health = {}

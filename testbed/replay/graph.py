@@ -30,7 +30,7 @@ from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat
 from testbed.config import from_dict, in_range, require
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -121,18 +121,51 @@ class PoseGraph:
     def _bin(self, t: float):
         return t if self.p.epoch == 0 else math.floor(t / self.p.epoch + 1e-9)
 
-    def process(self, m: Measurement) -> list[Estimate]:
-        key = self._bin(m.time)
-        out = []
+    def _advance(self, key, out: list) -> bool:
+        """Move to the epoch of bin `key` (a full batch of epochs is solved into out); False if the
+        key is older than the current epoch's (a late measurement)."""
         if self.key is not None and key < self.key:
-            self.counts["late_measurements"] += 1
-            return out
+            return False
         if self.key is None or key > self.key:
             if self.current is not None:
                 self.pending.append(self.current)
                 if len(self.pending) >= self.p.batch:
-                    out = self._solve()
+                    out += self._solve()
             self.key, self.current = key, _Epoch()
+        return True
+
+    def process_batch(self, b: MeasurementBatch) -> list[Estimate]:
+        """As process() on each row of b, with the ranges of an epoch taken as columns."""
+        out: list[Estimate] = []
+        if b.stream not in self.ranging:
+            for m in b.rows():
+                out += self.process(m)
+            return out
+        times = b.time.tolist()
+        keys = times if self.p.epoch == 0 else np.floor(b.time / self.p.epoch + 1e-9).astype(np.int64).tolist()
+        cut = [0] + [i for i in range(1, len(keys)) if keys[i] != keys[i - 1]] + [len(keys)]
+        linked = b.dst != ""
+        sigma = np.where(b.has_sigma(), b.sigma[:, 0], self.p.range_sigma) if b.sigma is not None else \
+            np.full(len(b), self.p.range_sigma)
+        for lo, hi in zip(cut[:-1], cut[1:]):
+            if not self._advance(keys[lo], out):
+                self.counts["late_measurements"] += hi - lo
+                continue
+            ep = self.current
+            ep.times += times[lo:hi]
+            use = linked[lo:hi]
+            self.counts["unused_measurements"] += int((~use).sum())
+            ep.r_src += b.src[lo:hi][use].tolist()
+            ep.r_dst += b.dst[lo:hi][use].tolist()
+            ep.r_d += b.value[lo:hi, 0][use].tolist()
+            ep.r_sigma += sigma[lo:hi][use].tolist()
+        return out
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        out: list[Estimate] = []
+        if not self._advance(self._bin(m.time), out):
+            self.counts["late_measurements"] += 1
+            return out
         ep = self.current
         ep.times.append(m.time)
         if m.stream in self.ranging and m.dst:
