@@ -354,3 +354,29 @@ def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
     assert "Plugin estimators" in (out / "report.md").read_text()
     head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
     assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)
+
+
+def test_the_covariance_check_agrees_with_eigenvalues():
+    """collect._cov_problem (plain floats, per estimate) against numpy: finite, symmetric, and positive
+    definite exactly when the smallest eigenvalue is positive (random matrices well away from singular)."""
+    from testbed.plugins.collect import _cov_problem
+
+    rng = np.random.default_rng(3)
+    seen = set()
+    for _ in range(3000):
+        A = rng.normal(size=(3, 3))
+        c = A @ A.T - rng.uniform(0.0, 2.0) * np.eye(3)
+        lam = np.linalg.eigvalsh(c)[0]
+        if abs(lam) < 1e-6:
+            continue
+        expected = None if lam > 0 else "cov is not positive definite"
+        assert _cov_problem(c.tolist()) == expected
+        seen.add(expected)
+    assert seen == {None, "cov is not positive definite"}
+    c = np.eye(3)
+    c[0, 1] = 1e-3
+    assert _cov_problem(c.tolist()) == "cov is not symmetric"
+    c[1, 0] = 1e-3
+    assert _cov_problem(c.tolist()) is None
+    c[2, 2] = np.nan
+    assert _cov_problem(c.tolist()) == "cov is not finite"
