@@ -320,11 +320,15 @@ def _observability_and_cov(N):
 
 
 def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dict | None = None, max_iter: int = 50,
-                 step_tol: float = 1e-8, cost_tol: float = 1e-12, lm_lambda: float = 1e-4) -> EpochsResult:
+                 step_tol: float = 1e-8, cost_tol: float = 1e-12, step_sigma: float = 0.0,
+                 lm_lambda: float = 1e-4) -> EpochsResult:
     """Levenberg-Marquardt on every epoch at once from p0 (E, V, 3), R0 (E, V, 3, 3) (see the
     module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: a step
     (accepted or not) whose largest component is below step_tol, or an accepted step whose
-    relative cost decrease is below cost_tol; max_iter linear solves per epoch at most."""
+    relative cost decrease is below cost_tol, or (step_sigma > 0) an accepted step delta shorter
+    than step_sigma standard deviations of the estimate: sqrt(delta^T N delta) < step_sigma, N the
+    undamped normal matrix where the step starts (the information of the epoch's solution); max_iter
+    linear solves per epoch at most."""
     losses = dict(losses or {})
     for kind, loss in losses.items():
         if not isinstance(loss, Loss):
@@ -365,6 +369,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         lam = np.where(accept, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3), np.where(reject, lam * nu, lam))
         nu = np.where(accept, 2.0, np.where(reject, nu * 2.0, nu))
         small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
+        if step_sigma > 0:
+            small |= accept & (np.einsum("ei,eij,ej->e", delta, N, delta) < step_sigma ** 2)
         p = np.where(accept[:, None, None], p_new, p)
         R = np.where(accept[:, None, None, None], R_new, R)
         # a rejected step below step_tol: the minimum is within step_tol (round-off decides the cost)

@@ -4,13 +4,16 @@ Synthetic multi-robot ranging data like a multi-robot UWB dataset (issue #16): t
 with six antennas on a flat 0.6 m hexagon (so a height aid is needed against the mirror
 ambiguity), every antenna of one robot ranging every antenna of another (36 antenna pairs per robot
 pair, 108 ranges an epoch) at 10 Hz, robot 1 known by motion capture (fixed), robots 2 and 3
-estimated as poses with a height measurement each. The measurements go through the plugin path of
-`testbed replay` (testbed.plugins.feed.run_plugin: Measurement objects one at a time, estimates
-checked and collected), so the figure is what a replay of such a recording costs. CPU time
-(time.process_time) of generating the data and of the replay, reported separately.
+estimated as poses with a height measurement each. The measurements go through the factor graph
+alone (solve_direct: the batched solver on prebuilt factor arrays) and through the plugin path of
+`testbed replay` (testbed.plugins.feed.run_plugin: per epoch the height and mocap Measurements and
+the ranges as one MeasurementBatch, as a recorded dataset's run of link rows is fed; estimates
+checked and collected), so the second figure is what a replay of such a recording costs once it is
+read. CPU time (time.process_time) of generating the data and of the replay, reported separately.
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator
 
@@ -134,14 +137,17 @@ def solve_direct(data: dict, start: tuple[np.ndarray, np.ndarray], batch: int,
         else:
             recent = np.arange(np.searchsorted(t[:b0], t[b0 - 1] - window - 1e-9), b0)
             p0, R0 = fit_motion(t[recent], pos[recent], rot[recent]).predict(t[epochs])
-        res = solve_epochs(_batch_factors(data, epochs), p0, R0, step_tol=p.step_tol, cost_tol=p.cost_tol)
+        res = solve_epochs(_batch_factors(data, epochs), p0, R0, step_tol=p.step_tol, cost_tol=p.cost_tol,
+                           step_sigma=p.step_sigma)
         pos[epochs], rot[epochs], conv[epochs], iters[epochs] = res.p, res.R, res.converged, res.iterations
     return pos, conv, {"iterations_mean": float(iters.mean()), "iterations_max": int(iters.max())}
 
 
-def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: float = 600.0) -> dict:
+def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: float | None = None) -> dict:
     """`duration` s of the synthetic recording through the factor graph alone (solve_direct), and
-    `plugin_duration` s of it through graph.poses on the plugin path; CPU seconds and accuracy."""
+    `plugin_duration` s (default: the same) of it through graph.poses on the plugin path; CPU
+    seconds, accuracy and the load average of the machine before and after (it may be shared)."""
+    load0 = os.getloadavg()
     c0 = time.process_time()
     data = robots(duration)
     n = data["pos"].shape[1]
@@ -153,8 +159,9 @@ def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: flo
     direct = {"duration_s": duration, "epochs": int(data["time"].size), "ranges": int(data["ranges"].size),
               "generate_cpu_s": c1 - c0, "solve_cpu_s": c2 - c1, "nonconverged_epochs": int((~conv).sum()), **stats,
               "position_rmse_m": float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))}
+    plugin = bench_plugin(duration if plugin_duration is None else plugin_duration, batch)
     return {"robots": n, "antennas_per_robot": len(data["arms"]), "rate_hz": RATE_HZ, "batch": batch, "target_cpu_s": 60.0,
-            "factor_graph": direct, "plugin_path": bench_plugin(plugin_duration, batch)}
+            "factor_graph": direct, "plugin_path": plugin, "load_average_1_5_15_min": {"before": list(load0), "after": list(os.getloadavg())}}
 
 
 def bench_plugin(duration: float, batch: int) -> dict:
@@ -178,6 +185,6 @@ def bench_plugin(duration: float, batch: int) -> dict:
     e = np.concatenate(err)
     return {
         "duration_s": duration, "epochs": int(data["time"].size), "ranges": int(data["ranges"].size),
-        "generate_cpu_s": c1 - c0, "replay_cpu_s": c2 - c1,
+        "generate_cpu_s": c1 - c0, "replay_cpu_s": c2 - c1, "iterations_mean": health["lm_iterations"] / max(health["epochs"], 1),
         "position_rmse_m": float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))), "health": health,
     }

@@ -14,7 +14,8 @@ else from a constant-velocity and body-rate fit to the robot's estimates of the 
 near the epoch's fixed points. Estimates: a pose robot's position and attitude (body), a point robot's site
 position, with the marginal covariances; an epoch that is unobservable (gauge freedom) gives no
 estimate. Counted in health(): epochs, nonconverged_epochs, unobservable_epochs,
-late_measurements (older than the epoch being collected), unused_measurements.
+late_measurements (older than the epoch being collected), unused_measurements, lm_iterations (linear
+solves, summed over the epochs solved) and lm_iterations_max (of one epoch).
 
 The variable kind of each robot is decided from the sites measured in the first batch of epochs.
 """
@@ -41,7 +42,8 @@ class GraphParams:
     validity); batch: epochs solved together; range_sigma, height_sigma: m, for rows without a
     sigma; use_phase: phase links are ranges too; loss: robust loss of the ranges ("none", "huber",
     "cauchy") with loss_scale (sigmas); max_iter: LM iterations per epoch; step_tol (m, rad), cost_tol (relative): an epoch has
-    converged when a step is below step_tol or an accepted step lowers the cost by less than cost_tol;
+    converged when a step is below step_tol, or an accepted step lowers the cost by less than cost_tol
+    or is shorter than step_sigma standard deviations of the estimate (sqrt(delta^T N delta); 0: off);
     motion_window: s, the warm start fits a constant velocity and body rate to the robot's estimates
     of this span before the batch (0: the last estimate, held);
     initial: {body: [x, y, z] or [x, y, z, qw, qx, qy, qz]} m world, quaternion body-to-world: the
@@ -58,6 +60,7 @@ class GraphParams:
     max_iter: int = 50
     step_tol: float = 1e-6
     cost_tol: float = 1e-9
+    step_sigma: float = 1e-3
     motion_window: float = 1.0
     initial: dict = field(default_factory=dict)
 
@@ -71,6 +74,7 @@ class GraphParams:
         in_range(self, "max_iter", 1, 10_000)
         in_range(self, "step_tol", 0, lo_open=True)
         in_range(self, "cost_tol", 0, lo_open=True)
+        in_range(self, "step_sigma", 0)
         in_range(self, "motion_window", 0, unit="s")
         for body, p in self.initial.items():
             require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
@@ -115,7 +119,7 @@ class PoseGraph:
         self.current: _Epoch | None = None
         self.pending: list[_Epoch] = []
         self.counts = {"epochs": 0, "nonconverged_epochs": 0, "unobservable_epochs": 0, "late_measurements": 0,
-                       "unused_measurements": 0}
+                       "unused_measurements": 0, "lm_iterations": 0, "lm_iterations_max": 0}
 
     # ---------------------------------------------------------------- collecting
     def _bin(self, t: float):
@@ -347,9 +351,11 @@ class PoseGraph:
                 guess = (guesses[v][0][e, 0], guesses[v][1][e, 0]) if v in guesses else None
                 p0[e, i], R0[e, i] = self._initial(v, ep, guess, fixed, i)
         f = _factor_arrays(kinds, self._range_rows(rows, ends), rows)
-        res = solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol,
+        res = solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol, step_sigma=self.p.step_sigma,
                            cost_tol=self.p.cost_tol)
         self.counts["nonconverged_epochs"] += int((~res.converged).sum())
+        self.counts["lm_iterations"] += int(res.iterations.sum())
+        self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(res.iterations.max(initial=0)))
         self.counts["unobservable_epochs"] += int((~res.observable).sum())
         out = []
         for e, ep in enumerate(eps):
