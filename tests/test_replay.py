@@ -255,3 +255,20 @@ def test_graph_poses_gives_the_same_estimates_fed_in_batches_or_row_by_row():
         batches, h_batches, _ = run_plugin(plugin, bench.context(data), bench.feed(data))
         assert h_rows == h_batches and h_rows["epochs"] == (31 if epoch == 0 else 13)
         _tracks_equal(rows, batches)
+
+
+def test_graph_poses_reports_convergence_iterations_and_cost_per_epoch(tmp_path):
+    """The shipped example through graph.poses: estimates.npz holds one row per solved epoch (time,
+    iterations, cost, converged, observable), metrics.json their summary, consistent with health."""
+    from testbed.replay.run import replay
+
+    out = tmp_path / "rep"
+    metrics = replay(ROOT / "examples/replay/spec.toml", out, plots=False)
+    g = metrics["estimators"]["PoseGraph"]
+    with np.load(out / "estimates.npz") as z:
+        d = {k.split("/")[-1]: z[k] for k in z.files if k.startswith("PoseGraph/diagnostics/")}
+    assert set(d) == {"time", "iterations", "cost", "converged", "observable"}
+    assert d["time"].size == g["diagnostics"]["epochs"] > 0 and np.all(np.diff(d["time"]) >= 0)
+    assert int(d["iterations"].sum()) == g["health"]["lm_iterations"]
+    assert int((d["converged"] == 0).sum()) == g["health"]["nonconverged_epochs"]
+    assert np.all(d["cost"] >= 0) and np.all(d["iterations"] >= 1)

@@ -79,9 +79,12 @@ def _where(what) -> str:
     return what
 
 
-def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | MeasurementBatch]) -> tuple[Track, dict, float]:
+def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | MeasurementBatch],
+               diagnostics: dict | None = None) -> tuple[Track, dict, float]:
     """Construct the estimator, feed every measurement (a MeasurementBatch whole to an estimator
-    with process_batch, else row by row), finish; returns (estimates, health, wall ms).
+    with process_batch, else row by row), finish; returns (estimates, health, wall ms). If
+    `diagnostics` is a dict, it receives the estimator's optional per-epoch diagnostics()
+    ({name: (K,) finite numbers}, one length), checked.
 
     Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
     """
@@ -109,4 +112,25 @@ def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | Me
         if not isinstance(raw, dict) or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in raw.values()):
             raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) health(): expected {{name: int}}, got {raw!r}"[:300])
         health = {str(k): int(v) for k, v in raw.items()}
+    if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
+        diagnostics.update(_diagnostics(plugin, _call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))
     return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
+
+
+def _diagnostics(plugin: Plugin, raw) -> dict[str, np.ndarray]:
+    """An estimator's diagnostics() checked: {name: (K,) finite numbers}, one K for all."""
+    bad = f"estimator {plugin.key!r} ({plugin.entry}) diagnostics(): expected {{name: (K,) finite numbers}} of one length K"
+    if not isinstance(raw, dict):
+        raise PluginError(bad + f", got {type(raw).__name__}")
+    out = {}
+    for k, v in raw.items():
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise PluginError(bad + f": {k!r} is not numeric") from None
+        if a.ndim != 1 or not np.all(np.isfinite(a)):
+            raise PluginError(bad + f": {k!r} has shape {a.shape} or non-finite values")
+        out[str(k)] = a
+    if len({a.size for a in out.values()}) > 1:
+        raise PluginError(bad + f": lengths {sorted({k: a.size for k, a in out.items()}.items())}")
+    return out

@@ -15,7 +15,8 @@ near the epoch's fixed points. Estimates: a pose robot's position and attitude (
 position, with the marginal covariances; an epoch that is unobservable (gauge freedom) gives no
 estimate. Counted in health(): epochs, nonconverged_epochs, unobservable_epochs,
 late_measurements (older than the epoch being collected), unused_measurements, lm_iterations (linear
-solves, summed over the epochs solved) and lm_iterations_max (of one epoch).
+solves, summed over the epochs solved) and lm_iterations_max (of one epoch); per epoch, in
+diagnostics(): time, iterations, final cost, converged, observable.
 
 The variable kind of each robot is decided from the sites measured in the first batch of epochs.
 """
@@ -120,6 +121,7 @@ class PoseGraph:
         self.pending: list[_Epoch] = []
         self.counts = {"epochs": 0, "nonconverged_epochs": 0, "unobservable_epochs": 0, "late_measurements": 0,
                        "unused_measurements": 0, "lm_iterations": 0, "lm_iterations_max": 0}
+        self.per_epoch: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "iterations", "cost", "converged", "observable")}
 
     # ---------------------------------------------------------------- collecting
     def _bin(self, t: float):
@@ -199,6 +201,13 @@ class PoseGraph:
 
     def health(self) -> dict[str, int]:
         return dict(self.counts)
+
+    def diagnostics(self) -> dict[str, np.ndarray]:
+        """Per solved epoch, in time order: time s, iterations (linear solves), cost (final robust
+        cost, whitened), converged and observable (1 or 0)."""
+        cols = {k: np.concatenate(v) if v else np.zeros(0) for k, v in self.per_epoch.items()}
+        order = np.argsort(cols["time"], kind="stable")
+        return {k: v[order] for k, v in cols.items()}
 
     # ---------------------------------------------------------------- variables
     def _arm(self, name: str) -> tuple[str | None, np.ndarray]:
@@ -357,6 +366,9 @@ class PoseGraph:
         self.counts["lm_iterations"] += int(res.iterations.sum())
         self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(res.iterations.max(initial=0)))
         self.counts["unobservable_epochs"] += int((~res.observable).sum())
+        for k, v in (("time", times), ("iterations", res.iterations), ("cost", res.cost), ("converged", res.converged),
+                     ("observable", res.observable)):
+            self.per_epoch[k].append(np.asarray(v, float))
         out = []
         for e, ep in enumerate(eps):
             if not res.observable[e]:
