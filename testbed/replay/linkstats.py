@@ -40,10 +40,13 @@ def link_statistics(rec: Recording, truth: RecordedTruth) -> dict:
     start = rec.spec.window.start
     out: dict = {}
     keys = np.char.add(np.char.add(np.char.add(t["kind"], "\n"), np.char.add(t["src"], "->")), t["dst"])
-    for key in sorted(set(keys.tolist())):
+    names, inverse = np.unique(keys, return_inverse=True)  # sorted keys; rows of key k: inverse == k
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.searchsorted(inverse[order], np.arange(names.size + 1))
+    for k, key in enumerate(names.tolist()):
         kind, link = key.split("\n")
         src, dst = link.split("->")
-        rows = keys == key
+        rows = order[bounds[k]:bounds[k + 1]]
         time = t["time"][rows] - start
         q = "velocity" if kind == "range-rate" else "position"
         ok = _covered(truth, src, time, q) & _covered(truth, dst, time, q)
