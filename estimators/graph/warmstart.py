@@ -10,7 +10,7 @@ Per variable (vectorized over V variables), from solutions at times t_k (K,) s:
 - position p(t) = a + b (t - t_mean), a, b the least-squares line through p_k (m world, m/s);
 - attitude R(t) = R_K exp([c + d (t - t_K)]x), c, d the least-squares line through the body-frame
   rotation vectors w_k = Log(R_K^T R_k) (rad, rad/s; |w_k| < pi: the window must be shorter than
-  half a turn).
+  half a turn; where a log is not finite, the attitude R_K is held).
 One solution: constant pose. Never imports mujoco, testbed or gtsam.
 """
 from __future__ import annotations
@@ -67,4 +67,6 @@ def fit_motion(t: np.ndarray, p: np.ndarray, R: np.ndarray) -> MotionFit:
     x = t - t_mean
     w0, d = _line(x, w)
     c = w0 + d * (t[-1] - t_mean)  # the line's value at t_last
+    held = ~np.all(np.isfinite(c) & np.isfinite(d), axis=-1)  # a log at half a turn: hold the attitude
+    c[held], d[held] = 0.0, 0.0
     return MotionFit(t_mean, float(t[-1]), a, b, R_last, c, d)
