@@ -272,3 +272,42 @@ def test_graph_poses_reports_convergence_iterations_and_cost_per_epoch(tmp_path)
     assert int(d["iterations"].sum()) == g["health"]["lm_iterations"]
     assert int((d["converged"] == 0).sum()) == g["health"]["nonconverged_epochs"]
     assert np.all(d["cost"] >= 0) and np.all(d["iterations"] >= 1)
+
+
+def test_link_statistics_are_the_truth_of_each_link_row_by_row(tmp_path):
+    """metrics.json `links` against a direct evaluation of the truth per link (ranges and range rates,
+    uwb rows duplicated as range-rate rows with value 0.25 m/s, some rows outside the truth span)."""
+    from testbed.replay.linkstats import link_statistics
+    from testbed.replay.recording import RecordedTruth
+
+    d = _dataset(tmp_path)
+    lines = (d / "links.csv").read_text().splitlines()
+    rates = [",".join(c[:3] + ["range-rate", "0.25"] + c[5:]) for c in (r.split(",") for r in lines[1:40])]
+    (d / "links.csv").write_text("\n".join(lines + rates) + "\n")
+    truth_lines = (d / "truth.csv").read_text().splitlines()
+    (d / "truth.csv").write_text("\n".join(truth_lines[:1] + [r for r in truth_lines[1:] if float(r.split(",")[0]) >= 1.0]) + "\n")
+    rec = load_recording(d / "spec.toml")
+    truth = RecordedTruth(rec)
+    stats = link_statistics(rec, truth)
+    t = rec.tables["links"]
+    assert set(stats) == {"uwb", "range-rate"}
+    for kind, links in stats.items():
+        for link, s in links.items():
+            src, dst = link.split("->")
+            rows = (t["kind"] == kind) & (t["src"] == src) & (t["dst"] == dst)
+            time = t["time"][rows]
+            ok = (time >= truth.span[truth.body_of(src)][0]) & (time >= truth.span[truth.body_of(dst)][0])
+            diff = truth.at(src, "position", time[ok]) - truth.at(dst, "position", time[ok])
+            dist = np.linalg.norm(diff, axis=1)
+            if kind == "uwb":
+                true = dist
+            else:
+                dv = truth.at(src, "velocity", time[ok]) - truth.at(dst, "velocity", time[ok])
+                true = np.einsum("ni,ni->n", diff / dist[:, None], dv)
+            res = t["value"][rows][ok] - true
+            assert s["samples"] == res.size and s["unscored"] == int((~ok).sum())
+            if res.size:
+                u = "m_s" if kind == "range-rate" else "m"
+                np.testing.assert_allclose(s[f"rmse_{u}"], np.sqrt(np.mean(res ** 2)), rtol=1e-12)
+                np.testing.assert_allclose(s[f"mean_{u}"], res.mean(), rtol=1e-12, atol=1e-15)
+    assert any(s["unscored"] for links in stats.values() for s in links.values())
