@@ -9,13 +9,13 @@ Order: by arrival time, then time of validity, then stream name, then log row (d
 from __future__ import annotations
 
 import time as wallclock
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from testbed.errors import PluginError
-from testbed.plugins.api import Context, Measurement
+from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.collect import Collector, Track
 from testbed.plugins.loading import Plugin
 from testbed.scenario import Scenario
@@ -78,26 +78,52 @@ def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Mea
         yield cols[sid[k]].measurement(row[k])
 
 
-def call(plugin: Plugin, what: str, fn, *args):
-    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and time."""
+def call(plugin: Plugin, what, fn, *args):
+    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and
+    `what` (a string, or a Measurement or MeasurementBatch described by where)."""
     try:
         out = fn(*args)
         return [] if out is None else list(out)
     except Exception as e:
         msg = f"{type(e).__name__}: {e}".splitlines()[0]
-        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {what}: raised {msg}") from None
+        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {where(what)}: raised {msg}") from None
 
 
-def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tuple[Track, dict, float]:
-    """Construct the estimator, feed every measurement, finish; returns (estimates, health, wall ms).
+def where(what) -> str:
+    """When, for an error message: a string as is, a measurement's time and link, a batch's span."""
+    if isinstance(what, Measurement):
+        return f"at t = {what.time:.6g} s ({what.stream} {what.src}{' -> ' + what.dst if what.dst else ''})"
+    if isinstance(what, MeasurementBatch):
+        return f"at t = {what.time[0]:.6g} .. {what.time[-1]:.6g} s ({what.stream}, a batch of {len(what)} rows)"
+    return what
+
+
+def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | MeasurementBatch],
+               diagnostics: dict | None = None) -> tuple[Track, dict, float]:
+    """Construct the estimator, feed every measurement (a MeasurementBatch whole to an estimator
+    with process_batch, else row by row), finish; returns (estimates, health, wall ms). If
+    `diagnostics` is a dict, it receives the estimator's optional per-epoch diagnostics()
+    ({name: (K,) finite numbers}, one length), checked.
 
     Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
     """
     t0 = wallclock.perf_counter()
     est, col = start_plugin(plugin, context)
-    for m in feed:
-        process(plugin, est, col, m)
+    batch = getattr(est, "process_batch", None)
+    batch = batch if callable(batch) else None
+    for item in feed:
+        if not isinstance(item, MeasurementBatch):
+            process(plugin, est, col, item)
+        elif batch is None:
+            for m in item.rows():
+                process(plugin, est, col, m)
+        else:
+            out = call(plugin, item, batch, item)
+            if out:
+                col.add(out, where(item))
     health = finish_plugin(plugin, est, col)
+    if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
+        diagnostics.update(_diagnostics(plugin, call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))
     return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
 
 
@@ -122,7 +148,26 @@ def start_plugin(plugin: Plugin, context: Context) -> tuple[object, Collector]:
 
 def process(plugin: Plugin, est: object, col: Collector, m: Measurement) -> list:
     """Feed one measurement; its estimates, checked, go into col and are returned."""
-    what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
-    out = call(plugin, what, est.process, m)
-    col.add(out, what)
+    out = call(plugin, m, est.process, m)
+    if out:
+        col.add(out, where(m))
+    return out
+
+
+def _diagnostics(plugin: Plugin, raw) -> dict[str, np.ndarray]:
+    """An estimator's diagnostics() checked: {name: (K,) finite numbers}, one K for all."""
+    bad = f"estimator {plugin.key!r} ({plugin.entry}) diagnostics(): expected {{name: (K,) finite numbers}} of one length K"
+    if not isinstance(raw, dict):
+        raise PluginError(bad + f", got {type(raw).__name__}")
+    out = {}
+    for k, v in raw.items():
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise PluginError(bad + f": {k!r} is not numeric") from None
+        if a.ndim != 1 or not np.all(np.isfinite(a)):
+            raise PluginError(bad + f": {k!r} has shape {a.shape} or non-finite values")
+        out[str(k)] = a
+    if len({a.size for a in out.values()}) > 1:
+        raise PluginError(bad + f": lengths {sorted({k: a.size for k, a in out.items()}.items())}")
     return out
