@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time as wallclock
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,33 +34,51 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return a
 
 
+@dataclass(frozen=True, slots=True)
+class Columns:
+    """The measured columns of one stream (rows of the log, or of one sample online): what
+    `measurement(r)` turns row r into."""
+
+    name: str
+    time: np.ndarray
+    arrival: np.ndarray
+    value: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    sigma: np.ndarray | None
+    extra: dict
+
+    def measurement(self, r: int) -> Measurement:
+        return Measurement(stream=self.name, time=float(self.time[r]), arrival=float(self.arrival[r]), value=self.value[r],
+                           src=str(self.src[r]), dst=str(self.dst[r]), sigma=None if self.sigma is None else self.sigma[r],
+                           extra={c: v[r] for c, v in self.extra.items()})
+
+
+def measurement_columns(name: str, arrays: dict[str, np.ndarray], scenario: Scenario) -> Columns:
+    """The measured columns of stream `name` from its arrays keyed without the prefix
+    (testbed.stream.stream_arrays), with the declared sigma; arrays read-only."""
+    value = _read_only(np.asarray(arrays["value"], dtype=float))
+    sigma = declared_sigma(name, arrays, scenario)
+    if sigma is not None:
+        sigma = _read_only(np.asarray(sigma, dtype=float))
+    extra = {k: _read_only(arrays[k]) for k in MEASURED_EXTRA.get(name, ()) if k in arrays}
+    return Columns(name, arrays["time"], arrays["arrival"], value, arrays["src"], arrays["dst"], sigma, extra)
+
+
 def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement]:
     """Every measurement of the log in feeding order (see the module docstring); arrays read-only."""
-    names = stream_names(log)
-    cols = []
-    for name in names:
-        value = _read_only(np.asarray(log[f"{name}/value"], dtype=float))
-        sigma = declared_sigma(name, stream_arrays(name, log), scenario)
-        if sigma is not None:
-            sigma = _read_only(np.asarray(sigma, dtype=float))
-        extra = {k: _read_only(log[f"{name}/{k}"]) for k in MEASURED_EXTRA.get(name, ()) if f"{name}/{k}" in log}
-        cols.append((name, log[f"{name}/time"], log[f"{name}/arrival"], value, log[f"{name}/src"], log[f"{name}/dst"], sigma,
-                     extra))
+    cols = [measurement_columns(name, stream_arrays(name, log), scenario) for name in stream_names(log)]
     if not cols:
         return
-    arrival = np.concatenate([c[2] for c in cols])
-    tov = np.concatenate([c[1] for c in cols])
-    sid = np.concatenate([np.full(c[1].shape[0], i) for i, c in enumerate(cols)])
-    row = np.concatenate([np.arange(c[1].shape[0]) for c in cols])
+    arrival = np.concatenate([c.arrival for c in cols])
+    tov = np.concatenate([c.time for c in cols])
+    sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])
+    row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])
     for k in np.lexsort((row, sid, tov, arrival)).tolist():
-        name, t, a, value, src, dst, sigma, extra = cols[sid[k]]
-        r = row[k]
-        yield Measurement(stream=name, time=float(t[r]), arrival=float(a[r]), value=value[r], src=str(src[r]),
-                          dst=str(dst[r]), sigma=None if sigma is None else sigma[r],
-                          extra={c: v[r] for c, v in extra.items()})
+        yield cols[sid[k]].measurement(row[k])
 
 
-def _call(plugin: Plugin, what: str, fn, *args):
+def call(plugin: Plugin, what: str, fn, *args):
     """Call a plugin method; anything it raises becomes one PluginError line naming plugin and time."""
     try:
         out = fn(*args)
@@ -75,18 +94,35 @@ def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tup
     Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
     """
     t0 = wallclock.perf_counter()
-    est = _call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
-    targets = set(context.vehicles) | set(context.sites)
-    col = Collector(plugin, targets, context.duration, {"world", *context.vehicles})
+    est, col = start_plugin(plugin, context)
     for m in feed:
-        what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
-        col.add(_call(plugin, what, est.process, m), what)
+        process(plugin, est, col, m)
+    health = finish_plugin(plugin, est, col)
+    return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
+
+
+def finish_plugin(plugin: Plugin, est: object, col: Collector) -> dict[str, int]:
+    """Call the estimator's optional finish() (its estimates into col) and health(); the checked counts."""
     if callable(getattr(est, "finish", None)):
-        col.add(_call(plugin, "in finish()", est.finish), "in finish()")
+        col.add(call(plugin, "in finish()", est.finish), "in finish()")
     health = {}
     if callable(getattr(est, "health", None)):
-        raw = _call(plugin, "in health()", lambda: [est.health()])[0]
+        raw = call(plugin, "in health()", lambda: [est.health()])[0]
         if not isinstance(raw, dict) or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in raw.values()):
             raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) health(): expected {{name: int}}, got {raw!r}"[:300])
         health = {str(k): int(v) for k, v in raw.items()}
-    return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
+    return health
+
+
+def start_plugin(plugin: Plugin, context: Context) -> tuple[object, Collector]:
+    """Construct the estimator and the Collector of its estimates."""
+    est = call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
+    return est, Collector(plugin, set(context.vehicles) | set(context.sites), context.duration, {"world", *context.vehicles})
+
+
+def process(plugin: Plugin, est: object, col: Collector, m: Measurement) -> list:
+    """Feed one measurement; its estimates, checked, go into col and are returned."""
+    what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
+    out = call(plugin, what, est.process, m)
+    col.add(out, what)
+    return out

@@ -75,6 +75,16 @@ class TriadErrors:
         self.walk = np.zeros((n_triads, 3))
         self.gm = e.gm_sigma * z[2] if e.gm_tau > 0 else np.zeros((n_triads, 3))  # stationary start
 
+    @classmethod
+    def stacked(cls, triads: list[TriadErrors]) -> TriadErrors:
+        """One object for the triads of several (all with the same parameters and dt), their
+        scale factors, misalignments and bias states concatenated: `apply` on (n, V, 3) at once."""
+        out = cls.__new__(cls)
+        out.e, out.dt = triads[0].e, triads[0].dt
+        for name in ("K", "b0", "walk", "gm"):
+            setattr(out, name, np.concatenate([getattr(t, name) for t in triads]))
+        return out
+
     def apply(self, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Measurements (n, V, 3) of clean samples x (n, V, 3); `bias_series` keeps the bias (n, V, 3)."""
         e, dt = self.e, self.dt
