@@ -9,7 +9,7 @@
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [run options]
     testbed bench physics|sensors|estimators|replay [--json FILE] [--vehicles N,N,...]
-    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
+    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
                 [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
     testbed schema
@@ -221,11 +221,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="swarm sizes (physics: default 1,6,18,50; sensors: default 18)")
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
-    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
+    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop", "denied"])
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--runs", type=RUNS, help="Monte Carlo runs (default: the paper's reproduction default)")
-    p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
+    p.add_argument("--motion", choices=["prescribed", "flown"], help="default prescribed (denied: flown, the only choice)")
     p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
     p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
     _add_estimator_option(p)
