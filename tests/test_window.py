@@ -124,6 +124,24 @@ def test_distributed_broadcasts_are_counted_and_deliveries_used():
     assert not np.allclose(a.pos, d.pos)
 
 
+def test_distributed_beats_gnss_and_does_not_drift():
+    """Message iteration over the window: well below GNSS alone, and no drift of the swarm's
+    common position (the last epochs are no worse than the first ones)."""
+    eps, truth = synthetic(15)
+    cen = sw.Centralized(N, window=5, q=Q)
+    dis = sw.Distributed(N, window=5, q=Q, max_rounds=20, tol=1e-4)
+    err_c, err_d, err_g = [], [], []
+    for k, ep in enumerate(eps):
+        c, d = cen.add(ep), dis.add(ep)
+        err_c.append(np.linalg.norm(c.pos - truth[k], axis=1))
+        err_d.append(np.linalg.norm(d.pos - truth[k], axis=1))
+        err_g.append(np.linalg.norm(ep.fix - truth[k], axis=1))
+    rms = lambda e: float(np.sqrt(np.nanmean(np.square(e))))  # noqa: E731
+    assert rms(err_d) < 0.5 * rms(err_g)
+    assert rms(err_c) <= rms(err_d)
+    assert rms(err_d[-5:]) <= rms(err_d[:5])
+
+
 def test_bounded_work_per_epoch(monkeypatch):
     """The number of block solves per epoch does not grow with the run length."""
     calls = []
