@@ -4,14 +4,16 @@ Scenario `coop-denied` (18 UAVs down an urban street and under a covered passage
 visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown over `runs`
 seeds in four variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
 testbed.reproduce.runs):
-- truth:       the controller flies on the MuJoCo state; the cooperative estimator (below) is
-               run and scored beside it, so its estimation error is known without feedback;
+- truth:       the controller flies on the MuJoCo state; the centralized cooperative estimator
+               (below) is run and scored beside it: its estimation error without feedback;
 - gnss_ekf:    flies on `nav.eskf`, the per-vehicle IMU + GNSS error-state EKF, with no UWB
                ([sensors.uwb] removed in this variant: GNSS only);
-- coop:        flies on `coop.window_distributed` (seed 001's sliding-window factor graph,
+- coop:        flies on `coop.window` (seed 001's sliding-window factor graph over the whole
+               swarm, centralized: every measurement reaches the solver);
+- coop_distributed: flies on `coop.window_distributed` (the same graph, one window per vehicle,
                message iteration between vehicles, broadcasts over the scenario's [network]);
-- coop_lossy:  the same over a lossy network (LOSSY: loss and latency raised, for the
-               estimator's broadcasts and the scenario's [network] alike).
+- coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised,
+               for the estimator's broadcasts and the scenario's [network] alike).
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
 max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
 separation between vehicles (body origins, every logged instant); contact events: MuJoCo
@@ -44,9 +46,9 @@ from testbed.scenario import Scenario, load
 from testbed.stats import wilcoxon_paired
 from testbed.world import FLOOR, OBSTACLE, build
 
-VARIANTS = ("truth", "gnss_ekf", "coop", "coop_lossy")
-TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative (distributed)",
-          "coop_lossy": "cooperative, lossy network"}
+VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy")
+TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
+          "coop_distributed": "cooperative, distributed", "coop_lossy": "cooperative, distributed, lossy network"}
 COOP, EKF = "coop", "ekf"  # estimator names ([[estimators]] name) of the cooperative and GNSS-only estimators
 LOSSY = {"loss_prob": 0.3, "latency": 0.006, "jitter": 0.003}  # the lossy variant's [network] changes
 ALPHA = 0.05
@@ -59,7 +61,8 @@ def variant(base: Scenario, name: str) -> Scenario:
     net = base.network
     if name == "coop_lossy":
         net = replace(net, **LOSSY)
-    coop = EstimatorSpec(entry="coop.window_distributed", name=COOP, params={"network": to_dict(net)})
+    coop = EstimatorSpec(entry="coop.window" if name in ("truth", "coop") else "coop.window_distributed", name=COOP,
+                         params={} if name in ("truth", "coop") else {"network": to_dict(net)})
     if name == "gnss_ekf":
         return replace(base, sensors=replace(base.sensors, uwb=None), network=net,
                        estimators=(EstimatorSpec(entry="nav.eskf", name=EKF),),
