@@ -162,39 +162,42 @@ class _Window:
         a, l = self._where(np.arange(self.n))
         return self.X.reshape(self.B, K, self.nv, 6)[a, :, l, :3].transpose(1, 0, 2)
 
+    def _add_block(self, sys, k, i, j, H3, g3=None, cost=None):
+        """Add H3 (m, 3, 3) to the position block (i, j) of epoch k (i, j (m,) vehicles, the same
+        agent), g3 (m, 3) to vehicle i's right-hand side and cost (m,) to its agent's cost."""
+        Hpp, Rp, C = sys
+        a, li = self._where(i)
+        lj = self._where(j)[1]
+        np.add.at(Hpp, (a, k, li, lj), H3)
+        if g3 is not None:
+            np.add.at(Rp, (a, k, li), g3)
+        if cost is not None:
+            np.add.at(C, a, cost)
+
     def _add_point(self, sys, k, i, u, r, sigma, count=True, robust=True):
         """Rows of a factor on vehicle i's position at epoch k with residual r (m,) = z - h,
         dh/dp_i = u (m, 3), 1-sigma sigma (m,): D += w u u^T, R += w u r, cost += rho(r / sigma),
         w the IRLS weight / sigma^2 (count False: the cost is counted by the other end; robust
-        False: least squares whatever `huber`, for the GNSS fixes)."""
-        D, R, C = sys
-        a, l = self._where(i)
+        False: least squares whatever `huber`). Returns w (m,)."""
         s = r / sigma
         delta = self.huber if robust else None
         w = huber_weight(s, delta) / sigma ** 2
-        idx = 6 * l[:, None] + np.arange(3)  # (m, 3)
-        np.add.at(D, (a[:, None, None], k, idx[:, :, None], idx[:, None, :]), w[:, None, None] * u[:, :, None] * u[:, None, :])
-        np.add.at(R, (a[:, None], k, idx), (w * r)[:, None] * u)
-        if count:
-            np.add.at(C, a, huber_rho(s, delta))
+        self._add_block(sys, k, i, i, w[:, None, None] * u[:, :, None] * u[:, None, :], (w * r)[:, None] * u,
+                        huber_rho(s, delta) if count else None)
         return w
 
     def _intra(self, P: np.ndarray, ranges: bool = True):
         """(D, R, C): diagonal blocks (B, K, s, s), right-hand sides (B, K, s) and cost (B,) of
-        every factor within an epoch (prior, GNSS, ranges), linearized at positions P (K, n, 3)."""
-        K = P.shape[0]
-        sys = (np.zeros((self.B, K, self.s, self.s)), np.zeros((self.B, K, self.s)), np.zeros(self.B))
-        D, R, C = sys
-        e0 = self.prior_mean - self.X[:, 0]
-        D[:, 0] += self.prior_info
-        R[:, 0] += np.einsum("bij,bj->bi", self.prior_info, e0)
-        C += 0.5 * np.einsum("bi,bij,bj->b", e0, self.prior_info, e0)
+        every factor within an epoch (prior, GNSS, anchor ranges, tag-to-tag ranges unless `ranges` is False),
+        linearized at positions P (K, n, 3). Position blocks are gathered first (B, K, nv, nv, 3, 3)."""
+        K, B, nv = P.shape[0], self.B, self.nv
+        sys = (np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3)), np.zeros(B))
         for k, ep in enumerate(self.epochs):
             has = np.flatnonzero(~np.isnan(ep.fix[:, 0]))
-            for ax in range(3):  # GNSS fix: one scalar factor per axis
-                u = np.zeros((has.size, 3))
-                u[:, ax] = 1.0
-                self._add_point(sys, k, has, u, ep.fix[has, ax] - P[k, has, ax], ep.fix_sigma[has, ax], robust=False)
+            if has.size:  # GNSS fix: least squares, diagonal (east, north, up) information
+                w = ep.fix_sigma[has] ** -2.0
+                r = ep.fix[has] - P[k, has]
+                self._add_block(sys, k, has, has, w[:, :, None] * np.eye(3), w * r, 0.5 * (w * r * r).sum(1))
             if ep.anchor_vehicle.size:
                 diff = P[k, ep.anchor_vehicle] - ep.anchor_pos
                 dist = np.linalg.norm(diff, axis=1)
@@ -202,7 +205,17 @@ class _Window:
                                 ep.anchor_range - dist, ep.anchor_sigma)
             if ranges and ep.edges.size:
                 self._ranges(k, P, sys)
-        return sys
+        Hpp, Rp, C = sys
+        D = np.zeros((B, K, nv, 6, nv, 6))
+        D[:, :, :, :3, :, :3] = Hpp.transpose(0, 1, 2, 4, 3, 5)
+        R = np.zeros((B, K, nv, 6))
+        R[..., :3] = Rp
+        D, R = D.reshape(B, K, self.s, self.s), R.reshape(B, K, self.s)
+        e0 = self.prior_mean - self.X[:, 0]
+        D[:, 0] += self.prior_info
+        R[:, 0] += np.einsum("bij,bj->bi", self.prior_info, e0)
+        C += 0.5 * np.einsum("bi,bij,bj->b", e0, self.prior_info, e0)
+        return D, R, C
 
     def _system(self, ranges: bool = True):
         """(D, U, R, C) of the whole window at the current estimate: _intra plus the motion
@@ -331,12 +344,9 @@ class Centralized(_Window):
         r = ep.ranges - dist
         w = self._add_point(sys, k, i, u, r, ep.range_sigma)
         self._add_point(sys, k, j, -u, r, ep.range_sigma, count=False)
-        # cross blocks of the pair: -w u u^T (both orders)
-        ii = 6 * i[:, None] + np.arange(3)
-        jj = 6 * j[:, None] + np.arange(3)
-        uu = w[:, None, None] * u[:, :, None] * u[:, None, :]
-        np.add.at(sys[0], (0, k, ii[:, :, None], jj[:, None, :]), -uu)
-        np.add.at(sys[0], (0, k, jj[:, :, None], ii[:, None, :]), -uu)
+        uu = w[:, None, None] * u[:, :, None] * u[:, None, :]  # cross blocks of the pair: -w u u^T
+        self._add_block(sys, k, i, j, -uu)
+        self._add_block(sys, k, j, i, -uu)
 
     def add(self, ep: Epoch) -> WindowEstimate:
         """Append epoch ep (time-ordered), slide, solve; the newest epoch's estimate."""
