@@ -46,9 +46,11 @@ Never imports mujoco or testbed.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 
 from estimators.factor_graph import huber_rho, huber_weight
 from estimators.transport import Transport
@@ -99,6 +101,7 @@ class WindowEstimate:
     bytes_sent: int = 0
 
 
+@functools.lru_cache(maxsize=64)
 def motion_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Information blocks (M00, M01, M11), each (6, 6) over one vehicle's [p, v] at k and k+1, of
     the white-noise-acceleration factor (module docstring) over dt (s) with density q (m^2/s^3)."""
@@ -108,6 +111,21 @@ def motion_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return M[:6, :6], M[:6, 6:], M[6:, 6:]
 
 
+class _Spd:
+    """A batch of SPD matrices (B, s, s) factored once: Cholesky (scipy) for one large matrix,
+    numpy's batched LU for many small ones (a per-vehicle 6 x 6 block)."""
+
+    def __init__(self, S: np.ndarray):
+        self.one = S.shape[0] == 1
+        self.f = linalg.cho_factor(S[0], check_finite=False) if self.one else S
+
+    def solve(self, Y: np.ndarray) -> np.ndarray:
+        """S^-1 Y for Y (B, s) or (B, s, r)."""
+        if self.one:
+            return linalg.cho_solve(self.f, Y[0], check_finite=False)[None]
+        return np.linalg.solve(self.f, Y[..., None])[..., 0] if Y.ndim == 2 else np.linalg.solve(self.f, Y)
+
+
 def _solve_chain(D: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Solve the block-tridiagonal SPD system H delta = R, batched over agents.
 
@@ -115,16 +133,17 @@ def _solve_chain(D: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarra
     Returns delta (B, K, s) and S (B, s, s): the last Schur complement, the information of the
     newest epoch's marginal (its inverse is that epoch's covariance)."""
     K = D.shape[1]
-    S, Y, W = [D[:, 0]], [R[:, 0]], []
+    S, Y = D[:, 0], [R[:, 0]]
+    F = [_Spd(S)]
     for k in range(1, K):
-        Wk = np.linalg.solve(S[-1], U[:, k - 1])  # S_{k-1}^{-1} U_{k-1}
-        W.append(Wk)
-        S.append(D[:, k] - np.swapaxes(U[:, k - 1], 1, 2) @ Wk)
+        Wk = F[-1].solve(U[:, k - 1])  # S_{k-1}^{-1} U_{k-1}
+        S = D[:, k] - np.swapaxes(U[:, k - 1], 1, 2) @ Wk
         Y.append(R[:, k] - np.einsum("bij,bi->bj", Wk, Y[-1]))
-    delta = [np.linalg.solve(S[-1], Y[-1][..., None])[..., 0]]
+        F.append(_Spd(S))
+    delta = [F[-1].solve(Y[-1])]
     for k in range(K - 2, -1, -1):
-        delta.append(np.linalg.solve(S[k], (Y[k] - np.einsum("bij,bj->bi", U[:, k], delta[-1]))[..., None])[..., 0])
-    return np.stack(delta[::-1], axis=1), S[-1]
+        delta.append(F[k].solve(Y[k] - np.einsum("bij,bj->bi", U[:, k], delta[-1])))
+    return np.stack(delta[::-1], axis=1), S
 
 
 class _Window:
@@ -147,6 +166,16 @@ class _Window:
         self.prior_info = np.zeros((self.B, self.s, self.s))
         self.prior_mean = np.zeros((self.B, self.s))
         self._eye = np.eye(per_agent)
+        self._krons: dict[float, tuple] = {}
+
+    def _motion(self, k: int) -> tuple:
+        """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
+        for the agent's nv vehicles, kron(I_nv, M) (s, s), cached per interval."""
+        dt = self.epochs[k + 1].t - self.epochs[k].t
+        if dt not in self._krons:
+            M = motion_blocks(dt, self.q)
+            self._krons[dt] = M + tuple(np.kron(self._eye, m) for m in M)
+        return self._krons[dt]
 
     # index of each vehicle's first state in (agent, slot) layout
     def _where(self, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -225,10 +254,10 @@ class _Window:
         U = np.zeros((self.B, max(K - 1, 0), self.s, self.s))
         Xv = self.X.reshape(self.B, K, self.nv, 6)
         for k in range(K - 1):
-            M00, M01, M11 = motion_blocks(self.epochs[k + 1].t - self.epochs[k].t, self.q)
-            D[:, k] += np.kron(self._eye, M00)
-            D[:, k + 1] += np.kron(self._eye, M11)
-            U[:, k] = np.kron(self._eye, M01)
+            M00, M01, M11, K00, K01, K11 = self._motion(k)
+            D[:, k] += K00
+            D[:, k + 1] += K11
+            U[:, k] = K01
             x0, x1 = Xv[:, k], Xv[:, k + 1]  # (B, nv, 6); linear factor: rhs = -M [x0; x1]
             g0, g1 = x0 @ M00.T + x1 @ M01.T, x0 @ M01 + x1 @ M11.T
             R[:, k] -= g0.reshape(self.B, self.s)
@@ -266,15 +295,15 @@ class _Window:
         """Drop the oldest epoch, leaving its information on the next as the prior (Schur)."""
         D, R, _ = self._intra(self._pos(), ranges=self.keep_ranges)
         A, r0 = D[:, 0], R[:, 0]
-        M00, M01, M11 = motion_blocks(self.epochs[1].t - self.epochs[0].t, self.q)
-        A = A + np.kron(self._eye, M00)
+        M00, M01, M11, K00, K01, K11 = self._motion(0)
+        A = A + K00
         Xv = self.X.reshape(self.B, -1, self.nv, 6)
         x0, x1 = Xv[:, 0], Xv[:, 1]
         r0 = r0 - (x0 @ M00.T + x1 @ M01.T).reshape(self.B, self.s)
         r1 = -(x0 @ M01 + x1 @ M11.T).reshape(self.B, self.s)
-        Bm = np.broadcast_to(np.kron(self._eye, M01), A.shape)
+        Bm = np.broadcast_to(K01, A.shape)
         AiB = np.linalg.solve(A, Bm)
-        info = np.kron(self._eye, M11) - np.swapaxes(Bm, 1, 2) @ AiB
+        info = K11 - np.swapaxes(Bm, 1, 2) @ AiB
         info = 0.5 * (info + np.swapaxes(info, 1, 2))
         b = r1 - np.einsum("bij,bi->bj", AiB, r0)
         self.prior_info = info
