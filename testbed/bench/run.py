@@ -41,9 +41,9 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
     elif what == "denied":
         from testbed.bench.denied import bench_denied  # lazy: this family runs a whole scenario
 
-        out = bench_denied()
-        result = {"denied": out}
-        print(f"denied: {out}")
+        rows = [bench_denied(name=v) for v in ("coop_distributed", "coop")]
+        result = {"denied": rows}
+        _print_table("denied: coop-denied flown on the cooperative estimate (all sensors, network); one core", rows)
     elif what == "replay":
         from testbed.bench.replay import bench_replay  # lazy: only this family needs the replay package
 
