@@ -26,6 +26,9 @@ What a frame shows
   with the same 4:3 aspect and field of view) in the top-right corner with a thin border,
   for the leader of seed 004 by default.
 - A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
+- Obstacles translucent (OBSTACLE_ALPHA), and from the run directory (testbed.render_overlay):
+  the UWB links of the latest sample (LOS blue, NLOS orange), ghosts of the estimate a
+  controller flew on, vehicle numbers green with a GNSS fix and red without.
 
 Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
 (the command line sets `egl` unless the user chose, testbed/environment.py). If the renderer cannot be created in
@@ -71,6 +74,7 @@ INSTALL_HINT = (
     "or OSMesa (apt-get install libosmesa6), then run again; MUJOCO_GL=egl|osmesa chooses the backend"
 )
 BACKENDS = ("egl", "osmesa")
+OBSTACLE_ALPHA = 0.45  # opacity of world.obstacles in a video (their material "obstacle")
 FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo's free-camera default)
 
 
@@ -199,6 +203,9 @@ class _Replay:
         self.meta = _read_meta(run_dir)
         self._v = np.zeros(self.model.nv)
         self.overlays = Overlays(run_dir, lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name), self.n)
+        mid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_MATERIAL, "obstacle")
+        if mid >= 0:  # obstacles translucent: vehicles behind a building or under a roof stay in view
+            self.model.mat_rgba[mid, 3] = OBSTACLE_ALPHA
 
     def _vehicle_rgba(self, i: int) -> np.ndarray:
         """(4,) colour of vehicle i's frame material (the per-vehicle palette colour)."""
