@@ -16,7 +16,7 @@ motion factors), huber (0: least squares, the seed 001 default; > 0: threshold o
 loss in sigmas. Measured in the loop on coop-denied: Huber 1.345 with 5 steps per epoch let
 the estimate run away, 36 m of vertical error in 6 s; least squares 2.2 m on the same log),
 max_iter (5, Gauss-Newton steps per epoch, centralized), max_rounds (10, message rounds per
-epoch, distributed), tol (1e-3 m), network (distributed: a [network] table, docs/network.md,
+epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior), network (distributed: a [network] table, docs/network.md,
 through which the broadcasts travel, testbed.network.RoundTransport, drawn from the plugin's
 own rng; absent: ideal). The channel's geometry (range limit, NLOS loss) is taken from the
 estimator's own positions and the epoch's ranged links (the estimator cannot see the truth).
@@ -32,7 +32,7 @@ from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.sensors.noise import twr_range_variance
 
-DEFAULTS = dict(window=5, q=2.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, network=None)
+DEFAULTS = dict(window=5, q=2.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None)
 
 
 class _WindowPlugin:
@@ -133,7 +133,7 @@ class Window(_WindowPlugin):
     def _solver(self, context):
         p = self.p
         return sw.Centralized(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
-                              max_iter=int(p["max_iter"]), tol=float(p["tol"]))
+                              max_iter=int(p["max_iter"]), tol=float(p["tol"]), init_sigma_v=float(p["init_sigma_v"]))
 
     def _add(self, ep):
         return self.solver.add(ep)
@@ -149,7 +149,7 @@ class WindowDistributed(_WindowPlugin):
                                                          self.n, context.rng)
         self.round_s = 0.0 if net is None else self.network.cfg.round_s
         return sw.Distributed(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
-                              max_rounds=int(p["max_rounds"]), tol=float(p["tol"]))
+                              max_rounds=int(p["max_rounds"]), tol=float(p["tol"]), init_sigma_v=float(p["init_sigma_v"]))
 
     def _add(self, ep):
         transport = None
