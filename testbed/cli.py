@@ -8,7 +8,7 @@
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [run options]
-    testbed bench physics|sensors|estimators|replay|denied [--json FILE] [--vehicles N,N,...]
+    testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
     testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
                 [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
@@ -215,10 +215,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_options(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
-    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "denied"])
+    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop", "denied"])
     p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
     p.add_argument("--vehicles", type=_vehicle_counts, metavar="N[,N...]",
-                   help="swarm sizes (physics: default 1,6,18,50; sensors: default 18)")
+                   help="swarm sizes (physics: default 1,6,18,50; sensors: default 18; loop: default 1,10,30)")
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
     p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop", "denied"])

@@ -376,11 +376,11 @@ class Control:
             in_range(self, gain, 0, lo_open=True)
         in_range(self, "mahony_ki", 0)
         require(self.feedback == "truth" or (self.feedback.startswith("estimate:") and len(self.feedback) > 9),
-                "feedback", self.feedback, 'must be "truth" or "estimate:NAME" (NAME: an [[estimators]] name)')
+                "feedback", self.feedback, f'must be "truth" or "estimate:NAME" (NAME: an [[estimators]] name), got {self.feedback!r}')
         require(all(v >= 1 for v in self.feedback_vehicles), "feedback_vehicles", list(self.feedback_vehicles),
-                "vehicle numbers start at 1")
+                f"vehicle numbers start at 1, got {list(self.feedback_vehicles)}")
         require(not self.feedback_vehicles or self.feedback != "truth", "feedback_vehicles", list(self.feedback_vehicles),
-                'only with feedback = "estimate:NAME"')
+                f'{list(self.feedback_vehicles)}: only with feedback = "estimate:NAME"')
 
     @property
     def feedback_estimator(self) -> str:
@@ -430,18 +430,18 @@ class Scenario:
         name = c.feedback_estimator
         if name or c.attitude != "truth":
             what, value = ("control.feedback", c.feedback) if name else ("control.attitude", c.attitude)
-            require(self.motion == "flown", what, value, 'needs motion = "flown" (a prescribed motion has no controller)')
+            require(self.motion == "flown", what, value, f'{value!r} needs motion = "flown" (a prescribed motion has no controller)')
         if name:
             names = [e.key for e in self.estimators]
             require(name in names, "control.feedback", c.feedback,
-                    f"no [[estimators]] named {name!r} (names: {', '.join(names) or 'none'})")
+                    f"{c.feedback!r}: no [[estimators]] named {name!r} (names: {', '.join(names) or 'none'})")
             bad = [v for v in c.feedback_vehicles if v > self.vehicles]
             require(not bad, "control.feedback_vehicles", list(c.feedback_vehicles),
                     f"vehicle {bad[0] if bad else 0} does not exist (the scenario has {self.vehicles})")
         if c.attitude == "mahony":
             imu = self.sensors.imu
             require(imu is not None and set(imu.vehicles or range(1, self.vehicles + 1)) == set(range(1, self.vehicles + 1)),
-                    "control.attitude", c.attitude, "needs [sensors.imu] on every vehicle")
+                    "control.attitude", c.attitude, "'mahony' needs [sensors.imu] on every vehicle")
 
     @property
     def vehicles(self) -> int:

@@ -180,7 +180,8 @@ class _Onboard:
         if self.att is not None and sensor.name == "imu":
             u = ref_acc.copy()
             u[:, 2] += GRAVITY
-            value = rows["value"]  # (N, 6) every vehicle, in vehicle order (control.attitude needs all)
+            value = np.empty_like(rows["value"])  # (N, 6): control.attitude needs the IMU on every vehicle
+            value[rows["vehicle"] - 1] = rows["value"]
             self.att.update(value[:, 3:], value[:, :3], u, self.imu_dt)
 
     def advance(self, t: float) -> None:

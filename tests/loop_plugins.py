@@ -3,22 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from testbed.bench.loop import Hold as GnssEcho  # each GNSS fix minus the antenna lever arm as the position
 from testbed.plugins import Estimate
 
 SEEN: list = []  # every Measurement a Recording instance was fed, in order (this process)
-
-
-class GnssEcho:
-    """Each GNSS fix minus the antenna lever arm (attitude ignored) as the body position."""
-
-    def __init__(self, context, params):
-        self.sites = context.sites
-
-    def process(self, m):
-        if m.stream != "gnss":
-            return []
-        body, arm = self.sites.get(m.src, (m.src.partition("/")[0], np.zeros(3)))
-        return [Estimate(time=m.time, target=body, quantity="position", value=np.asarray(m.value) - arm)]
 
 
 class Recording(GnssEcho):

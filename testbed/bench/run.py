@@ -1,4 +1,4 @@
-"""`testbed bench physics|sensors|estimators|replay|denied [--json FILE]`: run one family, print, save as JSON."""
+"""`testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE]`: run one family, print, save as JSON."""
 from __future__ import annotations
 
 import json
@@ -52,6 +52,13 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         for k in ("factor_graph", "plugin_path"):
             print(f"replay ({out['robots']} robots x {out['antennas_per_robot']} antennas, {out['rate_hz']:g} Hz, "
                   f"batch {out['batch']}): {k}: {out[k]}")
+    elif what == "loop":
+        from testbed.bench.loop import SIZES as LOOP_SIZES, bench_loop  # lazy, as replay
+
+        out = bench_loop(vehicles or LOOP_SIZES)
+        _print_table("loop: flown with IMU 100 Hz, GNSS 5 Hz, UWB 10 Hz; CPU s per simulated s, truth vs estimator in the loop", out["rows"])
+        print(f"twice the duration: {out['duration_scale']}; CPU (hold) ~ N^{out['growth_exponent_hold']}")
+        result = {"loop": out}
     else:
         raise ValueError(what)
     result["machine"] = {"python": platform.python_version(), "mujoco": mujoco.__version__, "processor": platform.processor() or platform.machine()}

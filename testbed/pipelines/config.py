@@ -304,7 +304,9 @@ class CoopPipelineConfig(_PipelineConfig):
     range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock frequency offset
     (ppm, 1 sigma per device); twr_mode ("scale" | "ss-twr" | "ds-twr"), reply_time (s) and
     antenna_delay_sigma (m of range per device, 1 sigma): the assumed two-way ranging scheme;
-    clock and antenna-delay errors are absorbed into the range variance (pipelines.coop.range_sigmas).
+    clock and antenna-delay errors enter the centralized estimator as the joint covariance of an
+    epoch's ranges (shared by the links of one radio, pipelines.coop.range_covariance) and the
+    distributed ones as extra white variance (pipelines.coop.range_sigmas).
     robust: "none" (least squares) or "huber" range factors, threshold huber_delta (in sigmas).
     neighbour_model: "prior" (the paper: neighbours' broadcasts as priors with their covariances)
     or "fixed" (neighbours fixed, block-Jacobi: converges to the centralized optimum, slower).

@@ -97,8 +97,10 @@ class OnlineEstimator:
         return p, v
 
     def finish(self) -> tuple[Track, dict, float]:
-        """finish() and health() of the plugin; (estimates, health, wall ms) as run_plugin gives.
+        """The rows still queued, then finish() and health() of the plugin; (estimates, health,
+        wall ms) as run_plugin gives.
         A fed-back vehicle that never got a position estimate is a PluginError."""
+        self.advance(np.inf)  # rows arriving after the last tick: fed as offline, too late to steer
         t0 = wallclock.perf_counter()
         health = finish_plugin(self.plugin, self.est, self.col)
         self.wall += wallclock.perf_counter() - t0

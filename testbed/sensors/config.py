@@ -309,7 +309,7 @@ class GnssConfig:
         in_range(self, "rtk_vehicles", 1)
         for k, w in enumerate(self.outages):
             require(len(w) == 2 and 0 <= w[0] < w[1] and all(math.isfinite(x) for x in w), f"outages[{k}]", list(w),
-                    "must be [start, end] with 0 <= start < end (s)")
+                    f"must be [start, end] with 0 <= start < end (s), got {list(w)}")
 
 
 # ------------------------------------------------------------------------------------ camera
