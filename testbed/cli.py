@@ -8,8 +8,8 @@
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [run options]
-    testbed bench physics|sensors|estimators|replay|loop [--json FILE] [--vehicles N,N,...]
-    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
+    testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
+    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
                 [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
     testbed schema
@@ -215,17 +215,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_options(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
-    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop"])
+    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop", "denied"])
     p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
     p.add_argument("--vehicles", type=_vehicle_counts, metavar="N[,N...]",
                    help="swarm sizes (physics: default 1,6,18,50; sensors: default 18; loop: default 1,10,30)")
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
-    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
+    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop", "denied"])
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--runs", type=RUNS, help="Monte Carlo runs (default: the paper's reproduction default)")
-    p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
+    p.add_argument("--motion", choices=["prescribed", "flown"], help="default prescribed (denied: flown, the only choice)")
     p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
     p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
     _add_estimator_option(p)

@@ -22,6 +22,7 @@ from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
+from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
 from testbed.plugins.run import run_estimators
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
@@ -79,6 +80,8 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
         save_npz(tmp / "log.npz", log)
+        if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)
+            save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
         write_json(tmp / "metrics.json", metrics)
         if timing:
             write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})

@@ -1,4 +1,4 @@
-"""`testbed bench physics|sensors|estimators|replay|loop [--json FILE]`: run one family, print, save as JSON."""
+"""`testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE]`: run one family, print, save as JSON."""
 from __future__ import annotations
 
 import json
@@ -38,6 +38,12 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         result = {"estimators": bench_estimators()}
         for k, rows in result["estimators"].items():
             _print_table(f"estimators: {k}", rows)
+    elif what == "denied":
+        from testbed.bench.denied import bench_denied  # lazy: this family runs a whole scenario
+
+        rows = [bench_denied(name=v) for v in ("coop_distributed", "coop")]
+        result = {"denied": rows}
+        _print_table("denied: coop-denied flown on the cooperative estimate (all sensors, network); one core", rows)
     elif what == "replay":
         from testbed.bench.replay import bench_replay  # lazy: only this family needs the replay package
 

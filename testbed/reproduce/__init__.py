@@ -22,10 +22,11 @@ from testbed.outdir import Output
 from testbed.reproduce.document import write_report
 from testbed.workers import backend as use_backend
 
-DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20}
+DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20, "denied": 5}
+DEFAULT_MOTION = {"denied": "flown"}  # --motion when not given: "prescribed" unless listed
 
 
-def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "prescribed",
+def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | None = None,
               duration: float | None = None, workers: int | None = None, force: bool = False,
               estimators: tuple = (), backend: str = "local", address: str | None = None) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
@@ -34,6 +35,7 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "
     Table 4; phase, visnav, bandwidth: one more row each in table.md, testbed.reproduce.plugins);
     backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
+    motion = motion or DEFAULT_MOTION.get(paper, "prescribed")
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
     module = importlib.import_module(f"testbed.reproduce.{paper}")
