@@ -255,14 +255,18 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "list":
         from testbed import scenario
 
-        for name in scenario.builtin_names():
-            print(f"{name:22s} {scenario.load(name).description}")
+        names = scenario.builtin_names()
+        width = max(map(len, names), default=0)
+        for name in names:
+            print(f"{name:{width}s}  {scenario.load(name).description}")
         return 0
     if args.command == "estimators":
         from testbed.plugins.loading import description, load_class, registered
 
-        for name, target in registered().items():
-            print(f"{name:22s} {description(load_class(name))}  ({target})")
+        entries = registered()
+        width = max(map(len, entries), default=0)
+        for name, target in entries.items():
+            print(f"{name:{width}s}  {description(load_class(name))}  ({target})")
         return 0
     if args.command == "run":
         from testbed.report import fmt
