@@ -10,7 +10,10 @@ reference, and every due sensor samples the physics state of that instant.
   stages), controller, `mj_step2` (acceleration stage, then integration) so sensors see the state
   of the tick itself; the remaining physics steps of the tick hold the command. With the joint
   rotor route (large swarms, testbed.world.rotor_route) every physics step is split the
-  same way to add the thrust along the current body z (testbed.thrust).
+  same way to add the thrust along the current body z (testbed.thrust). MuJoCo evaluates its own
+  sensors (the IMU's accelerometer and gyro) only in the first physics step of the ticks where a
+  sensor reading them samples (mjDSBL_SENSOR otherwise): nothing else reads sensordata, and at
+  a thousand vehicles the accelerometers' acceleration pass costs a tenth of every step.
 
 A scenario's [disturbance] (testbed.disturbance) is added to the played-back motion in prescribed
 mode and applied as an external force and torque, held over each tick, in flown mode.
@@ -124,8 +127,11 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
     """Flown motion: the controller in the loop at every tick; logged ticks as in the module
     docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
     ticks at a time, its attitude only at the logged ticks. dist: the disturbance wrench is set
-    after the position stage of each tick and held over the tick."""
+    after the position stage of each tick and held over the tick. MuJoCo's sensors run only in
+    the first step of the logged rows where a due sensor reads them (the model's own flags are
+    restored on return)."""
     m, d = physics.model, physics.data
+    opt = m.opt
     tr = scenario.trajectory
     controller = GeometricController(physics, scenario.control)
     v = physics.views()
@@ -137,35 +143,45 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
     forces = BodyForces(physics)
     if dist is not None:
         mass, inertia = physics.vehicle_mass, physics.vehicle_inertia
+    flags = opt.disableflags
+    quiet = flags | int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+    reads = [any(getattr(s, "mujoco_sensors", False) for s in row_due) for row_due in due]  # per logged row
     tick = 0
     row = 0
-    for c0 in range(0, sched.n_ticks, CHUNK):
-        t = times[c0 : c0 + CHUNK]
-        ref_pos, ref_vel, ref_acc, ref_yaw = tracking(tr, t)
-        ref_heading = heading(ref_yaw)
-        logged = sched.logged[c0 : c0 + CHUNK]
-        if logged.any():
-            rows = slice(row, row + int(logged.sum()))
-            log["reference/pos"][rows] = ref_pos[logged]
-            log["reference/quat"][rows] = attitude(tr, t[logged], ref_acc[logged])
-        for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
-            step1(m, d)
-            controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
-            if dist is not None:
-                forces.hold(dist.index, wrench(dist, tick, mass, inertia, rotation[dist.index]))
-            forces.apply()
-            tick += 1
-            if is_logged:
-                qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
-                step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt
-                for s in due[row]:
-                    s.sample(physics, tj, row)
-                row += 1
-            else:
-                step2(m, d)
-            if rest:
-                forces.step(m, d, rest)
-        bar.update(len(t))
+    opt.disableflags = quiet
+    try:
+        for c0 in range(0, sched.n_ticks, CHUNK):
+            t = times[c0 : c0 + CHUNK]
+            ref_pos, ref_vel, ref_acc, ref_yaw = tracking(tr, t)
+            ref_heading = heading(ref_yaw)
+            logged = sched.logged[c0 : c0 + CHUNK]
+            if logged.any():
+                rows = slice(row, row + int(logged.sum()))
+                log["reference/pos"][rows] = ref_pos[logged]
+                log["reference/quat"][rows] = attitude(tr, t[logged], ref_acc[logged])
+            for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
+                if is_logged and reads[row]:
+                    opt.disableflags = flags
+                step1(m, d)
+                controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
+                if dist is not None:
+                    forces.hold(dist.index, wrench(dist, tick, mass, inertia, rotation[dist.index]))
+                forces.apply()
+                tick += 1
+                if is_logged:
+                    qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
+                    step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt
+                    opt.disableflags = quiet
+                    for s in due[row]:
+                        s.sample(physics, tj, row)
+                    row += 1
+                else:
+                    step2(m, d)
+                if rest:
+                    forces.step(m, d, rest)
+            bar.update(len(t))
+    finally:
+        opt.disableflags = flags
 
 
 def truth_from_state(physics: Physics, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:

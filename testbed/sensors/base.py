@@ -15,6 +15,11 @@ from testbed.world import Physics
 
 
 class Sensor(Protocol):
+    """name: the stream's log prefix; period_ticks: controller ticks between samples;
+    mujoco_sensors: whether `sample` reads MuJoCo's own sensordata (the IMU only). In flown mode
+    MuJoCo evaluates its sensors only at the ticks where such a sensor samples (testbed.simulate);
+    a sensor without the attribute is taken not to read them."""
+
     name: str
     period_ticks: int
 

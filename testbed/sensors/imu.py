@@ -26,6 +26,7 @@ from testbed.world import Physics
 
 class Imu:
     name = "imu"
+    mujoco_sensors = True  # reads sensordata: MuJoCo must evaluate its sensors at this stream's ticks
 
     def __init__(self, cfg: ImuConfig, physics: Physics, rng: np.random.Generator, period_ticks: int, tick: float):
         self.cfg, self.period_ticks = cfg, period_ticks
