@@ -128,8 +128,8 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
     docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
     ticks at a time, its attitude only at the logged ticks. dist: the disturbance wrench is set
     after the position stage of each tick and held over the tick. MuJoCo's sensors run only in
-    the first step of the logged rows where a due sensor reads them (the model's own flags are
-    restored on return)."""
+    the first step of the logged rows where a due sensor reads them, and in the last tick (the
+    model's own flags are restored on return)."""
     m, d = physics.model, physics.data
     opt = m.opt
     tr = scenario.trajectory
@@ -160,6 +160,8 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
                 log["reference/pos"][rows] = ref_pos[logged]
                 log["reference/quat"][rows] = attitude(tr, t[logged], ref_acc[logged])
             for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
+                if tick == sched.n_ticks - 1:  # the last tick keeps MuJoCo's sensors on: the physics
+                    quiet = opt.disableflags = flags  # returned reads as after plain mj_step
                 if is_logged and reads[row]:
                     opt.disableflags = flags
                 step1(m, d)
