@@ -15,14 +15,16 @@ import numpy as np
 
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
-from testbed.log import save_npz
+from testbed.log import LogWriter, NpzLog
 from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.scenario import Scenario
-from testbed.simulate import simulate
+from testbed.simulate import record
+
+SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
 
 def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:
@@ -47,31 +49,38 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     """Simulate `scenario` and write its run directory at `out`; returns the metrics.
 
     `out` follows testbed.outdir (refused if not ours; replaced only with force); video: also
-    render `video.mp4` before the directory is put in place.
+    render `video.mp4` before the directory is put in place. The log streams to chunk files
+    (testbed.log.LogWriter) and then into log.npz, from which the scoring reads the arrays it
+    needs: a long run of a large swarm never holds its whole log in memory.
     """
     plugins = resolve(scenario.estimators)  # a bad plugin entry stops here, before anything is written
     with Output(Path(out), kind="run", force=force) as o:
         tmp = o.path
-        log, physics = simulate(scenario, progress=progress)
-        metrics = {
-            "scenario": scenario.name,
-            "seed": scenario.seed,
-            "motion": scenario.motion,
-            "duration_s": scenario.duration,
-            "vehicles": scenario.vehicles,
-            "tracking_rmse_m": tracking_rmse(log),
-            "mujoco_warnings": physics.warnings(),
-            "estimators": {},
-        }
-        if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
-            metrics["uwb_pairs_served_per_s"] = rate
+        writer = LogWriter(tmp / SPILL_DIR)
+        try:
+            physics = record(scenario, writer, progress=progress)
+            writer.save(tmp / "log.npz")
+        finally:
+            writer.close()
         (tmp / "plots").mkdir()
-        estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
-        estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators)))
+        with NpzLog(tmp / "log.npz") as log:
+            metrics = {
+                "scenario": scenario.name,
+                "seed": scenario.seed,
+                "motion": scenario.motion,
+                "duration_s": scenario.duration,
+                "vehicles": scenario.vehicles,
+                "tracking_rmse_m": tracking_rmse(log),
+                "mujoco_warnings": physics.warnings(),
+                "estimators": {},
+            }
+            if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
+                metrics["uwb_pairs_served_per_s"] = rate
+            estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
+            estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators)))
         metrics["estimators"], timing = split_timing(estimators)
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
-        save_npz(tmp / "log.npz", log)
         write_json(tmp / "metrics.json", metrics)
         if timing:
             write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})

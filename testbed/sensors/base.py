@@ -11,6 +11,7 @@ from typing import Protocol
 
 import numpy as np
 
+from testbed.log import LogWriter
 from testbed.world import Physics
 
 
@@ -22,6 +23,7 @@ class Sensor(Protocol):
 
     name: str
     period_ticks: int
+    rec: "Recorder"  # the stream's rows; simulate points rec.sink at the run's log
 
     def sample(self, physics: Physics, t: float, state_index: int) -> None:
         """Measure at time t (s) from the current physics state; state_index into log `time`."""
@@ -31,36 +33,32 @@ class Sensor(Protocol):
 
 
 class Recorder:
-    """Accumulates one stream's rows sample by sample; `arrays()` concatenates them.
+    """Accumulates one stream's rows sample by sample into a log (testbed.log.LogWriter).
 
     `add(key, rows)` appends an array whose first axis is the row axis; string rows become
     fixed-width numpy unicode arrays (no pickles: the log is saved with allow_pickle=False).
     `empty` gives the trailing shape and dtype of every key, so a stream that never measured
-    still writes well-formed (0, ...) arrays.
+    still writes well-formed (0, ...) arrays. `sink` is the recorder's own in-memory log until
+    the simulation points it at the run's log, where the rows then go directly.
     """
 
     def __init__(self, name: str, empty: dict[str, tuple[tuple[int, ...], str]]):
         self.name = name
         self._empty = empty
-        self._chunks: dict[str, list[np.ndarray]] = {k: [] for k in empty}
+        self._own = self.sink = LogWriter()
 
     def add(self, **rows: np.ndarray) -> None:
         for key, value in rows.items():
-            self._chunks[key].append(np.asarray(value))
+            value, dtype = np.asarray(value), self._empty[key][1]
+            self.sink.append(f"{self.name}/{key}", value.astype(str) if dtype == "U" else value.astype(dtype, copy=False))
 
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {}
-        for key, chunks in self._chunks.items():
-            shape, dtype = self._empty[key]
-            if chunks:
-                arr = np.concatenate(chunks, axis=0)
-                if dtype == "U":
-                    arr = arr.astype(str)
-                else:
-                    arr = arr.astype(dtype, copy=False)
-            else:
-                arr = np.empty((0, *shape), dtype="U1" if dtype == "U" else dtype)
-            out[f"{self.name}/{key}"] = arr
+        """The stream's keys that are not already in an outside sink: the rows added (own sink)
+        and (0, ...) arrays for the keys never added."""
+        out = self.sink.arrays() if self.sink is self._own else {}
+        for key, (shape, dtype) in self._empty.items():
+            if f"{self.name}/{key}" not in self.sink:
+                out[f"{self.name}/{key}"] = np.empty((0, *shape), dtype="U1" if dtype == "U" else dtype)
         return out
 
 
