@@ -55,13 +55,13 @@ class LogWriter:
     (`append`: pieces (R_i, ...) of one key share their trailing shape; the dtype is that of
     their concatenation, e.g. the widest unicode width).
 
-    spill_dir: where pieces go once a key holds more than spill_bytes in memory (None: all in
-    memory). `arrays()` gives the whole log as a dict, `save(path)` writes log.npz, `close()`
-    deletes the spill directory.
+    spill_dir: where pieces go once a key holds more than spill_bytes (None: SPILL_BYTES) in
+    memory (spill_dir None: all in memory). `arrays()` gives the whole log as a dict,
+    `save(path)` writes log.npz, `close()` deletes the spill directory.
     """
 
-    def __init__(self, spill_dir: Path | None = None, spill_bytes: int = SPILL_BYTES):
-        self.spill_dir, self.spill_bytes = spill_dir, spill_bytes
+    def __init__(self, spill_dir: Path | None = None, spill_bytes: int | None = None):
+        self.spill_dir, self.spill_bytes = spill_dir, SPILL_BYTES if spill_bytes is None else spill_bytes
         self._whole: dict[str, np.ndarray] = {}
         self._pieces: dict[str, list[np.ndarray | Path]] = {}  # in order; Paths are spilled chunks
         self._held: dict[str, int] = {}  # bytes of a key's in-memory pieces

@@ -80,3 +80,25 @@ def test_log_writer_memory_stays_bounded_while_the_log_grows(tmp_path):
     tracemalloc.stop()
     assert peak < 2 * spill_bytes + 3 * piece, peak
     assert w.arrays()["x"].shape == (64 * piece // 32, 4)
+
+
+def test_a_run_spilling_its_log_writes_the_log_of_the_in_memory_simulation(tmp_path, monkeypatch):
+    """testbed run with chunk files every 4 kB (sensors and state rows spilled many times) writes
+    the log.npz bytes of simulate()'s in-memory arrays, and no chunk file is left in the run."""
+    import testbed.log
+    from testbed.runner import SPILL_DIR, run
+
+    sc = swarm_scenario(12, 1.0, sensors={"uwb": {"rate_hz": 10.0}, "gnss": {"rate_hz": 5.0}, "imu": {"rate_hz": 100.0}})
+    save_npz(tmp_path / "memory.npz", simulate(sc)[0])
+    spilled, close = [], testbed.log.LogWriter.close
+
+    def count_then_close(writer):
+        spilled.append(len(list(writer.spill_dir.iterdir())))
+        close(writer)
+
+    monkeypatch.setattr(testbed.log, "SPILL_BYTES", 4096)
+    monkeypatch.setattr(testbed.log.LogWriter, "close", count_then_close)
+    run(sc, tmp_path / "run", plots=False)
+    assert spilled[0] > 20
+    assert (tmp_path / "run" / "log.npz").read_bytes() == (tmp_path / "memory.npz").read_bytes()
+    assert not (tmp_path / "run" / SPILL_DIR).exists()
