@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 _EPOCH = (1980, 1, 1, 0, 0, 0)
-SPILL_BYTES = 16 * 2**20  # rows of one key held in memory before they go to a chunk file
+SPILL_BYTES = 4 * 2**20  # rows of one key held in memory before they go to a chunk file
 
 
 def _member(zf: zipfile.ZipFile, key: str, size: int, pieces: Iterator[bytes]) -> None:
