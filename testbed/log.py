@@ -152,6 +152,20 @@ class NpzLog(Mapping):
     def __iter__(self) -> Iterator[str]:
         return iter(self._z.files)
 
+    def row_blocks(self, key: str, rows: int = 256) -> Iterator[np.ndarray]:
+        """Array `key` a block of up to `rows` rows at a time, decompressed as it is read and
+        kept nowhere: a pass over a long log without holding the array."""
+        with self._z.zip.open(key + ".npy") as f:
+            version = np.lib.format.read_magic(f)
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran_order, dtype = read_header(f)
+            if fortran_order or not shape:
+                raise ValueError(f"{key}: row blocks need a C-ordered array of at least one axis")
+            row_bytes = int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
+            for r0 in range(0, shape[0], rows):
+                n = min(rows, shape[0] - r0)
+                yield np.frombuffer(f.read(n * row_bytes), dtype=dtype).reshape(n, *shape[1:])
+
     def __len__(self) -> int:
         return len(self._z.files)
 

@@ -9,6 +9,7 @@ succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-wri
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +28,14 @@ from testbed.simulate import record
 SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
 
-def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:
-    """RMS distance (m) between each vehicle's true and reference position, UAV order."""
-    err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
+def tracking_rmse(log: Mapping[str, np.ndarray]) -> list[float]:
+    """RMS distance (m) between each vehicle's true and reference position, UAV order. From a
+    saved log (NpzLog) the positions are read a block of rows at a time: only the distances
+    (K, N) are held, not the positions."""
+    if isinstance(log, NpzLog):
+        err = np.concatenate([np.linalg.norm(t - r, axis=-1) for t, r in zip(log.row_blocks("truth/pos"), log.row_blocks("reference/pos"))])
+    else:
+        err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
     return [float(x) for x in np.sqrt((err**2).mean(axis=0))]
 
 

@@ -102,3 +102,19 @@ def test_a_run_spilling_its_log_writes_the_log_of_the_in_memory_simulation(tmp_p
     assert spilled[0] > 20
     assert (tmp_path / "run" / "log.npz").read_bytes() == (tmp_path / "memory.npz").read_bytes()
     assert not (tmp_path / "run" / SPILL_DIR).exists()
+
+
+def test_npz_row_blocks_read_the_saved_array_and_tracking_rmse_agrees_bit_for_bit(tmp_path):
+    """NpzLog.row_blocks gives the saved array block by block; tracking_rmse read that way
+    equals the in-memory computation exactly."""
+    from testbed.log import NpzLog
+    from testbed.runner import tracking_rmse
+
+    rng = np.random.default_rng(5)
+    arrays = {"truth/pos": rng.standard_normal((1001, 7, 3)), "reference/pos": rng.standard_normal((1001, 7, 3))}
+    save_npz(tmp_path / "log.npz", arrays)
+    with NpzLog(tmp_path / "log.npz") as log:
+        blocks = list(log.row_blocks("truth/pos", rows=100))
+        assert [len(b) for b in blocks] == [100] * 10 + [1]
+        np.testing.assert_array_equal(np.concatenate(blocks), arrays["truth/pos"])
+        assert tracking_rmse(log) == tracking_rmse(arrays)
