@@ -10,13 +10,14 @@ succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-wri
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
-from testbed.log import save_npz
+from testbed.log import LogWriter, NpzLog, save_npz
 from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
@@ -25,13 +26,20 @@ from testbed.plugins.online import in_the_loop
 from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
 from testbed.plugins.run import run_estimators
 from testbed.scenario import Scenario
-from testbed.simulate import simulate
+from testbed.simulate import record
 from testbed.world import build
 
+SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
-def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:
-    """RMS distance (m) between each vehicle's true and reference position, UAV order."""
-    err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
+
+def tracking_rmse(log: Mapping[str, np.ndarray]) -> list[float]:
+    """RMS distance (m) between each vehicle's true and reference position, UAV order. From a
+    saved log (NpzLog) the positions are read a block of rows at a time: only the distances
+    (K, N) are held, not the positions."""
+    if isinstance(log, NpzLog):
+        err = np.concatenate([np.linalg.norm(t - r, axis=-1) for t, r in zip(log.row_blocks("truth/pos"), log.row_blocks("reference/pos"))])
+    else:
+        err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)
     return [float(x) for x in np.sqrt((err**2).mean(axis=0))]
 
 
@@ -51,35 +59,42 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     """Simulate `scenario` and write its run directory at `out`; returns the metrics.
 
     `out` follows testbed.outdir (refused if not ours; replaced only with force); video: also
-    render `video.mp4` before the directory is put in place.
+    render `video.mp4` before the directory is put in place. The log streams to chunk files
+    (testbed.log.LogWriter) and then into log.npz, from which the scoring reads the arrays it
+    needs: a long run of a large swarm never holds its whole log in memory.
     """
     plugins = resolve(scenario.estimators)  # a bad plugin entry stops here, before anything is written
     with Output(Path(out), kind="run", force=force) as o:
         tmp = o.path
-        physics = build(scenario)
-        online = in_the_loop(scenario, physics, plugins)
-        log, physics = simulate(scenario, physics, progress=progress, feedback=online)
-        done = {online.plugin.key: online.finish()} if online is not None else {}
-        metrics = {
-            "scenario": scenario.name,
-            "seed": scenario.seed,
-            "motion": scenario.motion,
-            "duration_s": scenario.duration,
-            "vehicles": scenario.vehicles,
-            "tracking_rmse_m": tracking_rmse(log),
-            "mujoco_warnings": physics.warnings(),
-            "estimators": {},
-        }
-        if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
-            metrics["uwb_pairs_served_per_s"] = rate
+        writer = LogWriter(tmp / SPILL_DIR)
+        try:
+            physics = build(scenario)
+            online = in_the_loop(scenario, physics, plugins)
+            physics = record(scenario, writer, physics, progress=progress, feedback=online)
+            done = {online.plugin.key: online.finish()} if online is not None else {}
+            writer.save(tmp / "log.npz")
+        finally:
+            writer.close()
         (tmp / "plots").mkdir()
-        estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
-        estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
-                                         done))
+        with NpzLog(tmp / "log.npz") as log:
+            metrics = {
+                "scenario": scenario.name,
+                "seed": scenario.seed,
+                "motion": scenario.motion,
+                "duration_s": scenario.duration,
+                "vehicles": scenario.vehicles,
+                "tracking_rmse_m": tracking_rmse(log),
+                "mujoco_warnings": physics.warnings(),
+                "estimators": {},
+            }
+            if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
+                metrics["uwb_pairs_served_per_s"] = rate
+            estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
+            estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
+                                             done))
         metrics["estimators"], timing = split_timing(estimators)
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
-        save_npz(tmp / "log.npz", log)
         if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)
             save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
         write_json(tmp / "metrics.json", metrics)

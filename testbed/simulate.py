@@ -10,7 +10,10 @@ reference, and every due sensor samples the physics state of that instant.
   stages), controller, `mj_step2` (acceleration stage, then integration) so sensors see the state
   of the tick itself; the remaining physics steps of the tick hold the command. With the joint
   rotor route (large swarms, testbed.world.rotor_route) every physics step is split the
-  same way to add the thrust along the current body z (testbed.thrust).
+  same way to add the thrust along the current body z (testbed.thrust). MuJoCo evaluates its own
+  sensors (the IMU's accelerometer and gyro) only in the first physics step of the ticks where a
+  sensor reading them samples (mjDSBL_SENSOR otherwise): nothing else reads sensordata, and at
+  a thousand vehicles the accelerometers' acceleration pass costs a tenth of every step.
 
 Onboard state ([control] feedback, attitude; docs/control.md): with feedback "estimate:NAME" the
 caller passes the online estimator (testbed.plugins.online.OnlineEstimator, the `Feedback`
@@ -36,6 +39,7 @@ from tqdm import tqdm
 from estimators.mahony import Mahony
 from testbed.control import GeometricController, heading
 from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
+from testbed.log import LogWriter
 from testbed.reference import GRAVITY, attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors.suite import make_sensors
@@ -88,65 +92,89 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
              feedback: Feedback | None = None) -> tuple[dict[str, np.ndarray], Physics]:
     """Run a scenario; returns the log arrays (data contract) and the physics at the end.
     feedback: the estimator of [control] feedback = "estimate:NAME" (None: truth)."""
+    log = LogWriter()
+    physics = record(scenario, log, physics, progress, feedback)
+    return log.arrays(), physics
+
+
+def record(scenario: Scenario, log: LogWriter, physics: Physics | None = None, progress: bool = False,
+           feedback: Feedback | None = None) -> Physics:
+    """Run a scenario, writing its log into `log` as it goes: the state rows (time, qpos, qvel,
+    reference, ctrl and the truth derived from them) a chunk of CHUNK ticks at a time, the
+    sensors' rows as they sample (a LogWriter with a spill directory keeps the memory a run
+    needs bounded whatever its duration). feedback: as in `simulate`. Returns the physics at the
+    end."""
     physics = physics or build(scenario)
     sensors = make_sensors(scenario, physics)
     onboard = feedback is not None or scenario.control.attitude != "truth"
     for s in sensors:
-        if onboard and hasattr(s, "online"):
-            s.online = True  # errors applied at each sample: the loop reads what the log will hold
+        s.rec.sink = log
+        if onboard:
+            s.rec.watch()  # new_rows() hands each sample's rows to the onboard consumers
+            if hasattr(s, "online"):
+                s.online = True  # errors applied at each sample: the loop reads what the log will hold
     sched = schedule(scenario, sensors)
     log_ticks = np.flatnonzero(sched.logged)
-    K, N, m = log_ticks.size, physics.n, physics.model
-    log = {
-        "time": sched.times[log_ticks],
-        "qpos": np.empty((K, m.nq)),
-        "qvel": np.empty((K, m.nv)),
-        "reference/pos": np.empty((K, N, 3)),
-        "reference/quat": np.empty((K, N, 4)),
-    }
+    log.put("time", sched.times[log_ticks])
     # sensors sampling at each logged tick, in the order of `sensors`
     due = [[s for s in sensors if k % s.period_ticks == 0] for k in log_ticks.tolist()]
     flown = scenario.motion == "flown"
-    n = sched.n_ticks if flown else K
-    ctrl = np.zeros((K, m.nu))
-    with tqdm(total=n, desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False) as bar:
+    with tqdm(total=sched.n_ticks if flown else len(log_ticks), desc=f"{scenario.name} ({scenario.motion})", unit="tick",
+              disable=not progress, leave=False) as bar:
         if flown:
-            _fly(scenario, physics, sched, log, ctrl, due, bar, draw(scenario, sched.n_ticks),
+            _fly(scenario, physics, sched, log, due, bar, draw(scenario, sched.n_ticks),
                  _Onboard(scenario, sched, feedback) if onboard else None)
         else:
-            _play(scenario, physics, log, due, bar, realize(scenario, log_ticks))
-    log.update(truth_from_state(physics, log["qpos"], log["qvel"]))
-    if flown:
-        log["ctrl"] = ctrl
+            _play(scenario, physics, sched.times[log_ticks], log, due, bar, realize(scenario, log_ticks))
     for s in sensors:
-        log.update(s.arrays())
+        arrays = s.arrays()
         held = getattr(s, "held_arrays", None)  # per logged instant, held between samples (gnss fix state)
         if held is not None:
-            log.update(held(K))
-    return log, physics
+            arrays.update(held(len(log_ticks)))
+        for key, value in arrays.items():
+            log.put(key, value)
+    return physics
 
 
-def _play(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], due: list[list[Sensor]], bar: tqdm,
+def _rows(physics: Physics, k: int, flown: bool) -> dict[str, np.ndarray]:
+    """Empty state rows of k logged instants: qpos (k, nq), qvel (k, nv), reference/pos (k, N, 3),
+    reference/quat (k, N, 4) and, flown, ctrl (k, nu)."""
+    m, N = physics.model, physics.n
+    rows = {"qpos": np.empty((k, m.nq)), "qvel": np.empty((k, m.nv)), "reference/pos": np.empty((k, N, 3)),
+            "reference/quat": np.empty((k, N, 4))}
+    if flown:
+        rows["ctrl"] = np.empty((k, m.nu))
+    return rows
+
+
+def _append(log: LogWriter, physics: Physics, rows: dict[str, np.ndarray]) -> None:
+    """Append filled state rows and the truth derived from them to the log."""
+    rows.update(truth_from_state(physics, rows["qpos"], rows["qvel"]))
+    for key, value in rows.items():
+        log.append(key, value)
+
+
+def _play(scenario: Scenario, physics: Physics, times: np.ndarray, log: LogWriter, due: list[list[Sensor]], bar: tqdm,
           dist: Realization | None) -> None:
-    """Prescribed motion: the reference state (plus the disturbance, realized at the logged
-    ticks, if any) set at each logged instant; the log's reference stays the undisturbed plan."""
+    """Prescribed motion at the logged instants `times`: the reference state (plus the
+    disturbance, realized at the logged ticks, if any) set at each; the log's reference stays
+    the undisturbed plan."""
     d = physics.data
-    qpos, qvel = log["qpos"], log["qvel"]
-    times = log["time"]
     for r0 in range(0, len(times), CHUNK):
         t = times[r0 : r0 + CHUNK]
+        rows = _rows(physics, len(t), flown=False)
         ref = evaluate(scenario.trajectory, t)
-        log["reference/pos"][r0 : r0 + len(t)] = ref.pos
-        log["reference/quat"][r0 : r0 + len(t)] = ref.quat
+        rows["reference/pos"][:] = ref.pos
+        rows["reference/quat"][:] = ref.quat
         if dist is not None:
             ref = perturb(ref, dist, slice(r0, r0 + len(t)))
         for j, tj in enumerate(t.tolist()):
-            row = r0 + j
             d.time = tj
             physics.set_reference_state(ref, j)
-            qpos[row], qvel[row] = d.qpos, d.qvel
-            for s in due[row]:
-                s.sample(physics, tj, row)
+            rows["qpos"][j], rows["qvel"][j] = d.qpos, d.qvel
+            for s in due[r0 + j]:
+                s.sample(physics, tj, r0 + j)
+        _append(log, physics, rows)
         bar.update(len(t))
 
 
@@ -189,61 +217,79 @@ class _Onboard:
             self.feedback.advance(t)
 
 
-def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm,
+def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: LogWriter, due: list[list[Sensor]], bar: tqdm,
          dist: Draws | None, onboard: _Onboard | None = None) -> None:
     """Flown motion: the controller in the loop at every tick; logged ticks as in the module
-    docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
-    ticks at a time, its attitude only at the logged ticks. dist: the disturbance wrench is set
-    after the position stage of each tick and held over the tick. onboard: the controller's
-    state from onboard estimates (module docstring), None: truth."""
+    docstring, with the rotor commands in ctrl. The reference is evaluated a chunk of ticks at
+    a time, its attitude only at the logged ticks. dist: the disturbance wrench is set after the
+    position stage of each tick and held over the tick. MuJoCo's sensors run only in the first
+    step of the logged rows where a due sensor reads them, and in the last tick (the model's own
+    flags are restored on return). onboard: the controller's state from onboard estimates
+    (module docstring), None: truth."""
     m, d = physics.model, physics.data
+    opt = m.opt
     tr = scenario.trajectory
     controller = GeometricController(physics, scenario.control)
     v = physics.views()
     pos, vel, rotation, omega, thrust = v.pos, v.vel, v.rotation, v.omega, v.ctrl
-    qpos, qvel = log["qpos"], log["qvel"]
     step1, step2 = mujoco.mj_step1, mujoco.mj_step2
     rest = sched.substeps - 1  # physics steps of a tick after the controller's
     times = sched.times
     forces = BodyForces(physics)
     if dist is not None:
         mass, inertia = physics.vehicle_mass, physics.vehicle_inertia
+    flags = opt.disableflags
+    quiet = flags | int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+    reads = [any(getattr(s, "mujoco_sensors", False) for s in row_due) for row_due in due]  # per logged row
     tick = 0
-    row = 0
-    for c0 in range(0, sched.n_ticks, CHUNK):
-        t = times[c0 : c0 + CHUNK]
-        ref_pos, ref_vel, ref_acc, ref_yaw = tracking(tr, t)
-        ref_heading = heading(ref_yaw)
-        logged = sched.logged[c0 : c0 + CHUNK]
-        if logged.any():
-            rows = slice(row, row + int(logged.sum()))
-            log["reference/pos"][rows] = ref_pos[logged]
-            log["reference/quat"][rows] = attitude(tr, t[logged], ref_acc[logged])
-        for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
-            step1(m, d)
-            if onboard is None:
-                controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
-            else:
-                controller(*onboard.state(pos, vel, rotation, omega, rp, rv), rp, rv, ra, rh, out=thrust)
-            if dist is not None:
-                forces.hold(dist.index, wrench(dist, tick, mass, inertia, rotation[dist.index]))
-            forces.apply()
-            tick += 1
-            if is_logged:
-                qpos[row], qvel[row], ctrl[row] = d.qpos, d.qvel, d.ctrl
-                step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt
-                for s in due[row]:
-                    s.sample(physics, tj, row)
-                    if onboard is not None:
-                        onboard.measured(s, ra)
-                row += 1
-            else:
-                step2(m, d)
-            if onboard is not None:
-                onboard.advance(tj)
-            if rest:
-                forces.step(m, d, rest)
-        bar.update(len(t))
+    row = 0  # logged rows so far
+    opt.disableflags = quiet
+    try:
+        for c0 in range(0, sched.n_ticks, CHUNK):
+            t = times[c0 : c0 + CHUNK]
+            ref_pos, ref_vel, ref_acc, ref_yaw = tracking(tr, t)
+            ref_heading = heading(ref_yaw)
+            logged = sched.logged[c0 : c0 + CHUNK]
+            rows = _rows(physics, int(logged.sum()), flown=True)
+            qpos, qvel, ctrl = rows["qpos"], rows["qvel"], rows["ctrl"]
+            rows["reference/pos"][:] = ref_pos[logged]
+            rows["reference/quat"][:] = attitude(tr, t[logged], ref_acc[logged])
+            j = 0  # row within the chunk
+            for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
+                if tick == sched.n_ticks - 1:  # the last tick keeps MuJoCo's sensors on: the physics
+                    quiet = opt.disableflags = flags  # returned reads as after plain mj_step
+                if is_logged and reads[row]:
+                    opt.disableflags = flags
+                step1(m, d)
+                if onboard is None:
+                    controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
+                else:
+                    controller(*onboard.state(pos, vel, rotation, omega, rp, rv), rp, rv, ra, rh, out=thrust)
+                if dist is not None:
+                    forces.hold(dist.index, wrench(dist, tick, mass, inertia, rotation[dist.index]))
+                forces.apply()
+                tick += 1
+                if is_logged:
+                    qpos[j], qvel[j], ctrl[j] = d.qpos, d.qvel, d.ctrl
+                    step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt
+                    opt.disableflags = quiet
+                    for s in due[row]:
+                        s.sample(physics, tj, row)
+                        if onboard is not None:
+                            onboard.measured(s, ra)
+                    row += 1
+                    j += 1
+                else:
+                    step2(m, d)
+                if onboard is not None:
+                    onboard.advance(tj)
+                if rest:
+                    forces.step(m, d, rest)
+            if j:
+                _append(log, physics, rows)
+            bar.update(len(t))
+    finally:
+        opt.disableflags = flags
 
 
 def truth_from_state(physics: Physics, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:

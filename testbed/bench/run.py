@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import platform
 from pathlib import Path
 
@@ -23,6 +24,7 @@ def _print_table(title: str, rows: list[dict]) -> None:
 def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | None = None) -> dict:
     """Run one benchmark family, print its table, optionally write JSON; returns the figures.
     vehicles: swarm sizes (physics, sensors; None: the family's default)."""
+    load_before = os.getloadavg()  # the machine may be shared: the load, beside the CPU-time figures
     if what == "physics":
         out = bench_physics(vehicles or SIZES)
         _print_table("physics: flown mode (Lee controller, 200 Hz) vs bare mj_step; wall-clock and CPU real-time factors (one core)", out["rows"])
@@ -61,7 +63,10 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         result = {"loop": out}
     else:
         raise ValueError(what)
-    result["machine"] = {"python": platform.python_version(), "mujoco": mujoco.__version__, "processor": platform.processor() or platform.machine()}
+    result["machine"] = {"python": platform.python_version(), "mujoco": mujoco.__version__, "processor": platform.processor() or platform.machine(),
+                         "cpus": os.cpu_count(), "load_average_1_5_15min": {"before": list(load_before), "after": list(os.getloadavg())}}
+    print(f"load average (1, 5, 15 min) before {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}, "
+          f"after {result['machine']['load_average_1_5_15min']['after'][0]:.2f}")
     if json_path is not None:
         Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
     return result

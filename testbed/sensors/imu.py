@@ -35,6 +35,7 @@ BLOCK = 256  # samples of normals drawn per vehicle at a time in online mode
 class Imu:
     name = "imu"
     online = False
+    mujoco_sensors = True  # reads sensordata: MuJoCo must evaluate its sensors at this stream's ticks
 
     def __init__(self, cfg: ImuConfig, physics: Physics, rng: np.random.Generator, period_ticks: int, tick: float):
         self.cfg, self.period_ticks = cfg, period_ticks
