@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from testbed.control import GeometricController, heading
 from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
+from testbed.interrupt import poll
 from testbed.reference import attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors.suite import make_sensors
@@ -117,6 +118,7 @@ def _play(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], due:
             for s in due[row]:
                 s.sample(physics, tj, row)
         bar.update(len(t))
+        poll()  # a worker asked to stop does so here (testbed.interrupt)
 
 
 def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm,
@@ -166,6 +168,7 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
             if rest:
                 forces.step(m, d, rest)
         bar.update(len(t))
+        poll()  # a worker asked to stop does so here (testbed.interrupt)
 
 
 def truth_from_state(physics: Physics, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
