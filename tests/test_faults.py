@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from testbed.cli import main
@@ -335,3 +336,21 @@ def test_closed_pipe_ends_quietly(tmp_path):
     assert err == b""
     q = subprocess.run(f"{sys.executable} -m testbed list | head -1", shell=True, cwd=tmp_path, env=_env(), capture_output=True)
     assert len(q.stdout.splitlines()) == 1 and q.stderr == b""
+
+
+def test_runs_done_counts_finished_run_directories_and_kept_results(tmp_path):
+    from testbed.outdir import write_marker
+    from testbed.reproduce.runs import load_result, runs_done, save_result
+
+    finished = tmp_path / "runs" / "a" / "run-000"
+    finished.mkdir(parents=True)
+    write_marker(finished, "run")
+    (finished / "metrics.json").write_text("{}\n")
+    (tmp_path / "runs" / "a" / "run-001").mkdir()  # no marker, no metrics: not finished
+    result = {"glint": {"t": np.arange(3.0), "metrics": {"ekf": {"rmse_position_m": 0.25}}}}
+    save_result(tmp_path / "runs-kept", 4, result)
+    assert runs_done(tmp_path) == 2
+    back = load_result(tmp_path / "runs-kept", 4)
+    assert back["glint"]["metrics"] == result["glint"]["metrics"] and np.array_equal(back["glint"]["t"], result["glint"]["t"])
+    assert load_result(tmp_path / "runs-kept", 3) is None
+    assert _debris(tmp_path) == []
