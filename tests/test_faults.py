@@ -59,6 +59,17 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _workers(pid: int) -> list[int]:
+    """The pool workers among the children of `pid` (not multiprocessing's resource tracker, which
+    exits with its parent)."""
+    def cmdline(c: int) -> bytes:
+        try:
+            return Path(f"/proc/{c}/cmdline").read_bytes()
+        except OSError:
+            return b""
+    return [c for c in _children(pid) if b"multiprocessing.spawn" in cmdline(c)]
+
+
 def _gone(pids: list[int]) -> bool:
     return all((st := _stat(p)) is None or st[0] in "ZX" for p in pids)
 
@@ -107,7 +118,7 @@ def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_id
     p = _start(tmp_path, *_sweep_args("sw"))
     _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
               "a finished run")
-    workers = _children(p.pid)
+    workers = _workers(p.pid)
     assert len(workers) >= 2
     p.send_signal(signal.SIGINT)
     t0 = time.monotonic()
@@ -168,7 +179,7 @@ def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tm
     (tmp_path / "b").mkdir()
     p = _start(tmp_path / "a", *_reproduce_args("rp"))
     _wait_for(lambda: any(_finished_runs(t) for t in _tmp_dirs(tmp_path / "a", "rp")), "a finished run", timeout=300)
-    workers = _children(p.pid)
+    workers = _workers(p.pid)
     p.send_signal(signal.SIGINT)
     t0 = time.monotonic()
     _wait_for(lambda: _gone(workers), "the workers to stop", timeout=5.0)
