@@ -16,7 +16,8 @@ Interrupted (Ctrl-C, SIGTERM, SIGHUP) after at least one Monte Carlo run finishe
 keeps its finished runs at DIR with `DIR/summary.json` marked incomplete (`"incomplete": true,
 "runs_done": k` and the reproduction's options); `resume=True` (`--resume`) continues it with the
 same options, skipping the finished runs (testbed.reproduce.runs), and removes summary.json when
-done: the outputs are then byte-identical to an uninterrupted reproduction's.
+done: the outputs are then byte-identical to an uninterrupted reproduction's (all but visnav's
+wall-clock columns, its time per filter step and wall time, which differ between any two runs).
 """
 from __future__ import annotations
 
