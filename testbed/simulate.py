@@ -111,6 +111,7 @@ def _play(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], due:
         if dist is not None:
             ref = perturb(ref, dist, slice(r0, r0 + len(t)))
         for j, tj in enumerate(t.tolist()):
+            poll()  # a worker asked to stop does so here (testbed.interrupt)
             row = r0 + j
             d.time = tj
             physics.set_reference_state(ref, j)
@@ -118,7 +119,6 @@ def _play(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], due:
             for s in due[row]:
                 s.sample(physics, tj, row)
         bar.update(len(t))
-        poll()  # a worker asked to stop does so here (testbed.interrupt)
 
 
 def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm,
@@ -151,6 +151,7 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
             log["reference/pos"][rows] = ref_pos[logged]
             log["reference/quat"][rows] = attitude(tr, t[logged], ref_acc[logged])
         for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
+            poll()  # a worker asked to stop does so here (testbed.interrupt)
             step1(m, d)
             controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
             if dist is not None:
@@ -168,7 +169,6 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
             if rest:
                 forces.step(m, d, rest)
         bar.update(len(t))
-        poll()  # a worker asked to stop does so here (testbed.interrupt)
 
 
 def truth_from_state(physics: Physics, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
