@@ -33,10 +33,10 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence
 
+from testbed import interrupt
 from testbed.cluster import run_ray
 from testbed.environment import apply_defaults
 from testbed.errors import UsageError
-from testbed import interrupt
 from testbed.interrupt import Interrupted, signals_held
 
 #: the backends of run_parallel
@@ -44,7 +44,7 @@ BACKENDS = ("local", "ray")
 _backend: contextvars.ContextVar[tuple[str, str | None]] = contextvars.ContextVar("backend", default=("local", None))
 
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
-#: s a stopping worker may take before it is terminated
+#: seconds a stopping worker may take before it is terminated
 GRACE_S = 3.0
 
 #: in a worker: its parent's pid, whether it is inside a job, and its exit code
