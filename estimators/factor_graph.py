@@ -12,7 +12,9 @@ Conventions chosen here (see also the report of the seed):
 - UWB clock scale factor (20 ppm): NOT modelled as a state. Over a <= 100 m link it is a bias of
   at most 20e-6 * 100 m = 2 mm, i.e. a variance (2e-3)^2 = 4e-6 m^2 against sigma_d^2 = 1e-2 m^2
   (0.04 %): it is absorbed into the range noise. A user who wants it can pass a per-link
-  `range_sigma` (m,) = sqrt(sigma_d^2 + (ppm * d)^2); nothing else changes.
+  `range_sigma` (m,) = sqrt(sigma_d^2 + (ppm * d)^2); errors shared by the links of one radio
+  (per-device clock offsets, antenna delays) go into `range_cov`, the joint (m, m) covariance of
+  the ranges, which the centralized least-squares solver whitens with its Cholesky factor.
 - Linearization follows the paper's notation (eqs. 13-16): at the current x0 each factor k gives
   the whitened Jacobian A_k = Sigma_k^{-1/2} dh_k/dx and the whitened prediction error
   b_k = Sigma_k^{-1/2} (z_k - h_k(x0)); the step Delta solves min |A Delta - b|^2, i.e. the normal
@@ -106,6 +108,14 @@ class CoopProblem:
         ignored (any value).
     fixed: (n,) bool or None (all False): node i is known (an anchor, a robot with a known
         position) and held at gnss_pos[i]; it is not a variable, its prior is ignored.
+    range_cov: (m, m) m^2 joint covariance of the range errors or None (independent ranges,
+        diag(range_sigma^2)). Errors shared by the links of one radio (a per-device antenna delay
+        or clock offset) correlate ranges of the same epoch; its diagonal must be range_sigma^2.
+        Used by the least-squares path of solve_centralized (whitening by its Cholesky factor);
+        the distributed scheme treats ranges as independent (range_sigma), and robust losses,
+        fixed nodes and missing priors refuse it (ValueError). Dense: O(m^3) per whitening, meant
+        for one epoch of seed 001 (tens to hundreds of links); a swarm of thousands of links would
+        carry the per-device terms as nuisance variables instead (not implemented).
     """
 
     gnss_pos: np.ndarray
@@ -115,6 +125,7 @@ class CoopProblem:
     range_sigma: np.ndarray
     prior: np.ndarray | None = None
     fixed: np.ndarray | None = None
+    range_cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         z = np.asarray(self.gnss_pos, dtype=float)
@@ -148,6 +159,13 @@ class CoopProblem:
         object.__setattr__(self, "edges", e)
         object.__setattr__(self, "ranges", d)
         object.__setattr__(self, "range_sigma", s)
+        if self.range_cov is not None:
+            C = np.asarray(self.range_cov, dtype=float)
+            if C.shape != (d.size, d.size) or not np.allclose(C, C.T, rtol=0.0, atol=1e-15):
+                raise ValueError(f"CoopProblem: range_cov must be a symmetric ({d.size}, {d.size}) matrix, got {C.shape}")
+            if not np.allclose(np.sqrt(np.diagonal(C)), s, rtol=1e-9, atol=0.0):
+                raise ValueError("CoopProblem: the diagonal of range_cov must be range_sigma^2")
+            object.__setattr__(self, "range_cov", C)
 
     @property
     def n(self) -> int:
@@ -234,12 +252,23 @@ def _gnss_sqrt_info(cov: np.ndarray) -> np.ndarray:
     return np.linalg.inv(L)
 
 
+def _range_whitener(problem: CoopProblem) -> np.ndarray:
+    """Lower Cholesky factor L (m, m) m of problem.range_cov = L L^T (ValueError if not SPD)."""
+    try:
+        return np.linalg.cholesky(problem.range_cov)
+    except np.linalg.LinAlgError:
+        raise ValueError("CoopProblem: range_cov is not positive definite") from None
+
+
 def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened range residuals r_k = (d_k - |p_i - p_j|)/sigma_k (m,) and unit vectors u_k (m, 3)."""
+    """Whitened range residuals r (m,) and unit vectors u_k (m, 3): r_k = (d_k - |p_i - p_j|)/sigma_k,
+    or with range_cov = L L^T, r = L^{-1} (d - |p_i - p_j|) (correlated ranges)."""
     i, j = problem.edges[:, 0], problem.edges[:, 1]
     u, _ = range_jacobian(X[i], X[j])
-    r = (problem.ranges - range_h(X[i], X[j])) / problem.range_sigma
-    return r, u
+    res = problem.ranges - range_h(X[i], X[j])
+    if problem.range_cov is None:
+        return res / problem.range_sigma, u
+    return linalg.solve_triangular(_range_whitener(problem), res, lower=True), u
 
 
 #: factor types of the seed 001 graph, the keys of a `losses` mapping
@@ -265,6 +294,9 @@ def _robust_terms(problem: CoopProblem, X: np.ndarray, losses: dict):
     bg (p, 3) whitened GNSS residuals, wg (p,) their weights, r (m,) whitened range residuals,
     u (m, 3) unit vectors j -> i, wr (m,) their weights).
     """
+    if problem.range_cov is not None:
+        raise ValueError("CoopProblem: range_cov (correlated ranges) needs the plain least-squares path "
+                         "(every node with a prior, none fixed, no robust loss, method 'gn')")
     pri = np.flatnonzero(problem.prior & ~problem.fixed)
     W = _gnss_sqrt_info(problem.gnss_cov[pri])
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos[pri] - X[pri])
@@ -332,7 +364,8 @@ def whitened_system(
 
     Rows 0..3n-1: GNSS factors, A block W_i at column block i, b = W_i (z_i - p_i).
     Rows 3n..3n+m-1: range factors, A row (u/sigma at block i, -u/sigma at block j), b = r_k;
-    with `huber`, range rows and errors are scaled by sqrt(w_k) (IRLS).
+    with `huber`, range rows and errors are scaled by sqrt(w_k) (IRLS). With range_cov = L L^T the
+    range rows are L^{-1} J (J: the unwhitened rows (u, -u)) and b = L^{-1} (d - h) (no huber).
     """
     n, m = problem.n, problem.m
     W = _gnss_sqrt_info(problem.gnss_cov)
@@ -342,8 +375,11 @@ def whitened_system(
     cols_g = np.tile(np.arange(3 * n).reshape(n, 1, 3), (1, 3, 1)).reshape(-1)
     vals_g = W.reshape(-1)
     r, u = _range_residuals(problem, X)
+    correlated = problem.range_cov is not None
+    if correlated and huber is not None:
+        raise ValueError("whitened_system: huber needs independent ranges (range_cov None)")
     sw = np.sqrt(huber_weight(r, huber))
-    coef = (sw / problem.range_sigma)[:, None] * u  # (m, 3)
+    coef = u if correlated else (sw / problem.range_sigma)[:, None] * u  # (m, 3)
     i, j = problem.edges[:, 0], problem.edges[:, 1]
     rows_r = np.repeat(3 * n + np.arange(m), 6)
     cols_r = np.concatenate([3 * i[:, None] + np.arange(3), 3 * j[:, None] + np.arange(3)], axis=1).reshape(-1)
@@ -352,6 +388,9 @@ def whitened_system(
         (np.concatenate([vals_g, vals_r]), (np.concatenate([rows_g, rows_r]), np.concatenate([cols_g, cols_r]))),
         shape=(3 * n + m, 3 * n),
     )
+    if correlated:  # range rows L^{-1} J: dense (m, 3n), the links of one radio share information
+        A_r = linalg.solve_triangular(_range_whitener(problem), A[3 * n:].toarray(), lower=True)
+        A = sparse.vstack([A[:3 * n], sparse.csr_matrix(A_r)], format="csr")
     b = np.concatenate([bg, sw * r])
     return A, b
 

@@ -8,8 +8,8 @@
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [run options]
-    testbed bench physics|sensors|estimators|replay [--json FILE] [--vehicles N,N,...]
-    testbed reproduce phase|visnav|bandwidth|coop --out DIR [--force | --resume] [--runs N] [--motion M] [--estimator ENTRY ...]
+    testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
+    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force | --resume] [--runs N] [--motion M] [--estimator ENTRY ...]
                 [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
     testbed schema
@@ -211,19 +211,19 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_options(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
-    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay"])
+    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop", "denied"])
     p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
     p.add_argument("--vehicles", type=_vehicle_counts, metavar="N[,N...]",
-                   help="swarm sizes (physics: default 1,6,18,50; sensors: default 18)")
+                   help="swarm sizes (physics: default 1,6,18,50; sensors: default 18; loop: default 1,10,30)")
 
     p = sub.add_parser("reproduce", help="reproduce a paper's results (tables, figures, claims)")
-    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop"])
+    p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop", "denied"])
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--resume", action="store_true",
                    help="finish an interrupted reproduction at --out (same options), skipping its finished runs")
     p.add_argument("--runs", type=RUNS, help="Monte Carlo runs (default: the paper's reproduction default)")
-    p.add_argument("--motion", choices=["prescribed", "flown"], default="prescribed")
+    p.add_argument("--motion", choices=["prescribed", "flown"], help="default prescribed (denied: flown, the only choice)")
     p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
     p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
     _add_estimator_option(p)
@@ -253,14 +253,18 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "list":
         from testbed import scenario
 
-        for name in scenario.builtin_names():
-            print(f"{name:22s} {scenario.load(name).description}")
+        names = scenario.builtin_names()
+        width = max(map(len, names), default=0)
+        for name in names:
+            print(f"{name:{width}s}  {scenario.load(name).description}")
         return 0
     if args.command == "estimators":
         from testbed.plugins.loading import description, load_class, registered
 
-        for name, target in registered().items():
-            print(f"{name:22s} {description(load_class(name))}  ({target})")
+        entries = registered()
+        width = max(map(len, entries), default=0)
+        for name, target in entries.items():
+            print(f"{name:{width}s}  {description(load_class(name))}  ({target})")
         return 0
     if args.command == "run":
         from testbed.report import fmt

@@ -42,6 +42,24 @@ def anees_interval(dof: int, samples: int, level: float = 0.99) -> tuple[float, 
     return chi2_interval(dof, samples, level)
 
 
+def anees_run_interval(per_run: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, float]:
+    """Interval the mean of R per-run ANEES values falls in with probability `level` for a
+    consistent estimator whose NEES samples are dependent within a run (a constant per-run error such
+    as a radio's antenna delay makes every epoch of the run share it, so the chi-square interval of
+    anees_interval, which counts K R independent samples, is too narrow).
+
+    per_run: (R,) ANEES of each run (runs independent: their own seeds); dof: NEES degrees of
+    freedom (the expected value of every per-run ANEES). Returns dof -+ t s / sqrt(R), s the sample
+    standard deviation of per_run, t the Student quantile with R - 1 degrees of freedom (a per-run
+    ANEES is a mean over many epochs, close to normal). R >= 2, else ValueError.
+    """
+    x = np.asarray(per_run, float)
+    if x.size < 2:
+        raise ValueError(f"anees_run_interval: needs at least 2 runs, got {x.size}")
+    h = float(student_t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    return dof - h, dof + h
+
+
 def mean_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
     """Mean and Student-t confidence interval (lo, hi) of independent samples x (n,)."""
     x = np.asarray(x, float)

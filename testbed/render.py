@@ -26,6 +26,9 @@ What a frame shows
   with the same 4:3 aspect and field of view) in the top-right corner with a thin border,
   for the leader of seed 004 by default.
 - A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
+- Obstacles translucent (OBSTACLE_ALPHA), and from the run directory (testbed.render_overlay):
+  the UWB links of the latest sample (LOS blue, NLOS orange), ghosts of the estimate a
+  controller flew on, vehicle numbers green with a GNSS fix and red without.
 
 Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
 (the command line sets `egl` unless the user chose, testbed/environment.py). If the renderer cannot be created in
@@ -61,6 +64,7 @@ from tqdm import tqdm
 
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
+from testbed.render_overlay import GHOST_RGBA, LOS_RGBA, NLOS_RGBA, Overlays
 from testbed.workers import worker_init
 
 from testbed.errors import UsageError
@@ -70,6 +74,7 @@ INSTALL_HINT = (
     "or OSMesa (apt-get install libosmesa6), then run again; MUJOCO_GL=egl|osmesa chooses the backend"
 )
 BACKENDS = ("egl", "osmesa")
+OBSTACLE_ALPHA = 0.45  # opacity of world.obstacles in a video (their material "obstacle")
 FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo's free-camera default)
 
 
@@ -197,6 +202,10 @@ class _Replay:
         self.colors = np.array([self._vehicle_rgba(i) for i in range(1, self.n + 1)], np.float32)
         self.meta = _read_meta(run_dir)
         self._v = np.zeros(self.model.nv)
+        self.overlays = Overlays(run_dir, lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name), self.n)
+        mid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_MATERIAL, "obstacle")
+        if mid >= 0:  # obstacles translucent: vehicles behind a building or under a roof stay in view
+            self.model.mat_rgba[mid, 3] = OBSTACLE_ALPHA
 
     def _vehicle_rgba(self, i: int) -> np.ndarray:
         """(4,) colour of vehicle i's frame material (the per-vehicle palette colour)."""
@@ -420,18 +429,36 @@ class _Painter:
                     rgba = rp.colors[i].copy()
                     rgba[3] = 0.15 + 0.75 * (j + 1) / (len(P) - 1)
                     _add_line(scn, P[j], P[j + 1], self.style.trail_px, rgba)
+        ov = rp.overlays
+        src, dst, nlos = ov.links(t)
+        for a, b, bad in zip(src, dst, nlos):  # UWB links ranged at the latest sample
+            _add_line(scn, rp.data.site_xpos[a], rp.data.site_xpos[b], 1.5, NLOS_RGBA if bad else LOS_RGBA)
+        ghosts = ov.ghosts(t)
+        if ghosts is not None:  # the estimate the controller flies on, beside the true vehicle
+            for i in np.flatnonzero(np.isfinite(ghosts[:, 0])):
+                _add_sphere(scn, ghosts[i], max(0.6, 0.8 * self.style.marker_px / px_per_m[i]), GHOST_RGBA)
+                _add_line(scn, pos[i], ghosts[i], 1.0, GHOST_RGBA)
         for i in np.flatnonzero(small):
             _add_sphere(scn, pos[i], self.style.marker_px / px_per_m[i], rp.colors[i])
             if self.style.droplines and pos[i, 2] > 0:  # altitude cue: a thin line down to the ground
                 _add_line(scn, pos[i], np.array([pos[i, 0], pos[i, 1], 0.0]), 1.0, np.array([*rp.colors[i][:3], 0.45], np.float32))
         img = np.ascontiguousarray(self.renderer.render())
         m.vis.map.zfar = self.zfar0
-        if self.style.labels:
+        fixed = ov.fixed(t)
+        if self.style.labels:  # vehicle numbers; with GNSS, green with a fix, red without
             uv, front = proj.pixels(pos)
             for i in range(rp.n):
                 if front[i] and -50 < uv[i, 0] < self.width + 50 and -50 < uv[i, 1] < self.height + 50:
                     off = max(self.style.marker_px, px_per_m[i] * 0.8) + 3
-                    _text(img, str(i + 1), (int(uv[i, 0] + off), int(uv[i, 1] - off)), 0.45 * self.height / 540)
+                    color = (255, 255, 255) if fixed is None else (120, 255, 120) if fixed[i] else (255, 90, 90)
+                    _text(img, str(i + 1), (int(uv[i, 0] + off), int(uv[i, 1] - off)), 0.45 * self.height / 540, color)
+        overlay = list(overlay)
+        if fixed is not None:
+            overlay.append(f"GNSS fix {int(fixed.sum())}/{rp.n} (labels green: fix, red: none)")
+        if ov.uwb is not None:
+            overlay.append(f"UWB {len(src)} links: {int((~nlos).sum())} LOS (blue), {int(nlos.sum())} NLOS (orange)")
+        if ghosts is not None:
+            overlay.append(f"ghosts: estimate of {ov.estimator} (flown on)")
         if self.pip is not None:
             self.pip.update_scene(rp.data, self.pip_cam)
             sub = self.pip.render()
@@ -507,8 +534,9 @@ def _add_line(scn, a: np.ndarray, b: np.ndarray, width_px: float, rgba: np.ndarr
     scn.ngeom += 1
 
 
-def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float) -> None:
-    """White text with a dark outline, legible on sky and on grass (img RGB, modified in place)."""
+def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float, color: tuple = (255, 255, 255)) -> None:
+    """Text (white unless `color`, RGB) with a dark outline, legible on sky and on grass (img RGB,
+    modified in place)."""
 
     th = max(1, round(scale * 2))
     # The outline is the same text shifted by one pixel in eight directions: a thicker stroke
@@ -516,7 +544,7 @@ def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float) -> None:
     x, y = org
     for dx, dy in ((-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)):
         cv2.putText(img, s, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), th, cv2.LINE_AA)
-    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), th, cv2.LINE_AA)
+    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, color, th, cv2.LINE_AA)
 
 
 # ---------------------------------------------------------------------------------- the jobs

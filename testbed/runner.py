@@ -1,6 +1,7 @@
 """Writing a run directory (the data contract) atomically.
 
-`run(scenario, out)` simulates, runs the scenario's estimator pipeline and its plugin estimators
+`run(scenario, out)` simulates (with the estimator of [control] feedback in the loop, if any,
+testbed.plugins.online), runs the scenario's estimator pipeline and its plugin estimators
 (`[[estimators]]`, testbed.plugins), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
@@ -21,9 +22,12 @@ from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.loading import resolve
+from testbed.plugins.online import in_the_loop
+from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
 from testbed.plugins.run import run_estimators
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
+from testbed.world import build
 
 
 def tracking_rmse(log: dict[str, np.ndarray]) -> list[float]:
@@ -53,7 +57,10 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     plugins = resolve(scenario.estimators)  # a bad plugin entry stops here, before anything is written
     with Output(Path(out), kind="run", force=force) as o:
         tmp = o.path
-        log, physics = simulate(scenario, progress=progress)
+        physics = build(scenario)
+        online = in_the_loop(scenario, physics, plugins)
+        log, physics = simulate(scenario, physics, progress=progress, feedback=online)
+        done = {online.plugin.key: online.finish()} if online is not None else {}
         metrics = {
             "scenario": scenario.name,
             "seed": scenario.seed,
@@ -69,12 +76,15 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         (tmp / "plots").mkdir()
         poll()  # a worker asked to stop does so between stages (testbed.interrupt)
         estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
-        estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators)))
+        estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
+                                         done))
         metrics["estimators"], timing = split_timing(estimators)
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
         save_npz(tmp / "log.npz", log)
+        if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)
+            save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
         write_json(tmp / "metrics.json", metrics)
         if timing:
             write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})

@@ -349,19 +349,43 @@ class Disturbance:
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class Control:
-    """Geometric tracking controller gains (Lee, Leok, McClamroch 2010), per unit mass/inertia.
+    """Geometric tracking controller gains (Lee, Leok, McClamroch 2010), per unit mass/inertia,
+    and where a flown controller takes its state from (docs/control.md).
 
     kx (1/s^2), kv (1/s) position and velocity; kr (1/s^2), kw (1/s) attitude and rate.
+    feedback: "truth" (the MuJoCo state) or "estimate:NAME", the position and velocity of the
+    `[[estimators]]` table named NAME, run online inside the loop (flown motion only);
+    feedback_vehicles: the vehicles (1-based) flown on that estimate, the others on truth
+    (empty: every vehicle). attitude: "truth" or "mahony", the onboard complementary filter on
+    each vehicle's IMU (needs [sensors.imu] on every vehicle) with gains mahony_kp (1/s) and
+    mahony_ki (1/s^2).
     """
 
     kx: float = key(4.0, unit="1/s^2")
     kv: float = key(3.0, unit="1/s")
     kr: float = key(60.0, unit="1/s^2")
     kw: float = key(14.0, unit="1/s")
+    feedback: str = key("truth", range='"truth" or "estimate:NAME"')
+    feedback_vehicles: tuple[int, ...] = key((), range="vehicle numbers >= 1; empty = all")
+    attitude: Literal["truth", "mahony"] = "truth"
+    mahony_kp: float = key(0.3, unit="1/s")
+    mahony_ki: float = key(0.02, unit="1/s^2")
 
     def __post_init__(self) -> None:
-        for gain in ("kx", "kv", "kr", "kw"):
+        for gain in ("kx", "kv", "kr", "kw", "mahony_kp"):
             in_range(self, gain, 0, lo_open=True)
+        in_range(self, "mahony_ki", 0)
+        require(self.feedback == "truth" or (self.feedback.startswith("estimate:") and len(self.feedback) > 9),
+                "feedback", self.feedback, f'must be "truth" or "estimate:NAME" (NAME: an [[estimators]] name), got {self.feedback!r}')
+        require(all(v >= 1 for v in self.feedback_vehicles), "feedback_vehicles", list(self.feedback_vehicles),
+                f"vehicle numbers start at 1, got {list(self.feedback_vehicles)}")
+        require(not self.feedback_vehicles or self.feedback != "truth", "feedback_vehicles", list(self.feedback_vehicles),
+                f'{list(self.feedback_vehicles)}: only with feedback = "estimate:NAME"')
+
+    @property
+    def feedback_estimator(self) -> str:
+        """NAME of feedback "estimate:NAME", "" for truth."""
+        return self.feedback.partition("estimate:")[2]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -398,6 +422,26 @@ class Scenario:
         self.sensors.cross_check(self.world.control_rate, self.vehicles, "sensors")
         if self.pipeline is not None:
             self.pipeline.cross_check(self)
+        self._check_feedback()
+
+    def _check_feedback(self) -> None:
+        """[control] feedback and attitude: flown motion, a known estimator, existing vehicles, an IMU."""
+        c = self.control
+        name = c.feedback_estimator
+        if name or c.attitude != "truth":
+            what, value = ("control.feedback", c.feedback) if name else ("control.attitude", c.attitude)
+            require(self.motion == "flown", what, value, f'{value!r} needs motion = "flown" (a prescribed motion has no controller)')
+        if name:
+            names = [e.key for e in self.estimators]
+            require(name in names, "control.feedback", c.feedback,
+                    f"{c.feedback!r}: no [[estimators]] named {name!r} (names: {', '.join(names) or 'none'})")
+            bad = [v for v in c.feedback_vehicles if v > self.vehicles]
+            require(not bad, "control.feedback_vehicles", list(c.feedback_vehicles),
+                    f"vehicle {bad[0] if bad else 0} does not exist (the scenario has {self.vehicles})")
+        if c.attitude == "mahony":
+            imu = self.sensors.imu
+            require(imu is not None and set(imu.vehicles or range(1, self.vehicles + 1)) == set(range(1, self.vehicles + 1)),
+                    "control.attitude", c.attitude, "'mahony' needs [sensors.imu] on every vehicle")
 
     @property
     def vehicles(self) -> int:

@@ -12,21 +12,32 @@ reference, and every due sensor samples the physics state of that instant.
   rotor route (large swarms, testbed.world.rotor_route) every physics step is split the
   same way to add the thrust along the current body z (testbed.thrust).
 
+Onboard state ([control] feedback, attitude; docs/control.md): with feedback "estimate:NAME" the
+caller passes the online estimator (testbed.plugins.online.OnlineEstimator, the `Feedback`
+protocol here); every sensor's new rows go to it as they are recorded, it processes the arrived
+ones at the end of each tick, and from the next tick on the controller takes the fed-back
+vehicles' position and velocity from it. With attitude "mahony" the controller takes R and the
+body rate from the onboard complementary filter (estimators.mahony) run on each IMU sample.
+The sensors then apply their errors at each sample (Imu.online), so the log holds exactly the
+values read in the loop.
+
 A scenario's [disturbance] (testbed.disturbance) is added to the played-back motion in prescribed
 mode and applied as an external force and torque, held over each tick, in flown mode.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import mujoco
 import numpy as np
 from tqdm import tqdm
 
+from estimators.mahony import Mahony
 from testbed.control import GeometricController, heading
 from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
 from testbed.interrupt import poll
-from testbed.reference import attitude, evaluate, tracking
+from testbed.reference import GRAVITY, attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors.suite import make_sensors
 from testbed.sensors.base import Sensor
@@ -34,6 +45,19 @@ from testbed.thrust import BodyForces
 from testbed.world import Physics, build
 
 CHUNK = 1000  # reference instants evaluated per vectorized call
+
+
+class Feedback(Protocol):
+    """An estimator in the loop (testbed.plugins.online.OnlineEstimator)."""
+
+    def measured(self, name: str, rows: dict[str, np.ndarray]) -> None:
+        """Rows a sensor just recorded (Recorder.new_rows), values as the log holds them."""
+
+    def advance(self, t: float) -> None:
+        """Process every measurement arrived by time t (s)."""
+
+    def state(self, pos: np.ndarray, vel: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position and velocity (N, 3) world the controller uses."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,10 +85,16 @@ def schedule(scenario: Scenario, sensors: list[Sensor]) -> Schedule:
     return Schedule(tick, int(round(tick / w.timestep)), n_ticks, logged)
 
 
-def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool = False) -> tuple[dict[str, np.ndarray], Physics]:
-    """Run a scenario; returns the log arrays (data contract) and the physics at the end."""
+def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool = False,
+             feedback: Feedback | None = None) -> tuple[dict[str, np.ndarray], Physics]:
+    """Run a scenario; returns the log arrays (data contract) and the physics at the end.
+    feedback: the estimator of [control] feedback = "estimate:NAME" (None: truth)."""
     physics = physics or build(scenario)
     sensors = make_sensors(scenario, physics)
+    onboard = feedback is not None or scenario.control.attitude != "truth"
+    for s in sensors:
+        if onboard and hasattr(s, "online"):
+            s.online = True  # errors applied at each sample: the loop reads what the log will hold
     sched = schedule(scenario, sensors)
     log_ticks = np.flatnonzero(sched.logged)
     K, N, m = log_ticks.size, physics.n, physics.model
@@ -82,7 +112,8 @@ def simulate(scenario: Scenario, physics: Physics | None = None, progress: bool 
     ctrl = np.zeros((K, m.nu))
     with tqdm(total=n, desc=f"{scenario.name} ({scenario.motion})", unit="tick", disable=not progress, leave=False) as bar:
         if flown:
-            _fly(scenario, physics, sched, log, ctrl, due, bar, draw(scenario, sched.n_ticks))
+            _fly(scenario, physics, sched, log, ctrl, due, bar, draw(scenario, sched.n_ticks),
+                 _Onboard(scenario, sched, feedback) if onboard else None)
         else:
             _play(scenario, physics, log, due, bar, realize(scenario, log_ticks))
     log.update(truth_from_state(physics, log["qpos"], log["qvel"]))
@@ -121,12 +152,52 @@ def _play(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], due:
         bar.update(len(t))
 
 
+class _Onboard:
+    """What the controller knows onboard: the fed-back estimator and the attitude filter."""
+
+    def __init__(self, scenario: Scenario, sched: Schedule, feedback: Feedback | None):
+        self.feedback = feedback
+        self.att = None
+        c, tr = scenario.control, scenario.trajectory
+        if c.attitude == "mahony":
+            # started at the reference attitude of t = 0 (where the vehicles start)
+            _, _, acc0, _ = tracking(tr, np.zeros(1))
+            self.att = Mahony(attitude(tr, np.zeros(1), acc0)[0], c.mahony_kp, c.mahony_ki)
+            self.imu_dt = sched.tick * int(round(scenario.world.control_rate / scenario.sensors.imu.rate_hz))
+
+    def state(self, pos, vel, rotation, omega, ref_pos, ref_vel):
+        """(pos, vel, R, omega) the controller uses this tick."""
+        if self.feedback is not None:
+            pos, vel = self.feedback.state(pos, vel, ref_pos, ref_vel)
+        if self.att is not None:
+            rotation, omega = self.att.R, self.att.rate
+        return pos, vel, rotation, omega
+
+    def measured(self, sensor: Sensor, ref_acc: np.ndarray) -> None:
+        """A sensor has sampled: its new rows to the estimator, the IMU's to the attitude filter
+        (with the expected specific force ref_acc + g e3 (N, 3) of this tick)."""
+        rows = sensor.rec.new_rows()
+        if self.feedback is not None:
+            self.feedback.measured(sensor.name, rows)
+        if self.att is not None and sensor.name == "imu":
+            u = ref_acc.copy()
+            u[:, 2] += GRAVITY
+            value = np.empty_like(rows["value"])  # (N, 6): control.attitude needs the IMU on every vehicle
+            value[rows["vehicle"] - 1] = rows["value"]
+            self.att.update(value[:, 3:], value[:, :3], u, self.imu_dt)
+
+    def advance(self, t: float) -> None:
+        if self.feedback is not None:
+            self.feedback.advance(t)
+
+
 def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, np.ndarray], ctrl: np.ndarray, due: list[list[Sensor]], bar: tqdm,
-         dist: Draws | None) -> None:
+         dist: Draws | None, onboard: _Onboard | None = None) -> None:
     """Flown motion: the controller in the loop at every tick; logged ticks as in the module
     docstring, with the rotor commands in ctrl (K, nu). The reference is evaluated a chunk of
     ticks at a time, its attitude only at the logged ticks. dist: the disturbance wrench is set
-    after the position stage of each tick and held over the tick."""
+    after the position stage of each tick and held over the tick. onboard: the controller's
+    state from onboard estimates (module docstring), None: truth."""
     m, d = physics.model, physics.data
     tr = scenario.trajectory
     controller = GeometricController(physics, scenario.control)
@@ -153,7 +224,10 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
         for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
             poll()  # a worker asked to stop does so here (testbed.interrupt)
             step1(m, d)
-            controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
+            if onboard is None:
+                controller(pos, vel, rotation, omega, rp, rv, ra, rh, out=thrust)
+            else:
+                controller(*onboard.state(pos, vel, rotation, omega, rp, rv), rp, rv, ra, rh, out=thrust)
             if dist is not None:
                 forces.hold(dist.index, wrench(dist, tick, mass, inertia, rotation[dist.index]))
             forces.apply()
@@ -163,9 +237,13 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: dict[str, n
                 step2(m, d)  # acceleration stage at time t (sensors read it), then integrate to t + dt
                 for s in due[row]:
                     s.sample(physics, tj, row)
+                    if onboard is not None:
+                        onboard.measured(s, ra)
                 row += 1
             else:
                 step2(m, d)
+            if onboard is not None:
+                onboard.advance(tj)
             if rest:
                 forces.step(m, d, rest)
         bar.update(len(t))

@@ -22,6 +22,7 @@ from testbed.scenario import Scenario
 MODELS = Path(__file__).resolve().parent.parent / "models"
 JOINT_ROUTE_MIN_VEHICLES = 12  # swarms of this size or more use the rotor joint route (measured crossover, docs/models.md)
 SEGMENT_MARGIN = 1e-6  # m: bounding boxes grown by this in Physics.segments_may_hit (rounding)
+OBSTACLE, FLOOR = -1, -2  # "other" of Physics.contacts_at: an obstacle geom, the rest of the world body
 PALETTE = [(0.85, 0.25, 0.2), (0.2, 0.45, 0.85), (0.25, 0.7, 0.3), (0.85, 0.6, 0.15), (0.6, 0.3, 0.75), (0.2, 0.7, 0.75)]
 
 
@@ -510,6 +511,34 @@ class Physics:
         d.qvel[self._qvel_idx] = np.concatenate([ref.vel[k], ref.omega[k]], axis=1)
         d.qacc[self._qvel_idx] = np.concatenate([ref.acc[k], ref.alpha[k]], axis=1)
         mujoco.mj_inverse(self.model, d)
+
+    def contacts_at(self, qpos: np.ndarray) -> np.ndarray:
+        """The contacts touching a vehicle in the state qpos (nq,) (positions only: kinematics and
+        collision, mj_fwdPosition; the run's velocities are left alone).
+
+        Returns (c, 2) int: (vehicle, other), 0-based vehicle index; other a vehicle index
+        (vehicle < other), OBSTACLE for a `world.obstacles` geom, FLOOR for anything else of the
+        world body (floor, masts). One row per MuJoCo contact (a box pair may touch at several
+        points)."""
+        m, d = self.model, self.data
+        d.qpos[:] = qpos
+        mujoco.mj_fwdPosition(m, d)
+        c = d.contact[: d.ncon]
+        if d.ncon == 0:
+            return np.zeros((0, 2), np.int64)
+        veh = np.full(m.nbody, -1)
+        veh[self.body_ids] = np.arange(self.n)
+        root = m.body_rootid[m.geom_bodyid]  # (ngeom,) root body of each geom
+        who = veh[root]  # vehicle of each geom or -1
+        obstacle = np.array([(m.geom(g).name or "").startswith("obstacle") for g in range(m.ngeom)])
+        a, b = who[c.geom1], who[c.geom2]
+        other_a = np.where(obstacle[c.geom1], OBSTACLE, FLOOR)
+        other_b = np.where(obstacle[c.geom2], OBSTACLE, FLOOR)
+        v = np.where(a >= 0, a, b)
+        o = np.where((a >= 0) & (b >= 0), np.maximum(a, b), np.where(a >= 0, other_b, other_a))
+        v = np.where((a >= 0) & (b >= 0), np.minimum(a, b), v)
+        keep = (a >= 0) | (b >= 0)
+        return np.stack([v[keep], o[keep]], axis=1).astype(np.int64)
 
     def warnings(self) -> dict[str, int]:
         """MuJoCo warnings raised so far, by name (empty if none)."""

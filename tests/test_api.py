@@ -149,9 +149,11 @@ def test_readme_synopsis_names_every_subcommand_and_option():
     assert not missing, f"README 'Command line' lacks: {missing}"
 
 
-def test_readme_refers_to_nothing_outside_the_repository():
-    text = (ROOT / "README.md").read_text()
-    assert "../" not in text and "SPEC.md" not in text and "DESIGN.md" not in text
+@pytest.mark.parametrize("page", ["README.md", *sorted(p.name for p in (ROOT / "docs").glob("*.md"))])
+def test_docs_refer_to_nothing_outside_the_repository(page):
+    text = (ROOT / page if page == "README.md" else ROOT / "docs" / page).read_text()
+    for outside in ("../", "SPEC.md", "DESIGN.md", "http://", "https://"):
+        assert outside not in text, f"{page} sends the reader outside the repository: {outside!r}"
 
 
 # ------------------------------------------------------------------------------------ examples

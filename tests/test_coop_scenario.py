@@ -41,8 +41,9 @@ def test_coop_fg_end_to_end(tmp_path):
     iterated, centralized) beats GNSS only on the SPP UAVs in a significant majority of epochs,
     the centralized joint NEES (54 dof) is inside its 99 % interval and the distributed iteration
     is over-confident (its ANEES above the consistent interval).
-    Measured: 20/20 epochs for each variant; SPP mean RMSE 3.81 (GNSS) -> 1.68 (one shot) -> 0.61
-    (iterated) / 0.59 m (centralized); ANEES (SPP) iterated 29.9, centralized 2.95; joint 55.9."""
+    Measured: 20/20 epochs for each variant; SPP mean RMSE 3.81 (GNSS) -> 1.69 (one shot) -> 0.63
+    (iterated) / 0.60 m (centralized); ANEES (SPP) iterated 25.8, centralized 2.88; joint 52.7 (with
+    the joint range covariance; 55.9 when the centralized estimator took the ranges as independent)."""
     sc = scenario.load("coop-fg", duration=19.0)
     m = run(sc, tmp_path / "run")
     est_m = m["estimators"]

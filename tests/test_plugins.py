@@ -354,3 +354,61 @@ def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
     assert "Plugin estimators" in (out / "report.md").read_text()
     head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
     assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)
+
+
+def test_the_covariance_check_agrees_with_eigenvalues():
+    """collect._cov_problem (plain floats, per estimate) against numpy: finite, symmetric, and positive
+    definite exactly when the smallest eigenvalue is positive (random matrices well away from singular)."""
+    from testbed.plugins.collect import _cov_problem
+
+    rng = np.random.default_rng(3)
+    seen = set()
+    for _ in range(3000):
+        A = rng.normal(size=(3, 3))
+        c = A @ A.T - rng.uniform(0.0, 2.0) * np.eye(3)
+        lam = np.linalg.eigvalsh(c)[0]
+        if abs(lam) < 1e-6:
+            continue
+        expected = None if lam > 0 else "cov is not positive definite"
+        assert _cov_problem(c.tolist()) == expected
+        seen.add(expected)
+    assert seen == {None, "cov is not positive definite"}
+    c = np.eye(3)
+    c[0, 1] = 1e-3
+    assert _cov_problem(c.tolist()) == "cov is not symmetric"
+    c[1, 0] = 1e-3
+    assert _cov_problem(c.tolist()) is None
+    c[2, 2] = np.nan
+    assert _cov_problem(c.tolist()) == "cov is not finite"
+
+
+def test_diagnostics_are_collected_when_asked_and_checked():
+    """run_plugin fills a given dict from an estimator's diagnostics(); ragged or non-finite columns
+    are one PluginError naming the estimator; a batch goes row by row to an estimator without
+    process_batch."""
+    from testbed.plugins.api import Context, MeasurementBatch
+
+    class Diag:
+        bad = None
+
+        def __init__(self, context, params):
+            self.seen = []
+
+        def process(self, m):
+            self.seen.append((m.time, m.src, None if m.sigma is None else float(m.sigma[0])))
+
+        def diagnostics(self):
+            t = [s[0] for s in self.seen]
+            return self.bad or {"time": t, "sigma": [s[2] if s[2] is not None else -1.0 for s in self.seen]}
+
+    ctx = Context(vehicles=("uav1",), sites={}, anchors={}, sensors={}, duration=1.0, seed=0, rng=np.random.default_rng(0))
+    b = MeasurementBatch(stream="uwb", time=np.array([0.1, 0.2]), arrival=np.array([0.1, 0.2]), value=np.ones((2, 1)),
+                         src=np.array(["uav1/uwb", "uav1/uwb"]), dst=np.array(["a1", "a2"]), sigma=np.array([[0.3], [np.nan]]))
+    d: dict = {}
+    run_plugin(Plugin("d", "d", Diag, {}), ctx, [b], d)
+    np.testing.assert_array_equal(d["time"], [0.1, 0.2])
+    np.testing.assert_array_equal(d["sigma"], [0.3, -1.0])  # the NaN row: sigma None
+    for bad in ({"a": [1.0, 2.0], "b": [1.0]}, {"a": [np.inf]}, {"a": [[1.0]]}):
+        Diag.bad = bad
+        with pytest.raises(PluginError, match="estimator 'd' .*diagnostics"):
+            run_plugin(Plugin("d", "d", Diag, {}), ctx, [b], {})

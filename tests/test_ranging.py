@@ -280,3 +280,20 @@ def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
     for j in range(6):
         a = last[(f"uav2/ant{j + 1}", "position")]
         assert np.linalg.norm(a.value - (np.array([5.5, 1.0, 3.0]) + R2 @ arms2[j])) < 5 * np.sqrt(np.trace(a.cov))
+
+
+def test_plugin_says_so_when_no_range_ends_at_a_known_point():
+    """Ranges from the follower to a body that never gets a pose (no pose stream, no anchors): no
+    estimate, and health counts every such epoch (skipped_epochs) and row (unknown_end_rows)."""
+    arms = _hexagon(0.4)
+    sites = {f"uav{b}/ant{k + 1}": (f"uav{b}", a) for b in (1, 2) for k, a in enumerate(arms)}
+    ctx = Context(vehicles=("uav1", "uav2"), sites=sites, anchors={}, sensors={}, duration=5.0, seed=0,
+                  rng=np.random.default_rng(0))
+    est = RangingEkfEstimator(ctx, {"follower": "uav2"})
+    out = []
+    for t in range(5):
+        for i in range(6):
+            out += est.process(Measurement(stream="uwb", time=float(t), arrival=float(t), value=np.array([3.0]),
+                                           src=f"uav1/ant{i + 1}", dst="uav2/ant1"))
+    out += est.finish()
+    assert out == [] and est.health()["skipped_epochs"] == 5 and est.health()["unknown_end_rows"] == 30

@@ -55,7 +55,7 @@ def test_export_then_replay_gives_the_estimates_of_the_simulation(tmp_path, name
     physics = world.build(sc)
     feed_sim = list(measurements(sc, log))
     rec = load_recording(tmp_path / "data" / "spec.toml")
-    assert len(rec.feed) == len(feed_sim)
+    assert len(rec.measurements()) == len(feed_sim) > len(rec.feed)  # runs of rows are batches
     for p in resolve(specs):
         sim, _, _ = run_plugin(p, make_context(sc, physics, p.key, p.params), feed_sim)
         rep, _, _ = run_plugin(p, rec.context(p.key, p.params), rec.feed)
@@ -150,7 +150,7 @@ def test_optional_columns_may_be_absent_and_sigma_empty(tmp_path):
     rows = [r.split(",") for r in (d / "links.csv").read_text().splitlines()]
     (d / "links.csv").write_text("\n".join(",".join(r[:5]) for r in rows) + "\n")
     rec = load_recording(d / "spec.toml")
-    uwb = [m for m in rec.feed if m.stream == "uwb"]
+    uwb = [m for m in rec.measurements() if m.stream == "uwb"]
     assert len(uwb) == 345 and all(m.sigma is None and m.arrival == m.time for m in uwb)
 
 
@@ -238,3 +238,76 @@ def test_graph_poses_on_two_multi_antenna_robots_with_a_height_aid():
         assert (f"r{a + 1}", "attitude") in track
     lo, hi = chi2_interval(3, len(nees), 0.999)
     assert lo < np.mean(nees) < hi
+
+
+def test_graph_poses_gives_the_same_estimates_fed_in_batches_or_row_by_row():
+    """MeasurementBatch (process_batch) and one Measurement per row (process) are the same feed:
+    identical estimates and health, with one epoch per time and with 0.25 s bins."""
+    from testbed.bench import replay as bench
+    from testbed.plugins.loading import Plugin
+
+    data = bench.robots(3.0)
+    for epoch in (0.0, 0.25):
+        params = {"batch": 4, "epoch": epoch, "initial": {f"r{a + 1}": [*(data["pos"][0, a] + 0.3).tolist(),
+                                                                         *bench.rotmat_to_quat(data["rot"][0, a]).tolist()] for a in (1, 2)}}
+        plugin = Plugin("g", GRAPH, bench.PoseGraph, params)
+        rows, h_rows, _ = run_plugin(plugin, bench.context(data), bench.feed(data, batched=False))
+        batches, h_batches, _ = run_plugin(plugin, bench.context(data), bench.feed(data))
+        assert h_rows == h_batches and h_rows["epochs"] == (31 if epoch == 0 else 13)
+        _tracks_equal(rows, batches)
+
+
+def test_graph_poses_reports_convergence_iterations_and_cost_per_epoch(tmp_path):
+    """The shipped example through graph.poses: estimates.npz holds one row per solved epoch (time,
+    iterations, cost, converged, observable), metrics.json their summary, consistent with health."""
+    from testbed.replay.run import replay
+
+    out = tmp_path / "rep"
+    metrics = replay(ROOT / "examples/replay/spec.toml", out, plots=False)
+    g = metrics["estimators"]["PoseGraph"]
+    with np.load(out / "estimates.npz") as z:
+        d = {k.split("/")[-1]: z[k] for k in z.files if k.startswith("PoseGraph/diagnostics/")}
+    assert set(d) == {"time", "iterations", "cost", "converged", "observable"}
+    assert d["time"].size == g["diagnostics"]["epochs"] > 0 and np.all(np.diff(d["time"]) >= 0)
+    assert int(d["iterations"].sum()) == g["health"]["lm_iterations"]
+    assert int((d["converged"] == 0).sum()) == g["health"]["nonconverged_epochs"]
+    assert np.all(d["cost"] >= 0) and np.all(d["iterations"] >= 1)
+
+
+def test_link_statistics_are_the_truth_of_each_link_row_by_row(tmp_path):
+    """metrics.json `links` against a direct evaluation of the truth per link (ranges and range rates,
+    uwb rows duplicated as range-rate rows with value 0.25 m/s, some rows outside the truth span)."""
+    from testbed.replay.linkstats import link_statistics
+    from testbed.replay.recording import RecordedTruth
+
+    d = _dataset(tmp_path)
+    lines = (d / "links.csv").read_text().splitlines()
+    rates = [",".join(c[:3] + ["range-rate", "0.25"] + c[5:]) for c in (r.split(",") for r in lines[1:40])]
+    (d / "links.csv").write_text("\n".join(lines + rates) + "\n")
+    truth_lines = (d / "truth.csv").read_text().splitlines()
+    (d / "truth.csv").write_text("\n".join(truth_lines[:1] + [r for r in truth_lines[1:] if float(r.split(",")[0]) >= 1.0]) + "\n")
+    rec = load_recording(d / "spec.toml")
+    truth = RecordedTruth(rec)
+    stats = link_statistics(rec, truth)
+    t = rec.tables["links"]
+    assert set(stats) == {"uwb", "range-rate"}
+    for kind, links in stats.items():
+        for link, s in links.items():
+            src, dst = link.split("->")
+            rows = (t["kind"] == kind) & (t["src"] == src) & (t["dst"] == dst)
+            time = t["time"][rows]
+            ok = (time >= truth.span[truth.body_of(src)][0]) & (time >= truth.span[truth.body_of(dst)][0])
+            diff = truth.at(src, "position", time[ok]) - truth.at(dst, "position", time[ok])
+            dist = np.linalg.norm(diff, axis=1)
+            if kind == "uwb":
+                true = dist
+            else:
+                dv = truth.at(src, "velocity", time[ok]) - truth.at(dst, "velocity", time[ok])
+                true = np.einsum("ni,ni->n", diff / dist[:, None], dv)
+            res = t["value"][rows][ok] - true
+            assert s["samples"] == res.size and s["unscored"] == int((~ok).sum())
+            if res.size:
+                u = "m_s" if kind == "range-rate" else "m"
+                np.testing.assert_allclose(s[f"rmse_{u}"], np.sqrt(np.mean(res ** 2)), rtol=1e-12)
+                np.testing.assert_allclose(s[f"mean_{u}"], res.mean(), rtol=1e-12, atol=1e-15)
+    assert any(s["unscored"] for links in stats.values() for s in links.values())

@@ -95,3 +95,37 @@ def test_visnav_claims_are_decided_by_their_named_tests():
             r["gaussian"]["metrics"]["rhcf"][k] *= 1.2
     no = visnav.decide(visnav.VisnavResults(results=bad, extra={}, meta={}))
     assert [c.holds for c in no] == [False, False]
+
+
+def _sweep_rows(anees: dict[float, list[float]]) -> list[dict]:
+    """Sweep rows of phase_q with the given final body NEES per q (one per seed)."""
+    return [{"scenario": "s", "seed": 1000 + i, "q": q, "nees_body6_final": a, "anees": a, "rmse_position_m": 0.01,
+             "pcrb_rmse_position_m": 0.01, "rmse": 0.008, "pcrb_rmse": 0.009, "max_abs_position": [0.01, 0.02, 0.01]}
+            for q, values in anees.items() for i, a in enumerate(values)]
+
+
+def test_phase_q_rule_picks_the_anees_closest_to_dof_on_a_log_scale(tmp_path):
+    from testbed.reproduce import phase_q
+
+    # means 14 / 7 / 4.5 / 2.5: |ln(7/6)| = 0.15 < |ln(4.5/6)| = 0.29 -> 1e-9
+    rows = _sweep_rows({1e-13: [13.0, 15.0], 1e-11: [6.0, 8.0], 1e-9: [4.0, 5.0], 1e-7: [2.0, 3.0]})
+    assert phase_q.anees_by_q(rows) == {1e-13: 14.0, 1e-11: 7.0, 1e-9: 4.5, 1e-7: 2.5}
+    assert phase_q.choose(rows) == 1e-11
+    # a log-scale tie (3 and 12 are both a factor 2 from 6): the larger q
+    assert phase_q.choose(_sweep_rows({1e-13: [12.0], 1e-9: [3.0]})) == 1e-9
+    # the figure is written, with and without the full-duration sweep
+    path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep.png", horizon=20.0)
+    assert path.stat().st_size > 10_000
+    path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep_long.png", horizon=20.0, long=rows)
+    assert path.stat().st_size > 10_000
+    short = [{k: v for k, v in r.items() if k not in ("rmse", "pcrb_rmse", "max_abs_position")} for r in rows]
+    path = phase_q.plot({"s": rows}, {"s": 1e-11}, tmp_path / "q_sweep_short.png", horizon=4.0, long=short)
+    assert path.stat().st_size > 10_000
+
+
+def test_phase_q_command_refuses_an_unknown_scenario_in_one_line(capsys):
+    from testbed.reproduce import phase_q
+
+    assert phase_q.main(["phase-nope"]) == 2
+    err = capsys.readouterr().err
+    assert "phase-nope" in err and err.count("\n") == 1

@@ -27,7 +27,7 @@ from estimators.graph.linear import GAUGE_RATIO, factor_spd
 from estimators.graph.lm import ROUNDOFF
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
-__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch"]
+__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch", "so3_log_batch"]
 
 DIMS = {"pose": 6, "point": 3}
 
@@ -41,6 +41,15 @@ def so3_exp_batch(w: np.ndarray) -> np.ndarray:
     a = np.where(small, 1.0, np.sin(ths) / ths)
     b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
     return np.eye(3) + a * K + b * (K @ K)
+
+
+def so3_log_batch(R: np.ndarray) -> np.ndarray:
+    """Log of rotations R (..., 3, 3) -> rotation vectors (..., 3) rad, |w| < pi (series near 0)."""
+    c = np.clip(0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
+    th = np.arccos(c)[..., None]
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    small = th < 1e-8
+    return v * np.where(small, 0.5, th / (2.0 * np.sin(np.where(small, 1.0, th))))
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -142,39 +151,55 @@ class _Layout:
         nr, nh = f.r_epoch.size, f.h_epoch.size
         self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
         self.q_slot = slot[nr + nh:].reshape(-1, 3)
-        self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a), "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b),
-                     "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm), "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm)}
+        self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a, self.r_slot[:, None]),
+                     "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b, self.r_slot[:, None]),
+                     "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm, self.h_slot[:, None]),
+                     "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm, self.q_slot)}
         self.q_chol = np.linalg.cholesky(f.q_cov) if f.q_epoch.size else None
 
 
 class _Ends:
     """Constant data of one list of factor ends: epoch (n,), free (n,) bool, var (n,) (0 where
-    fixed), pose (n,) bool, lever (n, 3) (zero unless a pose), fixed (n, 3) world points."""
+    fixed), lever (n, 3) (zero unless a pose), fixed (n, 3) world points; of the free ends only
+    (f of them): at (f,) their rows, flat (f, d, 6) the flat indices of their Jacobian entries in
+    the layout's (E, M, k + 1) array for the factor rows slots (n, d)."""
 
-    def __init__(self, lay: "_Layout", epoch, var, arm):
+    def __init__(self, lay: "_Layout", epoch, var, arm, slots):
         self.epoch = np.asarray(epoch, np.int64)
         self.free = np.asarray(var) >= 0
         self.var = np.where(self.free, var, 0)
-        self.pose = self.free & lay.is_pose[self.var]
-        self.lever = np.where(self.pose[:, None], arm, 0.0)
+        pose = self.free & lay.is_pose[self.var]
+        self.lever = np.where(pose[:, None], arm, 0.0)
         self.fixed = np.where(self.free[:, None], 0.0, arm)
-        self.cols = lay.colmap[self.var]
+        self.at = np.flatnonzero(self.free)
+        self.all_free = self.at.size == self.free.size
+        ef, vf = self.epoch[self.at], self.var[self.at]
+        self.flat = (ef[:, None, None] * lay.M + np.asarray(slots)[self.at][:, :, None]) * (lay.k + 1) + lay.colmap[vf][:, None, :]
 
     def points(self, p, R):
-        """World points (n, 3) and the rotations (n, 3, 3) of the ends' variables."""
-        Rv = R[self.epoch, self.var]
-        e = np.where(self.free[:, None], p[self.epoch, self.var] + np.einsum("nij,nj->ni", Rv, self.lever), self.fixed)
+        """World points (n, 3) of the ends, and the rotations (f, 3, 3) of the free ends' variables."""
+        ef, vf = self.epoch[self.at], self.var[self.at]
+        Rv = R[ef, vf]
+        moving = p[ef, vf] + np.einsum("nij,nj->ni", Rv, self.lever[self.at])
+        if self.all_free:
+            return moving, Rv
+        e = self.fixed.copy()
+        e[self.at] = moving
         return e, Rv
 
     def row(self, Rv, u):
-        """Tangent Jacobian rows u^T de/dx (n, 6) for directions u (n, 3): [u, l x (R^T u)], since
-        d(R exp(dtheta) l)/d dtheta = -R [l]x and u^T (-R [l]x) = (l x R^T u)^T."""
-        return np.concatenate([u, np.cross(self.lever, np.einsum("nji,nj->ni", Rv, u))], axis=1)
+        """Tangent Jacobian rows u^T de/dx (f, 6) of the free ends for directions u (n, 3):
+        [u, l x (R^T u)], since d(R exp(dtheta) l)/d dtheta = -R [l]x and u^T (-R [l]x) = (l x R^T u)^T."""
+        u = u[self.at]
+        a, b = self.lever[self.at], np.einsum("nji,nj->ni", Rv, u)
+        cross = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                          a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+        return np.concatenate([u, cross], axis=1)
 
 
 def _residuals(f: EpochFactors, lay: _Layout, p, R):
     """Whitened residuals and Jacobian blocks of every factor: list of (kind, epoch, slots, e (n, d),
-    [(ends, J (n, d, 6))])."""
+    [(ends, J (f, d, 6) of the ends' free rows)])."""
     out = []
     if f.r_epoch.size:
         A, B = lay.ends["ra"], lay.ends["rb"]
@@ -184,22 +209,22 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R):
         r = np.sqrt(np.einsum("ni,ni->n", diff, diff))
         safe = r > 0
         u = np.where(safe[:, None], diff / np.where(safe, r, 1.0)[:, None], [0.0, 0.0, 1.0])
-        s = f.r_sigma[:, None]
         e = ((f.r_d - r) / f.r_sigma)[:, None]
-        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / s)[:, None]), (B, (-B.row(Rb, u) / s)[:, None])]))
+        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / f.r_sigma[A.at, None])[:, None]),
+                                                                   (B, (-B.row(Rb, u) / f.r_sigma[B.at, None])[:, None])]))
     if f.h_epoch.size:
         H = lay.ends["h"]
         eh, Rh = H.points(p, R)
         up = np.broadcast_to([0.0, 0.0, 1.0], eh.shape)
         e = ((f.h_z - eh[:, 2]) / f.h_sigma)[:, None]
-        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(H, (H.row(Rh, up) / f.h_sigma[:, None])[:, None])]))
+        out.append(("height", f.h_epoch, lay.h_slot[:, None], e, [(H, (H.row(Rh, up) / f.h_sigma[H.at, None])[:, None])]))
     if f.q_epoch.size:
         Q = lay.ends["q"]
         eq, Rq = Q.points(p, R)
         J = np.stack([Q.row(Rq, np.broadcast_to(ax, eq.shape)) for ax in np.eye(3)], axis=1)  # (n, 3, 6)
         e = np.linalg.solve(lay.q_chol, (f.q_z - eq)[..., None])[..., 0]
         # W = L^-1 (W^T W = cov^-1): whitened e = W (z - h), Jacobian W dh/dx
-        out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol, J))]))
+        out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol[Q.at], J))]))
     return out
 
 
@@ -226,7 +251,7 @@ def _cost(res, losses, E):
 def _system(res, losses, lay: _Layout):
     """IRLS-weighted normal equations N (E, k, k), g (E, k) and the robust cost (E,)."""
     E, M, k = lay.E, lay.M, lay.k
-    J = np.zeros((E, M, k + 1))
+    J = np.zeros(E * M * (k + 1))
     b = np.zeros((E, M))
     cost = np.zeros(E)
     for kind, epoch, slots, e, blocks in res:
@@ -235,10 +260,8 @@ def _system(res, losses, lay: _Layout):
         sw = np.sqrt(loss_weight(losses.get(kind), s))[:, None]
         b[epoch[:, None], slots] = sw * e
         for ends, Jb in blocks:
-            free = ends.free
-            ee, ss = epoch[free], slots[free]
-            J[ee[:, None, None], ss[:, :, None], ends.cols[free][:, None, :]] = (sw[free, :, None] * Jb[free])
-    J = J[:, :, :k]
+            J[ends.flat] = sw[ends.at, :, None] * Jb
+    J = J.reshape(E, M, k + 1)[:, :, :k]
     Jt = np.swapaxes(J, 1, 2)
     return Jt @ J, (Jt @ b[..., None])[..., 0], cost
 
@@ -297,11 +320,15 @@ def _observability_and_cov(N):
 
 
 def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dict | None = None, max_iter: int = 50,
-                 step_tol: float = 1e-8, cost_tol: float = 1e-12, lm_lambda: float = 1e-4) -> EpochsResult:
+                 step_tol: float = 1e-8, cost_tol: float = 1e-12, step_sigma: float = 0.0,
+                 lm_lambda: float = 1e-4) -> EpochsResult:
     """Levenberg-Marquardt on every epoch at once from p0 (E, V, 3), R0 (E, V, 3, 3) (see the
     module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: a step
     (accepted or not) whose largest component is below step_tol, or an accepted step whose
-    relative cost decrease is below cost_tol; max_iter linear solves per epoch at most."""
+    relative cost decrease is below cost_tol, or (step_sigma > 0) an accepted step delta shorter
+    than step_sigma standard deviations of the estimate: sqrt(delta^T N delta) < step_sigma, N the
+    undamped normal matrix where the step starts (the information of the epoch's solution); max_iter
+    linear solves per epoch at most."""
     losses = dict(losses or {})
     for kind, loss in losses.items():
         if not isinstance(loss, Loss):
@@ -329,7 +356,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         delta, D = _damped_solve(N, g, lam)
         delta[~active] = 0.0
         p_new, R_new = _retract(lay, p, R, delta)
-        f_new = _cost(_residuals(f, lay, p_new, R_new), losses, E)
+        res = _residuals(f, lay, p_new, R_new)  # at the candidates; the system of the accepted ones
+        f_new = _cost(res, losses, E)
         pred = 0.5 * np.einsum("ek,ek->e", delta, lam[:, None] * D * delta + g)
         with np.errstate(divide="ignore", invalid="ignore"):
             q = np.where(pred > 0, (cost - f_new) / pred, -1.0)
@@ -341,6 +369,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         lam = np.where(accept, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3), np.where(reject, lam * nu, lam))
         nu = np.where(accept, 2.0, np.where(reject, nu * 2.0, nu))
         small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
+        if step_sigma > 0:
+            small |= accept & (np.einsum("ei,eij,ej->e", delta, N, delta) < step_sigma ** 2)
         p = np.where(accept[:, None, None], p_new, p)
         R = np.where(accept[:, None, None, None], R_new, R)
         # a rejected step below step_tol: the minimum is within step_tol (round-off decides the cost)
@@ -351,10 +381,10 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         stuck |= tiny
         active &= ~(small | stuck) & (iterations < max_iter)
         if accept.any():
-            N_new, g_new, c_new = _system(_residuals(f, lay, p, R), losses, lay)
+            N_new, g_new, _ = _system(res, losses, lay)
             N = np.where(accept[:, None, None], N_new, N)
             g = np.where(accept[:, None], g_new, g)
-            cost = np.where(accept, c_new, cost)
+            cost = np.where(accept, f_new, cost)
     P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
     observable, cov = _observability_and_cov(NN)
     return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable)

@@ -4,25 +4,28 @@ Synthetic multi-robot ranging data like a multi-robot UWB dataset (issue #16): t
 with six antennas on a flat 0.6 m hexagon (so a height aid is needed against the mirror
 ambiguity), every antenna of one robot ranging every antenna of another (36 antenna pairs per robot
 pair, 108 ranges an epoch) at 10 Hz, robot 1 known by motion capture (fixed), robots 2 and 3
-estimated as poses with a height measurement each. The measurements go through the plugin path of
-`testbed replay` (testbed.plugins.feed.run_plugin: Measurement objects one at a time, estimates
-checked and collected), so the figure is what a replay of such a recording costs. CPU time
-(time.process_time) of generating the data and of the replay, reported separately.
+estimated as poses with a height measurement each. The measurements go through the factor graph
+alone (solve_direct: the batched solver on prebuilt factor arrays) and through the plugin path of
+`testbed replay` (testbed.plugins.feed.run_plugin: per epoch the height and mocap Measurements and
+the ranges as one MeasurementBatch, as a recorded dataset's run of link rows is fed; estimates
+checked and collected), so the second figure is what a replay of such a recording costs once it is
+read. CPU time (time.process_time) of generating the data and of the replay, reported separately.
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator
 
 import numpy as np
 
-from estimators.graph.batch import EpochFactors, so3_exp_batch, solve_epochs
-from estimators.graph.model import so3_log
+from estimators.graph.batch import EpochFactors, solve_epochs
+from estimators.graph.warmstart import fit_motion
 from estimators.so3 import rotmat_to_quat
-from testbed.plugins.api import Context, Measurement
+from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import Plugin
-from testbed.replay.graph import PoseGraph
+from testbed.replay.graph import GraphParams, PoseGraph
 from testbed.rng import stream_rng
 
 RATE_HZ = 10.0
@@ -69,12 +72,17 @@ def context(data: dict, seed: int = 0) -> Context:
                    duration=float(data["time"][-1]), seed=seed, rng=stream_rng(seed, "estimator/graph.poses"))
 
 
-def feed(data: dict, known: tuple[int, ...] = (0,)) -> Iterator[Measurement]:
-    """Measurements in feeding order (per epoch: heights, mocap of the known robots, ranges)."""
+def feed(data: dict, known: tuple[int, ...] = (0,), batched: bool = True) -> Iterator[Measurement | MeasurementBatch]:
+    """Measurements in feeding order (per epoch: heights, mocap of the known robots, ranges); the
+    ranges of an epoch as one MeasurementBatch (as testbed.replay feeds a run of rows of one
+    stream), or one Measurement each (batched False)."""
     n = data["pos"].shape[1]
-    src = [f"r{a + 1}/a{i + 1}" for a, i in data["pairs"][:, :2]]
-    dst = [f"r{b + 1}/a{j + 1}" for b, j in data["pairs"][:, 2:]]
-    sig_r, sig_h = np.array([RANGE_SIGMA]), np.array([HEIGHT_SIGMA])
+    P = data["pairs"].shape[0]
+    src = np.array([f"r{a + 1}/a{i + 1}" for a, i in data["pairs"][:, :2]])
+    dst = np.array([f"r{b + 1}/a{j + 1}" for b, j in data["pairs"][:, 2:]])
+    sig_r, sig_h = np.full((P, 1), RANGE_SIGMA), np.array([HEIGHT_SIGMA])
+    for a in (src, dst, sig_r):
+        a.flags.writeable = False
     quat = {(e, a): rotmat_to_quat(data["rot"][e, a]) for e in range(data["time"].size) for a in known}
     for e, t in enumerate(data["time"].tolist()):
         for a in range(n):
@@ -83,9 +91,12 @@ def feed(data: dict, known: tuple[int, ...] = (0,)) -> Iterator[Measurement]:
         for a in known:
             yield Measurement(stream="mocap", time=t, arrival=t, value=np.concatenate([data["pos"][e, a], quat[(e, a)]]),
                               src=f"r{a + 1}")
-        row = data["ranges"][e]
-        for k in range(len(src)):
-            yield Measurement(stream="uwb", time=t, arrival=t, value=row[k:k + 1], src=src[k], dst=dst[k], sigma=sig_r)
+        tt = np.full(P, t)
+        b = MeasurementBatch(stream="uwb", time=tt, arrival=tt, value=data["ranges"][e][:, None], src=src, dst=dst, sigma=sig_r)
+        if batched:
+            yield b
+        else:
+            yield from b.rows()
 
 
 def _batch_factors(data: dict, epochs: np.ndarray) -> EpochFactors:
@@ -107,34 +118,36 @@ def _batch_factors(data: dict, epochs: np.ndarray) -> EpochFactors:
     )
 
 
-def solve_direct(data: dict, start: tuple[np.ndarray, np.ndarray], batch: int) -> tuple[np.ndarray, np.ndarray, dict]:
+def solve_direct(data: dict, start: tuple[np.ndarray, np.ndarray], batch: int,
+                 window: float | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """The factor graph alone (no Measurement objects): epochs in batches, each batch started from
-    the previous one's last two solutions extrapolated (constant velocity and body rate), as graph.poses
-    does; returns positions (E, n - 1, 3), converged (E,) and iteration statistics."""
-    E = data["time"].size
-    dt = 1.0 / RATE_HZ
-    pos, conv, iters = np.zeros((E, start[0].shape[0], 3)), np.zeros(E, bool), np.zeros(E, np.int64)
-    last, prev = start, None
+    the constant-velocity and body-rate fit to the solutions of the last `window` s
+    (estimators.graph.warmstart), as graph.poses does; returns positions (E, n - 1, 3), converged
+    (E,) and iteration statistics."""
+    p = GraphParams()  # graph.poses' defaults
+    window = p.motion_window if window is None else window
+    E, t = data["time"].size, data["time"]
+    V = start[0].shape[0]
+    pos, rot = np.zeros((E, V, 3)), np.zeros((E, V, 3, 3))
+    conv, iters = np.zeros(E, bool), np.zeros(E, np.int64)
     for b0 in range(0, E, batch):
         epochs = np.arange(b0, min(E, b0 + batch))
-        h = (epochs - (b0 - 1))[:, None, None] * dt
-        if prev is None:
-            p0, R0 = np.broadcast_to(last[0], (epochs.size,) + last[0].shape), np.broadcast_to(last[1], (epochs.size,) + last[1].shape)
+        if b0 == 0:
+            p0, R0 = np.broadcast_to(start[0], (epochs.size, V, 3)), np.broadcast_to(start[1], (epochs.size, V, 3, 3))
         else:
-            v = (last[0] - prev[0]) / dt
-            w = np.stack([so3_log(prev[1][k].T @ last[1][k]) for k in range(last[1].shape[0])]) / dt
-            p0 = last[0] + v * h
-            R0 = last[1] @ so3_exp_batch(w[None] * h)
-        res = solve_epochs(_batch_factors(data, epochs), p0, R0, step_tol=1e-6, cost_tol=1e-9)
-        pos[epochs], conv[epochs], iters[epochs] = res.p, res.converged, res.iterations
-        prev = (res.p[-2], res.R[-2]) if epochs.size > 1 else last
-        last = (res.p[-1], res.R[-1])
+            recent = np.arange(np.searchsorted(t[:b0], t[b0 - 1] - window - 1e-9), b0)
+            p0, R0 = fit_motion(t[recent], pos[recent], rot[recent]).predict(t[epochs])
+        res = solve_epochs(_batch_factors(data, epochs), p0, R0, step_tol=p.step_tol, cost_tol=p.cost_tol,
+                           step_sigma=p.step_sigma)
+        pos[epochs], rot[epochs], conv[epochs], iters[epochs] = res.p, res.R, res.converged, res.iterations
     return pos, conv, {"iterations_mean": float(iters.mean()), "iterations_max": int(iters.max())}
 
 
-def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: float = 600.0) -> dict:
+def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: float | None = None) -> dict:
     """`duration` s of the synthetic recording through the factor graph alone (solve_direct), and
-    `plugin_duration` s of it through graph.poses on the plugin path; CPU seconds and accuracy."""
+    `plugin_duration` s (default: the same) of it through graph.poses on the plugin path; CPU
+    seconds, accuracy and the load average of the machine before and after (it may be shared)."""
+    load0 = os.getloadavg()
     c0 = time.process_time()
     data = robots(duration)
     n = data["pos"].shape[1]
@@ -146,8 +159,9 @@ def bench_replay(duration: float = 3600.0, batch: int = 16, plugin_duration: flo
     direct = {"duration_s": duration, "epochs": int(data["time"].size), "ranges": int(data["ranges"].size),
               "generate_cpu_s": c1 - c0, "solve_cpu_s": c2 - c1, "nonconverged_epochs": int((~conv).sum()), **stats,
               "position_rmse_m": float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))}
+    plugin = bench_plugin(duration if plugin_duration is None else plugin_duration, batch)
     return {"robots": n, "antennas_per_robot": len(data["arms"]), "rate_hz": RATE_HZ, "batch": batch, "target_cpu_s": 60.0,
-            "factor_graph": direct, "plugin_path": bench_plugin(plugin_duration, batch)}
+            "factor_graph": direct, "plugin_path": plugin, "load_average_1_5_15_min": {"before": list(load0), "after": list(os.getloadavg())}}
 
 
 def bench_plugin(duration: float, batch: int) -> dict:
@@ -171,6 +185,6 @@ def bench_plugin(duration: float, batch: int) -> dict:
     e = np.concatenate(err)
     return {
         "duration_s": duration, "epochs": int(data["time"].size), "ranges": int(data["ranges"].size),
-        "generate_cpu_s": c1 - c0, "replay_cpu_s": c2 - c1,
+        "generate_cpu_s": c1 - c0, "replay_cpu_s": c2 - c1, "iterations_mean": health["lm_iterations"] / max(health["epochs"], 1),
         "position_rmse_m": float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))), "health": health,
     }

@@ -1,4 +1,4 @@
-"""`testbed bench physics|sensors|estimators [--json FILE]`: run one family, print, save as JSON."""
+"""`testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE]`: run one family, print, save as JSON."""
 from __future__ import annotations
 
 import json
@@ -38,6 +38,12 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         result = {"estimators": bench_estimators()}
         for k, rows in result["estimators"].items():
             _print_table(f"estimators: {k}", rows)
+    elif what == "denied":
+        from testbed.bench.denied import bench_denied  # lazy: this family runs a whole scenario
+
+        rows = [bench_denied(name=v) for v in ("coop_distributed", "coop")]
+        result = {"denied": rows}
+        _print_table("denied: coop-denied flown on the cooperative estimate (all sensors, network); one core", rows)
     elif what == "replay":
         from testbed.bench.replay import bench_replay  # lazy: only this family needs the replay package
 
@@ -46,6 +52,13 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         for k in ("factor_graph", "plugin_path"):
             print(f"replay ({out['robots']} robots x {out['antennas_per_robot']} antennas, {out['rate_hz']:g} Hz, "
                   f"batch {out['batch']}): {k}: {out[k]}")
+    elif what == "loop":
+        from testbed.bench.loop import SIZES as LOOP_SIZES, bench_loop  # lazy, as replay
+
+        out = bench_loop(vehicles or LOOP_SIZES)
+        _print_table("loop: flown with IMU 100 Hz, GNSS 5 Hz, UWB 10 Hz; CPU s per simulated s, truth vs estimator in the loop", out["rows"])
+        print(f"twice the duration: {out['duration_scale']}; CPU (hold) ~ N^{out['growth_exponent_hold']}")
+        result = {"loop": out}
     else:
         raise ValueError(what)
     result["machine"] = {"python": platform.python_version(), "mujoco": mujoco.__version__, "processor": platform.processor() or platform.machine()}

@@ -15,10 +15,14 @@ Inputs of the estimators, nothing else: `gnss/value` with the receiver's solutio
 `gnss/rtk` (a real receiver reports its fix type), `uwb/value`, `uwb/src`, `uwb/dst`, and the
 "known" noise model of [pipeline] (gnss_sigma_*, rtk_sigma_*, range_sigma, clock_ppm, twr_mode,
 reply_time, antenna_delay_sigma): a mismatch between these and the sensor tables is the
-configurable error of the known quantities. The two-way ranging clock and antenna-delay errors are
-absorbed as white: sigma_k^2 = range_sigma^2 + twr_range_variance(d_k) (range_sigmas;
-testbed.sensors.noise, docs/sensors.md): (clock_ppm 1e-6 d_k)^2 / 2 + 2 antenna_delay_sigma^2 for
-"scale" and "ds-twr" (<= 1.4 mm of clock at 100 m), plus the reply-time term for "ss-twr".
+configurable error of the known quantities. The two-way ranging clock and antenna-delay errors
+are per device, shared by every link of a radio: the centralized estimator whitens an epoch's
+ranges with their joint covariance range_sigma^2 I + twr_range_covariance (range_covariance;
+testbed.sensors.noise, docs/sensors.md); the distributed ones (the paper's scheme, ranges
+independent) use its diagonal sigma_k^2 = range_sigma^2 + twr_range_variance(d_k) (range_sigmas):
+(clock_ppm 1e-6 d_k)^2 / 2 + 2 antenna_delay_sigma^2 for "scale" and "ds-twr" (<= 1.4 mm of clock
+at 100 m), plus the reply-time term for "ss-twr". With robust = "huber" the centralized estimator
+uses the diagonal too (the Huber loss is defined on independent whitened ranges).
 `uwb/nlos` is truth (scoring only).
 
 Estimators (metrics.json `estimators.*`):
@@ -43,7 +47,7 @@ Without [network] nothing changes (ideal channel).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +59,7 @@ from testbed.interrupt import poll
 from testbed.network import Network, NetworkConfig, RoundTransport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.rng import stream_rng
-from testbed.sensors.noise import twr_range_variance
+from testbed.sensors.noise import twr_range_covariance, twr_range_variance
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 
@@ -167,10 +171,22 @@ def range_sigmas(cfg: CoopPipelineConfig, d: np.ndarray) -> np.ndarray:
     return np.sqrt(cfg.range_sigma ** 2 + twr_range_variance(cfg.twr_mode, d, cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma))
 
 
+def range_covariance(cfg: CoopPipelineConfig, edges: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Joint covariance (m, m) m^2 the centralized estimator assumes for one epoch's ranges d (m,)
+    m on edges (m, 2): the white noise range_sigma^2 I plus the per-device clock and antenna-delay
+    terms of the known model, shared by the links of one radio (testbed.sensors.noise.
+    twr_range_covariance); its diagonal is range_sigmas(cfg, d)^2."""
+    twr = twr_range_covariance(cfg.twr_mode, d, edges[:, 0], edges[:, 1], cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma)
+    return cfg.range_sigma ** 2 * np.eye(d.size) + twr
+
+
 def epoch_problem(cfg: CoopPipelineConfig, gnss: np.ndarray, gnss_cov: np.ndarray, edges: np.ndarray,
                   ranges: np.ndarray) -> CoopProblem:
-    """One epoch's problem: fixes (N, 3) m with known covariances (N, 3, 3), edges (m, 2), ranges (m,) m."""
-    return CoopProblem(gnss_pos=gnss, gnss_cov=gnss_cov, edges=edges, ranges=ranges, range_sigma=range_sigmas(cfg, ranges))
+    """One epoch's problem: fixes (N, 3) m with known covariances (N, 3, 3), edges (m, 2), ranges (m,) m;
+    with the joint range covariance (range_covariance) when the known model has per-device terms."""
+    cov = range_covariance(cfg, edges, ranges) if cfg.clock_ppm > 0 or cfg.antenna_delay_sigma > 0 else None
+    return CoopProblem(gnss_pos=gnss, gnss_cov=gnss_cov, edges=edges, ranges=ranges, range_sigma=range_sigmas(cfg, ranges),
+                       range_cov=cov)
 
 
 def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rng: np.random.Generator,
@@ -183,6 +199,8 @@ def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rn
     n = prob.gnss_pos.shape[0]
     huber = cfg.huber_delta if cfg.robust == "huber" else None
     if w == "centralized":
+        if huber is not None:  # the Huber loss is defined on independent whitened ranges
+            prob = replace(prob, range_cov=None)
         res = solve_centralized(prob, huber=huber, covariance="full")
         # every UAV uploads its fix + covariance (9 floats) and the ranges it initiated
         # (value + neighbour id): n messages, 8 (9 n + 2 m) bytes

@@ -22,9 +22,9 @@ hovering quadrotor (its small motion, if any, is carried by R, p and their rates
 
 Range-rate rows (eq. 7 as the sensor really measures it): the reported rate is the mean over the
 window W = rate_periods T (0.7 s by default) ending at the epoch, i.e. (r(t) - r(t - W)) / W; it
-lags the instantaneous rate by ~W / 2. `rate_rows = "window"` (default) predicts exactly that mean
+lags the instantaneous rate by ~W / 2. `rate_rows = "window"` predicts exactly that mean
 from the constant-velocity state (phase_model.measurement_model, rate_window), `"instantaneous"`
-is the paper's eq. 10 (biased by the lag), `"off"` uses ranges only. The rate noise is
+is the paper's eq. 10 (biased by the lag), `"off"` (default) uses ranges only. The rate noise is
 sqrt(2) sigma_range / W per row (W shorter during the first 0.7 s).
 Correlation: because the phase tracker telescopes, the reported rate equals
 (r_hat(t) - r_hat(t - W)) / W to round-off (checked in tests/test_phase_scenario.py): its error is
@@ -33,10 +33,11 @@ epoch's range row (rho = +0.71) and with the range row W earlier (rho = -0.71), 
 rates are NOT correlated with each other (the window's inner phase samples cancel). The paper's
 EKF treats all 90 rows as independent, which counts the range information twice in velocity:
 with ranges at every epoch the rate rows carry no information the ranges do not, and `"off"` is
-the consistent choice. Measured on the model-matched truth of
+the consistent choice, hence the default (derivation: docs/models.md, "Seed 003 range-rate
+rows"). Measured on the model-matched truth of
 tests/test_phase_scenario.py (phase-cross-h000 with the follower's [disturbance] equal to the
 filter's q_translation / q_rotation, 30 runs, 20 s, final epoch): body ANEES 5.78 with `"off"`,
-9.64 with `"window"` (over-confident), 99 % interval [4.50, 7.75].
+9.65 with `"window"` (over-confident), 99 % interval [4.50, 7.75] (9.64 under the former q = 1e-7).
 
 Scores (estimators.ekf in metrics.json), body = mean of wing tips (eq. 29), frame N:
 rmse_position_m, rmse_velocity_mps, rmse_attitude_deg over t >= score_start;

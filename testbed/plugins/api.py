@@ -6,13 +6,17 @@ A plugin is a class (see docs/estimators.md)
         description = "one line"                         # optional, shown by `testbed estimators`
         def __init__(self, context: Context, params: dict): ...
         def process(self, m: Measurement) -> Iterable[Estimate]: ...
+        def process_batch(self, b: MeasurementBatch) -> Iterable[Estimate]: ...  # optional, see below
         def finish(self) -> Iterable[Estimate]: ...      # optional
         def health(self) -> dict[str, int]: ...          # optional counts, e.g. covariance_repairs
 
 The testbed constructs it once per run with the `Context` (everything an estimator may know:
 geometry, declared sensor models, prior, its params, a random generator), then calls `process`
 with every `Measurement` in order of arrival (time of validity + latency), one at a time, and
-`finish` once at the end. Nothing else is given: never truth, never the simulator's state. The
+`finish` once at the end. A recorded dataset (testbed.replay) is fed partly in `MeasurementBatch`es
+(runs of consecutive rows of one stream, as columns): an estimator with `process_batch` gets each
+batch whole, and must treat it exactly as its rows one at a time; one without gets the rows one by
+one through `process`. Nothing else is given: never truth, never the simulator's state. The
 same class therefore runs offline on a log, on recorded data, or online inside a simulation.
 
 Frames and units: world frame ENU (m), bodies FLU; quaternions wxyz, body-to-world, as MuJoCo.
@@ -54,6 +58,42 @@ class Measurement:
     dst: str = ""
     sigma: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class MeasurementBatch:
+    """Consecutive measurements of one stream in feeding order, as columns (a recorded dataset's
+    runs of rows, testbed.replay): what `Estimator.process_batch` receives, or, for an estimator
+    without it, one `Measurement` per row (`rows()`), so both see the same data in the same order.
+
+    stream: the stream name; time, arrival: (n,) s; value: (n, d); src, dst: (n,) str (dst "" for a
+    per-vehicle stream); sigma: (n, d) declared 1-sigma, NaN in a row that declares none (its
+    Measurement has sigma None), or None when no row declares one. Arrays are read-only.
+    """
+
+    stream: str
+    time: np.ndarray
+    arrival: np.ndarray
+    value: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    sigma: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.time.shape[0])
+
+    def has_sigma(self) -> np.ndarray:
+        """(n,) bool: the rows that declare a sigma."""
+        if self.sigma is None:
+            return np.zeros(len(self), bool)
+        return np.all(np.isfinite(self.sigma), axis=1)
+
+    def rows(self) -> list[Measurement]:
+        """One Measurement per row, in order."""
+        has = self.has_sigma()
+        return [Measurement(stream=self.stream, time=t, arrival=a, value=self.value[i], src=str(self.src[i]),
+                            dst=str(self.dst[i]), sigma=self.sigma[i] if has[i] else None)
+                for i, (t, a) in enumerate(zip(self.time.tolist(), self.arrival.tolist()))]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -106,7 +146,8 @@ class Context:
 
 @runtime_checkable
 class Estimator(Protocol):
-    """The protocol a plugin implements (`finish`, `health` and `description` are optional)."""
+    """The protocol a plugin implements (`process_batch`, `finish`, `health` and `description` are
+    optional)."""
 
     def __init__(self, context: Context, params: dict) -> None: ...
 

@@ -8,6 +8,7 @@ definite (3, 3) covariance. Anything else is a PluginError naming the estimator,
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -83,12 +84,9 @@ class Collector:
             cov = np.asarray(e.cov, dtype=float)
             if cov.shape != (3, 3):
                 raise self._fail(where, e, f"cov has shape {cov.shape}, expected (3, 3)")
-            if not np.all(np.isfinite(cov)):
-                raise self._fail(where, e, "cov is not finite")
-            if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(cov).max()))):
-                raise self._fail(where, e, "cov is not symmetric")
-            if np.linalg.eigvalsh(cov)[0] <= 0.0:
-                raise self._fail(where, e, "cov is not positive definite")
+            reason = _cov_problem(cov.tolist())
+            if reason:
+                raise self._fail(where, e, reason)
         self._rows.setdefault((e.target, e.quantity), []).append((t, value, cov))
 
     def track(self) -> Track:
@@ -101,6 +99,30 @@ class Collector:
             cov = np.stack([rows[i][2] if rows[i][2] is not None else np.full((3, 3), np.nan) for i in order])
             out[key] = Series(time, value, cov, has, self._frame[key])
         return out
+
+
+def _cov_problem(c: list) -> str | None:
+    """Why a (3, 3) covariance (nested lists) is not finite, symmetric (to 1e-9 relative, as
+    numpy.allclose(c, c.T, rtol=1e-9, atol=1e-12 max(1, max |c|))) and positive definite
+    (Cholesky pivots of the symmetric part > 0); None if it is. Plain floats: this runs per estimate."""
+    flat = [x for row in c for x in row]
+    if not all(math.isfinite(x) for x in flat):
+        return "cov is not finite"
+    atol = 1e-12 * max(1.0, max(abs(x) for x in flat))
+    if any(abs(c[i][j] - c[j][i]) > atol + 1e-9 * abs(c[j][i]) for i in range(3) for j in range(3) if i != j):
+        return "cov is not symmetric"
+    a, b, d = c[0][0], 0.5 * (c[0][1] + c[1][0]), 0.5 * (c[0][2] + c[2][0])
+    e, f, g = c[1][1], 0.5 * (c[1][2] + c[2][1]), c[2][2]
+    # Cholesky of [[a, b, d], [b, e, f], [d, f, g]]: pivots a, e - b^2/a, g - d^2/a - (f - b d/a)^2 / p2
+    if not a > 0.0:
+        return "cov is not positive definite"
+    p2 = e - b * b / a
+    if not p2 > 0.0:
+        return "cov is not positive definite"
+    h = f - b * d / a
+    if not g - d * d / a - h * h / p2 > 0.0:
+        return "cov is not positive definite"
+    return None
 
 
 def natural(name: str) -> list:

@@ -9,12 +9,13 @@ Order: by arrival time, then time of validity, then stream name, then log row (d
 from __future__ import annotations
 
 import time as wallclock
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from testbed.errors import PluginError
-from testbed.plugins.api import Context, Measurement
+from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.collect import Collector, Track
 from testbed.plugins.loading import Plugin
 from testbed.scenario import Scenario
@@ -33,60 +34,140 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return a
 
 
+@dataclass(frozen=True, slots=True)
+class Columns:
+    """The measured columns of one stream (rows of the log, or of one sample online): what
+    `measurement(r)` turns row r into."""
+
+    name: str
+    time: np.ndarray
+    arrival: np.ndarray
+    value: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    sigma: np.ndarray | None
+    extra: dict
+
+    def measurement(self, r: int) -> Measurement:
+        return Measurement(stream=self.name, time=float(self.time[r]), arrival=float(self.arrival[r]), value=self.value[r],
+                           src=str(self.src[r]), dst=str(self.dst[r]), sigma=None if self.sigma is None else self.sigma[r],
+                           extra={c: v[r] for c, v in self.extra.items()})
+
+
+def measurement_columns(name: str, arrays: dict[str, np.ndarray], scenario: Scenario) -> Columns:
+    """The measured columns of stream `name` from its arrays keyed without the prefix
+    (testbed.stream.stream_arrays), with the declared sigma; arrays read-only."""
+    value = _read_only(np.asarray(arrays["value"], dtype=float))
+    sigma = declared_sigma(name, arrays, scenario)
+    if sigma is not None:
+        sigma = _read_only(np.asarray(sigma, dtype=float))
+    extra = {k: _read_only(arrays[k]) for k in MEASURED_EXTRA.get(name, ()) if k in arrays}
+    return Columns(name, arrays["time"], arrays["arrival"], value, arrays["src"], arrays["dst"], sigma, extra)
+
+
 def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement]:
     """Every measurement of the log in feeding order (see the module docstring); arrays read-only."""
-    names = stream_names(log)
-    cols = []
-    for name in names:
-        value = _read_only(np.asarray(log[f"{name}/value"], dtype=float))
-        sigma = declared_sigma(name, stream_arrays(name, log), scenario)
-        if sigma is not None:
-            sigma = _read_only(np.asarray(sigma, dtype=float))
-        extra = {k: _read_only(log[f"{name}/{k}"]) for k in MEASURED_EXTRA.get(name, ()) if f"{name}/{k}" in log}
-        cols.append((name, log[f"{name}/time"], log[f"{name}/arrival"], value, log[f"{name}/src"], log[f"{name}/dst"], sigma,
-                     extra))
+    cols = [measurement_columns(name, stream_arrays(name, log), scenario) for name in stream_names(log)]
     if not cols:
         return
-    arrival = np.concatenate([c[2] for c in cols])
-    tov = np.concatenate([c[1] for c in cols])
-    sid = np.concatenate([np.full(c[1].shape[0], i) for i, c in enumerate(cols)])
-    row = np.concatenate([np.arange(c[1].shape[0]) for c in cols])
+    arrival = np.concatenate([c.arrival for c in cols])
+    tov = np.concatenate([c.time for c in cols])
+    sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])
+    row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])
     for k in np.lexsort((row, sid, tov, arrival)).tolist():
-        name, t, a, value, src, dst, sigma, extra = cols[sid[k]]
-        r = row[k]
-        yield Measurement(stream=name, time=float(t[r]), arrival=float(a[r]), value=value[r], src=str(src[r]),
-                          dst=str(dst[r]), sigma=None if sigma is None else sigma[r],
-                          extra={c: v[r] for c, v in extra.items()})
+        yield cols[sid[k]].measurement(row[k])
 
 
-def _call(plugin: Plugin, what: str, fn, *args):
-    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and time."""
+def call(plugin: Plugin, what, fn, *args):
+    """Call a plugin method; anything it raises becomes one PluginError line naming plugin and
+    `what` (a string, or a Measurement or MeasurementBatch described by where)."""
     try:
         out = fn(*args)
         return [] if out is None else list(out)
     except Exception as e:
         msg = f"{type(e).__name__}: {e}".splitlines()[0]
-        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {what}: raised {msg}") from None
+        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) {where(what)}: raised {msg}") from None
 
 
-def run_plugin(plugin: Plugin, context: Context, feed: list[Measurement]) -> tuple[Track, dict, float]:
-    """Construct the estimator, feed every measurement, finish; returns (estimates, health, wall ms).
+def where(what) -> str:
+    """When, for an error message: a string as is, a measurement's time and link, a batch's span."""
+    if isinstance(what, Measurement):
+        return f"at t = {what.time:.6g} s ({what.stream} {what.src}{' -> ' + what.dst if what.dst else ''})"
+    if isinstance(what, MeasurementBatch):
+        return f"at t = {what.time[0]:.6g} .. {what.time[-1]:.6g} s ({what.stream}, a batch of {len(what)} rows)"
+    return what
+
+
+def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | MeasurementBatch],
+               diagnostics: dict | None = None) -> tuple[Track, dict, float]:
+    """Construct the estimator, feed every measurement (a MeasurementBatch whole to an estimator
+    with process_batch, else row by row), finish; returns (estimates, health, wall ms). If
+    `diagnostics` is a dict, it receives the estimator's optional per-epoch diagnostics()
+    ({name: (K,) finite numbers}, one length), checked.
 
     Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
     """
     t0 = wallclock.perf_counter()
-    est = _call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
-    targets = set(context.vehicles) | set(context.sites)
-    col = Collector(plugin, targets, context.duration, {"world", *context.vehicles})
-    for m in feed:
-        what = f"at t = {m.time:.6g} s ({m.stream} {m.src}{' -> ' + m.dst if m.dst else ''})"
-        col.add(_call(plugin, what, est.process, m), what)
+    est, col = start_plugin(plugin, context)
+    batch = getattr(est, "process_batch", None)
+    batch = batch if callable(batch) else None
+    for item in feed:
+        if not isinstance(item, MeasurementBatch):
+            process(plugin, est, col, item)
+        elif batch is None:
+            for m in item.rows():
+                process(plugin, est, col, m)
+        else:
+            out = call(plugin, item, batch, item)
+            if out:
+                col.add(out, where(item))
+    health = finish_plugin(plugin, est, col)
+    if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
+        diagnostics.update(_diagnostics(plugin, call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))
+    return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
+
+
+def finish_plugin(plugin: Plugin, est: object, col: Collector) -> dict[str, int]:
+    """Call the estimator's optional finish() (its estimates into col) and health(); the checked counts."""
     if callable(getattr(est, "finish", None)):
-        col.add(_call(plugin, "in finish()", est.finish), "in finish()")
+        col.add(call(plugin, "in finish()", est.finish), "in finish()")
     health = {}
     if callable(getattr(est, "health", None)):
-        raw = _call(plugin, "in health()", lambda: [est.health()])[0]
+        raw = call(plugin, "in health()", lambda: [est.health()])[0]
         if not isinstance(raw, dict) or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in raw.values()):
             raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) health(): expected {{name: int}}, got {raw!r}"[:300])
         health = {str(k): int(v) for k, v in raw.items()}
-    return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
+    return health
+
+
+def start_plugin(plugin: Plugin, context: Context) -> tuple[object, Collector]:
+    """Construct the estimator and the Collector of its estimates."""
+    est = call(plugin, "constructor", lambda: [plugin.cls(context, dict(plugin.params))])[0]
+    return est, Collector(plugin, set(context.vehicles) | set(context.sites), context.duration, {"world", *context.vehicles})
+
+
+def process(plugin: Plugin, est: object, col: Collector, m: Measurement) -> list:
+    """Feed one measurement; its estimates, checked, go into col and are returned."""
+    out = call(plugin, m, est.process, m)
+    if out:
+        col.add(out, where(m))
+    return out
+
+
+def _diagnostics(plugin: Plugin, raw) -> dict[str, np.ndarray]:
+    """An estimator's diagnostics() checked: {name: (K,) finite numbers}, one K for all."""
+    bad = f"estimator {plugin.key!r} ({plugin.entry}) diagnostics(): expected {{name: (K,) finite numbers}} of one length K"
+    if not isinstance(raw, dict):
+        raise PluginError(bad + f", got {type(raw).__name__}")
+    out = {}
+    for k, v in raw.items():
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise PluginError(bad + f": {k!r} is not numeric") from None
+        if a.ndim != 1 or not np.all(np.isfinite(a)):
+            raise PluginError(bad + f": {k!r} has shape {a.shape} or non-finite values")
+        out[str(k)] = a
+    if len({a.size for a in out.values()}) > 1:
+        raise PluginError(bad + f": lengths {sorted({k: a.size for k, a in out.items()}.items())}")
+    return out

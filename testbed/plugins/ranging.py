@@ -22,8 +22,9 @@ sigma_range / sigma_range_rate / sigma_height from params.
 Epochs: measurements of one time of validity form an epoch, processed when a later one arrives
 (or at finish), never looking ahead. The first epoch whose ranges determine the follower builds
 the prior (estimators.ranging.initial_belief: a rigid pose fix from the lever arms, or a fix per
-antenna); epochs before it, and epochs that cannot be used (degenerate geometry), are skipped
-and counted (health: skipped_epochs). Estimates: each antenna site's position and velocity, and
+antenna); epochs before it, and epochs that cannot be used (degenerate geometry, or ranges none
+of which ends at a known point), are skipped and counted (health: skipped_epochs; ranges whose
+other end is neither an anchor nor a site of a known body with a pose yet: unknown_end_rows). Estimates: each antenna site's position and velocity, and
 the follower body's position, velocity and attitude when its lever arms determine an attitude.
 
 params: follower (default: the only vehicle that is not known and has ranges; required when
@@ -92,7 +93,8 @@ class RangingEkfEstimator:
         self.belief = None
         self.t_belief = None
         self.t = None
-        self.counts = {"skipped_epochs": 0, "skipped_rows": 0, "rejected_measurements": 0, "covariance_repairs": 0}
+        self.counts = {"skipped_epochs": 0, "skipped_rows": 0, "unknown_end_rows": 0, "rejected_measurements": 0,
+                       "covariance_repairs": 0}
         self._reset()
 
     # -------------------------------------------------------------- bookkeeping
@@ -166,7 +168,10 @@ class RangingEkfEstimator:
             if known is not None:
                 rate, s_rate = self.rates.get((j, other), (np.nan, 1.0))
                 rows.append((j, known[0], known[1], r, s, rate, s_rate))
+        self.counts["unknown_end_rows"] += len(self.links) - len(rows)
         if not rows:
+            if self.links:  # ranges, none to a known point: this epoch cannot be used
+                self.counts["skipped_epochs"] += 1
             return None
         j, X, V, r, s, rd, sd = (np.array(c) for c in zip(*rows))
         use_rates = bool(self.p["use_rates"]) and np.isfinite(rd).any()

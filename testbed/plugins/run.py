@@ -23,12 +23,14 @@ from testbed.world import Physics
 
 
 def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],
-                   plots_dir: Path | None, taken: set[str] = frozenset()) -> dict:
+                   plots_dir: Path | None, taken: set[str] = frozenset(), done: dict | None = None) -> dict:
     """{key: scores} of every plugin (wall time under `wall_ms`, which the runner moves to
-    timing.json). taken: keys the pipeline already uses (a clash is a ConfigError)."""
+    timing.json). taken: keys the pipeline already uses (a clash is a ConfigError). done: {key:
+    (estimates, health, wall ms)} of plugins already run (online, in the loop: scored, not rerun)."""
     if not plugins:
         return {}
-    feed = list(measurements(scenario, log))
+    done = done or {}
+    feed = list(measurements(scenario, log)) if any(p.key not in done for p in plugins) else []
     prior = priors(scenario, log)
     bound = scenario_bound(scenario, log)
     out, shown = {}, {}
@@ -38,7 +40,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
                               "give it another name ([[estimators]] name)")
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, physics, p.key, p.params, prior)
-        track, health, wall_ms = run_plugin(p, ctx, feed)
+        track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed)
         scores, errs = score(track, Truth(log, ctx), bound)
         out[p.key] = {"entry": p.entry, **scores, **({"health": health} if health else {}), "wall_ms": wall_ms}
         shown[p.key] = (track, errs)

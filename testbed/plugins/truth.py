@@ -26,15 +26,17 @@ class Truth:
         self.quat = log["truth/quat"]
         self.index = {name: i for i, name in enumerate(context.vehicles)}
         self.sites = context.sites
+        self._slerp: dict[int, Slerp] = {}  # per vehicle, built on first use
 
     def _lin(self, arr: np.ndarray, i: int, t: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(t, self.t, arr[:, i, a]) for a in range(arr.shape[2])], axis=1)
 
     def _rot(self, i: int, t: np.ndarray) -> Rotation:
-        rots = Rotation.from_quat(self.quat[:, i], scalar_first=True)
         if self.t.size == 1:
-            return Rotation.concatenate([rots] * t.size)
-        return Slerp(self.t, rots)(np.clip(t, self.t[0], self.t[-1]))
+            return Rotation.concatenate([Rotation.from_quat(self.quat[:, i], scalar_first=True)] * t.size)
+        if i not in self._slerp:
+            self._slerp[i] = Slerp(self.t, Rotation.from_quat(self.quat[:, i], scalar_first=True))
+        return self._slerp[i](np.clip(t, self.t[0], self.t[-1]))
 
     def at(self, target: str, quantity: str, t: np.ndarray, frame: str = "world") -> np.ndarray:
         """True value (K, 3) of position (m) / velocity (m/s), or (K, 4) wxyz attitude, at times t (K,),

@@ -9,26 +9,30 @@ use_phase) between any two sites with their lever arms, GNSS fixes (stream "gnss
 on the antenna with the fix's sigma), heights (stream "height", the up coordinate of a site or body).
 Robust loss on the ranges (params loss, loss_scale). Epochs are buffered and solved `batch` at a
 time (Levenberg-Marquardt, all epochs at once); each starts from its GNSS fix where it has one,
-else from the robot's last two estimates extrapolated at constant velocity and body rate (warm
-start), else from params `initial`, else near the epoch's fixed points. Estimates: a pose robot's position and attitude (body), a point robot's site
+else from a constant-velocity and body-rate fit to the robot's estimates of the last
+`motion_window` seconds (warm start, estimators.graph.warmstart), else from params `initial`, else
+near the epoch's fixed points. Estimates: a pose robot's position and attitude (body), a point robot's site
 position, with the marginal covariances; an epoch that is unobservable (gauge freedom) gives no
 estimate. Counted in health(): epochs, nonconverged_epochs, unobservable_epochs,
-late_measurements (older than the epoch being collected), unused_measurements.
+late_measurements (older than the epoch being collected), unused_measurements, lm_iterations (linear
+solves, summed over the epochs solved) and lm_iterations_max (of one epoch); per epoch, in
+diagnostics(): time, iterations, final cost, converged, observable.
 
 The variable kind of each robot is decided from the sites measured in the first batch of epochs.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from estimators.graph.batch import EpochFactors, solve_epochs
-from estimators.graph.model import so3_exp, so3_log
+from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat
 from testbed.config import from_dict, in_range, require
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -39,7 +43,10 @@ class GraphParams:
     validity); batch: epochs solved together; range_sigma, height_sigma: m, for rows without a
     sigma; use_phase: phase links are ranges too; loss: robust loss of the ranges ("none", "huber",
     "cauchy") with loss_scale (sigmas); max_iter: LM iterations per epoch; step_tol (m, rad), cost_tol (relative): an epoch has
-    converged when a step is below step_tol or an accepted step lowers the cost by less than cost_tol;
+    converged when a step is below step_tol, or an accepted step lowers the cost by less than cost_tol
+    or is shorter than step_sigma standard deviations of the estimate (sqrt(delta^T N delta); 0: off);
+    motion_window: s, the warm start fits a constant velocity and body rate to the robot's estimates
+    of this span before the batch (0: the last estimate, held);
     initial: {body: [x, y, z] or [x, y, z, qw, qx, qy, qz]} m world, quaternion body-to-world: the
     starting pose of robots without a fix or an earlier estimate.
     """
@@ -54,6 +61,8 @@ class GraphParams:
     max_iter: int = 50
     step_tol: float = 1e-6
     cost_tol: float = 1e-9
+    step_sigma: float = 1e-3
+    motion_window: float = 1.0
     initial: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -66,6 +75,8 @@ class GraphParams:
         in_range(self, "max_iter", 1, 10_000)
         in_range(self, "step_tol", 0, lo_open=True)
         in_range(self, "cost_tol", 0, lo_open=True)
+        in_range(self, "step_sigma", 0)
+        in_range(self, "motion_window", 0, unit="s")
         for body, p in self.initial.items():
             require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
                     f"initial.{body}", p, "expected [x, y, z] (m, world) or [x, y, z, qw, qx, qy, qz]")
@@ -75,10 +86,14 @@ class GraphParams:
 
 @dataclass
 class _Epoch:
-    """The measurements of one epoch (times in s; names are sites or bodies)."""
+    """The measurements of one epoch (times in s; names are sites or bodies); the ranges as
+    columns: src, dst names, d m, sigma m."""
 
     times: list = field(default_factory=list)
-    ranges: list = field(default_factory=list)   # (src, dst, d m, sigma m)
+    r_src: list = field(default_factory=list)
+    r_dst: list = field(default_factory=list)
+    r_d: list = field(default_factory=list)
+    r_sigma: list = field(default_factory=list)
     fixes: list = field(default_factory=list)    # (name, z (3,) m, sigma (3,) m)
     heights: list = field(default_factory=list)  # (name, z m, sigma m)
     mocap: dict = field(default_factory=dict)    # body -> (p (3,), R (3, 3))
@@ -100,35 +115,70 @@ class PoseGraph:
         self.ranging = ("uwb", "phase") if self.p.use_phase else ("uwb",)
         self.loss = {"range": Loss(kind=self.p.loss, scale=self.p.loss_scale)}
         self.kind: dict[str, tuple[str, str | None]] | None = None  # body -> ("pose", None) | ("point", site)
-        self.last: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}  # body -> (t, p, R), last estimate
-        self.prev: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}  # the one before
+        self.history: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}  # body -> recent (t, p, R)
         self.key = None
         self.current: _Epoch | None = None
         self.pending: list[_Epoch] = []
         self.counts = {"epochs": 0, "nonconverged_epochs": 0, "unobservable_epochs": 0, "late_measurements": 0,
-                       "unused_measurements": 0}
+                       "unused_measurements": 0, "lm_iterations": 0, "lm_iterations_max": 0}
+        self.per_epoch: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "iterations", "cost", "converged", "observable")}
 
     # ---------------------------------------------------------------- collecting
     def _bin(self, t: float):
-        return t if self.p.epoch == 0 else int(np.floor(t / self.p.epoch + 1e-9))
+        return t if self.p.epoch == 0 else math.floor(t / self.p.epoch + 1e-9)
 
-    def process(self, m: Measurement) -> list[Estimate]:
-        key = self._bin(m.time)
-        out = []
+    def _advance(self, key, out: list) -> bool:
+        """Move to the epoch of bin `key` (a full batch of epochs is solved into out); False if the
+        key is older than the current epoch's (a late measurement)."""
         if self.key is not None and key < self.key:
-            self.counts["late_measurements"] += 1
-            return out
+            return False
         if self.key is None or key > self.key:
             if self.current is not None:
                 self.pending.append(self.current)
                 if len(self.pending) >= self.p.batch:
-                    out = self._solve()
+                    out += self._solve()
             self.key, self.current = key, _Epoch()
+        return True
+
+    def process_batch(self, b: MeasurementBatch) -> list[Estimate]:
+        """As process() on each row of b, with the ranges of an epoch taken as columns."""
+        out: list[Estimate] = []
+        if b.stream not in self.ranging:
+            for m in b.rows():
+                out += self.process(m)
+            return out
+        times = b.time.tolist()
+        keys = times if self.p.epoch == 0 else np.floor(b.time / self.p.epoch + 1e-9).astype(np.int64).tolist()
+        cut = [0] + [i for i in range(1, len(keys)) if keys[i] != keys[i - 1]] + [len(keys)]
+        linked = b.dst != ""
+        sigma = np.where(b.has_sigma(), b.sigma[:, 0], self.p.range_sigma) if b.sigma is not None else \
+            np.full(len(b), self.p.range_sigma)
+        for lo, hi in zip(cut[:-1], cut[1:]):
+            if not self._advance(keys[lo], out):
+                self.counts["late_measurements"] += hi - lo
+                continue
+            ep = self.current
+            ep.times += times[lo:hi]
+            use = linked[lo:hi]
+            self.counts["unused_measurements"] += int((~use).sum())
+            ep.r_src += b.src[lo:hi][use].tolist()
+            ep.r_dst += b.dst[lo:hi][use].tolist()
+            ep.r_d += b.value[lo:hi, 0][use].tolist()
+            ep.r_sigma += sigma[lo:hi][use].tolist()
+        return out
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        out: list[Estimate] = []
+        if not self._advance(self._bin(m.time), out):
+            self.counts["late_measurements"] += 1
+            return out
         ep = self.current
         ep.times.append(m.time)
         if m.stream in self.ranging and m.dst:
-            sigma = float(m.sigma[0]) if m.sigma is not None else self.p.range_sigma
-            ep.ranges.append((m.src, m.dst, float(m.value[0]), sigma))
+            ep.r_src.append(m.src)
+            ep.r_dst.append(m.dst)
+            ep.r_d.append(float(m.value[0]))
+            ep.r_sigma.append(float(m.sigma[0]) if m.sigma is not None else self.p.range_sigma)
         elif m.stream == "gnss":
             sigma = np.asarray(m.sigma, float) if m.sigma is not None else None
             if sigma is None:
@@ -152,6 +202,13 @@ class PoseGraph:
     def health(self) -> dict[str, int]:
         return dict(self.counts)
 
+    def diagnostics(self) -> dict[str, np.ndarray]:
+        """Per solved epoch, in time order: time s, iterations (linear solves), cost (final robust
+        cost, whitened), converged and observable (1 or 0)."""
+        cols = {k: np.concatenate(v) if v else np.zeros(0) for k, v in self.per_epoch.items()}
+        order = np.argsort(cols["time"], kind="stable")
+        return {k: v[order] for k, v in cols.items()}
+
     # ---------------------------------------------------------------- variables
     def _arm(self, name: str) -> tuple[str | None, np.ndarray]:
         """(body, lever arm) of a site or body name; (None, world point) for an anchor; (None, None) otherwise."""
@@ -164,8 +221,8 @@ class PoseGraph:
     def _decide_kinds(self) -> None:
         arms: dict[str, dict[tuple, str]] = {v: {} for v in self.vehicles}
         for ep in self.pending:
-            names = [n for r in ep.ranges for n in r[:2]] + [f[0] for f in ep.fixes] + [h[0] for h in ep.heights]
-            for n in names:
+            names = [n for pair in zip(ep.r_src, ep.r_dst) for n in pair] + [f[0] for f in ep.fixes] + [h[0] for h in ep.heights]
+            for n in dict.fromkeys(names):
                 body, arm = self._arm(n)
                 if body is not None:
                     arms[body].setdefault(tuple(np.round(arm, 9)), n)
@@ -192,20 +249,24 @@ class PoseGraph:
             return (free[body], np.zeros(3)) if np.allclose(arm, self._arm(site)[1]) else None
         return free[body], arm
 
-    def _predict(self, body: str, t: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """The robot's pose at t from its last two estimates (constant velocity and body rate), or
-        its last estimate, or None."""
-        if body not in self.last:
+    def _motion(self, body: str) -> MotionFit | None:
+        """The warm-start model of a robot from its recent estimates, or None before its first."""
+        h = self.history.get(body)
+        if not h:
             return None
-        t1, p1, R1 = self.last[body]
-        if body not in self.prev:
-            return p1.copy(), R1
-        t0, p0, R0 = self.prev[body]
-        dt, h = t1 - t0, t - t1
-        return p1 + (p1 - p0) / dt * h, R1 @ so3_exp(so3_log(R0.T @ R1) / dt * h)
+        return fit_motion(np.array([x[0] for x in h]), np.stack([x[1] for x in h])[:, None],
+                          np.stack([x[2] for x in h])[:, None])
 
-    def _initial(self, body: str, ep: _Epoch, t: float, fixed_points: list, index: int) -> tuple[np.ndarray, np.ndarray]:
-        guess = self._predict(body, t)
+    def _remember(self, body: str, t: float, p: np.ndarray, R: np.ndarray) -> None:
+        """Add an estimate to the robot's history, keeping those of the last motion_window s."""
+        h = self.history.setdefault(body, [])
+        if h and h[-1][0] >= t:
+            return
+        h.append((t, p, R))
+        while h[0][0] < t - self.p.motion_window - 1e-9:
+            h.pop(0)
+
+    def _initial(self, body: str, ep: _Epoch, guess: tuple | None, fixed_points: list, index: int) -> tuple[np.ndarray, np.ndarray]:
         init = self.p.initial.get(body)
         R = guess[1] if guess is not None else (quat_to_rotmat(np.array(init[3:], float)) if init and len(init) == 7 else np.eye(3))
         kind, site = self.kind[body]
@@ -220,13 +281,21 @@ class PoseGraph:
         centre = np.mean(fixed_points, axis=0) if fixed_points else np.zeros(3)
         return centre + np.array([1.0 + index, 0.5 * index, 0.0]), R
 
-    def _factors(self, ep: _Epoch, free: dict, e: int, rows: dict) -> None:
-        for src, dst, d, sigma in ep.ranges:
-            a, b = self._end(src, ep, free), self._end(dst, ep, free)
-            if a is None or b is None or (a[0] < 0 and b[0] < 0) or (a[0] == b[0]):
-                self.counts["unused_measurements"] += 1
-                continue
-            rows["r"].append((e, a[0], b[0], a[1], b[1], d, sigma))
+    def _factors(self, ep: _Epoch, free: dict, e: int, rows: dict, ends: dict) -> None:
+        """Append the factors of epoch e to rows; ranges as indices into ends ({"var": [], "arm": []}:
+        the distinct factor ends of the group, one per name and epoch; -1: unusable)."""
+        index = {}
+        for name in set(ep.r_src) | set(ep.r_dst):
+            x = self._end(name, ep, free)
+            index[name] = -1 if x is None else len(ends["var"])
+            if x is not None:
+                ends["var"].append(x[0])
+                ends["arm"].append(x[1])
+        rows["r_e"].append(np.full(len(ep.r_d), e, np.int64))
+        rows["r_a"].append([index[n] for n in ep.r_src])
+        rows["r_b"].append([index[n] for n in ep.r_dst])
+        rows["r_d"].append(ep.r_d)
+        rows["r_sigma"].append(ep.r_sigma)
         for name, z, sigma in ep.fixes:
             end = self._end(name, ep, free)
             if end is None or end[0] < 0:
@@ -240,9 +309,21 @@ class PoseGraph:
                 continue
             rows["h"].append((e, end[0], end[1], z, sigma))
 
+    def _range_rows(self, rows: dict, ends: dict) -> dict:
+        """The usable range rows as arrays (a range needs two ends, not both fixed, not one variable)."""
+        var = np.array(ends["var"] + [-2], np.int64)  # index -1 (unusable) reads -2
+        arm = np.concatenate([np.reshape(ends["arm"], (-1, 3)), np.zeros((1, 3))])
+        ia, ib = (np.concatenate([np.asarray(x, np.int64) for x in rows[k]]) for k in ("r_a", "r_b"))
+        va, vb = var[ia], var[ib]
+        ok = (va != -2) & (vb != -2) & (va != vb)
+        self.counts["unused_measurements"] += int((~ok).sum())
+        return {"r_epoch": np.concatenate(rows["r_e"])[ok], "r_a": va[ok], "r_b": vb[ok], "r_arm_a": arm[ia[ok]],
+                "r_arm_b": arm[ib[ok]], "r_d": np.concatenate([np.asarray(x, float) for x in rows["r_d"]])[ok],
+                "r_sigma": np.concatenate([np.asarray(x, float) for x in rows["r_sigma"]])[ok]}
+
     def _present(self, ep: _Epoch) -> tuple[str, ...]:
         """Robots with a variable at this epoch: decided, not known by mocap, named by a measurement."""
-        names = {n for r in ep.ranges for n in r[:2]} | {f[0] for f in ep.fixes} | {h[0] for h in ep.heights}
+        names = set(ep.r_src) | set(ep.r_dst) | {f[0] for f in ep.fixes} | {h[0] for h in ep.heights}
         bodies = {self._arm(n)[0] for n in names} - {None} - set(ep.mocap)
         return tuple(v for v in self.vehicles if v in bodies and v in self.kind)
 
@@ -265,33 +346,40 @@ class PoseGraph:
     def _solve_group(self, present: tuple[str, ...], eps: list[_Epoch]) -> list[Estimate]:
         free = {v: i for i, v in enumerate(present)}
         kinds = tuple(self.kind[v][0] for v in present)
-        rows: dict[str, list] = {"r": [], "q": [], "h": []}
+        rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "q": [], "h": []}
+        ends: dict[str, list] = {"var": [], "arm": []}
         E, V = len(eps), len(present)
+        times = np.array([np.mean(ep.times) for ep in eps])
+        guesses = {v: fit.predict(times) for v in present if (fit := self._motion(v)) is not None}
         p0, R0 = np.zeros((E, V, 3)), np.tile(np.eye(3), (E, V, 1, 1))
         for e, ep in enumerate(eps):
-            self._factors(ep, free, e, rows)
-            fixed = [self.anchors[n] for r in ep.ranges for n in r[:2] if n in self.anchors] + [p for p, _ in ep.mocap.values()]
-            t = float(np.mean(ep.times))
+            self._factors(ep, free, e, rows, ends)
+            fixed = [self.anchors[n] for pair in zip(ep.r_src, ep.r_dst) for n in pair if n in self.anchors] + \
+                [p for p, _ in ep.mocap.values()]
             for v, i in free.items():
-                p0[e, i], R0[e, i] = self._initial(v, ep, t, fixed, i)
-        f = _factor_arrays(kinds, rows)
-        res = solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol,
+                guess = (guesses[v][0][e, 0], guesses[v][1][e, 0]) if v in guesses else None
+                p0[e, i], R0[e, i] = self._initial(v, ep, guess, fixed, i)
+        f = _factor_arrays(kinds, self._range_rows(rows, ends), rows)
+        res = solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol, step_sigma=self.p.step_sigma,
                            cost_tol=self.p.cost_tol)
         self.counts["nonconverged_epochs"] += int((~res.converged).sum())
+        self.counts["lm_iterations"] += int(res.iterations.sum())
+        self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(res.iterations.max(initial=0)))
         self.counts["unobservable_epochs"] += int((~res.observable).sum())
+        for k, v in (("time", times), ("iterations", res.iterations), ("cost", res.cost), ("converged", res.converged),
+                     ("observable", res.observable)):
+            self.per_epoch[k].append(np.asarray(v, float))
         out = []
         for e, ep in enumerate(eps):
             if not res.observable[e]:
                 continue
-            t = float(np.mean(ep.times))
+            t = float(times[e])
             for v, i in free.items():
                 o = res.offsets[i]
                 kind, site = self.kind[v]
                 p, R = res.p[e, i], res.R[e, i]
                 cov = res.cov[e]
-                if v in self.last and self.last[v][0] < t:
-                    self.prev[v] = self.last[v]
-                self.last[v] = (t, p, R)
+                self._remember(v, t, p, R)
                 if kind == "point":
                     out.append(Estimate(time=t, target=site, quantity="position", value=p, cov=_sym(cov[o:o + 3, o:o + 3])))
                 else:
@@ -305,15 +393,14 @@ def _sym(c: np.ndarray) -> np.ndarray:
     return 0.5 * (c + c.T)
 
 
-def _factor_arrays(kinds: tuple[str, ...], rows: dict[str, list]) -> EpochFactors:
-    """EpochFactors from row tuples (see PoseGraph._factors)."""
-    r, q, h = rows["r"], rows["q"], rows["h"]
+def _factor_arrays(kinds: tuple[str, ...], ranges: dict, rows: dict[str, list]) -> EpochFactors:
+    """EpochFactors from the range arrays (PoseGraph._range_rows) and the prior and height row
+    tuples (see PoseGraph._factors)."""
+    q, h = rows["q"], rows["h"]
     col = lambda rs, k, shape=(): np.array([x[k] for x in rs], float).reshape((len(rs),) + shape)  # noqa: E731
     idx = lambda rs, k: np.array([x[k] for x in rs], np.int64).reshape(len(rs))  # noqa: E731
     return EpochFactors(
-        kinds=kinds,
-        r_epoch=idx(r, 0), r_a=idx(r, 1), r_b=idx(r, 2), r_arm_a=col(r, 3, (3,)), r_arm_b=col(r, 4, (3,)),
-        r_d=col(r, 5), r_sigma=col(r, 6),
+        kinds=kinds, **ranges,
         h_epoch=idx(h, 0), h_var=idx(h, 1), h_arm=col(h, 2, (3,)), h_z=col(h, 3), h_sigma=col(h, 4),
         q_epoch=idx(q, 0), q_var=idx(q, 1), q_arm=col(q, 2, (3,)), q_z=col(q, 3, (3,)), q_cov=col(q, 4, (3, 3)),
     )

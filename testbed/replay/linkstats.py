@@ -23,13 +23,32 @@ def _covered(truth: RecordedTruth, end: str, t: np.ndarray, quantity: str) -> np
     return (t >= lo) & (t <= hi)
 
 
-def _true(truth: RecordedTruth, kind: str, src: str, dst: str, t: np.ndarray) -> np.ndarray:
-    diff = truth.at(src, "position", t) - truth.at(dst, "position", t)
+class _EndTruth:
+    """Truth of link ends at the times of their rows, each end evaluated once per distinct time it
+    is needed at (an end is in many links: an antenna ranges every antenna of the other robots).
+    rows_of: {end: rows of links.csv it is an end of}; time: (N,) s window clock."""
+
+    def __init__(self, truth: RecordedTruth, time: np.ndarray, rows_of: dict[str, np.ndarray]):
+        self.truth, self.time, self.rows_of = truth, time, rows_of
+        self.cache: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+
+    def at(self, end: str, quantity: str, rows: np.ndarray) -> np.ndarray:
+        """Truth (len(rows), 3) of `end` at the times of rows (all covered by its truth)."""
+        if (end, quantity) not in self.cache:
+            tu = np.unique(self.time[self.rows_of[end]])
+            tu = tu[_covered(self.truth, end, tu, quantity)]
+            self.cache[(end, quantity)] = (tu, self.truth.at(end, quantity, tu))
+        tu, value = self.cache[(end, quantity)]
+        return value[np.searchsorted(tu, self.time[rows])]
+
+
+def _true(ends: _EndTruth, kind: str, src: str, dst: str, rows: np.ndarray) -> np.ndarray:
+    diff = ends.at(src, "position", rows) - ends.at(dst, "position", rows)
     dist = np.linalg.norm(diff, axis=1)
     if kind != "range-rate":
         return dist
     u = diff / np.where(dist > 0, dist, 1.0)[:, None]
-    return np.einsum("ni,ni->n", u, truth.at(src, "velocity", t) - truth.at(dst, "velocity", t))
+    return np.einsum("ni,ni->n", u, ends.at(src, "velocity", rows) - ends.at(dst, "velocity", rows))
 
 
 def link_statistics(rec: Recording, truth: RecordedTruth) -> dict:
@@ -37,17 +56,26 @@ def link_statistics(rec: Recording, truth: RecordedTruth) -> dict:
     if "links" not in rec.tables:
         return {}
     t = rec.tables["links"]
-    start = rec.spec.window.start
+    time = t["time"] - rec.spec.window.start
     out: dict = {}
     keys = np.char.add(np.char.add(np.char.add(t["kind"], "\n"), np.char.add(t["src"], "->")), t["dst"])
-    for key in sorted(set(keys.tolist())):
+    names, inverse = np.unique(keys, return_inverse=True)  # sorted keys; rows of key k: inverse == k
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.searchsorted(inverse[order], np.arange(names.size + 1))
+    links = []  # (kind, "SRC->DST", src, dst, rows)
+    rows_of: dict[str, list[np.ndarray]] = {}
+    for k, key in enumerate(names.tolist()):
         kind, link = key.split("\n")
         src, dst = link.split("->")
-        rows = keys == key
-        time = t["time"][rows] - start
+        rows = order[bounds[k]:bounds[k + 1]]
+        links.append((kind, link, src, dst, rows))
+        for end in (src, dst):
+            rows_of.setdefault(end, []).append(rows)
+    ends = _EndTruth(truth, time, {end: np.concatenate(r) for end, r in rows_of.items()})
+    for kind, link, src, dst, rows in links:
         q = "velocity" if kind == "range-rate" else "position"
-        ok = _covered(truth, src, time, q) & _covered(truth, dst, time, q)
-        res = t["value"][rows][ok] - _true(truth, kind, src, dst, time[ok]) if ok.any() else np.zeros(0)
+        ok = _covered(truth, src, time[rows], q) & _covered(truth, dst, time[rows], q)
+        res = t["value"][rows][ok] - _true(ends, kind, src, dst, rows[ok]) if ok.any() else np.zeros(0)
         u = "m_s" if kind == "range-rate" else "m"
         stats = {"samples": int(res.size), "unscored": int((~ok).sum())}
         if res.size:

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from testbed.errors import ConfigError
-from testbed.plugins.api import Context, Measurement
+from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.spec import ReplaySpec, load_spec
 from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_table
@@ -37,7 +37,8 @@ QUAT = ("qw", "qx", "qy", "qz")
 @dataclass(frozen=True, slots=True)
 class Recording:
     """spec; directory; tables {name: Table} (rows within the window, times in the files' clock);
-    feed: every Measurement in feeding order."""
+    feed: every measurement in feeding order, runs of one stream as MeasurementBatches (the rows
+    one by one: measurements())."""
 
     spec: ReplaySpec
     directory: Path
@@ -56,11 +57,15 @@ class Recording:
             duration=self.duration, seed=self.spec.seed, rng=stream_rng(self.spec.seed, f"estimator/{key}"),
         )
 
+    def measurements(self) -> list[Measurement]:
+        """The feed one Measurement per row."""
+        return [m for item in self.feed for m in (item.rows() if isinstance(item, MeasurementBatch) else (item,))]
+
     def counts(self) -> dict[str, int]:
         """Measurements fed, per stream."""
         out: dict[str, int] = {}
-        for m in self.feed:
-            out[m.stream] = out.get(m.stream, 0) + 1
+        for item in self.feed:
+            out[item.stream] = out.get(item.stream, 0) + (len(item) if isinstance(item, MeasurementBatch) else 1)
         return dict(sorted(out.items()))
 
 
@@ -168,24 +173,33 @@ def _streams(tables: dict[str, Table], start: float) -> list[tuple]:
     return sorted(out, key=lambda s: s[0])
 
 
-def _measurements(streams: list[tuple]) -> list[Measurement]:
-    """Every row in the order of testbed.plugins.feed.measurements (arrival, time, stream, row);
-    a row whose sigma is (partly) missing has sigma None."""
+def _measurements(streams: list[tuple]) -> list[Measurement | MeasurementBatch]:
+    """Every row in the order of testbed.plugins.feed.measurements (arrival, time, stream, row): a
+    run of consecutive rows of one stream as one MeasurementBatch, a lone row as a Measurement; a
+    row whose sigma is (partly) missing has sigma None (NaN in a batch)."""
     if not streams:
         return []
     arrival = np.concatenate([s[2] for s in streams])
     tov = np.concatenate([s[1] for s in streams])
     sid = np.concatenate([np.full(s[1].shape[0], i) for i, s in enumerate(streams)])
     row = np.concatenate([np.arange(s[1].shape[0]) for s in streams])
-    has_sigma = [None if s[6] is None else np.all(np.isfinite(s[6]), axis=1) for s in streams]
-    out = []
-    for k in np.lexsort((row, sid, tov, arrival)).tolist():
-        name, t, a, value, src, dst, sigma = streams[sid[k]]
-        r = row[k]
-        sig = sigma[r] if sigma is not None and has_sigma[sid[k]][r] else None
-        out.append(Measurement(stream=name, time=float(t[r]), arrival=float(a[r]), value=value[r], src=str(src[r]),
-                               dst=str(dst[r]), sigma=sig))
+    order = np.lexsort((row, sid, tov, arrival))
+    sid, row = sid[order], row[order]
+    cuts = np.concatenate([[0], np.flatnonzero(np.diff(sid)) + 1, [sid.size]]).tolist()
+    out: list[Measurement | MeasurementBatch] = []
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        name, t, a, value, src, dst, sigma = streams[sid[lo]]
+        rows = row[lo:hi]
+        b = MeasurementBatch(stream=name, time=_frozen(t[rows]), arrival=_frozen(a[rows]), value=_frozen(value[rows]),
+                             src=_frozen(src[rows]), dst=_frozen(dst[rows]), sigma=None if sigma is None else _frozen(sigma[rows]))
+        out += b.rows() if hi - lo == 1 else [b]
     return out
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.flags.writeable = False
+    return a
 
 
 def load_recording(spec_path: Path) -> Recording:

@@ -10,7 +10,9 @@ sibling, marker, atomic rename) and holds
   truth (measured minus true range or range rate: samples, mean, std, RMSE), and per estimator
   its scores (RMSE, ANEES, per target), health counts and the estimates it made that truth cannot
   score (outside the truth's time span, a velocity without truth velocity);
-- estimates.npz: every estimate, `KEY/TARGET/QUANTITY/{time,value,cov}` (time in window clock s);
+- estimates.npz: every estimate, `KEY/TARGET/QUANTITY/{time,value,cov}` (time in window clock s),
+  and an estimator's per-epoch diagnostics (e.g. graph.poses: iterations, final cost, converged),
+  `KEY/diagnostics/NAME` (summarized in metrics.json under `diagnostics`);
 - timing.json: wall-clock per estimator; plots/: error plots as a simulated run's.
 """
 from __future__ import annotations
@@ -49,6 +51,16 @@ def _scorable(track: Track, truth: RecordedTruth) -> tuple[Track, dict[str, int]
     return keep, dropped
 
 
+def _summary(diagnostics: dict[str, np.ndarray]) -> dict:
+    """Per-epoch diagnostics summarized: the count, and per column its mean, min and max."""
+    n = int(next(iter(diagnostics.values())).size)
+    out: dict = {"epochs": n}
+    for k, v in diagnostics.items():
+        if n and k != "time":
+            out[k] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
+    return out
+
+
 def _arrays(key: str, track: Track) -> dict[str, np.ndarray]:
     out = {}
     for (target, q), s in track.items():
@@ -76,7 +88,8 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
     }
     arrays, timing, shown = {}, {}, {}
     for p in plugins:
-        track, health, wall_ms = run_plugin(p, rec.context(p.key, p.params), rec.feed)
+        diagnostics: dict = {}
+        track, health, wall_ms = run_plugin(p, rec.context(p.key, p.params), rec.feed, diagnostics)
         entry: dict = {"entry": p.entry}
         if truth is not None:
             scored, unscored = _scorable(track, truth)
@@ -89,6 +102,9 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
             entry["unscored_reason"] = "the dataset has no truth table"
         if health:
             entry["health"] = health
+        if diagnostics:
+            entry["diagnostics"] = _summary(diagnostics)
+            arrays.update({f"{p.key}/diagnostics/{k}": v for k, v in diagnostics.items()})
         metrics["estimators"][p.key] = entry
         arrays.update(_arrays(p.key, track))
         timing[p.key] = {"wall_ms": wall_ms}

@@ -83,13 +83,15 @@ def _read_csv(path: Path) -> tuple[list[str], list[list[str]], list[int]]:
                 raise ConfigError(f"{path}: empty file (expected a header row)")
             header = [h.strip() for h in header]
             rows, lines = [], []
-            for cells in reader:
-                if not cells or (len(cells) == 1 and not cells[0].strip()):
-                    continue
-                if len(cells) != len(header):
-                    raise ConfigError(f"{path}: row {len(rows) + 1} (line {reader.line_num}): {len(cells)} cells, "
-                                      f"the header has {len(header)}")
-                rows.append([c.strip() for c in cells])
+            n = len(header)
+            for cells in reader:  # cells are stripped per column by the caller
+                if len(cells) != n or n == 1:
+                    if not cells or (len(cells) == 1 and not cells[0].strip()):
+                        continue
+                    if len(cells) != n:
+                        raise ConfigError(f"{path}: row {len(rows) + 1} (line {reader.line_num}): {len(cells)} cells, "
+                                          f"the header has {len(header)}")
+                rows.append(cells)
                 lines.append(reader.line_num)
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a UTF-8 text file") from None
@@ -147,7 +149,8 @@ def read_table(path: Path, table: str) -> Table:
     else:
         header, rows, lines = _read_csv(path)
         n = len(rows)
-        cells = {h: np.array([r[j] for r in rows], dtype=str).reshape(n) for j, h in enumerate(header)}
+        columns = list(zip(*rows)) if rows else [()] * len(header)
+        cells = {h: np.char.strip(np.array(columns[j], dtype=str).reshape(n)) for j, h in enumerate(header)}
     for h in header:
         if h not in known:
             raise ConfigError(f"{path}: unknown column {h!r} (the {table} table has: {', '.join(known)})")

@@ -33,12 +33,13 @@ from testbed.reproduce.document import write_report
 from testbed.reproduce.runs import runs_done
 from testbed.workers import backend as use_backend
 
-DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20}
+DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20, "denied": 5}
+DEFAULT_MOTION = {"denied": "flown"}  # --motion when not given: "prescribed" unless listed
 #: written only while a reproduction is incomplete
 SUMMARY = "summary.json"
 
 
-def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "prescribed",
+def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | None = None,
               duration: float | None = None, workers: int | None = None, force: bool = False,
               estimators: tuple = (), backend: str = "local", address: str | None = None, resume: bool = False) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
@@ -48,6 +49,7 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str = "
     backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend);
     resume: continue the interrupted reproduction at `out` (see the module docstring)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
+    motion = motion or DEFAULT_MOTION.get(paper, "prescribed")
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
     module = importlib.import_module(f"testbed.reproduce.{paper}")

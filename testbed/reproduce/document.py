@@ -29,7 +29,8 @@ DEPENDENCIES = ("numpy", "scipy", "mujoco", "gtsam", "matplotlib")
 TITLES = {"phase": "Seed 003 (Pan, Yin, Xu 2023): carrier-phase relative navigation of formations",
           "visnav": "Seed 004 (Jin et al. 2017): vision-aided relative navigation with glint noise",
           "bandwidth": "Seed 000 (Zhao et al. 2020): bandwidth-limited distributed fusion",
-          "coop": "Seed 001 (Chen et al. 2020): factor-graph cooperative navigation"}
+          "coop": "Seed 001 (Chen et al. 2020): factor-graph cooperative navigation",
+          "denied": "Issue #18: cooperative flight through GNSS-denied streets (coop-denied)"}
 _IMAGE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<src>[^)]+)\)$")
 
 

@@ -27,6 +27,13 @@ Claim criteria and tests (fixed before any result was looked at; testbed.stats; 
 - "about equal": TOST (two one-sided paired t tests on the per-run log ratios) at the margin
   EQUIV_MARGIN = 1.25 (ratio of RMSEs within [0.8, 1.25]), p < ALPHA.
 
+Process noise q: every scenario's pipeline.q is the value the stated rule of
+testbed.reproduce.phase_q picks on the calibration seeds 1000..1009 (disjoint from the evaluation
+seeds above). The reproduction re-runs that sweep (`calibrate`: min(runs, 10) calibration seeds,
+horizon phase_q.CALIBRATION_HORIZON_S or the shorter --duration; and phase-cross-h000 over the full
+duration), writes plots/q_sweep.png (ANEES, RMSE, max error and PCRB against q) and, in table.md and
+claims.json (`q_rule`), the rule's q beside the scenario's.
+
 Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenario), `decide`
 (numbers -> claims), `write` (files through testbed.report); `reproduce` chains them.
 """
@@ -44,6 +51,7 @@ from testbed.pipelines.phase import window_keys
 from testbed.plots import compare_bars, figure, save
 from testbed.report import Claim, claims_section, fmt, fmt_list, fmt_pm, markdown_table, write_claims, write_csv, \
     write_markdown
+from testbed.reproduce import phase_q
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.stats import clopper_pearson, tost_log_ratio, wilcoxon_paired
@@ -239,11 +247,35 @@ def _rmse_vs_pcrb(R: dict[str, list[dict]], path: Path, runs: int) -> Path:
     return save(fig, path)
 
 
+LONG_SWEEP = "phase-cross-h000"  # the formation of the paper's tightest claim (+/-0.01 m)
+
+
+def calibrate(*, runs: int, motion: str, duration: float | None) -> tuple[dict[str, list[dict]], float, list[dict]]:
+    """The q sweep of testbed.reproduce.phase_q on every formation and, over the runs' full
+    duration, on LONG_SWEEP: ({scenario: sweep rows}, the horizon in s, the long rows). Seeds: the
+    first min(runs, 10) calibration seeds; horizon: the rule's, or the shorter --duration."""
+    horizon = phase_q.CALIBRATION_HORIZON_S if duration is None else min(duration, phase_q.CALIBRATION_HORIZON_S)
+    seeds = phase_q.CALIBRATION_SEEDS[:min(runs, len(phase_q.CALIBRATION_SEEDS))]
+    return ({name: phase_q.sweep(name, seeds, duration=horizon, motion=motion) for name in SCENARIOS}, horizon,
+            phase_q.sweep(LONG_SWEEP, seeds, duration=duration, motion=motion))
+
+
+def _q_rule(cal: dict[str, list[dict]], motion: str) -> dict[str, dict]:
+    """Per scenario: the q it runs with, the rule's q on the calibration sweep, ANEES by q."""
+    field = "q_flown" if motion == "flown" else "q"
+    return {name: {"q_scenario": getattr(scenario_mod.load(name).pipeline, field), "q_rule": phase_q.choose(rows),
+                   "anees_by_q": {f"{q:g}": a for q, a in phase_q.anees_by_q(rows).items()}}
+            for name, rows in cal.items()}
+
+
 def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int,
-          plugins: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = ()) -> dict:
+          plugins: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = (),
+          calibration: tuple[dict[str, list[dict]], float, list[dict]] | None = None) -> dict:
     """table.md, table.csv, plots/rmse_window.png, plots/rmse_vs_pcrb.png, claims.json; returns
     claims.json's content. plugins: {scenario: every run's metrics.json `estimators`} and keys the
-    plugin estimators' names (--estimator): one more row each (testbed.reproduce.plugins)."""
+    plugin estimators' names (--estimator): one more row each (testbed.reproduce.plugins).
+    calibration: the q sweeps and the horizon (`calibrate`): plots/q_sweep.png, the q table,
+    claims.json `q_rule`."""
     rows, cols = _table_rows(R), _cols(R)
     w = _window(next(iter(R.values())))
     tag = w.replace(" ", "_")
@@ -264,6 +296,20 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
     if not w.startswith(f"last {PAPER_WINDOW_S:g} s"):
         md += [f"The runs are too short for the paper's last {PAPER_WINDOW_S:g} s: every window score and claim "
                f"uses the {w} instead.", ""]
+    rule = {}
+    if calibration is not None:
+        cal, horizon, long = calibration
+        rule = _q_rule(cal, motion)
+        n_cal = len({r["seed"] for rows_ in cal.values() for r in rows_})
+        md += [f"Process noise q (testbed.reproduce.phase_q): the rule's q = the grid value whose final body NEES at "
+               f"{horizon:g} s, mean over calibration seeds {phase_q.CALIBRATION_SEEDS[0]}.."
+               f"{phase_q.CALIBRATION_SEEDS[n_cal - 1]}, is closest to 6 (plots/q_sweep.png).", ""]
+        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", "ANEES at each q"],
+                             [[n, f"{v['q_scenario']:g}", f"{v['q_rule']:g}",
+                               ", ".join(f"{q}: {a:.2f}" for q, a in v["anees_by_q"].items())] for n, v in rule.items()])
+        md += [""]
+        phase_q.plot(cal, {n: v["q_rule"] for n, v in rule.items()}, out / "plots" / "q_sweep.png", horizon=horizon,
+                     long=long)
     md += plugin_rows.markdown(plugins or {}, list(keys), "scenario")
     plugin_rows.write(out / "table_plugins.csv", plugins or {}, list(keys))
     write_markdown(out / "table.md", md + claims_section(claims))
@@ -273,7 +319,9 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                  title=f"seed 003: position RMSE over the {w} ({runs} runs, 95% CI)", ylabel="m")
     _rmse_vs_pcrb(R, out / "plots" / "rmse_vs_pcrb.png", runs)
     return write_claims(out / "claims.json", claims, paper="003", scenarios=list(R), motion=motion, runs=runs,
-                        seeds=seeds(base_seed, runs), window_s=next(iter(R.values()))[0]["last_window_s"])
+                        seeds=seeds(base_seed, runs), window_s=next(iter(R.values()))[0]["last_window_s"],
+                        **({"calibration_seeds": sorted({r["seed"] for rows_ in calibration[0].values() for r in rows_}),
+                            "q_rule": rule} if calibration is not None else {}))
 
 
 def compute(out: Path, *, runs: int, motion: str, duration: float | None,
@@ -315,4 +363,4 @@ def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: flo
     R, base_seed = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators)
     plugins = plugin_metrics(out, runs) if estimators else None
     return write(out, R, decide(R), runs=runs, motion=motion, base_seed=base_seed, plugins=plugins,
-                 keys=tuple(e.key for e in estimators))
+                 keys=tuple(e.key for e in estimators), calibration=calibrate(runs=runs, motion=motion, duration=duration))

@@ -17,6 +17,7 @@ from testbed.world import Physics
 class Sensor(Protocol):
     name: str
     period_ticks: int
+    rec: Recorder  # the stream's rows; rec.new_rows() gives those of the last sample (online use)
 
     def sample(self, physics: Physics, t: float, state_index: int) -> None:
         """Measure at time t (s) from the current physics state; state_index into log `time`."""
@@ -38,10 +39,24 @@ class Recorder:
         self.name = name
         self._empty = empty
         self._chunks: dict[str, list[np.ndarray]] = {k: [] for k in empty}
+        self._cursor = 0  # chunks already handed out by new_rows
 
     def add(self, **rows: np.ndarray) -> None:
         for key, value in rows.items():
             self._chunks[key].append(np.asarray(value))
+
+    def new_rows(self) -> dict[str, np.ndarray]:
+        """The rows added since the previous call (the sample just taken), keyed without the
+        stream prefix, with the dtypes `arrays()` gives them: what an online consumer reads
+        (testbed.simulate). Empty (0, ...) arrays when nothing was added."""
+        out = {}
+        for key, chunks in self._chunks.items():
+            shape, dtype = self._empty[key]
+            new = chunks[self._cursor:]
+            arr = np.concatenate(new, axis=0) if new else np.empty((0, *shape))
+            out[key] = arr.astype(str) if dtype == "U" else arr.astype(dtype, copy=False)
+        self._cursor = len(next(iter(self._chunks.values()), []))
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {}

@@ -10,6 +10,7 @@ the preset filled it in), so `dataclasses.replace` re-checks.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Literal
 
@@ -288,6 +289,8 @@ class GnssConfig:
     error table (empty: the swarm-box trajectory's `rtk` list if any). receiver / rtk: error
     tables [sensors.gnss.receiver], [sensors.gnss.rtk]. sky: visibility of a seeded
     constellation, DOP-scaled accuracy and no fix under cover ([sensors.gnss.sky], off by default).
+    outages: scripted outage windows [[start, end], ...] (s): no receiver has a fix (no rows) at
+    a sample time t with start <= t < end (the random draws are made all the same).
     """
 
     rate_hz: float = 5.0
@@ -298,11 +301,15 @@ class GnssConfig:
     receiver: GnssErrors = field(default_factory=lambda: GnssErrors(preset="spp"))
     rtk: GnssErrors = field(default_factory=lambda: GnssErrors(preset="rtk"))
     sky: SkyConfig = field(default_factory=SkyConfig)
+    outages: tuple[tuple[float, float], ...] = key((), unit="s")
 
     def __post_init__(self) -> None:
         _check_rate(self)
         in_range(self, "vehicles", 1)
         in_range(self, "rtk_vehicles", 1)
+        for k, w in enumerate(self.outages):
+            require(len(w) == 2 and 0 <= w[0] < w[1] and all(math.isfinite(x) for x in w), f"outages[{k}]", list(w),
+                    f"must be [start, end] with 0 <= start < end (s), got {list(w)}")
 
 
 # ------------------------------------------------------------------------------------ camera

@@ -11,6 +11,7 @@ casts a ray towards every satellite of a seeded constellation; with the visible 
 VDOP the white noise and the bias are scaled by f = (HDOP/hdop_ref, HDOP/hdop_ref, VDOP/vdop_ref)
 (value = p + f (b + v); the bias process itself runs unscaled); a vehicle with fewer than
 min_satellites visible has no fix and no row. The random draws are the same with or without a fix.
+Scripted outages (`outages`): no receiver has a fix (no row) at a sample inside a window.
 
 Log: gnss/value, gnss/clean (M, 3) ENU m; gnss/vehicle (M,) 1-based; gnss/rtk (M,) bool;
 gnss/src = antenna site name ("uav3/uwb") or "uav3/base" for the body origin; gnss/dst = "".
@@ -76,16 +77,21 @@ class Gnss:
         for tau, sel in self.tau_groups:
             self.bias[sel] = gauss_markov(self.bias[sel], self.bsig[sel], tau, self.dt, n[1][sel][None])[0]
         err = self.bias + self.noise * n[0]
+        out = any(a <= t < b for a, b in self.cfg.outages)  # scripted outage: no fix on any receiver
         if self.sky is None:
+            sel = slice(0, 0) if out else slice(None)
+            M = 0 if out else V
             self.rec.add(
-                time=np.full(V, t), arrival=np.full(V, t + self.cfg.latency), state_index=np.full(V, state_index),
-                value=p + err, clean=p.copy(), src=self.src, dst=np.full(V, ""),
-                vehicle=self.vehicles, rtk=self.is_rtk,
+                time=np.full(M, t), arrival=np.full(M, t + self.cfg.latency), state_index=np.full(M, state_index),
+                value=(p + err)[sel], clean=p[sel].copy(), src=self.src[sel], dst=np.full(M, ""),
+                vehicle=self.vehicles[sel], rtk=self.is_rtk[sel],
             )
             return
         sky = self.cfg.sky
         u, vis = self.sky.visible(physics, t, p)
         hdop, vdop, pdop = dop(u, vis, sky.min_satellites)
+        if out:
+            pdop = np.full_like(pdop, np.inf)
         fix = np.isfinite(pdop)
         f = np.stack([hdop / sky.hdop_ref] * 2 + [vdop / sky.vdop_ref], axis=1)[fix]  # (F, 3) DOP scale
         M = int(fix.sum())

@@ -10,6 +10,11 @@ Gauss-Markov starts, then the white, walk and Gauss-Markov normals of its sample
 child stream `device_rng(stream_rng(seed, "imu"), "uav{i}")`: two vehicles' biases are
 independent draws, and adding a vehicle never changes another vehicle's readings.
 
+Online (`online = True`, set by testbed.simulate when an onboard estimator or attitude filter
+reads the IMU in the loop): the errors are applied at each sample, all vehicles at once, with
+each vehicle's normals drawn from its own generator in blocks of BLOCK samples (the same
+sequence of draws as above); the log then holds exactly the values read online.
+
 Log: imu/value, imu/clean (M, 6) = [f_x, f_y, f_z (m/s^2), w_x, w_y, w_z (rad/s)], imu site
 frame; imu/vehicle (M,) 1-based; imu/src = "uav{i}/imu", imu/dst = ""; imu/bias (M, 6) the true
 total bias at the sample (for diagnostics, never for estimators).
@@ -24,8 +29,12 @@ from testbed.sensors.noise import TriadErrors, device_rng
 from testbed.world import Physics
 
 
+BLOCK = 256  # samples of normals drawn per vehicle at a time in online mode
+
+
 class Imu:
     name = "imu"
+    online = False
 
     def __init__(self, cfg: ImuConfig, physics: Physics, rng: np.random.Generator, period_ticks: int, tick: float):
         self.cfg, self.period_ticks = cfg, period_ticks
@@ -41,15 +50,41 @@ class Imu:
         self.times: list[tuple[float, int]] = []  # (t, state_index) per sample
 
     def sample(self, physics: Physics, t: float, state_index: int) -> None:
-        """Keep MuJoCo's clean readings; errors are applied to the whole series in arrays()."""
-        self.clean.append(physics.data.sensordata[self.sensordata_idx])
+        """Keep MuJoCo's clean readings; errors are applied to the whole series in arrays(), or
+        now when online."""
+        clean = physics.data.sensordata[self.sensordata_idx]
+        if self.online:
+            self._sample_online(clean, t, state_index)
+            return
+        self.clean.append(clean)
         self.times.append((t, state_index))
+
+    def _sample_online(self, clean: np.ndarray, t: float, state_index: int) -> None:
+        """Errors of one sample of every vehicle (V, 6), recorded at once (module docstring)."""
+        V = len(self.vehicles)
+        if not self.times:  # first online sample: the vehicles' triads as one
+            self._acc_all, self._gyr_all = TriadErrors.stacked(self.accel), TriadErrors.stacked(self.gyro)
+            self._block, self._used = np.empty((0, 2, 3, V, 3)), 0
+        if self._used == len(self._block):  # (BLOCK, 2, 3, V, 3): each vehicle's next normals
+            self._block = np.stack([r.standard_normal((BLOCK, 2, 3, 1, 3))[:, :, :, 0] for r in self.rngs], axis=3)
+            self._used = 0
+        normals = self._block[self._used : self._used + 1]
+        self._used += 1
+        self.times.append((t, state_index))
+        clean = clean.reshape(1, V, 6)
+        am = self._acc_all.apply(clean[:, :, :3], normals[:, 0])
+        wm = self._gyr_all.apply(clean[:, :, 3:], normals[:, 1])
+        self.rec.add(
+            time=np.full(V, t), arrival=np.full(V, t + self.cfg.latency), state_index=np.full(V, state_index),
+            value=np.concatenate([am, wm], axis=2)[0], clean=clean[0], src=self.src, dst=np.full(V, ""),
+            vehicle=self.vehicles, bias=np.concatenate([self._acc_all.bias_series, self._gyr_all.bias_series], axis=2)[0],
+        )
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Errors of the whole series at once (same draws as sample by sample: each vehicle's
         generator consumed in time order, accelerometer then gyro normals per sample)."""
         V, n = len(self.vehicles), len(self.times)
-        if n == 0:
+        if n == 0 or self.online:
             return self.rec.arrays()
         clean = np.array(self.clean).reshape(n, V, 6)
         am, wm = np.empty((n, V, 3)), np.empty((n, V, 3))

@@ -75,6 +75,16 @@ class TriadErrors:
         self.walk = np.zeros((n_triads, 3))
         self.gm = e.gm_sigma * z[2] if e.gm_tau > 0 else np.zeros((n_triads, 3))  # stationary start
 
+    @classmethod
+    def stacked(cls, triads: list[TriadErrors]) -> TriadErrors:
+        """One object for the triads of several (all with the same parameters and dt), their
+        scale factors, misalignments and bias states concatenated: `apply` on (n, V, 3) at once."""
+        out = cls.__new__(cls)
+        out.e, out.dt = triads[0].e, triads[0].dt
+        for name in ("K", "b0", "walk", "gm"):
+            setattr(out, name, np.concatenate([getattr(t, name) for t in triads]))
+        return out
+
     def apply(self, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Measurements (n, V, 3) of clean samples x (n, V, 3); `bias_series` keeps the bias (n, V, 3)."""
         e, dt = self.e, self.dt
@@ -121,21 +131,51 @@ def twr_range(mode: str, d: np.ndarray, ppm_a: np.ndarray, ppm_b: np.ndarray, re
     raise ValueError(f"unknown two-way ranging mode {mode!r}")
 
 
+def twr_clock_gains(mode: str, d: np.ndarray, reply_time: float) -> tuple[np.ndarray, np.ndarray]:
+    """First-order range error (m) per ppm of the initiator's and of the responder's clock offset:
+    (g_A, g_B), each (L,) m/ppm, for true lengths d (L,) m (twr_range linearised in e = 1e-6 ppm):
+      "scale", "ds-twr": g_A = g_B = 1e-6 d / 2
+      "ss-twr":          g_A = 1e-6 (d + h), g_B = -1e-6 h,  h = c T_reply / 2
+    """
+    d = np.asarray(d, dtype=float)
+    if mode == "ss-twr":
+        h = 0.5 * C_LIGHT * reply_time
+        return 1e-6 * (d + h), np.full_like(d, -1e-6 * h)
+    return 0.5e-6 * d, 0.5e-6 * d
+
+
 def twr_range_variance(mode: str, d: np.ndarray, clock_ppm: float, reply_time: float, antenna_delay_sigma: float) -> np.ndarray:
     """Variance (m^2) of the clock and antenna-delay error of a two-way range of true length d (m),
     to first order, with independent per-device clock offsets ~ N(0, clock_ppm^2) (ppm) and
     antenna delays ~ N(0, antenna_delay_sigma^2) (m); the white range noise is not included.
       "scale", "ds-twr": (s d)^2 / 2 + 2 sigma_ad^2
       "ss-twr":          s^2 ((d + h)^2 + h^2) + 2 sigma_ad^2,  h = c T_reply / 2
-    with s = 1e-6 clock_ppm. d: (L,) m.
+    with s = 1e-6 clock_ppm (twr_clock_gains: clock_ppm^2 (g_A^2 + g_B^2)). d: (L,) m.
     """
-    s = 1e-6 * clock_ppm
-    if mode == "ss-twr":
-        h = 0.5 * C_LIGHT * reply_time
-        clock = s ** 2 * ((d + h) ** 2 + h ** 2)
-    else:
-        clock = 0.5 * (s * d) ** 2
-    return clock + 2.0 * antenna_delay_sigma ** 2
+    g_a, g_b = twr_clock_gains(mode, d, reply_time)
+    return clock_ppm ** 2 * (g_a ** 2 + g_b ** 2) + 2.0 * antenna_delay_sigma ** 2
+
+
+def twr_range_covariance(mode: str, d: np.ndarray, src: np.ndarray, dst: np.ndarray, clock_ppm: float, reply_time: float,
+                         antenna_delay_sigma: float) -> np.ndarray:
+    """Joint covariance (L, L) m^2 of the clock and antenna-delay errors of L two-way ranges
+    measured at the same time: link l from device src[l] to dst[l] (integer ids, (L,)), true length
+    d[l] (m). Its error is g_A k_src + g_B k_dst + b_src + b_dst with the per-device clock offsets k
+    (ppm) and antenna delays b (m) of twr_range_variance: two links that share a device share its
+    terms, cov = G diag(clock_ppm^2) G^T + sigma_ad^2 B B^T (G: gains at the device columns, B:
+    ones). The diagonal is twr_range_variance; the white range noise is not included.
+    """
+    src, dst = np.asarray(src), np.asarray(dst)
+    g_a, g_b = twr_clock_gains(mode, d, reply_time)
+    ids = np.unique(np.concatenate([src, dst]))
+    a, b = np.searchsorted(ids, src), np.searchsorted(ids, dst)
+    rows = np.arange(src.size)
+    G = np.zeros((src.size, ids.size))
+    B = np.zeros((src.size, ids.size))
+    # src == dst never happens (a radio does not range to itself)
+    G[rows, a], G[rows, b] = g_a, g_b
+    B[rows, a], B[rows, b] = 1.0, 1.0
+    return clock_ppm ** 2 * (G @ G.T) + antenna_delay_sigma ** 2 * (B @ B.T)
 
 
 def allan_deviation(y: np.ndarray, dt: float, m: np.ndarray) -> np.ndarray:

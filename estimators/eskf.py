@@ -1,0 +1,189 @@
+"""Loosely coupled IMU + GNSS + UWB error-state EKF of one vehicle (Sola, "Quaternion kinematics
+for the error-state Kalman filter", 2017, sections 5 and 7; local attitude error).
+
+Nominal state x (16 + E,): position p (3) m and velocity v (3) m/s of the IMU in the world frame
+(ENU), attitude q (4) wxyz body-to-world, accelerometer bias b_a (3) m/s^2 and gyro bias b_g (3)
+rad/s (body FLU), then E constant extra states c (e.g. UWB antenna delays, m). Error state dx
+(15 + E,): dp, dv, dtheta (rad, body frame: R_true = R Exp(dtheta)), db_a, db_g, dc (additive).
+Layout: P, V, TH, BA, BG below; extra k is error index 15 + k, nominal index 16 + k.
+
+Mechanization with one IMU sample f (specific force, m/s^2) and w (rate, rad/s), held over dt:
+    a  = R (f - b_a) + g,  g = (0, 0, -9.81) m/s^2               (Sola eq. 260)
+    p <- p + v dt + a dt^2 / 2;  v <- v + a dt;  q <- q (x) Exp((w - b_g) dt)
+Error transition (exact Jacobian of that step, `transition`):
+    F[P,V] = I dt, F[P,TH] = -R [f - b_a]x dt^2/2, F[P,BA] = -R dt^2/2
+    F[V,TH] = -R [f - b_a]x dt, F[V,BA] = -R dt
+    F[TH,TH] = Exp((w - b_g) dt)^T, F[TH,BG] = -J_r((w - b_g) dt) dt
+Process noise (`process_noise`): white accelerometer and gyro noise of densities n_a, n_g
+(unit/sqrt(Hz)) into v and theta (n^2 dt), bias random walks of densities q_ba, q_bg
+(unit/sqrt(s)) into the biases (q^2 dt).
+Measurements (lever arm l (3,) m of the antenna or tag in the body frame, s = p + R l):
+    GNSS position  z = s + v,               H = [I, 0, -R [l]x, 0, 0]
+    UWB range      z = |s - a| + sum_k c_k + v,   H = [u^T [I, 0, -R [l]x, 0, 0], 1 at each k]
+with a the anchor, u = (s - a) / |s - a|, and c_k the extra states that bias this range (the
+antenna delays of its two ends: constant per device, so they do not average out).
+Update: Kalman gain by Cholesky solve, Joseph form, innovation gate on the NIS; injection
+x <- x (+) dx and reset P <- G P G^T, G[TH,TH] = I - [dtheta / 2]x (Sola eq. 287).
+Pure numpy/scipy; never imports mujoco or testbed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.core import cho_solve_upper, cholesky_upper, joseph_update, symmetrize
+from estimators.so3 import (quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat, rot_zyx, rotmat_to_quat, skew,
+                            so3_right_jacobian)
+
+GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2, world ENU
+P, V, TH, BA, BG = (slice(3 * k, 3 * k + 3) for k in range(5))  # error-state blocks
+N_ERR = 15
+
+
+@dataclass(frozen=True, slots=True)
+class ImuNoise:
+    """Densities of the IMU model the filter assumes: accel_density (m/s^2/sqrt(Hz)),
+    gyro_density (rad/s/sqrt(Hz)) white noise; accel_walk (m/s^2/sqrt(s)), gyro_walk
+    (rad/s/sqrt(s)) bias random walks."""
+
+    accel_density: float
+    gyro_density: float
+    accel_walk: float
+    gyro_walk: float
+
+
+def split(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(p, v, q, b_a, b_g) views of a nominal state x (16,)."""
+    return x[0:3], x[3:6], x[6:10], x[10:13], x[13:16]
+
+
+def propagate(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
+    """Nominal state (16,) after dt (s) with the IMU sample f (3,) m/s^2, w (3,) rad/s held."""
+    p, v, q, ba, bg = split(x)
+    R = quat_to_rotmat(q)
+    # Sola eq. 260: a = R (a_m - a_b) + g
+    a = R @ (f - ba) + GRAVITY
+    out = x.copy()
+    out[0:3] = p + v * dt + 0.5 * dt * dt * a
+    out[3:6] = v + a * dt
+    qn = quat_mul(q, quat_exp((w - bg) * dt))
+    out[6:10] = qn / np.linalg.norm(qn)
+    return out
+
+
+def error_size(x: np.ndarray) -> int:
+    """Length of the error state of nominal state x: 15 + extras."""
+    return len(x) - 1
+
+
+def transition(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
+    """Error-state transition F (n, n) of `propagate` at x (module docstring; extras constant)."""
+    _, _, q, ba, bg = split(x)
+    R = quat_to_rotmat(q)
+    RF = R @ skew(f - ba)
+    phi = (w - bg) * dt
+    F = np.eye(error_size(x))
+    F[P, V] = np.eye(3) * dt
+    F[P, TH] = -0.5 * dt * dt * RF
+    F[P, BA] = -0.5 * dt * dt * R
+    F[V, TH] = -RF * dt
+    F[V, BA] = -R * dt
+    F[TH, TH] = quat_to_rotmat(quat_exp(phi)).T
+    F[TH, BG] = -so3_right_jacobian(phi) * dt
+    return F
+
+
+def process_noise(noise: ImuNoise, dt: float, n: int = N_ERR) -> np.ndarray:
+    """Q (n, n) of one step of dt (s): white noise into v and theta, bias walks (docstring);
+    none on the extras."""
+    q = np.zeros(n)
+    q[V] = noise.accel_density ** 2 * dt
+    q[TH] = noise.gyro_density ** 2 * dt
+    q[BA] = noise.accel_walk ** 2 * dt
+    q[BG] = noise.gyro_walk ** 2 * dt
+    return np.diag(q)
+
+
+def site_position(x: np.ndarray, lever: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World position s = p + R l (3,) of a body site with lever arm l (3,) m, and ds/ddx (3, n)."""
+    R = quat_to_rotmat(x[6:10])
+    H = np.zeros((3, error_size(x)))
+    H[:, P] = np.eye(3)
+    # R Exp(dtheta) l ~ R l + R [dtheta]x l = R l - R [l]x dtheta
+    H[:, TH] = -R @ skew(lever)
+    return x[0:3] + R @ lever, H
+
+
+def range_model(x: np.ndarray, lever: np.ndarray, anchor: np.ndarray, extras: tuple[int, ...] = ()) -> tuple[float, np.ndarray]:
+    """Predicted range |s - a| + sum of the extra states `extras` (indices k) (m) from the site
+    with lever arm l to the point a (3,) world, and H (1, n)."""
+    s, Hs = site_position(x, lever)
+    d = s - anchor
+    r = float(np.linalg.norm(d))
+    H = (d / r)[None] @ Hs
+    for k in extras:
+        r += float(x[16 + k])
+        H[0, N_ERR + k] += 1.0
+    return r, H
+
+
+def level(f: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """Attitude q (4,) wxyz of a vehicle at rest from its bias-corrected specific force f (3,)
+    m/s^2 (roll and pitch) and a heading yaw (rad, ZYX), and J (3, 3): the attitude error
+    dtheta = J db_a that an accelerometer bias error db_a (true minus assumed) leaves.
+
+    At rest f = R^T (-g) + b_a, so the levelled body-frame vertical v = f / |f| errs by
+    v - v_true = (I - v v^T) db_a / |f|; with R_true = R Exp(dtheta), v_true = v + v x dtheta, so
+    the tilt part of dtheta is -v x (v_true - v) = [v]x db_a / |f| (the part of db_a along v
+    changes nothing); the heading about v is not measured (J has rank 2)."""
+    roll, pitch = np.arctan2(f[1], f[2]), np.arctan2(-f[0], np.hypot(f[1], f[2]))
+    R = rot_zyx(yaw, pitch, roll)
+    v = f / np.linalg.norm(f)
+    return rotmat_to_quat(R), skew(v) / np.linalg.norm(f)
+
+
+def inject(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """x (+) dx: the nominal state (16 + E,) corrected by the error state dx (15 + E,)."""
+    out = x.copy()
+    out[0:6] += dx[0:6]
+    qn = quat_mul(x[6:10], quat_exp(dx[TH]))
+    out[6:10] = qn / np.linalg.norm(qn)
+    out[10:] += dx[9:]
+    return out
+
+
+def difference(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The error state dx (15 + E,) with y (+) dx = x (the inverse of inject)."""
+    dx = np.empty(error_size(x))
+    dx[0:6] = x[0:6] - y[0:6]
+    dx[TH] = quat_log(quat_mul(quat_conj(y[6:10]), x[6:10]))
+    dx[9:] = x[10:] - y[10:]
+    return dx
+
+
+@dataclass(slots=True)
+class Update:
+    """Result of one measurement update: accepted, the NIS and its degrees of freedom."""
+
+    accepted: bool
+    nis: float
+    dof: int
+
+
+def update(x: np.ndarray, Pm: np.ndarray, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray,
+           gate: float) -> tuple[np.ndarray, np.ndarray, Update]:
+    """EKF update on the residual z - h(x) (m,) with H (m, n), noise Rn (m, m); rejected (state
+    unchanged) when the NIS exceeds `gate` (a chi-square quantile of m degrees of freedom).
+    Returns the corrected state (n + 1,), covariance (n, n) and what happened."""
+    U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))  # S = U^T U
+    K = cho_solve_upper(U, H @ Pm).T  # P H^T S^-1 (P symmetric)
+    nis = float(residual @ cho_solve_upper(U, residual))
+    if not np.isfinite(nis) or nis > gate:
+        return x, Pm, Update(False, nis, len(residual))
+    dx = K @ residual
+    Pn = joseph_update(Pm, K, H, Rn)
+    # Sola eq. 287: reset of the attitude error block after injection
+    G = np.eye(len(dx))
+    G[TH, TH] -= skew(0.5 * dx[TH])
+    return inject(x, dx), symmetrize(G @ Pn @ G.T), Update(True, nis, len(residual))

@@ -1,0 +1,54 @@
+"""`testbed bench denied`: coop-denied flown on the distributed estimate, everything on.
+
+One run of the built-in `coop-denied` (18 UAVs, IMU, GNSS with sky visibility, UWB among
+vehicles and to anchors, [network]) for `duration` s, the controller flying on
+`coop.window_distributed` whose broadcasts travel over the scenario's network (the
+`coop_distributed` variant of `testbed reproduce denied`, testbed.reproduce.denied.variant),
+and for comparison on the centralized `coop.window` (variant `coop`). Measured around the
+whole run (build, simulation with the estimator in the loop, scoring, writing; plots off):
+wall and CPU seconds (time.process_time, this process: one core), the real-time factors
+simulated seconds / second, and the estimator's share of the run: its wall time in the loop
+(timing.json `wall_ms`, testbed.plugins.online) over the run's wall time, and its CPU time,
+measured by feeding the run's log to a fresh instance of the same estimator (the same
+measurements in the same order give the same estimates: testbed.plugins.feed) over the run's
+CPU time. On a shared machine the CPU figures are the ones to read.
+"""
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from testbed.log import load_log
+from testbed.plugins.context import make_context
+from testbed.plugins.feed import measurements, run_plugin
+from testbed.plugins.loading import resolve
+from testbed.reproduce.denied import COOP, variant
+from testbed.runner import run
+from testbed.scenario import load
+from testbed.world import build
+
+DURATION_S = 10.0
+
+
+def bench_denied(duration: float = DURATION_S, name: str = "coop_distributed") -> dict:
+    """The figures of one run (module docstring); name: the reproduce variant flown."""
+    sc = variant(load("coop-denied", duration=duration), name)
+    with tempfile.TemporaryDirectory(prefix="bench-denied-") as tmp:
+        out = Path(tmp) / "run"
+        w0, c0 = time.perf_counter(), time.process_time()
+        metrics = run(sc, out, plots=False)
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        est_ms = json.loads((out / "timing.json").read_text())["estimators"][COOP]["wall_ms"]
+        feed = list(measurements(sc, load_log(out)))
+    plugin = next(p for p in resolve(sc.estimators) if p.key == COOP)
+    ctx = make_context(sc, build(sc), plugin.key, plugin.params)
+    c1 = time.process_time()
+    run_plugin(plugin, ctx, feed)
+    est_cpu = time.process_time() - c1
+    return {"scenario": sc.name, "variant": name, "vehicles": sc.vehicles, "simulated_s": duration,
+            "wall_s": wall, "cpu_s": cpu, "realtime_factor_wall": duration / wall, "realtime_factor_cpu": duration / cpu,
+            "estimator_wall_s": est_ms / 1e3, "estimator_share_wall": est_ms / 1e3 / wall,
+            "estimator_cpu_s": est_cpu, "estimator_share_cpu": est_cpu / cpu,
+            "estimation_rmse_m": metrics["estimators"][COOP]["rmse_position_mean_m"]}

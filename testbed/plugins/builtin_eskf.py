@@ -1,0 +1,190 @@
+"""Built-in `nav.eskf`: one loosely coupled IMU + GNSS + UWB error-state EKF per vehicle
+(estimators.eskf), offline on a log or online in the control loop ([control] feedback).
+
+Per vehicle "uavI" with an IMU: each IMU sample propagates the filter from its last time with
+the previous sample held (zero-order hold) and then emits the position, velocity and attitude of
+the body (the IMU site is the body origin) with their covariances, every `output_every`-th
+sample. A GNSS fix or a UWB range first propagates the filter to its time of validity, then
+updates it (a measurement older than the filter, possible with a latency, updates the current
+state: the delay is not compensated). The filter starts at the vehicle's first GNSS fix: position
+the fix minus the rotated antenna lever arm, velocity 0, roll and pitch levelled from the last
+accelerometer sample (less the declared constant bias; its tilt error correlated with the
+accelerometer bias error, estimators.eskf.level), yaw `yaw0`; before that its GNSS and UWB rows are skipped (counted).
+
+Noise: IMU white noise and bias walks from the declared [sensors.imu] table (a Gauss-Markov
+bias of sigma s, time constant tau enters as a walk of density s sqrt(2 / tau)); turn-on and
+Gauss-Markov bias sigmas as the initial bias uncertainty, the constant `bias` as its mean.
+GNSS: the row's declared sigma. UWB ranges to anchors: the declared noise plus, as white
+variance, the clock term of the two-way ranging (testbed.sensors.noise.twr_range_variance) and
+the per-link bias sigma; the antenna delays of the vehicle's tag and of each anchor (constant
+per device, declared `antenna_delay_sigma`) are extra states of the vehicle's filter (mean 0,
+that sigma), because a constant bias treated as white noise would make the filter overconfident
+on long stretches without GNSS. Ranges between tags are not used (a filter per vehicle cannot
+use another's broadcast estimate without counting shared information twice).
+Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections counted).
+
+params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
+gate_prob (1e-4), output_every (1).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from estimators import eskf
+from estimators.core import symmetrize
+from estimators.so3 import quat_to_rotmat
+from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.sensors.noise import twr_range_variance
+
+DEFAULTS = dict(yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, gate_prob=1e-4, output_every=1)
+
+
+def _walk(errors: dict) -> float:
+    """Bias random-walk density (unit/sqrt(s)) standing for the declared walk and Gauss-Markov terms."""
+    gm = errors["gm_sigma"] * np.sqrt(2.0 / errors["gm_tau"]) if errors["gm_tau"] > 0 else 0.0
+    return float(np.hypot(errors["bias_walk"], gm))
+
+
+class _Vehicle:
+    """One vehicle's filter: nominal x (16,), covariance P (15, 15), time t (s), held IMU sample."""
+
+    __slots__ = ("x", "P", "t", "imu", "samples")
+
+    def __init__(self):
+        self.x, self.P, self.t, self.imu, self.samples = None, None, None, None, 0
+
+
+class NavEskf:
+    description = "per-vehicle loosely coupled IMU + GNSS + UWB error-state EKF (estimators.eskf); flies in the loop"
+
+    def __init__(self, context: Context, params: dict):
+        unknown = set(params) - set(DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown params {sorted(unknown)}; known: {sorted(DEFAULTS)}")
+        if "imu" not in context.sensors:
+            raise ValueError("needs [sensors.imu]")
+        self.p = {**DEFAULTS, **params}
+        imu = context.sensors["imu"]
+        acc, gyr = imu["accel"], imu["gyro"]
+        self.noise = eskf.ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
+        self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
+        self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2] * 3 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3)
+        self.uwb = context.sensors.get("uwb")
+        self.sites, self.anchors = context.sites, context.anchors
+        # extra states: antenna delays of the own tag (0) and of each anchor (1..A), m
+        delay = self.uwb["antenna_delay_sigma"] if self.uwb is not None else 0.0
+        self.delay_var = np.full(1 + len(self.anchors), delay ** 2) if delay > 0 else np.zeros(0)
+        self.delay_index = {name: k for k, name in enumerate(self.anchors, start=1)}
+        self.gate = {m: float(chi2.isf(self.p["gate_prob"], m)) for m in (1, 3)}
+        self.v = {name: _Vehicle() for name in context.vehicles}
+        self.counts = {"rejected_measurements": 0, "skipped_updates": 0}
+
+    # ------------------------------------------------------------------ the protocol
+    def process(self, m: Measurement):
+        if m.stream == "imu":
+            return self._imu(m)
+        if m.stream == "gnss":
+            self._gnss(m)
+        elif m.stream == "uwb":
+            self._uwb(m)
+        return []
+
+    def health(self) -> dict[str, int]:
+        return dict(self.counts)
+
+    # ------------------------------------------------------------------ per stream
+    def _to(self, f: _Vehicle, t: float) -> None:
+        """Propagate filter f to time t (s) with its held IMU sample (nothing if t is not later)."""
+        dt = t - f.t
+        if dt <= 0:
+            return
+        fa, wa = f.imu
+        F = eskf.transition(f.x, fa, wa, dt)
+        f.x = eskf.propagate(f.x, fa, wa, dt)
+        f.P = symmetrize(F @ f.P @ F.T + eskf.process_noise(self.noise, dt, len(F)))
+        f.t = t
+
+    def _imu(self, m: Measurement) -> list[Estimate]:
+        body = self.sites[m.src][0]
+        f = self.v[body]
+        value = np.asarray(m.value, float)
+        if f.x is not None:
+            self._to(f, m.time)
+        f.imu = (value[:3], value[3:])
+        if f.x is None:
+            f.t = m.time
+            return []
+        f.samples += 1
+        if f.samples % self.p["output_every"]:
+            return []
+        x, P = f.x, f.P
+        return [
+            Estimate(time=m.time, target=body, quantity="position", value=x[0:3].copy(), cov=P[eskf.P, eskf.P].copy()),
+            Estimate(time=m.time, target=body, quantity="velocity", value=x[3:6].copy(), cov=P[eskf.V, eskf.V].copy()),
+            Estimate(time=m.time, target=body, quantity="attitude", value=x[6:10].copy(), cov=P[eskf.TH, eskf.TH].copy()),
+        ]
+
+    def _start(self, f: _Vehicle, m: Measurement, lever: np.ndarray) -> None:
+        """First fix: the initial state and covariance (module docstring). The levelling error
+        is the accelerometer bias error seen across the vertical (estimators.eskf.level): the
+        initial tilt and accelerometer bias errors are correlated, dtheta = J db_a, plus
+        tilt0_sigma across the vertical (the vehicle not at rest: a drag-free quadrotor's
+        accelerometer reads its thrust axis, so an acceleration a tilts the levelled vertical
+        by a / g, 0.05 rad at 0.5 m/s^2) and yaw0_sigma about it."""
+        p = self.p
+        q, J = eskf.level(f.imu[0] - self.bias0[:3], p["yaw0"])
+        R = quat_to_rotmat(q)
+        x = np.zeros(16 + len(self.delay_var))
+        x[0:3] = np.asarray(m.value, float) - R @ lever
+        x[6:10] = q
+        x[10:16] = self.bias0
+        P = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
+                                    self.bias_var, self.delay_var]))
+        v = R.T @ [0.0, 0.0, 1.0]  # the vertical in the body frame
+        Pb = P[eskf.BA, eskf.BA]
+        P[eskf.TH, eskf.TH] = J @ Pb @ J.T + p["tilt0_sigma"] ** 2 * (np.eye(3) - np.outer(v, v)) + p["yaw0_sigma"] ** 2 * np.outer(v, v)
+        P[eskf.TH, eskf.BA] = J @ Pb
+        P[eskf.BA, eskf.TH] = (J @ Pb).T
+        f.x, f.P, f.t = x, P, max(f.t, m.time)
+
+    def _gnss(self, m: Measurement) -> None:
+        body, lever = self._site(m.src)
+        f = self.v[body]
+        if f.imu is None:
+            self.counts["skipped_updates"] += 1
+            return
+        if f.x is None:
+            self._start(f, m, lever)
+            return
+        self._to(f, m.time)
+        s, H = eskf.site_position(f.x, lever)
+        self._apply(f, np.asarray(m.value, float) - s, H, np.diag(np.asarray(m.sigma, float) ** 2))
+
+    def _uwb(self, m: Measurement) -> None:
+        if m.dst not in self.anchors:
+            return  # between tags: not used (module docstring)
+        body, lever = self._site(m.src)
+        f = self.v[body]
+        if f.x is None:
+            self.counts["skipped_updates"] += 1
+            return
+        self._to(f, m.time)
+        extras = (0, self.delay_index[m.dst]) if len(self.delay_var) else ()
+        r, H = eskf.range_model(f.x, lever, self.anchors[m.dst], extras)
+        u = self.uwb
+        var = float(np.asarray(m.sigma, float)[0]) ** 2 + u["link_bias_sigma"] ** 2
+        var += float(twr_range_variance(u["mode"], np.array([r]), u["clock_ppm"], u["reply_time"], 0.0)[0])
+        self._apply(f, np.array([float(m.value[0]) - r]), H, np.array([[var]]))
+
+    # ------------------------------------------------------------------ helpers
+    def _site(self, site: str) -> tuple[str, np.ndarray]:
+        """(vehicle, lever arm (3,) m) of a site; "uavI/base" is the body origin."""
+        if site in self.sites:
+            return self.sites[site]
+        return site.partition("/")[0], np.zeros(3)
+
+    def _apply(self, f: _Vehicle, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray) -> None:
+        f.x, f.P, res = eskf.update(f.x, f.P, residual, H, Rn, self.gate[len(residual)])
+        if not res.accepted:
+            self.counts["rejected_measurements"] += 1

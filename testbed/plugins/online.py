@@ -1,0 +1,122 @@
+"""The estimator of `[control] feedback = "estimate:NAME"` run online, inside the flown loop.
+
+testbed.simulate hands `measured` the rows each sensor has just recorded (the values the log
+will hold, noise included) and calls `advance(t)` at the end of every tick: every measurement
+whose arrival (time + latency) is at or before t is turned into a `Measurement` exactly as the
+offline feed builds it from the log (testbed.plugins.feed.measurement_columns) and processed in
+the offline feed's order (arrival, time of validity, stream name, row of the stream). The
+estimates returned are checked and collected as offline (testbed.plugins.collect), so the run
+scores these very estimates; the latest world position and velocity of each fed-back vehicle
+("uavI" targets) are what `state` gives the controller from the next tick on. A vehicle with no
+estimate yet is controlled on its reference (zero position and velocity error); without a
+velocity estimate, its velocity error is taken as zero.
+
+Order check: batches are cut at tick times and sorted inside, and a measurement arrives no
+earlier than it was taken, so the concatenated batches are the offline feed's order.
+"""
+from __future__ import annotations
+
+import heapq
+import time as wallclock
+
+import numpy as np
+
+from testbed.errors import PluginError
+from testbed.plugins.api import Context
+from testbed.plugins.collect import Track
+from testbed.plugins.feed import finish_plugin, measurement_columns, process, start_plugin
+from testbed.plugins.loading import Plugin
+from testbed.plugins.context import make_context
+from testbed.scenario import Scenario
+from testbed.world import Physics
+
+ARRIVAL_TOLERANCE = 1e-9  # s: an arrival this close after a tick time counts as at the tick
+
+
+class OnlineEstimator:
+    """One plugin estimator run in the loop; `vehicles` (N,) bool: which are fed back."""
+
+    def __init__(self, scenario: Scenario, plugin: Plugin, context: Context):
+        self.scenario, self.plugin, self.context = scenario, plugin, context
+        t0 = wallclock.perf_counter()
+        self.est, self.col = start_plugin(plugin, context)
+        self.wall = wallclock.perf_counter() - t0
+        N = scenario.vehicles
+        chosen = scenario.control.feedback_vehicles or range(1, N + 1)
+        self.vehicles = np.zeros(N, bool)
+        self.vehicles[np.array(chosen) - 1] = True
+        self.index = {f"uav{i}": i - 1 for i in range(1, N + 1)}
+        self.pos, self.vel = np.zeros((N, 3)), np.zeros((N, 3))
+        self.times = np.full((2, N), -np.inf)  # time of validity of the held position, velocity
+        self.has_pos, self.has_vel = np.zeros(N, bool), np.zeros(N, bool)
+        self._pending: list = []  # heap of (arrival, time, stream, row, columns, index)
+        self._rows: dict[str, int] = {}
+        self.fed = 0
+
+    def measured(self, name: str, rows: dict[str, np.ndarray]) -> None:
+        """The rows a sensor just recorded (Recorder.new_rows), queued by arrival."""
+        n = len(rows["time"])
+        if n == 0:
+            return
+        cols = measurement_columns(name, rows, self.scenario)
+        first = self._rows.get(name, 0)
+        self._rows[name] = first + n
+        for r in range(n):
+            heapq.heappush(self._pending, (float(rows["arrival"][r]), float(rows["time"][r]), name, first + r, cols, r))
+
+    def advance(self, t: float) -> None:
+        """Process every queued measurement arrived by time t (s), in feeding order."""
+        pending = self._pending
+        if not pending or pending[0][0] > t + ARRIVAL_TOLERANCE:
+            return
+        t0 = wallclock.perf_counter()
+        while pending and pending[0][0] <= t + ARRIVAL_TOLERANCE:
+            *_, cols, r = heapq.heappop(pending)
+            self._hold(process(self.plugin, self.est, self.col, cols.measurement(r)))
+            self.fed += 1
+        self.wall += wallclock.perf_counter() - t0
+
+    def _hold(self, estimates: list) -> None:
+        """Keep the latest (by time of validity) world position and velocity of each vehicle."""
+        for e in estimates:
+            i = self.index.get(e.target)
+            if i is None or e.frame != "world" or e.quantity == "attitude":
+                continue
+            k = 0 if e.quantity == "position" else 1
+            if e.time >= self.times[k, i]:
+                self.times[k, i] = e.time
+                (self.pos if k == 0 else self.vel)[i] = e.value
+                (self.has_pos if k == 0 else self.has_vel)[i] = True
+
+    def state(self, pos: np.ndarray, vel: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position and velocity (N, 3) world the controller uses: the held estimate of each
+        fed-back vehicle (its reference before a first estimate), the truth of the others."""
+        fb = self.vehicles
+        p = np.where((fb & self.has_pos)[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
+        v = np.where((fb & self.has_vel)[:, None], self.vel, np.where(fb[:, None], ref_vel, vel))
+        return p, v
+
+    def finish(self) -> tuple[Track, dict, float]:
+        """The rows still queued, then finish() and health() of the plugin; (estimates, health,
+        wall ms) as run_plugin gives.
+        A fed-back vehicle that never got a position estimate is a PluginError."""
+        self.advance(np.inf)  # rows arriving after the last tick: fed as offline, too late to steer
+        t0 = wallclock.perf_counter()
+        health = finish_plugin(self.plugin, self.est, self.col)
+        self.wall += wallclock.perf_counter() - t0
+        missing = [f"uav{i + 1}" for i in np.flatnonzero(self.vehicles & ~self.has_pos)]
+        if missing:
+            raise PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) in the control loop "
+                              f"(control.feedback): no position estimate of {', '.join(missing)} in the whole run "
+                              f"({self.fed} measurements fed)")
+        return self.col.track(), health, self.wall * 1e3
+
+
+def in_the_loop(scenario: Scenario, physics: Physics, plugins: list[Plugin]) -> OnlineEstimator | None:
+    """The estimator [control] feedback names, constructed for this run (None: truth feedback).
+    Its Context is the one the offline feed gives, without a prior (priors come from the log)."""
+    name = scenario.control.feedback_estimator
+    if not name:
+        return None
+    plugin = next(p for p in plugins if p.key == name)  # the scenario checked the name
+    return OnlineEstimator(scenario, plugin, make_context(scenario, physics, plugin.key, plugin.params))

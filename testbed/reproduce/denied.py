@@ -1,0 +1,201 @@
+"""`testbed reproduce denied`: cooperative flight through GNSS-denied streets (issue #18).
+
+Scenario `coop-denied` (18 UAVs down an urban street and under a covered passage; GNSS by sky
+visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown over `runs`
+seeds in four variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
+testbed.reproduce.runs):
+- truth:       the controller flies on the MuJoCo state; the centralized cooperative estimator
+               (below) is run and scored beside it: its estimation error without feedback;
+- gnss_ekf:    flies on `nav.eskf`, the per-vehicle IMU + GNSS error-state EKF, with no UWB
+               ([sensors.uwb] removed in this variant: GNSS only);
+- coop:        flies on `coop.window` (seed 001's sliding-window factor graph over the whole
+               swarm, centralized: every measurement reaches the solver);
+- coop_distributed: flies on `coop.window_distributed` (the same graph, one window per vehicle,
+               message iteration between vehicles, broadcasts over the scenario's [network]);
+- coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised,
+               for the estimator's broadcasts and the scenario's [network] alike).
+Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
+max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
+separation between vehicles (body origins, every logged instant); contact events: MuJoCo
+contacts of a vehicle with another or with an obstacle in the logged states replayed through
+collision (Physics.contacts_at; an event is a pair coming into contact; floor contacts counted
+apart); seconds without a GNSS fix per vehicle (gnss/fix at the logged instants).
+
+Claims (criteria fixed here, before the runs): no contact when flying on the cooperative
+estimate; cooperation's estimation error below GNSS-only's (one-sided Wilcoxon signed-rank over
+paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so).
+
+Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
+claims), `write` (files through testbed.report); `reproduce` chains them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from testbed.config import to_dict
+from testbed.errors import UsageError
+from testbed.log import load_log
+from testbed.plots import compare_bars
+from testbed.plugins.spec import EstimatorSpec
+from testbed.report import Claim, fmt, markdown_table, write_claims, write_csv, write_markdown
+from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
+from testbed.scenario import Scenario, load
+from testbed.stats import wilcoxon_paired
+from testbed.world import FLOOR, OBSTACLE, build
+
+VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy")
+TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
+          "coop_distributed": "cooperative, distributed", "coop_lossy": "cooperative, distributed, lossy network"}
+COOP, EKF = "coop", "ekf"  # estimator names ([[estimators]] name) of the cooperative and GNSS-only estimators
+LOSSY = {"loss_prob": 0.3, "latency": 0.006, "jitter": 0.003}  # the lossy variant's [network] changes
+ALPHA = 0.05
+METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
+           "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
+
+
+def variant(base: Scenario, name: str) -> Scenario:
+    """The scenario of variant `name` (module docstring)."""
+    net = base.network
+    if name == "coop_lossy":
+        net = replace(net, **LOSSY)
+    coop = EstimatorSpec(entry="coop.window" if name in ("truth", "coop") else "coop.window_distributed", name=COOP,
+                         params={} if name in ("truth", "coop") else {"network": to_dict(net)})
+    if name == "gnss_ekf":
+        return replace(base, sensors=replace(base.sensors, uwb=None), network=net,
+                       estimators=(EstimatorSpec(entry="nav.eskf", name=EKF),),
+                       control=replace(base.control, feedback=f"estimate:{EKF}"))
+    feedback = "truth" if name == "truth" else f"estimate:{COOP}"
+    return replace(base, network=net, estimators=(coop,), control=replace(base.control, feedback=feedback))
+
+
+def _episodes(pairs: list[np.ndarray]) -> dict[str, int]:
+    """Contact events: a (vehicle, other) pair in contact at a logged instant and not at the
+    previous one, by kind of other."""
+    out = {"contacts_vehicle": 0, "contacts_obstacle": 0, "contacts_floor": 0}
+    before: set = set()
+    for p in pairs:
+        now = {tuple(r) for r in p.tolist()}
+        for _, o in now - before:
+            out["contacts_obstacle" if o == OBSTACLE else "contacts_floor" if o == FLOOR else "contacts_vehicle"] += 1
+        before = now
+    return out
+
+
+def flight(scenario: Scenario, run_dir: Path, metrics: dict, estimator: str) -> dict:
+    """The flight metrics of one run (module docstring); estimator: the key of the estimator whose
+    position RMSE is the estimation error."""
+    log = load_log(run_dir)
+    err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)  # (T, N) m
+    p = log["truth/pos"]
+    n = p.shape[1]
+    iu = np.triu_indices(n, 1)
+    sep = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1)[:, iu[0], iu[1]]
+    physics = build(scenario)
+    contacts = _episodes([physics.contacts_at(q) for q in log["qpos"]])
+    fix = log["gnss/fix"]  # (T, N) bool at log["time"]
+    dt = np.diff(log["time"])
+    no_fix = ((~fix[1:]) * dt[:, None]).sum(axis=0)  # (N,) s
+    est = metrics["estimators"][estimator]
+    return {"tracking_rms_m": float(np.sqrt(np.mean(err ** 2))), "tracking_max_m": float(err.max()),
+            "estimation_rmse_m": float(est["rmse_position_mean_m"]), "min_separation_m": float(sep.min()),
+            **contacts, "no_fix_mean_s": float(no_fix.mean()), "no_fix_max_s": float(no_fix.max()),
+            "no_fix_s": no_fix.tolist(), "health": est.get("health", {})}
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class DeniedResults:
+    """compute's output: base scenario, runs, {variant: [flight metrics of run i]}."""
+
+    scenario: Scenario
+    runs: int
+    flights: dict[str, list[dict]]
+
+    def column(self, v: str, key: str) -> np.ndarray:
+        """(runs,) values of metric `key` in variant v."""
+        return np.array([f[key] for f in self.flights[v]], float)
+
+
+def compute(out: Path, *, runs: int, duration: float | None, workers: int | None) -> DeniedResults:
+    """Every variant's sweep into OUT/runs/<variant> and its flight metrics."""
+    base = load("coop-denied", duration=duration)
+    flights = {}
+    for v in VARIANTS:
+        sc = variant(base, v)
+        dirs = sweep_runs(sc, runs, out / "runs" / v, workers=workers)
+        key = EKF if v == "gnss_ekf" else COOP
+        flights[v] = [flight(sc, d, m, key) for d, m in zip(dirs, load_metrics(dirs))]
+    return DeniedResults(scenario=base, runs=runs, flights=flights)
+
+
+def decide(res: DeniedResults) -> list[Claim]:
+    runs = res.runs
+    contacts = {v: int(res.column(v, "contacts_vehicle").sum() + res.column(v, "contacts_obstacle").sum())
+                for v in VARIANTS}
+    a, b = res.column("coop", "estimation_rmse_m"), res.column("gnss_ekf", "estimation_rmse_m")
+    t = wilcoxon_paired(a, b, alternative="less", level=1 - ALPHA) if runs > 1 else None
+    better = bool(np.mean(a) < np.mean(b)) if t is None else bool(np.isfinite(t.p_value) and t.p_value < ALPHA)
+    return [
+        Claim(id="coop_flight_without_contact",
+              text="flying on the cooperative estimate, no vehicle touches another or an obstacle",
+              criterion="no contact event (vehicle-vehicle or vehicle-obstacle) in any run of the coop variant",
+              holds=contacts["coop"] == 0, numbers={"contacts": contacts, "runs": runs},
+              summary=", ".join(f"{v}: {c}" for v, c in contacts.items()),
+              test="count over every logged state of every run (nothing sampled beyond the runs)", n=runs,
+              paper_value="(issue #18)"),
+        Claim(id="cooperation_beats_gnss_only",
+              text="the cooperative estimate is more accurate than the GNSS-only EKF in the denied street",
+              criterion=(f"one-sided Wilcoxon signed-rank over {runs} paired runs, alpha = {ALPHA}" if runs > 1
+                         else "1 run: decided on the point values, no test"),
+              holds=better, numbers={"coop_rmse_m": a.tolist(), "gnss_ekf_rmse_m": b.tolist()},
+              summary=f"mean position RMSE {fmt(float(np.mean(a)))} m vs {fmt(float(np.mean(b)))} m",
+              test=t.test if t else "point comparison", statistic=t.statistic if t else None,
+              p_value=t.p_value if t else None, n=runs, level=1 - ALPHA if t else None,
+              paper_value="(issue #18)"),
+    ]
+
+
+def _rows(res: DeniedResults) -> list[list]:
+    return [[v] + [float(np.mean(res.column(v, k))) for k in METRICS] for v in VARIANTS]
+
+
+def write(out: Path, res: DeniedResults, claims: list[Claim]) -> dict:
+    """table.md, table.csv, plots/, claims.json; returns claims.json's content."""
+    sc, runs = res.scenario, res.runs
+    (out / "plots").mkdir(parents=True, exist_ok=True)
+    rows = _rows(res)
+    write_csv(out / "table.csv", ["variant", *METRICS], rows)
+    for key, label in (("estimation_rmse_m", "position RMSE [m]"), ("tracking_rms_m", "tracking RMS [m]")):
+        vals = np.array([[f[key] for f in res.flights[v]] for v in VARIANTS])
+        compare_bars(list(VARIANTS), vals.mean(1), vals.min(1), vals.max(1), out / "plots" / f"{key}.png",
+                     title=f"coop-denied: {label}, mean over {runs} run(s) (bars: min-max)", ylabel=label)
+    md = [f"# coop-denied: {runs} run(s) of {fmt(sc.duration)} s per variant, seeds {sc.seed}..{sc.seed + runs - 1}", "",
+          "Means over the runs. Tracking: |true - reference| position; estimation: position RMSE of the estimator "
+          "the controller flies on (truth variant: the cooperative estimator, scored but not fed back); contacts: "
+          "events (a pair coming into contact); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
+    md += markdown_table(["variant", "tracking RMS m", "tracking max m", "estimation RMSE m", "min separation m",
+                          "contacts veh.", "contacts obst.", "contacts floor", "no fix mean s", "no fix max s"],
+                         [[TITLES[r[0]], *r[1:]] for r in rows])
+    md += ["", "Estimator health, run 0: " + "; ".join(
+        f"{v}: " + ", ".join(f"{k} {x}" for k, x in res.flights[v][0]["health"].items()) for v in VARIANTS)]
+    write_markdown(out / "table.md", md)
+    return write_claims(out / "claims.json", claims, scenario=sc.name, runs=runs, seeds=seeds(sc.seed, runs),
+                        duration_s=sc.duration, lossy_network=LOSSY,
+                        flights={v: res.flights[v] for v in VARIANTS})
+
+
+def reproduce(out: Path, *, runs: int, motion: str = "flown", duration: float | None = None,
+              workers: int | None = None, estimators: tuple = ()) -> dict:
+    """The denied-street experiment into `out` (module docstring); returns claims.json's content.
+    motion: flown only (the variants differ in what the controller flies on); estimators: none
+    (the variants name their own)."""
+    if motion != "flown":
+        raise UsageError(f"reproduce denied: the variants differ in what the controller flies on; --motion must be "
+                         f"flown, got {motion}")
+    if estimators:
+        raise UsageError("reproduce denied: --estimator is not available (each variant flies on its own estimator)")
+    out = Path(out)
+    res = compute(out, runs=runs, duration=duration, workers=workers)
+    return write(out, res, decide(res))
