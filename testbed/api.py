@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import tempfile
+import warnings
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Iterable
@@ -24,7 +25,7 @@ from typing import Any, Iterable
 import mujoco
 import numpy as np
 
-from testbed import runner, scenario as scenario_mod, world
+from testbed import reference, runner, scenario as scenario_mod, world
 from testbed.errors import RunError
 from testbed.log import load_log
 from testbed.plugins.api import Estimate
@@ -54,9 +55,20 @@ def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = N
     str value is read as TOML (as `--set` does; a string that is not TOML stays a string), any
     other value (number, bool, list, a config dataclass such as scenario.Obstacle) is used as it
     is. seed, motion ("prescribed" | "flown"), duration (s): None keeps the scenario's.
-    Raises testbed.errors.ConfigError naming the file, the key and the value.
+    Raises testbed.errors.ConfigError naming the file, the key and the value, also for a reference
+    path that comes within the airframe radius of the floor, an obstacle or another vehicle
+    (world.clearance, as `testbed run` does; "warn": a UserWarning instead).
     """
-    return scenario_mod.load(str(name_or_path), overrides, seed=seed, motion=motion, duration=duration)
+    sc = scenario_mod.load(str(name_or_path), overrides, seed=seed, motion=motion, duration=duration)
+    _check_clearance(sc, scenario_mod.resolve(str(name_or_path))[1])
+    return sc
+
+
+def _check_clearance(sc: Scenario, label: str) -> None:
+    """world.clearance (testbed.reference.check_clearance): ConfigError, or a UserWarning."""
+    warning = reference.check_clearance(sc, label)
+    if warning is not None:
+        warnings.warn(warning, UserWarning, stacklevel=3)
 
 
 class Run:
@@ -137,7 +149,10 @@ def run(scenario: Scenario, out: str | Path | None = None, *, force: bool = Fals
     out: the run directory, as `testbed run --out` (refused if it exists and is not an earlier
     output of the testbed; replaced only with force). None: a fresh temporary directory, removed
     by Run.close() (see the module docstring). plots: write plots/*.png; video: video.mp4.
+    The reference paths' clearance is checked first, as in load_scenario (the message names the
+    scenario by its name).
     """
+    _check_clearance(scenario, scenario.name)
     tmp = None
     if out is None:
         tmp = tempfile.TemporaryDirectory(prefix="testbed-run-")

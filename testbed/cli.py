@@ -9,7 +9,7 @@
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [run options]
     testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
-    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force] [--runs N] [--motion M] [--estimator ENTRY ...]
+    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force | --resume] [--runs N] [--motion M] [--estimator ENTRY ...]
                 [--backend local|ray [--address ADDR]]
     testbed demo [--out DIR] [--force]
     testbed schema
@@ -39,7 +39,7 @@ import sys
 from pathlib import Path
 
 from testbed.environment import apply_defaults
-from testbed.errors import FieldError, TestbedError, UsageError
+from testbed.errors import TestbedError, UsageError
 from testbed.interrupt import exit_code, signals_raise
 from testbed.outdir import check_new_file, out_arg
 
@@ -141,13 +141,9 @@ def _load(args: argparse.Namespace):
     if builtin and Path(args.scenario).exists():
         print(f"testbed: note: {args.scenario!r} is the built-in scenario, not the local {args.scenario!r} "
               f"(a file is named by a path: ./{args.scenario})", file=sys.stderr)
-    problem = reference.clearance(sc) if sc.world.clearance != "off" else None
-    if problem is not None:
-        key, reason = problem
-        how = 'set world.clearance = "warn" (or "off") to run it anyway'
-        if sc.world.clearance == "error":
-            raise FieldError(label, key, None, f"{reason}; {how}")
-        print(f"testbed: warning: {label}: {key}: {reason} (world.clearance = \"warn\")", file=sys.stderr)
+    warning = reference.check_clearance(sc, label)
+    if warning is not None:
+        print(f"testbed: warning: {warning}", file=sys.stderr)
     return _with_estimators(sc, args.estimator)
 
 
@@ -224,6 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("paper", choices=["phase", "visnav", "bandwidth", "coop", "denied"])
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
+    p.add_argument("--resume", action="store_true",
+                   help="finish an interrupted reproduction at --out (same options), skipping its finished runs")
     p.add_argument("--runs", type=RUNS, help="Monte Carlo runs (default: the paper's reproduction default)")
     p.add_argument("--motion", choices=["prescribed", "flown"], help="default prescribed (denied: flown, the only choice)")
     p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
@@ -313,7 +311,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         specs = _estimator_specs(args.estimator)
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
         reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
-                  force=args.force, estimators=specs, backend=args.backend, address=args.address)
+                  force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume)
         return 0
     if args.command == "demo":
         from testbed.demo import demo

@@ -4,6 +4,11 @@ While `signals_raise()` is active (the command line), each of the three signals 
 `Interrupted` (a KeyboardInterrupt, so code that cleans up on Ctrl-C cleans up on all three) in the
 main thread; every output writer removes its temporary directory on the way out, and `testbed.cli`
 prints one line and exits with 128 + the signal number.
+
+Worker processes (testbed.workers) stop cooperatively instead: a stop request (their parent's, or a
+SIGTERM of their own) is only recorded, and the long loops call `poll()` between units of work
+(a chunk of simulation ticks, a stage of a run), which raises Interrupted there, in ordinary code,
+so the worker unwinds its writers and returns to its pool.
 """
 from __future__ import annotations
 
@@ -25,6 +30,36 @@ class Interrupted(KeyboardInterrupt):
     @property
     def name(self) -> str:
         return signal.Signals(self.signum).name
+
+
+#: a stop requested in this process (a signal number, 0: none) and the parent's shared request
+_requested = 0
+_shared = None
+
+
+def watch(shared) -> None:
+    """Also stop when `shared.value` (a multiprocessing RawValue the parent sets to a signal number)
+    is non-zero."""
+    global _shared
+    _shared = shared
+
+
+def request(signum: int) -> None:
+    """Record a stop request; the next `poll()` raises it."""
+    global _requested
+    _requested = _requested or signum
+
+
+def requested() -> int:
+    """The signal number of a pending stop request (this process's or its parent's), else 0."""
+    return _requested or (_shared.value if _shared is not None else 0)
+
+
+def poll() -> None:
+    """Raise Interrupted if a stop was requested (see the module docstring); cheap, call it often."""
+    signum = requested()
+    if signum:
+        raise Interrupted(signum)
 
 
 def _raise(signum: int, frame: object) -> None:

@@ -12,6 +12,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from testbed.interrupt import poll
+
 
 def figure(**kwargs) -> Figure:
     """A new figure on its own Agg canvas; kwargs go to `Figure` (figsize in inches, ...)."""
@@ -22,7 +24,9 @@ def figure(**kwargs) -> Figure:
 
 def save(fig: Figure, path: Path) -> Path:
     """Lay out and write a figure as PNG (110 dpi, parent folders created)."""
+    poll()  # a worker asked to stop does so between figures (testbed.interrupt)
     fig.tight_layout()
+    poll()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from testbed.errors import FieldError
 from testbed.scenario import LeaderFollower, Obstacle, PhaseFormation, Scenario, StraightLine, SwarmBox, SwarmGrid, Trajectory, Waypoints
 
 GRAVITY = 9.81  # m/s^2, as in models/arena.xml
@@ -209,6 +210,19 @@ def evaluate(tr: Trajectory, t: np.ndarray | float, rates: bool = True, flat: bo
 
 
 # ------------------------------------------------------------------------------- clearance
+
+
+def check_clearance(sc: Scenario, label: str) -> str | None:
+    """Apply world.clearance to the problem `clearance(sc)` finds: "error" raises FieldError naming
+    `label` (the scenario's file) and the key; "warn" returns the warning line (the caller shows
+    it); "off", or no problem, returns None."""
+    problem = clearance(sc) if sc.world.clearance != "off" else None
+    if problem is None:
+        return None
+    key, reason = problem
+    if sc.world.clearance == "error":
+        raise FieldError(label, key, None, f'{reason}; set world.clearance = "warn" (or "off") to run it anyway')
+    return f'{label}: {key}: {reason} (world.clearance = "warn")'
 
 
 def clearance(sc: Scenario) -> tuple[str, str] | None:

@@ -17,6 +17,7 @@ import numpy as np
 
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
+from testbed.interrupt import poll
 from testbed.log import LogWriter, NpzLog, save_npz
 from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
@@ -89,10 +90,12 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             }
             if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
                 metrics["uwb_pairs_served_per_s"] = rate
+            poll()  # a worker asked to stop does so between stages (testbed.interrupt)
             estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
             estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
                                              done))
         metrics["estimators"], timing = split_timing(estimators)
+        poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
         if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)

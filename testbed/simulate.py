@@ -39,6 +39,7 @@ from tqdm import tqdm
 from estimators.mahony import Mahony
 from testbed.control import GeometricController, heading
 from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
+from testbed.interrupt import poll
 from testbed.log import LogWriter
 from testbed.reference import GRAVITY, attitude, evaluate, tracking
 from testbed.scenario import Scenario
@@ -169,6 +170,7 @@ def _play(scenario: Scenario, physics: Physics, times: np.ndarray, log: LogWrite
         if dist is not None:
             ref = perturb(ref, dist, slice(r0, r0 + len(t)))
         for j, tj in enumerate(t.tolist()):
+            poll()  # a worker asked to stop does so here (testbed.interrupt)
             d.time = tj
             physics.set_reference_state(ref, j)
             rows["qpos"][j], rows["qvel"][j] = d.qpos, d.qvel
@@ -256,6 +258,7 @@ def _fly(scenario: Scenario, physics: Physics, sched: Schedule, log: LogWriter, 
             rows["reference/quat"][:] = attitude(tr, t[logged], ref_acc[logged])
             j = 0  # row within the chunk
             for tj, is_logged, rp, rv, ra, rh in zip(t.tolist(), logged.tolist(), ref_pos, ref_vel, ref_acc, ref_heading):
+                poll()  # a worker asked to stop does so here (testbed.interrupt)
                 if tick == sched.n_ticks - 1:  # the last tick keeps MuJoCo's sensors on: the physics
                     quiet = opt.disableflags = flags  # returned reads as after plain mj_step
                 if is_logged and reads[row]:

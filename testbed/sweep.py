@@ -71,7 +71,7 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
     return summary
 
 
-def _complete(run_dir: Path) -> bool:
+def run_complete(run_dir: Path) -> bool:
     """A run directory the testbed finished (it appears only by a rename when complete)."""
     return marker(run_dir) is not None and (run_dir / "metrics.json").is_file()
 
@@ -121,7 +121,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         if not o.resume:
             write_text(d / "sweep.toml", spec)
         table = to_dict(scenario)
-        done = [i for i in range(runs) if _complete(d / f"run-{i:03d}")]
+        done = [i for i in range(runs) if run_complete(d / f"run-{i:03d}")]
         todo = [i for i in range(runs) if i not in done]
         jobs = [(table, scenario.seed + i, str(d / f"run-{i:03d}")) for i in todo]
         bar = tqdm(total=runs, initial=len(done), desc=f"sweep {scenario.name}", unit="run", disable=not progress)
@@ -129,7 +129,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
             workers = max(1, min(workers or os.cpu_count() or 1, runs))
         try:
             for k, _ in run_parallel(_one, jobs, workers):
-                if not _complete(d / f"run-{todo[k]:03d}"):  # written on another node, not shared
+                if not run_complete(d / f"run-{todo[k]:03d}"):  # written on another node, not shared
                     raise RunError(f"{out}: run-{todo[k]:03d} finished but is not visible here; with --backend ray, "
                                    "--out must be on a file system shared by every node")
                 done.append(todo[k])
@@ -137,7 +137,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         except (KeyboardInterrupt, TaskLost) as e:
             bar.close()
             # runs that completed while the others were being stopped count as well
-            done = [i for i in range(runs) if _complete(d / f"run-{i:03d}")]
+            done = [i for i in range(runs) if run_complete(d / f"run-{i:03d}")]
             if done and (o.resume or not o.existed):
                 _write_summary(d, scenario, runs, sorted(done))
                 o.commit()

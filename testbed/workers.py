@@ -3,15 +3,24 @@
 `run_parallel(fn, jobs, workers)` yields `(index, fn(job))` as jobs complete, in worker processes
 (spawned; one process per worker) or in this process when workers == 1. Within `backend("ray",
 address)` the jobs run as Ray tasks instead (testbed.cluster), on this machine or a cluster; the
-local process pool is the default. On any exception in the
-parent (Ctrl-C, SIGTERM, an error) every worker is terminated at once: a worker turns SIGTERM into
-SystemExit so that its own output writer removes its temporary directory. Workers ignore SIGINT and
-SIGHUP (the terminal sends them to the whole process group; the parent decides) and die with their
-parent even when it is killed outright: prctl(PR_SET_PDEATHSIG, SIGTERM) on Linux, else a thread
-watching getppid().
+local process pool is the default.
+
+Stopping is cooperative: on any exception in the parent (Ctrl-C, SIGTERM, an error) the parent
+sets a shared stop request and closes the pool; each worker's current unit of work raises
+Interrupted at its next `testbed.interrupt.poll()` (in ordinary code, so its output writer removes
+its temporary directory), the queued jobs return at once, and the workers exit as a pool does
+when it is done. A worker that has not stopped within GRACE_S is terminated (SIGTERM, then it
+unwinds where it stands). A worker's own SIGTERM is likewise a stop request while it works on a
+job (a second one, or one after its parent asked or died, unwinds at once) and a quiet exit
+between jobs, where it has nothing to clean. Workers ignore SIGINT and SIGHUP (the terminal sends
+them to the whole process group; the parent decides) and die with their parent even when it is
+killed outright: prctl(PR_SET_PDEATHSIG, SIGTERM) on Linux, else a thread watching getppid().
+A worker skips the interpreter's teardown when it exits (after multiprocessing's own cleanup, from
+its last atexit callback): freeing every module of a simulation takes seconds of CPU for nothing.
 """
 from __future__ import annotations
 
+import atexit
 import contextvars
 import ctypes
 import functools
@@ -24,20 +33,56 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence
 
+from testbed import interrupt
 from testbed.cluster import run_ray
 from testbed.environment import apply_defaults
 from testbed.errors import UsageError
-from testbed.interrupt import signals_held
+from testbed.interrupt import Interrupted, signals_held
 
 #: the backends of run_parallel
 BACKENDS = ("local", "ray")
 _backend: contextvars.ContextVar[tuple[str, str | None]] = contextvars.ContextVar("backend", default=("local", None))
 
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+#: seconds a stopping worker may take before it is terminated
+GRACE_S = 3.0
+
+#: in a worker: its parent's pid, whether it is inside a job, and its exit code
+_parent = 0
+_busy = False
+_exit_code = 0
 
 
-def _exit_on_sigterm(signum: int, frame: object) -> None:
-    raise SystemExit(128 + signum)
+class Stopped:
+    """The result of a job that a stop request ended (signum: the request's signal)."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    """A worker's SIGTERM (see the module docstring)."""
+    if not _busy:
+        os._exit(128 + signum)  # between jobs or shutting down: nothing of ours to clean
+    if interrupt.requested() or os.getppid() != _parent:
+        _exit_as(128 + signum)  # asked before, or orphaned: unwind now
+    interrupt.request(signum)
+
+
+def _exit_as(code: int) -> None:
+    global _exit_code
+    _exit_code = code
+    raise SystemExit(code)
+
+
+def _exit_now() -> None:
+    """A worker's last atexit callback: flush and exit without the interpreter's teardown."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(_exit_code)
 
 
 def _watch_parent(parent: int) -> None:
@@ -60,18 +105,47 @@ def die_with_parent(parent: int) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
 
-def worker_init(parent: int) -> None:
-    """Pool initializer: the process defaults (testbed.environment) and the signal dispositions of a
-    worker (see the module docstring)."""
+def worker_init(parent: int, stop=None) -> None:
+    """Pool initializer: the process defaults (testbed.environment), the signal dispositions of a
+    worker and the parent's stop request `stop` (a RawValue; see the module docstring)."""
+    global _parent
+    _parent = parent
+    atexit.register(_exit_now)  # registered first, so it runs last
     apply_defaults()
+    if stop is not None:
+        interrupt.watch(stop)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    signal.signal(signal.SIGTERM, _on_sigterm)
     die_with_parent(parent)
 
 
 def _indexed(fn: Callable, item: tuple[int, object]) -> tuple[int, object]:
-    return item[0], fn(item[1])
+    """(i, fn(job)) in a worker, or (i, Stopped) when a stop request ended or skipped the job."""
+    global _busy
+    i, job = item
+    _busy = True
+    try:
+        interrupt.poll()
+        return i, fn(job)
+    except Interrupted as e:
+        if os.getppid() != _parent:  # nobody to report to
+            os._exit(128 + e.signum)
+        return i, Stopped(e.signum)
+    finally:
+        _busy = False
+
+
+def _stop(pool, stop, signum: int) -> None:
+    """Ask the workers to stop, let them finish as a closed pool does, terminate them after GRACE_S."""
+    stop.value = signum
+    pool.close()
+    waiter = threading.Thread(target=pool.join, daemon=True)
+    waiter.start()
+    waiter.join(GRACE_S)
+    if waiter.is_alive():
+        pool.terminate()
+        waiter.join()
 
 
 @contextmanager
@@ -106,11 +180,20 @@ def run_parallel(fn: Callable, jobs: Sequence, workers: int | None) -> Iterator[
         for i, job in enumerate(jobs):
             yield i, fn(job)
         return
-    pool = mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=worker_init, initargs=(os.getpid(),))
+    ctx = mp.get_context("spawn")
+    stop = ctx.RawValue(ctypes.c_int, 0)  # lock-free: a worker's signal handler reads it
+    pool = ctx.Pool(min(workers, len(jobs)), initializer=worker_init, initargs=(os.getpid(), stop))
+    finished = False
     try:
-        yield from pool.imap_unordered(functools.partial(_indexed, fn), enumerate(jobs))
-        pool.close()
+        for i, result in pool.imap_unordered(functools.partial(_indexed, fn), enumerate(jobs)):
+            if isinstance(result, Stopped):  # a worker was sent SIGTERM by someone else
+                raise Interrupted(result.signum)
+            yield i, result
+        finished = True
     finally:
         with signals_held():
-            pool.terminate()
-            pool.join()
+            if finished:
+                pool.close()
+                pool.join()
+            else:
+                _stop(pool, stop, signal.SIGTERM)

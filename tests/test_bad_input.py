@@ -266,3 +266,23 @@ def test_clearance_warn_runs_with_one_warning_and_off_is_silent(workdir, capsys)
     assert main(argv + ["--set", 'world.clearance="off"']) == 0
     assert capsys.readouterr().err == ""
     assert (workdir / "out" / "metrics.json").is_file()
+
+
+def test_the_python_api_checks_clearance_like_the_command_line(workdir, capsys):
+    import testbed
+    from testbed.errors import ConfigError
+
+    path = "world.obstacles[0].pos"
+    assert main(["run", "./hover.toml", "--out", "out", "--set", f"{path}=[0.0, 0.5, 10.0]"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    with pytest.raises(ConfigError) as e:
+        testbed.load_scenario("./hover.toml", {path: [0.0, 0.5, 10.0]})
+    assert line == f"testbed: error: {e.value}"  # the same message
+    ok = testbed.load_scenario("./hover.toml")
+    moved = dataclasses.replace(ok, world=dataclasses.replace(ok.world, obstacles=(
+        dataclasses.replace(ok.world.obstacles[0], pos=(0.0, 0.5, 10.0)),)))
+    with pytest.raises(ConfigError, match=r"world\.obstacles\[0\]: vehicle 1's reference passes"):
+        testbed.run(moved, out=workdir / "api-run")
+    assert not (workdir / "api-run").exists()
+    with pytest.warns(UserWarning, match=r"world\.obstacles\[0\]: vehicle 1's reference passes .* \"warn\""):
+        testbed.load_scenario("./hover.toml", {path: [0.0, 0.5, 10.0], "world.clearance": "warn"})

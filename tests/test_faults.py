@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from testbed.cli import main
@@ -56,6 +57,17 @@ def _children(pid: int) -> list[int]:
         if p.name.isdigit() and (st := _stat(int(p.name))) is not None and st[1] == pid:
             out.append(int(p.name))
     return out
+
+
+def _workers(pid: int) -> list[int]:
+    """The pool workers among the children of `pid` (not multiprocessing's resource tracker, which
+    exits with its parent)."""
+    def cmdline(c: int) -> bytes:
+        try:
+            return Path(f"/proc/{c}/cmdline").read_bytes()
+        except OSError:
+            return b""
+    return [c for c in _children(pid) if b"multiprocessing.spawn" in cmdline(c)]
 
 
 def _gone(pids: list[int]) -> bool:
@@ -106,7 +118,7 @@ def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_id
     p = _start(tmp_path, *_sweep_args("sw"))
     _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
               "a finished run")
-    workers = _children(p.pid)
+    workers = _workers(p.pid)
     assert len(workers) >= 2
     p.send_signal(signal.SIGINT)
     t0 = time.monotonic()
@@ -147,6 +159,75 @@ def test_sigterm_mid_reproduce_or_demo_removes_everything_and_stops_workers(tmp_
     assert line.startswith(f"testbed: {' '.join(cmd[:2])} interrupted by SIGTERM: ") and "kept in" not in line, line
     _wait_for(lambda: _gone(workers), "the workers to stop", timeout=5.0)
     assert os.listdir(tmp_path) == []
+
+
+def _reproduce_args(out: str) -> list[str]:
+    return ["reproduce", "coop", "--runs", "3", "--workers", "2", "--duration", "2", "--out", out]
+
+
+def _finished_runs(root: Path) -> list[Path]:
+    return [d for d in root.rglob("run-*") if (d / "metrics.json").is_file()]
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.slow  # three short coop reproductions, ~4 min on a loaded 2-core machine
+def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    p = _start(tmp_path / "a", *_reproduce_args("rp"))
+    _wait_for(lambda: any(_finished_runs(t) for t in _tmp_dirs(tmp_path / "a", "rp")), "a finished run", timeout=300)
+    workers = _workers(p.pid)
+    p.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    _wait_for(lambda: _gone(workers), "the workers to stop", timeout=5.0)
+    assert time.monotonic() - t0 < 5.0
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    rp = tmp_path / "a" / "rp"
+    done = sorted(str(d.relative_to(rp)) for d in _finished_runs(rp))
+    assert 1 <= len(done) < 3
+    assert err.splitlines()[-1] == (f"testbed: reproduce coop interrupted by SIGINT: {len(done)} runs kept in rp "
+                                    "(summary.json marked incomplete; continue with --resume)")
+    summary = json.loads((rp / "summary.json").read_text())
+    assert summary["incomplete"] is True and summary["runs_done"] == len(done)
+    assert _debris(tmp_path) == []
+    before = {d: (rp / d / "log.npz").stat().st_mtime_ns for d in done}
+
+    q = _testbed(tmp_path / "a", *_reproduce_args("rp"), "--resume")
+    assert q.returncode == 0, q.stderr
+    assert {d: (rp / d / "log.npz").stat().st_mtime_ns for d in done} == before  # finished runs not redone
+    assert not (rp / "summary.json").exists()
+    r = _testbed(tmp_path / "b", *_reproduce_args("rp"))
+    assert r.returncode == 0, r.stderr
+    resumed, whole = _tree(rp), _tree(tmp_path / "b" / "rp")
+    assert sorted(resumed) == sorted(whole)
+    assert [f for f in resumed if resumed[f] != whole[f]] == []
+    assert _debris(tmp_path) == []
+
+
+def _interrupted_reproduction(d: Path, options: dict) -> None:
+    from testbed.outdir import write_json, write_marker
+
+    d.mkdir()
+    write_marker(d, "reproduce-coop")
+    write_json(d / "summary.json", {"paper": "coop", "options": options, "incomplete": True, "runs_done": 1})
+
+
+def test_reproduce_resume_refuses_other_options_and_a_complete_reproduction(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _interrupted_reproduction(tmp_path / "rp", {"paper": "coop", "runs": 3, "motion": "prescribed", "duration": 2.0,
+                                                "estimators": []})
+    assert main(["reproduce", "coop", "--runs", "4", "--duration", "2", "--out", "rp", "--resume"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("testbed: error: rp: was reproduced with other options (rp/summary.json: ") and "cannot resume" in line
+    (tmp_path / "rp" / "summary.json").unlink()  # as a complete reproduction leaves it
+    assert main(["reproduce", "coop", "--runs", "3", "--duration", "2", "--out", "rp", "--resume"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "testbed: error: rp: is not an interrupted reproduction (no incomplete summary.json); nothing to resume"]
+    assert sorted(os.listdir(tmp_path / "rp")) == [".testbed"]
 
 
 def test_sigint_mid_render_removes_the_partial_video(tmp_path):
@@ -266,3 +347,21 @@ def test_closed_pipe_ends_quietly(tmp_path):
     assert err == b""
     q = subprocess.run(f"{sys.executable} -m testbed list | head -1", shell=True, cwd=tmp_path, env=_env(), capture_output=True)
     assert len(q.stdout.splitlines()) == 1 and q.stderr == b""
+
+
+def test_runs_done_counts_finished_run_directories_and_kept_results(tmp_path):
+    from testbed.outdir import write_marker
+    from testbed.reproduce.runs import load_result, runs_done, save_result
+
+    finished = tmp_path / "runs" / "a" / "run-000"
+    finished.mkdir(parents=True)
+    write_marker(finished, "run")
+    (finished / "metrics.json").write_text("{}\n")
+    (tmp_path / "runs" / "a" / "run-001").mkdir()  # no marker, no metrics: not finished
+    result = {"glint": {"t": np.arange(3.0), "metrics": {"ekf": {"rmse_position_m": 0.25}}}}
+    save_result(tmp_path / "runs-kept", 4, result)
+    assert runs_done(tmp_path) == 2
+    back = load_result(tmp_path / "runs-kept", 4)
+    assert back["glint"]["metrics"] == result["glint"]["metrics"] and np.array_equal(back["glint"]["t"], result["glint"]["t"])
+    assert load_result(tmp_path / "runs-kept", 3) is None
+    assert _debris(tmp_path) == []

@@ -50,6 +50,7 @@ from estimators import bandwidth as bw
 from estimators.bandwidth import BYTES_PER_COMPONENT, uwb_pseudo_measurement
 from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
+from testbed.interrupt import poll
 from testbed.network import Network
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 from testbed.rng import stream_rng
@@ -211,6 +212,7 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     t = meas["t"]
     network = None if scenario.network is None else Network(scenario.network, N_NODES, stream_rng(scenario.seed, "network"))
     for k in range(K):
+        poll()  # a worker asked to stop does so between epochs (testbed.interrupt)
         Sn, Pk = net.at(k)
         Se = faults.effective(Sn, k, rng_links, 1)[0] if faults is not None else Sn
         if network is not None:

@@ -55,6 +55,7 @@ import numpy as np
 from estimators.core import nees
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
 from testbed.errors import ConfigError
+from testbed.interrupt import poll
 from testbed.network import Network, NetworkConfig, RoundTransport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.rng import stream_rng
@@ -243,6 +244,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
     nets = {} if network is None else {w: Network(network, n, stream_rng(seed, f"network/{w}")) for w in which if w in NETWORKED}
     late = dict.fromkeys(nets, 0)
     for k in range(K):
+        poll()  # a worker asked to stop does so between epochs (testbed.interrupt)
         prob = epoch_problem(cfg, epochs.gnss[k], Sg, epochs.edges[k], epochs.ranges[k])
         for w in which:
             transport = None

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.errors import ConfigError
+from testbed.interrupt import poll
 from testbed.pipelines.phase import position_bound
 from testbed.plugins.context import make_context, priors
 from testbed.plugins.feed import measurements, run_plugin
@@ -37,6 +38,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
         if p.key in taken:
             raise ConfigError(f"estimator {p.entry!r}: the name {p.key!r} is taken by the {scenario.pipeline.kind} pipeline; "
                               "give it another name ([[estimators]] name)")
+        poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, physics, p.key, p.params, prior)
         track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed)
         scores, errs = score(track, Truth(log, ctx), bound)

@@ -11,41 +11,87 @@ Every claim carries the test that decided it (testbed.stats; `test` in claims.js
 testbed.reproduce.document writes `DIR/report.md` and the self-contained `DIR/report.html`: the
 command and seeds, the versions, the verdicts with their tests, the figures and the tables. The runs
 go to a local process pool or, with `backend="ray"`, to Ray tasks (testbed.workers, testbed.cluster).
+
+Interrupted (Ctrl-C, SIGTERM, SIGHUP) after at least one Monte Carlo run finished, a reproduction
+keeps its finished runs at DIR with `DIR/summary.json` marked incomplete (`"incomplete": true,
+"runs_done": k` and the reproduction's options); `resume=True` (`--resume`) continues it with the
+same options, skipping the finished runs (testbed.reproduce.runs), and removes summary.json when
+done: the outputs are then byte-identical to an uninterrupted reproduction's (all but visnav's
+wall-clock columns, its time per filter step and wall time, which differ between any two runs).
 """
 from __future__ import annotations
 
 import importlib
+import json
+import signal
 from pathlib import Path
 
-from testbed.errors import UsageError
-from testbed.outdir import Output
+from testbed.errors import RunError, UsageError
+from testbed.interrupt import Interrupted
+from testbed.outdir import Output, write_json
 from testbed.reproduce.document import write_report
+from testbed.reproduce.runs import runs_done
 from testbed.workers import backend as use_backend
 
 DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20, "denied": 5}
 DEFAULT_MOTION = {"denied": "flown"}  # --motion when not given: "prescribed" unless listed
+#: written only while a reproduction is incomplete
+SUMMARY = "summary.json"
 
 
 def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | None = None,
               duration: float | None = None, workers: int | None = None, force: bool = False,
-              estimators: tuple = (), backend: str = "local", address: str | None = None) -> dict:
+              estimators: tuple = (), backend: str = "local", address: str | None = None, resume: bool = False) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
 
     estimators: plugin EstimatorSpecs run beside the paper's in every run (coop: one more column of
     Table 4; phase, visnav, bandwidth: one more row each in table.md, testbed.reproduce.plugins);
-    backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend)."""
+    backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend);
+    resume: continue the interrupted reproduction at `out` (see the module docstring)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     motion = motion or DEFAULT_MOTION.get(paper, "prescribed")
     if runs < 1:
         raise UsageError(f"--runs must be at least 1, got {runs}")
     module = importlib.import_module(f"testbed.reproduce.{paper}")
     extra = {"estimators": tuple(estimators)} if estimators else {}
-    with use_backend(backend, address), Output(Path(out), kind=f"reproduce-{paper}", force=force) as o:
-        result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers, **extra)
-        write_report(o.path, paper=paper, command=command(paper, out, runs=runs, motion=motion, duration=duration,
-                                                          workers=workers, estimators=tuple(estimators)))
+    options = {"paper": paper, "runs": runs, "motion": motion, "duration": duration,
+               "estimators": [e.entry for e in estimators]}
+    with use_backend(backend, address), Output(Path(out), kind=f"reproduce-{paper}", force=force, resume=resume) as o:
+        if o.resume:
+            _check_resumable(Path(out), options)
+        try:
+            result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers, **extra)
+            write_report(o.path, paper=paper, command=command(paper, out, runs=runs, motion=motion, duration=duration,
+                                                              workers=workers, estimators=tuple(estimators)))
+        except KeyboardInterrupt as e:
+            raise _keep_finished(o, options, getattr(e, "signum", signal.SIGINT)) from None
+        (o.path / SUMMARY).unlink(missing_ok=True)
         o.commit()
     return result
+
+
+def _check_resumable(out: Path, options: dict) -> None:
+    """Refuse to resume `out` unless it is an interrupted reproduction with the same options."""
+    try:
+        summary = json.loads((out / SUMMARY).read_text())
+    except (OSError, ValueError):
+        summary = {}
+    if summary.get("incomplete") is not True:
+        raise RunError(f"{out}: is not an interrupted reproduction (no incomplete {SUMMARY}); nothing to resume")
+    if summary.get("options") != options:
+        raise RunError(f"{out}: was reproduced with other options ({out / SUMMARY}: {json.dumps(summary.get('options'))}); "
+                       "cannot resume it with these")
+
+
+def _keep_finished(o: Output, options: dict, signum: int) -> Interrupted:
+    """After an interrupt: keep the finished runs at o.out with summary.json marked incomplete
+    (unless none finished, or o.out held another output); the Interrupted saying what was kept."""
+    done = runs_done(o.path)
+    if done and (o.resume or not o.existed):
+        write_json(o.path / SUMMARY, {"paper": options["paper"], "options": options, "incomplete": True, "runs_done": done})
+        o.commit()
+        return Interrupted(signum, f"{done} runs kept in {o.out} ({SUMMARY} marked incomplete; continue with --resume)")
+    return Interrupted(signum, f"no run kept; {o.out} left as it was" if o.existed else "no run finished; nothing kept")
 
 
 def command(paper: str, out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None,

@@ -1,13 +1,19 @@
 """Run numbering of every reproduction: Monte Carlo run i uses seed `base + i` (base: the scenario's
 seed) and, when it is a full run directory, lives in `ROOT/run-XXX` (testbed.sweep's convention,
-ROOT = OUT/runs or OUT/runs/<scenario> when a reproduction sweeps several scenarios)."""
+ROOT = OUT/runs or OUT/runs/<scenario> when a reproduction sweeps several scenarios). A sweep
+resumes what it finds at ROOT (a resumed reproduction's finished runs), so an interrupted
+reproduction continues where it stopped (testbed.reproduce). A reproduction whose runs are not run
+directories keeps each run's result in ROOT/run-XXX.pkl instead (save_result, load_result)."""
 from __future__ import annotations
 
 import json
+import os
+import pickle
 from pathlib import Path
 
 from testbed.scenario import Scenario
-from testbed.sweep import sweep
+from testbed.outdir import TMP_TAG
+from testbed.sweep import run_complete, sweep
 
 
 def run_name(i: int) -> str:
@@ -21,12 +27,37 @@ def seeds(base: int, runs: int) -> list[int]:
 
 
 def sweep_runs(scenario: Scenario, runs: int, root: Path, *, workers: int | None, progress: bool = False) -> list[Path]:
-    """Simulate and score runs 0..runs-1 of `scenario` into root/run-XXX (testbed.sweep, replacing
-    root); returns the run directories in run order."""
-    sweep(scenario, runs, root, workers=workers, force=True, progress=progress)
+    """Simulate and score runs 0..runs-1 of `scenario` into root/run-XXX (testbed.sweep), skipping
+    the runs already finished there; returns the run directories in run order."""
+    sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=progress)
     return [Path(root) / run_name(i) for i in range(runs)]
 
 
 def load_metrics(run_dirs: list[Path]) -> list[dict]:
     """metrics.json of every run directory, in the given order."""
     return [json.loads((d / "metrics.json").read_text()) for d in run_dirs]
+
+
+def save_result(root: Path, i: int, result: object) -> None:
+    """Keep run i's result as root/run-XXX.pkl (written atomically)."""
+    path = Path(root) / f"{run_name(i)}.pkl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}{TMP_TAG}{os.getpid()}")
+    try:
+        tmp.write_bytes(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def load_result(root: Path, i: int) -> object | None:
+    """Run i's result kept by save_result, else None. Only files the testbed wrote are read (the
+    reproduction directory carries its marker)."""
+    path = Path(root) / f"{run_name(i)}.pkl"
+    return pickle.loads(path.read_bytes()) if path.is_file() else None
+
+
+def runs_done(out: Path) -> int:
+    """How many finished Monte Carlo runs a reproduction directory holds (run directories and kept
+    results anywhere below it)."""
+    return sum(run_complete(p) if p.is_dir() else p.suffix == ".pkl" for p in Path(out).rglob("run-*"))

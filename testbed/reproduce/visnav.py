@@ -24,6 +24,8 @@ Also run (short): the other motion mode (2 runs, both noise cases) and the pixel
 (1 run, 10 s): finite, scored, shown in the table.
 
 Outputs: table.md, table.csv, claims.json, runs.json (every run's metrics), plots/.
+While the reproduction is incomplete (interrupted), each finished run's result is kept in runs/run-XXX.pkl
+(runs-extra/ for the extra runs) for `--resume`; they are removed when it completes.
 
 Shape (as every reproduction): `compute` (runs -> `VisnavResults`), `decide` (numbers -> claims),
 `write` (files through testbed.report); `reproduce` chains them.
@@ -31,7 +33,9 @@ Shape (as every reproduction): `compute` (runs -> `VisnavResults`), `decide` (nu
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,7 +52,7 @@ from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, w
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.reproduce import plugins as plugin_rows
-from testbed.reproduce.runs import seeds
+from testbed.reproduce.runs import load_result, save_result, seeds
 from testbed.simulate import simulate
 from testbed.stats import paired_t, wilcoxon_paired
 from testbed.workers import run_parallel
@@ -57,6 +61,8 @@ FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_mps", "velocity", "m/s"),
               ("rmse_attitude_deg", "attitude", "deg"))
 CASES = ("glint", "gaussian")
+#: where the runs' results are kept while the reproduction is incomplete (testbed.reproduce.runs)
+RUNS_DIR, EXTRA_DIR = "runs", "runs-extra"
 CLAIM_PAIRS = (("rhcf", "mckf"), ("mckf", "hckf"), ("hckf", "ekf"))
 ALPHA = 0.05  # family level of the 9 ordering tests (Bonferroni: 0.05 / 9 each)
 # "costs little": the non-inferiority margin, +5 % RMSE, fixed before any run: below the run-to-run spread
@@ -103,17 +109,16 @@ def one_run(args: tuple) -> dict:
     return out
 
 
-def _run_many(jobs: list[tuple], workers: int) -> list[dict]:
-    results: list[dict | None] = [None] * len(jobs)
+def _run_many(jobs: list[tuple], workers: int, root: Path) -> list[dict]:
+    """one_run of every job (workers stop with us, testbed.workers), each result kept in
+    root/run-XXX.pkl as it arrives and reused from there (an interrupted reproduction resumed)."""
+    results = [load_result(root, i) for i in range(len(jobs))]
+    todo = [i for i, r in enumerate(results) if r is None]
     t0 = time.perf_counter()
-    if workers <= 1:
-        for i, job in enumerate(jobs):
-            results[i] = one_run(job)
-            print(f"  run {i + 1}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
-    else:
-        for n, (i, r) in enumerate(run_parallel(one_run, jobs, workers), 1):  # workers stop with us (testbed.workers)
-            results[i] = r
-            print(f"  run {n}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    for n, (k, r) in enumerate(run_parallel(one_run, [jobs[i] for i in todo], workers), len(jobs) - len(todo) + 1):
+        results[todo[k]] = r
+        save_result(root, todo[k], r)
+        print(f"  run {n}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     return results  # type: ignore[return-value]
 
 
@@ -128,20 +133,27 @@ class VisnavResults:
     meta: dict
 
 
-def compute(*, runs: int, motion: str, duration: float, workers: int, estimators: tuple = ()) -> VisnavResults:
+def compute(*, runs: int, motion: str, duration: float, workers: int, estimators: tuple = (),
+            keep: Path | None = None) -> VisnavResults:
     """The Monte Carlo (both noise cases per seed) and the extra runs (other motion, pixel camera).
-    estimators: plugin EstimatorSpecs scored in every Monte Carlo run (results[i][case]["plugins"])."""
+    estimators: plugin EstimatorSpecs scored in every Monte Carlo run (results[i][case]["plugins"]);
+    keep: where each run's result is kept until the reproduction is complete (keep/runs,
+    keep/runs-extra; testbed.reproduce.runs.save_result), None: a temporary directory."""
+    if keep is None:
+        with tempfile.TemporaryDirectory(prefix="testbed-visnav-") as tmp:
+            return compute(runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators,
+                           keep=Path(tmp))
     t0 = time.perf_counter()
     base = scenario_mod.load("visnav").seed
     run_seeds = seeds(base, runs)
     jobs = [(seed, motion, duration, CASES, "geometric", i == 0, tuple(estimators)) for i, seed in enumerate(run_seeds)]
     print(f"visnav: {runs} runs x {len(CASES)} noise cases x {len(FILTERS)} filters, {duration:g} s, {motion}", file=sys.stderr)
-    results = _run_many(jobs, workers)
+    results = _run_many(jobs, workers, keep / RUNS_DIR)
     other = "flown" if motion == "prescribed" else "prescribed"
     print(f"visnav: {other} motion (2 runs) and the pixel camera path (1 run, 10 s)", file=sys.stderr)
     extra_jobs = [(seed, other, duration, CASES, "geometric", False) for seed in seeds(base, 2)]
     extra_jobs.append((base, motion, min(10.0, duration), ("glint",), "pixels", False))
-    extra_res = _run_many(extra_jobs, workers)
+    extra_res = _run_many(extra_jobs, workers, keep / EXTRA_DIR)
     extra = {f"{other} motion, run {i} (seed {base + i})": {c: r[c]["metrics"] for c in CASES}
              for i, r in enumerate(extra_res[:2])}
     extra[f"pixel camera path, {motion}, 10 s (seed {base}; no added noise: rendering + detection error)"] = {
@@ -325,5 +337,8 @@ def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: flo
     out.mkdir(parents=True, exist_ok=True)
     duration = DEFAULT_DURATION if duration is None else float(duration)
     workers = max(1, min(workers or min(2, os.cpu_count() or 1), runs))
-    res = compute(runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators)
-    return write(out, res, decide(res), keys=tuple(e.key for e in estimators))
+    res = compute(runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators, keep=out)
+    summary = write(out, res, decide(res), keys=tuple(e.key for e in estimators))
+    for d in (RUNS_DIR, EXTRA_DIR):  # kept only while incomplete
+        shutil.rmtree(out / d, ignore_errors=True)
+    return summary
