@@ -279,12 +279,12 @@ def test_two_writers_of_one_output_exactly_one_wins(tmp_path):
 
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS, errno.EACCES])
 def test_os_errors_while_writing_are_one_line_and_leave_nothing(tmp_path, monkeypatch, capsys, code):
-    import testbed.runner
+    from testbed.log import LogWriter
 
-    def failing_save(path, log):
+    def failing_save(self, path):
         raise OSError(code, os.strerror(code), str(path))
 
-    monkeypatch.setattr(testbed.runner, "save_npz", failing_save)
+    monkeypatch.setattr(LogWriter, "save", failing_save)  # the run's log.npz is written by LogWriter.save
     monkeypatch.chdir(tmp_path)
     assert main(["run", "bandwidth", "--duration", "0.5", "--out", "deep/r"]) == 2
     (line,) = capsys.readouterr().err.splitlines()
