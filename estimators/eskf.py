@@ -22,7 +22,8 @@ Measurements (lever arm l (3,) m of the antenna or tag in the body frame, s = p 
     UWB range      z = |s - a| + sum_k c_k + v,   H = [u^T [I, 0, -R [l]x, 0, 0], 1 at each k]
 with a the anchor, u = (s - a) / |s - a|, and c_k the extra states that bias this range (the
 antenna delays of its two ends: constant per device, so they do not average out).
-Update: Kalman gain by Cholesky solve, Joseph form, innovation gate on the NIS; injection
+Update: iterated (Gauss-Newton) Kalman update, gain by Cholesky solve, Joseph form,
+innovation gate on the NIS; injection
 x <- x (+) dx and reset P <- G P G^T, G[TH,TH] = I - [dtheta / 2]x (Sola eq. 287).
 Pure numpy/scipy; never imports mujoco or testbed.
 """
@@ -171,17 +172,38 @@ class Update:
     dof: int
 
 
-def update(x: np.ndarray, Pm: np.ndarray, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray,
-           gate: float) -> tuple[np.ndarray, np.ndarray, Update]:
-    """EKF update on the residual z - h(x) (m,) with H (m, n), noise Rn (m, m); rejected (state
-    unchanged) when the NIS exceeds `gate` (a chi-square quantile of m degrees of freedom).
-    Returns the corrected state (n + 1,), covariance (n, n) and what happened."""
+def screen(Pm: np.ndarray, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray, gate: float) -> np.ndarray:
+    """Which of m scalar measurements pass their own innovation gate: (m,) bool, residual_i^2 /
+    S_ii <= gate (a chi-square quantile of 1 degree of freedom), S = H P H^T + Rn (H (m, n))."""
+    S = np.einsum("ij,jk,ik->i", H, Pm, H) + np.diag(Rn)
+    return residual ** 2 <= gate * S
+
+
+def update(x: np.ndarray, Pm: np.ndarray, z: np.ndarray, model, Rn: np.ndarray, gate: float,
+           iterations: int = 1) -> tuple[np.ndarray, np.ndarray, Update]:
+    """Iterated EKF update (Gauss-Newton on the error state) of the measurement z (m,) with the
+    model h(x), H = dh/ddx (m, n) given by `model(x) -> (h, H)`, noise Rn (m, m); rejected (state
+    unchanged) when the NIS of the innovation at the prior exceeds `gate` (a chi-square quantile
+    of m degrees of freedom). Iterate i relinearises at x_i = x (+) dx_i:
+        dx_{i+1} = K_i (z - h(x_i) + H_i dx_i),  K_i = P H_i^T (H_i P H_i^T + Rn)^-1
+    (iterations = 1 is the EKF). A range whose prior error is a sizeable fraction of its length
+    (an SPP first fix 5 m off, anchors 30 m away) has a second-order term |e_perp|^2 / (2 r) well
+    above its noise: the single linearisation biases the update and the covariance then claims
+    a certainty the state does not have. Returns the corrected state (n + 1,), covariance (n, n)
+    and what happened."""
+    h, H = model(x)
+    residual = np.atleast_1d(z - h)
     U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))  # S = U^T U
-    K = cho_solve_upper(U, H @ Pm).T  # P H^T S^-1 (P symmetric)
     nis = float(residual @ cho_solve_upper(U, residual))
     if not np.isfinite(nis) or nis > gate:
         return x, Pm, Update(False, nis, len(residual))
-    dx = K @ residual
+    dx = np.zeros(len(Pm))
+    for i in range(iterations):
+        if i:
+            h, H = model(inject(x, dx))
+            U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))
+        K = cho_solve_upper(U, H @ Pm).T  # P H^T S^-1 (P symmetric)
+        dx = K @ (np.atleast_1d(z - h) + H @ dx)
     Pn = joseph_update(Pm, K, H, Rn)
     # Sola eq. 287: reset of the attitude error block after injection
     G = np.eye(len(dx))

@@ -59,12 +59,44 @@ def test_measurement_jacobians():
 
 def test_update_gate_rejects_and_accepts():
     x, P = _state(), np.eye(17) * 0.01
-    s, H = eskf.site_position(x, np.zeros(3))
+    s, _ = eskf.site_position(x, np.zeros(3))
+    model = lambda z: eskf.site_position(z, np.zeros(3))  # noqa: E731
     gate = 16.27  # chi-square 3 dof, 1e-3
-    x1, P1, res = eskf.update(x, P, np.array([0.05, 0.0, 0.0]), H, np.eye(3) * 0.01, gate)
+    x1, P1, res = eskf.update(x, P, s + [0.05, 0.0, 0.0], model, np.eye(3) * 0.01, gate)
     assert res.accepted and x1[0] > x[0] and np.trace(P1) < np.trace(P)
-    x2, P2, res = eskf.update(x, P, np.array([5.0, 0.0, 0.0]), H, np.eye(3) * 0.01, gate)
+    x2, P2, res = eskf.update(x, P, s + [5.0, 0.0, 0.0], model, np.eye(3) * 0.01, gate)
     assert not res.accepted and np.array_equal(x2, x) and res.nis > gate
+    H = model(x)[1]
+    keep = eskf.screen(P, np.array([0.05, 5.0, 0.0]), H, np.eye(3) * 0.01, 10.83)  # 1 dof, 1e-3
+    assert keep.tolist() == [True, False, True]
+
+
+def test_iterated_update_reaches_the_map_estimate_of_ranges_with_a_large_prior_error():
+    """Four noiseless-prior ranges 30 m away, the prior 5 m off (sigma 3 m): the iterated update
+    converges to the minimiser of the MAP cost |dx|_P^2 + |z - h(x (+) dx)|_R^2 (its gradient
+    vanishes), the single-linearisation update does not."""
+    x = np.zeros(16)
+    x[6] = 1.0
+    truth = x.copy()
+    truth[0:3] = [0.0, 0.0, 10.0]
+    x[0:3] = truth[0:3] + [2.0, 0.8, -4.8]
+    anchors = np.array([[-25.0, -15.0, 3.0], [35.0, -20.0, 9.0], [30.0, 35.0, 3.0], [-20.0, 30.0, 9.0]])
+    P = np.diag([1.5 ** 2, 1.5 ** 2, 3.0 ** 2] + [1.0] * 12)
+    Rn = np.eye(4) * 0.1 ** 2
+
+    def model(z):
+        hs = [eskf.range_model(z, np.zeros(3), a) for a in anchors]
+        return np.array([h for h, _ in hs]), np.vstack([H for _, H in hs])
+    z = model(truth)[0]
+
+    def gradient(y):  # of the MAP cost at y, in the error state around x
+        dx = eskf.difference(y, x)
+        h, H = model(y)
+        return np.linalg.solve(P, dx) - H.T @ np.linalg.solve(Rn, z - h)
+    one, _, _ = eskf.update(x, P, z, model, Rn, np.inf, 1)
+    it, _, _ = eskf.update(x, P, z, model, Rn, np.inf, 6)
+    assert np.linalg.norm(gradient(it)) < 1e-3 * np.linalg.norm(gradient(one))
+    assert np.linalg.norm(it[0:3] - truth[0:3]) < 0.1 < np.linalg.norm(one[0:3] - truth[0:3])
 
 
 def test_level_and_the_tilt_error_an_accelerometer_bias_leaves():

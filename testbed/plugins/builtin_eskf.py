@@ -24,7 +24,8 @@ use another's broadcast estimate without counting shared information twice).
 Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections counted).
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-gate_prob (1e-4), output_every (1).
+gate_prob (1e-4), output_every (1), iterations (4: Gauss-Newton iterations of each update,
+estimators.eskf.update; 1 is the plain EKF).
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ from estimators.so3 import quat_to_rotmat
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.sensors.noise import twr_range_variance
 
-DEFAULTS = dict(yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, gate_prob=1e-4, output_every=1)
+DEFAULTS = dict(yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, gate_prob=1e-4, output_every=1, iterations=4)
 
 
 def _walk(errors: dict) -> float:
@@ -49,10 +50,11 @@ def _walk(errors: dict) -> float:
 class _Vehicle:
     """One vehicle's filter: nominal x (16,), covariance P (15, 15), time t (s), held IMU sample."""
 
-    __slots__ = ("x", "P", "t", "imu", "samples")
+    __slots__ = ("x", "P", "t", "imu", "samples", "ranges")
 
     def __init__(self):
         self.x, self.P, self.t, self.imu, self.samples = None, None, None, None, 0
+        self.ranges = []  # (time, z, lever, anchor, extras, variance) of the UWB epoch not yet applied
 
 
 class NavEskf:
@@ -82,6 +84,10 @@ class NavEskf:
 
     # ------------------------------------------------------------------ the protocol
     def process(self, m: Measurement):
+        body = self.sites[m.src][0] if m.stream == "imu" else self._site(m.src)[0]
+        f = self.v.get(body)
+        if f is not None and f.ranges and not (m.stream == "uwb" and m.time == f.ranges[0][0]):
+            self._ranges(f)
         if m.stream == "imu":
             return self._imu(m)
         if m.stream == "gnss":
@@ -158,8 +164,7 @@ class NavEskf:
             self._start(f, m, lever)
             return
         self._to(f, m.time)
-        s, H = eskf.site_position(f.x, lever)
-        self._apply(f, np.asarray(m.value, float) - s, H, np.diag(np.asarray(m.sigma, float) ** 2))
+        self._apply(f, np.asarray(m.value, float), lambda x: eskf.site_position(x, lever), np.diag(np.asarray(m.sigma, float) ** 2))
 
     def _uwb(self, m: Measurement) -> None:
         if m.dst not in self.anchors:
@@ -171,11 +176,30 @@ class NavEskf:
             return
         self._to(f, m.time)
         extras = (0, self.delay_index[m.dst]) if len(self.delay_var) else ()
-        r, H = eskf.range_model(f.x, lever, self.anchors[m.dst], extras)
+        anchor = self.anchors[m.dst]
+        r, _ = eskf.range_model(f.x, lever, anchor, extras)
         u = self.uwb
         var = float(np.asarray(m.sigma, float)[0]) ** 2 + u["link_bias_sigma"] ** 2
         var += float(twr_range_variance(u["mode"], np.array([r]), u["clock_ppm"], u["reply_time"], 0.0)[0])
-        self._apply(f, np.array([float(m.value[0]) - r]), H, np.array([[var]]))
+        f.ranges.append((m.time, float(m.value[0]), lever, anchor, extras, var))
+
+    def _ranges(self, f: _Vehicle) -> None:
+        """Apply the pending ranges of one UWB epoch (same time of validity) as one iterated
+        update: each range gated alone at the prior (scalar NIS), the accepted ones together, so
+        the relinearisation sees the whole epoch's geometry (estimators.eskf.update)."""
+        epoch, f.ranges = f.ranges, []
+        z = np.array([e[1] for e in epoch])
+        Rn = np.diag([e[5] for e in epoch])
+
+        def model(x, rows=range(len(epoch))):
+            hs = [eskf.range_model(x, epoch[k][2], epoch[k][3], epoch[k][4]) for k in rows]
+            return np.array([h for h, _ in hs]), np.vstack([H for _, H in hs])
+        keep = eskf.screen(f.P, z - model(f.x)[0], model(f.x)[1], Rn, self.gate[1])
+        self.counts["rejected_measurements"] += int(np.sum(~keep))
+        if keep.any():
+            rows = np.flatnonzero(keep)
+            f.x, f.P, _ = eskf.update(f.x, f.P, z[rows], lambda x: model(x, rows), Rn[np.ix_(rows, rows)], np.inf,
+                                      self.p["iterations"])
 
     # ------------------------------------------------------------------ helpers
     def _site(self, site: str) -> tuple[str, np.ndarray]:
@@ -184,7 +208,8 @@ class NavEskf:
             return self.sites[site]
         return site.partition("/")[0], np.zeros(3)
 
-    def _apply(self, f: _Vehicle, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray) -> None:
-        f.x, f.P, res = eskf.update(f.x, f.P, residual, H, Rn, self.gate[len(residual)])
+    def _apply(self, f: _Vehicle, z: np.ndarray, model, Rn: np.ndarray) -> None:
+        """Iterated update of filter f with measurement z (m,) and model(x) -> (h (m,), H (m, n))."""
+        f.x, f.P, res = eskf.update(f.x, f.P, z, model, Rn, self.gate[len(z)], self.p["iterations"])
         if not res.accepted:
             self.counts["rejected_measurements"] += 1
