@@ -207,24 +207,34 @@ def update(x: np.ndarray, Pm: np.ndarray, z: np.ndarray, model, Rn: np.ndarray, 
     unchanged) when the NIS of the innovation at the prior exceeds `gate` (a chi-square quantile
     of m degrees of freedom). Iterate i relinearises at x_i = x (+) dx_i:
         dx_{i+1} = K_i (z - h(x_i) + H_i dx_i),  K_i = P H_i^T (H_i P H_i^T + Rn)^-1
-    (iterations = 1 is the EKF). A range whose prior error is a sizeable fraction of its length
-    (an SPP first fix 5 m off, anchors 30 m away) has a second-order term |e_perp|^2 / (2 r) well
-    above its noise: the single linearisation biases the update and the covariance then claims
-    a certainty the state does not have. Returns the corrected state (n + 1,), covariance (n, n)
-    and what happened."""
+    (iterations = 1 is the EKF), kept only while it lowers the MAP cost
+        J(dx) = dx^T P^-1 dx + r^T Rn^-1 r,  r = z - h(x (+) dx)
+    (dx = P u with u = H_i^T S_i^-1 (...), so dx^T P^-1 dx = u^T P u: no inverse of P, which may
+    be singular). A range whose prior error is a sizeable fraction of its length (an SPP first
+    fix 5 m off, anchors 30 m away) has a second-order term |e_perp|^2 / (2 r) well above its
+    noise: the single linearisation biases the update and the covariance then claims a certainty
+    the state does not have. Returns the corrected state (n + 1,), covariance (n, n) and what
+    happened."""
     h, H = model(x)
     residual = np.atleast_1d(z - h)
     U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))  # S = U^T U
     nis = float(residual @ cho_solve_upper(U, residual))
     if not np.isfinite(nis) or nis > gate:
         return x, Pm, Update(False, nis, len(residual))
-    dx = np.zeros(len(Pm))
+    dx, cost = np.zeros(len(Pm)), np.inf
     for i in range(iterations):
         if i:
-            h, H = model(inject(x, dx))
             U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))
-        K = cho_solve_upper(U, H @ Pm).T  # P H^T S^-1 (P symmetric)
-        dx = K @ (np.atleast_1d(z - h) + H @ dx)
+        u_new = H.T @ cho_solve_upper(U, np.atleast_1d(z - h) + H @ dx)
+        dx_new = Pm @ u_new
+        h_new, H_new = model(inject(x, dx_new))
+        r_new = np.atleast_1d(z - h_new)
+        cost_new = float(u_new @ Pm @ u_new + r_new @ np.linalg.solve(Rn, r_new))
+        if cost_new >= cost:
+            break
+        dx, cost, K, H_used = dx_new, cost_new, cho_solve_upper(U, H @ Pm).T, H  # K = P H^T S^-1
+        h, H = h_new, H_new
+    H = H_used
     Pn = joseph_update(Pm, K, H, Rn)
     # Sola eq. 287: reset of the attitude error block after injection
     G = np.eye(len(dx))
