@@ -171,8 +171,7 @@ def test_eskf_is_consistent_over_seeds(tmp_path):
     a run are correlated, hence one epoch per run and check). Six checks, each two-sided at
     alpha / 6, alpha = 0.01 (Bonferroni): ANEES in chi2.ppf([alpha / 12, 1 - alpha / 12], 3 R) / R.
     Before the ranges of one epoch were applied together an SPP first fix 5 m off diverged (seed
-    103: position NEES
-    > 10^4); without the scale-factor and misalignment states the gyro misalignment made the
+    103: position NEES > 10^4); without the scale-factor and misalignment states the gyro misalignment made the
     attitude overconfident."""
     R, times, alpha = 6, (6.0, 14.0), 0.01
     nees = {q: np.zeros((R, len(times))) for q in ("position", "velocity", "attitude")}
