@@ -1,19 +1,25 @@
 """Loosely coupled IMU + GNSS + UWB error-state EKF of one vehicle (Sola, "Quaternion kinematics
 for the error-state Kalman filter", 2017, sections 5 and 7; local attitude error).
 
-Nominal state x (16 + E,): position p (3) m and velocity v (3) m/s of the IMU in the world frame
+Nominal state x (34 + E,): position p (3) m and velocity v (3) m/s of the IMU in the world frame
 (ENU), attitude q (4) wxyz body-to-world, accelerometer bias b_a (3) m/s^2 and gyro bias b_g (3)
-rad/s (body FLU), then E constant extra states c (e.g. UWB antenna delays, m). Error state dx
-(15 + E,): dp, dv, dtheta (rad, body frame: R_true = R Exp(dtheta)), db_a, db_g, dc (additive).
-Layout: P, V, TH, BA, BG below; extra k is error index 15 + k, nominal index 16 + k.
+rad/s (body FLU), the accelerometer's and the gyro's scale-factor and misalignment matrices K_a,
+K_g (9 each, row-major, dimensionless: the sensor reads (I + K) x + b, testbed.sensors.noise),
+then E constant extra states c (e.g. UWB antenna delays, m). Error state dx (33 + E,): dp, dv,
+dtheta (rad, body frame: R_true = R Exp(dtheta)), db_a, db_g, dK_a, dK_g, dc (additive).
+Layout: P, V, TH, BA, BG, KA, KG below; extra k is error index 33 + k, nominal index 34 + k.
 
-Mechanization with one IMU sample f (specific force, m/s^2) and w (rate, rad/s), held over dt:
-    a  = R (f - b_a) + g,  g = (0, 0, -9.81) m/s^2               (Sola eq. 260)
-    p <- p + v dt + a dt^2 / 2;  v <- v + a dt;  q <- q (x) Exp((w - b_g) dt)
-Error transition (exact Jacobian of that step, `transition`):
-    F[P,V] = I dt, F[P,TH] = -R [f - b_a]x dt^2/2, F[P,BA] = -R dt^2/2
-    F[V,TH] = -R [f - b_a]x dt, F[V,BA] = -R dt
-    F[TH,TH] = Exp((w - b_g) dt)^T, F[TH,BG] = -J_r((w - b_g) dt) dt
+Mechanization with one IMU sample f (specific force, m/s^2) and w (rate, rad/s), held over dt,
+corrected f_c = M_a (f - b_a), w_c = M_g (w - b_g), M = (I + K)^-1 (seed 004 eqs. 1-4 inverted):
+    a  = R f_c + g,  g = (0, 0, -9.81) m/s^2                      (Sola eq. 260)
+    p <- p + v dt + a dt^2 / 2;  v <- v + a dt;  q <- q (x) Exp(w_c dt)
+Error transition (exact Jacobian of that step, `transition`; d f_c = -M_a (db_a + dK_a f_c),
+dK_a f_c = (I kron f_c^T) dvec(K_a)):
+    F[P,V] = I dt, F[P,TH] = -R [f_c]x dt^2/2, F[P,BA] = -R M_a dt^2/2,
+    F[P,KA] = -R M_a (I kron f_c^T) dt^2/2
+    F[V,TH] = -R [f_c]x dt, F[V,BA] = -R M_a dt, F[V,KA] = -R M_a (I kron f_c^T) dt
+    F[TH,TH] = Exp(w_c dt)^T, F[TH,BG] = -J_r(w_c dt) M_g dt,
+    F[TH,KG] = -J_r(w_c dt) M_g (I kron w_c^T) dt
 Process noise (`process_noise`): white accelerometer and gyro noise of densities n_a, n_g
 (unit/sqrt(Hz)) into v and theta (n^2 dt), bias random walks of densities q_ba, q_bg
 (unit/sqrt(s)) into the biases (q^2 dt).
@@ -22,7 +28,8 @@ Measurements (lever arm l (3,) m of the antenna or tag in the body frame, s = p 
     UWB range      z = |s - a| + sum_k c_k + v,   H = [u^T [I, 0, -R [l]x, 0, 0], 1 at each k]
 with a the anchor, u = (s - a) / |s - a|, and c_k the extra states that bias this range (the
 antenna delays of its two ends: constant per device, so they do not average out).
-Update: Kalman gain by Cholesky solve, Joseph form, innovation gate on the NIS; injection
+Update: iterated (Gauss-Newton) Kalman update, gain by Cholesky solve, Joseph form,
+innovation gate on the NIS; injection
 x <- x (+) dx and reset P <- G P G^T, G[TH,TH] = I - [dtheta / 2]x (Sola eq. 287).
 Pure numpy/scipy; never imports mujoco or testbed.
 """
@@ -38,7 +45,8 @@ from estimators.so3 import (quat_conj, quat_exp, quat_log, quat_mul, quat_to_rot
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2, world ENU
 P, V, TH, BA, BG = (slice(3 * k, 3 * k + 3) for k in range(5))  # error-state blocks
-N_ERR = 15
+KA, KG = slice(15, 24), slice(24, 33)  # scale-factor and misalignment error blocks
+N_ERR = 33
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,43 +62,57 @@ class ImuNoise:
 
 
 def split(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(p, v, q, b_a, b_g) views of a nominal state x (16,)."""
+    """(p, v, q, b_a, b_g) views of a nominal state x (34 + E,)."""
     return x[0:3], x[3:6], x[6:10], x[10:13], x[13:16]
 
 
+def corrected(x: np.ndarray, f: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The IMU sample corrected by the state's errors: f_c (3,) m/s^2, w_c (3,) rad/s, and
+    M_a, M_g (3, 3) = (I + K)^-1 (module docstring)."""
+    Ma = np.linalg.inv(np.eye(3) + x[16:25].reshape(3, 3))
+    Mg = np.linalg.inv(np.eye(3) + x[25:34].reshape(3, 3))
+    return Ma @ (f - x[10:13]), Mg @ (w - x[13:16]), Ma, Mg
+
+
 def propagate(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
-    """Nominal state (16,) after dt (s) with the IMU sample f (3,) m/s^2, w (3,) rad/s held."""
-    p, v, q, ba, bg = split(x)
+    """Nominal state (34 + E,) after dt (s) with the IMU sample f (3,) m/s^2, w (3,) rad/s held."""
+    p, v, q, _, _ = split(x)
     R = quat_to_rotmat(q)
-    # Sola eq. 260: a = R (a_m - a_b) + g
-    a = R @ (f - ba) + GRAVITY
+    fc, wc, _, _ = corrected(x, f, w)
+    # Sola eq. 260: a = R (a_m - a_b) + g, with a_m corrected for scale factor and misalignment
+    a = R @ fc + GRAVITY
     out = x.copy()
     out[0:3] = p + v * dt + 0.5 * dt * dt * a
     out[3:6] = v + a * dt
-    qn = quat_mul(q, quat_exp((w - bg) * dt))
+    qn = quat_mul(q, quat_exp(wc * dt))
     out[6:10] = qn / np.linalg.norm(qn)
     return out
 
 
 def error_size(x: np.ndarray) -> int:
-    """Length of the error state of nominal state x: 15 + extras."""
+    """Length of the error state of nominal state x: 33 + extras."""
     return len(x) - 1
 
 
 def transition(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Error-state transition F (n, n) of `propagate` at x (module docstring; extras constant)."""
-    _, _, q, ba, bg = split(x)
-    R = quat_to_rotmat(q)
-    RF = R @ skew(f - ba)
-    phi = (w - bg) * dt
+    R = quat_to_rotmat(x[6:10])
+    fc, wc, Ma, Mg = corrected(x, f, w)
+    RF = R @ skew(fc)
+    RM = R @ Ma
+    phi = wc * dt
+    JM = so3_right_jacobian(phi) @ Mg
     F = np.eye(error_size(x))
     F[P, V] = np.eye(3) * dt
     F[P, TH] = -0.5 * dt * dt * RF
-    F[P, BA] = -0.5 * dt * dt * R
+    F[P, BA] = -0.5 * dt * dt * RM
+    F[P, KA] = -0.5 * dt * dt * RM @ np.kron(np.eye(3), fc)
     F[V, TH] = -RF * dt
-    F[V, BA] = -R * dt
+    F[V, BA] = -RM * dt
+    F[V, KA] = -RM @ np.kron(np.eye(3), fc) * dt
     F[TH, TH] = quat_to_rotmat(quat_exp(phi)).T
-    F[TH, BG] = -so3_right_jacobian(phi) * dt
+    F[TH, BG] = -JM * dt
+    F[TH, KG] = -JM @ np.kron(np.eye(3), wc) * dt
     return F
 
 
@@ -123,7 +145,7 @@ def range_model(x: np.ndarray, lever: np.ndarray, anchor: np.ndarray, extras: tu
     r = float(np.linalg.norm(d))
     H = (d / r)[None] @ Hs
     for k in extras:
-        r += float(x[16 + k])
+        r += float(x[N_ERR + 1 + k])
         H[0, N_ERR + k] += 1.0
     return r, H
 
@@ -144,7 +166,7 @@ def level(f: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def inject(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
-    """x (+) dx: the nominal state (16 + E,) corrected by the error state dx (15 + E,)."""
+    """x (+) dx: the nominal state (34 + E,) corrected by the error state dx (33 + E,)."""
     out = x.copy()
     out[0:6] += dx[0:6]
     qn = quat_mul(x[6:10], quat_exp(dx[TH]))
@@ -154,7 +176,7 @@ def inject(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
 
 
 def difference(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The error state dx (15 + E,) with y (+) dx = x (the inverse of inject)."""
+    """The error state dx (33 + E,) with y (+) dx = x (the inverse of inject)."""
     dx = np.empty(error_size(x))
     dx[0:6] = x[0:6] - y[0:6]
     dx[TH] = quat_log(quat_mul(quat_conj(y[6:10]), x[6:10]))
@@ -171,17 +193,48 @@ class Update:
     dof: int
 
 
-def update(x: np.ndarray, Pm: np.ndarray, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray,
-           gate: float) -> tuple[np.ndarray, np.ndarray, Update]:
-    """EKF update on the residual z - h(x) (m,) with H (m, n), noise Rn (m, m); rejected (state
-    unchanged) when the NIS exceeds `gate` (a chi-square quantile of m degrees of freedom).
-    Returns the corrected state (n + 1,), covariance (n, n) and what happened."""
+def screen(Pm: np.ndarray, residual: np.ndarray, H: np.ndarray, Rn: np.ndarray, gate: float) -> np.ndarray:
+    """Which of m scalar measurements pass their own innovation gate: (m,) bool, residual_i^2 /
+    S_ii <= gate (a chi-square quantile of 1 degree of freedom), S = H P H^T + Rn (H (m, n))."""
+    S = np.einsum("ij,jk,ik->i", H, Pm, H) + np.diag(Rn)
+    return residual ** 2 <= gate * S
+
+
+def update(x: np.ndarray, Pm: np.ndarray, z: np.ndarray, model, Rn: np.ndarray, gate: float,
+           iterations: int = 1) -> tuple[np.ndarray, np.ndarray, Update]:
+    """Iterated EKF update (Gauss-Newton on the error state) of the measurement z (m,) with the
+    model h(x), H = dh/ddx (m, n) given by `model(x) -> (h, H)`, noise Rn (m, m); rejected (state
+    unchanged) when the NIS of the innovation at the prior exceeds `gate` (a chi-square quantile
+    of m degrees of freedom). Iterate i relinearises at x_i = x (+) dx_i:
+        dx_{i+1} = K_i (z - h(x_i) + H_i dx_i),  K_i = P H_i^T (H_i P H_i^T + Rn)^-1
+    (iterations = 1 is the EKF), kept only while it lowers the MAP cost
+        J(dx) = dx^T P^-1 dx + r^T Rn^-1 r,  r = z - h(x (+) dx)
+    (dx = P u with u = H_i^T S_i^-1 (...), so dx^T P^-1 dx = u^T P u: no inverse of P, which may
+    be singular). A range whose prior error is a sizeable fraction of its length (an SPP first
+    fix 5 m off, anchors 30 m away) has a second-order term |e_perp|^2 / (2 r) well above its
+    noise: the single linearisation biases the update and the covariance then claims a certainty
+    the state does not have. Returns the corrected state (n + 1,), covariance (n, n) and what
+    happened."""
+    h, H = model(x)
+    residual = np.atleast_1d(z - h)
     U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))  # S = U^T U
-    K = cho_solve_upper(U, H @ Pm).T  # P H^T S^-1 (P symmetric)
     nis = float(residual @ cho_solve_upper(U, residual))
     if not np.isfinite(nis) or nis > gate:
         return x, Pm, Update(False, nis, len(residual))
-    dx = K @ residual
+    dx, cost = np.zeros(len(Pm)), np.inf
+    for i in range(iterations):
+        if i:
+            U = cholesky_upper(symmetrize(H @ Pm @ H.T + Rn))
+        u_new = H.T @ cho_solve_upper(U, np.atleast_1d(z - h) + H @ dx)
+        dx_new = Pm @ u_new
+        h_new, H_new = model(inject(x, dx_new))
+        r_new = np.atleast_1d(z - h_new)
+        cost_new = float(u_new @ Pm @ u_new + r_new @ np.linalg.solve(Rn, r_new))
+        if cost_new >= cost:
+            break
+        dx, cost, K, H_used = dx_new, cost_new, cho_solve_upper(U, H @ Pm).T, H  # K = P H^T S^-1
+        h, H = h_new, H_new
+    H = H_used
     Pn = joseph_update(Pm, K, H, Rn)
     # Sola eq. 287: reset of the attitude error block after injection
     G = np.eye(len(dx))

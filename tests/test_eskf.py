@@ -11,11 +11,12 @@ RNG = np.random.default_rng(7)
 
 def _state(extras: int = 2) -> np.ndarray:
     """A random nominal state with `extras` extra states (m)."""
-    x = np.zeros(16 + extras)
+    x = np.zeros(eskf.N_ERR + 1 + extras)
     x[0:3], x[3:6] = RNG.normal(0, 5, 3), RNG.normal(0, 2, 3)
     x[6:10] = quat_exp(RNG.normal(0, 0.6, 3))
     x[10:13], x[13:16] = RNG.normal(0, 0.2, 3), RNG.normal(0, 0.02, 3)
-    x[16:] = RNG.normal(0, 0.05, extras)
+    x[16:34] = RNG.normal(0, 0.01, 18)  # scale factors and misalignments
+    x[34:] = RNG.normal(0, 0.05, extras)
     return x
 
 
@@ -31,7 +32,7 @@ def _numeric(fn, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
 
 
 def test_inject_and_difference_are_inverse():
-    x, dx = _state(), RNG.normal(0, 0.1, 17)
+    x, dx = _state(), RNG.normal(0, 0.1, eskf.N_ERR + 2)
     assert np.allclose(eskf.difference(eskf.inject(x, dx), x), dx, atol=1e-12)
 
 
@@ -54,17 +55,49 @@ def test_measurement_jacobians():
             _, Hr = eskf.range_model(x, lever, anchor, extras)
             assert np.allclose(Hr, _numeric(lambda z: np.array([eskf.range_model(z, lever, anchor, extras)[0]]), x), atol=1e-7)
         r0, r1 = eskf.range_model(x, lever, anchor)[0], eskf.range_model(x, lever, anchor, (0, 1))[0]
-        assert np.isclose(r1 - r0, x[16] + x[17])
+        assert np.isclose(r1 - r0, x[34] + x[35])
 
 
 def test_update_gate_rejects_and_accepts():
-    x, P = _state(), np.eye(17) * 0.01
-    s, H = eskf.site_position(x, np.zeros(3))
+    x, P = _state(), np.eye(eskf.N_ERR + 2) * 0.01
+    s, _ = eskf.site_position(x, np.zeros(3))
+    model = lambda z: eskf.site_position(z, np.zeros(3))  # noqa: E731
     gate = 16.27  # chi-square 3 dof, 1e-3
-    x1, P1, res = eskf.update(x, P, np.array([0.05, 0.0, 0.0]), H, np.eye(3) * 0.01, gate)
+    x1, P1, res = eskf.update(x, P, s + [0.05, 0.0, 0.0], model, np.eye(3) * 0.01, gate)
     assert res.accepted and x1[0] > x[0] and np.trace(P1) < np.trace(P)
-    x2, P2, res = eskf.update(x, P, np.array([5.0, 0.0, 0.0]), H, np.eye(3) * 0.01, gate)
+    x2, P2, res = eskf.update(x, P, s + [5.0, 0.0, 0.0], model, np.eye(3) * 0.01, gate)
     assert not res.accepted and np.array_equal(x2, x) and res.nis > gate
+    H = model(x)[1]
+    keep = eskf.screen(P, np.array([0.05, 5.0, 0.0]), H, np.eye(3) * 0.01, 10.83)  # 1 dof, 1e-3
+    assert keep.tolist() == [True, False, True]
+
+
+def test_iterated_update_reaches_the_map_estimate_of_ranges_with_a_large_prior_error():
+    """Four noiseless-prior ranges 30 m away, the prior 5 m off (sigma 3 m): the iterated update
+    converges to the minimiser of the MAP cost |dx|_P^2 + |z - h(x (+) dx)|_R^2 (its gradient
+    vanishes), the single-linearisation update does not."""
+    x = np.zeros(eskf.N_ERR + 1)
+    x[6] = 1.0
+    truth = x.copy()
+    truth[0:3] = [0.0, 0.0, 10.0]
+    x[0:3] = truth[0:3] + [2.0, 0.8, -4.8]
+    anchors = np.array([[-25.0, -15.0, 3.0], [35.0, -20.0, 9.0], [30.0, 35.0, 3.0], [-20.0, 30.0, 9.0]])
+    P = np.diag([1.5 ** 2, 1.5 ** 2, 3.0 ** 2] + [1.0] * (eskf.N_ERR - 3))
+    Rn = np.eye(4) * 0.1 ** 2
+
+    def model(z):
+        hs = [eskf.range_model(z, np.zeros(3), a) for a in anchors]
+        return np.array([h for h, _ in hs]), np.vstack([H for _, H in hs])
+    z = model(truth)[0]
+
+    def gradient(y):  # of the MAP cost at y, in the error state around x
+        dx = eskf.difference(y, x)
+        h, H = model(y)
+        return np.linalg.solve(P, dx) - H.T @ np.linalg.solve(Rn, z - h)
+    one, _, _ = eskf.update(x, P, z, model, Rn, np.inf, 1)
+    it, _, _ = eskf.update(x, P, z, model, Rn, np.inf, 6)
+    assert np.linalg.norm(gradient(it)) < 1e-3 * np.linalg.norm(gradient(one))
+    assert np.linalg.norm(it[0:3] - truth[0:3]) < 0.1 < np.linalg.norm(one[0:3] - truth[0:3])
 
 
 def test_level_and_the_tilt_error_an_accelerometer_bias_leaves():
@@ -78,7 +111,7 @@ def test_level_and_the_tilt_error_an_accelerometer_bias_leaves():
         yaw = np.arctan2(R[1, 0], R[0, 0])
         q0, J = eskf.level(f, yaw)
         assert np.allclose(quat_to_rotmat(q0), R, atol=1e-12)
-        x0 = np.zeros(16)
+        x0 = np.zeros(eskf.N_ERR + 1)
         x0[6:10] = q0
         for db in (RNG.normal(0, 0.02, 3) for _ in range(3)):
             qb, _ = eskf.level(f + db, yaw)  # levelled with a bias db not removed
