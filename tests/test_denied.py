@@ -75,6 +75,35 @@ def test_window_estimator_flies_the_swarm(flown):
     assert est["rmse_position_mean_m"] < 3.0
 
 
+@pytest.fixture(scope="module")
+def cascade(tmp_path_factory):
+    """coop-denied for 1.2 s flown on the cascade coop.window_ins, with coop.window scored
+    beside it on the same log (the same measurements its inner window gets in the loop)."""
+    sc = load("coop-denied", duration=1.2)
+    sc = replace(sc, estimators=(EstimatorSpec(entry="coop.window_ins", name="ins"), EstimatorSpec(entry="coop.window", name="w")),
+                 control=replace(sc.control, feedback="estimate:ins"))
+    out = tmp_path_factory.mktemp("cascade") / "run"
+    return out, run(sc, out, plots=False)
+
+
+def test_cascade_flies_on_imu_rate_estimates_updated_by_the_window(cascade):
+    out, metrics = cascade
+    ins, w = metrics["estimators"]["ins"], metrics["estimators"]["w"]
+    h = ins["health"]
+    # its window solved the same epochs as the window alone; every vehicle's filter started at the
+    # first epoch and took the position of each later epoch closed by an IMU sample (not the last,
+    # closed at the end of the run with no sample left to fly on)
+    assert h["epochs"] == w["health"]["epochs"] == 7
+    assert h["window_updates"] == 18 * 5 and h["rejected_measurements"] == 0
+    with np.load(out / FEEDBACK_FILE) as z:
+        t = z["uav7/time"]
+    np.testing.assert_allclose(np.diff(t), 0.01, atol=1e-9)  # the IMU's 100 Hz, not the 5 Hz epochs
+    assert t[0] < 0.2  # from the first epoch (t = 0, closed by the IMU sample at 0.01 s)
+    assert ins["rmse_position_mean_m"] < 3.0
+    # the IMU between epochs: a better velocity than the window's (1.2 s of seed 18: see docs/denied.md)
+    assert ins["rmse_velocity_mean_m_s"] < w["rmse_velocity_mean_m_s"]
+
+
 def test_video_overlays_read_the_run(flown):
     out, _ = flown
     import mujoco
