@@ -128,3 +128,24 @@ def test_reproduce_denied_end_to_end(tmp_path):
     assert doc["flights"]["truth"][0]["tracking_max_m"] < 0.05  # flown on the state itself
     text = (out / "report.md").read_text()
     assert "cooperative, centralized" in text and "--motion flown" in text
+
+
+def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
+    from testbed.plugins.api import Estimate, Measurement
+    from testbed.plugins.builtin_window_ins import WindowIns
+    from testbed.plugins.context import make_context
+
+    sc = load("coop-denied", duration=1.0)
+    ins = WindowIns(make_context(sc, build(sc), "ins", {}), {})
+    level = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])  # at rest: specific force up, no rate
+
+    def imu(t):
+        return ins.process(Measurement(stream="imu", time=t, arrival=t, value=level, src="uav1/imu"))
+
+    assert imu(0.0) == []  # no epoch yet: nothing to fly on
+    ins._epoch(Estimate(time=0.0, target="uav1", quantity="position", value=np.zeros(3), cov=-np.eye(3)))
+    assert ins.health()["invalid_window_updates"] == 1 and ins.v["uav1"].x is None
+    ins._epoch(Estimate(time=0.0, target="uav1", quantity="position", value=np.zeros(3), cov=np.eye(3)))
+    assert len(imu(0.01)) == 3  # started: position, velocity, attitude at the IMU sample
+    ins.v["uav1"].P[0, 0] = np.nan
+    assert imu(0.02) == [] and ins.health()["filter_restarts"] == 1 and ins.v["uav1"].x is None
