@@ -26,6 +26,7 @@ _B2 = np.array([2, 2, 0, 1])  # components of b3d multiplied by heading() into b
 # flat indices of E[1,2], E[2,0], E[0,1] and E[2,1], E[0,2], E[1,0] in a 3x3 matrix: their
 # differences are vee(E^T - E)
 _SKEW = np.array([5, 6, 1, 7, 2, 3])
+MIN_LIFT = 0.5  # with max_tilt_deg on: the least vertical part of the commanded F/m, in g
 
 
 def heading(yaw: np.ndarray) -> np.ndarray:
@@ -61,9 +62,23 @@ class GeometricController:
         self.mix_f = self.mass * mix_inv[:, 0]
         self.mix_m = (mix_inv[:, 1:] * self.J).T  # moments are computed per unit inertia
         self.lo, self.hi = m.actuator_ctrlrange[ids, 0], m.actuator_ctrlrange[ids, 1]
+        # tilt limit: tan of the largest angle of F/m from the vertical (0: off), and the least
+        # vertical part of F/m kept when it is on (m/s^2)
+        self._tan_tilt = float(np.tan(np.radians(gains.max_tilt_deg)))
+        self._az_min = MIN_LIFT * GRAVITY
         self._kr_half = -0.5 * gains.kr  # e_R carries a factor 1/2 (exact: a power of two)
         self._b = np.empty((3, physics.n, 3))  # desired body axes b1d, b2d, b3d (world), contiguous rows
         self._b1, self._b2, self._b3 = self._b
+
+    def _limit_tilt(self, a: np.ndarray) -> None:
+        """Saturate the desired force per unit mass a (N, 3) world in place: vertical part at
+        least MIN_LIFT g, horizontal part scaled down (direction kept) to at most
+        a_z tan(max_tilt), so the commanded thrust axis b3d leans at most max_tilt."""
+        np.maximum(a[:, 2], self._az_min, out=a[:, 2])
+        p = a[:, :2] * a[:, :2]
+        h = np.sqrt(p[:, 0] + p[:, 1])
+        # h + tiny: a zero horizontal part stays zero (scale 1 at most)
+        a[:, :2] *= np.minimum(1.0, a[:, 2] * self._tan_tilt / (h + 1e-300))[:, None]
 
     def __call__(self, pos, vel, R, omega, ref_pos, ref_vel, ref_acc, ref_heading, out=None) -> np.ndarray:
         """Rotor thrusts (N, 4) in newtons, written to `out` (N, 4) if given.
@@ -77,6 +92,8 @@ class GeometricController:
         # desired force per unit mass F/m = -kx e_x - kv e_v + g e3 + a_d (world)
         a = ref_acc - g.kx * (pos - ref_pos) - g.kv * (vel - ref_vel)
         a[:, 2] += GRAVITY
+        if self._tan_tilt:
+            self._limit_tilt(a)
         # collective thrust per unit mass f/m = (F/m) . R e3
         p = a * R[:, :, 2]
         f = p[:, 0] + p[:, 1] + p[:, 2]

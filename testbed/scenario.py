@@ -358,7 +358,8 @@ class Control:
     feedback_vehicles: the vehicles (1-based) flown on that estimate, the others on truth
     (empty: every vehicle). attitude: "truth" or "mahony", the onboard complementary filter on
     each vehicle's IMU (needs [sensors.imu] on every vehicle) with gains mahony_kp (1/s) and
-    mahony_ki (1/s^2).
+    mahony_ki (1/s^2). max_tilt_deg: the safety limit on the commanded thrust direction's tilt
+    from the vertical (deg; 0 = off), docs/control.md.
     """
 
     kx: float = key(4.0, unit="1/s^2")
@@ -370,11 +371,13 @@ class Control:
     attitude: Literal["truth", "mahony"] = "truth"
     mahony_kp: float = key(0.3, unit="1/s")
     mahony_ki: float = key(0.02, unit="1/s^2")
+    max_tilt_deg: float = key(0.0, unit="deg", range="0 (off) or in (0, 90)")
 
     def __post_init__(self) -> None:
         for gain in ("kx", "kv", "kr", "kw", "mahony_kp"):
             in_range(self, gain, 0, lo_open=True)
         in_range(self, "mahony_ki", 0)
+        in_range(self, "max_tilt_deg", 0, 90, hi_open=True, unit="deg")
         require(self.feedback == "truth" or (self.feedback.startswith("estimate:") and len(self.feedback) > 9),
                 "feedback", self.feedback, f'must be "truth" or "estimate:NAME" (NAME: an [[estimators]] name), got {self.feedback!r}')
         require(all(v >= 1 for v in self.feedback_vehicles), "feedback_vehicles", list(self.feedback_vehicles),

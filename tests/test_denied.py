@@ -1,5 +1,5 @@
-"""coop-denied (issue #18): the scenario's geometry, contacts from the MuJoCo state, the sliding-
-window estimator flying the swarm in the loop, the video's overlays and `reproduce denied`.
+"""coop-denied (issue #18): the scenario's geometry, contacts from the MuJoCo state, the swarm
+flown on the cascade (IMU filters updated by the sliding-window estimator) in the loop, the video's overlays and `reproduce denied`.
 
 Short horizons only (the CI budget): the numbers of the full experiment are in docs/denied.md.
 """
@@ -58,21 +58,41 @@ def test_contacts_are_classified_from_the_mujoco_state():
 
 @pytest.fixture(scope="module")
 def flown(tmp_path_factory):
-    """coop-denied for 1.2 s flown on the centralized window estimate."""
+    """coop-denied for 1.2 s flown on the cascade coop.window_ins ("coop"), with coop.window
+    scored beside it on the same log ("w": the same measurements its inner window gets in the loop)."""
     sc = load("coop-denied", duration=1.2)
-    sc = replace(sc, estimators=(EstimatorSpec(entry="coop.window", name="coop"),),
+    sc = replace(sc, estimators=(EstimatorSpec(entry="coop.window_ins", name="coop"), EstimatorSpec(entry="coop.window", name="w")),
                  control=replace(sc.control, feedback="estimate:coop"))
     out = tmp_path_factory.mktemp("denied") / "run"
     return out, run(sc, out, plots=False)
 
 
-def test_window_estimator_flies_the_swarm(flown):
-    out, metrics = flown
-    est = metrics["estimators"]["coop"]
+def test_window_estimator_estimates_the_swarm(flown):
+    _, metrics = flown
+    est = metrics["estimators"]["w"]
     assert est["health"]["epochs"] == 7 and est["health"]["skipped_epochs"] == 0  # 5 Hz over 1.2 s
     # every vehicle's estimate is scored; the GNSS-level accuracy bound of a 1.2 s start
     assert all(f"uav{i}" in est["targets"] for i in range(1, 19))
     assert est["rmse_position_mean_m"] < 3.0
+
+
+def test_cascade_flies_on_imu_rate_estimates_updated_by_the_window(flown):
+    out, metrics = flown
+    ins, w = metrics["estimators"]["coop"], metrics["estimators"]["w"]
+    h = ins["health"]
+    # its window solved the same epochs as the window alone; every vehicle's filter started at the
+    # first epoch and took the position of each later epoch closed by an IMU sample (not the last,
+    # closed at the end of the run with no sample left to fly on)
+    assert h["epochs"] == w["health"]["epochs"] == 7
+    assert h["window_updates"] == 18 * 5 and h["rejected_measurements"] == 0
+    with np.load(out / FEEDBACK_FILE) as z:
+        t = z["uav7/time"]
+    np.testing.assert_allclose(np.diff(t), 0.01, atol=1e-9)  # the IMU's 100 Hz, not the 5 Hz epochs
+    assert t[0] < 0.2  # from the first epoch (t = 0, closed by the IMU sample at 0.01 s)
+    assert all(f"uav{i}" in ins["targets"] for i in range(1, 19))
+    assert ins["rmse_position_mean_m"] < 3.0
+    # the IMU between epochs: a better velocity than the window's (measured 0.74 vs 1.97 m/s)
+    assert ins["rmse_velocity_mean_m_s"] < w["rmse_velocity_mean_m_s"]
 
 
 def test_video_overlays_read_the_run(flown):
@@ -108,3 +128,24 @@ def test_reproduce_denied_end_to_end(tmp_path):
     assert doc["flights"]["truth"][0]["tracking_max_m"] < 0.05  # flown on the state itself
     text = (out / "report.md").read_text()
     assert "cooperative, centralized" in text and "--motion flown" in text
+
+
+def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
+    from testbed.plugins.api import Estimate, Measurement
+    from testbed.plugins.builtin_window_ins import WindowIns
+    from testbed.plugins.context import make_context
+
+    sc = load("coop-denied", duration=1.0)
+    ins = WindowIns(make_context(sc, build(sc), "ins", {}), {})
+    level = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])  # at rest: specific force up, no rate
+
+    def imu(t):
+        return ins.process(Measurement(stream="imu", time=t, arrival=t, value=level, src="uav1/imu"))
+
+    assert imu(0.0) == []  # no epoch yet: nothing to fly on
+    ins._epoch(Estimate(time=0.0, target="uav1", quantity="position", value=np.zeros(3), cov=-np.eye(3)))
+    assert ins.health()["invalid_window_updates"] == 1 and ins.v["uav1"].x is None
+    ins._epoch(Estimate(time=0.0, target="uav1", quantity="position", value=np.zeros(3), cov=np.eye(3)))
+    assert len(imu(0.01)) == 3  # started: position, velocity, attitude at the IMU sample
+    ins.v["uav1"].P[0, 0] = np.nan
+    assert imu(0.02) == [] and ins.health()["filter_restarts"] == 1 and ins.v["uav1"].x is None

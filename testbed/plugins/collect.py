@@ -125,6 +125,9 @@ def _cov_problem(c: list) -> str | None:
     return None
 
 
+cov_problem = _cov_problem  # for estimators that check their own covariances before returning them
+
+
 def natural(name: str) -> list:
     """Sort key putting uav2 before uav10."""
     return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name)]

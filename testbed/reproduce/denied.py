@@ -5,13 +5,15 @@ visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown
 seeds in four variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
 testbed.reproduce.runs):
 - truth:       the controller flies on the MuJoCo state; the centralized cooperative estimator
-               (below) is run and scored beside it: its estimation error without feedback;
+               of `coop` (below) is run and scored beside it: its estimation error without feedback;
 - gnss_ekf:    flies on `nav.eskf`, the per-vehicle IMU + GNSS error-state EKF, with no UWB
                ([sensors.uwb] removed in this variant: GNSS only);
-- coop:        flies on `coop.window` (seed 001's sliding-window factor graph over the whole
-               swarm, centralized: every measurement reaches the solver);
-- coop_distributed: flies on `coop.window_distributed` (the same graph, one window per vehicle,
-               message iteration between vehicles, broadcasts over the scenario's [network]);
+- coop:        flies on `coop.window_ins`: per vehicle an IMU error-state EKF whose position
+               updates are seed 001's sliding-window factor graph over the whole swarm
+               (`coop.window`, centralized: every measurement reaches the solver);
+- coop_distributed: flies on `coop.window_distributed_ins`, the same cascade on
+               `coop.window_distributed` (one window per vehicle, message iteration between
+               vehicles, broadcasts over the scenario's [network]);
 - coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised,
                for the estimator's broadcasts and the scenario's [network] alike).
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
@@ -52,6 +54,10 @@ TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "coo
 COOP, EKF = "coop", "ekf"  # estimator names ([[estimators]] name) of the cooperative and GNSS-only estimators
 LOSSY = {"loss_prob": 0.3, "latency": 0.006, "jitter": 0.003}  # the lossy variant's [network] changes
 ALPHA = 0.05
+# the cooperative estimator of each variant: the cascades (an IMU filter per vehicle updated by
+# the window graph, testbed.plugins.builtin_window_ins) are what the controller flies on
+COOP_ENTRY = {"truth": "coop.window_ins", "coop": "coop.window_ins", "coop_distributed": "coop.window_distributed_ins",
+              "coop_lossy": "coop.window_distributed_ins"}
 METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
            "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
 
@@ -61,12 +67,12 @@ def variant(base: Scenario, name: str) -> Scenario:
     net = base.network
     if name == "coop_lossy":
         net = replace(net, **LOSSY)
-    coop = EstimatorSpec(entry="coop.window" if name in ("truth", "coop") else "coop.window_distributed", name=COOP,
-                         params={} if name in ("truth", "coop") else {"network": to_dict(net)})
     if name == "gnss_ekf":
         return replace(base, sensors=replace(base.sensors, uwb=None), network=net,
                        estimators=(EstimatorSpec(entry="nav.eskf", name=EKF),),
                        control=replace(base.control, feedback=f"estimate:{EKF}"))
+    coop = EstimatorSpec(entry=COOP_ENTRY[name], name=COOP,
+                         params={} if name in ("truth", "coop") else {"network": to_dict(net)})
     feedback = "truth" if name == "truth" else f"estimate:{COOP}"
     return replace(base, network=net, estimators=(coop,), control=replace(base.control, feedback=feedback))
 
