@@ -380,6 +380,10 @@ def test_the_covariance_check_agrees_with_eigenvalues():
     assert _cov_problem(c.tolist()) is None
     c[2, 2] = np.nan
     assert _cov_problem(c.tolist()) == "cov is not finite"
+    # positive definite, but singular to double precision: no NEES can be computed at it
+    assert _cov_problem(np.diag([1.0, 1.0, 1e-20]).tolist()).startswith("cov is numerically singular")
+    assert _cov_problem(np.diag([1e6, 1.0, 1e-9]).tolist()).startswith("cov is numerically singular")  # condition 1e15
+    assert _cov_problem(np.diag([1.0, 1.0, 1e-12]).tolist()) is None
 
 
 def test_diagnostics_are_collected_when_asked_and_checked():

@@ -112,8 +112,7 @@ class _WindowIns(builtin_eskf.NavEskf):
             self._start(f, _Epoch(e.time, z, e.cov), lever)
             return
         self._to(f, e.time)
-        s, H = eskf.site_position(f.x, lever)
-        self._apply(f, z - s, H, np.asarray(e.cov, float))
+        self._apply(f, z, lambda x: eskf.site_position(x, lever), np.asarray(e.cov, float))
         self.counts["window_updates"] += 1
 
 

@@ -101,10 +101,14 @@ class Collector:
         return out
 
 
+SINGULAR = 1e-14  # relative Cholesky pivot below which a covariance is singular to double precision
+
+
 def _cov_problem(c: list) -> str | None:
     """Why a (3, 3) covariance (nested lists) is not finite, symmetric (to 1e-9 relative, as
-    numpy.allclose(c, c.T, rtol=1e-9, atol=1e-12 max(1, max |c|))) and positive definite
-    (Cholesky pivots of the symmetric part > 0); None if it is. Plain floats: this runs per estimate."""
+    numpy.allclose(c, c.T, rtol=1e-9, atol=1e-12 max(1, max |c|))) and positive definite with a
+    condition a NEES can be computed at (Cholesky pivots of the symmetric part > SINGULAR times its
+    largest diagonal entry); None if it is. Plain floats: this runs per estimate."""
     flat = [x for row in c for x in row]
     if not all(math.isfinite(x) for x in flat):
         return "cov is not finite"
@@ -120,8 +124,11 @@ def _cov_problem(c: list) -> str | None:
     if not p2 > 0.0:
         return "cov is not positive definite"
     h = f - b * d / a
-    if not g - d * d / a - h * h / p2 > 0.0:
+    p3 = g - d * d / a - h * h / p2
+    if not p3 > 0.0:
         return "cov is not positive definite"
+    if min(a, p2, p3) <= SINGULAR * max(a, e, g):
+        return f"cov is numerically singular (a Cholesky pivot below {SINGULAR:g} of the largest variance)"
     return None
 
 
