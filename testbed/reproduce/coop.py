@@ -36,6 +36,7 @@ Shape (as every reproduction): `compute` (runs -> `CoopResults`), `decide` (numb
 """
 from __future__ import annotations
 
+import math
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -288,8 +289,12 @@ def decide(res: CoopResults) -> list[Claim]:
     iid = anees_interval(3 * n, K * runs)
     jlo, jhi = anees_run_interval(joint_runs, 3 * n) if runs > 1 else iid
     hi3 = anees_interval(3, K * runs * int(spp.sum()))[1]
+    # the exact signed-rank test's smallest p-value is 2^-runs: below that many runs it cannot reach alpha
+    min_runs = math.ceil(math.log2(1 / alpha))
     test_note = (f"one-sided Wilcoxon signed-rank test per UAV over {runs} paired runs, alpha = 0.01/{n}" if runs > 1
                  else "1 run: decided on the point values, no test")
+    if 1 < runs < min_runs:
+        test_note += f" (not reachable with {runs} runs: the smallest p is 2^-{runs}; {min_runs} runs needed)"
     return [
         _better_claim("cooperation_improves_every_uav", "cooperation improves the positioning of every UAV", c_every,
                       {"spp_uavs_better": c_every_spp, "spp_uavs": int(spp.sum())}, test_note,
@@ -340,9 +345,10 @@ def decide(res: CoopResults) -> list[Claim]:
               holds=bool(anees_it > hi3 and jlo <= jn <= jhi),
               summary=f"ANEES iterated {fmt(anees_it)} vs centralized {fmt(anees_c)} (3 dof); joint {fmt(jn)} in "
                       f"({fmt(jlo)}, {fmt(jhi)})", paper_value="(open question)",
-              test="99 % intervals: chi-square (iterated, 3 dof) and Student t over the per-run joint ANEES "
-                   "(centralized, 54 dof)",
-              statistic=anees_it, interval=(jlo, jhi), n=runs, level=0.99),
+              test=f"iterated ANEES {fmt(anees_it)} against the chi-square 99 % upper limit {fmt(hi3)} (3 dof); "
+                   f"statistic and interval: the centralized joint ANEES ({3 * n} dof) and its Student t 99 % "
+                   "interval over the runs",
+              statistic=jn, interval=(jlo, jhi), n=runs, level=0.99),
     ]
 
 
