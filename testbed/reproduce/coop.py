@@ -252,8 +252,13 @@ def _plugin_rmse(metrics: list[dict], key: str, n: int) -> np.ndarray:
     return _pooled(per_run)
 
 
-def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str,
+def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str, spp: np.ndarray,
                   note: str = "") -> Claim:
+    """A per-UAV ordering claim; its summary names the UAVs not shown better (RTK or SPP, factor, p), up to 3."""
+    missed = [f"UAV {p['uav']} ({'SPP' if spp[p['uav'] - 1] else 'RTK'}, x{fmt(p['factor'])}, p {fmt(p['p_one_sided'])})"
+              for p in c["per_uav"] if not p["better"]]
+    if missed:
+        summary += "; not shown: " + (", ".join(missed) if len(missed) <= 3 else f"{len(missed)} UAVs")
     return Claim(id=claim_id, text=text, numbers={"uavs_better": c["uavs_better"], "uavs": c["uavs"], **numbers,
                                                   "per_uav": c["per_uav"]},
                  criterion=test_note, holds=c["uavs_better"] == c["uavs"], summary=summary, note=note,
@@ -298,15 +303,16 @@ def decide(res: CoopResults) -> list[Claim]:
     return [
         _better_claim("cooperation_improves_every_uav", "cooperation improves the positioning of every UAV", c_every,
                       {"spp_uavs_better": c_every_spp, "spp_uavs": int(spp.sum())}, test_note,
-                      f"{c_every['uavs_better']}/{n} UAVs better than GNSS only ({c_every_spp}/{int(spp.sum())} SPP)",
+                      f"{c_every['uavs_better']}/{n} UAVs better than GNSS only ({c_every_spp}/{int(spp.sum())} SPP)", spp,
                       note="iterated vs GNSS only; RTK UAVs (2-3 cm fixes) gain little from 10 cm ranges to SPP "
                            "neighbours"),
         _better_claim("one_optimization_helps", "one optimization without message iteration already improves the "
                       "accuracy", c_one, {"mean_rmse_gnss_m": mean_row[0], "mean_rmse_one_shot_m": mean_row[1]},
-                      test_note, f"{c_one['uavs_better']}/{n} UAVs; mean {fmt(mean_row[0])} -> {fmt(mean_row[1])} m"),
+                      test_note, f"{c_one['uavs_better']}/{n} UAVs; mean {fmt(mean_row[0])} -> {fmt(mean_row[1])} m",
+                      spp),
         _better_claim("iteration_helps_more", "message iteration improves further over one optimization", c_iter,
                       {"mean_rmse_one_shot_m": mean_row[1], "mean_rmse_iterated_m": mean_row[2]}, test_note,
-                      f"{c_iter['uavs_better']}/{n} UAVs; mean {fmt(mean_row[1])} -> {fmt(mean_row[2])} m"),
+                      f"{c_iter['uavs_better']}/{n} UAVs; mean {fmt(mean_row[1])} -> {fmt(mean_row[2])} m", spp),
         _rank_claim("improvement_grows_with_neighbours", "neighbours", rho_n, nb[spp], fac[spp]),
         _rank_claim("improvement_grows_with_rtk_neighbours", "RTK neighbours", rho_r, nr[spp], fac[spp]),
         Claim(id="improvement_factors_3_to_7",
