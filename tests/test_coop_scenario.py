@@ -149,3 +149,11 @@ def test_reproduce_coop_writes_tables_figure_and_decided_claims(tmp_path):
     assert gt["holds"] and gt["numbers"]["epochs"] == 10
     four = next(c for c in claims if c["id"] == "improvement_factors_3_to_7")["numbers"]["uavs"]
     assert len(set(four)) == 4 and not set(four) & {3, 9, 15}
+    # 2 runs cannot reach alpha = 0.01/18 (smallest exact p 2^-2): the criterion says so
+    every = next(c for c in claims if c["id"] == "cooperation_improves_every_uav")
+    assert not every["holds"] and "not reachable with 2 runs" in every["criterion"]
+    assert "not shown: 18 UAVs" in every["summary"]
+    # the verdict line's statistic is the quantity its interval is about: the centralized joint ANEES
+    cov = next(c for c in claims if c["id"] == "distributed_covariance_overconfident")
+    assert cov["test"]["statistic"] == cov["numbers"]["anees_joint_centralized"]
+    assert cov["test"]["interval"] == cov["numbers"]["joint_interval_99"]

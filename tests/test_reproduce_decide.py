@@ -53,6 +53,8 @@ def test_phase_claims_follow_their_criteria():
     # too few runs to show a bound: no violation in 10 runs gives an upper bound 0.26 > 0.15
     few = {c.id: c for c in phase.decide(_phase_runs(10, cross_max=0.005))}
     assert not few["cross-h000-0.01"].holds and few["cross-h000-0.01"].numbers["violations"] == 0
+    assert "not reachable with 10 runs" in few["cross-h000-0.01"].summary  # and the verdict says so
+    assert "not reachable" not in claims["cross-h000-0.01"].summary  # 20 runs can show it
     # "about equal" fails when the ratio is 1.5 (outside the x1.25 margin)
     R = _phase_runs(20, cross_max=0.005)
     R["phase-vacute-h000"] = [dict(r, rmse_position_last_100s_m=1.5 * r["rmse_position_last_100s_m"])

@@ -36,6 +36,7 @@ Shape (as every reproduction): `compute` (runs -> `CoopResults`), `decide` (numb
 """
 from __future__ import annotations
 
+import math
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -251,8 +252,13 @@ def _plugin_rmse(metrics: list[dict], key: str, n: int) -> np.ndarray:
     return _pooled(per_run)
 
 
-def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str,
+def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str, spp: np.ndarray,
                   note: str = "") -> Claim:
+    """A per-UAV ordering claim; its summary names the UAVs not shown better (RTK or SPP, factor, p), up to 3."""
+    missed = [f"UAV {p['uav']} ({'SPP' if spp[p['uav'] - 1] else 'RTK'}, x{fmt(p['factor'])}, p {fmt(p['p_one_sided'])})"
+              for p in c["per_uav"] if not p["better"]]
+    if missed:
+        summary += "; not shown: " + (", ".join(missed) if len(missed) <= 3 else f"{len(missed)} UAVs")
     return Claim(id=claim_id, text=text, numbers={"uavs_better": c["uavs_better"], "uavs": c["uavs"], **numbers,
                                                   "per_uav": c["per_uav"]},
                  criterion=test_note, holds=c["uavs_better"] == c["uavs"], summary=summary, note=note,
@@ -288,20 +294,25 @@ def decide(res: CoopResults) -> list[Claim]:
     iid = anees_interval(3 * n, K * runs)
     jlo, jhi = anees_run_interval(joint_runs, 3 * n) if runs > 1 else iid
     hi3 = anees_interval(3, K * runs * int(spp.sum()))[1]
+    # the exact signed-rank test's smallest p-value is 2^-runs: below that many runs it cannot reach alpha
+    min_runs = math.ceil(math.log2(1 / alpha))
     test_note = (f"one-sided Wilcoxon signed-rank test per UAV over {runs} paired runs, alpha = 0.01/{n}" if runs > 1
                  else "1 run: decided on the point values, no test")
+    if 1 < runs < min_runs:
+        test_note += f" (not reachable with {runs} runs: the smallest p is 2^-{runs}; {min_runs} runs needed)"
     return [
         _better_claim("cooperation_improves_every_uav", "cooperation improves the positioning of every UAV", c_every,
                       {"spp_uavs_better": c_every_spp, "spp_uavs": int(spp.sum())}, test_note,
-                      f"{c_every['uavs_better']}/{n} UAVs better than GNSS only ({c_every_spp}/{int(spp.sum())} SPP)",
+                      f"{c_every['uavs_better']}/{n} UAVs better than GNSS only ({c_every_spp}/{int(spp.sum())} SPP)", spp,
                       note="iterated vs GNSS only; RTK UAVs (2-3 cm fixes) gain little from 10 cm ranges to SPP "
                            "neighbours"),
         _better_claim("one_optimization_helps", "one optimization without message iteration already improves the "
                       "accuracy", c_one, {"mean_rmse_gnss_m": mean_row[0], "mean_rmse_one_shot_m": mean_row[1]},
-                      test_note, f"{c_one['uavs_better']}/{n} UAVs; mean {fmt(mean_row[0])} -> {fmt(mean_row[1])} m"),
+                      test_note, f"{c_one['uavs_better']}/{n} UAVs; mean {fmt(mean_row[0])} -> {fmt(mean_row[1])} m",
+                      spp),
         _better_claim("iteration_helps_more", "message iteration improves further over one optimization", c_iter,
                       {"mean_rmse_one_shot_m": mean_row[1], "mean_rmse_iterated_m": mean_row[2]}, test_note,
-                      f"{c_iter['uavs_better']}/{n} UAVs; mean {fmt(mean_row[1])} -> {fmt(mean_row[2])} m"),
+                      f"{c_iter['uavs_better']}/{n} UAVs; mean {fmt(mean_row[1])} -> {fmt(mean_row[2])} m", spp),
         _rank_claim("improvement_grows_with_neighbours", "neighbours", rho_n, nb[spp], fac[spp]),
         _rank_claim("improvement_grows_with_rtk_neighbours", "RTK neighbours", rho_r, nr[spp], fac[spp]),
         Claim(id="improvement_factors_3_to_7",
@@ -340,9 +351,10 @@ def decide(res: CoopResults) -> list[Claim]:
               holds=bool(anees_it > hi3 and jlo <= jn <= jhi),
               summary=f"ANEES iterated {fmt(anees_it)} vs centralized {fmt(anees_c)} (3 dof); joint {fmt(jn)} in "
                       f"({fmt(jlo)}, {fmt(jhi)})", paper_value="(open question)",
-              test="99 % intervals: chi-square (iterated, 3 dof) and Student t over the per-run joint ANEES "
-                   "(centralized, 54 dof)",
-              statistic=anees_it, interval=(jlo, jhi), n=runs, level=0.99),
+              test=f"iterated ANEES {fmt(anees_it)} against the chi-square 99 % upper limit {fmt(hi3)} (3 dof); "
+                   f"statistic and interval: the centralized joint ANEES ({3 * n} dof) and its Student t 99 % "
+                   "interval over the runs",
+              statistic=jn, interval=(jlo, jhi), n=runs, level=0.99),
     ]
 
 

@@ -39,6 +39,7 @@ Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenari
 """
 from __future__ import annotations
 
+import math
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -112,8 +113,14 @@ def _within_text(what: str, level: float, window: str, unit: str = "m") -> str:
 
 
 def _within_summary(*named: tuple[str, dict], unit: str = "m") -> str:
-    return "; ".join(f"{name}{w['violations']}/{w['runs']} runs violate, worst {fmt_list(w['max_abs_worst'])} {unit}"
+    text = "; ".join(f"{name}{w['violations']}/{w['runs']} runs violate, worst {fmt_list(w['max_abs_worst'])} {unit}"
                      for name, w in named)
+    runs = named[0][1]["runs"]
+    # with no violation the upper bound is 1 - ALPHA^(1/runs): below VIOLATION_MAX only from this many runs on
+    needed = math.ceil(math.log(ALPHA) / math.log(1 - VIOLATION_MAX))
+    if runs < needed:
+        text += f" (not reachable with {runs} runs: the bound is at least {fmt(1 - ALPHA ** (1 / runs))}; {needed} needed)"
+    return text
 
 
 def _cp_fields(*ws: dict) -> dict:
