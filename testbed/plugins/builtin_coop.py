@@ -20,12 +20,13 @@ import numpy as np
 from testbed.pipelines.coop import epoch_problem, gnss_covariances, solve_epoch
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.epochs import EpochGrouping
 from testbed.plugins.settings import settings
 from testbed.stream import gnss_sigma
 
 
-class _CoopEpochs:
-    """Base: epoch bookkeeping; subclasses name the variant."""
+class _CoopEpochs(EpochGrouping):
+    """Base: one epoch's fixes and ranges (testbed.plugins.epochs); subclasses name the variant."""
 
     variant = ""
 
@@ -46,7 +47,7 @@ class _CoopEpochs:
         self.edges: list[tuple[int, int]] = []
         self.ranges: list[float] = []
 
-    def _solve(self) -> list[Estimate]:
+    def _close(self) -> list[Estimate]:
         if np.isnan(self.fix).all():  # only ranges at this instant: not an epoch
             return []
         missing = [f"uav{i + 1}" for i in np.flatnonzero(np.isnan(self.fix[:, 0]))]
@@ -59,25 +60,13 @@ class _CoopEpochs:
         return [Estimate(time=self.t, target=site, quantity="position", value=res.positions[i], cov=res.cov[i])
                 for site, i in self.index.items()]
 
-    def process(self, m: Measurement) -> list[Estimate]:
-        out = []
-        if self.t is not None and m.time > self.t:
-            out = self._solve()
-            self._reset()
-        self.t = m.time
-        i = self.index.get(m.src)
-        if i is None:
-            return out
+    def _take(self, i: int, m: Measurement) -> None:
         if m.stream == "gnss":
             self.fix[i] = m.value
             self.is_rtk[i] = self.rtk_sigma is not None and m.sigma is not None and np.allclose(m.sigma, self.rtk_sigma)
         elif m.stream == "uwb" and m.dst in self.index:
             self.edges.append((i, self.index[m.dst]))
             self.ranges.append(float(m.value[0]))
-        return out
-
-    def finish(self) -> list[Estimate]:
-        return self._solve() if self.t is not None else []
 
     def health(self) -> dict[str, int]:
         return {"nonconverged_epochs": self.nonconverged}

@@ -30,13 +30,14 @@ from testbed.config import from_dict
 from testbed.network import Network, RoundTransport
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.epochs import EpochGrouping
 from testbed.sensors.noise import twr_range_variance
 
 DEFAULTS = dict(window=5, q=2.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None)
 
 
-class _WindowPlugin:
-    """Epoch bookkeeping and output; subclasses make the solver."""
+class _WindowPlugin(EpochGrouping):
+    """One epoch's fixes and ranges (testbed.plugins.epochs) and the output; subclasses make the solver."""
 
     def __init__(self, context: Context, params: dict):
         unknown = set(params) - set(DEFAULTS)
@@ -101,15 +102,7 @@ class _WindowPlugin:
             out.append(Estimate(time=est.t, target=v, quantity="velocity", value=est.vel[i], cov=est.vel_cov[i]))
         return out
 
-    def process(self, m: Measurement) -> list[Estimate]:
-        out = []
-        if self.t is not None and m.time > self.t:
-            out = self._close()
-            self._reset()
-        self.t = m.time
-        i = self.index.get(m.src)
-        if i is None:
-            return out
+    def _take(self, i: int, m: Measurement) -> None:
         if m.stream == "gnss":
             self.fix[i] = m.value
             self.fix_sigma[i] = m.sigma
@@ -118,10 +111,6 @@ class _WindowPlugin:
                 self.tag.append((i, self.index[m.dst], float(m.value[0]), self._range_sigma(m)))
             elif m.dst in self.anchors:
                 self.anchor.append((i, self.anchors[m.dst], float(m.value[0]), self._range_sigma(m)))
-        return out
-
-    def finish(self) -> list[Estimate]:
-        return self._close() if self.t is not None else []
 
     def health(self) -> dict[str, int]:
         return dict(self.counts)
