@@ -354,6 +354,14 @@ def joseph_update(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray) ->
     return symmetrize(I_KH @ P @ I_KH.T + K @ R @ K.T)
 
 
+def white_acceleration_q(dt: float) -> np.ndarray:
+    """Covariance (2, 2) of one axis's [position, velocity] after dt (s) of white acceleration of
+    unit density (multiply by the density q, m^2/s^3): [[dt^3/3, dt^2/2], [dt^2/2, dt]], the exact
+    discretization of the constant-velocity model. For a density matrix S over several axes the
+    process noise is np.kron(white_acceleration_q(dt), S)."""
+    return np.array([[dt ** 3 / 3.0, dt ** 2 / 2.0], [dt ** 2 / 2.0, dt]])
+
+
 def kf_predict(belief: Gaussian, F: np.ndarray, Q: np.ndarray, u: np.ndarray | None = None) -> Gaussian:
     """Linear prediction x' = F x + u, P' = F P F^T + Q."""
     x = F @ belief.mean if u is None else F @ belief.mean + u

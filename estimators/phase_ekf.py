@@ -74,7 +74,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
-from estimators.core import NO_GATE, Gate, Gaussian, UpdateInfo, kf_predict, linearized_update, symmetrize
+from estimators.core import (NO_GATE, Gate, Gaussian, UpdateInfo, kf_predict, linearized_update, symmetrize,
+                             white_acceleration_q)
 from estimators.phase_model import (
     N_STATE,
     ROWS_PER_MASTER,
@@ -135,7 +136,7 @@ def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray 
     density at the state x (18,) the interval starts from (module docstring).
     """
     S = ProcessNoise(antenna=q).density(None) if not isinstance(q, ProcessNoise) else q.density(x)
-    return np.block([[dt ** 3 / 3 * S, dt ** 2 / 2 * S], [dt ** 2 / 2 * S, dt * S]])
+    return np.kron(white_acceleration_q(dt), S)
 
 
 def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q) -> Gaussian:

@@ -50,7 +50,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy import linalg
 
-from estimators.core import NO_GATE, Gate, Gaussian, UpdateInfo, kf_predict, linearized_update, symmetrize, tally
+from estimators.core import (NO_GATE, Gate, Gaussian, UpdateInfo, kf_predict, linearized_update, symmetrize, tally,
+                             white_acceleration_q)
 from estimators.geometry import DegenerateGeometryError, numerical_rank, spanned_dimension
 from estimators.so3 import quat_exp, quat_to_rotmat, rotmat_to_quat, skew
 
@@ -208,7 +209,7 @@ class RangingNoise:
 def process_noise(dt: float, n: int, q: RangingNoise, x: np.ndarray) -> np.ndarray:
     """Q (6 n, 6 n) = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]] with S = q.density(x, n)."""
     S = q.density(x, n)
-    return np.block([[dt ** 3 / 3 * S, dt ** 2 / 2 * S], [dt ** 2 / 2 * S, dt * S]])
+    return np.kron(white_acceleration_q(dt), S)
 
 
 # ------------------------------------------------------------------------------------------------

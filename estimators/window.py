@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
+from estimators.core import white_acceleration_q
 from estimators.factor_graph import huber_rho, huber_weight
 from estimators.transport import Transport
 
@@ -105,7 +106,7 @@ class WindowEstimate:
 def motion_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Information blocks (M00, M01, M11), each (6, 6) over one vehicle's [p, v] at k and k+1, of
     the white-noise-acceleration factor (module docstring) over dt (s) with density q (m^2/s^3)."""
-    Q = q * np.array([[dt ** 3 / 3.0, dt ** 2 / 2.0], [dt ** 2 / 2.0, dt]])
+    Q = q * white_acceleration_q(dt)
     J = np.array([[-1.0, -dt, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0]])  # d[e_p, e_v]/d[p0, v0, p1, v1] per axis
     M = np.kron(J.T @ np.linalg.solve(Q, J), np.eye(3))  # (12, 12): ordering [p0, v0, p1, v1] x axis
     return M[:6, :6], M[:6, 6:], M[6:, 6:]

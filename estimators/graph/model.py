@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg, sparse
 
+from estimators.core import white_acceleration_q
 from estimators.so3 import skew
 from estimators.graph.linear import GaugeWarning, factor_spd
 from estimators.graph.lm import minimize
@@ -180,7 +181,7 @@ class ConstantVelocity:
 
     def linearize(self, values, kinds):
         dt = self.dt
-        Q1 = np.array([[dt ** 3 / 3.0, dt ** 2 / 2.0], [dt ** 2 / 2.0, dt]]) * self.q
+        Q1 = white_acceleration_q(dt) * self.q
         W = np.kron(_sqrt_info(Q1), np.eye(3))  # (6, 6)
         e0, J0 = _endpoint(values, kinds, self.p0, None)
         e1, J1 = _endpoint(values, kinds, self.p1, None)
