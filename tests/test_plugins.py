@@ -357,9 +357,9 @@ def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
 
 
 def test_the_covariance_check_agrees_with_eigenvalues():
-    """collect._cov_problem (plain floats, per estimate) against numpy: finite, symmetric, and positive
+    """collect.cov_problem (plain floats, per estimate) against numpy: finite, symmetric, and positive
     definite exactly when the smallest eigenvalue is positive (random matrices well away from singular)."""
-    from testbed.plugins.collect import _cov_problem
+    from testbed.plugins.collect import cov_problem
 
     rng = np.random.default_rng(3)
     seen = set()
@@ -370,20 +370,20 @@ def test_the_covariance_check_agrees_with_eigenvalues():
         if abs(lam) < 1e-6:
             continue
         expected = None if lam > 0 else "cov is not positive definite"
-        assert _cov_problem(c.tolist()) == expected
+        assert cov_problem(c.tolist()) == expected
         seen.add(expected)
     assert seen == {None, "cov is not positive definite"}
     c = np.eye(3)
     c[0, 1] = 1e-3
-    assert _cov_problem(c.tolist()) == "cov is not symmetric"
+    assert cov_problem(c.tolist()) == "cov is not symmetric"
     c[1, 0] = 1e-3
-    assert _cov_problem(c.tolist()) is None
+    assert cov_problem(c.tolist()) is None
     c[2, 2] = np.nan
-    assert _cov_problem(c.tolist()) == "cov is not finite"
+    assert cov_problem(c.tolist()) == "cov is not finite"
     # positive definite, but singular to double precision: no NEES can be computed at it
-    assert _cov_problem(np.diag([1.0, 1.0, 1e-20]).tolist()).startswith("cov is numerically singular")
-    assert _cov_problem(np.diag([1e6, 1.0, 1e-9]).tolist()).startswith("cov is numerically singular")  # condition 1e15
-    assert _cov_problem(np.diag([1.0, 1.0, 1e-12]).tolist()) is None
+    assert cov_problem(np.diag([1.0, 1.0, 1e-20]).tolist()).startswith("cov is numerically singular")
+    assert cov_problem(np.diag([1e6, 1.0, 1e-9]).tolist()).startswith("cov is numerically singular")  # condition 1e15
+    assert cov_problem(np.diag([1.0, 1.0, 1e-12]).tolist()) is None
 
 
 def test_diagnostics_are_collected_when_asked_and_checked():

@@ -84,7 +84,7 @@ class Collector:
             cov = np.asarray(e.cov, dtype=float)
             if cov.shape != (3, 3):
                 raise self._fail(where, e, f"cov has shape {cov.shape}, expected (3, 3)")
-            reason = _cov_problem(cov.tolist())
+            reason = cov_problem(cov.tolist())
             if reason:
                 raise self._fail(where, e, reason)
         self._rows.setdefault((e.target, e.quantity), []).append((t, value, cov))
@@ -104,7 +104,7 @@ class Collector:
 SINGULAR = 1e-14  # relative Cholesky pivot below which a covariance is singular to double precision
 
 
-def _cov_problem(c: list) -> str | None:
+def cov_problem(c: list) -> str | None:
     """Why a (3, 3) covariance (nested lists) is not finite, symmetric (to 1e-9 relative, as
     numpy.allclose(c, c.T, rtol=1e-9, atol=1e-12 max(1, max |c|))) and positive definite with a
     condition a NEES can be computed at (Cholesky pivots of the symmetric part > SINGULAR times its
@@ -131,8 +131,6 @@ def _cov_problem(c: list) -> str | None:
         return f"cov is numerically singular (a Cholesky pivot below {SINGULAR:g} of the largest variance)"
     return None
 
-
-cov_problem = _cov_problem  # for estimators that check their own covariances before returning them
 
 
 def natural(name: str) -> list:
