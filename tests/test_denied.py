@@ -118,7 +118,8 @@ def test_reproduce_denied_end_to_end(tmp_path):
     out = tmp_path / "rep"
     result = reproduce("denied", out, runs=1, duration=0.6, workers=1)
     ids = {c["id"] for c in result["claims"]}
-    assert ids == {"coop_flight_without_contact", "cooperation_beats_gnss_only"}
+    assert ids == {"coop_flight_without_contact", "coop_distributed_flight_without_contact", "coop_beats_gnss_only",
+                   "coop_distributed_beats_gnss_only"}
     doc = json.loads((out / "claims.json").read_text())
     assert set(doc["flights"]) == set(denied.VARIANTS)
     for v, flights in doc["flights"].items():
@@ -149,3 +150,18 @@ def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
     assert len(imu(0.01)) == 3  # started: position, velocity, attitude at the IMU sample
     ins.v["uav1"].P[0, 0] = np.nan
     assert imu(0.02) == [] and ins.health()["filter_restarts"] == 1 and ins.v["uav1"].x is None
+
+
+def test_swarm_flies_on_the_distributed_estimate_over_the_network(tmp_path):
+    """coop-denied for 4 s flown on coop.ins_distributed, the broadcasts over the scenario's
+    network (the coop_distributed variant of reproduce denied): the first seconds hold the
+    largest errors (every filter starts at its first SPP fix, 3 m vertical). Stated bound: no
+    vehicle farther from its reference than the formation's 6 m spacing, hence no contact; the
+    broadcasts went through the network (sent, some dropped at 1 % loss)."""
+    sc = denied.variant(load("coop-denied", duration=4.0), "coop_distributed")
+    metrics = run(sc, tmp_path / "r", plots=False)
+    f = denied.flight(sc, tmp_path / "r", metrics, denied.COOP)
+    assert f["tracking_max_m"] < 6.0
+    assert f["contacts_vehicle"] == f["contacts_obstacle"] == f["contacts_floor"] == 0
+    health = f["health"]
+    assert health["sent"] > 0 and 0 < health["dropped"] < health["sent"]

@@ -2,9 +2,9 @@
 
 One run of the built-in `coop-denied` (18 UAVs, IMU, GNSS with sky visibility, UWB among
 vehicles and to anchors, [network]) for `duration` s, the controller flying on
-`coop.window_distributed` whose broadcasts travel over the scenario's network (the
+`coop.ins_distributed` whose broadcasts travel over the scenario's network (the
 `coop_distributed` variant of `testbed reproduce denied`, testbed.reproduce.denied.variant),
-and for comparison on the centralized `coop.window` (variant `coop`). Measured around the
+and for comparison on the centralized `coop.ins` (variant `coop`). Measured around the
 whole run (build, simulation with the estimator in the loop, scoring, writing; plots off):
 wall and CPU seconds (time.process_time, this process: one core), the real-time factors
 simulated seconds / second, and the estimator's share of the run: its wall time in the loop

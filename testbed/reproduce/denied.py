@@ -2,20 +2,18 @@
 
 Scenario `coop-denied` (18 UAVs down an urban street and under a covered passage; GNSS by sky
 visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown over `runs`
-seeds in four variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
-testbed.reproduce.runs):
-- truth:       the controller flies on the MuJoCo state; the centralized cooperative estimator
-               of `coop` (below) is run and scored beside it: its estimation error without feedback;
-- gnss_ekf:    flies on `nav.eskf`, the per-vehicle IMU + GNSS error-state EKF, with no UWB
-               ([sensors.uwb] removed in this variant: GNSS only);
-- coop:        flies on `coop.window_ins`: per vehicle an IMU error-state EKF whose position
-               updates are seed 001's sliding-window factor graph over the whole swarm
-               (`coop.window`, centralized: every measurement reaches the solver);
-- coop_distributed: flies on `coop.window_distributed_ins`, the same cascade on
-               `coop.window_distributed` (one window per vehicle, message iteration between
-               vehicles, broadcasts over the scenario's [network]);
-- coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised,
-               for the estimator's broadcasts and the scenario's [network] alike).
+seeds in five variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
+testbed.reproduce.runs). The estimators are testbed.plugins.builtin_coop_ins's: IMU error-state
+EKFs per vehicle updated by GNSS, UWB ranges to anchors and UWB ranges between vehicles.
+- truth:       the controller flies on the MuJoCo state; the centralized `coop.ins` is run and
+               scored beside it: its estimation error without feedback;
+- gnss_ekf:    flies on `coop.ins` with no UWB ([sensors.uwb] removed in this variant): the same
+               IMU + GNSS filter per vehicle, GNSS only;
+- coop:        flies on `coop.ins`, centralized (one joint covariance over the swarm, every
+               measurement reaches it);
+- coop_distributed: flies on `coop.ins_distributed` (a filter per vehicle; neighbours'
+               broadcasts over the scenario's [network]);
+- coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised).
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
 max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
 separation between vehicles (body origins, every logged instant); contact events: MuJoCo
@@ -24,8 +22,9 @@ collision (Physics.contacts_at; an event is a pair coming into contact; floor co
 apart); seconds without a GNSS fix per vehicle (gnss/fix at the logged instants).
 
 Claims (criteria fixed here, before the runs): no contact when flying on the cooperative
-estimate; cooperation's estimation error below GNSS-only's (one-sided Wilcoxon signed-rank over
-paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so).
+estimate, centralized and distributed (one claim each); cooperation's estimation error below
+GNSS-only's, centralized and distributed (one-sided Wilcoxon signed-rank over paired runs at
+alpha = 0.05 from 2 runs on; 1 run: point values, said so).
 
 Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
 claims), `write` (files through testbed.report); `reproduce` chains them.
@@ -52,12 +51,12 @@ VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy")
 TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
           "coop_distributed": "cooperative, distributed", "coop_lossy": "cooperative, distributed, lossy network"}
 COOP, EKF = "coop", "ekf"  # estimator names ([[estimators]] name) of the cooperative and GNSS-only estimators
+COOPERATIVE = ("coop", "coop_distributed")  # the variants the claims are about
 LOSSY = {"loss_prob": 0.3, "latency": 0.006, "jitter": 0.003}  # the lossy variant's [network] changes
 ALPHA = 0.05
-# the cooperative estimator of each variant: the cascades (an IMU filter per vehicle updated by
-# the window graph, testbed.plugins.builtin_window_ins) are what the controller flies on
-COOP_ENTRY = {"truth": "coop.window_ins", "coop": "coop.window_ins", "coop_distributed": "coop.window_distributed_ins",
-              "coop_lossy": "coop.window_distributed_ins"}
+# the cooperative estimator of each variant (testbed.plugins.builtin_coop_ins)
+COOP_ENTRY = {"truth": "coop.ins", "coop": "coop.ins", "coop_distributed": "coop.ins_distributed",
+              "coop_lossy": "coop.ins_distributed"}
 METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
            "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
 
@@ -69,7 +68,7 @@ def variant(base: Scenario, name: str) -> Scenario:
         net = replace(net, **LOSSY)
     if name == "gnss_ekf":
         return replace(base, sensors=replace(base.sensors, uwb=None), network=net,
-                       estimators=(EstimatorSpec(entry="nav.eskf", name=EKF),),
+                       estimators=(EstimatorSpec(entry="coop.ins", name=EKF),),
                        control=replace(base.control, feedback=f"estimate:{EKF}"))
     coop = EstimatorSpec(entry=COOP_ENTRY[name], name=COOP,
                          params={} if name in ("truth", "coop") else {"network": to_dict(net)})
@@ -140,27 +139,32 @@ def decide(res: DeniedResults) -> list[Claim]:
     runs = res.runs
     contacts = {v: int(res.column(v, "contacts_vehicle").sum() + res.column(v, "contacts_obstacle").sum())
                 for v in VARIANTS}
-    a, b = res.column("coop", "estimation_rmse_m"), res.column("gnss_ekf", "estimation_rmse_m")
-    t = wilcoxon_paired(a, b, alternative="less", level=1 - ALPHA) if runs > 1 else None
-    better = bool(np.mean(a) < np.mean(b)) if t is None else bool(np.isfinite(t.p_value) and t.p_value < ALPHA)
-    return [
-        Claim(id="coop_flight_without_contact",
-              text="flying on the cooperative estimate, no vehicle touches another or an obstacle",
-              criterion="no contact event (vehicle-vehicle or vehicle-obstacle) in any run of the coop variant",
-              holds=contacts["coop"] == 0, numbers={"contacts": contacts, "runs": runs},
-              summary=", ".join(f"{v}: {c}" for v, c in contacts.items()),
-              test="count over every logged state of every run (nothing sampled beyond the runs)", n=runs,
-              paper_value="(issue #18)"),
-        Claim(id="cooperation_beats_gnss_only",
-              text="the cooperative estimate is more accurate than the GNSS-only EKF in the denied street",
-              criterion=(f"one-sided Wilcoxon signed-rank over {runs} paired runs, alpha = {ALPHA}" if runs > 1
-                         else "1 run: decided on the point values, no test"),
-              holds=better, numbers={"coop_rmse_m": a.tolist(), "gnss_ekf_rmse_m": b.tolist()},
-              summary=f"mean position RMSE {fmt(float(np.mean(a)))} m vs {fmt(float(np.mean(b)))} m",
-              test=t.test if t else "point comparison", statistic=t.statistic if t else None,
-              p_value=t.p_value if t else None, n=runs, level=1 - ALPHA if t else None,
-              paper_value="(issue #18)"),
-    ]
+    claims = []
+    for v in COOPERATIVE:
+        claims.append(Claim(
+            id=f"{v}_flight_without_contact",
+            text=f"flying on the cooperative estimate ({TITLES[v]}), no vehicle touches another or an obstacle",
+            criterion=f"no contact event (vehicle-vehicle or vehicle-obstacle) in any run of the {v} variant",
+            holds=contacts[v] == 0, numbers={"contacts": contacts, "runs": runs},
+            summary=", ".join(f"{k}: {c}" for k, c in contacts.items()),
+            test="count over every logged state of every run (nothing sampled beyond the runs)", n=runs,
+            paper_value="(issue #18)"))
+    b = res.column("gnss_ekf", "estimation_rmse_m")
+    for v in COOPERATIVE:
+        a = res.column(v, "estimation_rmse_m")
+        t = wilcoxon_paired(a, b, alternative="less", level=1 - ALPHA) if runs > 1 else None
+        better = bool(np.mean(a) < np.mean(b)) if t is None else bool(np.isfinite(t.p_value) and t.p_value < ALPHA)
+        claims.append(Claim(
+            id=f"{v}_beats_gnss_only",
+            text=f"the cooperative estimate ({TITLES[v]}) is more accurate than the GNSS-only EKF in the denied street",
+            criterion=(f"one-sided Wilcoxon signed-rank over {runs} paired runs, alpha = {ALPHA}" if runs > 1
+                       else "1 run: decided on the point values, no test"),
+            holds=better, numbers={f"{v}_rmse_m": a.tolist(), "gnss_ekf_rmse_m": b.tolist()},
+            summary=f"mean position RMSE {fmt(float(np.mean(a)))} m vs {fmt(float(np.mean(b)))} m",
+            test=t.test if t else "point comparison", statistic=t.statistic if t else None,
+            p_value=t.p_value if t else None, n=runs, level=1 - ALPHA if t else None,
+            paper_value="(issue #18)"))
+    return claims
 
 
 def _rows(res: DeniedResults) -> list[list]:

@@ -1,0 +1,359 @@
+"""Cooperative inertial navigation of a swarm: one IMU error-state EKF per vehicle, batched over
+the vehicles, updated by GNSS fixes, UWB ranges to anchors and UWB ranges between vehicles
+(issue #18: the estimate a swarm flies on through GNSS-denied space).
+
+Per vehicle i the nominal state (world ENU, body FLU): position p (3) m and velocity v (3) m/s
+of the IMU (the body origin), attitude q (4) wxyz body-to-world, accelerometer bias b_a (3) m/s^2
+and gyro bias b_g (3) rad/s; the swarm's are arrays p, v, b_a, b_g (n, 3) and q (n, 4). Error
+state per vehicle (15,): dp, dv, dtheta (rad, body: R_true = R Exp(dtheta)), db_a, db_g; the
+swarm's error state is vehicle-major (15 n,), covariance P (15 n, 15 n).
+
+Mechanization (Sola, "Quaternion kinematics for the error-state Kalman filter", 2017, eq. 260),
+one IMU sample f (specific force, m/s^2), w (rate, rad/s) held over dt:
+    a = R (f - b_a) + g,  g = (0, 0, -9.81) m/s^2
+    p <- p + v dt + a dt^2 / 2;  v <- v + a dt;  q <- q (x) Exp((w - b_g) dt)
+Error transition F (15, 15) per vehicle (the exact Jacobian of that step):
+    F[p,v] = I dt, F[p,th] = -R [f_c]x dt^2/2, F[p,ba] = -R dt^2/2, F[v,th] = -R [f_c]x dt,
+    F[v,ba] = -R dt, F[th,th] = Exp(w_c dt)^T, F[th,bg] = -J_r(w_c dt) dt ~ -I dt
+Process noise Q: white accelerometer and gyro noise of densities n_a, n_g into v and theta
+(n^2 dt), bias random walks q_ba, q_bg into the biases (q^2 dt) (Sola eq. 262).
+The covariance is not propagated at every sample: per vehicle the transition and noise since
+the last update are accumulated, Phi <- F Phi, Qa <- F Qa F^T + Q, and applied to the joint P
+once before an update, P <- Phi P Phi^T + Qa (block-diagonal Phi: the same product as step by
+step); each vehicle's own block is formed at every output.
+
+Measurements (lever arm l (3,) m of the antenna in the body frame, antenna s = p + R l,
+ds/ddx = [I, 0, -R [l]x, 0, 0]):
+    GNSS fix (3 rows)       z = s_i + e                 R = diag(sigma^2)
+    range to an anchor a    z = |s_i - a| + e           H_i = u^T ds_i/ddx, u = (s_i - a) / |s_i - a|
+    range between i and j   z = |s_i - s_j| + e         H_i = u^T ds_i/ddx, H_j = -u^T ds_j/ddx
+Centralized (`joint=True`): P is the swarm's joint covariance; a range between two vehicles
+correlates their errors, and the next update uses that correlation. Distributed (`joint=False`):
+P is kept block-diagonal (each vehicle's filter is its own); a range between i and j enters
+vehicle i's filter with j's antenna at the position j broadcast (`Peer`), a known point, its
+3 x 3 covariance added to the range variance, var = sigma^2 + u^T Sigma_j u (and the same range
+enters j's filter with i's broadcast). The approximation, stated: i's broadcast already holds
+what j told it earlier, so the shared information is counted again (the filters are
+optimistic); the exact alternative is the centralized filter.
+Update (one per epoch: every measurement of one time of validity): each scalar range row gated
+alone at the prior (NIS r^2 / S_kk above `gate`: rejected, counted; GNSS rows are not gated: a
+filter that has become optimistic would otherwise reject the fixes that bring it back, and
+drift on its IMU; UWB has outliers, the GNSS model none), the accepted rows in one linear
+update, K = P H^T S^-1 by Cholesky, P <- P - K S K^T (symmetrized), the error injected
+(x (+) dx; attitude q <- q (x) Exp(dtheta)) and the attitude block reset
+G = I - [dtheta / 2]x (Sola eq. 287).
+Pure numpy/scipy; never imports mujoco or testbed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from estimators.eskf import GRAVITY, ImuNoise
+from estimators.so3 import quat_exp, quat_mul, quat_to_rotmat, skew
+
+N_ERR = 15  # error states per vehicle
+P_, V_, TH, BA, BG = (slice(3 * k, 3 * k + 3) for k in range(5))
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Rows:
+    """The measurement rows of one epoch, m scalar rows in all: value z (m,), variance var (m,),
+    and for each row the vehicle i (m,) it is about, the other vehicle j (m,) (-1: none), the
+    component (m,) (0..2: a GNSS fix axis; 3: a range), for a range the other end's point other
+    (m, 3) m world (an anchor, or the broadcast antenna of j in the distributed filter; NaN where
+    j's own state is used: the centralized range between vehicles), and dev (m, 2) the devices
+    whose antenna delays bias the range (-1: none; every row of a fix)."""
+
+    z: np.ndarray
+    var: np.ndarray
+    i: np.ndarray
+    j: np.ndarray
+    component: np.ndarray
+    other: np.ndarray
+    dev: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> "Rows":
+        """The rows `keep` (bool or indices)."""
+        return Rows(z=self.z[keep], var=self.var[keep], i=self.i[keep], j=self.j[keep], component=self.component[keep],
+                    other=self.other[keep], dev=self.dev[keep])
+
+
+class SwarmIns:
+    """The swarm's IMU error-state EKFs (module docstring). n vehicles; lever (n, 3) m the antenna
+    of each (GNSS and UWB on one site); noise: the IMU model; joint: centralized (True) or
+    distributed (False); devices: UWB devices whose antenna delays are states (constant, mean 0,
+    variance delay_var m^2 each): shared by the swarm when joint, one copy per vehicle otherwise.
+
+    Storage. joint: P (15 n + D, 15 n + D), the vehicles' blocks first, then the D delays, delays
+    c (D,). distributed: P (n, 15 + D, 15 + D), one filter per vehicle (its core, then its copy of
+    the delays), delays c (n, D)."""
+
+    def __init__(self, n: int, lever: np.ndarray, noise: ImuNoise, *, joint: bool, devices: int = 0,
+                 delay_var: float = 0.0):
+        self.n, self.joint, self.noise, self.D = int(n), bool(joint), noise, int(devices)
+        self.lever = np.asarray(lever, float).reshape(self.n, 3)
+        self.p = np.zeros((n, 3))
+        self.v = np.zeros((n, 3))
+        self.q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+        self.ba = np.zeros((n, 3))
+        self.bg = np.zeros((n, 3))
+        D = self.D
+        if self.joint:
+            self.c = np.zeros(D)
+            self.P = np.eye(N_ERR * n + D)
+            self.P[N_ERR * n:, N_ERR * n:] = np.eye(D) * delay_var
+        else:
+            self.c = np.zeros((n, D))
+            self.P = np.tile(np.eye(N_ERR + D), (n, 1, 1))
+            self.P[:, N_ERR:, N_ERR:] = np.eye(D) * delay_var
+        self.active = np.zeros(n, bool)
+        self.t = None  # s, the time every active filter is at
+        self.Phi = np.tile(np.eye(N_ERR), (n, 1, 1))  # (n, 15, 15) since the last covariance fold
+        self.Qa = np.zeros((n, N_ERR, N_ERR))
+        q = np.zeros(N_ERR)
+        q[V_], q[TH] = noise.accel_density ** 2, noise.gyro_density ** 2
+        q[BA], q[BG] = noise.accel_walk ** 2, noise.gyro_walk ** 2
+        self._q_rate = q  # (15,) per second
+
+    # ------------------------------------------------------------------ start
+    def start(self, i: int, p: np.ndarray, q: np.ndarray, ba: np.ndarray, bg: np.ndarray, P0: np.ndarray) -> None:
+        """Start vehicle i: body position p (3,) m, velocity 0, attitude q (4,), biases, and its
+        core covariance P0 (15, 15) (no correlation with the other vehicles or the delays)."""
+        self.fold()
+        self.p[i], self.v[i], self.q[i], self.ba[i], self.bg[i] = p, 0.0, q, ba, bg
+        if self.joint:
+            b = slice(N_ERR * i, N_ERR * i + N_ERR)
+            self.P[b, :] = 0.0
+            self.P[:, b] = 0.0
+            self.P[b, b] = P0
+        else:
+            self.P[i, :N_ERR, :] = 0.0
+            self.P[i, :, :N_ERR] = 0.0
+            self.P[i, :N_ERR, :N_ERR] = P0
+        self.active[i] = True
+
+    # ------------------------------------------------------------------ propagation
+    def propagate(self, f: np.ndarray, w: np.ndarray, dt: float) -> None:
+        """Every active vehicle over dt (s) with its held IMU sample f (n, 3) m/s^2, w (n, 3) rad/s
+        (rows of inactive vehicles ignored): nominal state, and the accumulated Phi, Qa."""
+        if dt <= 0:
+            return
+        a_ = self.active
+        R = quat_to_rotmat(self.q)  # (n, 3, 3)
+        fc, wc = f - self.ba, w - self.bg
+        # Sola eq. 260: a = R (a_m - a_b) + g
+        acc = np.einsum("nij,nj->ni", R, fc) + GRAVITY
+        self.p = np.where(a_[:, None], self.p + self.v * dt + 0.5 * dt * dt * acc, self.p)
+        self.v = np.where(a_[:, None], self.v + acc * dt, self.v)
+        dq = quat_exp(wc * dt)
+        qn = quat_mul(self.q, dq)
+        self.q = np.where(a_[:, None], qn / np.linalg.norm(qn, axis=1, keepdims=True), self.q)
+        RF = R @ skew(fc)
+        F = np.tile(np.eye(N_ERR), (self.n, 1, 1))
+        F[:, P_, V_] = np.eye(3) * dt
+        F[:, P_, TH] = -0.5 * dt * dt * RF
+        F[:, P_, BA] = -0.5 * dt * dt * R
+        F[:, V_, TH] = -RF * dt
+        F[:, V_, BA] = -R * dt
+        F[:, TH, TH] = np.swapaxes(quat_to_rotmat(dq), 1, 2)
+        F[:, TH, BG] = -np.eye(3) * dt
+        self.Phi = F @ self.Phi
+        self.Qa = F @ self.Qa @ np.swapaxes(F, 1, 2) + np.diag(self._q_rate * dt)
+
+    def _transform(self, M: np.ndarray, Q: np.ndarray | None = None) -> None:
+        """P <- M P M^T (+ Q) with M block-diagonal: M_i (n, 15, 15) on each vehicle's core, the
+        identity on the delays; Q (n, 15, 15) added to the cores."""
+        n, e = self.n, N_ERR
+        Mt = np.swapaxes(M, 1, 2)
+        if self.joint:
+            nv = n * e
+            A = self.P[:nv, :nv].reshape(n, e, n, e).transpose(0, 2, 1, 3)  # (n, n, e, e) blocks
+            A = M[:, None] @ A @ Mt[None]
+            if Q is not None:
+                A[np.arange(n), np.arange(n)] += Q
+            self.P[:nv, :nv] = A.transpose(0, 2, 1, 3).reshape(nv, nv)
+            B = (M @ self.P[:nv, nv:].reshape(n, e, self.D)).reshape(nv, self.D)
+            self.P[:nv, nv:] = B
+            self.P[nv:, :nv] = B.T
+        else:
+            P = self.P
+            P[:, :e, :e] = M @ P[:, :e, :e] @ Mt + (0.0 if Q is None else Q)
+            P[:, :e, e:] = M @ P[:, :e, e:]
+            P[:, e:, :e] = np.swapaxes(P[:, :e, e:], 1, 2)
+
+    def fold(self) -> None:
+        """Apply the accumulated transition and noise to P (module docstring)."""
+        self._transform(self.Phi, self.Qa)
+        self.Phi = np.tile(np.eye(N_ERR), (self.n, 1, 1))
+        self.Qa = np.zeros((self.n, N_ERR, N_ERR))
+
+    def blocks(self) -> np.ndarray:
+        """(n, 15, 15) each vehicle's own core covariance (not folded)."""
+        n, e = self.n, N_ERR
+        if self.joint:
+            return self.P[:n * e, :n * e].reshape(n, e, n, e)[np.arange(n), :, np.arange(n), :]
+        return self.P[:, :e, :e]
+
+    def marginals(self) -> np.ndarray:
+        """(n, 15, 15) each vehicle's core covariance now (the accumulated propagation applied)."""
+        D = self.Phi @ self.blocks() @ np.swapaxes(self.Phi, 1, 2) + self.Qa
+        return 0.5 * (D + np.swapaxes(D, 1, 2))
+
+    # ------------------------------------------------------------------ update
+    def antennas(self) -> tuple[np.ndarray, np.ndarray]:
+        """Antenna positions s (n, 3) m world and ds/ddtheta = -R [l]x (n, 3, 3)."""
+        R = quat_to_rotmat(self.q)
+        return self.p + np.einsum("nij,nj->ni", R, self.lever), -R @ skew(self.lever)
+
+    def _linearize(self, rows: Rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """h (m,) at the current state, and the Jacobians: Hi (m, 15) on vehicle i's core, Hj (m, 15)
+        on vehicle j's (pair rows of the centralized filter; zero otherwise); the delay columns
+        are rows.dev (each 1)."""
+        s, dS = self.antennas()
+        m = rows.z.size
+        Hi, Hj, h = np.zeros((m, N_ERR)), np.zeros((m, N_ERR)), np.zeros(m)
+        fix = rows.component < 3
+        k = np.flatnonzero(fix)
+        c, i = rows.component[k], rows.i[k]
+        h[k] = s[i, c]
+        Hi[k, c] = 1.0
+        Hi[k, 6:9] = dS[i, c]
+        k = np.flatnonzero(~fix)
+        if k.size:
+            i, j = rows.i[k], rows.j[k]
+            known = ~np.isnan(rows.other[k, 0])
+            d = s[i] - np.where(known[:, None], rows.other[k], s[np.maximum(j, 0)])
+            dist = np.linalg.norm(d, axis=1)
+            u = d / np.maximum(dist, 1e-9)[:, None]
+            h[k] = dist
+            if self.D:
+                dev = np.maximum(rows.dev[k], 0)
+                c = self.c[dev] if self.joint else np.take_along_axis(self.c[i], dev, axis=1)
+                h[k] += np.where(rows.dev[k] >= 0, c, 0.0).sum(axis=1)
+            Hi[k, 0:3] = u
+            Hi[k, 6:9] = np.einsum("mk,mkl->ml", u, dS[i])
+            pair = ~known
+            Hj[k[pair], 0:3] = -u[pair]
+            Hj[k[pair], 6:9] = -np.einsum("mk,mkl->ml", u[pair], dS[j[pair]])
+        return h, Hi, Hj
+
+    def _dense(self, rows: Rows, Hi: np.ndarray, Hj: np.ndarray) -> np.ndarray:
+        """The joint filter's H (m, 15 n + D)."""
+        n, e, m = self.n, N_ERR, rows.z.size
+        H = np.zeros((m, n * e + self.D))
+        r = np.arange(m)
+        H[r[:, None], e * rows.i[:, None] + np.arange(e)] = Hi
+        pair = np.flatnonzero(rows.j >= 0)
+        H[pair[:, None], e * rows.j[pair][:, None] + np.arange(e)] += Hj[pair]
+        for col in (0, 1):
+            d = np.flatnonzero(rows.dev[:, col] >= 0)
+            H[d, n * e + rows.dev[d, col]] += 1.0
+        return H
+
+    def _local(self, rows: Rows, Hi: np.ndarray) -> np.ndarray:
+        """Each row's H (m, 15 + D) on its own vehicle's filter (distributed)."""
+        m = rows.z.size
+        H = np.zeros((m, N_ERR + self.D))
+        H[:, :N_ERR] = Hi
+        for col in (0, 1):
+            d = np.flatnonzero(rows.dev[:, col] >= 0)
+            H[d, N_ERR + rows.dev[d, col]] += 1.0
+        return H
+
+    def update(self, rows: Rows, gate: float, iterations: int = 1) -> np.ndarray:
+        """One update with the epoch's rows (module docstring); rows about inactive vehicles (or
+        whose other vehicle is inactive, centralized) are skipped. iterations > 1: the iterated
+        EKF (Gauss-Newton on the error state, relinearized at x (+) dx_i:
+        dx_{i+1} = K_i (z - h(x_i) + H_i dx_i), K_i = P H_i^T (H_i P H_i^T + R)^-1), the covariance
+        from the last linearization. Returns (m,) int: 1 used, 0 rejected by the gate, -1 skipped."""
+        self.fold()
+        m = rows.z.size
+        status = np.full(m, -1)
+        pair = rows.j >= 0
+        use = self.active[rows.i] & (~pair | self.active[np.maximum(rows.j, 0)] | ~np.isnan(rows.other[:, 0]))
+        if not use.any():
+            return status
+        k = np.flatnonzero(use)
+        rows = rows.subset(k)
+        h, Hi, Hj = self._linearize(rows)
+        r = rows.z - h
+        if self.joint:
+            H = self._dense(rows, Hi, Hj)
+            S_diag = np.einsum("mi,ij,mj->m", H, self.P, H) + rows.var
+        else:
+            H = self._local(rows, Hi)
+            S_diag = np.einsum("mi,mij,mj->m", H, self.P[rows.i], H) + rows.var
+        ok = (r ** 2 <= gate * S_diag) | (rows.component < 3)  # GNSS rows are not gated
+        status[k] = ok.astype(int)
+        if not ok.any():
+            return status
+        rows = rows.subset(ok)
+        x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
+        step = self._joint_step if self.joint else self._local_step
+        dx = None
+        for it in range(max(1, int(iterations))):
+            if it:
+                self._inject(dx)
+            h, Hi, Hj = self._linearize(rows)
+            if it:
+                self.p, self.v, self.q, self.ba, self.bg, self.c = x0
+            dx, P = step(rows, h, Hi, Hj, dx)
+        self._inject(dx)
+        self.P = P
+        # Sola eq. 287: reset of each attitude error block after injection
+        core = dx[0]
+        G = np.tile(np.eye(N_ERR), (self.n, 1, 1))
+        G[:, TH, TH] -= skew(0.5 * core[:, TH])
+        self._transform(G)
+        self.P = 0.5 * (self.P + np.swapaxes(self.P, -1, -2))
+        return status
+
+    def _joint_step(self, rows, h, Hi, Hj, dx):
+        """One Gauss-Newton step of the joint filter: (dx as (core (n, 15), delays (D,)), P after)."""
+        n, e = self.n, N_ERR
+        H = self._dense(rows, Hi, Hj)
+        x = np.zeros(n * e + self.D) if dx is None else np.concatenate([dx[0].ravel(), dx[1]])
+        PHt = self.P @ H.T
+        S = H @ PHt + np.diag(rows.var)
+        cf = linalg.cho_factor(0.5 * (S + S.T), lower=True, check_finite=False)
+        x = PHt @ linalg.cho_solve(cf, rows.z - h + H @ x, check_finite=False)
+        L = linalg.solve_triangular(cf[0], PHt.T, lower=True, check_finite=False)  # L^-1 H P
+        return (x[:n * e].reshape(n, e), x[n * e:]), self.P - L.T @ L
+
+    def _local_step(self, rows, h, Hi, Hj, dx):
+        """One Gauss-Newton step of every vehicle's filter at once (rows grouped by vehicle, padded)."""
+        n, E = self.n, N_ERR + self.D
+        H = self._local(rows, Hi)
+        order = np.argsort(rows.i, kind="stable")
+        counts = np.bincount(rows.i, minlength=n)
+        M = max(int(counts.max()), 1)
+        slot = np.arange(rows.i.size) - np.repeat(np.cumsum(counts) - counts, counts)  # position within its vehicle
+        vi, sl = rows.i[order], slot
+        Hb = np.zeros((n, M, E))
+        Hb[vi, sl] = H[order]
+        x = np.zeros((n, E)) if dx is None else np.concatenate([dx[0], dx[1]], axis=1)
+        rb = np.zeros((n, M))
+        rb[vi, sl] = (rows.z - h)[order] + np.einsum("me,me->m", H[order], x[vi])
+        Rb = np.ones((n, M))
+        Rb[vi, sl] = rows.var[order]
+        PHt = self.P @ np.swapaxes(Hb, 1, 2)  # (n, E, M)
+        S = Hb @ PHt + Rb[:, :, None] * np.eye(M)
+        L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
+        W = np.linalg.solve(L, np.swapaxes(PHt, 1, 2))  # L^-1 H P (n, M, E)
+        y = np.linalg.solve(L, rb[..., None])[..., 0]  # L^-1 r
+        x = np.einsum("nme,nm->ne", W, y)
+        return (x[:, :N_ERR], x[:, N_ERR:]), self.P - np.swapaxes(W, 1, 2) @ W
+
+    def _inject(self, dx) -> None:
+        """x (+) dx for every vehicle, dx = (core (n, 15), delays (D,) joint or (n, D))."""
+        core, dc = dx
+        self.p = self.p + core[:, P_]
+        self.v = self.v + core[:, V_]
+        qn = quat_mul(self.q, quat_exp(core[:, TH]))
+        self.q = qn / np.linalg.norm(qn, axis=1, keepdims=True)
+        self.ba = self.ba + core[:, BA]
+        self.bg = self.bg + core[:, BG]
+        self.c = self.c + dc

@@ -1,0 +1,309 @@
+"""Built-in `coop.ins` and `coop.ins_distributed`: the swarm's IMU error-state EKFs updated by
+GNSS, UWB ranges to anchors and UWB ranges between vehicles (estimators.coop_ins), offline or
+online in the control loop ([control] feedback). Centralized: one joint covariance over the
+swarm. Distributed: a filter per vehicle; at each UWB epoch every vehicle broadcasts its
+antenna position, velocity and their covariances (BROADCAST_BYTES) over the network, and a
+range to a neighbour uses the neighbour's last broadcast that has arrived.
+
+Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
+together: the filters are propagated from the previous instant with the previous samples held
+(zero-order hold, as nav.eskf), then each vehicle's position and velocity are output every
+`output_every`-th instant, its attitude at every ATTITUDE_EVERY-th output (what is output is
+checked and stored per estimate; the controller flies on position and velocity only). GNSS fixes and UWB ranges of one time of validity are an epoch;
+it is applied when a measurement of a later time arrives (no look-ahead), as one update at the
+epoch's time (an epoch older than the filters updates their current state: the delay is not
+compensated). Distributed: broadcasts are sent at the epoch's time and used if they have
+arrived by the time the epoch is applied (the arrival of the measurement that closed it);
+otherwise the sender's previous broadcast, moved on at its broadcast velocity, its covariance
+grown by the velocity's over the gap, is used if younger than `stale_s`, else the range is
+skipped (counted). The channel's geometry (range limit) is taken from the estimators' own
+positions (the estimator cannot see the truth), all links taken as line of sight.
+
+A vehicle's filter starts at its first GNSS fix (position: the fix minus the rotated lever arm;
+velocity 0; roll and pitch levelled from its accelerometer less the declared constant bias,
+correlated with the bias error as estimators.eskf.level; yaw `yaw0`); until then its rows are
+skipped (counted).
+
+Noise: IMU white noise and bias walks from the declared [sensors.imu] (a Gauss-Markov bias of
+sigma s, time constant tau as a walk of density s sqrt(2 / tau), as nav.eskf); initial bias
+uncertainty: turn-on and Gauss-Markov sigmas, plus, for the accelerometer, the declared
+scale-factor and misalignment sigmas times g (the 15 states have no scale factors: near hover a
+scale or misalignment error of the accelerometer is a constant error of the 1 g it reads, which
+the bias state takes; the gyro's, times rates of a few deg/s, are left out). GNSS: the row's
+declared sigma. UWB: the declared noise plus the two-way-ranging clock term, the per-device
+antenna-delay terms and the link bias (testbed.plugins.builtin_window.range_variance), as white
+noise. Gate: each row alone at the chi-square quantile 1 - gate_prob of 1 dof.
+
+params (defaults): gate_prob (1e-3), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad,
+0.05), vel0_sigma (m/s, 1.0), output_every (1), network (distributed: a [network] table,
+docs/network.md; absent: ideal), stale_s (s, 1.0).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from estimators import coop_ins as ci
+from estimators import eskf
+from estimators.so3 import quat_to_rotmat
+from testbed.config import from_dict
+from testbed.network import Network
+from testbed.network_config import NetworkConfig
+from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.builtin_eskf import _walk
+from testbed.plugins.builtin_window import range_variances
+
+DEFAULTS = dict(gate_prob=1e-3, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
+                network=None, stale_s=1.0, peer_inflation=8.0)
+ATTITUDE_EVERY = 10  # the attitude is output at every 10th output (the controller does not fly on it)
+BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
+
+
+class CoopIns:
+    description = "swarm IMU error-state EKF updated by GNSS + UWB anchors + inter-vehicle UWB, centralized; flies in the loop"
+    joint = True
+    copies = 1  # filters per vehicle in self.ins (the distributed one adds its own-measurement filter)
+
+    def __init__(self, context: Context, params: dict):
+        known = set(DEFAULTS) - ({"network", "stale_s", "peer_inflation"} if self.joint else set())
+        if set(params) - known:
+            raise ValueError(f"unknown params {sorted(set(params) - known)}; known: {sorted(known)}")
+        if "imu" not in context.sensors:
+            raise ValueError("needs [sensors.imu]")
+        self.p = {**DEFAULTS, **params}
+        self.vehicles = list(context.vehicles)
+        self.n = n = len(self.vehicles)
+        imu = context.sensors["imu"]
+        acc, gyr = imu["accel"], imu["gyro"]
+        noise = eskf.ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
+        self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
+        g2 = 9.81 ** 2 * (acc["scale_sigma"] ** 2 + acc["misalign_sigma"] ** 2)
+        self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2 + g2] * 3
+                                 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3)
+        self.sites = dict(context.sites)
+        self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
+        self.uwb = context.sensors.get("uwb")
+        self.body = {v: i for i, v in enumerate(self.vehicles)}
+        self.lever = np.array([self.sites[f"{v}/uwb"][1] if f"{v}/uwb" in self.sites else np.zeros(3)
+                               for v in self.vehicles], float)
+        # UWB devices whose antenna delays are states: the vehicles' tags, then the anchors
+        delay = self.uwb["antenna_delay_sigma"] if self.uwb is not None else 0.0
+        self.device = {**{f"{v}/uwb": k for k, v in enumerate(self.vehicles)},
+                       **{a: n + k for k, a in enumerate(self.anchors)}} if delay > 0 else {}
+        self.ins = ci.SwarmIns(self.copies * n, np.tile(self.lever, (self.copies, 1)), noise, joint=self.joint,
+                               devices=len(self.device), delay_var=delay ** 2)
+        self.gate = float(chi2.isf(self.p["gate_prob"], 1)) if self.p["gate_prob"] > 0 else np.inf
+        self.held = np.full((n, 6), np.nan)  # the IMU sample each vehicle holds
+        self.new = np.full((n, 6), np.nan)  # samples of the instant being collected
+        self.t_imu = None
+        self.instants = 0
+        self.epoch_t = None
+        self.rows: list[tuple] = []  # (z, sigma, i, j, component, other (3,), dev (2,))
+        self.counts = {"epochs": 0, "rejected_measurements": 0, "skipped_updates": 0, "stale_ranges": 0}
+        self._network(context)
+
+    def _network(self, context: Context) -> None:
+        """Centralized: nothing travels."""
+
+    def _rows(self, t: float, now: float, rows: ci.Rows) -> ci.Rows:
+        """The rows of the epoch's update: centralized, the epoch's rows (a range between vehicles
+        on both their states)."""
+        return rows
+
+    # ------------------------------------------------------------------ the protocol
+    def process(self, m: Measurement) -> list[Estimate]:
+        out = []
+        if self.epoch_t is not None and (m.time > self.epoch_t or (m.stream != "imu" and m.time != self.epoch_t)):
+            self._close(m.arrival)
+        if m.stream == "imu":
+            out = self._imu(m)
+        elif m.stream in ("gnss", "uwb"):
+            self._take(m)
+        return out
+
+    def finish(self) -> list[Estimate]:
+        out = self._flush() if self.t_imu is not None else []
+        if self.epoch_t is not None:
+            self._close(self.epoch_t)
+        return out
+
+    def health(self) -> dict[str, int]:
+        return dict(self.counts)
+
+    # ------------------------------------------------------------------ IMU
+    def _imu(self, m: Measurement) -> list[Estimate]:
+        out = []
+        if self.t_imu is not None and m.time > self.t_imu:
+            out = self._flush()
+        i = self.body[self.sites[m.src][0]]
+        self.t_imu = m.time
+        self.new[i] = m.value
+        if not np.isnan(self.new[:, 0]).any():  # every vehicle's sample of this instant is in
+            out += self._flush()
+        return out
+
+    def _flush(self) -> list[Estimate]:
+        """Propagate to the collected instant, hold its samples, output (module docstring)."""
+        t, got = self.t_imu, ~np.isnan(self.new[:, 0])
+        self._advance(t)
+        self.held[got] = self.new[got]
+        self.new[:] = np.nan
+        self.t_imu = None
+        self.instants += 1
+        if self.instants % int(self.p["output_every"]) or not self.ins.active[:self.n].any():
+            return []
+        ins = self.ins
+        C = ins.marginals()
+        attitude = self.instants % (int(self.p["output_every"]) * ATTITUDE_EVERY) == 0
+        out = []
+        for i in np.flatnonzero(ins.active[:self.n]).tolist():
+            v = self.vehicles[i]
+            out += [Estimate(time=t, target=v, quantity="position", value=ins.p[i].copy(), cov=C[i, ci.P_, ci.P_]),
+                    Estimate(time=t, target=v, quantity="velocity", value=ins.v[i].copy(), cov=C[i, ci.V_, ci.V_])]
+            if attitude:
+                out.append(Estimate(time=t, target=v, quantity="attitude", value=ins.q[i].copy(), cov=C[i, ci.TH, ci.TH]))
+        return out
+
+    def _advance(self, t: float) -> None:
+        """Propagate the filters to t (s) with the held samples (nothing if t is not later)."""
+        ins = self.ins
+        if ins.t is not None and t > ins.t:
+            held = np.tile(np.nan_to_num(self.held), (self.copies, 1))
+            ins.propagate(held[:, :3], held[:, 3:], t - ins.t)
+        ins.t = t if ins.t is None else max(ins.t, t)
+
+    # ------------------------------------------------------------------ GNSS and UWB epochs
+    def _take(self, m: Measurement) -> None:
+        self.epoch_t = m.time
+        v, lever = self.sites[m.src] if m.src in self.sites else (m.src.partition("/")[0], np.zeros(3))
+        i = self.body.get(v)
+        if i is None:
+            return
+        if np.abs(np.asarray(lever) - self.lever[i]).max() > 1e-9:
+            raise ValueError(f"{m.src}: GNSS and UWB must share the antenna site (set [sensors.gnss] antenna = \"uwb\")")
+        nan3 = np.full(3, np.nan)
+        if m.stream == "gnss":
+            if not self.ins.active[i]:
+                self._start(i, m)
+                return
+            for c in range(3):
+                self.rows.append((float(m.value[c]), float(m.sigma[c]), i, -1, c, nan3, (-1, -1)))
+            return
+        dev = (self.device.get(m.src, -1), self.device.get(m.dst, -1))
+        if m.dst in self.anchors:
+            self.rows.append((float(m.value[0]), float(m.sigma[0]), i, -1, 3, self.anchors[m.dst], dev))
+        elif m.dst.partition("/")[0] in self.body:
+            self.rows.append((float(m.value[0]), float(m.sigma[0]), i, self.body[m.dst.partition("/")[0]], 3, nan3, dev))
+
+    def _start(self, i: int, m: Measurement) -> None:
+        """Vehicle i's filter from its first fix (module docstring)."""
+        if np.isnan(self.held[i, 0]):
+            self.counts["skipped_updates"] += 1
+            return
+        self._advance(m.time)
+        p = self.p
+        q, J = eskf.level(self.held[i, :3] - self.bias0[:3], p["yaw0"])
+        R = quat_to_rotmat(q)
+        P0 = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3), self.bias_var]))
+        vert = R.T @ [0.0, 0.0, 1.0]
+        Pb = P0[ci.BA, ci.BA]
+        P0[ci.TH, ci.TH] = (J @ Pb @ J.T + p["tilt0_sigma"] ** 2 * (np.eye(3) - np.outer(vert, vert))
+                            + p["yaw0_sigma"] ** 2 * np.outer(vert, vert))
+        P0[ci.TH, ci.BA] = J @ Pb
+        P0[ci.BA, ci.TH] = (J @ Pb).T
+        for c in range(self.copies):
+            self.ins.start(i + c * self.n, np.asarray(m.value, float) - R @ self.lever[i], q, self.bias0[:3], self.bias0[3:], P0)
+
+    def _close(self, now: float) -> None:
+        """Apply the open epoch (module docstring); now (s): the clock when it is applied."""
+        t, rows = self.epoch_t, self.rows
+        self.epoch_t, self.rows = None, []
+        if not rows:
+            return
+        self._advance(t)
+        z, sigma, i, j, comp = (np.array([r[k] for r in rows]) for k in range(5))
+        other = np.array([r[5] for r in rows], float)
+        dev = np.array([r[6] for r in rows], int)
+        comp = comp.astype(int)
+        rng = comp == 3
+        var = sigma ** 2
+        var[rng] = range_variances(self.uwb, sigma[rng], z[rng], antenna_delays=not self.device)
+        rows = ci.Rows(z=z, var=var, i=i.astype(int), j=j.astype(int), component=comp, other=other, dev=dev)
+        self.counts["epochs"] += 1
+        rows = self._rows(t, now, rows)
+        status = self.ins.update(rows, self.gate, int(self.p["iterations"]))
+        mine = rows.i < self.n  # the flown filters' rows (not their own-measurement copies')
+        self.counts["rejected_measurements"] += int((status[mine] == 0).sum())
+        self.counts["skipped_updates"] += int((status[mine] < 0).sum())
+
+
+class CoopInsDistributed(CoopIns):
+    description = "per-vehicle IMU error-state EKFs, GNSS + UWB anchors + neighbours' broadcasts over [network]; flies in the loop"
+    joint = False
+    # per vehicle i: the flown filter (index i) and the filter of its own measurements (IMU, GNSS,
+    # anchors; index n + i) whose state it broadcasts, propagated and updated together
+    copies = 2
+
+    def _network(self, context: Context) -> None:
+        net = self.p["network"]
+        self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
+                               self.n, context.rng)
+        n = self.n
+        self.heard_t = np.full((n, n), -np.inf)  # receiver, sender: time of the broadcast held
+        self.heard_s = np.zeros((n, n, 3))
+        self.heard_v = np.zeros((n, n, 3))
+        self.heard_cs = np.zeros((n, n, 3, 3))
+        self.heard_cv = np.zeros((n, n, 3, 3))
+
+    def health(self) -> dict[str, int]:
+        st = self.network.stats()
+        out = {**self.counts, **{k: int(st[k]) for k in ("sent", "delivered", "dropped", "bytes_sent")}}
+        for k in ("latency_p50_s", "latency_p95_s"):  # as integer microseconds (health counts are integers)
+            if np.isfinite(st[k]):
+                out[k.replace("_s", "_us")] = int(round(st[k] * 1e6))
+        return out
+
+    def _rows(self, t: float, now: float, rows: ci.Rows) -> ci.Rows:
+        """Broadcast every started vehicle's own-measurement antenna state at t, receive what has
+        arrived by `now`, and make the epoch's rows (module docstring): the fixes and anchor ranges
+        for both filters of their vehicle, each range between vehicles for both ends' flown
+        filters, the other end's broadcast as a known point."""
+        ins, net, n = self.ins, self.network, self.n
+        ins.fold()
+        s_all, dS = ins.antennas()
+        own = slice(n, 2 * n)
+        D = ins.blocks()[own]
+        # covariance of the antenna: ds = dp + dS dtheta
+        A = np.concatenate([np.tile(np.eye(3), (n, 1, 1)), dS[own]], axis=2)  # (n, 3, 6)
+        idx = np.r_[0:3, 6:9]
+        Cs = A @ D[:, idx][:, :, idx] @ np.swapaxes(A, 1, 2)
+        Cv = D[:, ci.V_, ci.V_]
+        s, v = s_all[own], ins.v[own]
+        net.set_geometry(t, s)
+        for k in np.flatnonzero(ins.active[own]).tolist():
+            net.broadcast(t, k, BROADCAST_BYTES, (t, s[k].copy(), v[k].copy(), Cs[k].copy(), Cv[k].copy()))
+        for r in range(n):
+            for msg in net.receive(now, r):
+                tb, sb, vb, cs, cv = msg.payload
+                if tb >= self.heard_t[r, msg.src]:
+                    self.heard_t[r, msg.src] = tb
+                    self.heard_s[r, msg.src], self.heard_v[r, msg.src] = sb, vb
+                    self.heard_cs[r, msg.src], self.heard_cv[r, msg.src] = cs, cv
+        pair = rows.j >= 0
+        mine = rows.subset(~pair)
+        parts = [mine, ci.Rows(z=mine.z, var=mine.var, i=mine.i + n, j=mine.j, component=mine.component,
+                               other=mine.other, dev=mine.dev)]
+        ranged = rows.subset(pair)
+        for me, you in ((ranged.i, ranged.j), (ranged.j, ranged.i)):
+            age = t - self.heard_t[me, you]
+            ok = age <= self.p["stale_s"]
+            self.counts["stale_ranges"] += int((~ok).sum())
+            me, you, age = me[ok], you[ok], age[ok]
+            point = self.heard_s[me, you] + self.heard_v[me, you] * age[:, None]
+            cov = self.heard_cs[me, you] + age[:, None, None] ** 2 * self.heard_cv[me, you]
+            u = s_all[me] - point  # the range's direction from the flown filter's antenna
+            u /= np.maximum(np.linalg.norm(u, axis=1), 1e-9)[:, None]
+            var = ranged.var[ok] + float(self.p["peer_inflation"]) * np.einsum("mi,mij,mj->m", u, cov, u)
+            parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
+                                 other=point, dev=ranged.dev[ok]))
+        return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})

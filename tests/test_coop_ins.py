@@ -1,0 +1,127 @@
+"""The swarm's IMU error-state EKFs (estimators.coop_ins) and their plugins coop.ins /
+coop.ins_distributed (testbed.plugins.builtin_coop_ins)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimators import coop_ins as ci
+from estimators.eskf import ImuNoise
+from estimators.so3 import quat_exp
+
+NOISE = ImuNoise(2e-3, 2e-4, 1e-4, 1e-5)
+
+
+def _swarm(joint: bool, n: int = 3, devices: int = 0, seed: int = 0) -> ci.SwarmIns:
+    rng = np.random.default_rng(seed)
+    s = ci.SwarmIns(n, rng.normal(0, 0.1, (n, 3)), NOISE, joint=joint, devices=devices, delay_var=0.03 ** 2)
+    for i in range(n):
+        P0 = np.diag(rng.uniform(0.01, 1.0, ci.N_ERR))
+        s.start(i, rng.normal(0, 10, 3), quat_exp(rng.normal(0, 0.2, 3)), rng.normal(0, 0.01, 3),
+                rng.normal(0, 1e-3, 3), P0)
+    s.t = 0.0
+    return s
+
+
+def _rows(s: ci.SwarmIns, pairs: bool, anchors: np.ndarray, rng, devices: bool = False) -> ci.Rows:
+    """Rows near the swarm's own antennas (GNSS 2 m, ranges 0.1 m of noise): a fix for every
+    vehicle, a range to each anchor, and (pairs) a range between each pair."""
+    n, ant = s.n, s.antennas()[0]
+    z, var, i, j, comp, other, dev = [], [], [], [], [], [], []
+    nan3 = np.full(3, np.nan)
+    for v in range(n):
+        for c in range(3):
+            z.append(ant[v, c] + rng.normal(0, 2)), var.append(4.0), i.append(v), j.append(-1), comp.append(c)
+            other.append(nan3), dev.append((-1, -1))
+        for k, a in enumerate(anchors):
+            z.append(np.linalg.norm(ant[v] - a) + rng.normal(0, 0.1)), var.append(0.01), i.append(v), j.append(-1)
+            comp.append(3), other.append(a), dev.append((v, n + k) if devices else (-1, -1))
+    if pairs:
+        for v in range(n):
+            for w in range(v + 1, n):
+                z.append(np.linalg.norm(ant[v] - ant[w]) + rng.normal(0, 0.1)), var.append(0.01), i.append(v), j.append(w)
+                comp.append(3), other.append(nan3), dev.append((v, w) if devices else (-1, -1))
+    return ci.Rows(z=np.array(z), var=np.array(var), i=np.array(i), j=np.array(j), component=np.array(comp),
+                   other=np.array(other, float), dev=np.array(dev, int))
+
+
+@pytest.mark.parametrize("joint", [True, False])
+def test_jacobians_match_finite_differences(joint):
+    """H of every row (GNSS, anchor range, range between vehicles (centralized), antenna delays)
+    against central differences of h under x (+) dx, each error state in turn."""
+    n, A = 3, 2
+    rng = np.random.default_rng(1)
+    s = _swarm(joint, n, devices=n + A)
+    s.c = rng.normal(0, 0.05, s.c.shape)
+    rows = _rows(s, joint, rng.normal(0, 20, (A, 3)), rng, devices=True)
+    h, Hi, Hj = s._linearize(rows)
+    H = s._dense(rows, Hi, Hj) if joint else s._local(rows, Hi)
+    x0 = (s.p, s.v, s.q, s.ba, s.bg, s.c)
+    eps = 1e-6
+    E = ci.N_ERR + (0 if joint else s.D)
+    cols = n * ci.N_ERR + s.D if joint else E
+    for col in range(cols):
+        num = np.zeros(rows.z.size)
+        for sign in (1, -1):
+            if joint:
+                dx = np.zeros(cols)
+                dx[col] = sign * eps
+                d = (dx[:n * ci.N_ERR].reshape(n, ci.N_ERR), dx[n * ci.N_ERR:])
+            else:
+                dx = np.zeros((n, E))
+                dx[:, col] = sign * eps  # every vehicle's filter at once: each row sees its own
+                d = (dx[:, :ci.N_ERR], dx[:, ci.N_ERR:])
+            s._inject(d)
+            num += sign * s._linearize(rows)[0]
+            s.p, s.v, s.q, s.ba, s.bg, s.c = x0
+        np.testing.assert_allclose(H[:, col], num / (2 * eps), atol=1e-6)
+
+
+def test_distributed_equals_centralized_without_shared_states():
+    """With no range between vehicles and no antenna-delay states (the centralized filter shares
+    an anchor's delay among the vehicles, the distributed one keeps a copy per vehicle) the joint
+    covariance stays block-diagonal: the two filters are the same filter (estimates and
+    covariances to round-off), over propagation and updates."""
+    rng = np.random.default_rng(2)
+    a, b = _swarm(True), _swarm(False)
+    anchors = rng.normal(0, 20, (2, 3))
+    for step in range(20):
+        f, w = rng.normal([0, 0, 9.81], 0.5, (3, 3)), rng.normal(0, 0.1, (3, 3))
+        for s in (a, b):
+            s.propagate(f, w, 0.01)
+        if step % 5 == 4:
+            rows = _rows(a, False, anchors, np.random.default_rng(step))
+            sa, sb = a.update(rows, np.inf, 3), b.update(rows, np.inf, 3)
+            assert (sa == sb).all() and (sa == 1).all()
+    np.testing.assert_allclose(a.p, b.p, atol=1e-9)
+    np.testing.assert_allclose(a.q, b.q, atol=1e-12)
+    np.testing.assert_allclose(a.marginals(), b.marginals(), atol=1e-12)
+
+
+def test_gnss_update_is_the_kalman_update():
+    """A GNSS fix with the lever arm zero is linear: one iteration or three, the update is
+    P H^T (H P H^T + R)^-1 r, and P - P H^T S^-1 H P."""
+    s = _swarm(True, n=2)
+    s.lever[:] = 0.0
+    P, p0 = s.P.copy(), s.p.copy()
+    rows = ci.Rows(z=np.array([1.0, 2.0, 3.0]), var=np.full(3, 0.5), i=np.array([1, 1, 1]), j=np.full(3, -1),
+                   component=np.arange(3), other=np.full((3, 3), np.nan), dev=np.full((3, 2), -1))
+    s.update(rows, np.inf, 3)
+    H = np.zeros((3, P.shape[0]))
+    H[:, 15:18] = np.eye(3)
+    S = H @ P @ H.T + 0.5 * np.eye(3)
+    K = P @ H.T @ np.linalg.inv(S)
+    dx = K @ (rows.z - p0[1])
+    np.testing.assert_allclose(s.p[1], p0[1] + dx[15:18], atol=1e-12)
+    np.testing.assert_allclose(s.P[15:18, 15:18], (P - K @ S @ K.T)[15:18, 15:18], atol=1e-12)
+
+
+def test_gate_rejects_an_outlier_range_not_a_fix():
+    """A range 100 sigma off its prediction is rejected (status 0); a GNSS fix as far off is used."""
+    s = _swarm(True, n=1)
+    a = np.array([[30.0, 0.0, 0.0]])
+    r = float(np.linalg.norm(s.antennas()[0][0] - a[0]))
+    rows = ci.Rows(z=np.array([r + 100.0, 500.0]), var=np.array([0.01, 1.0]), i=np.array([0, 0]), j=np.array([-1, -1]),
+                   component=np.array([3, 0]), other=np.array([a[0], [np.nan] * 3]), dev=np.full((2, 2), -1))
+    status = s.update(rows, 10.83, 1)
+    assert status.tolist() == [0, 1]
