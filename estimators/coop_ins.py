@@ -117,6 +117,7 @@ class SwarmIns:
         q[V_], q[TH] = noise.accel_density ** 2, noise.gyro_density ** 2
         q[BA], q[BG] = noise.accel_walk ** 2, noise.gyro_walk ** 2
         self._q_rate = q  # (15,) per second
+        self._F0 = np.tile(np.eye(N_ERR), (n, 1, 1))
 
     # ------------------------------------------------------------------ start
     def start(self, i: int, p: np.ndarray, q: np.ndarray, ba: np.ndarray, bg: np.ndarray, P0: np.ndarray) -> None:
@@ -152,7 +153,7 @@ class SwarmIns:
         qn = quat_mul(self.q, dq)
         self.q = np.where(a_[:, None], qn / np.linalg.norm(qn, axis=1, keepdims=True), self.q)
         RF = R @ skew(fc)
-        F = np.tile(np.eye(N_ERR), (self.n, 1, 1))
+        F = self._F0.copy()
         F[:, P_, V_] = np.eye(3) * dt
         F[:, P_, TH] = -0.5 * dt * dt * RF
         F[:, P_, BA] = -0.5 * dt * dt * R

@@ -386,6 +386,31 @@ def test_the_covariance_check_agrees_with_eigenvalues():
     assert cov_problem(np.diag([1.0, 1.0, 1e-12]).tolist()) is None
 
 
+def test_covariances_are_checked_together_and_the_first_bad_one_is_named():
+    """The batched check (collect.cov_problems) gives each covariance's own answer, and the
+    collector, which checks them when the track is built, names the first bad one in arrival
+    order with when it was returned."""
+    from testbed.plugins.collect import Collector, cov_problem, cov_problems
+    from testbed.plugins.api import Estimate
+
+    rng = np.random.default_rng(4)
+    C = np.stack([A @ A.T - rng.uniform(0.0, 2.0) * np.eye(3) for A in rng.normal(size=(500, 3, 3))])
+    C[7, 0, 1] += 1.0
+    C[9, 2, 2] = np.inf
+    C[11] = np.diag([1.0, 1.0, 1e-20])
+    assert cov_problems(C) == [cov_problem(c) for c in C]
+
+    class P:
+        key, entry = "x", "x"
+    col = Collector(P(), {"uav1", "uav2"}, 10.0)
+    col.add([Estimate(time=1.0, target="uav1", quantity="position", value=np.zeros(3), cov=np.eye(3))], "at t = 1 s")
+    col.add([Estimate(time=2.0, target="uav2", quantity="velocity", value=np.zeros(3), cov=-np.eye(3))], "at t = 2 s")
+    col.add([Estimate(time=3.0, target="uav1", quantity="position", value=np.zeros(3), cov=np.full((3, 3), np.nan))],
+            "at t = 3 s")
+    with pytest.raises(PluginError, match=r"at t = 2 s: estimate of uav2 velocity: cov is not positive definite"):
+        col.track()
+
+
 def test_diagnostics_are_collected_when_asked_and_checked():
     """run_plugin fills a given dict from an estimator's diagnostics(); ragged or non-finite columns
     are one PluginError naming the estimator; a batch goes row by row to an estimator without

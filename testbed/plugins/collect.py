@@ -5,6 +5,10 @@ known quantity, frame "world" or a vehicle body (the same for every estimate of 
 quantity), a finite time within the run, a finite value of the right shape
 (attitude: a unit quaternion to 1e-6, renormalized) and, if given, a finite symmetric positive
 definite (3, 3) covariance. Anything else is a PluginError naming the estimator, when and what.
+Every check but the covariance's is made as the estimate arrives; the covariances (the costly
+check, tens of microseconds per estimate one at a time) are checked together, all at once, when
+the track is built (`Collector.track`, at the end of the run), and the first bad one in arrival
+order is reported with the same message, naming when it was returned.
 """
 from __future__ import annotations
 
@@ -43,9 +47,12 @@ class Collector:
         self.plugin, self.targets, self.duration, self.frames = plugin, targets, duration, frames
         self._rows: dict[tuple[str, str], list[tuple[float, np.ndarray, np.ndarray | None]]] = {}
         self._frame: dict[tuple[str, str], str] = {}
+        # per (target, quantity): (arrival number, where) of each estimate with a covariance
+        self._covs: dict[tuple[str, str], list[tuple[int, str]]] = {}
+        self._seq = 0
 
     def _fail(self, where: str, e: object, reason: str) -> PluginError:
-        what = f"{e.target} {e.quantity}" if isinstance(e, Estimate) else type(e).__name__
+        what = f"{e[0]} {e[1]}" if isinstance(e, tuple) else f"{e.target} {e.quantity}" if isinstance(e, Estimate) else type(e).__name__
         return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: estimate of {what}: {reason}")
 
     def add(self, estimates: list, where: str) -> None:
@@ -72,7 +79,7 @@ class Collector:
         d = VALUE_SIZE[e.quantity]
         if value.shape != (d,):
             raise self._fail(where, e, f"value has shape {value.shape}, expected ({d},)")
-        if not np.all(np.isfinite(value)):
+        if not all(map(math.isfinite, value.tolist())):  # plain floats: this runs per estimate
             raise self._fail(where, e, f"value is not finite: {value.tolist()}")
         if e.quantity == "attitude":
             norm = float(np.linalg.norm(value))
@@ -84,12 +91,27 @@ class Collector:
             cov = np.asarray(e.cov, dtype=float)
             if cov.shape != (3, 3):
                 raise self._fail(where, e, f"cov has shape {cov.shape}, expected (3, 3)")
-            reason = cov_problem(cov.tolist())
-            if reason:
-                raise self._fail(where, e, reason)
+            self._covs.setdefault((e.target, e.quantity), []).append((self._seq, where))
+        self._seq += 1
         self._rows.setdefault((e.target, e.quantity), []).append((t, value, cov))
 
+    def _check_covs(self) -> None:
+        """The covariance check of every estimate (module docstring): the first bad one in
+        arrival order raises."""
+        first = None
+        for key, rows in self._rows.items():
+            checks = self._covs.get(key)
+            if not checks:
+                continue
+            reasons = cov_problems(np.stack([c for _, _, c in rows if c is not None]))
+            bad = [k for k, r in enumerate(reasons) if r is not None]
+            if bad and (first is None or checks[bad[0]][0] < first[0]):
+                first = (checks[bad[0]][0], checks[bad[0]][1], key, reasons[bad[0]])
+        if first is not None:
+            raise self._fail(first[1], first[2], first[3])
+
     def track(self) -> Track:
+        self._check_covs()
         out = {}
         for key, rows in sorted(self._rows.items(), key=lambda kv: natural(kv[0][0]) + [kv[0][1]]):
             order = sorted(range(len(rows)), key=lambda i: rows[i][0])  # stable: ties keep arrival order
@@ -104,32 +126,37 @@ class Collector:
 SINGULAR = 1e-14  # relative Cholesky pivot below which a covariance is singular to double precision
 
 
-def cov_problem(c: list) -> str | None:
-    """Why a (3, 3) covariance (nested lists) is not finite, symmetric (to 1e-9 relative, as
+def cov_problems(C: np.ndarray) -> list[str | None]:
+    """Why each of K (3, 3) covariances C (K, 3, 3) is not finite, symmetric (to 1e-9 relative, as
     numpy.allclose(c, c.T, rtol=1e-9, atol=1e-12 max(1, max |c|))) and positive definite with a
     condition a NEES can be computed at (Cholesky pivots of the symmetric part > SINGULAR times its
-    largest diagonal entry); None if it is. Plain floats: this runs per estimate."""
-    flat = [x for row in c for x in row]
-    if not all(math.isfinite(x) for x in flat):
-        return "cov is not finite"
-    atol = 1e-12 * max(1.0, max(abs(x) for x in flat))
-    if any(abs(c[i][j] - c[j][i]) > atol + 1e-9 * abs(c[j][i]) for i in range(3) for j in range(3) if i != j):
-        return "cov is not symmetric"
-    a, b, d = c[0][0], 0.5 * (c[0][1] + c[1][0]), 0.5 * (c[0][2] + c[2][0])
-    e, f, g = c[1][1], 0.5 * (c[1][2] + c[2][1]), c[2][2]
+    largest diagonal entry); None where it is. All at once (numpy over K)."""
+    C = np.asarray(C, float).reshape(-1, 3, 3)
+    finite = np.isfinite(C).all(axis=(1, 2))
+    c = np.where(finite[:, None, None], C, 1.0)
+    ct = np.swapaxes(c, 1, 2)
+    atol = 1e-12 * np.maximum(1.0, np.abs(c).max(axis=(1, 2)))
+    symmetric = ~(np.abs(c - ct) > atol[:, None, None] + 1e-9 * np.abs(ct)).any(axis=(1, 2))
+    a, b, d = c[:, 0, 0], 0.5 * (c[:, 0, 1] + c[:, 1, 0]), 0.5 * (c[:, 0, 2] + c[:, 2, 0])
+    e, f, g = c[:, 1, 1], 0.5 * (c[:, 1, 2] + c[:, 2, 1]), c[:, 2, 2]
     # Cholesky of [[a, b, d], [b, e, f], [d, f, g]]: pivots a, e - b^2/a, g - d^2/a - (f - b d/a)^2 / p2
-    if not a > 0.0:
-        return "cov is not positive definite"
-    p2 = e - b * b / a
-    if not p2 > 0.0:
-        return "cov is not positive definite"
-    h = f - b * d / a
-    p3 = g - d * d / a - h * h / p2
-    if not p3 > 0.0:
-        return "cov is not positive definite"
-    if min(a, p2, p3) <= SINGULAR * max(a, e, g):
-        return f"cov is numerically singular (a Cholesky pivot below {SINGULAR:g} of the largest variance)"
-    return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p2 = e - b * b / a
+        h = f - b * d / a
+        p3 = g - d * d / a - h * h / p2
+    pd = (a > 0.0) & (p2 > 0.0) & (p3 > 0.0)
+    singular = np.minimum(np.minimum(a, p2), p3) <= SINGULAR * np.maximum(np.maximum(a, e), g)
+    out: list[str | None] = [None] * len(C)
+    for k in np.flatnonzero(~finite | ~symmetric | ~pd | singular).tolist():
+        out[k] = ("cov is not finite" if not finite[k] else "cov is not symmetric" if not symmetric[k]
+                  else "cov is not positive definite" if not pd[k]
+                  else f"cov is numerically singular (a Cholesky pivot below {SINGULAR:g} of the largest variance)")
+    return out
+
+
+def cov_problem(c) -> str | None:
+    """cov_problems of one (3, 3) covariance c (array or nested lists)."""
+    return cov_problems(np.asarray(c, float)[None])[0]
 
 
 
