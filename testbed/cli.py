@@ -197,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=_int_in(16, 4320, even=True), default=540, help="pixels, even, 16..4320")
     p.add_argument("--fps", type=_int_in(1, 240), default=30, help="frames per second, 1..240")
     p.add_argument("--speed", type=_float_in(0, 1e4), default=1.0, help="playback speed, x real time, in (0, 1e4]")
-    p.add_argument("--max-seconds", type=_float_in(0, 1e9), help="render at most this much simulated time (s, > 0)")
+    p.add_argument("--max-seconds", type=_float_in(0, 1e9), help="cap on the video length (s of video, > 0; simulated time = this x --speed)")
     p.add_argument("--shadow-size", type=_int_in(0, 16384), default=1024, help="shadow map size, 0..16384 (smaller is faster on llvmpipe)")
     p.add_argument("--samples", type=_int_in(0, 16), default=0, help="multisampling, 0..16 (0 is fastest on llvmpipe)")
 
