@@ -221,7 +221,7 @@ def write_markdown(path: Path, lines: Iterable[str]) -> Path:
 
 
 def _bad(x: float) -> str | None:
-    return None if math.isfinite(x) else (NAN_REASON if math.isnan(x) else f"{x} (diverged or unbounded)")
+    return None if math.isfinite(x) else (NAN_REASON if math.isnan(x) else f"{x} (no finite value: the open end of a one-sided interval, or a quantity that diverged)")
 
 
 def _plain(v: object) -> tuple[object, str | None]:
