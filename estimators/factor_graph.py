@@ -113,9 +113,13 @@ class CoopProblem:
         or clock offset) correlate ranges of the same epoch; its diagonal must be range_sigma^2.
         Used by the least-squares path of solve_centralized (whitening by its Cholesky factor);
         the distributed scheme treats ranges as independent (range_sigma), and robust losses,
-        fixed nodes and missing priors refuse it (ValueError). Dense: O(m^3) per whitening, meant
-        for one epoch of seed 001 (tens to hundreds of links); a swarm of thousands of links would
-        carry the per-device terms as nuisance variables instead (not implemented).
+        fixed nodes and missing priors refuse it (ValueError; also if it is not positive definite).
+        Dense: O(m^3) once per problem, O(m^2) per whitening, meant for one epoch of seed 001 (tens
+        to hundreds of links); a swarm of thousands of links would carry the per-device terms as
+        nuisance variables instead (not implemented).
+    range_chol: (m, m) m, computed (not an argument): the lower Cholesky factor L of range_cov =
+        L L^T, factored once here rather than at every cost evaluation of the solver; None if
+        range_cov is None.
     """
 
     gnss_pos: np.ndarray
@@ -126,6 +130,7 @@ class CoopProblem:
     prior: np.ndarray | None = None
     fixed: np.ndarray | None = None
     range_cov: np.ndarray | None = None
+    range_chol: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         z = np.asarray(self.gnss_pos, dtype=float)
@@ -166,6 +171,10 @@ class CoopProblem:
             if not np.allclose(np.sqrt(np.diagonal(C)), s, rtol=1e-9, atol=0.0):
                 raise ValueError("CoopProblem: the diagonal of range_cov must be range_sigma^2")
             object.__setattr__(self, "range_cov", C)
+            try:
+                object.__setattr__(self, "range_chol", np.linalg.cholesky(C))
+            except np.linalg.LinAlgError:
+                raise ValueError("CoopProblem: range_cov is not positive definite") from None
 
     @property
     def n(self) -> int:
@@ -252,14 +261,6 @@ def _gnss_sqrt_info(cov: np.ndarray) -> np.ndarray:
     return np.linalg.inv(L)
 
 
-def _range_whitener(problem: CoopProblem) -> np.ndarray:
-    """Lower Cholesky factor L (m, m) m of problem.range_cov = L L^T (ValueError if not SPD)."""
-    try:
-        return np.linalg.cholesky(problem.range_cov)
-    except np.linalg.LinAlgError:
-        raise ValueError("CoopProblem: range_cov is not positive definite") from None
-
-
 def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whitened range residuals r (m,) and unit vectors u_k (m, 3): r_k = (d_k - |p_i - p_j|)/sigma_k,
     or with range_cov = L L^T, r = L^{-1} (d - |p_i - p_j|) (correlated ranges)."""
@@ -268,7 +269,7 @@ def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, n
     res = problem.ranges - range_h(X[i], X[j])
     if problem.range_cov is None:
         return res / problem.range_sigma, u
-    return linalg.solve_triangular(_range_whitener(problem), res, lower=True), u
+    return linalg.solve_triangular(problem.range_chol, res, lower=True), u
 
 
 #: factor types of the seed 001 graph, the keys of a `losses` mapping
@@ -389,7 +390,7 @@ def whitened_system(
         shape=(3 * n + m, 3 * n),
     )
     if correlated:  # range rows L^{-1} J: dense (m, 3n), the links of one radio share information
-        A_r = linalg.solve_triangular(_range_whitener(problem), A[3 * n:].toarray(), lower=True)
+        A_r = linalg.solve_triangular(problem.range_chol, A[3 * n:].toarray(), lower=True)
         A = sparse.vstack([A[:3 * n], sparse.csr_matrix(A_r)], format="csr")
     b = np.concatenate([bg, sw * r])
     return A, b
