@@ -77,18 +77,27 @@ def test_synthetic_epoch_is_connected_and_in_box():
 
 
 # ----------------------------------------------------------------------------------- centralized
+def _never_rises(history) -> bool:
+    """The cost never rises, except by round-off (1e-13 relative) on the steps whose predicted
+    decrease is below the cost's round-off, which the solver takes whole (measured rises <= 1.2e-14)."""
+    return all(b <= a * (1.0 + 1e-13) for a, b in zip(history, history[1:]))
+
+
 @pytest.mark.parametrize("optimizer", ["gn", "lm"])
 def test_centralized_equals_gtsam(optimizer):
     ep = make_epoch(18, seed=1)
     p = ep.problem
     ours = solve_centralized(p)
     assert ours.converged
-    assert all(b <= a for a, b in zip(ours.history, ours.history[1:])), "cost increased"
+    assert _never_rises(ours.history), "cost increased"
     Xg, Pg = gtsam_reference.solve_gtsam(p, optimizer=optimizer)
-    # measured: 3e-8 m and 1e-8 relative (GN on both sides)
-    np.testing.assert_allclose(ours.positions, Xg, rtol=0, atol=1e-6)
+    # GN: both sides at the optimum, measured 6e-14 m and 3e-14 relative. GTSAM's LM accepts a step
+    # only if the evaluated cost decreases and stalls at the cost's round-off: measured 2.2e-7 m and
+    # 8e-8 relative, the bounds of the LM case are loose for that reason
+    atol, rtol = (1e-8, 1e-9) if optimizer == "gn" else (1e-6, 1e-6)
+    np.testing.assert_allclose(ours.positions, Xg, rtol=0, atol=atol)
     scale = np.abs(Pg).max(axis=(1, 2))[:, None, None]
-    assert np.all(np.abs(ours.cov - Pg) <= 1e-6 * scale)
+    assert np.all(np.abs(ours.cov - Pg) <= rtol * scale)
     assert all(is_spd(c) for c in ours.cov)
 
 
@@ -118,7 +127,7 @@ def test_centralized_step_control_from_a_bad_start():
     p = ep.problem
     x0 = p.gnss_pos + np.random.default_rng(5).normal(0, 30.0, p.gnss_pos.shape)
     res = solve_centralized(p, x0=x0, covariance="none")
-    assert all(b <= a for a, b in zip(res.history, res.history[1:]))
+    assert _never_rises(res.history)
     ref = solve_centralized(p, covariance="none")
     if res.converged:  # a far start may end in another local minimum, but never with a cost rise
         assert res.cost >= ref.cost - 1e-6 * ref.cost or np.allclose(res.positions, ref.positions, atol=1e-6)
@@ -279,7 +288,7 @@ def test_huber_reduces_error_under_nlos_bias():
         ls = solve_centralized(p, covariance="none")
         hb = solve_centralized(p, huber=HUBER_DELTA, covariance="none")
         assert hb.converged
-        assert all(b <= a for a, b in zip(hb.history, hb.history[1:]))
+        assert _never_rises(hb.history)
         ends = list(p.edges[k])
         wins += _rmse(hb.positions, ep.truth, ends) < _rmse(ls.positions, ep.truth, ends)
     assert wins >= _sign_test_min(K)

@@ -65,6 +65,12 @@ ALPHA_RANK = 0.05
 CAP_EPOCHS = 60
 CAP_LARGE = 5000
 NLOS_DURATION = 60.0
+#: issue #15: our centralized optimum vs GTSAM's Gauss-Newton on every epoch (both reach ~1e-11 m of it)
+GTSAM_POS_TOL_M = 1e-8
+#: relative to each UAV's largest marginal entry: above the round-off of inverting A^T A
+#: (cond(A^T A) eps <= 1.9e4 * 2.2e-16 = 4e-12; measured <= 2e-13) and above what the 1e-8 m position
+#: tolerance can move the Jacobian (1e-8 m / 22 m, the shortest range of seed 1 in 300 s: 5e-10)
+GTSAM_COV_RTOL = 1e-9
 # Three pillars (radius 8 m, 0-120 m tall) between the UAVs, >= 20 m from every base point
 # horizontally (>= 3.5 m clear of every UAV's oscillation); they block ~15 of the 70 links.
 NLOS_OBSTACLES = (
@@ -103,25 +109,37 @@ def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
 def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
     """Centralized solution and marginals vs GTSAM on every epoch of a run, on the graph with
     independent ranges (range_sigmas; GTSAM's range factors are independent): the solver check. The
-    scored centralized estimate also whitens the ranges jointly (coop.range_covariance)."""
+    scored centralized estimate also whitens the ranges jointly (coop.range_covariance).
+
+    Both sides stop on the step, not on the cost (ours: solve_centralized's defaults; GTSAM:
+    Gauss-Newton with QR, driven to a step below 1e-10 m, estimators.gtsam_reference.solve_gtsam),
+    so both reach the optimum to ~1e-11 m and GTSAM_POS_TOL_M = 1e-8 m tests it with margin.
+    GTSAM's Levenberg-Marquardt is reported, not judged: it accepts a step only if the evaluated
+    cost decreases, and the cost's round-off (~3e-14 relative) stalls it up to ~8e-7 m short of the
+    optimum on these epochs."""
     # lazy: GTSAM is a heavy optional dependency, loaded only for this check
     from estimators.gtsam_reference import solve_gtsam
 
     Sg = coop.gnss_covariances(cfg, ep.is_rtk)
-    dpos, dcov, dlm = 0.0, 0.0, 0.0
+    dpos = np.zeros(ep.time.size)
+    dcov, dlm = 0.0, 0.0
     for k in range(ep.time.size):
         d = ep.ranges[k]
         prob = CoopProblem(gnss_pos=ep.gnss[k], gnss_cov=Sg, edges=ep.edges[k], ranges=d, range_sigma=coop.range_sigmas(cfg, d))
         ours = solve_centralized(prob)
         Xg, Pg = solve_gtsam(prob)
         Xl, _ = solve_gtsam(prob, optimizer="lm", marginals=False)
-        dpos = max(dpos, float(np.abs(ours.positions - Xg).max()))
+        dpos[k] = np.abs(ours.positions - Xg).max()
         dlm = max(dlm, float(np.abs(ours.positions - Xl).max()))
         scale = np.abs(Pg).max(axis=(1, 2))[:, None, None]
         dcov = max(dcov, float((np.abs(ours.cov - Pg) / scale).max()))
-    return {"epochs": int(ep.time.size), "max_position_diff_m": dpos, "max_cov_rel_diff": dcov,
-            "max_position_diff_vs_gtsam_lm_m": dlm,
-            "holds": bool(dpos < 1e-6 and dcov < 1e-6), "criterion": "< 1e-6 m and < 1e-6 relative"}
+    return {"epochs": int(ep.time.size), "max_position_diff_m": float(dpos.max(initial=0.0)),
+            "median_position_diff_m": float(np.median(dpos)) if dpos.size else 0.0,
+            "max_cov_rel_diff": dcov, "max_position_diff_vs_gtsam_lm_m": dlm,
+            "holds": bool(dpos.max(initial=0.0) <= GTSAM_POS_TOL_M and dcov <= GTSAM_COV_RTOL),
+            "criterion": f"every epoch: positions within {GTSAM_POS_TOL_M:g} m of GTSAM Gauss-Newton, marginal "
+                         f"covariances within {GTSAM_COV_RTOL:g} of each UAV's largest entry (GTSAM "
+                         "Levenberg-Marquardt reported only: its cost-based acceptance stalls at round-off)"}
 
 
 def _cap_effect(cfg, ep: coop.Epochs, seed: int, est: coop.CoopEstimates) -> dict:
