@@ -264,12 +264,16 @@ class SwarmIns:
             H[d, N_ERR + rows.dev[d, col]] += 1.0
         return H
 
-    def update(self, rows: Rows, gate: float, iterations: int = 1) -> np.ndarray:
+    def update(self, rows: Rows, gate: float, iterations: int = 1, huber: float | None = None) -> np.ndarray:
         """One update with the epoch's rows (module docstring); rows about inactive vehicles (or
         whose other vehicle is inactive, centralized) are skipped. iterations > 1: the iterated
         EKF (Gauss-Newton on the error state, relinearized at x (+) dx_i:
         dx_{i+1} = K_i (z - h(x_i) + H_i dx_i), K_i = P H_i^T (H_i P H_i^T + R)^-1), the covariance
-        from the last linearization. Returns (m,) int: 1 used, 0 rejected by the gate, -1 skipped."""
+        from the last linearization. huber: each range row's variance divided by the Huber weight
+        of its normalized innovation at the prior, nu = r / sqrt(S_kk): w = min(1, huber / |nu|)
+        (Huber 1964; the update is then the robust M-estimate's first reweighting: a long-tailed
+        range pulls less, but a prior that has gone wrong is still pulled back by every range, where
+        a gate would reject them all). Returns (m,) int: 1 used, 0 rejected by the gate, -1 skipped."""
         self.fold()
         m = rows.z.size
         status = np.full(m, -1)
@@ -291,6 +295,11 @@ class SwarmIns:
         status[k] = ok.astype(int)
         if not ok.any():
             return status
+        if huber is not None:
+            nu = np.abs(r) / np.sqrt(S_diag)
+            w = np.where(rows.component == 3, np.minimum(1.0, huber / np.maximum(nu, 1e-300)), 1.0)
+            rows = Rows(z=rows.z, var=rows.var / w, i=rows.i, j=rows.j, component=rows.component, other=rows.other,
+                        dev=rows.dev)
         rows = rows.subset(ok)
         x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
         step = self._joint_step if self.joint else self._local_step

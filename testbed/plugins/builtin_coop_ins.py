@@ -53,7 +53,7 @@ from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.builtin_eskf import _walk
 from testbed.plugins.builtin_window import range_variances
 
-DEFAULTS = dict(gate_prob=1e-3, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
+DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
                 network=None, stale_s=1.0, peer_inflation=8.0)
 ATTITUDE_EVERY = 10  # the attitude is output at every 10th output (the controller does not fly on it)
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
@@ -231,7 +231,7 @@ class CoopIns:
         rows = ci.Rows(z=z, var=var, i=i.astype(int), j=j.astype(int), component=comp, other=other, dev=dev)
         self.counts["epochs"] += 1
         rows = self._rows(t, now, rows)
-        status = self.ins.update(rows, self.gate, int(self.p["iterations"]))
+        status = self.ins.update(rows, self.gate, int(self.p["iterations"]), float(self.p["huber"]) or None)
         mine = rows.i < self.n  # the flown filters' rows (not their own-measurement copies')
         self.counts["rejected_measurements"] += int((status[mine] == 0).sum())
         self.counts["skipped_updates"] += int((status[mine] < 0).sum())
