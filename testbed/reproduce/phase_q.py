@@ -71,7 +71,7 @@ DOF = 6  # body position and velocity: the `anees` of testbed.pipelines.phase; a
 RULE_NEES = {"q": ("nees_body6_final", DOF), "q_rotation": ("nees_attitude6_final", 6)}
 #: the scores of one (seed, q, q_rotation) kept by the sweep (testbed.pipelines.phase.score)
 KEPT = ("nees_body6_final", "nees_attitude6_final", "nees_final", "anees", "rmse_position_m",
-        "pcrb_rmse_position_m", "rmse_attitude_deg")
+        "pcrb_rmse_position_m", "rmse_attitude_deg", "gate_rejected_rows")
 
 
 def simulate_seeds(name: str, seeds=CALIBRATION_SEEDS, *, duration: float | None = CALIBRATION_HORIZON_S,
