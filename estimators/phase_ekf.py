@@ -44,8 +44,9 @@ The 9 x 9 acceleration density of the stacked antennas is then
     S_ij = q_t I3 + q_r [rho_i]x [rho_j]x^T   (+ q I3 if i = j, the independent term above),
 and Q = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]], with rho from the state the prediction starts
 from. This is exactly the motion of a scenario's [disturbance] (testbed.disturbance) on a body
-whose attitude changes slowly over dt; the independent term q keeps covering the deterministic
-attitude-driven accelerations of eq. 31. A rigid body has no random motion in the 6 directions
+whose attitude changes slowly over dt. At the small q the built-in scenarios use, the independent
+term no longer covers the deterministic attitude-driven antenna accelerations of eq. 31; the
+rotational term does, and the scenarios set it by the rule's stage 2 (testbed/reproduce/phase_q.py). A rigid body has no random motion in the 6 directions
 that stretch the antenna triangle (3 lengths and their rates), so on any rigid body's motion the 18-state
 NEES is not chi-square there; the body position and velocity (6 dof) have no such deficit.
 Measured (tests/test_phase_scenario.py, phase-cross-h000 with the follower's [disturbance] =

@@ -68,6 +68,9 @@ class PhasePipelineConfig(_PipelineConfig):
     q_translation (m^2/s^3), q_rotation (rad^2/s^3): rigid-body white accelerations of the
       follower, common to its antennas (estimators.phase_ekf.ProcessNoise); 0 = the paper's Q.
       A scenario with a [disturbance] on the follower states its densities here (model-matched).
+      The built-in phase scenarios' q_rotation is the rule's stage 2 (testbed.reproduce.phase_q:
+      with q fixed, the grid value whose final attitude ANEES at 20 s on the same calibration
+      seeds is closest to 6); it applies in both motion modes.
     sigma_range: filter range noise, 1 sigma (m); rate rows, if on, get sqrt(2) sigma_range / W.
     rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already
       used, docs/models.md) | "window" | "instantaneous" (testbed.pipelines.phase).

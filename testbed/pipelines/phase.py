@@ -48,7 +48,10 @@ score exists only when the run covers its window (t_last - t_first >= W): on a s
 omitted (`last_window_s` and `last_window_omitted_reason` say so), never computed over a shorter
 span under the longer name (`window_keys` gives the names for a W); anees: mean over t >= score_start of the NEES
 of the body position and velocity (6 dof, linear in the state, so its covariance is exact);
-anees_state18: the same for the 18-state; pcrb_rmse_position_m: sqrt of the mean over the same
+anees_state18: the same for the 18-state; nees_final, nees_body6_final, nees_attitude6_final: the
+final epoch's NEES of the 18-state, of the body position and velocity (6 dof) and of the attitude
+and its rates (yaw, pitch, roll and their rates, 6 dof, eq. 30 linearized: `attitude_nees`);
+pcrb_rmse_position_m: sqrt of the mean over the same
 epochs of trace(body-position block of the PCRB) along the true trajectory (Tichavsky 1998, same
 measurement model, same rows, same q and P0 as the filter); gate statistics; the driver's health
 counts (core.Track.health: covariance_repairs, rejected_measurements, nonconverged_steps).
@@ -265,6 +268,17 @@ BODY_PV[:3] = BODY_POS
 BODY_PV[3:, 12:15] = BODY_PV[3:, 15:18] = 0.5 * np.eye(3)
 
 
+def attitude_nees(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> float:
+    """NEES of the follower's attitude and attitude rates (yaw, pitch, roll and their rates, 6 dof)
+    at one epoch: x, x_true (18,) estimated and true antenna states in N, P (18, 18) the filter's
+    covariance. Eq. 30 from the antennas (phase_model.body_from_antennas), covariance J P J^T
+    linearized at the estimate, angle errors wrapped to [-pi, pi)."""
+    (y, J), (y_true, _) = body_from_antennas(x), body_from_antennas(x_true)
+    e = y[6:] - y_true[6:]
+    e[:3] = (e[:3] + np.pi) % (2 * np.pi) - np.pi
+    return float(nees(e, J[6:] @ P @ J[6:].T))
+
+
 def window_keys(window_s: float) -> dict[str, str]:
     """metrics.json names of the window scores over the last `window_s` seconds:
     {"rmse", "pcrb_rmse", "max_abs_position", "max_abs_velocity"} -> key (e.g. window 100:
@@ -309,6 +323,7 @@ def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true
         "anees_body6_actual_cov": float(np.mean(nees6_act[sc])),
         "nees_final": float(nees18[-1]),
         "nees_body6_final": float(nees6[-1]),
+        "nees_attitude6_final": attitude_nees(means[-1], covs[-1], states_true[-1]),
         "nees_body6_actual_cov_final": float(nees6_act[-1]),
         "pcrb_rmse_position_m": float(np.sqrt(np.mean(np.trace(Bp[sc], axis1=1, axis2=2)))),
         "pcrb_sigma_position_final_m": np.sqrt(np.diag(Bp[-1])).tolist(),

@@ -27,12 +27,12 @@ Claim criteria and tests (fixed before any result was looked at; testbed.stats; 
 - "about equal": TOST (two one-sided paired t tests on the per-run log ratios) at the margin
   EQUIV_MARGIN = 1.25 (ratio of RMSEs within [0.8, 1.25]), p < ALPHA.
 
-Process noise q: every scenario's pipeline.q is the value the stated rule of
-testbed.reproduce.phase_q picks on the calibration seeds 1000..1009 (disjoint from the evaluation
-seeds above). The reproduction re-runs that sweep (`calibrate`: min(runs, 10) calibration seeds,
+Process noise q: every scenario's pipeline.q and pipeline.q_rotation are the values the stated
+two-stage rule of testbed.reproduce.phase_q picks on the calibration seeds 1000..1009 (disjoint
+from the evaluation seeds above). The reproduction re-runs that rule (`calibrate`: min(runs, 10) calibration seeds,
 horizon phase_q.CALIBRATION_HORIZON_S or the shorter --duration; and phase-cross-h000 over the full
 duration), writes plots/q_sweep.png (ANEES, RMSE, max error and PCRB against q) and, in table.md and
-claims.json (`q_rule`), the rule's q beside the scenario's.
+claims.json (`q_rule`), the rule's q and q_rotation beside the scenario's.
 
 Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenario), `decide`
 (numbers -> claims), `write` (files through testbed.report); `reproduce` chains them.
@@ -257,32 +257,41 @@ def _rmse_vs_pcrb(R: dict[str, list[dict]], path: Path, runs: int) -> Path:
 LONG_SWEEP = "phase-cross-h000"  # the formation of the paper's tightest claim (+/-0.01 m)
 
 
-def calibrate(*, runs: int, motion: str, duration: float | None) -> tuple[dict[str, list[dict]], float, list[dict]]:
-    """The q sweep of testbed.reproduce.phase_q on every formation and, over the runs' full
-    duration, on LONG_SWEEP: ({scenario: sweep rows}, the horizon in s, the long rows). Seeds: the
-    first min(runs, 10) calibration seeds; horizon: the rule's, or the shorter --duration."""
+def calibrate(*, runs: int, motion: str, duration: float | None) -> tuple:
+    """Both stages of the rule of testbed.reproduce.phase_q on every formation and the q sweep over
+    the runs' full duration on LONG_SWEEP (at the scenario's q_rotation): ({scenario: stage-1
+    rows}, the horizon in s, the long rows, {scenario: stage-2 rows}). Seeds: the first
+    min(runs, 10) calibration seeds; horizon: the rule's, or the shorter --duration."""
     horizon = phase_q.CALIBRATION_HORIZON_S if duration is None else min(duration, phase_q.CALIBRATION_HORIZON_S)
     seeds = phase_q.CALIBRATION_SEEDS[:min(runs, len(phase_q.CALIBRATION_SEEDS))]
-    return ({name: phase_q.sweep(name, seeds, duration=horizon, motion=motion) for name in SCENARIOS}, horizon,
-            phase_q.sweep(LONG_SWEEP, seeds, duration=duration, motion=motion))
+    stages = {name: phase_q.calibrate(name, seeds, duration=horizon, motion=motion) for name in SCENARIOS}
+    return ({n: v[2] for n, v in stages.items()}, horizon,
+            phase_q.sweep(LONG_SWEEP, seeds, duration=duration, motion=motion), {n: v[3] for n, v in stages.items()})
 
 
-def _q_rule(cal: dict[str, list[dict]], motion: str) -> dict[str, dict]:
-    """Per scenario: the q it runs with, the rule's q on the calibration sweep, ANEES by q."""
+def _q_rule(cal: dict[str, list[dict]], rot: dict[str, list[dict]], motion: str) -> dict[str, dict]:
+    """Per scenario: the q and q_rotation it runs with, the rule's on the calibration sweeps, the
+    body ANEES by q (stage 1) and the attitude ANEES by q_rotation (stage 2)."""
     field = "q_flown" if motion == "flown" else "q"
-    return {name: {"q_scenario": getattr(scenario_mod.load(name).pipeline, field), "q_rule": phase_q.choose(rows),
-                   "anees_by_q": {f"{q:g}": a for q, a in phase_q.anees_by_q(rows).items()}}
-            for name, rows in cal.items()}
+    out = {}
+    for name, rows in cal.items():
+        cfg = scenario_mod.load(name).pipeline
+        out[name] = {"q_scenario": getattr(cfg, field), "q_rule": phase_q.choose(rows),
+                     "anees_by_q": {f"{q:g}": a for q, a in phase_q.anees_by_q(rows).items()},
+                     "q_rotation_scenario": cfg.q_rotation, "q_rotation_rule": phase_q.choose(rot[name], "q_rotation"),
+                     "attitude_anees_by_q_rotation": {f"{q:g}": a for q, a in
+                                                      phase_q.anees_by_q(rot[name], "q_rotation").items()}}
+    return out
 
 
 def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int,
           plugins: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = (),
-          calibration: tuple[dict[str, list[dict]], float, list[dict]] | None = None) -> dict:
+          calibration: tuple | None = None) -> dict:
     """table.md, table.csv, plots/rmse_window.png, plots/rmse_vs_pcrb.png, claims.json; returns
     claims.json's content. plugins: {scenario: every run's metrics.json `estimators`} and keys the
     plugin estimators' names (--estimator): one more row each (testbed.reproduce.plugins).
-    calibration: the q sweeps and the horizon (`calibrate`): plots/q_sweep.png, the q table,
-    claims.json `q_rule`."""
+    calibration: the rule's sweeps and the horizon (`calibrate`): plots/q_sweep.png, the q and
+    q_rotation table, claims.json `q_rule`."""
     rows, cols = _table_rows(R), _cols(R)
     w = _window(next(iter(R.values())))
     tag = w.replace(" ", "_")
@@ -305,15 +314,21 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                f"uses the {w} instead.", ""]
     rule = {}
     if calibration is not None:
-        cal, horizon, long = calibration
-        rule = _q_rule(cal, motion)
+        cal, horizon, long, rot = calibration
+        rule = _q_rule(cal, rot, motion)
         n_cal = len({r["seed"] for rows_ in cal.values() for r in rows_})
         md += [f"Process noise q (testbed.reproduce.phase_q): the rule's q = the grid value whose final body NEES at "
                f"{horizon:g} s, mean over calibration seeds {phase_q.CALIBRATION_SEEDS[0]}.."
-               f"{phase_q.CALIBRATION_SEEDS[n_cal - 1]}, is closest to 6 (plots/q_sweep.png).", ""]
-        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", "ANEES at each q"],
+               f"{phase_q.CALIBRATION_SEEDS[n_cal - 1]}, is closest to 6 (plots/q_sweep.png); stage 2, with that q: "
+               f"the q_rotation whose final attitude NEES (6 dof) is closest to 6.", ""]
+        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", "ANEES at each q",
+                              "q_rotation of the scenario [rad^2/s^3]", "q_rotation of the rule",
+                              "attitude ANEES at each q_rotation"],
                              [[n, f"{v['q_scenario']:g}", f"{v['q_rule']:g}",
-                               ", ".join(f"{q}: {a:.2f}" for q, a in v["anees_by_q"].items())] for n, v in rule.items()])
+                               ", ".join(f"{q}: {a:.2f}" for q, a in v["anees_by_q"].items()),
+                               f"{v['q_rotation_scenario']:g}", f"{v['q_rotation_rule']:g}",
+                               ", ".join(f"{q}: {a:.2f}" for q, a in v["attitude_anees_by_q_rotation"].items())]
+                              for n, v in rule.items()])
         md += [""]
         phase_q.plot(cal, {n: v["q_rule"] for n, v in rule.items()}, out / "plots" / "q_sweep.png", horizon=horizon,
                      long=long)
