@@ -1,16 +1,22 @@
 """Built-in `coop.ins` and `coop.ins_distributed`: the swarm's IMU error-state EKFs updated by
 GNSS, UWB ranges to anchors and UWB ranges between vehicles (estimators.coop_ins), offline or
 online in the control loop ([control] feedback). Centralized: one joint covariance over the
-swarm. Distributed: a filter per vehicle; at each UWB epoch every vehicle broadcasts its
-antenna position, velocity and their covariances (BROADCAST_BYTES) over the network, and a
-range to a neighbour uses the neighbour's last broadcast that has arrived.
+swarm. Distributed: per vehicle two filters, the flown one and one of the vehicle's own
+measurements only (IMU, GNSS, anchors); at each UWB epoch every vehicle broadcasts the second
+one's antenna position, velocity and their covariances (BROADCAST_BYTES) over the network, and
+a range to a neighbour enters the flown filter with the neighbour's last broadcast that has
+arrived as a known point, its covariance times `peer_inflation` added to the range variance
+(broadcasting the flown filter, which already holds what the neighbours said, made the filters
+optimistic until they rejected the fixes; the factor counts the neighbour's slowly changing
+error entering every epoch, chosen by the rule of testbed.reproduce.peer_inflation).
 
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
 (zero-order hold, as nav.eskf), then each vehicle's position and velocity are output every
 `output_every`-th instant, its attitude at every ATTITUDE_EVERY-th output (what is output is
-checked and stored per estimate; the controller flies on position and velocity only). GNSS fixes and UWB ranges of one time of validity are an epoch;
-it is applied when a measurement of a later time arrives (no look-ahead), as one update at the
+checked and stored per estimate; the controller flies on position and velocity only). GNSS
+fixes and UWB ranges of one time of validity are an epoch; it is applied when a measurement of a
+later time arrives (no look-ahead), as one update at the
 epoch's time (an epoch older than the filters updates their current state: the delay is not
 compensated). Distributed: broadcasts are sent at the epoch's time and used if they have
 arrived by the time the epoch is applied (the arrival of the measurement that closed it);
@@ -30,9 +36,9 @@ uncertainty: turn-on and Gauss-Markov sigmas, plus, for the accelerometer, the d
 scale-factor and misalignment sigmas times g (the 15 states have no scale factors: near hover a
 scale or misalignment error of the accelerometer is a constant error of the 1 g it reads, which
 the bias state takes; the gyro's, times rates of a few deg/s, are left out). GNSS: the row's
-declared sigma. UWB: the declared noise plus the two-way-ranging clock term, the per-device
-antenna-delay terms and the link bias (testbed.plugins.builtin_window.range_variance), as white
-noise. Ranges are weighted by Huber's function of their normalized innovation (threshold
+declared sigma. UWB: the declared noise plus the two-way-ranging clock term and the link bias
+as white noise (testbed.plugins.builtin_window.range_variances); the antenna delay of every UWB
+device (the vehicles' tags, the anchors) is a state (mean 0, the declared antenna_delay_sigma). Ranges are weighted by Huber's function of their normalized innovation (threshold
 `huber`, estimators.coop_ins.SwarmIns.update); an optional gate (gate_prob > 0) rejects a range
 whose NIS alone exceeds the chi-square quantile 1 - gate_prob of 1 dof. The default, Huber 1.345
 and no gate, was chosen on the calibration seeds of testbed.reproduce.peer_inflation (position
@@ -40,9 +46,12 @@ RMSE of coop.ins on seeds 1000 / 1001 / 1002, 30 s on the truth: 0.313 / 0.390 /
 0.324 / 0.390 / 0.894 m with the gate at 1e-3 and no Huber weight, which rejected every range once
 the estimate had drifted).
 
-params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad,
-0.05), vel0_sigma (m/s, 1.0), output_every (1), network (distributed: a [network] table,
-docs/network.md; absent: ideal), stale_s (s, 1.0).
+params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
+the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
+(m/s, 1.0), output_every (1); distributed only: network (a [network] table, docs/network.md;
+absent: ideal), stale_s (s, 1.0), peer_inflation (8). health(): epochs, rejected_measurements,
+skipped_updates, stale_ranges; distributed also the network's sent, delivered, dropped,
+bytes_sent and latency_p50_us / latency_p95_us.
 """
 from __future__ import annotations
 
