@@ -23,25 +23,26 @@ once before an update, P <- Phi P Phi^T + Qa (block-diagonal Phi: the same produ
 step); each vehicle's own block is formed at every output.
 
 Measurements (lever arm l (3,) m of the antenna in the body frame, antenna s = p + R l,
-ds/ddx = [I, 0, -R [l]x, 0, 0]):
-    GNSS fix (3 rows)       z = s_i + e                 R = diag(sigma^2)
-    range to an anchor a    z = |s_i - a| + e           H_i = u^T ds_i/ddx, u = (s_i - a) / |s_i - a|
-    range between i and j   z = |s_i - s_j| + e         H_i = u^T ds_i/ddx, H_j = -u^T ds_j/ddx
-Centralized (`joint=True`): P is the swarm's joint covariance; a range between two vehicles
-correlates their errors, and the next update uses that correlation. Distributed (`joint=False`):
-P is kept block-diagonal (each vehicle's filter is its own); a range between i and j enters
-vehicle i's filter with j's antenna at the position j broadcast (`Peer`), a known point, its
-3 x 3 covariance added to the range variance, var = sigma^2 + u^T Sigma_j u (and the same range
-enters j's filter with i's broadcast). The approximation, stated: i's broadcast already holds
-what j told it earlier, so the shared information is counted again (the filters are
-optimistic); the exact alternative is the centralized filter.
-Update (one per epoch: every measurement of one time of validity): each scalar range row gated
-alone at the prior (NIS r^2 / S_kk above `gate`: rejected, counted; GNSS rows are not gated: a
-filter that has become optimistic would otherwise reject the fixes that bring it back, and
-drift on its IMU; UWB has outliers, the GNSS model none), the accepted rows in one linear
-update, K = P H^T S^-1 by Cholesky, P <- P - K S K^T (symmetrized), the error injected
-(x (+) dx; attitude q <- q (x) Exp(dtheta)) and the attitude block reset
-G = I - [dtheta / 2]x (Sola eq. 287).
+ds/ddx = [I, 0, -R [l]x, 0, 0]; c_d the antenna delay of UWB device d, a constant state):
+    GNSS fix (3 rows)       z = s_i + e                        R = diag(sigma^2)
+    range to an anchor a    z = |s_i - a| + c_i + c_a + e      H_i = u^T ds_i/ddx, u = (s_i - a) / |s_i - a|
+    range between i and j   z = |s_i - s_j| + c_i + c_j + e    H_i = u^T ds_i/ddx, H_j = -u^T ds_j/ddx
+(a 1 in the columns of the delays). Centralized (`joint=True`): P is the swarm's joint
+covariance, the delays shared; a range between two vehicles correlates their errors, and the
+next update uses that correlation. Distributed (`joint=False`): P is block-diagonal, each
+vehicle's filter its own (its core and its copy of the delays); a range between i and j enters
+vehicle i's filter with j's antenna at a point j broadcast (`Rows.other`), known, its covariance
+added to the range variance by the caller (testbed.plugins.builtin_coop_ins: var = sigma^2 +
+kappa u^T Sigma_j u, and the same range enters j's filter with i's broadcast). The
+approximation, stated: j's broadcast error changes slowly and enters every epoch as if new, so
+the filters are optimistic (kappa counters it); the exact alternative is the centralized filter.
+Update (one per epoch: every measurement of one time of validity): each range weighted by
+Huber's function of its normalized innovation at the prior, optionally gated (NIS r^2 / S_kk
+above `gate`: rejected, counted; GNSS rows are neither weighted nor gated: a filter that has
+become optimistic would otherwise reject the fixes that bring it back); the rows in one iterated
+update (Gauss-Newton on the error state), K = P H^T S^-1 by Cholesky, P <- P - K S K^T
+(symmetrized), the error injected (x (+) dx; attitude q <- q (x) Exp(dtheta)) and the attitude
+block reset G = I - [dtheta / 2]x (Sola eq. 287).
 Pure numpy/scipy; never imports mujoco or testbed.
 """
 from __future__ import annotations
