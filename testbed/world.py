@@ -396,10 +396,10 @@ class Physics:
         """
         d = self.data
         start, end = np.asarray(start, float), np.asarray(end, float)
-        ignore = np.asarray(ignore).reshape(len(start), -1)
         hit = np.zeros(len(start), dtype=bool)
-        if len(start) == 0:
+        if len(start) == 0:  # no link sampled at this instant (all lost, or out of range)
             return hit
+        ignore = np.asarray(ignore).reshape(len(start), -1)
         mid, half = 0.5 * (start + end), 0.5 * (end - start)
         for g in np.flatnonzero(targets.plane):  # planes: local z up
             Rt = d.geom_xmat[targets.ids[g]].reshape(3, 3).T

@@ -84,7 +84,9 @@ def _tmp_dirs(cwd: Path, name: str) -> list[Path]:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_mid_run_removes_the_temporary_directory(tmp_path, sig):
-    p = _start(tmp_path, "run", "bandwidth", "--duration", "60", "--out", "r")
+    # 3600 s of bandwidth takes far longer than the 0.5 s below on any machine (60 s took about 1 s
+    # on an idle one: the signal then landed in the interpreter's exit, a flaky exit code)
+    p = _start(tmp_path, "run", "bandwidth", "--duration", "3600", "--out", "r")
     _wait_for(lambda: _tmp_dirs(tmp_path, "r"), "the run's temporary directory")
     time.sleep(0.5)  # inside the simulation
     p.send_signal(sig)
@@ -95,7 +97,7 @@ def test_signal_mid_run_removes_the_temporary_directory(tmp_path, sig):
 
 
 def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(tmp_path):
-    p = _start(tmp_path, "run", "bandwidth", "--duration", "60", "--out", "r")
+    p = _start(tmp_path, "run", "bandwidth", "--duration", "3600", "--out", "r")
     _wait_for(lambda: _tmp_dirs(tmp_path, "r"), "the run's temporary directory")
     stale = _tmp_dirs(tmp_path, "r")[0]
     p.kill()

@@ -505,3 +505,17 @@ def test_site_vels_matches_object_velocity():
     physics = build(sc)
     ids = physics.site_ids(["uav6/ant1", "uav6/ant2", "uav3/uwb", "uav6/led1"])
     np.testing.assert_allclose(physics.site_vels(ids), physics.site_vel(ids), atol=1e-12)
+
+
+def test_no_segment_at_an_instant_is_no_hit():
+    """An instant with no UWB link sampled (all lost or out of range) asks about zero segments:
+    the answer is an empty mask, not an error (a 3600 s bandwidth run stopped on it)."""
+    import numpy as np
+
+    from testbed.scenario import load
+    from testbed.world import build
+
+    physics = build(load("bandwidth"))
+    targets = physics.ray_targets(np.ones(6, int))
+    hit = physics.segments_may_hit(targets, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), int))
+    assert hit.shape == (0,) and hit.dtype == bool

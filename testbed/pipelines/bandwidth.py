@@ -292,6 +292,19 @@ def scores(est: dict) -> dict:
         "within_budget": comm.within_budget(),
         **est["health"],
     }
+    finite = np.isfinite(se).all(0) & np.isfinite(trM).all(0)  # (N,) per node
+    if not finite.all():
+        # strict JSON: what a diverged estimate cannot give is null, with the reason beside it
+        seen = est["t"][avail.any(1)]
+        why = (f"not finite: the fusion diverged (no UWB pseudo-measurement after t = {seen[-1]:g} s)" if seen.size
+               else "not finite: the fusion diverged (no UWB pseudo-measurement in the run)")
+        reasons = {}
+        for key in ("J_empirical", "J_bound"):
+            out[key], reasons[key] = None, why
+        for key in ("rmse_position_m", "final_trace_M_m2", "bound_holds"):
+            out[key] = [v if ok else None for v, ok in zip(out[key], finite)]
+            reasons[key] = f"nodes {[i + 1 for i in np.flatnonzero(~finite).tolist()]}: {why}"
+        out["null_reasons"] = reasons
     if "network" in est:
         from testbed.metrics import network_summary  # lazy: scipy.stats, only with a [network]
 
