@@ -81,7 +81,10 @@ def _task_env() -> dict[str, str]:
 
 
 def _cancel(ray, refs: list) -> None:
-    """Cancel unfinished tasks: KeyboardInterrupt first, a kill after CANCEL_GRACE_S."""
+    """Cancel unfinished tasks: KeyboardInterrupt first, a kill after CANCEL_GRACE_S. A task that
+    has finished is not cancelled: Ray (2.x) can abort the driver on a cancel that crosses its
+    completion ("Tried to complete task that was not pending"), seen once in a clean-clone CI run."""
+    _, refs = ray.wait(list(refs), num_returns=len(refs), timeout=0)
     for ref in refs:
         ray.cancel(ref, force=False)
     deadline = time.monotonic() + CANCEL_GRACE_S
