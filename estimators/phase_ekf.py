@@ -32,8 +32,9 @@ The eq. 31 body itself moves at exactly constant velocity, so no physical q exis
 built-in scenarios choose their `pipeline.q` by a stated rule on calibration seeds disjoint from
 every evaluation (the q whose ANEES is closest to its dof; testbed/reproduce/phase_q.py), which
 gives 1e-12 to 1e-8 depending on the formation's geometry. Any q > 0 makes the filter's P at least
-its actual error covariance for a motion without random acceleration (PhaseEkfCovarianceAnalysis,
-an analysis of the filter's own gains and Jacobians; the filter reads no truth).
+its actual error covariance for a motion without random acceleration (PhaseEkfCovarianceAnalysis:
+Gelb's covariance analysis from the filter's own gains and Jacobians, its inputs the measurements
+only).
 In `flown` mode (closed-loop quadrotors) the accelerations are larger: the scenario sets q_flown.
 
 Rigid-body terms (ProcessNoise.translation, .rotation; zero = the paper's Q above). The three

@@ -37,7 +37,7 @@ scale-factor and misalignment sigmas times g (the 15 states have no scale factor
 scale or misalignment error of the accelerometer is a constant error of the 1 g it reads, which
 the bias state takes; the gyro's, times rates of a few deg/s, are left out). GNSS: the row's
 declared sigma. UWB: the declared noise plus the two-way-ranging clock term and the link bias
-as white noise (testbed.plugins.builtin_window.range_variances); the antenna delay of every UWB
+as white noise (testbed.sensors.noise.range_variances); the antenna delay of every UWB
 device (the vehicles' tags, the anchors) is a state (mean 0, the declared antenna_delay_sigma). Ranges are weighted by Huber's function of their normalized innovation (threshold
 `huber`, estimators.coop_ins.SwarmIns.update); an optional gate (gate_prob > 0) rejects a range
 whose NIS alone exceeds the chi-square quantile 1 - gate_prob of 1 dof. The default, Huber 1.345
@@ -59,14 +59,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimators import coop_ins as ci
-from estimators import eskf
-from estimators.so3 import quat_to_rotmat
 from testbed.config import from_dict
 from testbed.network import Network
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.builtin_eskf import _walk
-from testbed.plugins.builtin_window import range_variances
+from testbed.plugins.builtin_eskf import imu_noise, levelled_start
+from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
                 network=None, stale_s=1.0, peer_inflation=8.0)
@@ -90,7 +88,7 @@ class CoopIns:
         self.n = n = len(self.vehicles)
         imu = context.sensors["imu"]
         acc, gyr = imu["accel"], imu["gyro"]
-        noise = eskf.ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
+        noise = imu_noise(imu)
         self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
         g2 = 9.81 ** 2 * (acc["scale_sigma"] ** 2 + acc["misalign_sigma"] ** 2)
         self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2 + g2] * 3
@@ -217,15 +215,11 @@ class CoopIns:
             return
         self._advance(m.time)
         p = self.p
-        q, J = eskf.level(self.held[i, :3] - self.bias0[:3], p["yaw0"])
-        R = quat_to_rotmat(q)
+        q, R, P_th, P_thba = levelled_start(self.held[i, :3] - self.bias0[:3], self.bias_var[:3], p)
         P0 = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3), self.bias_var]))
-        vert = R.T @ [0.0, 0.0, 1.0]
-        Pb = P0[ci.BA, ci.BA]
-        P0[ci.TH, ci.TH] = (J @ Pb @ J.T + p["tilt0_sigma"] ** 2 * (np.eye(3) - np.outer(vert, vert))
-                            + p["yaw0_sigma"] ** 2 * np.outer(vert, vert))
-        P0[ci.TH, ci.BA] = J @ Pb
-        P0[ci.BA, ci.TH] = (J @ Pb).T
+        P0[ci.TH, ci.TH] = P_th
+        P0[ci.TH, ci.BA] = P_thba
+        P0[ci.BA, ci.TH] = P_thba.T
         for c in range(self.copies):
             self.ins.start(i + c * self.n, np.asarray(m.value, float) - R @ self.lever[i], q, self.bias0[:3], self.bias0[3:], P0)
 

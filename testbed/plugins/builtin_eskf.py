@@ -40,7 +40,7 @@ from estimators import eskf
 from estimators.core import symmetrize
 from estimators.so3 import quat_to_rotmat
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.sensors.noise import twr_range_variance
+from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, gate_prob=1e-4, output_every=1, iterations=1)
 
@@ -49,6 +49,27 @@ def _walk(errors: dict) -> float:
     """Bias random-walk density (unit/sqrt(s)) standing for the declared walk and Gauss-Markov terms."""
     gm = errors["gm_sigma"] * np.sqrt(2.0 / errors["gm_tau"]) if errors["gm_tau"] > 0 else 0.0
     return float(np.hypot(errors["bias_walk"], gm))
+
+
+def imu_noise(imu: dict) -> eskf.ImuNoise:
+    """The filter's IMU noise model from the declared [sensors.imu] table (Context.sensors["imu"]):
+    white densities, and bias walks standing for the declared walk and Gauss-Markov terms."""
+    acc, gyr = imu["accel"], imu["gyro"]
+    return eskf.ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
+
+
+def levelled_start(f: np.ndarray, accel_bias_var: np.ndarray, p: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A vehicle's first attitude and its covariance (NavEskf._start): q (4,) wxyz and R (3, 3) levelled
+    from the bias-corrected specific force f (3,) m/s^2 with heading p["yaw0"], and the blocks
+    P[TH, TH], P[TH, BA] (3, 3) given the accelerometer bias variances accel_bias_var (3,) m^2/s^4:
+    the levelling error dtheta = J db_a (estimators.eskf.level), plus p["tilt0_sigma"] across the
+    vertical and p["yaw0_sigma"] about it (rad)."""
+    q, J = eskf.level(f, p["yaw0"])
+    R = quat_to_rotmat(q)
+    v = R.T @ [0.0, 0.0, 1.0]  # the vertical in the body frame
+    Pb = np.diag(accel_bias_var)
+    P_th = J @ Pb @ J.T + p["tilt0_sigma"] ** 2 * (np.eye(3) - np.outer(v, v)) + p["yaw0_sigma"] ** 2 * np.outer(v, v)
+    return q, R, P_th, J @ Pb
 
 
 def _matrix_var(errors: dict) -> np.ndarray:
@@ -80,7 +101,7 @@ class NavEskf:
         self.p = {**DEFAULTS, **params}
         imu = context.sensors["imu"]
         acc, gyr = imu["accel"], imu["gyro"]
-        self.noise = eskf.ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
+        self.noise = imu_noise(imu)
         self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
         self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2] * 3 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3)
         self.k_var = np.concatenate([_matrix_var(acc), _matrix_var(gyr)])
@@ -151,19 +172,16 @@ class NavEskf:
         accelerometer reads its thrust axis, so an acceleration a tilts the levelled vertical
         by a / g, 0.05 rad at 0.5 m/s^2) and yaw0_sigma about it."""
         p = self.p
-        q, J = eskf.level(f.imu[0] - self.bias0[:3], p["yaw0"])
-        R = quat_to_rotmat(q)
+        q, R, P_th, P_thba = levelled_start(f.imu[0] - self.bias0[:3], self.bias_var[:3], p)
         x = np.zeros(eskf.N_ERR + 1 + len(self.delay_var))
         x[0:3] = np.asarray(m.value, float) - R @ lever
         x[6:10] = q
         x[10:16] = self.bias0
         P = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
                                     self.bias_var, self.k_var, self.delay_var]))
-        v = R.T @ [0.0, 0.0, 1.0]  # the vertical in the body frame
-        Pb = P[eskf.BA, eskf.BA]
-        P[eskf.TH, eskf.TH] = J @ Pb @ J.T + p["tilt0_sigma"] ** 2 * (np.eye(3) - np.outer(v, v)) + p["yaw0_sigma"] ** 2 * np.outer(v, v)
-        P[eskf.TH, eskf.BA] = J @ Pb
-        P[eskf.BA, eskf.TH] = (J @ Pb).T
+        P[eskf.TH, eskf.TH] = P_th
+        P[eskf.TH, eskf.BA] = P_thba
+        P[eskf.BA, eskf.TH] = P_thba.T
         f.x, f.P, f.t = x, P, max(f.t, m.time)
 
     def _gnss(self, m: Measurement) -> None:
@@ -190,9 +208,8 @@ class NavEskf:
         extras = (0, self.delay_index[m.dst]) if len(self.delay_var) else ()
         anchor = self.anchors[m.dst]
         r, _ = eskf.range_model(f.x, lever, anchor, extras)
-        u = self.uwb
-        var = float(np.asarray(m.sigma, float)[0]) ** 2 + u["link_bias_sigma"] ** 2
-        var += float(twr_range_variance(u["mode"], np.array([r]), u["clock_ppm"], u["reply_time"], 0.0)[0])
+        # the antenna delays are states here: the rest as white noise, at the predicted range r
+        var = float(range_variances(self.uwb, np.asarray(m.sigma, float)[:1], np.array([r]), antenna_delays=False)[0])
         f.ranges.append((m.time, float(m.value[0]), lever, anchor, extras, var))
 
     def _ranges(self, f: _Vehicle) -> None:

@@ -31,27 +31,9 @@ from testbed.network import Network, RoundTransport
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
-from testbed.sensors.noise import twr_range_variance
+from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(window=5, q=2.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None)
-
-
-def range_variances(uwb: dict | None, sigma: np.ndarray, d: np.ndarray, antenna_delays: bool = True) -> np.ndarray:
-    """Variances (m^2) of UWB ranges d (m,) m of declared noise sigma (m,) m taken as white noise:
-    sigma^2, plus (with the declared [sensors.uwb] table uwb) the two-way-ranging clock term, the
-    two antenna-delay terms unless `antenna_delays` is False (an estimator that has the delays as
-    states), and the link bias (testbed.sensors.noise.twr_range_variance)."""
-    var = np.asarray(sigma, float) ** 2
-    if uwb is not None:
-        delay = uwb["antenna_delay_sigma"] if antenna_delays else 0.0
-        var = var + twr_range_variance(uwb["mode"], np.asarray(d, float), uwb["clock_ppm"], uwb["reply_time"],
-                                       delay) + uwb["link_bias_sigma"] ** 2
-    return var
-
-
-def range_variance(uwb: dict | None, m: Measurement) -> float:
-    """range_variances of the one UWB measurement m."""
-    return float(range_variances(uwb, np.asarray(m.sigma, float)[:1], np.asarray(m.value, float)[:1])[0])
 
 
 class _WindowPlugin(EpochGrouping):
@@ -86,7 +68,7 @@ class _WindowPlugin(EpochGrouping):
         self.anchor: list[tuple[int, np.ndarray, float, float]] = []
 
     def _range_sigma(self, m: Measurement) -> float:
-        return float(np.sqrt(range_variance(self.uwb, m)))
+        return float(np.sqrt(range_variances(self.uwb, np.asarray(m.sigma, float)[:1], np.asarray(m.value, float)[:1])[0]))
 
     def _epoch(self) -> sw.Epoch:
         tag = np.array(self.tag, float).reshape(-1, 4)

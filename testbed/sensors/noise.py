@@ -156,6 +156,20 @@ def twr_range_variance(mode: str, d: np.ndarray, clock_ppm: float, reply_time: f
     return clock_ppm ** 2 * (g_a ** 2 + g_b ** 2) + 2.0 * antenna_delay_sigma ** 2
 
 
+def range_variances(uwb: dict | None, sigma: np.ndarray, d: np.ndarray, antenna_delays: bool = True) -> np.ndarray:
+    """Variances (m^2) an estimator gives UWB ranges of length d (m,) m and declared noise sigma
+    (m,) m, taken as white noise: sigma^2, plus (with the declared [sensors.uwb] table uwb, as in
+    an estimator's Context) the two-way-ranging clock term, the two antenna-delay terms unless
+    `antenna_delays` is False (an estimator that has the delays as states), and the link bias
+    (twr_range_variance)."""
+    var = np.asarray(sigma, float) ** 2
+    if uwb is not None:
+        delay = uwb["antenna_delay_sigma"] if antenna_delays else 0.0
+        var = var + twr_range_variance(uwb["mode"], np.asarray(d, float), uwb["clock_ppm"], uwb["reply_time"],
+                                       delay) + uwb["link_bias_sigma"] ** 2
+    return var
+
+
 def twr_range_covariance(mode: str, d: np.ndarray, src: np.ndarray, dst: np.ndarray, clock_ppm: float, reply_time: float,
                          antenna_delay_sigma: float) -> np.ndarray:
     """Joint covariance (L, L) m^2 of the clock and antenna-delay errors of L two-way ranges
