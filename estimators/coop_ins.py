@@ -148,11 +148,13 @@ class SwarmIns:
         fc, wc = f - self.ba, w - self.bg
         # Sola eq. 260: a = R (a_m - a_b) + g
         acc = np.einsum("nij,nj->ni", R, fc) + GRAVITY
-        self.p = np.where(a_[:, None], self.p + self.v * dt + 0.5 * dt * dt * acc, self.p)
-        self.v = np.where(a_[:, None], self.v + acc * dt, self.v)
         dq = quat_exp(wc * dt)
         qn = quat_mul(self.q, dq)
-        self.q = np.where(a_[:, None], qn / np.linalg.norm(qn, axis=1, keepdims=True), self.q)
+        p, v, q = self.p + self.v * dt + 0.5 * dt * dt * acc, self.v + acc * dt, qn / np.linalg.norm(qn, axis=1, keepdims=True)
+        if a_.all():
+            self.p, self.v, self.q = p, v, q
+        else:
+            self.p, self.v, self.q = (np.where(a_[:, None], new, old) for new, old in ((p, self.p), (v, self.v), (q, self.q)))
         RF = R @ skew(fc)
         F = self._F0.copy()
         F[:, P_, V_] = np.eye(3) * dt
@@ -199,9 +201,11 @@ class SwarmIns:
             return self.P[:n * e, :n * e].reshape(n, e, n, e)[np.arange(n), :, np.arange(n), :]
         return self.P[:, :e, :e]
 
-    def marginals(self) -> np.ndarray:
-        """(n, 15, 15) each vehicle's core covariance now (the accumulated propagation applied)."""
-        D = self.Phi @ self.blocks() @ np.swapaxes(self.Phi, 1, 2) + self.Qa
+    def marginals(self, k: slice = slice(None)) -> np.ndarray:
+        """(n, 15, 15) each vehicle's core covariance now (the accumulated propagation applied);
+        k: of the vehicles k only."""
+        Phi = self.Phi[k]
+        D = Phi @ self.blocks()[k] @ np.swapaxes(Phi, 1, 2) + self.Qa[k]
         return 0.5 * (D + np.swapaxes(D, 1, 2))
 
     # ------------------------------------------------------------------ update
@@ -353,8 +357,10 @@ class SwarmIns:
         PHt = self.P @ np.swapaxes(Hb, 1, 2)  # (n, E, M)
         S = Hb @ PHt + Rb[:, :, None] * np.eye(M)
         L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
-        W = np.linalg.solve(L, np.swapaxes(PHt, 1, 2))  # L^-1 H P (n, M, E)
-        y = np.linalg.solve(L, rb[..., None])[..., 0]  # L^-1 r
+        # L^-1 [H P, r]: W (n, M, E) and y (n, M)
+        Wy = linalg.solve_triangular(L, np.concatenate([np.swapaxes(PHt, 1, 2), rb[..., None]], axis=2), lower=True,
+                                     check_finite=False)
+        W, y = Wy[..., :E], Wy[..., E]
         x = np.einsum("nme,nm->ne", W, y)
         return (x[:, :N_ERR], x[:, N_ERR:]), self.P - np.swapaxes(W, 1, 2) @ W
 

@@ -67,13 +67,13 @@ class _Link:
         self.bad = bool(rng.random() < pi_bad)
         self.k = BLOCK
 
-    def next(self) -> tuple[np.ndarray, float]:
+    def next(self) -> tuple[list[float], float]:
         """Four uniforms (loss, chain step, chain loss, NLOS loss) and one standard normal (latency)."""
-        if self.k == BLOCK:
-            self.u, self.z, self.k = self.rng.random((BLOCK, 4)), self.rng.standard_normal(BLOCK), 0
+        if self.k == BLOCK:  # as Python floats: compared one message at a time
+            self.u, self.z, self.k = self.rng.random((BLOCK, 4)).tolist(), self.rng.standard_normal(BLOCK).tolist(), 0
         k = self.k
         self.k += 1
-        return self.u[k], float(self.z[k])
+        return self.u[k], self.z[k]
 
 
 class Network:

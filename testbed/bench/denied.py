@@ -22,7 +22,7 @@ from pathlib import Path
 
 from testbed.log import load_log
 from testbed.plugins.context import make_context
-from testbed.plugins.feed import measurements, run_plugin
+from testbed.plugins.feed import batched, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.reproduce.denied import COOP, variant
 from testbed.runner import run
@@ -41,7 +41,7 @@ def bench_denied(duration: float = DURATION_S, name: str = "coop_distributed") -
         metrics = run(sc, out, plots=False)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         est_ms = json.loads((out / "timing.json").read_text())["estimators"][COOP]["wall_ms"]
-        feed = list(measurements(sc, load_log(out)))
+        feed = list(batched(sc, load_log(out)))
     plugin = next(p for p in resolve(sc.estimators) if p.key == COOP)
     ctx = make_context(sc, build(sc), plugin.key, plugin.params)
     c1 = time.process_time()

@@ -13,17 +13,20 @@ A plugin is a class (see docs/estimators.md)
 The testbed constructs it once per run with the `Context` (everything an estimator may know:
 geometry, declared sensor models, prior, its params, a random generator), then calls `process`
 with every `Measurement` in order of arrival (time of validity + latency), one at a time, and
-`finish` once at the end. A recorded dataset (testbed.replay) is fed partly in `MeasurementBatch`es
-(runs of consecutive rows of one stream, as columns): an estimator with `process_batch` gets each
-batch whole, and must treat it exactly as its rows one at a time; one without gets the rows one by
-one through `process`. Nothing else is given: never truth, never the simulator's state. The
-same class therefore runs offline on a log, on recorded data, or online inside a simulation.
+`finish` once at the end. Runs of consecutive rows of one stream (a recorded dataset's, or one
+sensor sample of a whole swarm: the IMUs of every vehicle at one instant) are fed as
+`MeasurementBatch`es, as columns: an estimator with `process_batch` gets each batch whole, and
+must treat it exactly as its rows one at a time; one without gets the rows one by one through
+`process`. Any of these methods may return `EstimateBatch`es (one quantity of many targets, as
+columns) among its `Estimate`s; they are checked and scored exactly as their rows. Nothing else
+is given: never truth, never the simulator's state. The same class therefore runs offline on a
+log, on recorded data, or online inside a simulation.
 
 Frames and units: world frame ENU (m), bodies FLU; quaternions wxyz, body-to-world, as MuJoCo.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
 
@@ -114,6 +117,33 @@ class Estimate:
     value: np.ndarray
     cov: np.ndarray | None = None
     frame: str = "world"
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class EstimateBatch:
+    """Estimates of one quantity in one frame for several targets, as columns: what an estimator
+    that outputs a whole swarm at once may return in place of one `Estimate` per row (the testbed
+    checks and scores it exactly as its rows, `rows()`, without a Python object per row).
+
+    time: (n,) s; target: (n,) str; quantity, frame: as Estimate, the same for every row;
+    value: (n, 3), or (n, 4) for attitude; cov: optional (n, 3, 3), for every row.
+    """
+
+    time: np.ndarray
+    target: Sequence[str]
+    quantity: Quantity
+    value: np.ndarray
+    cov: np.ndarray | None = None
+    frame: str = "world"
+
+    def __len__(self) -> int:
+        return len(self.target)
+
+    def rows(self) -> list[Estimate]:
+        """One Estimate per row, in order."""
+        return [Estimate(time=float(t), target=str(k), quantity=self.quantity, value=self.value[i],
+                         cov=None if self.cov is None else self.cov[i], frame=self.frame)
+                for i, (t, k) in enumerate(zip(np.asarray(self.time).tolist(), self.target))]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -13,8 +13,9 @@ error entering every epoch, chosen by the rule of testbed.reproduce.peer_inflati
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
 (zero-order hold, as nav.eskf), then each vehicle's position and velocity are output every
-`output_every`-th instant, its attitude at every ATTITUDE_EVERY-th output (what is output is
-checked and stored per estimate; the controller flies on position and velocity only). GNSS
+`output_every`-th instant, its attitude at every ATTITUDE_EVERY-th output, as EstimateBatches
+(one per quantity for the swarm). An instant's IMU samples fed as one MeasurementBatch are taken
+at once (process_batch), a UWB epoch's ranges too, exactly as row by row. GNSS
 fixes and UWB ranges of one time of validity are an epoch; it is applied when a measurement of a
 later time arrives (no look-ahead), as one update at the
 epoch's time (an epoch older than the filters updates their current state: the delay is not
@@ -55,6 +56,8 @@ bytes_sent and latency_p50_us / latency_p95_us.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -62,7 +65,7 @@ from estimators import coop_ins as ci
 from testbed.config import from_dict
 from testbed.network import Network
 from testbed.network_config import NetworkConfig
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import imu_noise, levelled_start
 from testbed.sensors.noise import range_variances
 
@@ -70,6 +73,7 @@ DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0
                 network=None, stale_s=1.0, peer_inflation=8.0)
 ATTITUDE_EVERY = 10  # the attitude is output at every 10th output (the controller does not fly on it)
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
+NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
 
 
 class CoopIns:
@@ -111,7 +115,9 @@ class CoopIns:
         self.t_imu = None
         self.instants = 0
         self.epoch_t = None
-        self.rows: list[tuple] = []  # (z, sigma, i, j, component, other (3,), dev (2,))
+        self.rows = EpochRows()
+        self._links: dict[tuple[str, str], tuple | None] = {}  # (src, dst): _link's answer
+        self._imu_rows: dict[tuple, np.ndarray] = {}  # IMU sites of an instant: their filters
         self.counts = {"epochs": 0, "rejected_measurements": 0, "skipped_updates": 0, "stale_ranges": 0}
         self._network(context)
 
@@ -133,6 +139,43 @@ class CoopIns:
         elif m.stream in ("gnss", "uwb"):
             self._take(m)
         return out
+
+    def process_batch(self, b: MeasurementBatch) -> list[EstimateBatch]:
+        """process() of each row of b, in order (the protocol); an IMU batch is taken an instant
+        (rows of one time) at a time, its samples stored together when that is what the rows one
+        by one would do (distinct vehicles, the instant completed by its last row)."""
+        if b.stream == "uwb":
+            self._take_ranges(b)
+            return []
+        if b.stream != "imu":
+            return [e for m in b.rows() for e in self.process(m)]
+        out = []
+        cuts = np.flatnonzero(np.diff(b.time)) + 1
+        for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(b)]):
+            t = float(b.time[lo])
+            if self.epoch_t is not None and t > self.epoch_t:
+                self._close(float(b.arrival[lo]))
+            if self.t_imu is not None and t > self.t_imu:
+                out += self._flush()
+            i = self._imu_vehicles(b.src[lo:hi])
+            before_last = ~np.isnan(self.new[:, 0])
+            before_last[i[:-1]] = True
+            if np.unique(i).size < i.size or before_last.all():
+                for m in b.rows()[lo:hi]:
+                    out += self.process(m)
+                continue
+            self.t_imu = t
+            self.new[i] = b.value[lo:hi]
+            if not np.isnan(self.new[:, 0]).any():
+                out += self._flush()
+        return out
+
+    def _imu_vehicles(self, src: np.ndarray) -> np.ndarray:
+        """(k,) the filters of IMU sites src (k,) (cached: an instant's sites come again and again)."""
+        key = tuple(src.tolist())
+        if key not in self._imu_rows:
+            self._imu_rows[key] = np.array([self.body[self.sites[s][0]] for s in key], int)
+        return self._imu_rows[key]
 
     def finish(self) -> list[Estimate]:
         out = self._flush() if self.t_imu is not None else []
@@ -166,47 +209,76 @@ class CoopIns:
         if self.instants % int(self.p["output_every"]) or not self.ins.active[:self.n].any():
             return []
         ins = self.ins
-        C = ins.marginals()
+        C = ins.marginals(slice(self.n))  # the flown filters'
         attitude = self.instants % (int(self.p["output_every"]) * ATTITUDE_EVERY) == 0
-        out = []
-        for i in np.flatnonzero(ins.active[:self.n]).tolist():
-            v = self.vehicles[i]
-            out += [Estimate(time=t, target=v, quantity="position", value=ins.p[i].copy(), cov=C[i, ci.P_, ci.P_]),
-                    Estimate(time=t, target=v, quantity="velocity", value=ins.v[i].copy(), cov=C[i, ci.V_, ci.V_])]
-            if attitude:
-                out.append(Estimate(time=t, target=v, quantity="attitude", value=ins.q[i].copy(), cov=C[i, ci.TH, ci.TH]))
+        i = np.flatnonzero(ins.active[:self.n])
+        target, time = [self.vehicles[k] for k in i.tolist()], np.full(i.size, t)
+        out = [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s])
+               for q, x, s in (("position", ins.p, ci.P_), ("velocity", ins.v, ci.V_))]
+        if attitude:
+            out.append(EstimateBatch(time=time, target=target, quantity="attitude", value=ins.q[i], cov=C[i][:, ci.TH, ci.TH]))
         return out
 
     def _advance(self, t: float) -> None:
         """Propagate the filters to t (s) with the held samples (nothing if t is not later)."""
         ins = self.ins
         if ins.t is not None and t > ins.t:
-            held = np.tile(np.nan_to_num(self.held), (self.copies, 1))
+            held = np.tile(np.where(np.isnan(self.held), 0.0, self.held), (self.copies, 1))
             ins.propagate(held[:, :3], held[:, 3:], t - ins.t)
         ins.t = t if ins.t is None else max(ins.t, t)
 
     # ------------------------------------------------------------------ GNSS and UWB epochs
     def _take(self, m: Measurement) -> None:
         self.epoch_t = m.time
-        v, lever = self.sites[m.src] if m.src in self.sites else (m.src.partition("/")[0], np.zeros(3))
-        i = self.body.get(v)
+        if m.stream == "uwb":
+            link = self._link(m.src, m.dst)
+            if link is not None:
+                self.rows.add([float(m.value[0])], [float(m.sigma[0])], *([x] for x in link))
+            return
+        i = self._vehicle(m.src)
         if i is None:
             return
-        if np.abs(np.asarray(lever) - self.lever[i]).max() > 1e-9:
-            raise ValueError(f"{m.src}: GNSS and UWB must share the antenna site (set [sensors.gnss] antenna = \"uwb\")")
-        nan3 = np.full(3, np.nan)
-        if m.stream == "gnss":
-            if not self.ins.active[i]:
-                self._start(i, m)
-                return
-            for c in range(3):
-                self.rows.append((float(m.value[c]), float(m.sigma[c]), i, -1, c, nan3, (-1, -1)))
+        if not self.ins.active[i]:
+            self._start(i, m)
             return
-        dev = (self.device.get(m.src, -1), self.device.get(m.dst, -1))
-        if m.dst in self.anchors:
-            self.rows.append((float(m.value[0]), float(m.sigma[0]), i, -1, 3, self.anchors[m.dst], dev))
-        elif m.dst.partition("/")[0] in self.body:
-            self.rows.append((float(m.value[0]), float(m.sigma[0]), i, self.body[m.dst.partition("/")[0]], 3, nan3, dev))
+        self.rows.add([float(x) for x in m.value[:3]], [float(x) for x in m.sigma[:3]], [i] * 3, [-1] * 3, [0, 1, 2],
+                      [NAN3] * 3, [(-1, -1)] * 3)
+
+    def _take_ranges(self, b: MeasurementBatch) -> None:
+        """_take of every row of a UWB batch, in order, an epoch (rows of one time) at a time."""
+        cuts = np.flatnonzero(np.diff(b.time)) + 1
+        for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(b)]):
+            t = float(b.time[lo])
+            if self.epoch_t is not None and t != self.epoch_t:
+                self._close(float(b.arrival[lo]))
+            self.epoch_t = t
+            links = [self._link(src, dst) for src, dst in zip(b.src[lo:hi].tolist(), b.dst[lo:hi].tolist())]
+            k = [r for r, link in enumerate(links) if link is not None]
+            if k:
+                self.rows.add(b.value[lo:hi, 0][k].tolist(), b.sigma[lo:hi, 0][k].tolist(), *zip(*(links[r] for r in k)))
+
+    def _vehicle(self, src: str) -> int | None:
+        """The filter of the vehicle of antenna site src (None: not a vehicle's); its lever arm
+        must be the one of the filter's antenna."""
+        v, lever = self.sites[src] if src in self.sites else (src.partition("/")[0], np.zeros(3))
+        i = self.body.get(v)
+        if i is not None and np.abs(np.asarray(lever) - self.lever[i]).max() > 1e-9:
+            raise ValueError(f"{src}: GNSS and UWB must share the antenna site (set [sensors.gnss] antenna = \"uwb\")")
+        return i
+
+    def _link(self, src: str, dst: str) -> tuple | None:
+        """The row template of a range src -> dst: (i, j (-1: an anchor), component 3, the
+        anchor's position (3,) (NaN between vehicles), the two devices' delay states (-1: none));
+        None for a range the filters do not use. Cached per link."""
+        if (src, dst) not in self._links:
+            i, link = self._vehicle(src), None
+            dev = (self.device.get(src, -1), self.device.get(dst, -1))
+            if i is not None and dst in self.anchors:
+                link = (i, -1, 3, self.anchors[dst], dev)
+            elif i is not None and dst.partition("/")[0] in self.body:
+                link = (i, self.body[dst.partition("/")[0]], 3, NAN3, dev)
+            self._links[(src, dst)] = link
+        return self._links[(src, dst)]
 
     def _start(self, i: int, m: Measurement) -> None:
         """Vehicle i's filter from its first fix (module docstring)."""
@@ -226,24 +298,44 @@ class CoopIns:
     def _close(self, now: float) -> None:
         """Apply the open epoch (module docstring); now (s): the clock when it is applied."""
         t, rows = self.epoch_t, self.rows
-        self.epoch_t, self.rows = None, []
-        if not rows:
+        self.epoch_t, self.rows = None, EpochRows()
+        if not rows.z:
             return
         self._advance(t)
-        z, sigma, i, j, comp = (np.array([r[k] for r in rows]) for k in range(5))
-        other = np.array([r[5] for r in rows], float)
-        dev = np.array([r[6] for r in rows], int)
-        comp = comp.astype(int)
+        z, sigma = np.array(rows.z, float), np.array(rows.sigma, float)
+        comp = np.array(rows.component, int)
         rng = comp == 3
         var = sigma ** 2
         var[rng] = range_variances(self.uwb, sigma[rng], z[rng], antenna_delays=not self.device)
-        rows = ci.Rows(z=z, var=var, i=i.astype(int), j=j.astype(int), component=comp, other=other, dev=dev)
+        rows = ci.Rows(z=z, var=var, i=np.array(rows.i, int), j=np.array(rows.j, int), component=comp,
+                       other=np.array(rows.other, float), dev=np.array(rows.dev, int))
         self.counts["epochs"] += 1
         rows = self._rows(t, now, rows)
         status = self.ins.update(rows, self.gate, int(self.p["iterations"]), float(self.p["huber"]) or None)
         mine = rows.i < self.n  # the flown filters' rows (not their own-measurement copies')
         self.counts["rejected_measurements"] += int((status[mine] == 0).sum())
         self.counts["skipped_updates"] += int((status[mine] < 0).sum())
+
+
+@dataclass(slots=True)
+class EpochRows:
+    """The rows of the open epoch as growing columns: value z and declared sigma (m), filter i,
+    other vehicle j (-1: none), component (0-2: a GNSS axis, 3: a range), other end's position
+    (3,) m world (NaN: none), delay states of the two devices (2,) (-1: none)."""
+
+    z: list = field(default_factory=list)
+    sigma: list = field(default_factory=list)
+    i: list = field(default_factory=list)
+    j: list = field(default_factory=list)
+    component: list = field(default_factory=list)
+    other: list = field(default_factory=list)
+    dev: list = field(default_factory=list)
+
+    def add(self, z, sigma, i, j, component, other, dev) -> None:
+        """Append rows: sequences of one length, one per column."""
+        for column, rows in zip((self.z, self.sigma, self.i, self.j, self.component, self.other, self.dev),
+                                (z, sigma, i, j, component, other, dev)):
+            column.extend(rows)
 
 
 class CoopInsDistributed(CoopIns):

@@ -8,7 +8,8 @@ definite (3, 3) covariance. Anything else is a PluginError naming the estimator,
 Every check but the covariance's is made as the estimate arrives; the covariances (the costly
 check, tens of microseconds per estimate one at a time) are checked together, all at once, when
 the track is built (`Collector.track`, at the end of the run), and the first bad one in arrival
-order is reported with the same message, naming when it was returned.
+order is reported with the same message, naming when it was returned. An `EstimateBatch` gets
+the same checks on all its rows at once, the first bad row named.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from testbed.errors import PluginError
-from testbed.plugins.api import VALUE_SIZE, Estimate
+from testbed.plugins.api import VALUE_SIZE, Estimate, EstimateBatch
 from testbed.plugins.loading import Plugin
 
 
@@ -41,39 +42,52 @@ Track = dict[tuple[str, str], Series]
 
 
 class Collector:
-    """Validates estimates as they come and builds the Track at the end."""
+    """Validates estimates as they come and builds the Track at the end. An EstimateBatch is
+    checked and kept as columns (no object per row); its rows are the estimates it stands for."""
 
     def __init__(self, plugin: Plugin, targets: set[str], duration: float, frames: set[str] = frozenset({"world"})):
         self.plugin, self.targets, self.duration, self.frames = plugin, targets, duration, frames
-        self._rows: dict[tuple[str, str], list[tuple[float, np.ndarray, np.ndarray | None]]] = {}
+        # per (target, quantity): single estimates (time, value, cov or None, arrival number, call)
+        self._rows: dict[tuple[str, str], list[tuple[float, np.ndarray, np.ndarray | None, int, int]]] = {}
+        # batches: (quantity, targets (k-tuple), time (k,), value (k, d), cov (k, 3, 3) or None, first arrival number, call)
+        self._batches: list[tuple[str, tuple, np.ndarray, np.ndarray, np.ndarray | None, int, int]] = []
         self._frame: dict[tuple[str, str], str] = {}
-        # per (target, quantity): (arrival number, where) of each estimate with a covariance
-        self._covs: dict[tuple[str, str], list[tuple[int, str]]] = {}
+        self._checked: set[tuple] = set()  # (targets, quantity, frame) of batches whose keys were checked
+        self._calls: list[str] = []  # `where` of each add() call
         self._seq = 0
 
     def _fail(self, where: str, e: object, reason: str) -> PluginError:
-        what = f"{e[0]} {e[1]}" if isinstance(e, tuple) else f"{e.target} {e.quantity}" if isinstance(e, Estimate) else type(e).__name__
-        return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: estimate of {what}: {reason}")
+        what = (f"estimate of {e[0]} {e[1]}" if isinstance(e, tuple) else f"estimate of {e.target} {e.quantity}" if isinstance(e, Estimate)
+                else f"estimates of {e.quantity} (a batch of {len(e)})" if isinstance(e, EstimateBatch) else f"estimate of {type(e).__name__}")
+        return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: {what}: {reason}")
 
     def add(self, estimates: list, where: str) -> None:
+        self._calls.append(where)
         for e in estimates:
-            self._add(e, where)
+            if isinstance(e, EstimateBatch):
+                self._add_batch(e, where)
+            else:
+                self._add(e, where)
+
+    def _check_key(self, where: str, e: object, target: str, quantity: str, frame: str) -> None:
+        """Target, quantity and frame of an estimate (or of a batch's rows of one target)."""
+        if quantity not in VALUE_SIZE:
+            raise self._fail(where, e, f"quantity must be one of {list(VALUE_SIZE)}")
+        if target not in self.targets:
+            raise self._fail(where, e, "unknown target (a vehicle such as 'uav1' or a site such as 'uav1/uwb')")
+        if frame not in self.frames:
+            raise self._fail(where, e, f"frame {frame!r} is not scored ('world' or a vehicle such as 'uav1')")
+        if frame == target:
+            raise self._fail(where, e, f"a target relative to itself (frame {frame!r})")
+        if self._frame.setdefault((target, quantity), frame) != frame:
+            raise self._fail(where, e, f"frame {frame!r} after {self._frame[(target, quantity)]!r}: one frame per target and quantity")
 
     def _add(self, e: object, where: str) -> None:
         if not isinstance(e, Estimate):
             raise self._fail(where, e, "not a testbed.plugins.Estimate")
-        if e.quantity not in VALUE_SIZE:
-            raise self._fail(where, e, f"quantity must be one of {list(VALUE_SIZE)}")
-        if e.target not in self.targets:
-            raise self._fail(where, e, "unknown target (a vehicle such as 'uav1' or a site such as 'uav1/uwb')")
-        if e.frame not in self.frames:
-            raise self._fail(where, e, f"frame {e.frame!r} is not scored ('world' or a vehicle such as 'uav1')")
-        if e.frame == e.target:
-            raise self._fail(where, e, f"a target relative to itself (frame {e.frame!r})")
-        if self._frame.setdefault((e.target, e.quantity), e.frame) != e.frame:
-            raise self._fail(where, e, f"frame {e.frame!r} after {self._frame[(e.target, e.quantity)]!r}: one frame per target and quantity")
+        self._check_key(where, e, e.target, e.quantity, e.frame)
         t = float(e.time)
-        if not np.isfinite(t) or not -1e-9 <= t <= self.duration + 1e-9:
+        if not math.isfinite(t) or not -1e-9 <= t <= self.duration + 1e-9:
             raise self._fail(where, e, f"time {t} s is outside the run [0, {self.duration:g}] s")
         value = np.asarray(e.value, dtype=float)
         d = VALUE_SIZE[e.quantity]
@@ -91,38 +105,87 @@ class Collector:
             cov = np.asarray(e.cov, dtype=float)
             if cov.shape != (3, 3):
                 raise self._fail(where, e, f"cov has shape {cov.shape}, expected (3, 3)")
-            self._covs.setdefault((e.target, e.quantity), []).append((self._seq, where))
+        self._rows.setdefault((e.target, e.quantity), []).append((t, value, cov, self._seq, len(self._calls) - 1))
         self._seq += 1
-        self._rows.setdefault((e.target, e.quantity), []).append((t, value, cov))
 
-    def _check_covs(self) -> None:
-        """The covariance check of every estimate (module docstring): the first bad one in
-        arrival order raises."""
-        first = None
+    def _add_batch(self, b: EstimateBatch, where: str) -> None:
+        """The checks of _add on every row of b at once; the first bad row is named."""
+        if b.quantity not in VALUE_SIZE:
+            raise self._fail(where, b, f"quantity must be one of {list(VALUE_SIZE)}")
+        signature = (tuple(b.target), b.quantity, b.frame)
+        if signature not in self._checked:  # an estimator gives the same targets again and again
+            for name in dict.fromkeys(signature[0]):
+                self._check_key(where, (name, b.quantity), name, b.quantity, b.frame)
+            self._checked.add(signature)
+        target = signature[0]
+        k, d = len(target), VALUE_SIZE[b.quantity]
+        t = np.asarray(b.time, dtype=float)
+        value = np.asarray(b.value, dtype=float)
+        cov = None if b.cov is None else np.asarray(b.cov, dtype=float)
+        for what, a, shape in (("time", t, (k,)), ("value", value, (k, d)), ("cov", cov, (k, 3, 3))):
+            if a is not None and a.shape != shape:
+                raise self._fail(where, b, f"{what} has shape {a.shape}, expected {shape} for {k} targets")
+        late = np.flatnonzero(~(np.isfinite(t) & (t >= -1e-9) & (t <= self.duration + 1e-9)))
+        if late.size:
+            raise self._fail(where, (target[late[0]], b.quantity), f"time {t[late[0]]} s is outside the run [0, {self.duration:g}] s")
+        bad = np.flatnonzero(~np.isfinite(value).all(axis=1))
+        if bad.size:
+            raise self._fail(where, (target[bad[0]], b.quantity), f"value is not finite: {value[bad[0]].tolist()}")
+        if b.quantity == "attitude":
+            norm = np.array([np.linalg.norm(v) for v in value])  # as _add's, to the last bit
+            bad = np.flatnonzero(np.abs(norm - 1.0) > 1e-6)
+            if bad.size:
+                raise self._fail(where, (target[bad[0]], b.quantity), f"quaternion norm {norm[bad[0]]:.9g} is not 1")
+            value = value / norm[:, None]
+        self._batches.append((b.quantity, target, t, value, cov, self._seq, len(self._calls) - 1))
+        self._seq += k
+
+    def _series(self) -> dict[tuple[str, str], list[tuple[np.ndarray, ...]]]:
+        """Per (target, quantity), its estimates in parts: time (K,), value (K, d), cov (K, 3, 3)
+        (NaN where none), has_cov (K,), arrival number (K,), add() call (K,)."""
+        out: dict[tuple[str, str], list[tuple[np.ndarray, ...]]] = {}
         for key, rows in self._rows.items():
-            checks = self._covs.get(key)
-            if not checks:
-                continue
-            reasons = cov_problems(np.stack([c for _, _, c in rows if c is not None]))
-            bad = [k for k, r in enumerate(reasons) if r is not None]
-            if bad and (first is None or checks[bad[0]][0] < first[0]):
-                first = (checks[bad[0]][0], checks[bad[0]][1], key, reasons[bad[0]])
-        if first is not None:
-            raise self._fail(first[1], first[2], first[3])
+            out[key] = [(np.array([r[0] for r in rows]), np.stack([r[1] for r in rows]),
+                         np.stack([r[2] if r[2] is not None else NAN33 for r in rows]),
+                         np.array([r[2] is not None for r in rows]), np.array([r[3] for r in rows]),
+                         np.array([r[4] for r in rows]))]
+        for q in sorted({b[0] for b in self._batches}):
+            bs = [b for b in self._batches if b[0] == q]
+            target = np.array([name for b in bs for name in b[1]], dtype=str)
+            t, value = (np.concatenate([b[k] for b in bs]) for k in (2, 3))
+            cov = np.concatenate([b[4] if b[4] is not None else np.broadcast_to(NAN33, (len(b[1]), 3, 3)) for b in bs])
+            has = np.concatenate([np.full(len(b[1]), b[4] is not None) for b in bs])
+            seq = np.concatenate([b[5] + np.arange(len(b[1])) for b in bs])
+            call = np.concatenate([np.full(len(b[1]), b[6]) for b in bs])
+            for name in np.unique(target).tolist():
+                m = target == name
+                out.setdefault((name, q), []).append((t[m], value[m], cov[m], has[m], seq[m], call[m]))
+        return out
 
     def track(self) -> Track:
-        self._check_covs()
+        """The Track, every covariance checked first (module docstring: the first bad one in
+        arrival order raises)."""
+        series = {key: [np.concatenate(c) for c in zip(*parts)] for key, parts in self._series().items()}
+        first = None
+        for key, (_, _, cov, has, seq, call) in series.items():
+            idx = np.flatnonzero(has)
+            reasons = cov_problems(cov[idx]) if idx.size else []
+            bad = [k for k, r in enumerate(reasons) if r is not None]
+            if bad:
+                k = min(bad, key=lambda k: seq[idx[k]])
+                if first is None or seq[idx[k]] < first[0]:
+                    first = (seq[idx[k]], self._calls[call[idx[k]]], key, reasons[k])
+        if first is not None:
+            raise self._fail(first[1], first[2], first[3])
         out = {}
-        for key, rows in sorted(self._rows.items(), key=lambda kv: natural(kv[0][0]) + [kv[0][1]]):
-            order = sorted(range(len(rows)), key=lambda i: rows[i][0])  # stable: ties keep arrival order
-            time = np.array([rows[i][0] for i in order])
-            value = np.stack([rows[i][1] for i in order])
-            has = np.array([rows[i][2] is not None for i in order])
-            cov = np.stack([rows[i][2] if rows[i][2] is not None else np.full((3, 3), np.nan) for i in order])
-            out[key] = Series(time, value, cov, has, self._frame[key])
+        for key in sorted(series, key=lambda kq: natural(kq[0]) + [kq[1]]):
+            time, value, cov, has, seq, _ = series[key]
+            order = np.lexsort((seq, time))  # by time; ties keep arrival order
+            out[key] = Series(time[order], value[order], cov[order], has[order], self._frame[key])
         return out
 
 
+NAN33 = np.full((3, 3), np.nan)
 SINGULAR = 1e-14  # relative Cholesky pivot below which a covariance is singular to double precision
 
 

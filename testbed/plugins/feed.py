@@ -54,6 +54,20 @@ class Columns:
                            extra={c: v[r] for c, v in self.extra.items()})
 
 
+    def batch(self, lo: int, hi: int) -> MeasurementBatch:
+        """Rows lo:hi as one MeasurementBatch (a stream without extra columns: batchable)."""
+        return MeasurementBatch(stream=self.name, time=_read_only(self.time[lo:hi]), arrival=_read_only(self.arrival[lo:hi]),
+                                value=self.value[lo:hi], src=_read_only(self.src[lo:hi]), dst=_read_only(self.dst[lo:hi]),
+                                sigma=None if self.sigma is None else self.sigma[lo:hi])
+
+    @property
+    def batchable(self) -> bool:
+        """Whether runs of rows may go as MeasurementBatches: no extra columns (a batch has none)
+        and every row's sigma finite or none declared (a batch row with a non-finite sigma would
+        reach process() as sigma None)."""
+        return not self.extra and (self.sigma is None or bool(np.isfinite(self.sigma).all()))
+
+
 def measurement_columns(name: str, arrays: dict[str, np.ndarray], scenario: Scenario) -> Columns:
     """The measured columns of stream `name` from its arrays keyed without the prefix
     (testbed.stream.stream_arrays), with the declared sigma; arrays read-only."""
@@ -70,12 +84,40 @@ def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Mea
     cols = [measurement_columns(name, stream_arrays(name, log), scenario) for name in stream_names(log)]
     if not cols:
         return
+    sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])
+    row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])
+    for k in _order(cols).tolist():
+        yield cols[sid[k]].measurement(row[k])
+
+
+def batched(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement | MeasurementBatch]:
+    """The measurements of `measurements` in the same order, each run of consecutive rows of one
+    batchable stream (Columns.batchable) as one MeasurementBatch (run_plugin feeds it whole to an
+    estimator with process_batch, row by row to the others: the same Measurements)."""
+    cols = [measurement_columns(name, stream_arrays(name, log), scenario) for name in stream_names(log)]
+    if not cols:
+        return
+    order = _order(cols)
+    sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])[order]
+    row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])[order]
+    # a run ends where the stream changes or the rows of the stream are not consecutive
+    cut = np.flatnonzero((np.diff(sid) != 0) | (np.diff(row) != 1)) + 1
+    batchable = [c.batchable for c in cols]
+    for lo, hi in zip([0, *cut.tolist()], [*cut.tolist(), len(order)]):
+        c, r = cols[sid[lo]], int(row[lo])
+        if hi - lo > 1 and batchable[sid[lo]]:
+            yield c.batch(r, r + hi - lo)
+        else:
+            yield from (c.measurement(k) for k in row[lo:hi].tolist())
+
+
+def _order(cols: list[Columns]) -> np.ndarray:
+    """The feeding order (module docstring) of the rows of cols, concatenated."""
     arrival = np.concatenate([c.arrival for c in cols])
     tov = np.concatenate([c.time for c in cols])
     sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])
     row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])
-    for k in np.lexsort((row, sid, tov, arrival)).tolist():
-        yield cols[sid[k]].measurement(row[k])
+    return np.lexsort((row, sid, tov, arrival))
 
 
 def call(plugin: Plugin, what, fn, *args):
@@ -109,18 +151,11 @@ def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | Me
     """
     t0 = wallclock.perf_counter()
     est, col = start_plugin(plugin, context)
-    batch = getattr(est, "process_batch", None)
-    batch = batch if callable(batch) else None
     for item in feed:
-        if not isinstance(item, MeasurementBatch):
-            process(plugin, est, col, item)
-        elif batch is None:
-            for m in item.rows():
-                process(plugin, est, col, m)
+        if isinstance(item, MeasurementBatch):
+            process_batch(plugin, est, col, item)
         else:
-            out = call(plugin, item, batch, item)
-            if out:
-                col.add(out, where(item))
+            process(plugin, est, col, item)
     health = finish_plugin(plugin, est, col)
     if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
         diagnostics.update(_diagnostics(plugin, call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))
@@ -151,6 +186,18 @@ def process(plugin: Plugin, est: object, col: Collector, m: Measurement) -> list
     out = call(plugin, m, est.process, m)
     if out:
         col.add(out, where(m))
+    return out
+
+
+def process_batch(plugin: Plugin, est: object, col: Collector, b: MeasurementBatch) -> list:
+    """Feed a batch: whole to an estimator with process_batch, else row by row; its estimates,
+    checked, go into col and are returned."""
+    fn = getattr(est, "process_batch", None)
+    if not callable(fn):
+        return [e for m in b.rows() for e in process(plugin, est, col, m)]
+    out = call(plugin, b, fn, b)
+    if out:
+        col.add(out, where(b))
     return out
 
 

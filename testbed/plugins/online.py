@@ -4,7 +4,9 @@ testbed.simulate hands `measured` the rows each sensor has just recorded (the va
 will hold, noise included) and calls `advance(t)` at the end of every tick: every measurement
 whose arrival (time + latency) is at or before t is turned into a `Measurement` exactly as the
 offline feed builds it from the log (testbed.plugins.feed.measurement_columns) and processed in
-the offline feed's order (arrival, time of validity, stream name, row of the stream). The
+the offline feed's order (arrival, time of validity, stream name, row of the stream); rows of
+one sensor sample that come next to each other in that order (the IMUs of a swarm at one
+instant) go as one MeasurementBatch, as offline (testbed.plugins.feed.batched). The
 estimates returned are checked and collected as offline (testbed.plugins.collect), so the run
 scores these very estimates; the latest world position and velocity of each fed-back vehicle
 ("uavI" targets) are what `state` gives the controller from the next tick on. A vehicle with no
@@ -22,9 +24,9 @@ import time as wallclock
 import numpy as np
 
 from testbed.errors import PluginError
-from testbed.plugins.api import Context
+from testbed.plugins.api import Context, EstimateBatch
 from testbed.plugins.collect import Track
-from testbed.plugins.feed import finish_plugin, measurement_columns, process, start_plugin
+from testbed.plugins.feed import finish_plugin, measurement_columns, process, process_batch, start_plugin
 from testbed.plugins.loading import Plugin
 from testbed.plugins.context import make_context
 from testbed.scenario import Scenario
@@ -49,6 +51,7 @@ class OnlineEstimator:
         self.pos, self.vel = np.zeros((N, 3)), np.zeros((N, 3))
         self.times = np.full((2, N), -np.inf)  # time of validity of the held position, velocity
         self.has_pos, self.has_vel = np.zeros(N, bool), np.zeros(N, bool)
+        self._vehicle_rows: dict[tuple, tuple | None] = {}  # _hold_batch's per target tuple
         self._pending: list = []  # heap of (arrival, time, stream, row, columns, index)
         self._rows: dict[str, int] = {}
         self.fed = 0
@@ -72,13 +75,24 @@ class OnlineEstimator:
         t0 = wallclock.perf_counter()
         while pending and pending[0][0] <= t + ARRIVAL_TOLERANCE:
             *_, cols, r = heapq.heappop(pending)
-            self._hold(process(self.plugin, self.est, self.col, cols.measurement(r)))
-            self.fed += 1
+            end = r + 1  # the run of this sample's next rows, next in the feeding order too
+            while end < len(cols.time) and pending and pending[0][0] <= t + ARRIVAL_TOLERANCE and pending[0][4] is cols and pending[0][5] == end:
+                heapq.heappop(pending)
+                end += 1
+            if end - r > 1 and cols.batchable:
+                self._hold(process_batch(self.plugin, self.est, self.col, cols.batch(r, end)))
+            else:
+                for k in range(r, end):
+                    self._hold(process(self.plugin, self.est, self.col, cols.measurement(k)))
+            self.fed += end - r
         self.wall += wallclock.perf_counter() - t0
 
     def _hold(self, estimates: list) -> None:
         """Keep the latest (by time of validity) world position and velocity of each vehicle."""
         for e in estimates:
+            if isinstance(e, EstimateBatch):
+                self._hold_batch(e)
+                continue
             i = self.index.get(e.target)
             if i is None or e.frame != "world" or e.quantity == "attitude":
                 continue
@@ -87,6 +101,27 @@ class OnlineEstimator:
                 self.times[k, i] = e.time
                 (self.pos if k == 0 else self.vel)[i] = e.value
                 (self.has_pos if k == 0 else self.has_vel)[i] = True
+
+    def _hold_batch(self, b: EstimateBatch) -> None:
+        """_hold of the rows of b, at once (row by row when a vehicle has several rows)."""
+        if b.frame != "world" or b.quantity == "attitude":
+            return
+        targets = tuple(b.target)
+        if targets not in self._vehicle_rows:  # (rows of fed-back vehicles, their vehicles), or None
+            i = np.array([self.index.get(k, -1) for k in targets], int)
+            keep = np.flatnonzero(i >= 0)
+            self._vehicle_rows[targets] = (keep, i[keep]) if np.unique(i[keep]).size == keep.size else None
+        if self._vehicle_rows[targets] is None:  # a vehicle twice: row by row
+            self._hold(b.rows())
+            return
+        keep, i = self._vehicle_rows[targets]
+        k = 0 if b.quantity == "position" else 1
+        t = np.asarray(b.time, float)[keep]
+        newer = t >= self.times[k, i]
+        i = i[newer]
+        self.times[k, i] = t[newer]
+        (self.pos if k == 0 else self.vel)[i] = np.asarray(b.value, float)[keep][newer]
+        (self.has_pos if k == 0 else self.has_vel)[i] = True
 
     def state(self, pos: np.ndarray, vel: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity (N, 3) world the controller uses: the held estimate of each

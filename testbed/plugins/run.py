@@ -14,7 +14,7 @@ from testbed.errors import ConfigError
 from testbed.interrupt import poll
 from testbed.pipelines.phase import position_bound
 from testbed.plugins.context import make_context, priors
-from testbed.plugins.feed import measurements, run_plugin
+from testbed.plugins.feed import batched, run_plugin
 from testbed.plugins.loading import Plugin
 from testbed.plugins.score import Bound, plot_errors, score
 from testbed.plugins.truth import Truth
@@ -30,7 +30,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
     if not plugins:
         return {}
     done = done or {}
-    feed = list(measurements(scenario, log)) if any(p.key not in done for p in plugins) else []
+    feed = list(batched(scenario, log)) if any(p.key not in done for p in plugins) else []
     prior = priors(scenario, log)
     bound = scenario_bound(scenario, log)
     out, shown = {}, {}
