@@ -356,9 +356,11 @@ class Control:
     feedback: "truth" (the MuJoCo state) or "estimate:NAME", the position and velocity of the
     `[[estimators]]` table named NAME, run online inside the loop (flown motion only);
     feedback_vehicles: the vehicles (1-based) flown on that estimate, the others on truth
-    (empty: every vehicle). attitude: "truth" or "mahony", the onboard complementary filter on
-    each vehicle's IMU (needs [sensors.imu] on every vehicle) with gains mahony_kp (1/s) and
-    mahony_ki (1/s^2). max_tilt_deg: the safety limit on the commanded thrust direction's tilt
+    (empty: every vehicle). attitude: "truth"; "mahony", the onboard complementary filter on
+    each vehicle's IMU with gains mahony_kp (1/s) and mahony_ki (1/s^2); or "estimate", the
+    attitude of the feedback estimator (its latest "attitude" estimate) with the body rate of the
+    latest gyro sample (needs feedback = "estimate:NAME"); both need [sensors.imu] on every
+    vehicle. max_tilt_deg: the safety limit on the commanded thrust direction's tilt
     from the vertical (deg; 0 = off), docs/control.md.
     """
 
@@ -368,7 +370,7 @@ class Control:
     kw: float = key(14.0, unit="1/s")
     feedback: str = key("truth", range='"truth" or "estimate:NAME"')
     feedback_vehicles: tuple[int, ...] = key((), range="vehicle numbers >= 1; empty = all")
-    attitude: Literal["truth", "mahony"] = "truth"
+    attitude: Literal["truth", "mahony", "estimate"] = "truth"
     mahony_kp: float = key(0.3, unit="1/s")
     mahony_ki: float = key(0.02, unit="1/s^2")
     max_tilt_deg: float = key(0.0, unit="deg", range="0 (off) or in (0, 90)")
@@ -441,10 +443,12 @@ class Scenario:
             bad = [v for v in c.feedback_vehicles if v > self.vehicles]
             require(not bad, "control.feedback_vehicles", list(c.feedback_vehicles),
                     f"vehicle {bad[0] if bad else 0} does not exist (the scenario has {self.vehicles})")
-        if c.attitude == "mahony":
+        if c.attitude == "estimate":
+            require(bool(name), "control.attitude", c.attitude, """'estimate' needs feedback = "estimate:NAME" (the estimator it takes the attitude from)""")
+        if c.attitude != "truth":
             imu = self.sensors.imu
             require(imu is not None and set(imu.vehicles or range(1, self.vehicles + 1)) == set(range(1, self.vehicles + 1)),
-                    "control.attitude", c.attitude, "'mahony' needs [sensors.imu] on every vehicle")
+                    "control.attitude", c.attitude, f"{c.attitude!r} needs [sensors.imu] on every vehicle")
 
     @property
     def vehicles(self) -> int:

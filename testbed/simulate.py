@@ -20,7 +20,9 @@ caller passes the online estimator (testbed.plugins.online.OnlineEstimator, the 
 protocol here); every sensor's new rows go to it as they are recorded, it processes the arrived
 ones at the end of each tick, and from the next tick on the controller takes the fed-back
 vehicles' position and velocity from it. With attitude "mahony" the controller takes R and the
-body rate from the onboard complementary filter (estimators.mahony) run on each IMU sample.
+body rate from the onboard complementary filter (estimators.mahony) run on each IMU sample; with
+attitude "estimate", R from the same estimator's latest attitude estimate and the body rate from
+each vehicle's latest gyro sample.
 The sensors then apply their errors at each sample (Imu.online), so the log holds exactly the
 values read in the loop.
 
@@ -37,6 +39,7 @@ import numpy as np
 from tqdm import tqdm
 
 from estimators.mahony import Mahony
+from estimators.so3 import quat_to_rotmat
 from testbed.control import GeometricController, heading
 from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
 from testbed.interrupt import poll
@@ -60,8 +63,13 @@ class Feedback(Protocol):
     def advance(self, t: float) -> None:
         """Process every measurement arrived by time t (s)."""
 
+    vehicles: np.ndarray  # (N,) bool: the vehicles flown on it
+
     def state(self, pos: np.ndarray, vel: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity (N, 3) world the controller uses."""
+
+    def rotation(self, R: np.ndarray, R_start: np.ndarray) -> np.ndarray:
+        """Attitude (N, 3, 3) body-to-world the controller uses (attitude "estimate")."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,12 +194,19 @@ class _Onboard:
     def __init__(self, scenario: Scenario, sched: Schedule, feedback: Feedback | None):
         self.feedback = feedback
         self.att = None
+        self.estimated_attitude = scenario.control.attitude == "estimate"
         c, tr = scenario.control, scenario.trajectory
-        if c.attitude == "mahony":
-            # started at the reference attitude of t = 0 (where the vehicles start)
+        if c.attitude != "truth":
+            # the reference attitude of t = 0 (where the vehicles start): the filter's start, or the
+            # attitude flown on until the estimator's first
             _, _, acc0, _ = tracking(tr, np.zeros(1))
-            self.att = Mahony(attitude(tr, np.zeros(1), acc0)[0], c.mahony_kp, c.mahony_ki)
+            q0 = attitude(tr, np.zeros(1), acc0)[0]
+        if c.attitude == "mahony":
+            self.att = Mahony(q0, c.mahony_kp, c.mahony_ki)
             self.imu_dt = sched.tick * int(round(scenario.world.control_rate / scenario.sensors.imu.rate_hz))
+        if self.estimated_attitude:
+            self.R_start = quat_to_rotmat(q0)
+            self.rate = np.zeros((scenario.vehicles, 3))  # rad/s body: each vehicle's latest gyro sample
 
     def state(self, pos, vel, rotation, omega, ref_pos, ref_vel):
         """(pos, vel, R, omega) the controller uses this tick."""
@@ -199,6 +214,9 @@ class _Onboard:
             pos, vel = self.feedback.state(pos, vel, ref_pos, ref_vel)
         if self.att is not None:
             rotation, omega = self.att.R, self.att.rate
+        if self.estimated_attitude:
+            rotation = self.feedback.rotation(rotation, self.R_start)
+            omega = np.where(self.feedback.vehicles[:, None], self.rate, omega)
         return pos, vel, rotation, omega
 
     def measured(self, sensor: Sensor, ref_acc: np.ndarray) -> None:
@@ -207,6 +225,8 @@ class _Onboard:
         rows = sensor.rec.new_rows()
         if self.feedback is not None:
             self.feedback.measured(sensor.name, rows)
+        if self.estimated_attitude and sensor.name == "imu":
+            self.rate[rows["vehicle"] - 1] = rows["value"][:, 3:]
         if self.att is not None and sensor.name == "imu":
             u = ref_acc.copy()
             u[:, 2] += GRAVITY

@@ -152,13 +152,16 @@ def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
     assert imu(0.02) == [] and ins.health()["filter_restarts"] == 1 and ins.v["uav1"].x is None
 
 
-def test_swarm_flies_on_the_distributed_estimate_over_the_network(tmp_path):
+@pytest.mark.parametrize("attitude", ["truth", "estimate"])
+def test_swarm_flies_on_the_distributed_estimate_over_the_network(tmp_path, attitude):
     """coop-denied for 4 s flown on coop.ins_distributed, the broadcasts over the scenario's
-    network (the coop_distributed variant of reproduce denied): the first seconds hold the
+    network (the coop_distributed variant of reproduce denied), the attitude loop on the MuJoCo
+    attitude or on the filter's (then nothing in the loop is truth): the first seconds hold the
     largest errors (every filter starts at its first SPP fix, 3 m vertical). Stated bound: no
     vehicle farther from its reference than the formation's 6 m spacing, hence no contact; the
     broadcasts went through the network (sent, some dropped at 1 % loss)."""
     sc = denied.variant(load("coop-denied", duration=4.0), "coop_distributed")
+    sc = replace(sc, control=replace(sc.control, attitude=attitude))
     metrics = run(sc, tmp_path / "r", plots=False)
     f = denied.flight(sc, tmp_path / "r", metrics, denied.COOP)
     assert f["tracking_max_m"] < 6.0

@@ -217,6 +217,7 @@ def test_a_loop_estimator_that_fails_stops_the_run(tmp_path, capsys, monkeypatch
     ('feedback = "estimate:nav"', 'motion = "prescribed"', "needs motion = \"flown\""),
     ('attitude = "mahony"', 'motion = "prescribed"', "control.attitude"),
     ('attitude = "kalman"', "", "control.attitude"),
+    ('attitude = "estimate"', "", "control.attitude: 'estimate' needs feedback = \"estimate:NAME\""),
 ])
 def test_bad_feedback_keys_are_refused_at_load(tmp_path, capsys, monkeypatch, control, extra, says):
     monkeypatch.chdir(tmp_path)

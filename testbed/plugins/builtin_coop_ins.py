@@ -13,8 +13,8 @@ error entering every epoch, chosen by the rule of testbed.reproduce.peer_inflati
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
 (zero-order hold, as nav.eskf), then each vehicle's position and velocity are output every
-`output_every`-th instant, its attitude at every ATTITUDE_EVERY-th output, as EstimateBatches
-(one per quantity for the swarm). An instant's IMU samples fed as one MeasurementBatch are taken
+`output_every`-th instant with its attitude (what [control] attitude = "estimate" flies on), as
+EstimateBatches (one per quantity for the swarm). An instant's IMU samples fed as one MeasurementBatch are taken
 at once (process_batch), a UWB epoch's ranges too, exactly as row by row. GNSS
 fixes and UWB ranges of one time of validity are an epoch; it is applied when a measurement of a
 later time arrives (no look-ahead), as one update at the
@@ -71,7 +71,6 @@ from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
                 network=None, stale_s=1.0, peer_inflation=8.0)
-ATTITUDE_EVERY = 10  # the attitude is output at every 10th output (the controller does not fly on it)
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
 NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
 
@@ -210,14 +209,10 @@ class CoopIns:
             return []
         ins = self.ins
         C = ins.marginals(slice(self.n))  # the flown filters'
-        attitude = self.instants % (int(self.p["output_every"]) * ATTITUDE_EVERY) == 0
         i = np.flatnonzero(ins.active[:self.n])
         target, time = [self.vehicles[k] for k in i.tolist()], np.full(i.size, t)
-        out = [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s])
-               for q, x, s in (("position", ins.p, ci.P_), ("velocity", ins.v, ci.V_))]
-        if attitude:
-            out.append(EstimateBatch(time=time, target=target, quantity="attitude", value=ins.q[i], cov=C[i][:, ci.TH, ci.TH]))
-        return out
+        return [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s])
+                for q, x, s in (("position", ins.p, ci.P_), ("velocity", ins.v, ci.V_), ("attitude", ins.q, ci.TH))]
 
     def _advance(self, t: float) -> None:
         """Propagate the filters to t (s) with the held samples (nothing if t is not later)."""

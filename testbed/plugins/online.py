@@ -9,7 +9,8 @@ one sensor sample that come next to each other in that order (the IMUs of a swar
 instant) go as one MeasurementBatch, as offline (testbed.plugins.feed.batched). The
 estimates returned are checked and collected as offline (testbed.plugins.collect), so the run
 scores these very estimates; the latest world position and velocity of each fed-back vehicle
-("uavI" targets) are what `state` gives the controller from the next tick on. A vehicle with no
+("uavI" targets) are what `state` gives the controller from the next tick on, and its latest
+world attitude what `rotation` gives (with [control] attitude = "estimate"). A vehicle with no
 estimate yet is controlled on its reference (zero position and velocity error); without a
 velocity estimate, its velocity error is taken as zero.
 
@@ -23,6 +24,7 @@ import time as wallclock
 
 import numpy as np
 
+from estimators.so3 import quat_to_rotmat
 from testbed.errors import PluginError
 from testbed.plugins.api import Context, EstimateBatch
 from testbed.plugins.collect import Track
@@ -33,6 +35,7 @@ from testbed.scenario import Scenario
 from testbed.world import Physics
 
 ARRIVAL_TOLERANCE = 1e-9  # s: an arrival this close after a tick time counts as at the tick
+HELD = {"position": 0, "velocity": 1, "attitude": 2}  # the quantities held for the controller
 
 
 class OnlineEstimator:
@@ -48,9 +51,9 @@ class OnlineEstimator:
         self.vehicles = np.zeros(N, bool)
         self.vehicles[np.array(chosen) - 1] = True
         self.index = {f"uav{i}": i - 1 for i in range(1, N + 1)}
-        self.pos, self.vel = np.zeros((N, 3)), np.zeros((N, 3))
-        self.times = np.full((2, N), -np.inf)  # time of validity of the held position, velocity
-        self.has_pos, self.has_vel = np.zeros(N, bool), np.zeros(N, bool)
+        self.pos, self.vel, self.att = np.zeros((N, 3)), np.zeros((N, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
+        self.times = np.full((3, N), -np.inf)  # time of validity of the held position, velocity, attitude
+        self.has = np.zeros((3, N), bool)  # whether held: position, velocity, attitude
         self._vehicle_rows: dict[tuple, tuple | None] = {}  # _hold_batch's per target tuple
         self._pending: list = []  # heap of (arrival, time, stream, row, columns, index)
         self._rows: dict[str, int] = {}
@@ -88,23 +91,27 @@ class OnlineEstimator:
         self.wall += wallclock.perf_counter() - t0
 
     def _hold(self, estimates: list) -> None:
-        """Keep the latest (by time of validity) world position and velocity of each vehicle."""
+        """Keep the latest (by time of validity) world position, velocity and attitude of each vehicle."""
         for e in estimates:
             if isinstance(e, EstimateBatch):
                 self._hold_batch(e)
                 continue
             i = self.index.get(e.target)
-            if i is None or e.frame != "world" or e.quantity == "attitude":
+            if i is None or e.frame != "world" or e.quantity not in HELD:
                 continue
-            k = 0 if e.quantity == "position" else 1
+            k = HELD[e.quantity]
             if e.time >= self.times[k, i]:
                 self.times[k, i] = e.time
-                (self.pos if k == 0 else self.vel)[i] = e.value
-                (self.has_pos if k == 0 else self.has_vel)[i] = True
+                self._held(k)[i] = e.value
+                self.has[k, i] = True
+
+    def _held(self, k: int) -> np.ndarray:
+        """The held values of quantity k (HELD): (N, 3) position or velocity, (N, 4) attitude."""
+        return (self.pos, self.vel, self.att)[k]
 
     def _hold_batch(self, b: EstimateBatch) -> None:
         """_hold of the rows of b, at once (row by row when a vehicle has several rows)."""
-        if b.frame != "world" or b.quantity == "attitude":
+        if b.frame != "world" or b.quantity not in HELD:
             return
         targets = tuple(b.target)
         if targets not in self._vehicle_rows:  # (rows of fed-back vehicles, their vehicles), or None
@@ -115,21 +122,28 @@ class OnlineEstimator:
             self._hold(b.rows())
             return
         keep, i = self._vehicle_rows[targets]
-        k = 0 if b.quantity == "position" else 1
+        k = HELD[b.quantity]
         t = np.asarray(b.time, float)[keep]
         newer = t >= self.times[k, i]
         i = i[newer]
         self.times[k, i] = t[newer]
-        (self.pos if k == 0 else self.vel)[i] = np.asarray(b.value, float)[keep][newer]
-        (self.has_pos if k == 0 else self.has_vel)[i] = True
+        self._held(k)[i] = np.asarray(b.value, float)[keep][newer]
+        self.has[k, i] = True
 
     def state(self, pos: np.ndarray, vel: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity (N, 3) world the controller uses: the held estimate of each
         fed-back vehicle (its reference before a first estimate), the truth of the others."""
         fb = self.vehicles
-        p = np.where((fb & self.has_pos)[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
-        v = np.where((fb & self.has_vel)[:, None], self.vel, np.where(fb[:, None], ref_vel, vel))
+        p = np.where((fb & self.has[0])[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
+        v = np.where((fb & self.has[1])[:, None], self.vel, np.where(fb[:, None], ref_vel, vel))
         return p, v
+
+    def rotation(self, R: np.ndarray, R_start: np.ndarray) -> np.ndarray:
+        """Attitude (N, 3, 3) body-to-world the controller uses ([control] attitude = "estimate"):
+        the held attitude estimate of each fed-back vehicle (R_start (N, 3, 3) before a first
+        one), the truth R (N, 3, 3) of the others."""
+        fb = self.vehicles[:, None, None]
+        return np.where(fb & self.has[2][:, None, None], quat_to_rotmat(self.att), np.where(fb, R_start, R))
 
     def finish(self) -> tuple[Track, dict, float]:
         """The rows still queued, then finish() and health() of the plugin; (estimates, health,
@@ -139,7 +153,7 @@ class OnlineEstimator:
         t0 = wallclock.perf_counter()
         health = finish_plugin(self.plugin, self.est, self.col)
         self.wall += wallclock.perf_counter() - t0
-        missing = [f"uav{i + 1}" for i in np.flatnonzero(self.vehicles & ~self.has_pos)]
+        missing = [f"uav{i + 1}" for i in np.flatnonzero(self.vehicles & ~self.has[0])]
         if missing:
             raise PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) in the control loop "
                               f"(control.feedback): no position estimate of {', '.join(missing)} in the whole run "
