@@ -118,8 +118,8 @@ def test_reproduce_denied_end_to_end(tmp_path):
     out = tmp_path / "rep"
     result = reproduce("denied", out, runs=1, duration=0.6, workers=1)
     ids = {c["id"] for c in result["claims"]}
-    assert ids == {"coop_flight_without_contact", "coop_distributed_flight_without_contact", "coop_beats_gnss_only",
-                   "coop_distributed_beats_gnss_only"}
+    assert ids == {f"{v}_{c}" for v in ("coop", "coop_distributed", "coop_onboard")
+                   for c in ("flight_without_contact", "beats_gnss_only")}
     doc = json.loads((out / "claims.json").read_text())
     assert set(doc["flights"]) == set(denied.VARIANTS)
     for v, flights in doc["flights"].items():

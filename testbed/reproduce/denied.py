@@ -2,7 +2,7 @@
 
 Scenario `coop-denied` (18 UAVs down an urban street and under a covered passage; GNSS by sky
 visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown over `runs`
-seeds in five variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
+seeds in six variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
 testbed.reproduce.runs). The estimators are testbed.plugins.builtin_coop_ins's: IMU error-state
 EKFs per vehicle updated by GNSS, UWB ranges to anchors and UWB ranges between vehicles.
 - truth:       the controller flies on the MuJoCo state; the centralized `coop.ins` is run and
@@ -13,7 +13,10 @@ EKFs per vehicle updated by GNSS, UWB ranges to anchors and UWB ranges between v
                measurement reaches it);
 - coop_distributed: flies on `coop.ins_distributed` (a filter per vehicle; neighbours'
                broadcasts over the scenario's [network]);
-- coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised).
+- coop_lossy:  the distributed estimator over a lossy network (LOSSY: loss and latency raised);
+- coop_onboard: as coop_distributed, the attitude loop on the filter's attitude too ([control]
+               attitude = "estimate"): nothing in the loop reads the truth. The other variants
+               fly the attitude loop on the MuJoCo attitude (docs/control.md).
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
 max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
 separation between vehicles (body origins, every logged instant); contact events: MuJoCo
@@ -22,9 +25,9 @@ collision (Physics.contacts_at; an event is a pair coming into contact; floor co
 apart); seconds without a GNSS fix per vehicle (gnss/fix at the logged instants).
 
 Claims (criteria fixed here, before the runs): no contact when flying on the cooperative
-estimate, centralized and distributed (one claim each); cooperation's estimation error below
-GNSS-only's, centralized and distributed (one-sided Wilcoxon signed-rank over paired runs at
-alpha = 0.05 from 2 runs on; 1 run: point values, said so).
+estimate, centralized, distributed and distributed without truth (one claim each);
+cooperation's estimation error below GNSS-only's, the same three (one-sided Wilcoxon
+signed-rank over paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so).
 
 Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
 claims), `write` (files through testbed.report); `reproduce` chains them.
@@ -47,16 +50,17 @@ from testbed.scenario import Scenario, load
 from testbed.stats import wilcoxon_paired
 from testbed.world import FLOOR, OBSTACLE, build
 
-VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy")
+VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard")
 TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
-          "coop_distributed": "cooperative, distributed", "coop_lossy": "cooperative, distributed, lossy network"}
+          "coop_distributed": "cooperative, distributed", "coop_lossy": "cooperative, distributed, lossy network",
+          "coop_onboard": "cooperative, distributed, attitude from the filter (no truth in the loop)"}
 COOP, EKF = "coop", "ekf"  # estimator names ([[estimators]] name) of the cooperative and GNSS-only estimators
-COOPERATIVE = ("coop", "coop_distributed")  # the variants the claims are about
+COOPERATIVE = ("coop", "coop_distributed", "coop_onboard")  # the variants the claims are about
 LOSSY = {"loss_prob": 0.3, "latency": 0.006, "jitter": 0.003}  # the lossy variant's [network] changes
 ALPHA = 0.05
 # the cooperative estimator of each variant (testbed.plugins.builtin_coop_ins)
 COOP_ENTRY = {"truth": "coop.ins", "coop": "coop.ins", "coop_distributed": "coop.ins_distributed",
-              "coop_lossy": "coop.ins_distributed"}
+              "coop_lossy": "coop.ins_distributed", "coop_onboard": "coop.ins_distributed"}
 METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
            "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
 
@@ -73,7 +77,8 @@ def variant(base: Scenario, name: str) -> Scenario:
     coop = EstimatorSpec(entry=COOP_ENTRY[name], name=COOP,
                          params={} if name in ("truth", "coop") else {"network": to_dict(net)})
     feedback = "truth" if name == "truth" else f"estimate:{COOP}"
-    return replace(base, network=net, estimators=(coop,), control=replace(base.control, feedback=feedback))
+    attitude = "estimate" if name == "coop_onboard" else base.control.attitude
+    return replace(base, network=net, estimators=(coop,), control=replace(base.control, feedback=feedback, attitude=attitude))
 
 
 def _episodes(pairs: list[np.ndarray]) -> dict[str, int]:
