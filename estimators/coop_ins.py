@@ -290,12 +290,13 @@ class SwarmIns:
         rows = rows.subset(k)
         h, Hi, Hj = self._linearize(rows)
         r = rows.z - h
+        # the prior innovation variance of each row, H_k P H_k^T + R_k
         if self.joint:
             H = self._dense(rows, Hi, Hj)
-            S_diag = np.einsum("mi,ij,mj->m", H, self.P, H) + rows.var
+            S_diag = ((H @ self.P) * H).sum(axis=1) + rows.var
         else:
             H = self._local(rows, Hi)
-            S_diag = np.einsum("mi,mij,mj->m", H, self.P[rows.i], H) + rows.var
+            S_diag = ((self.P[rows.i] @ H[:, :, None])[:, :, 0] * H).sum(axis=1) + rows.var
         ok = (r ** 2 <= gate * S_diag) | (rows.component < 3)  # GNSS rows are not gated
         status[k] = ok.astype(int)
         if not ok.any():
