@@ -42,7 +42,9 @@ above `gate`: rejected, counted; GNSS rows are neither weighted nor gated: a fil
 become optimistic would otherwise reject the fixes that bring it back); the rows in one iterated
 update (Gauss-Newton on the error state), K = P H^T S^-1 by Cholesky, P <- P - K S K^T
 (symmetrized), the error injected (x (+) dx; attitude q <- q (x) Exp(dtheta)) and the attitude
-block reset G = I - [dtheta / 2]x (Sola eq. 287).
+block reset G = I - [dtheta / 2]x (Sola eq. 287). Distributed filters (damped=True) take each
+Gauss-Newton step only as far as it lowers their MAP cost (a backtracking line search,
+SwarmIns._line_search); the centralized update is the undamped one.
 Pure numpy/scipy; never imports mujoco or testbed.
 """
 from __future__ import annotations
