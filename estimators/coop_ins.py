@@ -385,9 +385,14 @@ class SwarmIns:
         split = lambda x: (x[:, :N_ERR], x[:, N_ERR:])  # noqa: E731
         x1 = cat(dx_gn)
         x = np.zeros_like(x1) if dx is None else cat(dx)
-        costs = np.stack([self._cost(rows, split(x + a * (x1 - x))) for a in self.STEPS])  # (len(STEPS), n)
-        ok = costs <= costs[-1] * (1 + 1e-12)  # the last step (0) is the current iterate
-        a = np.asarray(self.STEPS)[np.argmax(ok, axis=0)]  # per filter the longest step that does not raise V
+        bound = self._cost(rows, split(x)) * (1 + 1e-12)  # V at the current iterate (step 0)
+        a = np.zeros(self.n)  # per filter the longest step that does not raise V
+        open_ = np.ones(self.n, bool)
+        for step in self.STEPS[:-1]:  # shorter steps only while some filter has none yet
+            ok = open_ & (self._cost(rows, split(x + step * (x1 - x))) <= bound)
+            a[ok], open_ = step, open_ & ~ok
+            if not open_.any():
+                break
         return split(x + a[:, None] * (x1 - x))
 
     def _cost(self, rows: Rows, d) -> np.ndarray:
