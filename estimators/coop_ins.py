@@ -42,7 +42,9 @@ above `gate`: rejected, counted; GNSS rows are neither weighted nor gated: a fil
 become optimistic would otherwise reject the fixes that bring it back); the rows in one iterated
 update (Gauss-Newton on the error state), K = P H^T S^-1 by Cholesky, P <- P - K S K^T
 (symmetrized), the error injected (x (+) dx; attitude q <- q (x) Exp(dtheta)) and the attitude
-block reset G = I - [dtheta / 2]x (Sola eq. 287).
+block reset G = I - [dtheta / 2]x (Sola eq. 287). Distributed filters (damped=True) take each
+Gauss-Newton step only as far as it lowers their MAP cost (a backtracking line search,
+SwarmIns._line_search); the centralized update is the undamped one.
 Pure numpy/scipy; never imports mujoco or testbed.
 """
 from __future__ import annotations
@@ -93,8 +95,11 @@ class SwarmIns:
     the delays), delays c (n, D)."""
 
     def __init__(self, n: int, lever: np.ndarray, noise: ImuNoise, *, joint: bool, devices: int = 0,
-                 delay_var: float = 0.0):
+                 delay_var: float = 0.0, damped: bool = False):
         self.n, self.joint, self.noise, self.D = int(n), bool(joint), noise, int(devices)
+        if damped and self.joint:
+            raise ValueError("the damped (line-searched) iterated update is implemented for the distributed filters")
+        self.damped = bool(damped)
         self.lever = np.asarray(lever, float).reshape(self.n, 3)
         self.p = np.zeros((n, 3))
         self.v = np.zeros((n, 3))
@@ -316,7 +321,8 @@ class SwarmIns:
             h, Hi, Hj = self._linearize(rows)
             if it:
                 self.p, self.v, self.q, self.ba, self.bg, self.c = x0
-            dx, P = step(rows, h, Hi, Hj, dx)
+            dx_gn, P = step(rows, h, Hi, Hj, dx)
+            dx = self._line_search(rows, dx, dx_gn) if self.damped else dx_gn
         self._inject(dx)
         self.P = P
         # Sola eq. 287: reset of each attitude error block after injection
@@ -364,6 +370,41 @@ class SwarmIns:
         W, y = Wy[..., :E], Wy[..., E]
         x = np.einsum("nme,nm->ne", W, y)
         return (x[:, :N_ERR], x[:, N_ERR:]), self.P - np.swapaxes(W, 1, 2) @ W
+
+    STEPS = (1.0, 0.5, 0.25, 0.125, 0.0)  # step lengths tried by the line search, longest first
+
+    def _line_search(self, rows: Rows, dx, dx_gn):
+        """The damped iterated update (distributed filters): from the current iterate dx (None: the
+        prior) towards the Gauss-Newton iterate dx_gn, per filter the longest step of STEPS that
+        does not raise the MAP cost V(d) = d^T P^-1 d + sum_k r_k(x (+) d)^2 / var_k of its rows
+        (Skoglund, Hendeby, Axehill 2015, the iterated EKF with a line search). Undamped,
+        Gauss-Newton overshoots where a precise range meets metres of prior uncertainty along a
+        direction it barely observes (one anchor 46 m away, 3.6 m vertical sigma: measured, the
+        vertical iterate went 16.8 -> 9.6 -> 34.3 m and the covariance linearized there claimed
+        0.7 m), and the filter ends confident at a wrong point."""
+        cat = lambda d: np.concatenate([d[0], d[1]], axis=1)  # noqa: E731  (n, E)
+        split = lambda x: (x[:, :N_ERR], x[:, N_ERR:])  # noqa: E731
+        x1 = cat(dx_gn)
+        x = np.zeros_like(x1) if dx is None else cat(dx)
+        bound = self._cost(rows, split(x)) * (1 + 1e-12)  # V at the current iterate (step 0)
+        a = np.zeros(self.n)  # per filter the longest step that does not raise V
+        open_ = np.ones(self.n, bool)
+        for step in self.STEPS[:-1]:  # shorter steps only while some filter has none yet
+            ok = open_ & (self._cost(rows, split(x + step * (x1 - x))) <= bound)
+            a[ok], open_ = step, open_ & ~ok
+            if not open_.any():
+                break
+        return split(x + a[:, None] * (x1 - x))
+
+    def _cost(self, rows: Rows, d) -> np.ndarray:
+        """(n,) the MAP cost of each filter at x (+) d (_line_search); P the prior covariance."""
+        x = np.concatenate([d[0], d[1]], axis=1)
+        prior = np.einsum("ne,ne->n", x, np.linalg.solve(self.P, x[..., None])[..., 0])
+        x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
+        self._inject(d)
+        h, _, _ = self._linearize(rows)
+        self.p, self.v, self.q, self.ba, self.bg, self.c = x0
+        return prior + np.bincount(rows.i, (rows.z - h) ** 2 / rows.var, minlength=self.n)
 
     def _inject(self, dx) -> None:
         """x (+) dx for every vehicle, dx = (core (n, 15), delays (D,) joint or (n, D))."""

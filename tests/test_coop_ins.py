@@ -125,3 +125,64 @@ def test_gate_rejects_an_outlier_range_not_a_fix():
                    component=np.array([3, 0]), other=np.array([a[0], [np.nan] * 3]), dev=np.full((2, 2), -1))
     status = s.update(rows, 10.83, 1)
     assert status.tolist() == [0, 1]
+
+
+def _far_anchor_epoch(damped: bool) -> tuple[ci.SwarmIns, ci.Rows, tuple]:
+    """One distributed filter 3.6 m uncertain in height, 1 m across, with a 0.1 m range to an anchor
+    46 m away and 6 m below and a vertical fix 14.8 m off (the geometry measured on coop-denied seed
+    1002: one anchor in reach)."""
+    s = ci.SwarmIns(1, np.zeros((1, 3)), NOISE, joint=False, damped=damped)
+    P0 = np.diag([1.0, 2.3, 3.6, 1, 1, 1, 0.06, 0.06, 0.1, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01]) ** 2
+    s.start(0, np.array([-26.1, 8.2, 16.8]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), P0)
+    s.t = 0.0
+    truth, anchor = np.array([-22.0, 6.9, 8.0]), np.array([20.0, -14.0, 2.0])
+    rows = ci.Rows(z=np.array([truth[2] + 2.0, np.linalg.norm(truth - anchor)]), var=np.array([26.0, 0.01]),
+                   i=np.array([0, 0]), j=np.array([-1, -1]), component=np.array([2, 3]),
+                   other=np.array([[np.nan] * 3, anchor]), dev=np.array([[-1, -1], [-1, -1]]))
+    return s, rows, (s.p.copy(), s.P[0].copy())
+
+
+def _map_cost(s: ci.SwarmIns, rows: ci.Rows, prior) -> float:
+    """The MAP cost of the filter's state after its update, against the prior it started from."""
+    p0, P0 = prior
+    d = np.zeros(ci.N_ERR)
+    d[ci.P_] = s.p[0] - p0[0]
+    h, _, _ = s._linearize(rows)
+    return float(d @ np.linalg.solve(P0, d) + ((rows.z - h) ** 2 / rows.var).sum())
+
+
+def test_damped_iterated_update_never_raises_the_map_cost():
+    """The line-searched iterated update ends at a MAP cost no higher than the prior's and than one
+    plain EKF step's (each step is accepted only if it does not raise the cost), on the geometry
+    where Gauss-Newton overshot on coop-denied seed 1002 (one far anchor, metres of height prior)."""
+    costs = {}
+    for damped, iters in ((False, 1), (True, 3)):
+        s, rows, prior = _far_anchor_epoch(damped)
+        costs["prior"] = _map_cost(s, rows, prior)
+        s.update(rows, np.inf, iters)
+        costs[damped] = _map_cost(s, rows, prior)
+    assert costs[True] <= costs["prior"]
+    assert costs[True] <= costs[False] + 1e-9
+
+
+def test_centralized_filter_refuses_the_damped_update():
+    with pytest.raises(ValueError):
+        ci.SwarmIns(2, np.zeros((2, 3)), NOISE, joint=True, damped=True)
+
+
+def test_broadcast_check_covers_an_own_filter_that_disagrees_with_the_flown_one():
+    """A vehicle whose own-measurement estimate is 16 m from its cooperative one, both claiming about
+    1 m, broadcasts a covariance that covers the disagreement (d^T C^-1 d <= 1 in its direction);
+    one within its covariances broadcasts its own covariance unchanged."""
+    from scipy.stats import chi2
+
+    from testbed.plugins.builtin_coop_ins import checked_broadcast
+
+    C = np.tile(np.diag([0.6, 1.0, 1.3]) ** 2, (2, 1, 1))
+    s_flown = np.zeros((2, 3))
+    s_own = np.array([[0.5, -0.8, 1.0], [-0.4, 0.7, 15.8]])
+    out, failed = checked_broadcast(s_own, C, s_flown, C, float(chi2.isf(1e-3, 3)))
+    assert failed.tolist() == [False, True]
+    np.testing.assert_array_equal(out[0], C[0])
+    d = s_own[1] - s_flown[1]
+    assert d @ np.linalg.solve(out[1], d) <= 1.0

@@ -8,7 +8,12 @@ a range to a neighbour enters the flown filter with the neighbour's last broadca
 arrived as a known point, its covariance times `peer_inflation` added to the range variance
 (broadcasting the flown filter, which already holds what the neighbours said, made the filters
 optimistic until they rejected the fixes; the factor counts the neighbour's slowly changing
-error entering every epoch, chosen by the rule of testbed.reproduce.peer_inflation).
+error entering every epoch, chosen by the rule of testbed.reproduce.peer_inflation). Each
+broadcast is first checked against the sender's flown estimate of the same antenna
+(checked_broadcast, chi-square 3 dof at 1 - broadcast_check): an own filter that has gone wrong
+(measured: 16 m off with a 1.3 m sigma) is broadcast with the disagreement added to its
+covariance. The per-vehicle filters' iterated update is line-searched (estimators.coop_ins
+SwarmIns._line_search).
 
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
@@ -50,8 +55,9 @@ the estimate had drifted).
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
 (m/s, 1.0), output_every (1); distributed only: network (a [network] table, docs/network.md;
-absent: ideal), stale_s (s, 1.0), peer_inflation (8). health(): epochs, rejected_measurements,
-skipped_updates, stale_ranges; distributed also the network's sent, delivered, dropped,
+absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off). health():
+epochs, rejected_measurements, skipped_updates, stale_ranges; distributed also
+inconsistent_broadcasts (checked_broadcast) and the network's sent, delivered, dropped,
 bytes_sent and latency_p50_us / latency_p95_us.
 """
 from __future__ import annotations
@@ -70,9 +76,10 @@ from testbed.plugins.builtin_eskf import imu_noise, levelled_start
 from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
-                network=None, stale_s=1.0, peer_inflation=8.0)
+                network=None, stale_s=1.0, peer_inflation=4.0, broadcast_check=1e-3)
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
 NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
+DISTRIBUTED_ONLY = ("network", "stale_s", "peer_inflation", "broadcast_check")
 
 
 class CoopIns:
@@ -81,7 +88,7 @@ class CoopIns:
     copies = 1  # filters per vehicle in self.ins (the distributed one adds its own-measurement filter)
 
     def __init__(self, context: Context, params: dict):
-        known = set(DEFAULTS) - ({"network", "stale_s", "peer_inflation"} if self.joint else set())
+        known = set(DEFAULTS) - (set(DISTRIBUTED_ONLY) if self.joint else set())
         if set(params) - known:
             raise ValueError(f"unknown params {sorted(set(params) - known)}; known: {sorted(known)}")
         if "imu" not in context.sensors:
@@ -107,7 +114,7 @@ class CoopIns:
         self.device = {**{f"{v}/uwb": k for k, v in enumerate(self.vehicles)},
                        **{a: n + k for k, a in enumerate(self.anchors)}} if delay > 0 else {}
         self.ins = ci.SwarmIns(self.copies * n, np.tile(self.lever, (self.copies, 1)), noise, joint=self.joint,
-                               devices=len(self.device), delay_var=delay ** 2)
+                               devices=len(self.device), delay_var=delay ** 2, damped=not self.joint)
         self.gate = float(chi2.isf(self.p["gate_prob"], 1)) if self.p["gate_prob"] > 0 else np.inf
         self.held = np.full((n, 6), np.nan)  # the IMU sample each vehicle holds
         self.new = np.full((n, 6), np.nan)  # samples of the instant being collected
@@ -341,6 +348,9 @@ class CoopInsDistributed(CoopIns):
     copies = 2
 
     def _network(self, context: Context) -> None:
+        check = float(self.p["broadcast_check"])
+        self.threshold = float(chi2.isf(check, 3)) if check > 0 else np.inf
+        self.counts["inconsistent_broadcasts"] = 0
         net = self.p["network"]
         self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
                                self.n, context.rng)
@@ -368,13 +378,11 @@ class CoopInsDistributed(CoopIns):
         ins.fold()
         s_all, dS = ins.antennas()
         own = slice(n, 2 * n)
-        D = ins.blocks()[own]
-        # covariance of the antenna: ds = dp + dS dtheta
-        A = np.concatenate([np.tile(np.eye(3), (n, 1, 1)), dS[own]], axis=2)  # (n, 3, 6)
-        idx = np.r_[0:3, 6:9]
-        Cs = A @ D[:, idx][:, :, idx] @ np.swapaxes(A, 1, 2)
-        Cv = D[:, ci.V_, ci.V_]
+        C_all = antenna_covariances(ins.blocks(), dS)
+        Cs, Cv = C_all[own], ins.blocks()[own][:, ci.V_, ci.V_]
         s, v = s_all[own], ins.v[own]
+        Cs, bad = checked_broadcast(s, Cs, s_all[:n], C_all[:n], self.threshold)
+        self.counts["inconsistent_broadcasts"] += int((bad & ins.active[own]).sum())
         net.set_geometry(t, s)
         for k in np.flatnonzero(ins.active[own]).tolist():
             net.broadcast(t, k, BROADCAST_BYTES, (t, s[k].copy(), v[k].copy(), Cs[k].copy(), Cv[k].copy()))
@@ -403,3 +411,26 @@ class CoopInsDistributed(CoopIns):
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
                                  other=point, dev=ranged.dev[ok]))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
+
+
+def antenna_covariances(blocks: np.ndarray, dS: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) m^2 the antenna position covariance of each filter: ds = dp + dS dtheta, from its
+    core covariance blocks (k, 15, 15) and dS = ds/ddtheta (k, 3, 3)."""
+    A = np.concatenate([np.tile(np.eye(3), (len(blocks), 1, 1)), dS], axis=2)  # (k, 3, 6)
+    idx = np.r_[0:3, 6:9]
+    return A @ blocks[:, idx][:, :, idx] @ np.swapaxes(A, 1, 2)
+
+
+def checked_broadcast(s_own: np.ndarray, C_own: np.ndarray, s_flown: np.ndarray, C_flown: np.ndarray,
+                      threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(covariance (k, 3, 3) m^2, failed (k,) bool): the covariance each vehicle broadcasts with its own-measurement antenna estimate
+    s_own (k, 3) m, C_own (k, 3, 3): a chi-square test of the vehicle's two estimates of one antenna,
+    d = s_own - s_flown against C_own + C_flown (3 dof; the two filters share the vehicle's own
+    measurements, so the covariance of d is smaller than that sum and the test errs towards
+    passing); where d^T (C_own + C_flown)^-1 d > threshold the own filter is inconsistent (its error
+    far beyond its covariance: measured, one vehicle's own filter 16 m off with a 1.3 m sigma) and
+    the broadcast covariance is C_own + d d^T, which covers the disagreement in its direction."""
+    d = s_own - s_flown
+    nis = np.einsum("ki,ki->k", d, np.linalg.solve(C_own + C_flown, d[..., None])[..., 0])
+    bad = nis > threshold
+    return np.where(bad[:, None, None], C_own + d[:, :, None] * d[:, None, :], C_own), bad

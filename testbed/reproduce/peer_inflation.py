@@ -20,6 +20,9 @@ describe), so what the rule removes is the optimism the distributed approximatio
 calibration seeds (1000..1002) are disjoint from the evaluation seeds of `testbed reproduce
 denied` (the scenario seed 18 + run index) and of the tests.
 
+The rule was applied twice: it gave 8 for the filter as first built, and 4 once the per-vehicle
+update was line-searched and the broadcasts checked (docs/denied.md has both tables).
+
 `python -m testbed.reproduce.peer_inflation` runs the calibration and prints the table and the
 rule's kappa (the command that produced the default in testbed.plugins.builtin_coop_ins).
 """
