@@ -186,3 +186,9 @@ def test_broadcast_check_covers_an_own_filter_that_disagrees_with_the_flown_one(
     np.testing.assert_array_equal(out[0], C[0])
     d = s_own[1] - s_flown[1]
     assert d @ np.linalg.solve(out[1], d) <= 1.0
+
+
+def test_a_broadcast_error_is_counted_once_more_each_epoch_up_to_peer_inflation():
+    from testbed.plugins.builtin_coop_ins import peer_kappa
+
+    np.testing.assert_array_equal(peer_kappa(4.0, np.array([0, 1, 2, 3, 50])), [1.0, 2.0, 3.0, 4.0, 4.0])

@@ -5,10 +5,11 @@ swarm. Distributed: per vehicle two filters, the flown one and one of the vehicl
 measurements only (IMU, GNSS, anchors); at each UWB epoch every vehicle broadcasts the second
 one's antenna position, velocity and their covariances (BROADCAST_BYTES) over the network, and
 a range to a neighbour enters the flown filter with the neighbour's last broadcast that has
-arrived as a known point, its covariance times `peer_inflation` added to the range variance
+arrived as a known point, its covariance times kappa added to the range variance
 (broadcasting the flown filter, which already holds what the neighbours said, made the filters
-optimistic until they rejected the fixes; the factor counts the neighbour's slowly changing
-error entering every epoch, chosen by the rule of testbed.reproduce.peer_inflation). Each
+optimistic until they rejected the fixes; kappa counts the neighbour's slowly changing error
+entering every epoch: k at the receiver's k-th epoch ranging to that neighbour, up to
+`peer_inflation`, chosen by the rule of testbed.reproduce.peer_inflation; peer_kappa). Each
 broadcast is first checked against the sender's flown estimate of the same antenna
 (checked_broadcast, chi-square 3 dof at 1 - broadcast_check): an own filter that has gone wrong
 (measured: 16 m off with a 1.3 m sigma) is broadcast with the disagreement added to its
@@ -360,6 +361,7 @@ class CoopInsDistributed(CoopIns):
         self.heard_v = np.zeros((n, n, 3))
         self.heard_cs = np.zeros((n, n, 3, 3))
         self.heard_cv = np.zeros((n, n, 3, 3))
+        self.uses = np.zeros((n, n), int)  # receiver, sender: epochs a range to its broadcasts entered
 
     def health(self) -> dict[str, int]:
         st = self.network.stats()
@@ -407,10 +409,21 @@ class CoopInsDistributed(CoopIns):
             cov = self.heard_cs[me, you] + age[:, None, None] ** 2 * self.heard_cv[me, you]
             u = s_all[me] - point  # the range's direction from the flown filter's antenna
             u /= np.maximum(np.linalg.norm(u, axis=1), 1e-9)[:, None]
-            var = ranged.var[ok] + float(self.p["peer_inflation"]) * np.einsum("mi,mij,mj->m", u, cov, u)
+            kappa = peer_kappa(float(self.p["peer_inflation"]), self.uses[me, you])
+            np.add.at(self.uses, (me, you), 1)
+            var = ranged.var[ok] + kappa * np.einsum("mi,mij,mj->m", u, cov, u)
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
                                  other=point, dev=ranged.dev[ok]))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
+
+
+def peer_kappa(cap: float, uses: np.ndarray) -> np.ndarray:
+    """(m,) the factor on a neighbour's broadcast covariance in a range's variance, given how many
+    epochs (m,) the receiver has already ranged to that neighbour's broadcasts: the broadcast error
+    changes slowly, so the k-th epoch counts the same error a k-th time; its share is multiplied
+    by k (the first range, whose error nothing has counted yet, by 1), up to cap = peer_inflation
+    (beyond which the error is taken to have changed)."""
+    return np.minimum(cap, 1.0 + np.asarray(uses, float))
 
 
 def antenna_covariances(blocks: np.ndarray, dS: np.ndarray) -> np.ndarray:

@@ -20,8 +20,10 @@ describe), so what the rule removes is the optimism the distributed approximatio
 calibration seeds (1000..1002) are disjoint from the evaluation seeds of `testbed reproduce
 denied` (the scenario seed 18 + run index) and of the tests.
 
-The rule was applied twice: it gave 8 for the filter as first built, and 4 once the per-vehicle
-update was line-searched and the broadcasts checked (docs/denied.md has both tables).
+The rule was applied three times: it gave 8 for the filter as first built, 4 once the per-vehicle
+update was line-searched and the broadcasts checked, and 4 again once the factor became a cap
+(the k-th epoch a receiver ranges to a neighbour counts its broadcast error k times, up to
+kappa: builtin_coop_ins.peer_kappa); docs/denied.md has the tables.
 
 `python -m testbed.reproduce.peer_inflation` runs the calibration and prints the table and the
 rule's kappa (the command that produced the default in testbed.plugins.builtin_coop_ins).
