@@ -100,6 +100,7 @@ class SwarmIns:
         if damped and self.joint:
             raise ValueError("the damped (line-searched) iterated update is implemented for the distributed filters")
         self.damped = bool(damped)
+        self._prior_information = None  # P^-1 of the prior during a damped update (_cost)
         self.lever = np.asarray(lever, float).reshape(self.n, 3)
         self.p = np.zeros((n, 3))
         self.v = np.zeros((n, 3))
@@ -219,36 +220,39 @@ class SwarmIns:
         R = quat_to_rotmat(self.q)
         return self.p + np.einsum("nij,nj->ni", R, self.lever), -R @ skew(self.lever)
 
-    def _linearize(self, rows: Rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _linearize(self, rows: Rows, jacobians: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """h (m,) at the current state, and the Jacobians: Hi (m, 15) on vehicle i's core, Hj (m, 15)
         on vehicle j's (pair rows of the centralized filter; zero otherwise); the delay columns
-        are rows.dev (each 1)."""
+        are rows.dev (each 1). jacobians False: h only (Hi, Hj None)."""
         s, dS = self.antennas()
         m = rows.z.size
-        Hi, Hj, h = np.zeros((m, N_ERR)), np.zeros((m, N_ERR)), np.zeros(m)
+        h = np.zeros(m)
+        Hi, Hj = (np.zeros((m, N_ERR)), np.zeros((m, N_ERR))) if jacobians else (None, None)
         fix = rows.component < 3
         k = np.flatnonzero(fix)
         c, i = rows.component[k], rows.i[k]
         h[k] = s[i, c]
-        Hi[k, c] = 1.0
-        Hi[k, 6:9] = dS[i, c]
+        if jacobians:
+            Hi[k, c] = 1.0
+            Hi[k, 6:9] = dS[i, c]
         k = np.flatnonzero(~fix)
         if k.size:
             i, j = rows.i[k], rows.j[k]
             known = ~np.isnan(rows.other[k, 0])
             d = s[i] - np.where(known[:, None], rows.other[k], s[np.maximum(j, 0)])
             dist = np.linalg.norm(d, axis=1)
-            u = d / np.maximum(dist, 1e-9)[:, None]
             h[k] = dist
             if self.D:
                 dev = np.maximum(rows.dev[k], 0)
                 c = self.c[dev] if self.joint else np.take_along_axis(self.c[i], dev, axis=1)
                 h[k] += np.where(rows.dev[k] >= 0, c, 0.0).sum(axis=1)
-            Hi[k, 0:3] = u
-            Hi[k, 6:9] = np.einsum("mk,mkl->ml", u, dS[i])
-            pair = ~known
-            Hj[k[pair], 0:3] = -u[pair]
-            Hj[k[pair], 6:9] = -np.einsum("mk,mkl->ml", u[pair], dS[j[pair]])
+            if jacobians:
+                u = d / np.maximum(dist, 1e-9)[:, None]
+                Hi[k, 0:3] = u
+                Hi[k, 6:9] = np.einsum("mk,mkl->ml", u, dS[i])
+                pair = ~known
+                Hj[k[pair], 0:3] = -u[pair]
+                Hj[k[pair], 6:9] = -np.einsum("mk,mkl->ml", u[pair], dS[j[pair]])
         return h, Hi, Hj
 
     def _dense(self, rows: Rows, Hi: np.ndarray, Hj: np.ndarray) -> np.ndarray:
@@ -323,6 +327,7 @@ class SwarmIns:
                 self.p, self.v, self.q, self.ba, self.bg, self.c = x0
             dx_gn, P = step(rows, h, Hi, Hj, dx)
             dx = self._line_search(rows, dx, dx_gn) if self.damped else dx_gn
+        self._prior_information = None
         self._inject(dx)
         self.P = P
         # Sola eq. 287: reset of each attitude error block after injection
@@ -365,8 +370,7 @@ class SwarmIns:
         S = Hb @ PHt + Rb[:, :, None] * np.eye(M)
         L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
         # L^-1 [H P, r]: W (n, M, E) and y (n, M)
-        Wy = linalg.solve_triangular(L, np.concatenate([np.swapaxes(PHt, 1, 2), rb[..., None]], axis=2), lower=True,
-                                     check_finite=False)
+        Wy = np.linalg.solve(L, np.concatenate([np.swapaxes(PHt, 1, 2), rb[..., None]], axis=2))  # batched in C
         W, y = Wy[..., :E], Wy[..., E]
         x = np.einsum("nme,nm->ne", W, y)
         return (x[:, :N_ERR], x[:, N_ERR:]), self.P - np.swapaxes(W, 1, 2) @ W
@@ -399,10 +403,12 @@ class SwarmIns:
     def _cost(self, rows: Rows, d) -> np.ndarray:
         """(n,) the MAP cost of each filter at x (+) d (_line_search); P the prior covariance."""
         x = np.concatenate([d[0], d[1]], axis=1)
-        prior = np.einsum("ne,ne->n", x, np.linalg.solve(self.P, x[..., None])[..., 0])
+        if self._prior_information is None:  # P is the prior until the update ends: inverted once
+            self._prior_information = np.linalg.inv(self.P)
+        prior = ((self._prior_information @ x[..., None])[..., 0] * x).sum(axis=1)  # d^T P^-1 d
         x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
         self._inject(d)
-        h, _, _ = self._linearize(rows)
+        h, _, _ = self._linearize(rows, jacobians=False)
         self.p, self.v, self.q, self.ba, self.bg, self.c = x0
         return prior + np.bincount(rows.i, (rows.z - h) ** 2 / rows.var, minlength=self.n)
 

@@ -142,11 +142,12 @@ class Network:
         arrival = np.full(k, float(t))
         if not self.ideal:
             arrival = self._channel(t, int(src), dsts, int(nbytes))
+        t, src, nbytes = float(t), int(src), int(nbytes)
+        queues, seq, latency = self._queues, self._seq, self._latency
         for d, a in zip(dsts.tolist(), arrival.tolist()):
             if a < math.inf:
-                msg = Message(sent=float(t), arrival=a, src=int(src), dst=d, nbytes=int(nbytes), payload=payload)
-                heapq.heappush(self._queues[d], (a, next(self._seq), msg))
-                self._latency.append(a - t)
+                heapq.heappush(queues[d], (a, next(seq), Message(sent=t, arrival=a, src=src, dst=d, nbytes=nbytes, payload=payload)))
+                latency.append(a - t)
         return arrival
 
     def _channel(self, t: float, src: int, dsts: np.ndarray, nbytes: int) -> np.ndarray:
@@ -165,18 +166,19 @@ class Network:
             paid = self._pay(t, dsts[live], nbytes)
             self._count["dropped_budget"] += int((~paid).sum())
             live[np.flatnonzero(live)[~paid]] = False
-        for j in np.flatnonzero(live).tolist():
-            d = int(dsts[j])
-            link = self._link(src, d)
+        los = None if self.los is None else self.los[src].tolist()
+        links, dropped = self._links, 0
+        for j, d in zip(np.flatnonzero(live).tolist(), dsts[live].tolist()):
+            link = links.get((src, d)) or self._link(src, d)
             u, z = link.next()
             # the chain steps once per message on the link, then its state sets the loss
             link.bad = (u[1] >= cfg.ge_r) if link.bad else (u[1] < cfg.ge_p)
-            nlos = self.los is not None and not self.los[src, d]
-            lost = u[0] < cfg.loss_prob or u[2] < (cfg.ge_loss_bad if link.bad else cfg.ge_loss_good) or (nlos and u[3] < cfg.nlos_loss)
-            if lost:
-                self._count["dropped_loss"] += 1
+            nlos = los is not None and not los[d]
+            if u[0] < cfg.loss_prob or u[2] < (cfg.ge_loss_bad if link.bad else cfg.ge_loss_good) or (nlos and u[3] < cfg.nlos_loss):
+                dropped += 1
             else:
                 arrival[j] = t + self._latency_draw(z)
+        self._count["dropped_loss"] += dropped
         return arrival
 
     def send(self, t: float, src: int, dst: int, nbytes: int, payload: object) -> bool:
