@@ -52,6 +52,7 @@ class _WindowPlugin(EpochGrouping):
         self.uwb = context.sensors.get("uwb")
         self.solver = self._solver(context)
         self.t = None
+        self.last: sw.WindowEstimate | None = None  # the newest epoch's solution
         self.counts = {"epochs": 0, "skipped_epochs": 0, "nonconverged_epochs": 0, "messages": 0, "bytes_sent": 0}
         self._reset()
 
@@ -85,7 +86,7 @@ class _WindowPlugin(EpochGrouping):
         if not self.solver.epochs and np.isnan(self.fix).all():
             self.counts["skipped_epochs"] += 1  # nothing fixes the window yet
             return []
-        est = self._add(self._epoch())
+        est = self.last = self._add(self._epoch())
         self.counts["epochs"] += 1
         self.counts["nonconverged_epochs"] += int(not est.converged)
         self.counts["messages"] += est.messages
