@@ -194,3 +194,20 @@ def test_cascade_decorrelated_feeds_the_epochs_equivalent_measurement():
     np.testing.assert_allclose(seen[0][0], z[1])
     np.testing.assert_allclose(seen[0][1], R[1])
     np.testing.assert_allclose(R[1], np.eye(3) / (2.0 - 0.5), rtol=1e-12)  # 1 / (1/0.5 - 1/2)
+
+
+def test_window_range_scale_multiplies_the_range_sigma_and_the_cascade_defaults_to_huber():
+    from testbed.plugins.api import Measurement
+    from testbed.plugins.builtin_window import Window
+    from testbed.plugins.builtin_window_ins import WindowIns
+    from testbed.plugins.context import make_context
+
+    sc = load("coop-denied", duration=1.0)
+    ctx = make_context(sc, build(sc), "w", {})
+    m = Measurement(stream="uwb", time=0.0, arrival=0.0, value=np.array([7.0]), src="uav1/uwb", dst="uav2/uwb",
+                    sigma=np.array([0.1]))
+    one, three = Window(ctx, {}), Window(ctx, {"range_scale": 3.0})
+    assert three._range_sigma(m) == pytest.approx(3.0 * one._range_sigma(m)) and one._range_sigma(m) > 0.1
+    assert one.solver.huber is None  # coop.window: least squares (seed 001)
+    assert WindowIns(ctx, {}).window.solver.huber == 1.345
+    assert WindowIns(ctx, {"huber": 0.0}).window.solver.huber is None
