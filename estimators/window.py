@@ -42,6 +42,12 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   tests/test_window.py's synthetic swarm the RMS error grew 2.4 m -> 7.4 m over 15 epochs, against
   1.0-1.2 m with the own-measurement broadcast (0.3-0.9 m centralized, 3-4 m GNSS alone).
 
+Tracklets (`tracklets = True`): each estimate also carries the newest epoch's position marginal
+and the window's own prediction of it without that epoch's factors; `equivalent_measurement`
+turns the pair into the epoch's new information (information-form difference), what a filter
+fed every epoch should take to count no measurement twice (testbed.plugins.builtin_window_ins,
+decorrelate).
+
 Never imports mujoco or testbed.
 """
 from __future__ import annotations
@@ -89,7 +95,8 @@ class Epoch:
 class WindowEstimate:
     """The newest epoch's estimate: time t (s); pos, vel (n, 3) m, m/s world; pos_cov, vel_cov
     (n, 3, 3) marginal covariances; iterations (GN steps or rounds); converged; messages,
-    bytes_sent (distributed broadcasts, 0 centralized)."""
+    bytes_sent (distributed broadcasts, 0 centralized); tracklet (with `tracklets` on: the newest
+    position marginal and the window's prediction of it, `_Window._tracklet`; else None)."""
 
     t: float
     pos: np.ndarray
