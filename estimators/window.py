@@ -42,6 +42,12 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   tests/test_window.py's synthetic swarm the RMS error grew 2.4 m -> 7.4 m over 15 epochs, against
   1.0-1.2 m with the own-measurement broadcast (0.3-0.9 m centralized, 3-4 m GNSS alone).
 
+Tracklets (`tracklets = True`): each estimate also carries the newest epoch's position marginal
+and the window's own prediction of it without that epoch's factors; `equivalent_measurement`
+turns the pair into the epoch's new information (information-form difference), what a filter
+fed every epoch should take to count no measurement twice (testbed.plugins.builtin_window_ins,
+decorrelate).
+
 Never imports mujoco or testbed.
 """
 from __future__ import annotations
@@ -56,7 +62,7 @@ from estimators.core import white_acceleration_q
 from estimators.factor_graph import huber_rho, huber_weight
 from estimators.transport import Transport
 
-__all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_BYTES"]
+__all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_BYTES", "equivalent_measurement"]
 
 HALVINGS = 8  # step halvings per Gauss-Newton step (a full step that raises the cost is halved)
 
@@ -89,7 +95,8 @@ class Epoch:
 class WindowEstimate:
     """The newest epoch's estimate: time t (s); pos, vel (n, 3) m, m/s world; pos_cov, vel_cov
     (n, 3, 3) marginal covariances; iterations (GN steps or rounds); converged; messages,
-    bytes_sent (distributed broadcasts, 0 centralized)."""
+    bytes_sent (distributed broadcasts, 0 centralized); tracklet (with `tracklets` on: the newest
+    position marginal and the window's prediction of it, `_Window._tracklet`; else None)."""
 
     t: float
     pos: np.ndarray
@@ -100,6 +107,30 @@ class WindowEstimate:
     converged: bool
     messages: int = 0
     bytes_sent: int = 0
+    tracklet: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+def equivalent_measurement(m: np.ndarray, P: np.ndarray, m_pred: np.ndarray, P_pred: np.ndarray,
+                           min_info: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The new information of an epoch as one measurement of the state (the "equivalent
+    measurement" or tracklet decorrelation): a marginal N(m, P) that already holds what the
+    prediction N(m_pred, P_pred) held, minus that prediction.
+
+    Information form: Lambda = P^-1 - P_pred^-1, eta = P^-1 m - P_pred^-1 m_pred; the measurement
+    z = Lambda^-1 eta = m + Lambda^-1 P_pred^-1 (m - m_pred) with covariance R = Lambda^-1. Fed to a
+    filter that already holds the prediction's information, it adds only the epoch's.
+    Lambda is projected onto its directions of information above min_info (1 / unit^2): an
+    eigenvalue below is raised to min_info (that direction carries essentially nothing).
+    Batched: m, m_pred (n, d), P, P_pred (n, d, d). Returns z (n, d), R (n, d, d) and full (n,)
+    bool: every eigenvalue of Lambda was above min_info (nothing projected)."""
+    eye = np.broadcast_to(np.eye(m.shape[-1]), P.shape)
+    Ip, Ipp = np.linalg.solve(P, eye), np.linalg.solve(P_pred, eye)
+    lam = Ip - Ipp
+    w, V = np.linalg.eigh(0.5 * (lam + np.swapaxes(lam, 1, 2)))
+    full = (w > min_info).all(axis=1)
+    R = (V / np.maximum(w, min_info)[:, None, :]) @ np.swapaxes(V, 1, 2)
+    z = m + np.einsum("nij,nj->ni", R @ Ipp, m - m_pred)
+    return z, 0.5 * (R + np.swapaxes(R, 1, 2)), full
 
 
 @functools.lru_cache(maxsize=64)
@@ -168,6 +199,7 @@ class _Window:
         self.prior_mean = np.zeros((self.B, self.s))
         self._eye = np.eye(per_agent)
         self._krons: dict[float, tuple] = {}
+        self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
 
     def _motion(self, k: int) -> tuple:
         """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
@@ -216,13 +248,16 @@ class _Window:
                         huber_rho(s, delta) if count else None)
         return w
 
-    def _intra(self, P: np.ndarray, ranges: bool = True):
+    def _intra(self, P: np.ndarray, ranges: bool = True, newest: bool = False):
         """(D, R, C): diagonal blocks (B, K, s, s), right-hand sides (B, K, s) and cost (B,) of
         every factor within an epoch (prior, GNSS, anchor ranges, tag-to-tag ranges unless `ranges` is False),
-        linearized at positions P (K, n, 3). Position blocks are gathered first (B, K, nv, nv, 3, 3)."""
+        linearized at positions P (K, n, 3). Position blocks are gathered first (B, K, nv, nv, 3, 3).
+        newest: the newest epoch's own factors only (no prior, the other epochs' blocks zero)."""
         K, B, nv = P.shape[0], self.B, self.nv
         sys = (np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3)), np.zeros(B))
         for k, ep in enumerate(self.epochs):
+            if newest and k < K - 1:
+                continue
             has = np.flatnonzero(~np.isnan(ep.fix[:, 0]))
             if has.size:  # GNSS fix: least squares, diagonal (east, north, up) information
                 w = ep.fix_sigma[has] ** -2.0
@@ -241,6 +276,8 @@ class _Window:
         R = np.zeros((B, K, nv, 6))
         R[..., :3] = Rp
         D, R = D.reshape(B, K, self.s, self.s), R.reshape(B, K, self.s)
+        if newest:
+            return D, R, C
         e0 = self.prior_mean - self.X[:, 0]
         D[:, 0] += self.prior_info
         R[:, 0] += np.einsum("bij,bj->bi", self.prior_info, e0)
@@ -345,10 +382,29 @@ class _Window:
             self.X = np.concatenate([self.X, pred.reshape(self.B, 1, self.s)], axis=1)
         self.epochs.append(ep)
 
-    def _newest(self, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """pos, vel (n, 3), pos_cov, vel_cov (n, 3, 3) of the newest epoch (S its information)."""
+    def _tracklet(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The newest epoch's position marginal and the window's prediction of it, both linearized
+        at the current estimate: (pos (n, 3), pos_cov (n, 3, 3), pred_pos, pred_pos_cov), the
+        prediction being the same window without the newest epoch's own factors (its fixes and
+        ranges: what the earlier epochs, their prior and the motion factor say of it). The pair
+        estimators.window.equivalent_measurement turns into the epoch's new information. None
+        while the window holds one epoch (nothing predicts it)."""
+        if self.X.shape[1] < 2:
+            return None
+        D, U, R, _ = self._system()
+        Dn, Rn, _ = self._intra(self._pos(), newest=True)
+        delta, S = _solve_chain(D, U, R)
+        delta_p, S_p = _solve_chain(D - Dn, U, R - Rn)
+        pos, _, pc, _ = self._newest(S, delta[:, -1])
+        pred, _, ppc, _ = self._newest(S_p, delta_p[:, -1])
+        return pos, pc, pred, ppc
+
+    def _newest(self, S: np.ndarray, step: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """pos, vel (n, 3), pos_cov, vel_cov (n, 3, 3) of the newest epoch (S its information;
+        step (B, s): a Gauss-Newton step of the newest epoch to add to the current estimate)."""
         a, l = self._where(np.arange(self.n))
-        Xv = self.X[:, -1].reshape(self.B, self.nv, 6)[a, l]
+        Xn = self.X[:, -1] if step is None else self.X[:, -1] + step
+        Xv = Xn.reshape(self.B, self.nv, 6)[a, l]
         C = np.linalg.solve(S, np.broadcast_to(np.eye(self.s), S.shape))
         C = C.reshape(self.B, self.nv, 6, self.nv, 6)[a, l, :, l, :]  # (n, 6, 6)
         return Xv[:, :3], Xv[:, 3:], C[:, :3, :3], C[:, 3:, 3:]
@@ -387,7 +443,8 @@ class Centralized(_Window):
         self._append(ep)
         it, converged, S = self._iterate(self.max_iter, lambda d: float(np.abs(d).max()) < self.tol)
         pos, vel, pc, vc = self._newest(S)
-        return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it, converged=converged)
+        return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it, converged=converged,
+                              tracklet=self._tracklet() if self.tracklets else None)
 
 
 class Distributed(_Window):
@@ -470,4 +527,5 @@ class Distributed(_Window):
             converged = float(np.abs(delta.reshape(n, -1, 6)[:, -1, :3]).max()) < self.tol
         pos, vel, pc, vc = self._newest(S)
         return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=rounds,
-                              converged=converged, messages=messages, bytes_sent=sent_bytes)
+                              converged=converged, messages=messages, bytes_sent=sent_bytes,
+                              tracklet=self._tracklet() if self.tracklets else None)

@@ -168,3 +168,49 @@ def test_swarm_flies_on_the_distributed_estimate_over_the_network(tmp_path, atti
     assert f["contacts_vehicle"] == f["contacts_obstacle"] == f["contacts_floor"] == 0
     health = f["health"]
     assert health["sent"] > 0 and 0 < health["dropped"] < health["sent"]
+
+
+def test_cascade_decorrelated_feeds_the_epochs_equivalent_measurement():
+    """decorrelate = true: after its start, a filter is updated with the window epoch's equivalent
+    measurement (estimators.window.equivalent_measurement of the epoch's tracklet), not its marginal."""
+    from estimators import window as sw
+    from testbed.plugins.api import Estimate, Measurement
+    from testbed.plugins.builtin_window_ins import WindowIns
+    from testbed.plugins.context import make_context
+
+    sc = load("coop-denied", duration=1.0)
+    ins = WindowIns(make_context(sc, build(sc), "ins", {"decorrelate": True}), {"decorrelate": True})
+    assert ins.window.solver.tracklets
+    level = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
+    ins.process(Measurement(stream="imu", time=0.0, arrival=0.0, value=level, src="uav2/imu"))
+    ins._epoch(Estimate(time=0.0, target="uav2", quantity="position", value=np.zeros(3), cov=np.eye(3)))
+    rng = np.random.default_rng(0)
+    m, mp = rng.normal(size=(18, 3)), rng.normal(size=(18, 3))
+    P, Pp = np.tile(0.5 * np.eye(3), (18, 1, 1)), np.tile(2.0 * np.eye(3), (18, 1, 1))
+    ins.window.last = sw.WindowEstimate(t=0.2, pos=m, vel=m, pos_cov=P, vel_cov=P, iterations=1, converged=True,
+                                        tracklet=(m, P, mp, Pp))
+    seen = []
+    ins._apply = lambda f, z, model, Rn: seen.append((z, Rn))
+    ins._epoch(Estimate(time=0.2, target="uav2", quantity="position", value=m[1] - ins.lever["uav2"], cov=P[1]))
+    z, R, _ = sw.equivalent_measurement(m, P, mp, Pp)
+    assert len(seen) == 1
+    np.testing.assert_allclose(seen[0][0], z[1])
+    np.testing.assert_allclose(seen[0][1], R[1])
+    np.testing.assert_allclose(R[1], np.eye(3) / (2.0 - 0.5), rtol=1e-12)  # 1 / (1/0.5 - 1/2)
+
+
+def test_window_range_scale_multiplies_the_range_sigma_and_the_cascade_defaults_to_huber():
+    from testbed.plugins.api import Measurement
+    from testbed.plugins.builtin_window import Window
+    from testbed.plugins.builtin_window_ins import WindowIns
+    from testbed.plugins.context import make_context
+
+    sc = load("coop-denied", duration=1.0)
+    ctx = make_context(sc, build(sc), "w", {})
+    m = Measurement(stream="uwb", time=0.0, arrival=0.0, value=np.array([7.0]), src="uav1/uwb", dst="uav2/uwb",
+                    sigma=np.array([0.1]))
+    one, three = Window(ctx, {}), Window(ctx, {"range_scale": 3.0})
+    assert three._range_sigma(m) == pytest.approx(3.0 * one._range_sigma(m)) and one._range_sigma(m) > 0.1
+    assert one.solver.huber is None  # coop.window: least squares (seed 001)
+    assert WindowIns(ctx, {}).window.solver.huber == 1.345
+    assert WindowIns(ctx, {"huber": 0.0}).window.solver.huber is None

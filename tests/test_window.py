@@ -169,3 +169,46 @@ def test_time_order_enforced():
     est.add(eps[1])
     with pytest.raises(ValueError, match="time order"):
         est.add(eps[0])
+
+
+def test_tracklet_recovers_the_newest_epochs_own_fix_on_a_linear_graph():
+    """The equivalent measurement of the newest epoch (marginal minus the window's prediction of
+    it, estimators.window.equivalent_measurement) is exactly that epoch's new information: on a
+    linear graph (GNSS + motion, vehicles independent) each vehicle's own fix and its declared
+    covariance; a vehicle without a fix in that epoch brings nothing (projected, not full)."""
+    eps, truth = synthetic(8)
+    eps = [dataclasses.replace(ep, edges=np.zeros((0, 2), np.int64), ranges=np.zeros(0), range_sigma=np.zeros(0),
+                               anchor_vehicle=np.zeros(0, np.int64), anchor_pos=np.zeros((0, 3)),
+                               anchor_range=np.zeros(0), anchor_sigma=np.zeros(0)) for ep in eps]
+    est = sw.Centralized(N, window=3, q=Q, max_iter=50, tol=1e-10)
+    est.tracklets = True
+    for k, ep in enumerate(eps):
+        last = est.add(ep)
+        if k == 0:
+            assert last.tracklet is None  # nothing predicts the first epoch
+            continue
+        z, R, full = sw.equivalent_measurement(*last.tracklet)
+        has = ~np.isnan(ep.fix[:, 0])
+        np.testing.assert_array_equal(full, has)
+        np.testing.assert_allclose(z[has], ep.fix[has], atol=1e-6)
+        np.testing.assert_allclose(R[has], np.stack([np.diag(s ** 2) for s in ep.fix_sigma[has]]), rtol=1e-6, atol=1e-9)
+        assert (np.linalg.eigvalsh(R[~has]) >= 1e3).all()  # no fix: (almost) no information
+    assert any(np.isnan(ep.fix[:, 0]).any() for ep in eps[1:])  # the outage was exercised
+
+
+def test_equivalent_measurement_removes_the_prior_from_a_fused_estimate():
+    """Fusing a prior N(m0, P0) with a measurement N(z, R) and taking the prior out again gives
+    back z and R (the information-form difference), batched; a fused estimate no more informative
+    than its prior is projected."""
+    rng = np.random.default_rng(1)
+    A, Bm = rng.normal(size=(4, 3, 3)), rng.normal(size=(4, 3, 3))
+    P0, R = A @ np.swapaxes(A, 1, 2) + np.eye(3), Bm @ np.swapaxes(Bm, 1, 2) + 0.1 * np.eye(3)
+    m0, z = rng.normal(size=(4, 3)), rng.normal(size=(4, 3))
+    P = np.linalg.inv(np.linalg.inv(P0) + np.linalg.inv(R))
+    m = np.einsum("nij,nj->ni", P, np.linalg.solve(P0, m0[..., None])[..., 0] + np.linalg.solve(R, z[..., None])[..., 0])
+    z2, R2, full = sw.equivalent_measurement(m, P, m0, P0)
+    assert full.all()
+    np.testing.assert_allclose(z2, z, atol=1e-8)
+    np.testing.assert_allclose(R2, R, atol=1e-8)
+    _, R3, full3 = sw.equivalent_measurement(m0, P0, m0, P0)
+    assert not full3.any() and (np.linalg.eigvalsh(R3) >= 1e3).all()
