@@ -11,7 +11,10 @@ simulated seconds / second, and the estimator's share of the run: its wall time 
 (timing.json `wall_ms`, testbed.plugins.online) over the run's wall time, and its CPU time,
 measured by feeding the run's log to a fresh instance of the same estimator (the same
 measurements in the same order give the same estimates: testbed.plugins.feed) over the run's
-CPU time. On a shared machine the CPU figures are the ones to read.
+CPU time. On a shared machine the CPU figures are the ones to read. Beside the whole run, the
+flown loop alone (`loop_cpu_s`: the world built, then every tick of the simulation with the
+sensors and the estimator in the loop, the log kept in memory; no scoring, no writing), timed
+on the same scenario again: the real-time factor of the step and the estimator's share of it.
 """
 from __future__ import annotations
 
@@ -20,13 +23,15 @@ import tempfile
 import time
 from pathlib import Path
 
-from testbed.log import load_log
+from testbed.log import LogWriter, load_log
 from testbed.plugins.context import make_context
 from testbed.plugins.feed import batched, run_plugin
 from testbed.plugins.loading import resolve
+from testbed.plugins.online import in_the_loop
 from testbed.reproduce.denied import COOP, variant
 from testbed.runner import run
 from testbed.scenario import load
+from testbed.simulate import record
 from testbed.world import build
 
 DURATION_S = 10.0
@@ -47,8 +52,15 @@ def bench_denied(duration: float = DURATION_S, name: str = "coop_distributed") -
     c1 = time.process_time()
     run_plugin(plugin, ctx, feed)
     est_cpu = time.process_time() - c1
+    c2 = time.process_time()
+    physics = build(sc)
+    online = in_the_loop(sc, physics, resolve(sc.estimators))
+    record(sc, LogWriter(), physics, feedback=online)
+    online.finish()
+    loop_cpu = time.process_time() - c2
     return {"scenario": sc.name, "variant": name, "vehicles": sc.vehicles, "simulated_s": duration,
             "wall_s": wall, "cpu_s": cpu, "realtime_factor_wall": duration / wall, "realtime_factor_cpu": duration / cpu,
             "estimator_wall_s": est_ms / 1e3, "estimator_share_wall": est_ms / 1e3 / wall,
             "estimator_cpu_s": est_cpu, "estimator_share_cpu": est_cpu / cpu,
+            "loop_cpu_s": loop_cpu, "realtime_factor_loop_cpu": duration / loop_cpu, "estimator_share_loop_cpu": est_cpu / loop_cpu,
             "estimation_rmse_m": metrics["estimators"][COOP]["rmse_position_mean_m"]}
