@@ -100,7 +100,6 @@ class SwarmIns:
         if damped and self.joint:
             raise ValueError("the damped (line-searched) iterated update is implemented for the distributed filters")
         self.damped = bool(damped)
-        self._prior_information = None  # P^-1 of the prior during a damped update (_cost)
         self.lever = np.asarray(lever, float).reshape(self.n, 3)
         self.p = np.zeros((n, 3))
         self.v = np.zeros((n, 3))
@@ -316,18 +315,13 @@ class SwarmIns:
             rows = Rows(z=rows.z, var=rows.var / w, i=rows.i, j=rows.j, component=rows.component, other=rows.other,
                         dev=rows.dev)
         rows = rows.subset(ok)
-        x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
         step = self._joint_step if self.joint else self._local_step
+        prior_information = np.linalg.inv(self.P) if self.damped else None  # P is the prior until the end
         dx = None
-        for it in range(max(1, int(iterations))):
-            if it:
-                self._inject(dx)
-            h, Hi, Hj = self._linearize(rows)
-            if it:
-                self.p, self.v, self.q, self.ba, self.bg, self.c = x0
+        for _ in range(max(1, int(iterations))):
+            h, Hi, Hj = self._linearize_at(rows, dx)
             dx_gn, P = step(rows, h, Hi, Hj, dx)
-            dx = self._line_search(rows, dx, dx_gn) if self.damped else dx_gn
-        self._prior_information = None
+            dx = self._line_search(rows, dx, dx_gn, prior_information) if self.damped else dx_gn
         self._inject(dx)
         self.P = P
         # Sola eq. 287: reset of each attitude error block after injection
@@ -375,9 +369,9 @@ class SwarmIns:
         x = np.einsum("nme,nm->ne", W, y)
         return (x[:, :N_ERR], x[:, N_ERR:]), self.P - np.swapaxes(W, 1, 2) @ W
 
-    STEPS = (1.0, 0.5, 0.25, 0.125, 0.0)  # step lengths tried by the line search, longest first
+    STEPS = (1.0, 0.5, 0.25, 0.125)  # step lengths tried by the line search, longest first (else 0)
 
-    def _line_search(self, rows: Rows, dx, dx_gn):
+    def _line_search(self, rows: Rows, dx, dx_gn, prior_information: np.ndarray):
         """The damped iterated update (distributed filters): from the current iterate dx (None: the
         prior) towards the Gauss-Newton iterate dx_gn, per filter the longest step of STEPS that
         does not raise the MAP cost V(d) = d^T P^-1 d + sum_k r_k(x (+) d)^2 / var_k of its rows
@@ -385,32 +379,40 @@ class SwarmIns:
         Gauss-Newton overshoots where a precise range meets metres of prior uncertainty along a
         direction it barely observes (one anchor 46 m away, 3.6 m vertical sigma: measured, the
         vertical iterate went 16.8 -> 9.6 -> 34.3 m and the covariance linearized there claimed
-        0.7 m), and the filter ends confident at a wrong point."""
-        cat = lambda d: np.concatenate([d[0], d[1]], axis=1)  # noqa: E731  (n, E)
-        split = lambda x: (x[:, :N_ERR], x[:, N_ERR:])  # noqa: E731
-        x1 = cat(dx_gn)
-        x = np.zeros_like(x1) if dx is None else cat(dx)
-        bound = self._cost(rows, split(x)) * (1 + 1e-12)  # V at the current iterate (step 0)
+        0.7 m), and the filter ends confident at a wrong point. prior_information: P^-1 (n, E, E)."""
+        x1 = np.concatenate(dx_gn, axis=1)  # (n, E)
+        x = np.zeros_like(x1) if dx is None else np.concatenate(dx, axis=1)
+        def cost(step: float) -> np.ndarray:
+            return self._cost(rows, x + step * (x1 - x), prior_information)
+
+        bound = cost(0.0) * (1 + 1e-12)  # V at the current iterate
         a = np.zeros(self.n)  # per filter the longest step that does not raise V
         open_ = np.ones(self.n, bool)
-        for step in self.STEPS[:-1]:  # shorter steps only while some filter has none yet
-            ok = open_ & (self._cost(rows, split(x + step * (x1 - x))) <= bound)
+        for step in self.STEPS:  # shorter steps only while some filter has none yet
+            ok = open_ & (cost(step) <= bound)
             a[ok], open_ = step, open_ & ~ok
             if not open_.any():
                 break
-        return split(x + a[:, None] * (x1 - x))
+        x = x + a[:, None] * (x1 - x)
+        return x[:, :N_ERR], x[:, N_ERR:]
 
-    def _cost(self, rows: Rows, d) -> np.ndarray:
-        """(n,) the MAP cost of each filter at x (+) d (_line_search); P the prior covariance."""
-        x = np.concatenate([d[0], d[1]], axis=1)
-        if self._prior_information is None:  # P is the prior until the update ends: inverted once
-            self._prior_information = np.linalg.inv(self.P)
-        prior = ((self._prior_information @ x[..., None])[..., 0] * x).sum(axis=1)  # d^T P^-1 d
-        x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
-        self._inject(d)
-        h, _, _ = self._linearize(rows, jacobians=False)
-        self.p, self.v, self.q, self.ba, self.bg, self.c = x0
+    def _cost(self, rows: Rows, x: np.ndarray, prior_information: np.ndarray) -> np.ndarray:
+        """(n,) the MAP cost of each filter at x (+) d, d = x (n, E) split into core and delays
+        (_line_search): d^T P^-1 d + sum over its rows of r^2 / var."""
+        prior = ((prior_information @ x[..., None])[..., 0] * x).sum(axis=1)
+        h, _, _ = self._linearize_at(rows, (x[:, :N_ERR], x[:, N_ERR:]), jacobians=False)
         return prior + np.bincount(rows.i, (rows.z - h) ** 2 / rows.var, minlength=self.n)
+
+    def _linearize_at(self, rows: Rows, dx, jacobians: bool = True):
+        """_linearize at x (+) dx (dx None: at x), the state left as it was."""
+        if dx is None:
+            return self._linearize(rows, jacobians)
+        x0 = (self.p, self.v, self.q, self.ba, self.bg, self.c)
+        self._inject(dx)
+        try:
+            return self._linearize(rows, jacobians)
+        finally:
+            self.p, self.v, self.q, self.ba, self.bg, self.c = x0
 
     def _inject(self, dx) -> None:
         """x (+) dx for every vehicle, dx = (core (n, 15), delays (D,) joint or (n, D))."""

@@ -157,24 +157,19 @@ class CoopIns:
         if b.stream != "imu":
             return [e for m in b.rows() for e in self.process(m)]
         out = []
-        cuts = np.flatnonzero(np.diff(b.time)) + 1
-        for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(b)]):
+        for lo, hi in equal_time_runs(b.time):
             t = float(b.time[lo])
             if self.epoch_t is not None and t > self.epoch_t:
                 self._close(float(b.arrival[lo]))
-            if self.t_imu is not None and t > self.t_imu:
-                out += self._flush()
             i = self._imu_vehicles(b.src[lo:hi])
-            before_last = ~np.isnan(self.new[:, 0])
+            # the vehicles with a sample once all but the last row are in (a later t flushes first)
+            before_last = ~np.isnan(self.new[:, 0]) & (self.t_imu is not None and t <= self.t_imu)
             before_last[i[:-1]] = True
-            if np.unique(i).size < i.size or before_last.all():
+            if np.unique(i).size < i.size or before_last.all():  # row by row would flush within the run
                 for m in b.rows()[lo:hi]:
                     out += self.process(m)
                 continue
-            self.t_imu = t
-            self.new[i] = b.value[lo:hi]
-            if not np.isnan(self.new[:, 0]).any():
-                out += self._flush()
+            out += self._store_imu(t, i, b.value[lo:hi])
         return out
 
     def _imu_vehicles(self, src: np.ndarray) -> np.ndarray:
@@ -194,14 +189,16 @@ class CoopIns:
         return dict(self.counts)
 
     # ------------------------------------------------------------------ IMU
-    def _imu(self, m: Measurement) -> list[Estimate]:
-        out = []
-        if self.t_imu is not None and m.time > self.t_imu:
-            out = self._flush()
-        i = self.body[self.sites[m.src][0]]
-        self.t_imu = m.time
-        self.new[i] = m.value
-        if not np.isnan(self.new[:, 0]).any():  # every vehicle's sample of this instant is in
+    def _imu(self, m: Measurement) -> list[EstimateBatch]:
+        return self._store_imu(m.time, self.body[self.sites[m.src][0]], m.value)
+
+    def _store_imu(self, t: float, i, value: np.ndarray) -> list[EstimateBatch]:
+        """IMU samples value (k, 6) of vehicles i (k,) (or one) at t (s): a later instant flushes
+        the one collected, and the instant is flushed once every vehicle's sample is in."""
+        out = self._flush() if self.t_imu is not None and t > self.t_imu else []
+        self.t_imu = t
+        self.new[i] = value
+        if not np.isnan(self.new[:, 0]).any():
             out += self._flush()
         return out
 
@@ -249,8 +246,7 @@ class CoopIns:
 
     def _take_ranges(self, b: MeasurementBatch) -> None:
         """_take of every row of a UWB batch, in order, an epoch (rows of one time) at a time."""
-        cuts = np.flatnonzero(np.diff(b.time)) + 1
-        for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(b)]):
+        for lo, hi in equal_time_runs(b.time):
             t = float(b.time[lo])
             if self.epoch_t is not None and t != self.epoch_t:
                 self._close(float(b.arrival[lo]))
@@ -318,6 +314,12 @@ class CoopIns:
         mine = rows.i < self.n  # the flown filters' rows (not their own-measurement copies')
         self.counts["rejected_measurements"] += int((status[mine] == 0).sum())
         self.counts["skipped_updates"] += int((status[mine] < 0).sum())
+
+
+def equal_time_runs(t: np.ndarray) -> list[tuple[int, int]]:
+    """(lo, hi) of each run of equal times in t (k,), in order."""
+    cuts = (np.flatnonzero(np.diff(t)) + 1).tolist()
+    return list(zip([0, *cuts], [*cuts, len(t)]))
 
 
 @dataclass(slots=True)

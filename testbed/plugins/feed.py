@@ -84,10 +84,9 @@ def measurements(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Mea
     cols = [measurement_columns(name, stream_arrays(name, log), scenario) for name in stream_names(log)]
     if not cols:
         return
-    sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])
-    row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])
-    for k in _order(cols).tolist():
-        yield cols[sid[k]].measurement(row[k])
+    sid, row = _order(cols)
+    for s, r in zip(sid.tolist(), row.tolist()):
+        yield cols[s].measurement(r)
 
 
 def batched(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurement | MeasurementBatch]:
@@ -97,13 +96,11 @@ def batched(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurem
     cols = [measurement_columns(name, stream_arrays(name, log), scenario) for name in stream_names(log)]
     if not cols:
         return
-    order = _order(cols)
-    sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])[order]
-    row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])[order]
+    sid, row = _order(cols)
     # a run ends where the stream changes or the rows of the stream are not consecutive
     cut = np.flatnonzero((np.diff(sid) != 0) | (np.diff(row) != 1)) + 1
     batchable = [c.batchable for c in cols]
-    for lo, hi in zip([0, *cut.tolist()], [*cut.tolist(), len(order)]):
+    for lo, hi in zip([0, *cut.tolist()], [*cut.tolist(), len(sid)]):
         c, r = cols[sid[lo]], int(row[lo])
         if hi - lo > 1 and batchable[sid[lo]]:
             yield c.batch(r, r + hi - lo)
@@ -111,13 +108,15 @@ def batched(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurem
             yield from (c.measurement(k) for k in row[lo:hi].tolist())
 
 
-def _order(cols: list[Columns]) -> np.ndarray:
-    """The feeding order (module docstring) of the rows of cols, concatenated."""
+def _order(cols: list[Columns]) -> tuple[np.ndarray, np.ndarray]:
+    """Every row of cols in feeding order (module docstring): its stream's index in cols and its
+    row in that stream, (K,) each."""
     arrival = np.concatenate([c.arrival for c in cols])
     tov = np.concatenate([c.time for c in cols])
     sid = np.concatenate([np.full(c.time.shape[0], i) for i, c in enumerate(cols)])
     row = np.concatenate([np.arange(c.time.shape[0]) for c in cols])
-    return np.lexsort((row, sid, tov, arrival))
+    order = np.lexsort((row, sid, tov, arrival))
+    return sid[order], row[order]
 
 
 def call(plugin: Plugin, what, fn, *args):
