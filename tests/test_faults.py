@@ -267,15 +267,18 @@ def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path):
 
 
 def test_two_writers_of_one_output_exactly_one_wins(tmp_path):
-    a = _start(tmp_path, "run", "bandwidth", "--duration", "8", "--out", "r")
+    # the first writer must still be writing when the second one starts (its own start-up takes
+    # ~1.5 s): 8 s of bandwidth took ~2 s all told and once finished before it (a CI failure);
+    # 600 s keeps it writing for several seconds (the test: 8.4 s)
+    a = _start(tmp_path, "run", "bandwidth", "--duration", "600", "--out", "r")
     _wait_for(lambda: (tmp_path / ".r.testbed-lock").is_file() and _tmp_dirs(tmp_path, "r"), "the first writer's lock")
     b = _testbed(tmp_path, "run", "bandwidth", "--duration", "0.5", "--out", "r", "--force")
     assert b.returncode == 2
     (line,) = b.stderr.splitlines()
-    assert line.startswith("testbed: error: r: is being written by ") and f"pid {a.pid} (testbed run bandwidth --duration 8" in line
+    assert line.startswith("testbed: error: r: is being written by ") and f"pid {a.pid} (testbed run bandwidth --duration 600" in line
     a.communicate(timeout=120)
     assert a.returncode == 0
-    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["duration_s"] == 8.0
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["duration_s"] == 600.0
     assert sorted(os.listdir(tmp_path)) == ["r"]
 
 
