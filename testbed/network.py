@@ -57,23 +57,46 @@ def stationary_loss(cfg: NetworkConfig) -> float:
     return 1 - (1 - cfg.loss_prob) * (1 - ge)
 
 
-class _Link:
-    """Draws and chain state of one directed link."""
+class _Links:
+    """Draws and chain states of the directed links that have carried a message, one row each.
 
-    __slots__ = ("rng", "bad", "u", "z", "k")
+    A link's row holds its block of BLOCK draws, four uniforms (loss, chain step, chain loss,
+    NLOS loss) and one standard normal (latency) per message, fetched from its own generator
+    when the block is used up; `take` gives the next draw of several links at once."""
 
-    def __init__(self, rng: np.random.Generator, pi_bad: float):
-        self.rng = rng
-        self.bad = bool(rng.random() < pi_bad)
-        self.k = BLOCK
+    def __init__(self, rng: np.random.Generator, n: int, pi_bad: float):
+        self.rng, self.pi_bad = rng, pi_bad
+        self.row = np.full((n, n), -1, dtype=np.intp)  # row of link src -> dst; -1: none yet
+        self.rngs: list[np.random.Generator] = []
+        self.bad = np.zeros(0, bool)  # (L,) the chain is in its bad state
+        self.k = np.zeros(0, np.intp)  # (L,) draws of the block used
+        self.u = np.zeros((0, BLOCK, 4))
+        self.z = np.zeros((0, BLOCK))
 
-    def next(self) -> tuple[list[float], float]:
-        """Four uniforms (loss, chain step, chain loss, NLOS loss) and one standard normal (latency)."""
-        if self.k == BLOCK:  # as Python floats: compared one message at a time
-            self.u, self.z, self.k = self.rng.random((BLOCK, 4)).tolist(), self.rng.standard_normal(BLOCK).tolist(), 0
-        k = self.k
-        self.k += 1
-        return self.u[k], self.z[k]
+    def rows(self, src: int, dsts: np.ndarray) -> np.ndarray:
+        """(k,) rows of the links src -> dsts, created in the order of dsts where missing:
+        the child "link{src}-{dst}", its first draw the chain's stationary initial state."""
+        rows = self.row[src, dsts]
+        for d in dsts[rows < 0].tolist():
+            rng = device_rng(self.rng, f"link{src}-{d}")
+            self.row[src, d] = len(self.rngs)
+            self.rngs.append(rng)
+            self.bad = np.append(self.bad, rng.random() < self.pi_bad)
+            self.k = np.append(self.k, BLOCK)
+            if len(self.rngs) > len(self.u):  # capacity doubles
+                grow = max(len(self.u), 16)
+                self.u = np.concatenate([self.u, np.zeros((grow, BLOCK, 4))])
+                self.z = np.concatenate([self.z, np.zeros((grow, BLOCK))])
+        return self.row[src, dsts]
+
+    def take(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The next draw of each link of `rows` (distinct): uniforms (k, 4), normals (k,)."""
+        for r in rows[self.k[rows] == BLOCK].tolist():  # a used-up block: the link's next BLOCK draws
+            rng = self.rngs[r]
+            self.u[r], self.z[r], self.k[r] = rng.random((BLOCK, 4)), rng.standard_normal(BLOCK), 0
+        k = self.k[rows]
+        self.k[rows] = k + 1
+        return self.u[rows, k], self.z[rows, k]
 
 
 class Network:
@@ -88,8 +111,7 @@ class Network:
         self.ideal = cfg is None or cfg == NetworkConfig()
         self.pos: np.ndarray | None = None
         self.los: np.ndarray | None = None
-        self._links: dict[tuple[int, int], _Link] = {}
-        self._pi_bad = 0.0 if cfg is None else cfg.ge_p / (cfg.ge_p + cfg.ge_r)
+        self._links = _Links(rng, self.n, 0.0 if cfg is None else cfg.ge_p / (cfg.ge_p + cfg.ge_r))
         depth = 0.0 if cfg is None else cfg.depth
         self._tokens = np.full(self.n, float(depth))  # bytes in each vehicle's bucket
         self._t_tokens = np.full(self.n, -math.inf)  # time of the last refill (s); -inf: full
@@ -119,17 +141,13 @@ class Network:
         self._t_tokens[who] = np.maximum(self._t_tokens[who], t)
         return ok
 
-    def _link(self, src: int, dst: int) -> _Link:
-        link = self._links.get((src, dst))
-        if link is None:
-            link = self._links[(src, dst)] = _Link(device_rng(self.rng, f"link{src}-{dst}"), self._pi_bad)
-        return link
-
-    def _latency_draw(self, z: float) -> float:
+    def _latency_draw(self, z: np.ndarray) -> np.ndarray:
+        """Latencies (k,) s of standard normals z (k,) (NetworkConfig: jitter_model)."""
         cfg = self.cfg
         if cfg.jitter_model == "normal":
-            return max(0.0, cfg.latency + cfg.jitter * z)
-        return cfg.latency + cfg.jitter * math.exp(cfg.jitter_shape * z)
+            return np.maximum(0.0, cfg.latency + cfg.jitter * z)
+        # math.exp (the C library's), not numpy's: numpy picks an exp by the CPU's instruction set
+        return cfg.latency + cfg.jitter * np.array([math.exp(cfg.jitter_shape * x) for x in z.tolist()])
 
     # ------------------------------------------------------------------------------ sending
     def multicast(self, t: float, src: int, dsts: np.ndarray, nbytes: int, payload: object) -> np.ndarray:
@@ -166,19 +184,19 @@ class Network:
             paid = self._pay(t, dsts[live], nbytes)
             self._count["dropped_budget"] += int((~paid).sum())
             live[np.flatnonzero(live)[~paid]] = False
-        los = None if self.los is None else self.los[src].tolist()
-        links, dropped = self._links, 0
-        for j, d in zip(np.flatnonzero(live).tolist(), dsts[live].tolist()):
-            link = links.get((src, d)) or self._link(src, d)
-            u, z = link.next()
+        dl = dsts[live]
+        if dl.size:
+            rows = self._links.rows(src, dl)
+            u, z = self._links.take(rows)
             # the chain steps once per message on the link, then its state sets the loss
-            link.bad = (u[1] >= cfg.ge_r) if link.bad else (u[1] < cfg.ge_p)
-            nlos = los is not None and not los[d]
-            if u[0] < cfg.loss_prob or u[2] < (cfg.ge_loss_bad if link.bad else cfg.ge_loss_good) or (nlos and u[3] < cfg.nlos_loss):
-                dropped += 1
-            else:
-                arrival[j] = t + self._latency_draw(z)
-        self._count["dropped_loss"] += dropped
+            bad = np.where(self._links.bad[rows], u[:, 1] >= cfg.ge_r, u[:, 1] < cfg.ge_p)
+            self._links.bad[rows] = bad
+            lost = (u[:, 0] < cfg.loss_prob) | (u[:, 2] < np.where(bad, cfg.ge_loss_bad, cfg.ge_loss_good))
+            if self.los is not None:
+                lost |= ~self.los[src, dl] & (u[:, 3] < cfg.nlos_loss)
+            self._count["dropped_loss"] += int(lost.sum())
+            j = np.flatnonzero(live)[~lost]
+            arrival[j] = t + self._latency_draw(z[~lost])
         return arrival
 
     def send(self, t: float, src: int, dst: int, nbytes: int, payload: object) -> bool:
