@@ -123,7 +123,7 @@ class SwarmIns:
         q[V_], q[TH] = noise.accel_density ** 2, noise.gyro_density ** 2
         q[BA], q[BG] = noise.accel_walk ** 2, noise.gyro_walk ** 2
         self._q_rate = q  # (15,) per second
-        self._F0 = np.tile(np.eye(N_ERR), (n, 1, 1))
+        self._dt, self._F0, self._Q = None, None, None  # the constant part of F and Q over the last dt
 
     # ------------------------------------------------------------------ start
     def start(self, i: int, p: np.ndarray, q: np.ndarray, ba: np.ndarray, bg: np.ndarray, P0: np.ndarray) -> None:
@@ -160,17 +160,20 @@ class SwarmIns:
             self.p, self.v, self.q = p, v, q
         else:
             self.p, self.v, self.q = (np.where(a_[:, None], new, old) for new, old in ((p, self.p), (v, self.v), (q, self.q)))
+        if dt != self._dt:  # the blocks of F and Q that depend on dt only
+            self._dt, self._F0 = dt, np.tile(np.eye(N_ERR), (self.n, 1, 1))
+            self._F0[:, P_, V_] = np.eye(3) * dt
+            self._F0[:, TH, BG] = -np.eye(3) * dt
+            self._Q = np.diag(self._q_rate * dt)
         RF = R @ skew(fc)
         F = self._F0.copy()
-        F[:, P_, V_] = np.eye(3) * dt
         F[:, P_, TH] = -0.5 * dt * dt * RF
         F[:, P_, BA] = -0.5 * dt * dt * R
         F[:, V_, TH] = -RF * dt
         F[:, V_, BA] = -R * dt
         F[:, TH, TH] = np.swapaxes(quat_to_rotmat(dq), 1, 2)
-        F[:, TH, BG] = -np.eye(3) * dt
         self.Phi = F @ self.Phi
-        self.Qa = F @ self.Qa @ np.swapaxes(F, 1, 2) + np.diag(self._q_rate * dt)
+        self.Qa = F @ self.Qa @ np.swapaxes(F, 1, 2) + self._Q
 
     def _transform(self, M: np.ndarray, Q: np.ndarray | None = None) -> None:
         """P <- M P M^T (+ Q) with M block-diagonal: M_i (n, 15, 15) on each vehicle's core, the

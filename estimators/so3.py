@@ -49,20 +49,24 @@ def quat_conj(q: np.ndarray) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+# R(q) entry by entry: 1 - 2 (a + b) on the diagonal, 2 (a + s b) off it, with a, b products of
+# two components (flat indices into the outer product q q^T, components w, x, y, z = 0..3) and s
+# the sign of b: yy+zz, xy-wz, xz+wy / xy+wz, xx+zz, yz-wx / xz-wy, yz+wx, xx+yy
+_R_A = np.array([10, 6, 7, 6, 5, 11, 7, 11, 5])
+_R_B = np.array([15, 3, 2, 3, 15, 1, 2, 1, 10])
+_R_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
+_R_DIAG = np.eye(3, dtype=bool).ravel()
+
+
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix (..., 3, 3) of unit wxyz quaternions (..., 4)."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty(q.shape[:-1] + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - w * z)
-    out[..., 0, 2] = 2 * (x * z + w * y)
-    out[..., 1, 0] = 2 * (x * y + w * z)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - w * x)
-    out[..., 2, 0] = 2 * (x * z - w * y)
-    out[..., 2, 1] = 2 * (y * z + w * x)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
+    """Rotation matrix (..., 3, 3) of unit wxyz quaternions (..., 4).
+
+    R = [[1 - 2(y^2 + z^2), 2(xy - wz), 2(xz + wy)], [2(xy + wz), 1 - 2(x^2 + z^2), 2(yz - wx)],
+         [2(xz - wy), 2(yz + wx), 1 - 2(x^2 + y^2)]], the nine entries computed at once."""
+    q = np.asarray(q, dtype=float)
+    qq = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
+    t = qq[..., _R_A] + _R_SIGN * qq[..., _R_B]  # gathers may come out in another memory order:
+    return np.ascontiguousarray(np.where(_R_DIAG, 1 - 2 * t, 2 * t)).reshape(q.shape[:-1] + (3, 3))  # C order, as callers expect
 
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
