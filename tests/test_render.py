@@ -87,10 +87,15 @@ def test_leader_camera_picture_in_picture_and_save_frame(runs, tmp_path):
     a = iio.imread(save_frame(runs["lf"], 1.0, tmp_path / "pip.png", width=320, height=180))
     b = iio.imread(save_frame(runs["lf"], 1.0, tmp_path / "nopip.png", width=320, height=180, pip_vehicle=0))
     assert a.shape == (180, 320, 3) and a.std() > 5.0
-    # paper = "004" puts uav1/cam in the top-right corner: only that corner changes
+    # paper = "004" puts uav1/cam in the top-right corner: that corner changes, the rest of the
+    # picture does not. Two renders of the same instant can differ in a few pixels of a thin line
+    # (llvmpipe, measured: 2 pixels of a 1.5-px UWB link in 1 of 15 runs of this pair after another
+    # video in the same process, none in 16 renders alone): at most 0.1 % of the rest may differ.
     diff = np.abs(a.astype(int) - b.astype(int)).sum(axis=2) > 0
-    rows, cols = np.nonzero(diff)
-    assert rows.max() < 180 * 0.5 and cols.min() > 320 * 0.5
+    corner = np.zeros_like(diff)
+    corner[: 180 // 2, 320 // 2 :] = True
+    assert diff[corner].sum() > 0.1 * corner.sum()  # the inset, 58 px tall (measured: 3458 of 14400 px change)
+    assert diff[~corner].sum() <= 0.001 * (~corner).sum()
     out = render_run(runs["lf"], tmp_path / "lf.mp4", width=320, height=180, fps=5, max_seconds=1.0)
     assert _decode(out).shape == (5, 180, 320, 3)
 
