@@ -56,6 +56,7 @@ _R_A = np.array([10, 6, 7, 6, 5, 11, 7, 11, 5])
 _R_B = np.array([15, 3, 2, 3, 15, 1, 2, 1, 10])
 _R_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
 _R_DIAG = np.eye(3, dtype=bool).ravel()
+_EPS = np.finfo(float).eps
 
 
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
@@ -94,10 +95,12 @@ def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
 def quat_exp(phi: np.ndarray) -> np.ndarray:
     """Unit quaternion (..., 4) of the rotation vector phi (..., 3) rad: Exp(phi)."""
     phi = np.asarray(phi, dtype=float)
-    th = np.linalg.norm(phi, axis=-1, keepdims=True)
-    # sin(th/2)/th = 0.5 sinc(th / (2 pi)), safe at 0
-    s = 0.5 * np.sinc(th / (2.0 * np.pi))
-    return np.concatenate([np.cos(0.5 * th), s * phi], axis=-1)
+    th = np.sqrt(np.add.reduce(phi * phi, axis=-1, keepdims=True))  # |phi|, as np.linalg.norm sums it
+    # sin(th/2)/th = 0.5 sinc(th / (2 pi)), sinc(x) = sin(pi x) / (pi x) and 1 at 0 (numpy's sinc
+    # without its call overhead: on 36 vehicles the overhead was most of the cost)
+    y = np.pi * (th / (2.0 * np.pi))
+    y = np.where(y, y, _EPS)
+    return np.concatenate([np.cos(0.5 * th), 0.5 * (np.sin(y) / y) * phi], axis=-1)
 
 
 def quat_log(q: np.ndarray) -> np.ndarray:
