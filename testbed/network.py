@@ -73,13 +73,13 @@ class _Links:
         self.u = np.zeros((0, BLOCK, 4))
         self.z = np.zeros((0, BLOCK))
 
-    def rows(self, src: int, dsts: np.ndarray) -> np.ndarray:
-        """(k,) rows of the links src -> dsts, created in the order of dsts where missing:
-        the child "link{src}-{dst}", its first draw the chain's stationary initial state."""
+    def rows(self, src: np.ndarray, dsts: np.ndarray) -> np.ndarray:
+        """(k,) rows of the links src -> dsts (k,), created in order where missing: the child
+        "link{src}-{dst}", its first draw the chain's stationary initial state."""
         rows = self.row[src, dsts]
-        for d in dsts[rows < 0].tolist():
-            rng = device_rng(self.rng, f"link{src}-{d}")
-            self.row[src, d] = len(self.rngs)
+        for s, d in zip(src[rows < 0].tolist(), dsts[rows < 0].tolist()):
+            rng = device_rng(self.rng, f"link{s}-{d}")
+            self.row[s, d] = len(self.rngs)
             self.rngs.append(rng)
             self.bad = np.append(self.bad, rng.random() < self.pi_bad)
             self.k = np.append(self.k, BLOCK)
@@ -154,22 +154,39 @@ class Network:
         """One transmission of src at t (s) to the vehicles dsts (k,): (k,) arrival times (s),
         inf where dropped. With budget_on "send" the sender pays nbytes once."""
         dsts = np.asarray(dsts, dtype=int).reshape(-1)
-        k = len(dsts)
-        self._count["sent"] += k
-        self._bytes["bytes_sent"] += k * int(nbytes)
-        arrival = np.full(k, float(t))
-        if not self.ideal:
-            arrival = self._channel(t, int(src), dsts, int(nbytes))
-        t, src, nbytes = float(t), int(src), int(nbytes)
+        return self._transmit(float(t), np.full(len(dsts), int(src)), dsts, int(nbytes), [payload], np.zeros(len(dsts), int))
+
+    def broadcast_all(self, t: float, srcs: np.ndarray, nbytes: int, payloads: list) -> np.ndarray:
+        """broadcast() of each vehicle of srcs (k,) (distinct) at t (s) in turn, payloads[i] from
+        srcs[i], in one pass over their messages (the same draws, drops and queue order); (k,)
+        how many of each were queued."""
+        srcs = np.asarray(srcs, dtype=int).reshape(-1)
+        if self.cfg is not None and self.cfg.bandwidth > 0 and self.cfg.budget_on == "receive":
+            # a receiver's bucket pays the senders one after the other
+            return np.array([self.broadcast(t, s, nbytes, p) for s, p in zip(srcs.tolist(), payloads)], int)
+        k, others = len(srcs), np.arange(self.n - 1)
+        dst = (others[None] + (others[None] >= srcs[:, None])).ravel()  # each sender's others, ascending
+        which = np.repeat(np.arange(k), self.n - 1)
+        arrival = self._transmit(float(t), srcs[which], dst, int(nbytes), payloads, which)
+        return np.isfinite(arrival).reshape(k, self.n - 1).sum(axis=1)
+
+    def _transmit(self, t: float, src: np.ndarray, dst: np.ndarray, nbytes: int, payloads: list, which: np.ndarray) -> np.ndarray:
+        """Messages src -> dst (m,) at t (s) carrying payloads[which] (m,), grouped by sender (one
+        transmission each), queued unless dropped: (m,) arrival times, inf where dropped."""
+        m = len(dst)
+        self._count["sent"] += m
+        self._bytes["bytes_sent"] += m * nbytes
+        arrival = np.full(m, t) if self.ideal else self._channel(t, src, dst, nbytes)
         queues, seq, latency = self._queues, self._seq, self._latency
-        for d, a in zip(dsts.tolist(), arrival.tolist()):
+        for s, d, a, w in zip(src.tolist(), dst.tolist(), arrival.tolist(), which.tolist()):
             if a < math.inf:
-                heapq.heappush(queues[d], (a, next(seq), Message(sent=t, arrival=a, src=src, dst=d, nbytes=nbytes, payload=payload)))
+                heapq.heappush(queues[d], (a, next(seq), Message(sent=t, arrival=a, src=s, dst=d, nbytes=nbytes, payload=payloads[w])))
                 latency.append(a - t)
         return arrival
 
-    def _channel(self, t: float, src: int, dsts: np.ndarray, nbytes: int) -> np.ndarray:
-        """Arrival times (k,) of one transmission (inf: dropped), steps 1-3 of the module docstring."""
+    def _channel(self, t: float, src: np.ndarray, dsts: np.ndarray, nbytes: int) -> np.ndarray:
+        """Arrival times (m,) of messages src -> dsts (m,), one transmission per sender (inf:
+        dropped), steps 1-3 of the module docstring; with budget_on "receive", one sender."""
         cfg = self.cfg
         arrival = np.full(len(dsts), math.inf)
         live = np.ones(len(dsts), bool)
@@ -177,23 +194,26 @@ class Network:
             live &= np.linalg.norm(self.pos[dsts] - self.pos[src], axis=1) <= cfg.max_range
             self._count["dropped_range"] += int((~live).sum())
         if cfg.budget_on == "send":
-            if live.any() and not self._pay(t, np.array([src]), nbytes)[0]:
-                self._count["dropped_budget"] += int(live.sum())
-                live[:] = False
+            senders = np.unique(src[live])  # those with a receiver in range pay once
+            unpaid = senders[~self._pay(t, senders, nbytes)] if senders.size else senders
+            if unpaid.size:
+                cut = live & np.isin(src, unpaid)
+                self._count["dropped_budget"] += int(cut.sum())
+                live &= ~cut
         elif live.any():
             paid = self._pay(t, dsts[live], nbytes)
             self._count["dropped_budget"] += int((~paid).sum())
             live[np.flatnonzero(live)[~paid]] = False
-        dl = dsts[live]
+        sl, dl = src[live], dsts[live]
         if dl.size:
-            rows = self._links.rows(src, dl)
+            rows = self._links.rows(sl, dl)
             u, z = self._links.take(rows)
             # the chain steps once per message on the link, then its state sets the loss
             bad = np.where(self._links.bad[rows], u[:, 1] >= cfg.ge_r, u[:, 1] < cfg.ge_p)
             self._links.bad[rows] = bad
             lost = (u[:, 0] < cfg.loss_prob) | (u[:, 2] < np.where(bad, cfg.ge_loss_bad, cfg.ge_loss_good))
             if self.los is not None:
-                lost |= ~self.los[src, dl] & (u[:, 3] < cfg.nlos_loss)
+                lost |= ~self.los[sl, dl] & (u[:, 3] < cfg.nlos_loss)
             self._count["dropped_loss"] += int(lost.sum())
             j = np.flatnonzero(live)[~lost]
             arrival[j] = t + self._latency_draw(z[~lost])

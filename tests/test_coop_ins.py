@@ -192,3 +192,31 @@ def test_a_broadcast_error_is_counted_once_more_each_epoch_up_to_peer_inflation(
     from testbed.plugins.builtin_coop_ins import peer_kappa
 
     np.testing.assert_array_equal(peer_kappa(4.0, np.array([0, 1, 2, 3, 50])), [1.0, 2.0, 3.0, 4.0, 4.0])
+
+
+def test_a_receiver_holds_each_senders_newest_broadcast():
+    """CoopInsDistributed._hear at once is the rule message by message: a broadcast replaces the
+    held one of its sender if it is not older (of equal times the later arrival wins)."""
+    from types import SimpleNamespace
+
+    from testbed.network import Message
+    from testbed.plugins.builtin_coop_ins import CoopInsDistributed
+
+    rs, n = np.random.default_rng(3), 4
+    def held():
+        return SimpleNamespace(heard_t=rs.choice([-np.inf, 0.2, 0.4], (n, n)), heard_s=rs.normal(size=(n, n, 3)),
+                               heard_v=rs.normal(size=(n, n, 3)), heard_cs=rs.normal(size=(n, n, 3, 3)),
+                               heard_cv=rs.normal(size=(n, n, 3, 3)))
+    a = held()
+    b = SimpleNamespace(**{k: v.copy() for k, v in vars(a).items()})
+    t0 = a.heard_t.copy()
+    msgs = [Message(sent=0.0, arrival=0.0, src=int(rs.integers(n)), dst=d, nbytes=1,
+                    payload=(float(rs.choice([0.2, 0.4, 0.6])), *rs.normal(size=(2, 3)), *rs.normal(size=(2, 3, 3))))
+            for d in range(n) for _ in range(12)]  # several per sender, times repeated and out of order
+    for m in msgs:  # the rule, one message at a time
+        if m.payload[0] >= a.heard_t[m.dst, m.src]:
+            a.heard_t[m.dst, m.src] = m.payload[0]
+            a.heard_s[m.dst, m.src], a.heard_v[m.dst, m.src], a.heard_cs[m.dst, m.src], a.heard_cv[m.dst, m.src] = m.payload[1:]
+    CoopInsDistributed._hear(b, msgs)
+    assert all(np.array_equal(getattr(a, k), getattr(b, k)) for k in vars(a))
+    assert not np.array_equal(a.heard_t, t0)  # something was replaced

@@ -155,6 +155,31 @@ def test_links_are_seeded_independently():
     assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("budget_on", ["send", "receive"])
+def test_broadcast_all_is_each_broadcast_in_turn(budget_on):
+    """One pass over every sender's messages (the distributed filter's epoch) draws, drops and
+    queues exactly what broadcasting them one after the other does: range, a budget that runs
+    out, bursty and NLOS loss, lognormal latency."""
+    cfg = dict(latency=0.005, jitter=0.002, jitter_model="lognormal", loss_prob=0.05, ge_p=0.1, ge_r=0.3,
+               ge_loss_bad=0.5, nlos_loss=0.2, max_range=60.0, bandwidth=1000.0, budget_on=budget_on)
+
+    def traffic(at_once: bool) -> list:
+        rs, nw, out = np.random.default_rng(5), net(n=8, **cfg), []
+        for step in range(200):
+            t = 0.05 * step
+            nw.set_geometry(t, rs.uniform(0.0, 80.0, (8, 3)), rs.random((8, 8)) < 0.8)
+            srcs = np.flatnonzero(rs.random(8) < 0.7)
+            pay = [(step, int(s)) for s in srcs]
+            out.append(nw.broadcast_all(t, srcs, 100, pay).tolist() if at_once else
+                       [nw.broadcast(t, int(s), 100, p) for s, p in zip(srcs, pay)])
+            out += [[(m.sent, m.arrival, m.src, m.payload) for m in nw.receive(t, d)] for d in range(8)]
+        return out + [nw.stats()]
+
+    each, together = traffic(False), traffic(True)
+    assert together == each
+    assert 0 < each[-1]["dropped_budget"] and 0 < each[-1]["dropped_range"] and 0 < each[-1]["dropped_loss"]
+
+
 def test_network_table_is_checked_at_the_boundary():
     with pytest.raises(ConfigError, match=r"f.toml.*network.loss_prob.*1.5"):
         from_dict(NetworkConfig, {"loss_prob": 1.5}, "f.toml", "network")

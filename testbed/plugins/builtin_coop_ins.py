@@ -388,15 +388,10 @@ class CoopInsDistributed(CoopIns):
         Cs, bad = checked_broadcast(s, Cs, s_all[:n], C_all[:n], self.threshold)
         self.counts["inconsistent_broadcasts"] += int((bad & ins.active[own]).sum())
         net.set_geometry(t, s)
-        for k in np.flatnonzero(ins.active[own]).tolist():
-            net.broadcast(t, k, BROADCAST_BYTES, (t, s[k].copy(), v[k].copy(), Cs[k].copy(), Cv[k].copy()))
-        for r in range(n):
-            for msg in net.receive(now, r):
-                tb, sb, vb, cs, cv = msg.payload
-                if tb >= self.heard_t[r, msg.src]:
-                    self.heard_t[r, msg.src] = tb
-                    self.heard_s[r, msg.src], self.heard_v[r, msg.src] = sb, vb
-                    self.heard_cs[r, msg.src], self.heard_cv[r, msg.src] = cs, cv
+        senders = np.flatnonzero(ins.active[own])
+        sent = [x[senders] for x in (s, v, Cs, Cv)]  # copies (Cv is a view of the filters' P): as sent
+        net.broadcast_all(t, senders, BROADCAST_BYTES, [(t, *(x[k] for x in sent)) for k in range(senders.size)])
+        self._hear([msg for r in range(n) for msg in net.receive(now, r)])
         pair = rows.j >= 0
         mine = rows.subset(~pair)
         parts = [mine, ci.Rows(z=mine.z, var=mine.var, i=mine.i + n, j=mine.j, component=mine.component,
@@ -417,6 +412,23 @@ class CoopInsDistributed(CoopIns):
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
                                  other=point, dev=ranged.dev[ok]))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
+
+
+    def _hear(self, messages: list) -> None:
+        """Hold each sender's newest broadcast (by its time; of equal times the last to arrive) at
+        each receiver: the messages received, in arrival order per receiver."""
+        if not messages:
+            return
+        r = np.array([m.dst for m in messages])
+        k = np.array([m.src for m in messages])
+        tb = np.array([m.payload[0] for m in messages])
+        last = np.lexsort((np.arange(len(messages)), tb, k, r))  # by receiver, sender, time, arrival
+        last = last[np.r_[(r[last][1:] != r[last][:-1]) | (k[last][1:] != k[last][:-1]), True]]
+        last = last[tb[last] >= self.heard_t[r[last], k[last]]]
+        r, k = r[last], k[last]
+        self.heard_t[r, k] = tb[last]
+        for held, f in ((self.heard_s, 1), (self.heard_v, 2), (self.heard_cs, 3), (self.heard_cv, 4)):
+            held[r, k] = np.array([messages[i].payload[f] for i in last.tolist()]).reshape(len(last), *held.shape[2:])
 
 
 def peer_kappa(cap: float, uses: np.ndarray) -> np.ndarray:
