@@ -216,7 +216,8 @@ class CoopIns:
         C = ins.marginals(slice(self.n))  # the flown filters'
         i = np.flatnonzero(ins.active[:self.n])
         target, time = [self.vehicles[k] for k in i.tolist()], np.full(i.size, t)
-        return [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s])
+        # each block copied out: a view would keep the whole (n, 15, 15) array alive with the estimate
+        return [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s].copy())
                 for q, x, s in (("position", ins.p, ci.P_), ("velocity", ins.v, ci.V_), ("attitude", ins.q, ci.TH))]
 
     def _advance(self, t: float) -> None:
