@@ -12,7 +12,9 @@ Factors (seed 001's, docs/papers.md, plus the motion between epochs that a windo
   a robust GNSS factor lets an estimate that has drifted away ignore the fixes that would bring
   it back, measured in the loop: 290 m of vertical error after 6 s);
 - motion between epochs k and k+1 (dt s), white-noise acceleration of density q (m^2/s^3 per
-  axis): [p' - p - v dt; v' - v] ~ N(0, q [[dt^3/3, dt^2/2], [dt^2/2, dt]] (x) I3);
+  axis) about a known acceleration input: [p' - p - v dt - dp; v' - v - dv] ~ N(0, q [[dt^3/3,
+  dt^2/2], [dt^2/2, dt]] (x) I3), (dp, dv) the epoch's `motion` increments (e.g. an IMU's
+  acceleration integrated over the interval; none: 0, the constant-velocity model);
 - the prior on the oldest epoch: the first epoch's (GNSS-free vehicles: position sigma
   `init_sigma_p` about the mean of the fixes, velocity N(0, init_sigma_v^2)), later the Gaussian
   left by marginalizing the epoch that slid out (Schur complement at the current estimate).
@@ -26,21 +28,30 @@ time: motion factors link only consecutive epochs; `_solve_chain` eliminates it 
 
 Two solvers share this machinery (batched over B "agents", each with s = 6 nv states per epoch):
 - `Centralized`: one agent holding every vehicle (B = 1, nv = n): the whole swarm's window;
-- `Distributed`: one agent per vehicle (B = n, nv = 1), seed 001's message iteration at the
-  newest epoch: in round r every vehicle broadcasts its newest position and 3 x 3 covariance
-  (72 bytes: 9 float64) to the vehicles it ranged with; each vehicle then takes one Gauss-Newton
-  step on its own window, a neighbour's broadcast entering as a prior, i.e. (Schur complement,
-  as estimators.factor_graph) the neighbour fixed there with the range variance inflated to
-  sigma_d^2 + u^T Sigma_j u. Rounds stop when every newest position moved less than `tol` or at
-  `max_rounds`. A message travels through an estimators.transport.Transport (None: ideal); the
-  last broadcast a vehicle received from a neighbour at an epoch is what its older ranges keep.
-  No information is counted twice: the covariance a vehicle broadcasts is that of its own
-  measurements only (GNSS, anchors, motion, its prior: its window solved without any range to a
-  neighbour), and its marginalization prior keeps only those (`keep_ranges`). Broadcasting the
-  full local marginal instead (which holds what the neighbours told it) makes the covariances
-  collapse round after round and epoch after epoch and the swarm's common position lag: on
-  tests/test_window.py's synthetic swarm the RMS error grew 2.4 m -> 7.4 m over 15 epochs, against
-  1.0-1.2 m with the own-measurement broadcast (0.3-0.9 m centralized, 3-4 m GNSS alone).
+- `Distributed`: one agent per vehicle (B = n, nv = 1), seed 001's message iteration over the
+  window: in round r every vehicle broadcasts its window, its current position at every window
+  epoch with a 3 x 3 covariance each (BROADCAST_BYTES = 72 bytes, 9 float64, per epoch: 360
+  bytes for 5 epochs), to the vehicles it ranged with in the window; each vehicle then takes one
+  Gauss-Newton step on its own window, a neighbour's broadcast position at each epoch entering
+  as a prior, i.e. (Schur complement, as estimators.factor_graph) the neighbour fixed there with
+  the range variance inflated to sigma_d^2 + u^T Sigma_j u (u taken at the round's start and held
+  through its step: `_weigh`). Rounds stop when every newest position moved less than `tol` or at
+  `max_rounds`. A message travels through an estimators.transport.Transport (None: ideal); what
+  a vehicle last received from a neighbour is what its ranges use, at every epoch of the window.
+  Broadcasting only the newest epoch, each older epoch's ranges kept the neighbour's position as
+  first heard while the vehicle's own state there moved on: the swarm's common position drifted
+  (coop-denied seed 1000 flown on the truth: the swarm's mean vertical error ran to -3 m in 20 s,
+  position ANEES 39; with the window broadcast 0.31 m RMS vertical and ANEES 3.3 over 60 s, the
+  centralized window 0.28 m and 4.0; docs/denied.md).
+  No information is counted twice: the covariance a vehicle broadcasts for an epoch is that of
+  its own measurements only (GNSS, anchors, motion, its prior: its window solved without any
+  range to a neighbour, when that epoch was the newest), and its marginalization prior keeps only
+  those (`keep_ranges`). Broadcasting the full local marginal instead (which holds what the
+  neighbours told it) makes the covariances collapse round after round and epoch after epoch
+  and the swarm's common position lag: on tests/test_window.py's synthetic swarm the RMS error
+  grew 2.4 m -> 7.4 m over 15 epochs, against 1.0-1.2 m with the own-measurement broadcast
+  (0.3-0.9 m centralized, 3-4 m GNSS alone); with the window broadcast, on coop-denied seed 1000
+  flown on the truth, 9.7 m vertical RMS over 20 s (position ANEES 3e4).
 
 Tracklets (`tracklets = True`): each estimate also carries the newest epoch's position marginal
 and the window's own prediction of it without that epoch's factors; `equivalent_measurement`
@@ -66,7 +77,7 @@ __all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_B
 
 HALVINGS = 8  # step halvings per Gauss-Newton step (a full step that raises the cost is halved)
 
-BROADCAST_BYTES = 72  # position (3 float64) + the 6 unique covariance entries (6 float64)
+BROADCAST_BYTES = 72  # per window epoch: position (3 float64) + the 6 unique covariance entries (6 float64)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -76,7 +87,9 @@ class Epoch:
     fix (n, 3) m world, NaN rows where the vehicle has no fix; fix_sigma (n, 3) m (1 sigma, east,
     north, up); edges (m, 2) vehicle indices and ranges, range_sigma (m,) m: tag-to-tag ranges;
     anchor_vehicle (a,) vehicle index, anchor_pos (a, 3) m world, anchor_range, anchor_sigma
-    (a,) m: tag-to-anchor ranges.
+    (a,) m: tag-to-anchor ranges; motion (n, 6) the known motion of each vehicle since the window's
+    previous epoch, [dp (m), dv (m/s)] world: the acceleration integrated once (dv) and twice (dp)
+    over the interval (None: none, the motion factor's mean is constant velocity).
     """
 
     t: float
@@ -89,6 +102,7 @@ class Epoch:
     anchor_pos: np.ndarray
     anchor_range: np.ndarray
     anchor_sigma: np.ndarray
+    motion: np.ndarray | None = None
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -138,9 +152,25 @@ def motion_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """Information blocks (M00, M01, M11), each (6, 6) over one vehicle's [p, v] at k and k+1, of
     the white-noise-acceleration factor (module docstring) over dt (s) with density q (m^2/s^3)."""
     Q = q * white_acceleration_q(dt)
-    J = np.array([[-1.0, -dt, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0]])  # d[e_p, e_v]/d[p0, v0, p1, v1] per axis
+    J = _motion_jacobian(dt)
     M = np.kron(J.T @ np.linalg.solve(Q, J), np.eye(3))  # (12, 12): ordering [p0, v0, p1, v1] x axis
     return M[:6, :6], M[:6, 6:], M[6:, 6:]
+
+
+def _motion_jacobian(dt: float) -> np.ndarray:
+    """(2, 4) d[e_p, e_v]/d[p0, v0, p1, v1] of the motion residual, per axis."""
+    return np.array([[-1.0, -dt, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0]])
+
+
+@functools.lru_cache(maxsize=64)
+def motion_input_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(G0, G1, W), each (6, 6), of the motion factor's known input u = [dp, dv] (6,) over dt (s)
+    with density q (m^2/s^3): the factor's cost 1/2 (J x - u)^T Q^-1 (J x - u) adds -(G0 u) . x0
+    - (G1 u) . x1 + 1/2 u^T W u to the input-free one (x0, x1 (6,) one vehicle's [p, v] at k, k+1;
+    G = J^T Q^-1 (x) I3 split by epoch, W = Q^-1 (x) I3)."""
+    Qi = np.linalg.inv(q * white_acceleration_q(dt))
+    G = np.kron(_motion_jacobian(dt).T @ Qi, np.eye(3))  # (12, 6)
+    return G[:6], G[6:], np.kron(Qi, np.eye(3))
 
 
 class _Spd:
@@ -209,6 +239,21 @@ class _Window:
             M = motion_blocks(dt, self.q)
             self._krons[dt] = M + tuple(np.kron(self._eye, m) for m in M)
         return self._krons[dt]
+
+    def _input(self, k: int, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The known-input terms of the motion factor between window epochs k, k+1 (Epoch.motion of
+        epoch k + 1) at the states x0, x1 (B, nv, 6): right-hand sides g0, g1 (B, s) to add to those
+        of epochs k, k+1 and the cost (B,) to add; None without an input."""
+        u = self.epochs[k + 1].motion
+        if u is None:
+            return None
+        G0, G1, W = motion_input_blocks(self.epochs[k + 1].t - self.epochs[k].t, self.q)
+        a, l = self._where(np.arange(self.n))
+        U = np.zeros((self.B, self.nv, 6))
+        U[a, l] = u
+        g0, g1 = U @ G0.T, U @ G1.T
+        cost = 0.5 * np.einsum("bvi,ij,bvj->b", U, W, U) - np.einsum("bvi,bvi->b", g0, x0) - np.einsum("bvi,bvi->b", g1, x1)
+        return g0.reshape(self.B, self.s), g1.reshape(self.B, self.s), cost
 
     # index of each vehicle's first state in (agent, slot) layout
     def _where(self, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -301,6 +346,11 @@ class _Window:
             R[:, k] -= g0.reshape(self.B, self.s)
             R[:, k + 1] -= g1.reshape(self.B, self.s)
             C += 0.5 * (np.einsum("bvi,bvi->b", x0, g0) + np.einsum("bvi,bvi->b", x1, g1))
+            known = self._input(k, x0, x1)
+            if known is not None:
+                R[:, k] += known[0]
+                R[:, k + 1] += known[1]
+                C += known[2]
         return D, U, R, C
 
     def _step(self, sys):
@@ -339,6 +389,9 @@ class _Window:
         x0, x1 = Xv[:, 0], Xv[:, 1]
         r0 = r0 - (x0 @ M00.T + x1 @ M01.T).reshape(self.B, self.s)
         r1 = -(x0 @ M01 + x1 @ M11.T).reshape(self.B, self.s)
+        known = self._input(0, x0, x1)
+        if known is not None:
+            r0, r1 = r0 + known[0], r1 + known[1]
         Bm = np.broadcast_to(K01, A.shape)
         AiB = np.linalg.solve(A, Bm)
         info = K11 - np.swapaxes(Bm, 1, 2) @ AiB
@@ -379,6 +432,9 @@ class _Window:
             dt = ep.t - self.epochs[-1].t
             Xv = self.X[:, -1].reshape(self.B, self.nv, 6)
             pred = np.concatenate([Xv[..., :3] + dt * Xv[..., 3:], Xv[..., 3:]], axis=-1)
+            if ep.motion is not None:  # the known motion: [dp, dv] on top of constant velocity
+                a, l = self._where(np.arange(self.n))
+                pred[a, l] += ep.motion
             self.X = np.concatenate([self.X, pred.reshape(self.B, 1, self.s)], axis=1)
         self.epochs.append(ep)
 
@@ -456,10 +512,11 @@ class Distributed(_Window):
         super().__init__(n, agents=n, per_agent=1, window=window, q=q, huber=huber, max_iter=max_rounds, tol=tol,
                          init_sigma_p=init_sigma_p, init_sigma_v=init_sigma_v)
         # per window epoch: what receiver r last heard of sender s: position (n, n, 3), covariance
-        # (n, n, 3, 3), heard (n, n) bool
+        # (n, n, 3, 3), heard (n, n) bool; and the covariance each vehicle broadcasts for it (n, 3, 3)
         self.heard_pos: list[np.ndarray] = []
         self.heard_cov: list[np.ndarray] = []
         self.heard: list[np.ndarray] = []
+        self.sent_cov: list[np.ndarray] = []
 
     # A neighbour's broadcast already holds what it learnt from this vehicle: kept in the prior
     # across marginalizations, that loop would count the same information again at every epoch
@@ -472,7 +529,7 @@ class Distributed(_Window):
         return i, np.zeros_like(i)
 
     def _dropped(self):
-        for table in (self.heard_pos, self.heard_cov, self.heard):
+        for table in (self.heard_pos, self.heard_cov, self.heard, self.sent_cov):
             table.pop(0)
 
     def _ranges(self, k, P, sys):
@@ -480,12 +537,27 @@ class Distributed(_Window):
         for a, b in ((0, 1), (1, 0)):  # each end of a link uses the other end's last broadcast
             me, other = ep.edges[:, a], ep.edges[:, b]
             ok = self.heard[k][me, other]
-            me, other, d, sig = me[ok], other[ok], ep.ranges[ok], ep.range_sigma[ok]
+            me, other, d, sigma = me[ok], other[ok], ep.ranges[ok], self.range_sigma[k][a, ok]
             diff = P[k, me] - self.heard_pos[k][me, other]
             dist = np.linalg.norm(diff, axis=1)
-            u = diff / np.maximum(dist, 1e-9)[:, None]
-            var = sig ** 2 + np.einsum("mi,mij,mj->m", u, self.heard_cov[k][me, other], u)
-            self._add_point(sys, k, me, u, d - dist, np.sqrt(var))
+            self._add_point(sys, k, me, diff / np.maximum(dist, 1e-9)[:, None], d - dist, sigma)
+
+    def _weigh(self) -> None:
+        """Each range's 1-sigma with its neighbour's broadcast covariance, sqrt(sigma_d^2 + u^T
+        Sigma_j u), the direction u taken at the current estimate and held until the next call
+        (the next round): a sigma that moved with the iterate would make the cost another
+        function than the one the Gauss-Newton step minimizes (measured: the full step raised
+        the cost of most vehicles, whose steps the line search then halved 8 times)."""
+        P = self._pos()
+        self.range_sigma = []
+        for k, ep in enumerate(self.epochs):
+            sig = np.zeros((2, len(ep.ranges)))
+            for a, b in ((0, 1), (1, 0)):
+                me, other = ep.edges[:, a], ep.edges[:, b]
+                diff = P[k, me] - self.heard_pos[k][me, other]
+                u = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-9)[:, None]
+                sig[a] = np.sqrt(ep.range_sigma ** 2 + np.einsum("mi,mij,mj->m", u, self.heard_cov[k][me, other], u))
+            self.range_sigma.append(sig)
 
     def add(self, ep: Epoch, transport: Transport | None = None) -> WindowEstimate:
         """Append epoch ep (time-ordered), slide, run the message iteration; the newest estimate."""
@@ -499,29 +571,34 @@ class Distributed(_Window):
         self.heard_cov.append(np.zeros((n, n, 3, 3)))
         self.heard.append(np.zeros((n, n), bool))
         # round 0's local step: own GNSS, anchors, motion and the window's older ranges only
+        self._weigh()
         _, S, _ = self._step(self._system())
         # (n, 3, 3): what each vehicle knows from its own measurements (GNSS, anchors, motion),
         # without any range to a neighbour: the covariance it broadcasts (module docstring)
         D, U, R, _ = self._system(ranges=False)
-        own_cov = self._newest(_solve_chain(D, U, R)[1])[2]
-        src = np.concatenate([ep.edges[:, 0], ep.edges[:, 1]])
-        dst = np.concatenate([ep.edges[:, 1], ep.edges[:, 0]])
-        pairs = np.unique(np.stack([src, dst], 1), axis=0) if src.size else np.zeros((0, 2), np.int64)
+        self.sent_cov.append(self._newest(_solve_chain(D, U, R)[1])[2])
+        # who hears whom: the ranged pairs of every window epoch (both directions)
+        edges = np.concatenate([e.edges for e in self.epochs])
+        pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)
+        nbytes = BROADCAST_BYTES * len(self.epochs)  # the sender's whole window
         messages = sent_bytes = 0
         converged = not pairs.size
         rounds = 0
         while not converged and rounds < self.max_iter:
-            pos = self._newest(S)[0]
-            pc = own_cov if self.broadcast == "own" else self._newest(S)[2]
+            if self.broadcast == "marginal":
+                self.sent_cov[-1] = self._newest(S)[2]
             ok = np.ones(len(pairs), bool) if transport is None else np.asarray(
-                transport.deliver(rounds, pairs[:, 0], pairs[:, 1], BROADCAST_BYTES), bool)
+                transport.deliver(rounds, pairs[:, 0], pairs[:, 1], nbytes), bool)
             s_, d_ = pairs[ok, 0], pairs[ok, 1]
-            self.heard_pos[-1][d_, s_] = pos[s_]
-            self.heard_cov[-1][d_, s_] = pc[s_]
-            self.heard[-1][d_, s_] = True
+            P = self._pos()
+            for k in range(len(self.epochs)):  # the sender's current estimate of every window epoch
+                self.heard_pos[k][d_, s_] = P[k, s_]
+                self.heard_cov[k][d_, s_] = self.sent_cov[k][s_]
+                self.heard[k][d_, s_] = True
+            self._weigh()
             senders = np.unique(pairs[:, 0]).size
             messages += senders  # one broadcast per sender and round
-            sent_bytes += senders * BROADCAST_BYTES
+            sent_bytes += senders * nbytes
             delta, S, _ = self._step(self._system())  # the tables changed: a new local system
             rounds += 1
             converged = float(np.abs(delta.reshape(n, -1, 6)[:, -1, :3]).max()) < self.tol

@@ -25,6 +25,9 @@ epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's veloc
 through which the broadcasts travel, testbed.network.RoundTransport, drawn from the plugin's
 own rng; absent: ideal). The channel's geometry (range limit, NLOS loss) is taken from the
 estimator's own positions and the epoch's ranged links (the estimator cannot see the truth).
+The cascade (testbed.plugins.builtin_window_ins, imu_motion) may set `motion`: each vehicle's
+known motion over the interval an epoch closes, the input of the window's motion factor
+(estimators.window.Epoch.motion).
 """
 from __future__ import annotations
 
@@ -58,6 +61,9 @@ class _WindowPlugin(EpochGrouping):
         self.solver = self._solver(context)
         self.t = None
         self.last: sw.WindowEstimate | None = None  # the newest epoch's solution
+        # t (s) -> (n, 6) the vehicles' known motion since the window's previous epoch (Epoch.motion;
+        # the cascade's IMU filters, testbed.plugins.builtin_window_ins); None: none
+        self.motion = None
         self.counts = {"epochs": 0, "skipped_epochs": 0, "nonconverged_epochs": 0, "messages": 0, "bytes_sent": 0}
         self._reset()
 
@@ -83,7 +89,8 @@ class _WindowPlugin(EpochGrouping):
                         ranges=tag[:, 2], range_sigma=tag[:, 3],
                         anchor_vehicle=np.array([a[0] for a in anc], np.int64),
                         anchor_pos=np.array([a[1] for a in anc], float).reshape(-1, 3),
-                        anchor_range=np.array([a[2] for a in anc], float), anchor_sigma=np.array([a[3] for a in anc], float))
+                        anchor_range=np.array([a[2] for a in anc], float), anchor_sigma=np.array([a[3] for a in anc], float),
+                        motion=None if self.motion is None or not self.solver.epochs else self.motion(self.t))
 
     def _close(self) -> list[Estimate]:
         if np.isnan(self.fix).all() and not self.tag and not self.anchor:
