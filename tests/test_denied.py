@@ -117,9 +117,10 @@ def test_reproduce_denied_end_to_end(tmp_path):
     from testbed.reproduce import reproduce
 
     out = tmp_path / "rep"
-    result = reproduce("denied", out, runs=1, duration=0.6, workers=1)
+    # 1.2 s: the distributed window cascade's filters start once its window holds 5 epochs (0.8 s)
+    result = reproduce("denied", out, runs=1, duration=1.2, workers=1)
     ids = {c["id"] for c in result["claims"]}
-    assert ids == {f"{v}_{c}" for v in ("coop", "coop_distributed", "coop_onboard")
+    assert ids == {f"{v}_{c}" for v in ("coop", "coop_distributed", "coop_onboard", "window", "window_distributed")
                    for c in ("flight_without_contact", "beats_gnss_only")}
     doc = json.loads((out / "claims.json").read_text())
     assert set(doc["flights"]) == set(denied.VARIANTS)

@@ -2,9 +2,11 @@
 
 Scenario `coop-denied` (18 UAVs down an urban street and under a covered passage; GNSS by sky
 visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown over `runs`
-seeds in six variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
-testbed.reproduce.runs). The estimators are testbed.plugins.builtin_coop_ins's: IMU error-state
-EKFs per vehicle updated by GNSS, UWB ranges to anchors and UWB ranges between vehicles.
+seeds in eight variants, each its own sweep (OUT/runs/<variant>/run-XXX, run i: seed + i,
+testbed.reproduce.runs). The estimators are testbed.plugins.builtin_coop_ins's (IMU error-state
+EKFs per vehicle updated by GNSS, UWB ranges to anchors and UWB ranges between vehicles) and
+testbed.plugins.builtin_window_ins's (seed 001's graph over a sliding window, the IMU filters
+updated by it).
 - truth:       the controller flies on the MuJoCo state; the centralized `coop.ins` is run and
                scored beside it: its estimation error without feedback;
 - gnss_ekf:    flies on `coop.ins` with no UWB ([sensors.uwb] removed in this variant): the same
@@ -17,6 +19,10 @@ EKFs per vehicle updated by GNSS, UWB ranges to anchors and UWB ranges between v
 - coop_onboard: as coop_distributed, the attitude loop on the filter's attitude too ([control]
                attitude = "estimate"): nothing in the loop reads the truth. The other variants
                fly the attitude loop on the MuJoCo attitude (docs/control.md).
+- window:      flies on `coop.window_ins`: seed 001's graph over a sliding window of epochs,
+               centralized, the per-vehicle IMU filters updated by its new information;
+- window_distributed: flies on `coop.window_distributed_ins`: the window per vehicle, seed 001's
+               message iteration over the scenario's [network].
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
 max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
 separation between vehicles (body origins, every logged instant); contact events: MuJoCo
@@ -25,8 +31,9 @@ collision (Physics.contacts_at; an event is a pair coming into contact; floor co
 apart); seconds without a GNSS fix per vehicle (gnss/fix at the logged instants).
 
 Claims (criteria fixed here, before the runs): no contact when flying on the cooperative
-estimate, centralized, distributed and distributed without truth (one claim each);
-cooperation's estimation error below GNSS-only's, the same three (one-sided Wilcoxon
+estimate, centralized, distributed, distributed without truth, and on the two window cascades
+(one claim each; the window variants' claims were added before their first run on these seeds);
+cooperation's estimation error below GNSS-only's, the same five (one-sided Wilcoxon
 signed-rank over paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so).
 
 Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
@@ -50,17 +57,19 @@ from testbed.scenario import Scenario, load
 from testbed.stats import wilcoxon_paired
 from testbed.world import FLOOR, OBSTACLE, build
 
-VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard")
+VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard", "window", "window_distributed")
 TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
           "coop_distributed": "cooperative, distributed", "coop_lossy": "cooperative, distributed, lossy network",
-          "coop_onboard": "cooperative, distributed, attitude from the filter (no truth in the loop)"}
+          "coop_onboard": "cooperative, distributed, attitude from the filter (no truth in the loop)",
+          "window": "seed 001 window cascade, centralized", "window_distributed": "seed 001 window cascade, distributed"}
 COOP, EKF = "coop", "ekf"  # estimator names ([[estimators]] name) of the cooperative and GNSS-only estimators
-COOPERATIVE = ("coop", "coop_distributed", "coop_onboard")  # the variants the claims are about
+COOPERATIVE = ("coop", "coop_distributed", "coop_onboard", "window", "window_distributed")  # the variants the claims are about
 LOSSY = {"loss_prob": 0.3, "latency": 0.006, "jitter": 0.003}  # the lossy variant's [network] changes
 ALPHA = 0.05
-# the cooperative estimator of each variant (testbed.plugins.builtin_coop_ins)
+# the cooperative estimator of each variant (testbed.plugins.builtin_coop_ins, builtin_window_ins)
 COOP_ENTRY = {"truth": "coop.ins", "coop": "coop.ins", "coop_distributed": "coop.ins_distributed",
-              "coop_lossy": "coop.ins_distributed", "coop_onboard": "coop.ins_distributed"}
+              "coop_lossy": "coop.ins_distributed", "coop_onboard": "coop.ins_distributed",
+              "window": "coop.window_ins", "window_distributed": "coop.window_distributed_ins"}
 METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
            "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
 
@@ -75,7 +84,7 @@ def variant(base: Scenario, name: str) -> Scenario:
                        estimators=(EstimatorSpec(entry="coop.ins", name=EKF),),
                        control=replace(base.control, feedback=f"estimate:{EKF}"))
     coop = EstimatorSpec(entry=COOP_ENTRY[name], name=COOP,
-                         params={} if name in ("truth", "coop") else {"network": to_dict(net)})
+                         params={} if name in ("truth", "coop", "window") else {"network": to_dict(net)})
     feedback = "truth" if name == "truth" else f"estimate:{COOP}"
     attitude = "estimate" if name == "coop_onboard" else base.control.attitude
     return replace(base, network=net, estimators=(coop,), control=replace(base.control, feedback=feedback, attitude=attitude))
