@@ -361,7 +361,14 @@ class Control:
     attitude of the feedback estimator (its latest "attitude" estimate) with the body rate of the
     latest gyro sample (needs feedback = "estimate:NAME"); both need [sensors.imu] on every
     vehicle. max_tilt_deg: the safety limit on the commanded thrust direction's tilt
-    from the vertical (deg; 0 = off), docs/control.md.
+    from the vertical (deg; 0 = off), docs/control.md. release_sigmas: n > 0 holds each
+    fed-back vehicle on its reference (the initialization phase) until the covariance its
+    estimator declares says an n-sigma error asks no more than the tilt limit,
+    n (kx sigma_p + kv sigma_v) <= g tan(max_tilt_deg) (sigma: the RMS of the position and
+    velocity errors, sqrt of the covariance's trace), or, flown on the estimated attitude, until
+    sigma_p is no larger than the drift of its open-loop hold; from then on it flies on the
+    estimate (needs feedback = "estimate:NAME" and max_tilt_deg > 0; 0 = off: flown on the first
+    estimate).
     """
 
     kx: float = key(4.0, unit="1/s^2")
@@ -374,6 +381,7 @@ class Control:
     mahony_kp: float = key(0.3, unit="1/s")
     mahony_ki: float = key(0.02, unit="1/s^2")
     max_tilt_deg: float = key(0.0, unit="deg", range="0 (off) or in (0, 90)")
+    release_sigmas: float = key(0.0, range="0 (off) or > 0")
 
     def __post_init__(self) -> None:
         for gain in ("kx", "kv", "kr", "kw", "mahony_kp"):
@@ -386,6 +394,9 @@ class Control:
                 f"vehicle numbers start at 1, got {list(self.feedback_vehicles)}")
         require(not self.feedback_vehicles or self.feedback != "truth", "feedback_vehicles", list(self.feedback_vehicles),
                 f'{list(self.feedback_vehicles)}: only with feedback = "estimate:NAME"')
+        in_range(self, "release_sigmas", 0)
+        require(not self.release_sigmas or (self.feedback != "truth" and self.max_tilt_deg > 0), "release_sigmas",
+                self.release_sigmas, f'{self.release_sigmas:g}: only with feedback = "estimate:NAME" and max_tilt_deg > 0')
 
     @property
     def feedback_estimator(self) -> str:

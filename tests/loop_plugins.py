@@ -36,3 +36,30 @@ class NotANumber(GnssEcho):
 
     def process(self, m):
         return [Estimate(time=e.time, target=e.target, quantity="position", value=np.full(3, np.nan)) for e in super().process(m)]
+
+
+class Converging(GnssEcho):
+    """GnssEcho with a position and a velocity (0) estimate whose declared covariances shrink:
+    sigma^2 I with sigma = SIGMA0 / (1 + t) m and m/s (t s) (the initialization phase's release)."""
+
+    SIGMA0 = 1.0
+
+    def process(self, m):
+        out = []
+        for e in super().process(m):
+            cov = (self.SIGMA0 / (1.0 + e.time)) ** 2 * np.eye(3)
+            out += [Estimate(time=e.time, target=e.target, quantity="position", value=e.value, cov=cov),
+                    Estimate(time=e.time, target=e.target, quantity="velocity", value=np.zeros(3), cov=cov)]
+        return out
+
+
+class ConvergingAttitude(Converging):
+    """Converging, with an attitude estimate too (level, heading 0) declaring TILT rad of sigma
+    about every axis: what [control] attitude = "estimate" flies on."""
+
+    TILT = 0.05
+
+    def process(self, m):
+        out = super().process(m)
+        return out + [Estimate(time=e.time, target=e.target, quantity="attitude", value=np.array([1.0, 0.0, 0.0, 0.0]),
+                               cov=self.TILT ** 2 * np.eye(3)) for e in out if e.quantity == "position"]

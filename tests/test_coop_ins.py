@@ -220,3 +220,48 @@ def test_a_receiver_holds_each_senders_newest_broadcast():
     CoopInsDistributed._hear(b, msgs)
     assert all(np.array_equal(getattr(a, k), getattr(b, k)) for k in vars(a))
     assert not np.array_equal(a.heard_t, t0)  # something was replaced
+
+
+def _mirror_start(check: bool, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """One distributed filter started 13.3 m too high (a first SPP fix, 5 m vertical sigma: coop-denied
+    seed 1005's uav3 at 0.2 s), i.e. above an anchor 6 m over the vehicle (its mirror side), then 5
+    epochs of a fix (1.7 / 1.7 / 5 m) and a 0.1 m range to that anchor 37 m away; check: a range is
+    fused only if linear_ranges passes it at the epoch's prior. (position error (3,), sigma (3,))."""
+    from testbed.plugins.builtin_coop_ins import linear_ranges
+
+    truth, anchor, sd = np.array([-12.0, 9.0, 8.0]), np.array([20.0, -14.0, 14.0]), np.array([1.7, 1.7, 5.0])
+    s = ci.SwarmIns(1, np.zeros((1, 3)), NOISE, joint=False, damped=True)
+    P0 = np.diag(np.r_[sd, 1, 1, 1, 0.05, 0.05, 0.1, 0.2, 0.2, 0.2, 0.02, 0.02, 0.02]) ** 2
+    s.start(0, truth + [1.25, 0.0, 13.3], np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), P0)
+    s.t = 0.0
+    rng = np.random.default_rng(seed)
+    for _ in range(5):
+        rows = ci.Rows(z=np.r_[truth + rng.normal(0, sd), np.linalg.norm(truth - anchor) + rng.normal(0, 0.1)],
+                       var=np.r_[sd ** 2, 0.01], i=np.zeros(4, int), j=np.full(4, -1), component=np.arange(4),
+                       other=np.vstack([np.full((3, 3), np.nan), anchor]), dev=np.full((4, 2), -1))
+        linear = linear_ranges(s.antennas()[0], s.P[0][None, :3, :3], anchor[None], rows.var[3:], 1.0)[0]
+        s.update(rows if linear or not check else rows.subset(np.arange(3)), np.inf, 3, 1.345)
+    return s.p[0] - truth, np.sqrt(np.diag(s.P[0][:3, :3]))
+
+
+def test_a_range_at_a_prior_on_the_mirror_side_makes_the_filter_sure_of_it_unless_checked():
+    """Fused at every epoch, the anchor range leaves the filter more than 3 sigma off in height in 2
+    of 3 noise draws (the start failure of coop-denied: sure of the mirror side); fusing only what
+    linear_ranges passes (the anchor from the third epoch on, once the fixes have narrowed the
+    height) keeps it within 3 sigma in all 3."""
+    z = {check: [abs(e[2]) / sig[2] for e, sig in (_mirror_start(check, seed) for seed in (1, 2, 3))] for check in (False, True)}
+    assert sum(v > 3 for v in z[False]) == 2
+    assert max(z[True]) < 3
+
+
+def test_linear_ranges_refuses_a_range_whose_second_order_term_exceeds_its_noise():
+    """tr(C_perp) / (2 d) against the range's sd: 5 m of height sigma across a 37 m range (0.34 m
+    against 0.1 m) is refused, 0.5 m (0.003 m) passes; along the range, sigma does not count."""
+    from testbed.plugins.builtin_coop_ins import linear_ranges
+
+    s, other = np.zeros((3, 3)), np.tile([37.0, 0.0, 0.0], (3, 1))
+    C = np.array([np.diag([0.01, 0.01, 25.0]), np.diag([0.01, 0.01, 0.25]), np.diag([400.0, 0.01, 0.01])])
+    assert linear_ranges(s, C, other, np.full(3, 0.01), 1.0).tolist() == [False, True, True]
+    d = 2 * 37.0 * 0.1  # the largest tr(C_perp) that passes
+    C = np.array([np.diag([0.0, 0.5, 0.5]) * d * 0.999, np.diag([0.0, 0.5, 0.5]) * d * 1.001, np.zeros((3, 3))])
+    assert linear_ranges(s, C, other, np.full(3, 0.01), 1.0).tolist() == [True, False, True]

@@ -218,6 +218,9 @@ def test_a_loop_estimator_that_fails_stops_the_run(tmp_path, capsys, monkeypatch
     ('attitude = "mahony"', 'motion = "prescribed"', "control.attitude"),
     ('attitude = "kalman"', "", "control.attitude"),
     ('attitude = "estimate"', "", "control.attitude: 'estimate' needs feedback = \"estimate:NAME\""),
+    ('release_sigmas = 1.0\nmax_tilt_deg = 35.0', "", "control.release_sigmas: 1: only with feedback"),
+    ('feedback = "estimate:nav"\nrelease_sigmas = 1.0', "", "control.release_sigmas: 1: only with feedback"),
+    ('feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = -1.0', "", "control.release_sigmas"),
 ])
 def test_bad_feedback_keys_are_refused_at_load(tmp_path, capsys, monkeypatch, control, extra, says):
     monkeypatch.chdir(tmp_path)
@@ -317,15 +320,9 @@ def test_online_imu_errors_are_the_batch_errors(tmp_path):
     assert all(np.array_equal(a[k], b[k]) for k in ("imu/time", "imu/src", "imu/vehicle", "imu/state_index"))
 
 
-@pytest.mark.parametrize("latency, first_tick", [(0.0, 1), (0.0123, 4)])
-def test_an_estimate_steers_from_the_tick_after_its_measurement_arrived(tmp_path, latency, first_tick):
-    """GNSS at t = 0 with `latency`, ticks of 5 ms: the fix arrives at tick ceil(latency / 5 ms)
-    (0 or 3, at 0.0123 s), is processed at the end of that tick, and the controller uses the
-    estimate from the next tick on (1 or 4); before that, the reference."""
-    text = _write(tmp_path, duration=0.1, entry="tests.loop_plugins:Recording", outages="[]").read_text()
-    path = tmp_path / "late.toml"
-    path.write_text(text.replace("rate_hz = 5.0\n", f"rate_hz = 5.0\nlatency = {latency}\n"))
-    sc = scenario_mod.load(str(path))
+def _steered(sc) -> tuple[list[bool], object]:
+    """Fly sc with its feedback estimator in the loop: per controller tick, whether the position
+    the controller used was the estimate (not the reference); and the OnlineEstimator."""
     physics = build(sc)
     online = in_the_loop(sc, physics, resolve(sc.estimators))
     used, state = [], online.state
@@ -337,4 +334,75 @@ def test_an_estimate_steers_from_the_tick_after_its_measurement_arrived(tmp_path
 
     online.state = spy
     simulate(sc, physics, feedback=online)
+    return used, online
+
+
+@pytest.mark.parametrize("latency, first_tick", [(0.0, 1), (0.0123, 4)])
+def test_an_estimate_steers_from_the_tick_after_its_measurement_arrived(tmp_path, latency, first_tick):
+    """GNSS at t = 0 with `latency`, ticks of 5 ms: the fix arrives at tick ceil(latency / 5 ms)
+    (0 or 3, at 0.0123 s), is processed at the end of that tick, and the controller uses the
+    estimate from the next tick on (1 or 4); before that, the reference."""
+    text = _write(tmp_path, duration=0.1, entry="tests.loop_plugins:Recording", outages="[]").read_text()
+    path = tmp_path / "late.toml"
+    path.write_text(text.replace("rate_hz = 5.0\n", f"rate_hz = 5.0\nlatency = {latency}\n"))
+    sc = scenario_mod.load(str(path))
+    used, online = _steered(sc)
     assert used.index(True) == first_tick and not any(used[:first_tick]) and all(used[first_tick:])
+
+
+@pytest.mark.parametrize("entry, sigmas", [("tests.loop_plugins:Converging", 1.0), ("tests.loop_plugins:Converging", 2.0),
+                                           ("tests.loop_plugins:Recording", 1.0)])
+def test_the_initialization_phase_holds_a_vehicle_on_its_reference_until_its_estimate_converges(tmp_path, entry, sigmas):
+    """[control] release_sigmas = n: the controller flies on the reference until the first GNSS
+    epoch (5 Hz) whose estimates' declared sigma = SIGMA0 / (1 + t) (sqrt of the trace: sqrt(3)
+    sigma) satisfies n (kx + kv) sqrt(3) sigma <= g tan(max_tilt), from the next tick on (ticks of
+    5 ms) and for good; an estimator that declares no covariance (Recording) never releases it."""
+    from testbed.plugins.online import GRAVITY
+
+    text = _write(tmp_path, duration=3.0, entry=entry, outages="[]",
+                  control=f'feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = {sigmas}').read_text()
+    path = tmp_path / "hold.toml"
+    path.write_text(text)
+    sc = scenario_mod.load(str(path))
+    used, online = _steered(sc)
+    if entry.endswith("Recording"):
+        assert not any(used) and online.has[0].all()
+        return
+    c = sc.control
+    limit = -GRAVITY[2] * np.tan(np.radians(c.max_tilt_deg))
+    epochs = np.arange(0.0, 3.0, 0.2)
+    first = epochs[sigmas * (c.kx + c.kv) * np.sqrt(3) * loop_plugins.Converging.SIGMA0 / (1 + epochs) <= limit][0]
+    tick = int(round(first / 0.005)) + 1
+    assert 0 < first < 2.8 and not any(used[:tick]) and all(used[tick:])
+
+
+@pytest.mark.parametrize("attitude", ["truth", "estimate"])
+def test_a_vehicle_held_on_the_estimated_attitude_is_released_once_its_drift_exceeds_the_estimate_error(tmp_path, attitude):
+    """Flown on the estimated attitude, a held vehicle flies its reference open-loop and drifts: per
+    estimate (every dt = 0.2 s, from t = 0) the drift's velocity grows by g sigma_tilt dt (sigma_tilt =
+    sqrt(2) TILT, the tilt's two axes) and its position by that velocity times dt, so at epoch k it is
+    g sigma_tilt dt^2 k (k + 1) / 2; the vehicle is released at the first epoch where the position
+    sigma (sqrt(3) SIGMA0 / (1 + t)) is no larger (1.8 s with SIGMA0 = 2 m, TILT = 0.05 rad), before
+    release_sigmas = 1 would (2.6 s), which alone releases it when the attitude flown on is the truth."""
+    from testbed.plugins.online import GRAVITY
+
+    plugin = loop_plugins.ConvergingAttitude
+    text = _write(tmp_path, duration=3.0, entry="tests.loop_plugins:ConvergingAttitude", outages="[]",
+                  control=f'feedback = "estimate:nav"\nattitude = "{attitude}"\nmax_tilt_deg = 35.0\nrelease_sigmas = 1.0').read_text()
+    path = tmp_path / "drift.toml"
+    path.write_text(text)
+    sc = scenario_mod.load(str(path))
+    c, g, dt = sc.control, -GRAVITY[2], 0.2
+    k = np.arange(15)
+    sigma = np.sqrt(3) * 2.0 / (1 + dt * k)
+    by_rule = (c.kx + c.kv) * sigma <= g * np.tan(np.radians(c.max_tilt_deg))
+    by_drift = sigma <= g * np.sqrt(2) * plugin.TILT * dt ** 2 * k * (k + 1) / 2
+    first = dt * k[by_rule | by_drift if attitude == "estimate" else by_rule][0]
+    assert np.allclose((first, dt * k[by_rule][0]), ((1.8 if attitude == "estimate" else 2.6), 2.6))
+    plugin.SIGMA0 = 2.0
+    try:
+        used, _ = _steered(sc)
+    finally:
+        del plugin.SIGMA0
+    tick = int(round(first / 0.005)) + 1
+    assert not any(used[:tick]) and all(used[tick:])

@@ -14,7 +14,12 @@ broadcast is first checked against the sender's flown estimate of the same anten
 (checked_broadcast, chi-square 3 dof at 1 - broadcast_check): an own filter that has gone wrong
 (measured: 16 m off with a 1.3 m sigma) is broadcast with the disagreement added to its
 covariance. The per-vehicle filters' iterated update is line-searched (estimators.coop_ins
-SwarmIns._line_search).
+SwarmIns._line_search). A range enters a per-vehicle filter only where it is linear in that
+filter's own uncertainty (linear_ranges: the neglected second-order term of the range at most
+`linearity` times its noise sd): at a first SPP fix, metres of height sigma straddle the height
+of the anchors and of the neighbours, a range cannot tell above from below, and fused there it
+made the filter sure of the wrong side; such a range is skipped (counted) until the fixes have
+narrowed the prior.
 
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
@@ -56,10 +61,11 @@ the estimate had drifted).
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
 (m/s, 1.0), output_every (1); distributed only: network (a [network] table, docs/network.md;
-absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off). health():
-epochs, rejected_measurements, skipped_updates, stale_ranges; distributed also
-inconsistent_broadcasts (checked_broadcast) and the network's sent, delivered, dropped,
-bytes_sent and latency_p50_us / latency_p95_us.
+absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
+(1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges;
+distributed also inconsistent_broadcasts (checked_broadcast), nonlinear_ranges (ranges a flown
+filter skipped, linear_ranges) and the network's sent, delivered, dropped, bytes_sent and
+latency_p50_us / latency_p95_us.
 """
 from __future__ import annotations
 
@@ -77,10 +83,10 @@ from testbed.plugins.builtin_eskf import imu_noise, levelled_start
 from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
-                network=None, stale_s=1.0, peer_inflation=4.0, broadcast_check=1e-3)
+                network=None, stale_s=1.0, peer_inflation=4.0, broadcast_check=1e-3, linearity=1.0)
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
 NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
-DISTRIBUTED_ONLY = ("network", "stale_s", "peer_inflation", "broadcast_check")
+DISTRIBUTED_ONLY = ("network", "stale_s", "peer_inflation", "broadcast_check", "linearity")
 
 
 class CoopIns:
@@ -355,6 +361,7 @@ class CoopInsDistributed(CoopIns):
         check = float(self.p["broadcast_check"])
         self.threshold = float(chi2.isf(check, 3)) if check > 0 else np.inf
         self.counts["inconsistent_broadcasts"] = 0
+        self.counts["nonlinear_ranges"] = 0
         net = self.p["network"]
         self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
                                self.n, context.rng)
@@ -395,15 +402,29 @@ class CoopInsDistributed(CoopIns):
         self._hear([msg for r in range(n) for msg in net.receive(now, r)])
         pair = rows.j >= 0
         mine = rows.subset(~pair)
-        parts = [mine, ci.Rows(z=mine.z, var=mine.var, i=mine.i + n, j=mine.j, component=mine.component,
-                               other=mine.other, dev=mine.dev)]
+        linearity = float(self.p["linearity"])
+        parts = []
+        for copy in (mine, ci.Rows(z=mine.z, var=mine.var, i=mine.i + n, j=mine.j, component=mine.component,
+                                   other=mine.other, dev=mine.dev)):
+            if linearity > 0:  # a fix always; an anchor range where it is linear in the filter's uncertainty
+                rng = np.flatnonzero(copy.component == 3)
+                lin = linear_ranges(s_all[copy.i[rng]], C_all[copy.i[rng]], copy.other[rng], copy.var[rng], linearity)
+                self.counts["nonlinear_ranges"] += int((~lin & (copy.i[rng] < n)).sum())
+                keep = np.ones(copy.z.size, bool)
+                keep[rng[~lin]] = False
+                copy = copy.subset(keep)
+            parts.append(copy)
         ranged = rows.subset(pair)
         for me, you in ((ranged.i, ranged.j), (ranged.j, ranged.i)):
             age = t - self.heard_t[me, you]
-            ok = age <= self.p["stale_s"]
-            self.counts["stale_ranges"] += int((~ok).sum())
+            ok = np.flatnonzero(age <= self.p["stale_s"])
+            self.counts["stale_ranges"] += me.size - ok.size
             me, you, age = me[ok], you[ok], age[ok]
             point = self.heard_s[me, you] + self.heard_v[me, you] * age[:, None]
+            if linearity > 0:
+                lin = linear_ranges(s_all[me], C_all[me], point, ranged.var[ok], linearity)
+                self.counts["nonlinear_ranges"] += int((~lin).sum())
+                ok, me, you, age, point = ok[lin], me[lin], you[lin], age[lin], point[lin]
             cov = self.heard_cs[me, you] + age[:, None, None] ** 2 * self.heard_cv[me, you]
             u = s_all[me] - point  # the range's direction from the flown filter's antenna
             u /= np.maximum(np.linalg.norm(u, axis=1), 1e-9)[:, None]
@@ -413,7 +434,6 @@ class CoopInsDistributed(CoopIns):
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
                                  other=point, dev=ranged.dev[ok]))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
-
 
     def _hear(self, messages: list) -> None:
         """Hold each sender's newest broadcast (by its time; of equal times the last to arrive) at
@@ -430,6 +450,24 @@ class CoopInsDistributed(CoopIns):
         self.heard_t[r, k] = tb[last]
         for held, f in ((self.heard_s, 1), (self.heard_v, 2), (self.heard_cs, 3), (self.heard_cv, 4)):
             held[r, k] = np.array([messages[i].payload[f] for i in last.tolist()]).reshape(len(last), *held.shape[2:])
+
+
+def linear_ranges(s: np.ndarray, C: np.ndarray, other: np.ndarray, var: np.ndarray, factor: float) -> np.ndarray:
+    """(m,) bool: the range rows that a filter can fuse linearly. A row: the filter's antenna s
+    (m, 3) m with covariance C (m, 3, 3) m^2, the other end's point other (m, 3) m, the range's
+    measurement variance var (m,) m^2. The range |s + e - other| of an antenna error e ~ N(0, C) is
+    d + u^T e + e_perp^T e_perp / (2 d) + ... (u the unit direction, d the distance, e_perp the
+    part of e across u); the EKF keeps the first-order term, the second is neglected. A row is
+    linear where that term's mean, tr(C_perp) / (2 d) (C_perp = (I - u u^T) C (I - u u^T)), is at
+    most factor times the range's own noise sd. A prior of metres across the range fails it: a
+    first SPP fix, 3-14 m of vertical sigma, straddles the height of the anchors and of the
+    neighbours, the range cannot tell above from below (the mirror image), and fused at such a
+    prior it made the filter sure of the wrong side (docs/denied.md)."""
+    d = s - other
+    dist = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    u = d / dist[:, None]
+    perp = np.trace(C, axis1=1, axis2=2) - np.einsum("mi,mij,mj->m", u, C, u)
+    return perp <= factor * 2.0 * dist * np.sqrt(var)
 
 
 def peer_kappa(cap: float, uses: np.ndarray) -> np.ndarray:

@@ -12,7 +12,13 @@ scores these very estimates; the latest world position and velocity of each fed-
 ("uavI" targets) are what `state` gives the controller from the next tick on, and its latest
 world attitude what `rotation` gives (with [control] attitude = "estimate"). A vehicle with no
 estimate yet is controlled on its reference (zero position and velocity error); without a
-velocity estimate, its velocity error is taken as zero.
+velocity estimate, its velocity error is taken as zero. With [control] release_sigmas = n > 0 a
+vehicle is also held on its reference until its estimate is released: the first time the
+covariances of its latest position and velocity estimates satisfy
+n (kx sigma_p + kv sigma_v) <= g tan(max_tilt_deg), sigma = sqrt(trace), or, flying on the
+estimated attitude, once sigma_p is no larger than the drift of the open-loop hold dead-reckoned
+from the attitude's declared tilt (docs/control.md, the initialization phase); an estimate without
+a covariance never releases it.
 
 Order check: batches are cut at tick times and sorted inside, and a measurement arrives no
 earlier than it was taken, so the concatenated batches are the offline feed's order.
@@ -24,6 +30,7 @@ import time as wallclock
 
 import numpy as np
 
+from estimators.eskf import GRAVITY
 from estimators.so3 import quat_to_rotmat
 from testbed.errors import PluginError
 from testbed.plugins.api import Context, EstimateBatch
@@ -54,6 +61,15 @@ class OnlineEstimator:
         self.pos, self.vel, self.att = np.zeros((N, 3)), np.zeros((N, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
         self.times = np.full((3, N), -np.inf)  # time of validity of the held position, velocity, attitude
         self.has = np.zeros((3, N), bool)  # whether held: position, velocity, attitude
+        c = scenario.control
+        # the initialization phase ([control] release_sigmas): released vehicles fly on their estimate
+        self.released = np.full(N, not c.release_sigmas)
+        self.sigma = np.full((2, N), np.inf)  # m, m/s: RMS error of the held position, velocity estimate
+        self.gains = np.array([c.kx, c.kv])  # 1/s^2, 1/s
+        self.release_at = np.tan(np.radians(c.max_tilt_deg)) * -GRAVITY[2] / max(c.release_sigmas, 1e-300)  # m/s^2
+        # attitude "estimate": a held vehicle flies its reference open-loop on the estimated attitude, and
+        # drifts; RMS velocity (m/s) and position (m) of that drift, dead-reckoned from the declared tilt
+        self.drift = np.zeros((2, N)) if c.attitude == "estimate" else None
         self._vehicle_rows: dict[tuple, tuple | None] = {}  # _hold_batch's per target tuple
         self._pending: list = []  # heap of (arrival, time, stream, row, columns, index)
         self._rows: dict[str, int] = {}
@@ -101,9 +117,11 @@ class OnlineEstimator:
                 continue
             k = HELD[e.quantity]
             if e.time >= self.times[k, i]:
+                dt = np.array([e.time - self.times[k, i]])
                 self.times[k, i] = e.time
                 self._held(k)[i] = e.value
                 self.has[k, i] = True
+                self._release(k, np.array([i]), None if e.cov is None else np.asarray(e.cov, float)[None], dt)
 
     def _held(self, k: int) -> np.ndarray:
         """The held values of quantity k (HELD): (N, 3) position or velocity, (N, 4) attitude."""
@@ -126,16 +144,39 @@ class OnlineEstimator:
         t = np.asarray(b.time, float)[keep]
         newer = t >= self.times[k, i]
         i = i[newer]
+        dt = t[newer] - self.times[k, i]
         self.times[k, i] = t[newer]
         self._held(k)[i] = np.asarray(b.value, float)[keep][newer]
         self.has[k, i] = True
+        self._release(k, i, None if b.cov is None else np.asarray(b.cov, float)[keep][newer], dt)
+
+    def _release(self, k: int, i: np.ndarray, cov: np.ndarray | None, dt: np.ndarray) -> None:
+        """The initialization phase (module docstring), latched: newly held estimates of quantity k
+        (HELD) of vehicles i (m,), covariances cov (m, 3, 3) (None: unknown), dt (m,) s since the
+        previous one (inf: the first). Position, velocity: their RMS error sqrt(trace). Attitude,
+        flown on (attitude "estimate"): the open-loop drift of a held vehicle grows by g sigma_tilt dt
+        in velocity and by that velocity times dt in position (sigma_tilt: the declared tilt, the
+        body x and y rotations); a vehicle is also released once its position estimate is no worse
+        than that drift."""
+        if self.released.all():
+            return
+        if k < 2:
+            self.sigma[k, i] = np.inf if cov is None else np.sqrt(np.trace(cov, axis1=1, axis2=2))
+        elif self.drift is not None and cov is not None:
+            dt = np.where(np.isfinite(dt), dt, 0.0)
+            self.drift[0, i] += -GRAVITY[2] * np.sqrt(cov[:, 0, 0] + cov[:, 1, 1]) * dt
+            self.drift[1, i] += self.drift[0, i] * dt
+        self.released |= self.gains @ self.sigma <= self.release_at
+        if self.drift is not None:
+            self.released |= self.sigma[0] <= self.drift[1]
 
     def state(self, pos: np.ndarray, vel: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity (N, 3) world the controller uses: the held estimate of each
-        fed-back vehicle (its reference before a first estimate), the truth of the others."""
+        fed-back vehicle (its reference before a first estimate and until released), the truth of
+        the others."""
         fb = self.vehicles
-        p = np.where((fb & self.has[0])[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
-        v = np.where((fb & self.has[1])[:, None], self.vel, np.where(fb[:, None], ref_vel, vel))
+        p = np.where((fb & self.has[0] & self.released)[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
+        v = np.where((fb & self.has[1] & self.released)[:, None], self.vel, np.where(fb[:, None], ref_vel, vel))
         return p, v
 
     def rotation(self, R: np.ndarray, R_start: np.ndarray) -> np.ndarray:
