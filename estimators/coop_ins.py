@@ -321,10 +321,12 @@ class SwarmIns:
         step = self._joint_step if self.joint else self._local_step
         prior_information = np.linalg.inv(self.P) if self.damped else None  # P is the prior until the end
         dx = None
-        for _ in range(max(1, int(iterations))):
-            h, Hi, Hj = self._linearize_at(rows, dx)
+        h, Hi, Hj = h[ok], Hi[ok], Hj[ok]  # the rows' linearization at the prior, computed above
+        for it in range(max(1, int(iterations))):
+            if it:
+                h, Hi, Hj = self._linearize_at(rows, dx)
             dx_gn, P = step(rows, h, Hi, Hj, dx)
-            dx = self._line_search(rows, dx, dx_gn, prior_information) if self.damped else dx_gn
+            dx = self._line_search(rows, dx, dx_gn, prior_information, h) if self.damped else dx_gn
         self._inject(dx)
         self.P = P
         # Sola eq. 287: reset of each attitude error block after injection
@@ -374,7 +376,7 @@ class SwarmIns:
 
     STEPS = (1.0, 0.5, 0.25, 0.125)  # step lengths tried by the line search, longest first (else 0)
 
-    def _line_search(self, rows: Rows, dx, dx_gn, prior_information: np.ndarray):
+    def _line_search(self, rows: Rows, dx, dx_gn, prior_information: np.ndarray, h: np.ndarray):
         """The damped iterated update (distributed filters): from the current iterate dx (None: the
         prior) towards the Gauss-Newton iterate dx_gn, per filter the longest step of STEPS that
         does not raise the MAP cost V(d) = d^T P^-1 d + sum_k r_k(x (+) d)^2 / var_k of its rows
@@ -382,13 +384,16 @@ class SwarmIns:
         Gauss-Newton overshoots where a precise range meets metres of prior uncertainty along a
         direction it barely observes (one anchor 46 m away, 3.6 m vertical sigma: measured, the
         vertical iterate went 16.8 -> 9.6 -> 34.3 m and the covariance linearized there claimed
-        0.7 m), and the filter ends confident at a wrong point. prior_information: P^-1 (n, E, E)."""
+        0.7 m), and the filter ends confident at a wrong point. prior_information: P^-1 (n, E, E);
+        h (m,): the rows' predictions at x (+) dx (those of the Gauss-Newton step just taken)."""
         x1 = np.concatenate(dx_gn, axis=1)  # (n, E)
         x = np.zeros_like(x1) if dx is None else np.concatenate(dx, axis=1)
         def cost(step: float) -> np.ndarray:
             return self._cost(rows, x + step * (x1 - x), prior_information)
 
-        bound = cost(0.0) * (1 + 1e-12)  # V at the current iterate
+        # V at the current iterate (at the prior, dx None, the state is taken through x (+) 0 as at
+        # the other steps: its renormalized attitude can differ from the state's in the last bit)
+        bound = (cost(0.0) if dx is None else self._cost(rows, x, prior_information, h)) * (1 + 1e-12)
         a = np.zeros(self.n)  # per filter the longest step that does not raise V
         open_ = np.ones(self.n, bool)
         for step in self.STEPS:  # shorter steps only while some filter has none yet
@@ -399,11 +404,13 @@ class SwarmIns:
         x = x + a[:, None] * (x1 - x)
         return x[:, :N_ERR], x[:, N_ERR:]
 
-    def _cost(self, rows: Rows, x: np.ndarray, prior_information: np.ndarray) -> np.ndarray:
+    def _cost(self, rows: Rows, x: np.ndarray, prior_information: np.ndarray, h: np.ndarray | None = None) -> np.ndarray:
         """(n,) the MAP cost of each filter at x (+) d, d = x (n, E) split into core and delays
-        (_line_search): d^T P^-1 d + sum over its rows of r^2 / var."""
+        (_line_search): d^T P^-1 d + sum over its rows of r^2 / var; h (m,): the rows' predictions
+        there if known."""
         prior = ((prior_information @ x[..., None])[..., 0] * x).sum(axis=1)
-        h, _, _ = self._linearize_at(rows, (x[:, :N_ERR], x[:, N_ERR:]), jacobians=False)
+        if h is None:
+            h, _, _ = self._linearize_at(rows, (x[:, :N_ERR], x[:, N_ERR:]), jacobians=False)
         return prior + np.bincount(rows.i, (rows.z - h) ** 2 / rows.var, minlength=self.n)
 
     def _linearize_at(self, rows: Rows, dx, jacobians: bool = True):

@@ -10,7 +10,9 @@ succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-wri
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+import gc
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +57,23 @@ def split_timing(estimators: dict) -> tuple[dict, dict]:
     return scores, {name: t for name, t in timing.items() if t}
 
 
+@contextmanager
+def _long_lived_frozen() -> Iterator[None]:
+    """The objects alive before a run (the modules and classes of numpy, scipy, MuJoCo, ...:
+    100k-160k after a command's imports) outlive it: Python's cycle collector is kept from
+    scanning them at each of its full passes during the run (gc.freeze), then given them back
+    (gc.unfreeze; a caller that froze objects itself keeps them frozen). Measured: a 10-s
+    coop-denied flight in a process with the bench's imports, 0.1-0.17 s of CPU less (5-8 %)."""
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
 def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = False, plots: bool = True,
         video: bool = False) -> dict:
     """Simulate `scenario` and write its run directory at `out`; returns the metrics.
@@ -65,7 +84,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     needs: a long run of a large swarm never holds its whole log in memory.
     """
     plugins = resolve(scenario.estimators)  # a bad plugin entry stops here, before anything is written
-    with Output(Path(out), kind="run", force=force) as o:
+    with _long_lived_frozen(), Output(Path(out), kind="run", force=force) as o:
         tmp = o.path
         writer = LogWriter(tmp / SPILL_DIR)
         try:

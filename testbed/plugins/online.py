@@ -158,8 +158,10 @@ class OnlineEstimator:
         in velocity and by that velocity times dt in position (sigma_tilt: the declared tilt, the
         body x and y rotations); a vehicle is also released once its position estimate is no worse
         than that drift."""
-        if self.released.all():
+        held = ~self.released[i]  # released is latched: only the vehicles still held matter
+        if not held.any():
             return
+        i, dt, cov = i[held], dt[held], None if cov is None else cov[held]
         if k < 2:
             self.sigma[k, i] = np.inf if cov is None else np.sqrt(np.trace(cov, axis1=1, axis2=2))
         elif self.drift is not None and cov is not None:
