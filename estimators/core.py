@@ -63,6 +63,8 @@ This module never imports mujoco or testbed: estimators run on data that did not
 """
 from __future__ import annotations
 
+import functools
+
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
@@ -538,6 +540,7 @@ def nees(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return (e * sol).sum(axis=(-2, -1))
 
 
+@functools.lru_cache(maxsize=256)  # scoring asks for the same (dof, runs) for every vehicle
 def chi2_interval(dof: int, runs: int, level: float = 0.99) -> tuple[float, float]:
     """Two-sided interval for the ANEES of `runs` independent NEES samples of `dof` degrees each.
 

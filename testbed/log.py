@@ -92,7 +92,8 @@ class LogWriter:
             self._dtype[key], self._shape[key] = rows.dtype, rows.shape[1:]
         elif rows.shape[1:] != self._shape[key]:
             raise ValueError(f"log key {key!r}: rows of shape {rows.shape[1:]} after {self._shape[key]}")
-        self._dtype[key] = np.result_type(self._dtype[key], rows.dtype)
+        if rows.dtype != self._dtype[key]:  # e.g. a wider unicode width
+            self._dtype[key] = np.result_type(self._dtype[key], rows.dtype)
         self._pieces[key].append(rows)
         self._held[key] += rows.nbytes
         self._rows[key] += len(rows)

@@ -127,6 +127,7 @@ class CoopIns:
         self.new = np.full((n, 6), np.nan)  # samples of the instant being collected
         self.t_imu = None
         self.instants = 0
+        self._targets: tuple[int, tuple] = (0, ())  # (started flown filters, their vehicles): _flush's targets
         self.epoch_t = None
         self.rows = EpochRows()
         self._links: dict[tuple[str, str], tuple | None] = {}  # (src, dst): _link's answer
@@ -221,7 +222,9 @@ class CoopIns:
         ins = self.ins
         C = ins.marginals(slice(self.n))  # the flown filters'
         i = np.flatnonzero(ins.active[:self.n])
-        target, time = [self.vehicles[k] for k in i.tolist()], np.full(i.size, t)
+        if self._targets[0] != i.size:  # vehicles only ever start: the count says which
+            self._targets = (i.size, tuple(self.vehicles[k] for k in i.tolist()))
+        target, time = self._targets[1], np.full(i.size, t)
         # each block copied out: a view would keep the whole (n, 15, 15) array alive with the estimate
         return [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s].copy())
                 for q, x, s in (("position", ins.p, ci.P_), ("velocity", ins.v, ci.V_), ("attitude", ins.q, ci.TH))]

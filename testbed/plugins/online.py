@@ -141,14 +141,16 @@ class OnlineEstimator:
             return
         keep, i = self._vehicle_rows[targets]
         k = HELD[b.quantity]
-        t = np.asarray(b.time, float)[keep]
+        t, value = np.asarray(b.time, float)[keep], np.asarray(b.value, float)[keep]
         newer = t >= self.times[k, i]
-        i = i[newer]
-        dt = t[newer] - self.times[k, i]
-        self.times[k, i] = t[newer]
-        self._held(k)[i] = np.asarray(b.value, float)[keep][newer]
+        if not newer.all():
+            i, t, value, keep = i[newer], t[newer], value[newer], keep[newer]
+        dt = t - self.times[k, i]
+        self.times[k, i] = t
+        self._held(k)[i] = value
         self.has[k, i] = True
-        self._release(k, i, None if b.cov is None else np.asarray(b.cov, float)[keep][newer], dt)
+        if not self.released.all():
+            self._release(k, i, None if b.cov is None else np.asarray(b.cov, float)[keep], dt)
 
     def _release(self, k: int, i: np.ndarray, cov: np.ndarray | None, dt: np.ndarray) -> None:
         """The initialization phase (module docstring), latched: newly held estimates of quantity k
