@@ -112,6 +112,23 @@ def test_same_seed_bit_identical_and_other_seed_differs(tmp_path):
     assert _digest(tmp_path / "a" / "log.npz") != _digest(tmp_path / "c" / "log.npz"), sc.name
 
 
+
+def test_a_run_leaves_the_cycle_collector_as_it_found_it(tmp_path):
+    """run() keeps the cycle collector off the objects alive before it (gc.freeze) and gives them
+    back after; a caller's own freeze stays."""
+    import gc
+
+    sc = scenario.load("phase-cross-h000", duration=0.5)
+    assert gc.get_freeze_count() == 0
+    run(sc, tmp_path / "a")
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        run(sc, tmp_path / "b")
+        assert gc.get_freeze_count() > 0  # still frozen (fewer: frozen objects freed meanwhile leave it)
+    finally:
+        gc.unfreeze()
+
 BAD = {
     "unknown key": (HOVER + "colour = 3\n", "colour"),
     "negative rate": (HOVER.replace("[trajectory]", "[world]\ncontrol_rate = -5.0\n[trajectory]"), "control_rate"),
