@@ -15,8 +15,11 @@ Factors (seed 001's, docs/papers.md, plus the motion between epochs that a windo
   axis) about a known acceleration input: [p' - p - v dt - dp; v' - v - dv] ~ N(0, q [[dt^3/3,
   dt^2/2], [dt^2/2, dt]] (x) I3), (dp, dv) the epoch's `motion` increments (e.g. an IMU's
   acceleration integrated over the interval; none: 0, the constant-velocity model);
-- the prior on the oldest epoch: the first epoch's (GNSS-free vehicles: position sigma
-  `init_sigma_p` about the mean of the fixes, velocity N(0, init_sigma_v^2)), later the Gaussian
+- the prior on the oldest epoch: the first epoch's (position sigma `init_sigma_p` about the
+  fixes, GNSS-free vehicles about the mean of the fixes, velocity N(0, init_sigma_v^2); the
+  centralized window starts Gauss-Newton instead from the swarm's shape found from the epoch's
+  ranges and placed on its fixes, estimators.layout, where the ranges connect every vehicle: a
+  start at the raw fixes can fold the swarm), later the Gaussian
   left by marginalizing the epoch that slid out (Schur complement at the current estimate).
 
 Online: `add(epoch)` appends one epoch (warm start: the previous estimate propagated at constant
@@ -43,6 +46,14 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   (coop-denied seed 1000 flown on the truth: the swarm's mean vertical error ran to -3 m in 20 s,
   position ANEES 39; with the window broadcast 0.31 m RMS vertical and ANEES 3.3 over 60 s, the
   centralized window 0.28 m and 4.0; docs/denied.md).
+  The start (the first epoch): round 0 is one exchange, every vehicle broadcasting its fix and
+  its ranges to the vehicles it ranged with (START_BYTES + RANGE_BYTES per range: 320 bytes for
+  17 ranges); each vehicle then starts Gauss-Newton at its own place in the layout of what it
+  holds (estimators.layout: the shape from the ranges, placed on the fixes), the message
+  iteration from round 1. Started at its own fix (3-8 m of vertical sigma in coop-denied's
+  street), each vehicle's first solve settled where its neighbours' equally rough fixes put it:
+  on coop-denied seed 27 the lower layer 6-7 m high and the upper 5 m low at 0.8 s, a fold that
+  no single vehicle's reflection undoes, and the swarm flown on it diverged.
   No information is counted twice: the covariance a vehicle broadcasts for an epoch is that of
   its own measurements only (GNSS, anchors, motion, its prior: its window solved without any
   range to a neighbour, when that epoch was the newest), and its marginalization prior keeps only
@@ -52,6 +63,27 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   grew 2.4 m -> 7.4 m over 15 epochs, against 1.0-1.2 m with the own-measurement broadcast
   (0.3-0.9 m centralized, 3-4 m GNSS alone); with the window broadcast, on coop-denied seed 1000
   flown on the truth, 9.7 m vertical RMS over 20 s (position ANEES 3e4).
+
+Mirror images (`mirrors = True`, after each epoch's solve): ranges cannot tell a vehicle from
+its reflection through the plane of the points it ranged to, and Gauss-Newton does not cross from
+one to the other (the ranges' cost rises in between). A vehicle that started on the wrong side
+stays there; flown on the estimate it climbs to correct an error it does not have, which the
+reflection turns into a larger error, and so on (coop-denied seed 27, centralized cascade: a
+first fix 4.2 m low, its reflection 8 m below the truth at 1 s and 130 m at 4 s, the GNSS fixes
+beside the truth at 3 m sigma). Each vehicle's trajectory over the window (and its part of the
+prior, info T Lambda T, so that the prior's cost does not change) is reflected through the plane
+fitted at each epoch to the neighbours it ranged to in the window (as it sees them: the current
+estimate centralized, the last broadcasts distributed) and the anchors; the reflection is kept
+when the window's cost falls by more than MIRROR_LOG_RATIO (its GNSS fixes and ranges off the
+plane decide). Centralized: vehicle by vehicle; distributed: every vehicle at once (each
+vehicle's cost is its own). The centralized window first tests each group of vehicles linked by
+ranges reflected as a whole, through its middle plane at each epoch (through its mean, normal to
+its direction of least extent): any reflection of the whole group keeps every range among
+them, and this one moves the vehicles least, so only the GNSS fixes and anchors can refuse it.
+The distributed window does not: no vehicle sees the group's cost. Since the window starts from
+the swarm's shape (estimators.layout, and the distributed start exchange below) the test has not
+fired in any flight measured (docs/denied.md); it stays as a guard, at about a sixth of the
+centralized cascade's CPU, `mirrors = False` to turn it off.
 
 Tracklets (`tracklets = True`): each estimate also carries the newest epoch's position marginal
 and the window's own prediction of it without that epoch's factors; `equivalent_measurement`
@@ -67,8 +99,10 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg
+from scipy import linalg, sparse
+from scipy.sparse import csgraph
 
+from estimators import layout
 from estimators.core import white_acceleration_q
 from estimators.factor_graph import huber_rho, huber_weight
 from estimators.transport import Transport
@@ -77,7 +111,13 @@ __all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_B
 
 HALVINGS = 8  # step halvings per Gauss-Newton step (a full step that raises the cost is halved)
 
+# a vehicle's mirror image (`_Window._mirrors`) replaces it when the window's cost there is lower
+# by more than this: the measurements at least 100 times likelier (cost = -log likelihood + const)
+MIRROR_LOG_RATIO = float(np.log(100.0))
+
 BROADCAST_BYTES = 72  # per window epoch: position (3 float64) + the 6 unique covariance entries (6 float64)
+START_BYTES = 48  # the distributed start message: the sender's fix and its sigma (6 float64) ...
+RANGE_BYTES = 16  # ... and per range it measured: the other end (int64) and the range (float64)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -108,7 +148,8 @@ class Epoch:
 @dataclass(frozen=True, kw_only=True, slots=True)
 class WindowEstimate:
     """The newest epoch's estimate: time t (s); pos, vel (n, 3) m, m/s world; pos_cov, vel_cov
-    (n, 3, 3) marginal covariances; iterations (GN steps or rounds); converged; messages,
+    (n, 3, 3) marginal covariances; iterations (GN steps or rounds); converged; mirrored
+    (vehicles replaced by their mirror image at this epoch, module docstring); messages,
     bytes_sent (distributed broadcasts, 0 centralized); tracklet (with `tracklets` on: the newest
     position marginal and the window's prediction of it, `_Window._tracklet`; else None)."""
 
@@ -119,6 +160,7 @@ class WindowEstimate:
     vel_cov: np.ndarray
     iterations: int
     converged: bool
+    mirrored: int = 0
     messages: int = 0
     bytes_sent: int = 0
     tracklet: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -230,6 +272,7 @@ class _Window:
         self._eye = np.eye(per_agent)
         self._krons: dict[float, tuple] = {}
         self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
+        self.mirrors = True  # test each vehicle's mirror image after the solve (module docstring)
 
     def _motion(self, k: int) -> tuple:
         """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
@@ -261,6 +304,118 @@ class _Window:
 
     def _ranges(self, k: int, P: np.ndarray, D: np.ndarray, R: np.ndarray) -> None:
         raise NotImplementedError
+
+    def _view(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Where each vehicle i takes each vehicle j to be at window epoch k: (n, n, 3) m and
+        (n, n) bool (whether i has a position for j)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ mirror images
+    def _mirrors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each vehicle's mirror through the plane of what it ranged to (module docstring): ok
+        (n,) bool (a plane at every window epoch: at least 3 points), c (n, K, 3) m a point of
+        the plane at each epoch, H (n, K, 3, 3) the reflection I - 2 nu nu^T (nu its normal)."""
+        n, K = self.n, len(self.epochs)
+        tags = [set() for _ in range(n)]
+        anchors = [[] for _ in range(n)]
+        for ep in self.epochs:
+            for i, j in ep.edges.tolist():
+                tags[i].add(j)
+                tags[j].add(i)
+            for i, a in zip(ep.anchor_vehicle.tolist(), ep.anchor_pos):
+                anchors[i].append(a)
+        views = [self._view(k) for k in range(K)]
+        ok = np.zeros(n, bool)
+        c = np.zeros((n, K, 3))
+        H = np.tile(np.eye(3), (n, K, 1, 1))
+        for i in range(n):
+            js = np.array(sorted(tags[i]), np.int64)
+            fixed = np.unique(np.reshape(anchors[i], (-1, 3)), axis=0)
+            for k, (pos, has) in enumerate(views):
+                pts = np.concatenate([pos[i, js][has[i, js]], fixed])
+                if len(pts) < 3:
+                    break
+                c[i, k] = pts.mean(axis=0)
+                nu = np.linalg.svd(pts - c[i, k])[2][-1]
+                H[i, k] -= 2.0 * np.outer(nu, nu)
+            else:
+                ok[i] = True
+        return ok, c, H
+
+    def _reflect(self, which: np.ndarray, c: np.ndarray, H: np.ndarray) -> None:
+        """Replace the vehicles `which` (m,) by their mirror images (c, H of `_mirrors`): positions
+        and velocities at every window epoch, and their part of the prior (mean reflected, info
+        T Lambda T with T the reflection of their blocks: the prior's cost unchanged)."""
+        a, l = self._where(which)
+        K = self.X.shape[1]
+        Xv = self.X.reshape(self.B, K, self.nv, 6).copy()
+        Hm, cm = H[which], c[which]  # (m, K, 3, 3), (m, K, 3)
+        Xv[a, :, l, :3] = cm + np.einsum("mkij,mkj->mki", Hm, Xv[a, :, l, :3] - cm)
+        Xv[a, :, l, 3:] = np.einsum("mkij,mkj->mki", Hm, Xv[a, :, l, 3:])
+        self.X = Xv.reshape(self.B, K, self.s)
+        pm = self.prior_mean.reshape(self.B, self.nv, 6).copy()
+        H0, c0 = Hm[:, 0], cm[:, 0]
+        pm[a, l, :3] = c0 + np.einsum("mij,mj->mi", H0, pm[a, l, :3] - c0)
+        pm[a, l, 3:] = np.einsum("mij,mj->mi", H0, pm[a, l, 3:])
+        self.prior_mean = pm.reshape(self.B, self.s)
+        T = np.tile(np.eye(self.s), (self.B, 1, 1)).reshape(self.B, self.nv, 6, self.nv, 6)
+        T[a, l, :3, l, :3] = H0
+        T[a, l, 3:, l, 3:] = H0
+        T = T.reshape(self.B, self.s, self.s)
+        self.prior_info = T @ self.prior_info @ T
+
+    def _kept(self, which: np.ndarray, c: np.ndarray, H: np.ndarray, cost: np.ndarray) -> np.ndarray | None:
+        """One agent (B = 1): reflect the vehicles `which` together (`_reflect`); keep it and
+        return the new cost where the cost falls by more than MIRROR_LOG_RATIO, else undo, None."""
+        saved = self.X, self.prior_mean, self.prior_info
+        self._reflect(which, c, H)
+        new = self._system()[3]
+        if new[0] < cost[0] - MIRROR_LOG_RATIO:
+            return new
+        self.X, self.prior_mean, self.prior_info = saved
+        return None
+
+    def _groups(self) -> list[np.ndarray]:
+        """The vehicles linked by tag-to-tag ranges anywhere in the window: one (m,) index array
+        per connected group."""
+        edges = np.concatenate([e.edges for e in self.epochs]).reshape(-1, 2)
+        graph = sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(self.n, self.n))
+        _, label = csgraph.connected_components(graph, directed=False)
+        return [np.flatnonzero(label == g) for g in np.unique(label)]
+
+    def _mirror(self) -> int:
+        """Replace vehicles by their mirror images where that lowers the window's cost by more
+        than MIRROR_LOG_RATIO (module docstring). Returns how many were replaced."""
+        kept = 0
+        cost = self._system()[3]
+        if self.B == 1:  # first each ranged group as a whole, through its own middle plane
+            P = self._pos()
+            for g in self._groups():
+                if len(g) < 4:
+                    continue  # three points or fewer lie in a plane: reflected, they do not move
+                c = P[:, g].mean(axis=1)  # (K, 3)
+                nu = np.linalg.svd(P[:, g] - c[:, None])[2][:, -1]  # (K, 3) the normal of least extent
+                H = np.eye(3) - 2.0 * nu[:, :, None] * nu[:, None, :]
+                new = self._kept(g, np.broadcast_to(c, (self.n, *c.shape)), np.broadcast_to(H, (self.n, *H.shape)), cost)
+                if new is not None:
+                    cost, kept = new, kept + len(g)
+        ok, c, H = self._mirrors()
+        if not ok.any():
+            return kept
+        if self.B == 1:  # one cost for the swarm: vehicle by vehicle
+            for i in np.flatnonzero(ok):
+                new = self._kept(np.array([i]), c, H, cost)
+                if new is not None:
+                    cost, kept = new, kept + 1
+            return kept
+        saved = self.X, self.prior_mean, self.prior_info  # one agent per vehicle: all at once
+        self._reflect(np.flatnonzero(ok), c, H)
+        better = self._system()[3] < cost - MIRROR_LOG_RATIO
+        keep = better[:, None]
+        self.X = np.where(keep[:, :, None], self.X, saved[0])
+        self.prior_mean = np.where(keep, self.prior_mean, saved[1])
+        self.prior_info = np.where(keep[:, :, None], self.prior_info, saved[2])
+        return int(better.sum())
 
     # ------------------------------------------------------------------ assembly
     def _pos(self) -> np.ndarray:
@@ -408,15 +563,18 @@ class _Window:
     def _dropped(self) -> None:
         """Hook: the oldest epoch left the window."""
 
-    def _append(self, ep: Epoch) -> None:
+    def _append(self, ep: Epoch, start: np.ndarray | None = None) -> None:
         """Append epoch ep with its warm start (constant-velocity prediction; first epoch: the
-        initial prior, module docstring)."""
+        initial prior, module docstring, Gauss-Newton started at `start` (n, 3) m where given and
+        finite, else at the fixes)."""
         if not self.epochs:
             fix = ep.fix
             has = ~np.isnan(fix[:, 0])
             if not has.any():
                 raise ValueError(f"the first epoch (t = {ep.t:g} s) has no GNSS fix: nothing fixes the window")
             p0 = np.where(has[:, None], fix, np.nanmean(fix, axis=0))
+            if start is not None:
+                p0 = np.where(np.isfinite(start), start, p0)
             x = np.concatenate([p0, np.zeros_like(p0)], axis=1)  # (n, 6)
             sig = np.concatenate([np.full((self.n, 3), self.init_sigma_p), np.full((self.n, 3), self.init_sigma_v)], 1)
             self.X = np.zeros((self.B, 1, self.s))
@@ -477,6 +635,10 @@ class Centralized(_Window):
     def _where(self, i):
         return np.zeros_like(i), i
 
+    def _view(self, k):
+        P = self._pos()[k]
+        return np.broadcast_to(P, (self.n, *P.shape)), np.ones((self.n, self.n), bool)
+
     def _ranges(self, k, P, sys):
         ep = self.epochs[k]
         i, j = ep.edges[:, 0], ep.edges[:, 1]
@@ -496,10 +658,19 @@ class Centralized(_Window):
             raise ValueError(f"epochs must be added in time order: t = {ep.t:g} s after {self.epochs[-1].t:g} s")
         if len(self.epochs) == self.window:
             self._marginalize()
-        self._append(ep)
-        it, converged, S = self._iterate(self.max_iter, lambda d: float(np.abs(d).max()) < self.tol)
+        start = None if self.epochs else layout.start_positions(
+            ep.fix, ep.fix_sigma, ep.edges, ep.ranges, ep.range_sigma, ep.anchor_vehicle, ep.anchor_pos, ep.anchor_range,
+            ep.anchor_sigma)
+        self._append(ep, start)  # the first epoch from the swarm's shape (estimators.layout)
+        stop = lambda d: float(np.abs(d).max()) < self.tol  # noqa: E731
+        it, converged, S = self._iterate(self.max_iter, stop)
+        mirrored = self._mirror() if self.mirrors else 0
+        if mirrored:  # solve again from the mirror images
+            more, converged, S = self._iterate(self.max_iter, stop)
+            it += more
         pos, vel, pc, vc = self._newest(S)
         return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it, converged=converged,
+                              mirrored=mirrored,
                               tracklet=self._tracklet() if self.tracklets else None)
 
 
@@ -527,6 +698,9 @@ class Distributed(_Window):
 
     def _where(self, i):
         return i, np.zeros_like(i)
+
+    def _view(self, k):
+        return self.heard_pos[k], self.heard[k]
 
     def _dropped(self):
         for table in (self.heard_pos, self.heard_cov, self.heard, self.sent_cov):
@@ -559,20 +733,63 @@ class Distributed(_Window):
                 sig[a] = np.sqrt(ep.range_sigma ** 2 + np.einsum("mi,mij,mj->m", u, self.heard_cov[k][me, other], u))
             self.range_sigma.append(sig)
 
+    def _start(self, ep: Epoch, transport: Transport | None) -> tuple[np.ndarray, int, int]:
+        """The start exchange (module docstring): every vehicle broadcasts its fix and its ranges
+        of epoch ep to the vehicles it ranged with (START_BYTES + RANGE_BYTES per range), and each
+        starts at its own place in the layout (estimators.layout) of what it holds: its own and
+        the received fixes and ranges. Returns (start (n, 3) m world, NaN rows where the layout
+        does not apply; messages; bytes)."""
+        n, edges = self.n, ep.edges
+        pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)
+        owned = np.bincount(edges.ravel(), minlength=n) + np.bincount(ep.anchor_vehicle, minlength=n)
+        holds = np.eye(n, dtype=bool)  # holds[d, s]: d has s's start message
+        messages = sent_bytes = 0
+        for s in np.unique(pairs[:, 0]).tolist():
+            dst = pairs[pairs[:, 0] == s, 1]
+            nbytes = int(START_BYTES + RANGE_BYTES * owned[s])
+            ok = np.ones(len(dst), bool) if transport is None else np.asarray(
+                transport.deliver(0, np.full(len(dst), s), dst, nbytes), bool)
+            holds[dst[ok], s] = True
+            messages, sent_bytes = messages + 1, sent_bytes + nbytes
+        start = np.full((n, 3), np.nan)
+        for d in range(n):
+            known = holds[d]
+            rows = known[edges[:, 0]] | known[edges[:, 1]] if edges.size else np.zeros(0, bool)
+            members = np.flatnonzero(known | np.isin(np.arange(n), edges[rows]))
+            local = np.full(n, -1)
+            local[members] = np.arange(len(members))
+            fix = np.where(known[members, None], ep.fix[members], np.nan)
+            arows = known[ep.anchor_vehicle]
+            laid = layout.start_positions(fix, ep.fix_sigma[members], local[edges[rows]], ep.ranges[rows], ep.range_sigma[rows],
+                                          local[ep.anchor_vehicle[arows]], ep.anchor_pos[arows],
+                                          ep.anchor_range[arows], ep.anchor_sigma[arows])
+            if laid is not None:
+                start[d] = laid[local[d]]
+        return start, messages, sent_bytes
+
     def add(self, ep: Epoch, transport: Transport | None = None) -> WindowEstimate:
         """Append epoch ep (time-ordered), slide, run the message iteration; the newest estimate."""
         if self.epochs and ep.t <= self.epochs[-1].t:
             raise ValueError(f"epochs must be added in time order: t = {ep.t:g} s after {self.epochs[-1].t:g} s")
         if len(self.epochs) == self.window:
             self._marginalize()
-        self._append(ep)
+        messages = sent_bytes = first = 0
+        start = None
+        if not self.epochs:  # round 0 of the first epoch: the start exchange
+            start, messages, sent_bytes = self._start(ep, transport)
+            first = 1
+        self._append(ep, start)
         n = self.n
         self.heard_pos.append(np.zeros((n, n, 3)))
         self.heard_cov.append(np.zeros((n, n, 3, 3)))
         self.heard.append(np.zeros((n, n), bool))
-        # round 0's local step: own GNSS, anchors, motion and the window's older ranges only
+        # round 0's local step: own GNSS, anchors, motion and the window's older ranges only (not
+        # at the first epoch: from the start exchange's layout it would step to the fix)
         self._weigh()
-        _, S, _ = self._step(self._system())
+        if first:
+            S = _solve_chain(*self._system()[:3])[1]
+        else:
+            _, S, _ = self._step(self._system())
         # (n, 3, 3): what each vehicle knows from its own measurements (GNSS, anchors, motion),
         # without any range to a neighbour: the covariance it broadcasts (module docstring)
         D, U, R, _ = self._system(ranges=False)
@@ -581,14 +798,13 @@ class Distributed(_Window):
         edges = np.concatenate([e.edges for e in self.epochs])
         pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)
         nbytes = BROADCAST_BYTES * len(self.epochs)  # the sender's whole window
-        messages = sent_bytes = 0
         converged = not pairs.size
         rounds = 0
         while not converged and rounds < self.max_iter:
             if self.broadcast == "marginal":
                 self.sent_cov[-1] = self._newest(S)[2]
             ok = np.ones(len(pairs), bool) if transport is None else np.asarray(
-                transport.deliver(rounds, pairs[:, 0], pairs[:, 1], nbytes), bool)
+                transport.deliver(first + rounds, pairs[:, 0], pairs[:, 1], nbytes), bool)
             s_, d_ = pairs[ok, 0], pairs[ok, 1]
             P = self._pos()
             for k in range(len(self.epochs)):  # the sender's current estimate of every window epoch
@@ -602,7 +818,11 @@ class Distributed(_Window):
             delta, S, _ = self._step(self._system())  # the tables changed: a new local system
             rounds += 1
             converged = float(np.abs(delta.reshape(n, -1, 6)[:, -1, :3]).max()) < self.tol
+        mirrored = self._mirror() if self.mirrors else 0
+        if mirrored:  # one local step from the mirror images (no message: the next epoch's rounds tell)
+            self._weigh()
+            _, S, _ = self._step(self._system())
         pos, vel, pc, vc = self._newest(S)
         return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=rounds,
-                              converged=converged, messages=messages, bytes_sent=sent_bytes,
+                              converged=converged, mirrored=mirrored, messages=messages, bytes_sent=sent_bytes,
                               tracklet=self._tracklet() if self.tracklets else None)

@@ -252,8 +252,8 @@ def test_motion_input_is_a_change_of_variables():
 
 
 def test_distributed_broadcasts_are_counted_and_deliveries_used():
-    """Every round, every vehicle that ranged broadcasts once: its window (72 bytes per epoch); a
-    transport that delivers nothing leaves the vehicles on their own measurements (no neighbour
+    """Every round, every vehicle that ranged broadcasts once: its window (72 bytes per epoch),
+    and once before the first epoch's rounds its start message (fix and ranges); a transport that delivers nothing leaves the vehicles on their own measurements (no neighbour
     heard)."""
 
     class Nothing:
@@ -263,10 +263,14 @@ def test_distributed_broadcasts_are_counted_and_deliveries_used():
     eps, _ = synthetic(4)
     dis = sw.Distributed(N, window=3, q=Q, max_rounds=4, tol=0.0)
     alone = sw.Distributed(N, window=3, q=Q, max_rounds=4, tol=0.0)
-    for ep in eps:
+    for k, ep in enumerate(eps):
         d = dis.add(ep)
         a = alone.add(ep, Nothing())
-        assert d.messages == 4 * N and d.bytes_sent == d.messages * sw.BROADCAST_BYTES * len(dis.epochs)
+        # the first epoch also has the start exchange: one message per vehicle, its fix and its ranges
+        start = 0 if k else N
+        start_bytes = 0 if k else sw.START_BYTES * N + sw.RANGE_BYTES * (2 * len(ep.edges) + len(ep.anchor_vehicle))
+        assert d.messages == 4 * N + start
+        assert d.bytes_sent == 4 * N * sw.BROADCAST_BYTES * len(dis.epochs) + start_bytes
     assert not any(h.any() for h in alone.heard) and all(h.sum() == N * (N - 1) for h in dis.heard)
     assert not np.allclose(a.pos, d.pos)
 

@@ -25,6 +25,9 @@ epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's veloc
 through which the broadcasts travel, testbed.network.RoundTransport, drawn from the plugin's
 own rng; absent: ideal). The channel's geometry (range limit, NLOS loss) is taken from the
 estimator's own positions and the epoch's ranged links (the estimator cannot see the truth).
+mirrors (true): after each epoch's solve, a vehicle is replaced by its mirror image through the
+plane of what it ranged to when the window's measurements favour it 100 to 1 (estimators.window;
+health `mirrored` counts them).
 The cascade (testbed.plugins.builtin_window_ins, imu_motion) may set `motion`: each vehicle's
 known motion over the interval an epoch closes, the input of the window's motion factor
 (estimators.window.Epoch.motion).
@@ -41,7 +44,8 @@ from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
 from testbed.sensors.noise import range_variances
 
-DEFAULTS = dict(window=5, q=2.0, range_scale=1.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None)
+DEFAULTS = dict(window=5, q=2.0, range_scale=1.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None,
+                mirrors=True)
 
 
 class _WindowPlugin(EpochGrouping):
@@ -59,12 +63,13 @@ class _WindowPlugin(EpochGrouping):
         self.anchors = dict(context.anchors)
         self.uwb = context.sensors.get("uwb")
         self.solver = self._solver(context)
+        self.solver.mirrors = bool(self.p["mirrors"])
         self.t = None
         self.last: sw.WindowEstimate | None = None  # the newest epoch's solution
         # t (s) -> (n, 6) the vehicles' known motion since the window's previous epoch (Epoch.motion;
         # the cascade's IMU filters, testbed.plugins.builtin_window_ins); None: none
         self.motion = None
-        self.counts = {"epochs": 0, "skipped_epochs": 0, "nonconverged_epochs": 0, "messages": 0, "bytes_sent": 0}
+        self.counts = {"epochs": 0, "skipped_epochs": 0, "nonconverged_epochs": 0, "mirrored": 0, "messages": 0, "bytes_sent": 0}
         self._reset()
 
     def _solver(self, context: Context):
@@ -101,6 +106,7 @@ class _WindowPlugin(EpochGrouping):
         est = self.last = self._add(self._epoch())
         self.counts["epochs"] += 1
         self.counts["nonconverged_epochs"] += int(not est.converged)
+        self.counts["mirrored"] += est.mirrored
         self.counts["messages"] += est.messages
         self.counts["bytes_sent"] += est.bytes_sent
         body = est.pos - self.lever  # level attitude assumed (module docstring)
