@@ -64,7 +64,6 @@ This module never imports mujoco or testbed: estimators run on data that did not
 from __future__ import annotations
 
 import functools
-
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager

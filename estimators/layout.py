@@ -38,10 +38,19 @@ from scipy import optimize, sparse
 from scipy.sparse import csgraph
 from scipy.spatial.transform import Rotation
 
-__all__ = ["shape_from_ranges", "place_on_fixes", "start_positions"]
+__all__ = ["mirror_plane", "shape_from_ranges", "place_on_fixes", "start_positions"]
 
 IMPUTATIONS = 20  # classical scaling rounds, each unranged pair's distance taken from the last shape
 HUBER = 1.345  # the shape's range loss: Huber at 1.345 sigma (the window's; 1 % of UWB ranges are metres off)
+
+
+def mirror_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The reflection through the plane that fits points (..., m, 3) m best (least squares: through
+    their mean, normal to their direction of least extent): its point c (..., 3) m and matrix
+    H = I - 2 nu nu^T (..., 3, 3); a point p reflects to c + H (p - c)."""
+    c = points.mean(axis=-2)
+    nu = np.linalg.svd(points - c[..., None, :])[2][..., -1, :]
+    return c, np.eye(3) - 2.0 * nu[..., :, None] * nu[..., None, :]
 
 
 def shape_from_ranges(n: int, edges: np.ndarray, ranges: np.ndarray, sigma: np.ndarray) -> np.ndarray | None:
@@ -96,10 +105,9 @@ def shape_from_ranges(n: int, edges: np.ndarray, ranges: np.ndarray, sigma: np.n
         for v, nb in enumerate(neighbours):
             if len(nb) < 3:
                 continue
-            c = Y[nb].mean(axis=0)
-            nu = np.linalg.svd(Y[nb] - c)[2][-1]
+            c, H = mirror_plane(Y[nb])
             Z = Y.copy()
-            Z[v] -= 2.0 * ((Y[v] - c) @ nu) * nu
+            Z[v] = c + H @ (Y[v] - c)
             Z, new = fit(Z)
             if new < cost * (1.0 - 1e-6):
                 Y, cost, improved = Z, new, True

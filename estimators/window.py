@@ -43,9 +43,9 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   a vehicle last received from a neighbour is what its ranges use, at every epoch of the window.
   Broadcasting only the newest epoch, each older epoch's ranges kept the neighbour's position as
   first heard while the vehicle's own state there moved on: the swarm's common position drifted
-  (coop-denied seed 1000 flown on the truth: the swarm's mean vertical error ran to -3 m in 20 s,
-  position ANEES 39; with the window broadcast 0.31 m RMS vertical and ANEES 3.3 over 60 s, the
-  centralized window 0.28 m and 4.0; docs/denied.md).
+  (measured offline on a coop-denied log, docs/denied.md "Flying on the distributed window
+  cascade": the swarm's mean vertical error ran to -3 m in 20 s; with the window broadcast
+  0.31 m RMS vertical over 60 s, the centralized window 0.28 m).
   The start (the first epoch): round 0 is one exchange, every vehicle broadcasting its fix and
   its ranges to the vehicles it ranged with (START_BYTES + RANGE_BYTES per range: 320 bytes for
   17 ranges); each vehicle then starts Gauss-Newton at its own place in the layout of what it
@@ -61,16 +61,15 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   neighbours told it) makes the covariances collapse round after round and epoch after epoch
   and the swarm's common position lag: on tests/test_window.py's synthetic swarm the RMS error
   grew 2.4 m -> 7.4 m over 15 epochs, against 1.0-1.2 m with the own-measurement broadcast
-  (0.3-0.9 m centralized, 3-4 m GNSS alone); with the window broadcast, on coop-denied seed 1000
-  flown on the truth, 9.7 m vertical RMS over 20 s (position ANEES 3e4).
+  (0.3-0.9 m centralized, 3-4 m GNSS alone); with the window broadcast, on the same coop-denied
+  log, 9.7 m vertical RMS over 20 s (docs/denied.md).
 
 Mirror images (`mirrors = True`, after each epoch's solve): ranges cannot tell a vehicle from
 its reflection through the plane of the points it ranged to, and Gauss-Newton does not cross from
 one to the other (the ranges' cost rises in between). A vehicle that started on the wrong side
 stays there; flown on the estimate it climbs to correct an error it does not have, which the
-reflection turns into a larger error, and so on (coop-denied seed 27, centralized cascade: a
-first fix 4.2 m low, its reflection 8 m below the truth at 1 s and 130 m at 4 s, the GNSS fixes
-beside the truth at 3 m sigma). Each vehicle's trajectory over the window (and its part of the
+reflection turns into a larger error, and so on (coop-denied seed 27, centralized cascade,
+docs/denied.md "The window's start": 130 m of vertical error at 4 s). Each vehicle's trajectory over the window (and its part of the
 prior, info T Lambda T, so that the prior's cost does not change) is reflected through the plane
 fitted at each epoch to the neighbours it ranged to in the window (as it sees them: the current
 estimate centralized, the last broadcasts distributed) and the anchors; the reflection is kept
@@ -327,7 +326,7 @@ class _Window:
         views = [self._view(k) for k in range(K)]
         ok = np.zeros(n, bool)
         c = np.zeros((n, K, 3))
-        H = np.tile(np.eye(3), (n, K, 1, 1))
+        H = np.zeros((n, K, 3, 3))
         for i in range(n):
             js = np.array(sorted(tags[i]), np.int64)
             fixed = np.unique(np.reshape(anchors[i], (-1, 3)), axis=0)
@@ -335,9 +334,7 @@ class _Window:
                 pts = np.concatenate([pos[i, js][has[i, js]], fixed])
                 if len(pts) < 3:
                     break
-                c[i, k] = pts.mean(axis=0)
-                nu = np.linalg.svd(pts - c[i, k])[2][-1]
-                H[i, k] -= 2.0 * np.outer(nu, nu)
+                c[i, k], H[i, k] = layout.mirror_plane(pts)
             else:
                 ok[i] = True
         return ok, c, H
@@ -393,9 +390,7 @@ class _Window:
             for g in self._groups():
                 if len(g) < 4:
                     continue  # three points or fewer lie in a plane: reflected, they do not move
-                c = P[:, g].mean(axis=1)  # (K, 3)
-                nu = np.linalg.svd(P[:, g] - c[:, None])[2][:, -1]  # (K, 3) the normal of least extent
-                H = np.eye(3) - 2.0 * nu[:, :, None] * nu[:, None, :]
+                c, H = layout.mirror_plane(P[:, g])  # (K, 3), (K, 3, 3): its middle plane at each epoch
                 new = self._kept(g, np.broadcast_to(c, (self.n, *c.shape)), np.broadcast_to(H, (self.n, *H.shape)), cost)
                 if new is not None:
                     cost, kept = new, kept + len(g)

@@ -47,9 +47,10 @@ estimate, the swarm accelerates together, which the window's white-acceleration 
 the distributed cascade followed (docs/denied.md: the swarm swung 2 m north and south on seed
 1000). start_epochs (default 5 for the distributed cascade, 1 for the centralized one): a
 vehicle's filter starts once the window holds that many epochs; the distributed window's first
-epoch rests on each vehicle's fix and its neighbours' (measured up to 5.6 m off vertically on
-1000-1009, and a vehicle rolled over answering it on seed 1006); until it starts, the vehicle is
-flown on its reference. Both stay off for the centralized cascade: its outputs are unchanged.
+epoch rested on each vehicle's fix and its neighbours' (measured up to 5.6 m off vertically on
+1000-1009, and a vehicle rolled over answering it on seed 1006; chosen before the window's start
+exchange, estimators.window, which now gives that epoch); until it starts, the vehicle is flown
+on its reference. Both stay off for the centralized cascade: its outputs are unchanged.
 
 params: those of the window (testbed.plugins.builtin_window: window, q, range_scale, huber
 (here 1.345 by default, WINDOW_DEFAULTS: flown with least squares the swarm fell on 4 of 10
