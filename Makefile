@@ -1,26 +1,59 @@
 # The two commands of the README: `make demo` and `make test`. Each sets itself up.
+# `make setup` installs the exact versions of requirements.lock (the set the suite last passed
+# on); `make lock` regenerates the lock from pyproject.toml's ranges (newest versions), and
+# `make test-latest` runs the suite on those newest versions without touching the lock.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
+LOCK   := requirements.lock
+EXTRAS := test
 export MUJOCO_GL ?= egl
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
+PYTEST := -m pytest -q -ra -n auto --durations=20
 
-.PHONY: demo test setup clean
+.PHONY: demo test setup lock test-latest test-kernels clean
 
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml $(LOCK)
+	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -r $(LOCK)
+	$(PY) -m pip install --quiet --no-deps -e .
 	touch $@
 
 test: setup
-	$(PY) -m pytest -q -ra
+	$(PY) $(PYTEST)
+
+# the golden values under a second OpenBLAS kernel (CI; docs/testing.md)
+test-kernels: setup
+	OPENBLAS_CORETYPE=Haswell $(PY) -m pytest -q -ra -n auto tests/test_golden.py
 
 demo: setup
 	$(PY) -m testbed demo --out runs/demo
 
+# newest versions allowed by pyproject.toml -> requirements.lock (run it, then `make test`, and
+# commit the lock when the suite passes: docs/testing.md)
+lock:
+	rm -rf .venv-lock build
+	$(PYTHON) -m venv .venv-lock
+	.venv-lock/bin/python -m pip install --quiet --upgrade pip
+	.venv-lock/bin/python -m pip install --quiet '.[$(EXTRAS)]'
+	.venv-lock/bin/python -m pip freeze --exclude-editable | grep -v '^uav-swarm-testbed' > $(LOCK).new
+	mv $(LOCK).new $(LOCK)
+	rm -rf .venv-lock build
+
+# the suite on the newest versions pyproject.toml allows, in its own environment (CI's
+# unpinned job: an upstream release that breaks the testbed is seen before the lock moves)
+test-latest:
+	rm -rf .venv-latest
+	$(PYTHON) -m venv .venv-latest
+	.venv-latest/bin/python -m pip install --quiet --upgrade pip
+	.venv-latest/bin/python -m pip install --quiet --upgrade -e '.[$(EXTRAS)]'
+	.venv-latest/bin/python -m pip freeze --exclude-editable
+	.venv-latest/bin/python $(PYTEST)
+
 clean:
-	rm -rf $(VENV) runs *.egg-info
+	rm -rf $(VENV) .venv-lock .venv-latest runs *.egg-info
