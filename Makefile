@@ -37,13 +37,13 @@ demo: setup
 # newest versions allowed by pyproject.toml -> requirements.lock (run it, then `make test`, and
 # commit the lock when the suite passes: docs/testing.md)
 lock:
-	rm -rf .venv-lock build
+	rm -rf .venv-lock
 	$(PYTHON) -m venv .venv-lock
 	.venv-lock/bin/python -m pip install --quiet --upgrade pip
-	.venv-lock/bin/python -m pip install --quiet '.[$(EXTRAS)]'
+	.venv-lock/bin/python -m pip install --quiet -e '.[$(EXTRAS)]'
 	.venv-lock/bin/python -m pip freeze --exclude-editable | grep -v '^uav-swarm-testbed' > $(LOCK).new
 	mv $(LOCK).new $(LOCK)
-	rm -rf .venv-lock build
+	rm -rf .venv-lock
 
 # the suite on the newest versions pyproject.toml allows, in its own environment (CI's
 # unpinned job: an upstream release that breaks the testbed is seen before the lock moves)
