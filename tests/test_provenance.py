@@ -180,3 +180,24 @@ def test_git_is_null_with_a_reason_outside_a_checkout_or_without_git(source, mon
     provenance.git.cache_clear()
     monkeypatch.setenv("PATH", str(source / "no-bin"))
     assert provenance.git() == (None, "git is not installed")
+
+
+@pytest.fixture
+def fresh_packages():
+    provenance.packages.cache_clear()
+    yield
+    provenance.packages.cache_clear()
+
+
+def test_packages_are_the_declared_requirements_or_every_distribution(fresh_packages, monkeypatch):
+    declared = ["numpy>=1.26", "no-such-package[extra]>=1; extra == 'test'", "ray[default]>=2.9 ; extra == 'cluster'"]
+    monkeypatch.setattr(provenance.metadata, "requires", lambda name: declared)
+    assert provenance.packages() == {"no-such-package": None, "numpy": np.__version__, "ray": provenance._version("ray"),
+                                     provenance.DISTRIBUTION: provenance._version(provenance.DISTRIBUTION)}
+    provenance.packages.cache_clear()
+
+    def not_installed(name):  # run from a checkout, the testbed not installed
+        raise provenance.metadata.PackageNotFoundError(name)
+    monkeypatch.setattr(provenance.metadata, "requires", not_installed)
+    every = provenance.packages()
+    assert every["numpy"] == np.__version__ and None not in every.values() and len(every) > len(declared)

@@ -39,7 +39,7 @@ def versions() -> dict[str, str]:
     package is in the reproduction's provenance.json (testbed.provenance)."""
     installed = {name.lower(): v for name, v in provenance.packages().items()}
     return {"python": platform.python_version(), "testbed": testbed.__version__,
-            **{name: installed.get(name, "not installed") for name in DEPENDENCIES}}
+            **{name: installed.get(name) or "not installed" for name in DEPENDENCIES}}
 
 
 def _seeds(doc: Mapping) -> list[str]:
