@@ -47,11 +47,9 @@ import subprocess
 import sys
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
 from datetime import datetime, timezone
-from importlib import metadata
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, NamedTuple
 
 from testbed import __version__
 
@@ -67,8 +65,7 @@ SOURCE = Path(__file__).resolve().parent.parent  # the directory holding the tes
 _command: dict | None = None
 
 
-@dataclass(frozen=True)
-class Started:
+class Started(NamedTuple):
     """When the making of an output started: epoch s (UTC), a monotonic s, CPU s of this process
     and of its waited-for children."""
     epoch: float
@@ -151,24 +148,26 @@ def git() -> tuple[dict | None, str | None]:
     return {"commit": commit, "dirty": dirty}, None
 
 
-def _version(name: str) -> str | None:
-    try:
-        return metadata.version(name)
-    except metadata.PackageNotFoundError:
-        return None
-
-
 @functools.cache
 def packages() -> dict[str, str | None]:
     """{name: version} of the testbed's distribution and of every package it requires (dependencies
     and extras; None: not installed), by name. Run from a checkout without being installed: every
     installed distribution instead. (Listing every distribution always would cost 0.1-0.3 s.)"""
+    # lazy: importlib.metadata takes 50-120 ms to import, which `testbed --help` must not pay
+    from importlib import metadata
+
+    def version(name: str) -> str | None:
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+
     try:
         required = metadata.requires(DISTRIBUTION) or []
     except metadata.PackageNotFoundError:
         found = {d.metadata["Name"]: d.version for d in metadata.distributions() if d.metadata["Name"]}
     else:
-        found = {name: _version(name) for name in {DISTRIBUTION, *(_NAME.match(r).group(0) for r in required)}}
+        found = {name: version(name) for name in {DISTRIBUTION, *(_NAME.match(r).group(0) for r in required)}}
     return dict(sorted(found.items(), key=lambda kv: kv[0].lower()))
 
 
