@@ -6,12 +6,13 @@
     uwb = r.stream("uwb")                   # Stream: time, value, clean, src, dst, sigma, nlos
     t3 = r.truth("uav3/uwb")                # Truth: pos, quat, vel, omega at r.time
     r2 = testbed.load_run("runs/x")         # the same from a run directory on disk
+    r2.provenance["testbed"]["git"]         # how it was made (provenance.json), None if absent
 
 A run is always written as a run directory (testbed.runner: scenario.toml, scene.xml, log.npz,
-metrics.json, plots/), so what the API returns is exactly what `testbed run` writes. With
-`out=None` the directory is a fresh temporary one, removed by `Run.close()` (or leaving a `with`
-block, or when the Run is garbage-collected); its log, scene and metrics are read into memory
-first, so they stay usable after it is gone.
+metrics.json, provenance.json, plots/), so what the API returns is exactly what `testbed run`
+writes. With `out=None` the directory is a fresh temporary one, removed by `Run.close()` (or
+leaving a `with` block, or when the Run is garbage-collected); its log, scene, metrics and
+provenance are read into memory first, so they stay usable after it is gone.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from typing import Any, Iterable
 import mujoco
 import numpy as np
 
-from testbed import reference, runner, scenario as scenario_mod, world
+from testbed import provenance, reference, runner, scenario as scenario_mod, world
 from testbed.errors import RunError
 from testbed.log import load_log
 from testbed.plugins.api import Estimate
@@ -75,8 +76,11 @@ class Run:
     """A run directory: its scenario, metrics, log, streams and truth.
 
     path: the run directory. scenario: the resolved Scenario (from its scenario.toml).
-    metrics: metrics.json as a dict (`estimators` -> name -> scores). time: (K,) s, the log
-    instants. log: every array of log.npz by key (data contract, README "Run directory").
+    metrics: metrics.json as a dict (`estimators` -> name -> scores). provenance: provenance.json
+    as a dict (testbed version and git commit, command, Python and package versions, BLAS kernel,
+    CPU, wall and CPU time: testbed.provenance), None for a run written before it existed.
+    time: (K,) s, the log instants. log: every array of log.npz by key (data contract, README
+    "Run directory").
     Loaded lazily from disk, except for a temporary run (`run(..., out=None)`), which is read in
     at once. Use as a context manager to remove a temporary run's directory on exit.
     """
@@ -86,6 +90,8 @@ class Run:
         self._tmp = tmp
         self.scenario: Scenario = scenario_mod.load(str(self.path / "scenario.toml"))
         self.metrics: dict = json.loads((self.path / "metrics.json").read_text())
+        record = self.path / provenance.PROVENANCE
+        self.provenance: dict | None = json.loads(record.read_text()) if record.is_file() else None
         self._scene_xml = (self.path / "scene.xml").read_text()
         if tmp is not None:
             _ = self.log  # read in before the temporary directory can go
@@ -102,8 +108,8 @@ class Run:
     @property
     def files(self) -> dict[str, Path]:
         """The files of the run directory by name (scenario.toml, scene.xml, log.npz,
-        metrics.json, and timing.json, plots, video.mp4 where written)."""
-        names = (*RUN_FILES, "timing.json", "plots", "video.mp4")
+        metrics.json, and provenance.json, timing.json, plots, video.mp4 where written)."""
+        names = (*RUN_FILES, provenance.PROVENANCE, "timing.json", "plots", "video.mp4")
         return {n: self.path / n for n in names if (self.path / n).exists()}
 
     @property

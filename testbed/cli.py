@@ -38,6 +38,7 @@ import signal
 import sys
 from pathlib import Path
 
+from testbed import provenance
 from testbed.environment import apply_defaults
 from testbed.errors import TestbedError, UsageError
 from testbed.interrupt import exit_code, signals_raise
@@ -349,7 +350,7 @@ def main(argv: list[str] | None = None) -> int:
     apply_defaults()  # before any command imports numpy or mujoco
     argv = sys.argv[1:] if argv is None else argv
     try:
-        with signals_raise():
+        with signals_raise(), provenance.command_line(argv):
             code = _dispatch(build_parser().parse_args(argv))
             sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
             return code

@@ -1,7 +1,8 @@
 """Output directories: the testbed only ever replaces what it can prove it wrote.
 
 Every directory the testbed writes (run, sweep, reproduction, demo) holds a marker file `.testbed`
-naming the testbed and its version. An output location `OUT` is
+naming the testbed and its version, and `provenance.json` (how it was made: testbed.provenance).
+An output location `OUT` is
 
 - refused, `--force` or not: the empty path, the working directory or one of its parents, the home
   directory, `/`, a symbolic link, a file, a non-empty directory without the marker;
@@ -28,7 +29,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from testbed import __version__
+from testbed import __version__, provenance
 from testbed.errors import RunError, UsageError
 from testbed.interrupt import Interrupted, signals_held
 
@@ -191,6 +192,7 @@ class Output:
         self.path = self.out
         self._created: list[Path] = []
         self.done = False
+        self.started = provenance.start()
 
     def __enter__(self) -> "Output":
         if not self.resume:
@@ -214,7 +216,10 @@ class Output:
         return self
 
     def commit(self) -> None:
-        """Put the finished directory at `out` (replacing an earlier output, now proven ours)."""
+        """Write provenance.json (testbed.provenance), then put the finished directory at `out`
+        (replacing an earlier output, now proven ours)."""
+        if not self.done:
+            write_json(self.path / provenance.PROVENANCE, provenance.record(self.started, output=self.kind))
         if self.resume or self.done:
             self.done = True
             return

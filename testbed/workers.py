@@ -3,7 +3,8 @@
 `run_parallel(fn, jobs, workers)` yields `(index, fn(job))` as jobs complete, in worker processes
 (spawned; one process per worker) or in this process when workers == 1. Within `backend("ray",
 address)` the jobs run as Ray tasks instead (testbed.cluster), on this machine or a cluster; the
-local process pool is the default.
+local process pool is the default. A job records its parent's command in the provenance of what it
+writes (testbed.provenance.carried).
 
 Stopping is cooperative: on any exception in the parent (Ctrl-C, SIGTERM, an error) the parent
 sets a shared stop request and closes the pool; each worker's current unit of work raises
@@ -33,7 +34,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence
 
-from testbed import interrupt
+from testbed import interrupt, provenance
 from testbed.cluster import run_ray
 from testbed.environment import apply_defaults
 from testbed.errors import UsageError
@@ -173,7 +174,7 @@ def run_parallel(fn: Callable, jobs: Sequence, workers: int | None) -> Iterator[
     tasks). workers: processes of the local pool; with Ray, the most tasks in flight (None: all)."""
     name, address = _backend.get()
     if name == "ray":
-        yield from run_ray(fn, jobs, workers, address)
+        yield from run_ray(provenance.carried(fn), jobs, workers, address)
         return
     workers = workers or os.cpu_count() or 1
     if workers <= 1 or len(jobs) <= 1:
@@ -185,7 +186,7 @@ def run_parallel(fn: Callable, jobs: Sequence, workers: int | None) -> Iterator[
     pool = ctx.Pool(min(workers, len(jobs)), initializer=worker_init, initargs=(os.getpid(), stop))
     finished = False
     try:
-        for i, result in pool.imap_unordered(functools.partial(_indexed, fn), enumerate(jobs)):
+        for i, result in pool.imap_unordered(functools.partial(_indexed, provenance.carried(fn)), enumerate(jobs)):
             if isinstance(result, Stopped):  # a worker was sent SIGTERM by someone else
                 raise Interrupted(result.signum)
             yield i, result

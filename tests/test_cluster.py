@@ -33,6 +33,8 @@ def test_ray_sweep_is_byte_identical_to_the_local_pool(tmp_path, local_ray):
     assert by_ray == local and local["tracking_rmse_m.0"]["n"] == 3
     for f in FILES:
         assert (tmp_path / "ray" / f).read_bytes() == (tmp_path / "local" / f).read_bytes(), f
+    made = json.loads((tmp_path / "ray" / "run-000" / "provenance.json").read_text())
+    assert made["output"] == "run" and made["command"]["function"] == "testbed.sweep.sweep"  # carried into the task
     assert _debris(tmp_path) == []
 
 

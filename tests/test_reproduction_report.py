@@ -68,3 +68,6 @@ def test_phase_reproduction_writes_its_report(tmp_path):
     assert page.count("data:image/png;base64,") == len(list((out / "plots").glob("*.png")))
     m = json.loads((out / "runs" / "phase-cross-h000" / "run-000" / "metrics.json").read_text())["estimators"]["ekf"]
     assert m["last_window_s"] == 2.0 and np.isfinite(m["rmse_position_last_2s_m"])
+    made = json.loads((out / "provenance.json").read_text())  # and each of its runs (testbed.provenance)
+    assert made["output"] == "reproduce-phase" and made["command"]["function"] == "testbed.reproduce.reproduce"
+    assert json.loads((out / "runs" / "phase-cross-h000" / "run-000" / "provenance.json").read_text())["output"] == "run"

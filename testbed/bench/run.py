@@ -1,16 +1,21 @@
-"""`testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE]`: run one family, print, save as JSON."""
+"""`testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE]`: run one family, print, save as JSON.
+
+The JSON holds the family's figures, the machine's load average before and after, and under
+"provenance" the record of testbed.provenance (versions, git commit, BLAS kernel, CPU, wall and
+CPU time). It is kept in the same file, not beside it as for an output directory: a bench file is
+itself the record of one measurement on one machine, never compared across machines byte for
+byte, and its figures mean nothing without the machine that made them.
+"""
 from __future__ import annotations
 
-import json
 import os
-import platform
 from pathlib import Path
 
-import mujoco
-
+from testbed import provenance
 from testbed.bench.estimators import bench_estimators
 from testbed.bench.physics import SIZES, bench_physics
 from testbed.bench.sensors import bench_sensors
+from testbed.outdir import write_json
 
 
 def _print_table(title: str, rows: list[dict]) -> None:
@@ -24,6 +29,7 @@ def _print_table(title: str, rows: list[dict]) -> None:
 def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | None = None) -> dict:
     """Run one benchmark family, print its table, optionally write JSON; returns the figures.
     vehicles: swarm sizes (physics, sensors; None: the family's default)."""
+    started = provenance.start()
     load_before = os.getloadavg()  # the machine may be shared: the load, beside the CPU-time figures
     if what == "physics":
         out = bench_physics(vehicles or SIZES)
@@ -63,10 +69,9 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         result = {"loop": out}
     else:
         raise ValueError(what)
-    result["machine"] = {"python": platform.python_version(), "mujoco": mujoco.__version__, "processor": platform.processor() or platform.machine(),
-                         "cpus": os.cpu_count(), "load_average_1_5_15min": {"before": list(load_before), "after": list(os.getloadavg())}}
+    result["machine"] = {"load_average_1_5_15min": {"before": list(load_before), "after": list(os.getloadavg())}}
     print(f"load average (1, 5, 15 min) before {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}, "
           f"after {result['machine']['load_average_1_5_15min']['after'][0]:.2f}")
     if json_path is not None:
-        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
+        write_json(Path(json_path), {**result, "provenance": provenance.record(started, output=f"bench-{what}")})
     return result

@@ -19,10 +19,10 @@ import json
 import platform
 import re
 from collections.abc import Mapping, Sequence
-from importlib import metadata
 from pathlib import Path
 
 import testbed
+from testbed import provenance
 from testbed.report import format_test, markdown_table, verdict, write_markdown
 
 DEPENDENCIES = ("numpy", "scipy", "mujoco", "gtsam", "matplotlib")
@@ -35,14 +35,11 @@ _IMAGE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<src>[^)]+)\)$")
 
 
 def versions() -> dict[str, str]:
-    """{name: version} of python, the testbed and DEPENDENCIES ("not installed" when absent)."""
-    out = {"python": platform.python_version(), "testbed": testbed.__version__}
-    for name in DEPENDENCIES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
+    """{name: version} of python, the testbed and DEPENDENCIES ("not installed" when absent); every
+    package is in the reproduction's provenance.json (testbed.provenance)."""
+    installed = {name.lower(): v for name, v in provenance.packages().items()}
+    return {"python": platform.python_version(), "testbed": testbed.__version__,
+            **{name: installed.get(name) or "not installed" for name in DEPENDENCIES}}
 
 
 def _seeds(doc: Mapping) -> list[str]:
