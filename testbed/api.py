@@ -6,6 +6,7 @@
     uwb = r.stream("uwb")                   # Stream: time, value, clean, src, dst, sigma, nlos
     t3 = r.truth("uav3/uwb")                # Truth: pos, quat, vel, omega at r.time
     r2 = testbed.load_run("runs/x")         # the same from a run directory on disk
+    testbed.view("runs/x")                  # runs/x/recording.rrd: Rerun recording (the viz extra)
 
 A run is always written as a run directory (testbed.runner: scenario.toml, scene.xml, log.npz,
 metrics.json, plots/), so what the API returns is exactly what `testbed run` writes. With
@@ -37,6 +38,7 @@ from testbed.plugins.truth import Truth as PluginTruth
 from testbed.scenario import Scenario
 from testbed.stream import Stream, make_stream, stream_names
 from testbed.truth import Truth, object_truth
+from testbed.view import view
 
 RUN_FILES = ("scenario.toml", "scene.xml", "log.npz", "metrics.json")
 
@@ -174,7 +176,7 @@ def load_run(path: str | Path) -> Run:
     return Run(path)
 
 
-__all__ = ["Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run"]
+__all__ = ["Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run", "score", "view"]
 
 
 def score(estimates: Iterable[Estimate], run: Run, *, name: str = "estimates") -> dict:
