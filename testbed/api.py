@@ -38,7 +38,7 @@ from testbed.plugins.truth import Truth as PluginTruth
 from testbed.scenario import Scenario
 from testbed.stream import Stream, make_stream, stream_names
 from testbed.truth import Truth, object_truth
-from testbed.view import view
+from testbed.viewer import view
 
 RUN_FILES = ("scenario.toml", "scene.xml", "log.npz", "metrics.json")
 

@@ -364,7 +364,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"{args.run_dir} -> {args.out}: {', '.join(files)}")
         return 0
     if args.command == "view":
-        from testbed.view import view
+        from testbed.viewer import view
 
         out = view(args.run_dir, args.out, force=args.force, spawn=args.spawn)
         print(f"Rerun recording of {args.run_dir} -> {out}  (open it: rerun {out})")

@@ -1,4 +1,5 @@
-"""`testbed view RUN`: an interactive 3-D recording of a run or a replay (Rerun, `.rrd`).
+"""`testbed view RUN`: an interactive 3-D recording of a run or a replay (Rerun, `.rrd`); the
+Python API calls it as `testbed.view` (this module is not named `view`: it would hide that function).
 
 The recording is read from the directory alone (a run's log.npz, scene.xml, scenario.toml and
 estimates.npz; a replay's estimates.npz and, when its dataset is still where it was replayed
