@@ -38,9 +38,11 @@ def _read(path: Path) -> tuple[dict[str, int], dict[str, dict[str, list]], set[s
 
 @pytest.fixture(scope="module")
 def denied(tmp_path_factory):
-    """2 s of coop-denied (anchors, UWB LOS and NLOS, GNSS sky, network) with coop.ins scored offline."""
+    """2 s of coop-denied (anchors, GNSS sky, network) with coop.ins scored offline; its buildings
+    replaced by a wall between two columns of the swarm, so that UWB links are NLOS from the start."""
     out = tmp_path_factory.mktemp("view") / "denied"
-    assert main(["run", "coop-denied", "--duration", "2", "--estimator", "coop.ins", "--out", str(out)]) == 0
+    wall = 'world.obstacles=[{type="box", pos=[-25.0, -3.5, 10.0], size=[25.0, 0.2, 10.0]}]'
+    assert main(["run", "coop-denied", "--duration", "2", "--estimator", "coop.ins", "--set", wall, "--out", str(out)]) == 0
     return out
 
 
@@ -59,6 +61,7 @@ def test_a_run_reads_back_with_every_entity_and_its_rows(denied, tmp_path):
     # UWB links: one row per epoch on both entities, every logged link exactly once, by LOS/NLOS
     uwb = r.stream("uwb")
     epochs = np.unique(uwb.time).size
+    assert uwb.nlos.any() and not uwb.nlos.all()
     for path, want in (("/world/uwb/los", int((~uwb.nlos).sum())), ("/world/uwb/nlos", int(uwb.nlos.sum()))):
         assert rows[path] == epochs
         assert sum(len(s or []) for s in cols[path]["LineStrips3D:strips"]) == want
