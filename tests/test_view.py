@@ -127,9 +127,10 @@ def test_camera_detections_and_an_estimate_relative_to_the_leader(tmp_path):
     assert np.allclose(np.linalg.norm(p - true, axis=1), np.linalg.norm(err, axis=1), atol=1e-4)
 
 
-def test_a_replay_directory_is_viewed_with_its_dataset_truth(tmp_path):
+def test_a_replay_directory_is_viewed_with_its_dataset_truth(tmp_path, capsys):
     rep = tmp_path / "rep"
     assert main(["replay", str(ROOT / "examples/replay/spec.toml"), "--out", str(rep)]) == 0  # its spec names coop.centralized
+    assert capsys.readouterr().out.splitlines()[-1] == f"replay directory -> {rep}"  # the command's last line
     rows, cols, static = _read(testbed.view(rep))
     assert rows["/world/estimates/coop.centralized/uav1/uwb"] == 5 and rows["/plots/nees/coop.centralized/uav1/uwb"] == 5
     assert len([p for p in static if p.startswith("/world/paths/truth/")]) == 18  # the dataset's bodies
