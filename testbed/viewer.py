@@ -16,7 +16,8 @@ vehicle or a site such as `uav3/uwb`):
   world/estimates/EST/TARGET/sigma3  Ellipsoids3D per estimate with a covariance: 3-sigma
   world/uwb/los, world/uwb/nlos      LineStrips3D per UWB epoch: the links ranged, by LOS/NLOS
   world/gnss/fixes                   Points3D per GNSS epoch: the fixes (antenna positions measured)
-  world/gnss/state                   Points3D per log instant: each vehicle, green with a fix, red without
+  world/gnss/state                   Points3D per log instant: 1 m above each vehicle, green with a GNSS
+                                     fix, red without (runs that log `gnss/fix`: [sensors.gnss.sky])
   world/camera/detections            LineStrips3D per camera epoch: camera site to each LED seen
   camera/pixels                      Points2D per camera epoch: the detections on the image (px)
   plots/error/EST/TARGET             Scalars: position error (estimate - truth, the estimate's frame) x, y, z m
@@ -27,7 +28,7 @@ vehicle or a site such as `uav3/uwb`):
   plots/gnss/vehicles_with_fix       Scalars: how many vehicles have a GNSS fix
 
 An estimate relative to a vehicle (visnav) is placed in the world with that vehicle's true pose,
-for the picture only; truth is used nowhere else but for the errors and NEES (scoring). Links and
+for the picture only (a replay without truth draws it as it is); truth is used nowhere else but for the errors and NEES (scoring). Links and
 detections are drawn between the sites' true positions at the instant they were measured.
 Only the plugin estimators are recorded (a run's estimates.npz); a scenario pipeline's built-in
 estimators keep only their scores. Every array goes to Rerun as columns (rerun.send_columns):
@@ -123,6 +124,11 @@ def _is_recording(path: Path) -> bool:
         return False
 
 
+def spawn_command(path: Path) -> list[str]:
+    """The command that opens a recording in the Rerun viewer."""
+    return [sys.executable, "-m", "rerun", os.fspath(path)]
+
+
 # ------------------------------------------------------------------------------------------ run
 
 
@@ -168,7 +174,7 @@ def _log_run(rr, rec, run_dir: Path) -> None:
         fix = log["gnss/fix"].astype(bool)
         K, N = fix.shape
         rec.send_columns("world/gnss/state", indexes=[rr.TimeColumn(TIMELINE, duration=time)],
-                         columns=rr.Points3D.columns(positions=log["truth/pos"].reshape(-1, 3),
+                         columns=rr.Points3D.columns(positions=log["truth/pos"].reshape(-1, 3) + [0.0, 0.0, 1.0],
                                                      colors=np.where(fix.reshape(-1, 1), FIX_RGB, NO_FIX_RGB),
                                                      radii=np.full(K * N, 0.6)).partition(np.full(K, N)))
         rec.send_columns("plots/gnss/vehicles_with_fix", indexes=[rr.TimeColumn(TIMELINE, duration=time)],
@@ -354,8 +360,3 @@ def _log_replay(rr, rec, replay_dir: Path) -> None:
             rec.log("world/anchors", rr.Points3D(np.array(list(truth.anchors.values())), labels=list(truth.anchors),
                                                  colors=[[240, 190, 25]]), static=True)
     _log_estimates(rr, rec, tracks, truth)
-
-
-def spawn_command(path: Path) -> list[str]:
-    """The command that opens a recording in the Rerun viewer."""
-    return [sys.executable, "-m", "rerun", os.fspath(path)]

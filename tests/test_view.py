@@ -163,3 +163,12 @@ def test_without_the_viz_extra_one_line_exit_2(denied, tmp_path, capsys, monkeyp
     err = capsys.readouterr().err
     assert err == "testbed: error: testbed view needs rerun-sdk: install the viz extra: pip install '.[viz]'\n"
     assert not (tmp_path / "v.rrd").exists()
+
+
+def test_spawn_opens_the_written_file_in_the_viewer(denied, tmp_path, monkeypatch):
+    import testbed.viewer as viewer
+
+    started = []
+    monkeypatch.setattr(viewer.subprocess, "Popen", lambda cmd, **kw: started.append(cmd))
+    out = testbed.view(denied, tmp_path / "s.rrd", spawn=True)
+    assert started == [[sys.executable, "-m", "rerun", str(out)]] and out.is_file()
