@@ -107,9 +107,11 @@ def view(run_dir: str | Path, out: str | Path | None = None, *, force: bool = Fa
     with new_file(out, force=force, suffix=".rrd") as tmp:
         rec = rr.RecordingStream(APP)
         rec.save(tmp)
-        _log_run(rr, rec, run_dir) if kind == "run" else _log_replay(rr, rec, run_dir)
-        rec.flush()
-        rec.disconnect()
+        try:
+            (_log_run if kind == "run" else _log_replay)(rr, rec, run_dir)
+        finally:  # the file complete (or, on an error, closed before new_file removes it)
+            rec.flush()
+            rec.disconnect()
     if spawn:
         subprocess.Popen(spawn_command(out), start_new_session=True)
     return out
