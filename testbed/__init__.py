@@ -7,6 +7,7 @@ The Python API (docs/api.md), loaded on first use so that `import testbed` stays
     load_run(path) -> Run
     builtin_scenarios() -> list[str]
     score(estimates, run, *, name="estimates") -> dict   # testbed.plugins.Estimate objects
+    view(run_dir, out=None, *, force=False, spawn=False) -> Path   # a Rerun recording (the viz extra)
     Run, Stream, Truth: the classes those return (testbed.api, testbed.stream, testbed.truth)
 
 Importing it has no side effect; the command line sets its environment (testbed.environment).
@@ -16,7 +17,7 @@ import importlib
 
 __version__ = "0.1.0"
 
-_API = ("Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run", "score")
+_API = ("Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run", "score", "view")
 __all__ = [*_API, "__version__"]
 
 

@@ -7,6 +7,7 @@
     t3 = r.truth("uav3/uwb")                # Truth: pos, quat, vel, omega at r.time
     r2 = testbed.load_run("runs/x")         # the same from a run directory on disk
     r2.provenance["testbed"]["git"]         # how it was made (provenance.json), None if absent
+    testbed.view("runs/x")                  # runs/x/recording.rrd: Rerun recording (the viz extra)
 
 A run is always written as a run directory (testbed.runner: scenario.toml, scene.xml, log.npz,
 metrics.json, provenance.json, plots/), so what the API returns is exactly what `testbed run`
@@ -38,6 +39,7 @@ from testbed.plugins.truth import Truth as PluginTruth
 from testbed.scenario import Scenario
 from testbed.stream import Stream, make_stream, stream_names
 from testbed.truth import Truth, object_truth
+from testbed.viewer import view
 
 RUN_FILES = ("scenario.toml", "scene.xml", "log.npz", "metrics.json")
 
@@ -180,7 +182,7 @@ def load_run(path: str | Path) -> Run:
     return Run(path)
 
 
-__all__ = ["Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run"]
+__all__ = ["Run", "Stream", "Truth", "builtin_scenarios", "load_run", "load_scenario", "run", "score", "view"]
 
 
 def score(estimates: Iterable[Estimate], run: Run, *, name: str = "estimates") -> dict:

@@ -7,14 +7,19 @@
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
-                [--address ADDR]] [run options]
+                [--address ADDR]] [--quiet] [run options]
     testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
     testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force | --resume] [--runs N] [--motion M] [--estimator ENTRY ...]
-                [--backend local|ray [--address ADDR]]
+                [--backend local|ray [--address ADDR]] [--quiet]
     testbed demo [--out DIR] [--force]
     testbed schema
     testbed replay SPEC.toml --out DIR [--estimator ENTRY ...] [--force]
     testbed export RUN_DIR --out DIR [--force]
+    testbed view RUN_OR_REPLAY_DIR [--out FILE.rrd] [--force] [--spawn]
+
+Long commands show a progress bar on stderr when it is a terminal (sweep and reproduce: over the
+runs, with the time left; off with --quiet) and end with one line on stdout naming what they wrote
+and where.
 
 A user mistake (unknown scenario, bad TOML, unknown key, bad value, bad argument, existing output,
 an output location that is not the testbed's, an OS error such as a full disk) prints one line
@@ -32,6 +37,7 @@ environment (testbed.environment) is set before numpy or mujoco load.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import signal
@@ -105,6 +111,10 @@ def _add_backend_options(p: argparse.ArgumentParser) -> None:
                    help="where the runs execute: local worker processes (default) or Ray tasks (docs/cluster.md)")
     p.add_argument("--address", help="Ray cluster to join (HOST:PORT of the head, or 'auto' on a cluster node; "
                    "default: start Ray on this machine); needs --backend ray")
+
+
+def _add_quiet_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", action="store_true", help="no progress bar (there is none when stderr is not a terminal)")
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
@@ -210,6 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--resume", action="store_true", help="finish an interrupted sweep at --out, skipping its finished runs")
     _add_backend_options(p)
+    _add_quiet_option(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
     p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop", "denied"])
@@ -229,6 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
     _add_estimator_option(p)
     _add_backend_options(p)
+    _add_quiet_option(p)
 
     p = sub.add_parser("demo", help="run the paper scenarios briefly, write results and a video")
     p.add_argument("--out", type=out_arg, default=Path("runs/demo"), help="an earlier demo here is replaced")
@@ -246,6 +258,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", type=Path)
     p.add_argument("--out", type=out_arg, required=True, help="dataset directory to write")
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
+
+    p = sub.add_parser("view", help="write an interactive 3-D recording of a run or a replay (Rerun .rrd; the viz extra)")
+    p.add_argument("run_dir", type=Path, help="a run directory or a replay directory")
+    p.add_argument("--out", type=out_arg, help="output .rrd (default RUN_DIR/recording.rrd)")
+    p.add_argument("--force", action="store_true", help="replace an existing recording")
+    p.add_argument("--spawn", action="store_true", help="then open it in the Rerun viewer")
     return parser
 
 
@@ -274,10 +292,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         sc = _load(args)
         metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty(), video=args.video)
         rmse = ", ".join(f"{x:.3g}" for x in metrics["tracking_rmse_m"])
-        print(f"{sc.name} ({sc.motion}, seed {sc.seed}) -> {args.out}  tracking RMSE [m]: {rmse}")
+        print(f"{sc.name} ({sc.motion}, seed {sc.seed}): tracking RMSE [m]: {rmse}")
         for name, est in metrics["estimators"].items():
             keys = [k for k in est if k.startswith("rmse_")]
             print(f"  {name}: " + ", ".join(f"{k} {fmt(est[k])}" for k in keys))
+        print(f"run directory -> {args.out}")
         return 0
     if args.command == "render":
         from testbed.render import check_run_dir, render_run
@@ -291,28 +310,35 @@ def _dispatch(args: argparse.Namespace) -> int:
             max_seconds=args.max_seconds, shadow_size=args.shadow_size, samples=args.samples, progress=sys.stderr.isatty(),
             force=args.force,
         )
-        print(out)
+        print(f"video of {args.run_dir} -> {out}")
         return 0
     if args.command == "sweep":
+        from testbed.progress import wanted
         from testbed.sweep import sweep
 
         summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
-                        progress=sys.stderr.isatty(), backend=args.backend, address=args.address)
+                        progress=wanted(args.quiet), backend=args.backend, address=args.address)
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
         from testbed.bench.run import bench
 
         bench(args.what, args.json, vehicles=args.vehicles)
+        print(f"bench {args.what} -> {args.json}" if args.json else f"bench {args.what}: figures above (--json FILE saves them)")
         return 0
     if args.command == "reproduce":
         from testbed.plugins.loading import resolve
+        from testbed.progress import shown, wanted
         from testbed.reproduce import reproduce
 
         specs = _estimator_specs(args.estimator)
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
-        reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
-                  force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume)
+        with shown(wanted(args.quiet)):
+            reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
+                      force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume)
+        claims = json.loads((args.out / "claims.json").read_text()).get("claims", [])
+        held = sum(c.get("holds") is True for c in claims)
+        print(f"reproduce {args.paper}: {held} of {len(claims)} claims hold -> {args.out}/report.html")
         return 0
     if args.command == "demo":
         from testbed.demo import demo
@@ -324,11 +350,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.report import fmt
 
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
-        print(f"{args.spec} -> {args.out}  ({sum(metrics['measurements'].values())} measurements, "
-              f"truth {'yes' if metrics['truth'] else 'no'})")
+        print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         for name, est in metrics["estimators"].items():
             keys = [k for k in est if k.startswith(("rmse_", "anees_")) and not k.endswith("interval_95")]
             print(f"  {name}: " + (", ".join(f"{k} {fmt(est[k])}" for k in keys) or f"{est.get('estimates', 0)} estimates"))
+        print(f"replay directory -> {args.out}")
         return 0
     if args.command == "export":
         from testbed.replay.export import export
@@ -337,6 +363,12 @@ def _dispatch(args: argparse.Namespace) -> int:
             raise UsageError(f"{args.run_dir}: not a run directory (needs scenario.toml and log.npz)")
         files = export(args.run_dir, args.out, force=args.force)
         print(f"{args.run_dir} -> {args.out}: {', '.join(files)}")
+        return 0
+    if args.command == "view":
+        from testbed.viewer import view
+
+        out = view(args.run_dir, args.out, force=args.force, spawn=args.spawn)
+        print(f"Rerun recording of {args.run_dir} -> {out}  (open it: rerun {out})")
         return 0
     if args.command == "schema":
         from testbed.schema import markdown

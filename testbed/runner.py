@@ -4,6 +4,7 @@
 testbed.plugins.online), runs the scenario's estimator pipeline and its plugin estimators
 (`[[estimators]]`, testbed.plugins), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
+`estimates.npz` (every estimate of the plugin estimators, when there are any),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
 `.testbed` into a temporary sibling directory that is renamed to `out` only when everything
 succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-written.
@@ -24,6 +25,7 @@ from testbed.log import LogWriter, NpzLog, save_npz
 from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
+from testbed.plugins.collect import track_arrays
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
@@ -32,6 +34,7 @@ from testbed.scenario import Scenario
 from testbed.simulate import record
 from testbed.world import build
 
+ESTIMATES_FILE = "estimates.npz"  # the plugin estimators' estimates (testbed.plugins.collect.track_arrays)
 SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
 
@@ -111,14 +114,17 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
                 metrics["uwb_pairs_served_per_s"] = rate
             poll()  # a worker asked to stop does so between stages (testbed.interrupt)
             estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
-            estimators.update(run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
-                                             done))
+            scores, tracks = run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
+                                            done)
+            estimators.update(scores)
         metrics["estimators"], timing = split_timing(estimators)
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
         if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)
             save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
+        if tracks:  # every estimate of the plugin estimators, for `testbed view` (testbed.viewer)
+            save_npz(tmp / ESTIMATES_FILE, {k: v for key, track in tracks.items() for k, v in track_arrays(key, track).items()})
         write_json(tmp / "metrics.json", metrics)
         if timing:
             write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})

@@ -21,7 +21,6 @@ import signal
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from testbed import scenario as scenario_mod
 from testbed.cluster import TaskLost
@@ -29,6 +28,7 @@ from testbed.config import from_dict, to_dict
 from testbed.errors import RunError
 from testbed.interrupt import Interrupted
 from testbed.outdir import Output, marker, write_json, write_text
+from testbed.progress import bar as progress_bar
 from testbed.runner import run
 from testbed.scenario import Scenario
 from testbed.workers import backend as use_backend, current_backend, run_parallel
@@ -102,7 +102,8 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
     finished runs are kept at `out` with summary.json marked incomplete (unless `out` held an
     earlier output, which is then left as it was), and the Interrupted exception says so.
     resume: continue the incomplete sweep at `out` (same scenario), skipping finished runs; the
-    final summary is byte-identical to an uninterrupted sweep's.
+    final summary is byte-identical to an uninterrupted sweep's. progress: a bar over the runs on
+    stderr (testbed.progress).
     backend, address: "local" or "ray" and the Ray address (testbed.workers.backend); None keeps the
     caller's choice (a reproduction's). With Ray, `out` must be on a path every node shares, and
     workers caps the tasks in flight (None: all).
@@ -124,7 +125,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         done = [i for i in range(runs) if run_complete(d / f"run-{i:03d}")]
         todo = [i for i in range(runs) if i not in done]
         jobs = [(table, scenario.seed + i, str(d / f"run-{i:03d}")) for i in todo]
-        bar = tqdm(total=runs, initial=len(done), desc=f"sweep {scenario.name}", unit="run", disable=not progress)
+        bar = progress_bar(runs, f"sweep {scenario.name}", initial=len(done), on=progress)
         if current_backend() == "local" or workers:
             workers = max(1, min(workers or os.cpu_count() or 1, runs))
         try:

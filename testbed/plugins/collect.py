@@ -188,6 +188,37 @@ class Collector:
 NAN33 = np.full((3, 3), np.nan)
 
 
+def track_arrays(key: str, track: Track) -> dict[str, np.ndarray]:
+    """The arrays of estimates.npz (a run's or a replay's) for estimator `key`:
+    `KEY/TARGET/QUANTITY/time` (K,) s, `.../value` (K, d), `.../cov` (K, 3, 3) NaN where an
+    estimate had none, and `.../frame` (the vehicle the values are relative to) unless "world"."""
+    out = {}
+    for (target, q), s in track.items():
+        out[f"{key}/{target}/{q}/time"] = s.time
+        out[f"{key}/{target}/{q}/value"] = s.value
+        out[f"{key}/{target}/{q}/cov"] = s.cov
+        if s.frame != "world":
+            out[f"{key}/{target}/{q}/frame"] = np.array(s.frame)
+    return out
+
+
+def read_tracks(arrays) -> dict[str, Track]:
+    """{estimator key: Track} from the arrays of an estimates.npz (a mapping, as numpy.load
+    gives): the inverse of track_arrays; other keys (`KEY/diagnostics/NAME`) are left out."""
+    out: dict[str, Track] = {}
+    for name in arrays:
+        key, _, rest = name.partition("/")
+        target, _, q = rest.rpartition("/")[0].rpartition("/")
+        if not name.endswith("/time") or q not in VALUE_SIZE:
+            continue
+        stem = name[: -len("/time")]
+        cov = arrays[f"{stem}/cov"]
+        frame = str(arrays[f"{stem}/frame"]) if f"{stem}/frame" in arrays else "world"
+        out.setdefault(key, {})[(target, q)] = Series(arrays[name], arrays[f"{stem}/value"], cov,
+                                                      ~np.isnan(cov).any(axis=(1, 2)), frame)
+    return out
+
+
 def quaternion_norm(q: np.ndarray) -> np.ndarray:
     """|q| of quaternions q (..., 4), summed in one fixed order: one estimate and a batch's rows
     give the same bits."""

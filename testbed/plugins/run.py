@@ -23,12 +23,13 @@ from testbed.world import Physics
 
 
 def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],
-                   plots_dir: Path | None, taken: set[str] = frozenset(), done: dict | None = None) -> dict:
-    """{key: scores} of every plugin (wall time under `wall_ms`, which the runner moves to
-    timing.json). taken: keys the pipeline already uses (a clash is a ConfigError). done: {key:
-    (estimates, health, wall ms)} of plugins already run (online, in the loop: scored, not rerun)."""
+                   plots_dir: Path | None, taken: set[str] = frozenset(), done: dict | None = None) -> tuple[dict, dict]:
+    """({key: scores}, {key: Track}) of every plugin (wall time under `wall_ms`, which the runner
+    moves to timing.json; the Tracks go to the run's estimates.npz). taken: keys the pipeline
+    already uses (a clash is a ConfigError). done: {key: (estimates, health, wall ms)}
+    of plugins already run (online, in the loop: scored, not rerun)."""
     if not plugins:
-        return {}
+        return {}, {}
     done = done or {}
     feed = list(batched(scenario, log)) if any(p.key not in done for p in plugins) else []
     prior = priors(scenario, log)
@@ -46,7 +47,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
         shown[p.key] = (track, errs)
     if plots_dir is not None:
         plot_errors(shown, Path(plots_dir), bound=bound)
-    return out
+    return out, {key: track for key, (track, _) in shown.items()}
 
 
 def scenario_bound(scenario: Scenario, log: dict[str, np.ndarray]) -> Bound | None:

@@ -10,7 +10,8 @@ sibling, marker, atomic rename) and holds
   truth (measured minus true range or range rate: samples, mean, std, RMSE), and per estimator
   its scores (RMSE, ANEES, per target), health counts and the estimates it made that truth cannot
   score (outside the truth's time span, a velocity without truth velocity);
-- estimates.npz: every estimate, `KEY/TARGET/QUANTITY/{time,value,cov}` (time in window clock s),
+- estimates.npz: every estimate, `KEY/TARGET/QUANTITY/{time,value,cov}` (time in window clock s;
+  testbed.plugins.collect.track_arrays),
   and an estimator's per-epoch diagnostics (e.g. graph.poses: iterations, final cost, converged),
   `KEY/diagnostics/NAME` (summarized in metrics.json under `diagnostics`);
 - timing.json: wall-clock per estimator; plots/: error plots as a simulated run's.
@@ -25,7 +26,7 @@ import numpy as np
 from testbed.errors import ConfigError
 from testbed.log import save_npz
 from testbed.outdir import Output, write_json
-from testbed.plugins.collect import Series, Track
+from testbed.plugins.collect import Series, Track, track_arrays
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import resolve
 from testbed.plugins.score import plot_errors, score
@@ -58,15 +59,6 @@ def _summary(diagnostics: dict[str, np.ndarray]) -> dict:
     for k, v in diagnostics.items():
         if n and k != "time":
             out[k] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
-    return out
-
-
-def _arrays(key: str, track: Track) -> dict[str, np.ndarray]:
-    out = {}
-    for (target, q), s in track.items():
-        out[f"{key}/{target}/{q}/time"] = s.time
-        out[f"{key}/{target}/{q}/value"] = s.value
-        out[f"{key}/{target}/{q}/cov"] = s.cov
     return out
 
 
@@ -106,7 +98,7 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
             entry["diagnostics"] = _summary(diagnostics)
             arrays.update({f"{p.key}/diagnostics/{k}": v for k, v in diagnostics.items()})
         metrics["estimators"][p.key] = entry
-        arrays.update(_arrays(p.key, track))
+        arrays.update(track_arrays(p.key, track))
         timing[p.key] = {"wall_ms": wall_ms}
     if out_dir is not None and shown:
         plot_errors(shown, Path(out_dir) / "plots")

@@ -359,7 +359,7 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None,
             sc = scenario_mod.load(name, motion=motion, duration=duration,
                                    overrides={"pipeline.last_window": repr(0.5 * sc.duration)})
         base.add(sc.seed)
-        dirs = sweep_runs(replace(sc, estimators=tuple(estimators)), runs, out / "runs" / name, workers=workers, progress=True)
+        dirs = sweep_runs(replace(sc, estimators=tuple(estimators)), runs, out / "runs" / name, workers=workers)
         R[name] = [m["estimators"]["ekf"] for m in load_metrics(dirs)]
         for fig in ("position_error.png", "velocity_error.png"):
             src = dirs[0] / "plots" / fig

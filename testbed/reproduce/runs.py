@@ -13,6 +13,7 @@ from pathlib import Path
 
 from testbed.scenario import Scenario
 from testbed.outdir import TMP_TAG
+from testbed.progress import enabled
 from testbed.sweep import run_complete, sweep
 
 
@@ -26,10 +27,11 @@ def seeds(base: int, runs: int) -> list[int]:
     return [base + i for i in range(runs)]
 
 
-def sweep_runs(scenario: Scenario, runs: int, root: Path, *, workers: int | None, progress: bool = False) -> list[Path]:
+def sweep_runs(scenario: Scenario, runs: int, root: Path, *, workers: int | None) -> list[Path]:
     """Simulate and score runs 0..runs-1 of `scenario` into root/run-XXX (testbed.sweep), skipping
-    the runs already finished there; returns the run directories in run order."""
-    sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=progress)
+    the runs already finished there, with a bar over them where the command shows progress
+    (testbed.progress); returns the run directories in run order."""
+    sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=enabled())
     return [Path(root) / run_name(i) for i in range(runs)]
 
 

@@ -51,6 +51,7 @@ from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, w
     write_markdown
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
+from testbed.progress import bar
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_result, save_result, seeds
 from testbed.simulate import simulate
@@ -104,7 +105,7 @@ def one_run(args: tuple) -> dict:
         if keep_full:
             res["full"] = {n: (scores[n].err, scores[n].sigma) for n in tracks}
         if plugins:
-            res["plugins"] = run_estimators(s, physics, log, plugins, None)
+            res["plugins"] = run_estimators(s, physics, log, plugins, None)[0]
         out[case] = res
     return out
 
@@ -114,11 +115,11 @@ def _run_many(jobs: list[tuple], workers: int, root: Path) -> list[dict]:
     root/run-XXX.pkl as it arrives and reused from there (an interrupted reproduction resumed)."""
     results = [load_result(root, i) for i in range(len(jobs))]
     todo = [i for i, r in enumerate(results) if r is None]
-    t0 = time.perf_counter()
-    for n, (k, r) in enumerate(run_parallel(one_run, [jobs[i] for i in todo], workers), len(jobs) - len(todo) + 1):
-        results[todo[k]] = r
-        save_result(root, todo[k], r)
-        print(f"  run {n}/{len(jobs)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    with bar(len(jobs), "reproduce visnav", initial=len(jobs) - len(todo)) as shown:
+        for k, r in run_parallel(one_run, [jobs[i] for i in todo], workers):
+            results[todo[k]] = r
+            save_result(root, todo[k], r)
+            shown.update()
     return results  # type: ignore[return-value]
 
 
