@@ -10,7 +10,7 @@ EXTRAS := test
 export MUJOCO_GL ?= egl
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
-PYTEST := -m pytest -q -ra -n auto --durations=20
+PYTEST := -m pytest -q -ra -n auto --dist loadgroup --durations=20
 
 .PHONY: demo test setup lock test-latest test-kernels clean
 
@@ -29,7 +29,7 @@ test: setup
 
 # the golden values under a second OpenBLAS kernel (CI; docs/testing.md)
 test-kernels: setup
-	OPENBLAS_CORETYPE=Haswell $(PY) -m pytest -q -ra -n auto tests/test_golden.py
+	OPENBLAS_CORETYPE=Haswell $(PY) -m pytest -q -ra -n auto --dist loadgroup tests/test_golden.py
 
 demo: setup
 	$(PY) -m testbed demo --out runs/demo

@@ -5,7 +5,6 @@ size (chi-square intervals of estimators.core.chi2_interval), never tuned.
 """
 from __future__ import annotations
 
-import functools
 import json
 
 import numpy as np
@@ -162,8 +161,8 @@ def test_monte_carlo_cross_h000_matched_truth_is_consistent_and_near_pcrb():
     assert mc["rmse_ant"] < 1.5 * mc["pcrb_ant"] and mc["rmse_body"] < 1.5 * mc["pcrb_body"]
 
 
-@functools.cache
-def _deterministic_monte_carlo() -> dict:
+@pytest.fixture(scope="module")
+def deterministic_mc() -> dict:
     """30 seeds of phase-cross-h000 as the paper flies it (eq. 31, no random motion), 20 s, the
     scenario's own filter (shared by the two tests below)."""
     mc = _monte_carlo(30, 20.0)
@@ -172,7 +171,7 @@ def _deterministic_monte_carlo() -> dict:
 
 
 @pytest.mark.slow
-def test_monte_carlo_cross_h000_deterministic_truth():
+def test_monte_carlo_cross_h000_deterministic_truth(deterministic_mc):
     """30 seeds of phase-cross-h000 as the paper flies it (eq. 31, no random motion), 20 s.
 
     At the final epoch over the 30 independent runs:
@@ -184,7 +183,7 @@ def test_monte_carlo_cross_h000_deterministic_truth():
     - RMSE of the antenna positions and of the body position <= 1.5 x the PCRB.
     """
     runs = 30
-    mc = _deterministic_monte_carlo()
+    mc = deterministic_mc
     lo6, hi6 = chi2_interval(6, runs)
     assert lo6 < mc["n6_act"] < hi6
     assert mc["P_minus_P_act_min"] > -1e-12
@@ -193,14 +192,14 @@ def test_monte_carlo_cross_h000_deterministic_truth():
 
 
 @pytest.mark.slow
-def test_monte_carlo_cross_h000_deterministic_truth_18_state_not_overconfident():
+def test_monte_carlo_cross_h000_deterministic_truth_18_state_not_overconfident(deterministic_mc):
     """The same 30 runs: the 18-state ANEES (antenna positions and velocities) below its 99 %
     upper limit, i.e. the filter's P not over-confident in any direction (Q > 0 and the truth has
     no random acceleration, but the antennas accelerate deterministically with the attitude).
     Held by the rotational process noise of the q rule's stage 2 (testbed.reproduce.phase_q,
     q_rotation = 1e-7 on this scenario, chosen on seeds 1000..1009 by the attitude NEES); without
     it (q_rotation = 0, the rule's stage 1 alone) the 18-state ANEES was 43.1 against 20.95."""
-    mc = _deterministic_monte_carlo()
+    mc = deterministic_mc
     assert mc["n18"] < chi2_interval(18, 30)[1]
 
 
