@@ -8,6 +8,9 @@ naming the testbed and its version. An output location `OUT` is
 - refused without `--force`: a directory with the marker (an earlier output);
 - accepted: a path that does not exist yet, an empty directory.
 
+Whatever the output, it never overlaps an input of the command (`apart`): an output that is, contains
+or lies inside a file or directory the command reads is refused, `--force` or not.
+
 Writing takes an exclusive lock (`.OUT.testbed-lock` beside OUT, an flock released by the kernel when
 its holder dies; it names the holder's pid and command), writes into a temporary sibling
 `.OUT.testbed-tmp.PID/` and renames it to OUT only when complete. Replacing renames the old OUT aside
@@ -26,7 +29,7 @@ import shutil
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 from testbed import __version__
 from testbed.errors import RunError, UsageError
@@ -86,6 +89,17 @@ def check(out: Path, *, force: bool) -> None:
                        "refusing to replace it, --force or not")
     if not force:
         raise RunError(f"{out}: already exists (use --force to replace it)")
+
+
+def apart(out: Path, inputs: Iterable[Path]) -> None:
+    """Raise UsageError if `out` is, contains or lies inside one of `inputs` (files or directories
+    the command reads), compared after resolving symbolic links and relative paths; touches nothing."""
+    real = Path(out).resolve()
+    for path in inputs:
+        inp = Path(path).resolve()
+        how = "is" if real == inp else "contains" if real in inp.parents else "lies inside" if inp in real.parents else ""
+        if how:
+            raise UsageError(f"--out {out}: {how} the input {path}; refusing to write there, --force or not")
 
 
 def _pid_alive(pid: int) -> bool:

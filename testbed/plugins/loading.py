@@ -62,6 +62,17 @@ def _import_file(entry: str, path: Path):
     return module
 
 
+def _is_file(where: str) -> bool:
+    """Does the part before ':' of an entry name a file (else a module)?"""
+    return where.endswith(".py") or "/" in where or "\\" in where
+
+
+def entry_file(entry: str) -> Path | None:
+    """The file a `path/to/file.py:Name` entry reads (an input of the command), else None."""
+    where = registered().get(entry, entry).rpartition(":")[0]
+    return Path(where) if where and _is_file(where) else None
+
+
 def load_class(entry: str) -> type:
     """The class an entry names (registered name, `module:Name` or `path.py:Name`); UsageError if not."""
     target = registered().get(entry, entry)
@@ -70,7 +81,7 @@ def load_class(entry: str) -> type:
         known = ", ".join(registered()) or "none"
         raise UsageError(f"estimator {entry!r}: expected a registered name ({known}), package.module:Name or path/to/file.py:Name")
     try:
-        if where.endswith(".py") or "/" in where or "\\" in where:
+        if _is_file(where):
             module = _import_file(entry, Path(where))
         else:
             module = importlib.import_module(where)
