@@ -323,7 +323,8 @@ def check_new_file(out: Path, *, force: bool) -> None:
 
 @contextmanager
 def new_file(out: Path, *, force: bool, suffix: str = "") -> Iterator[Path]:
-    """Write one file: yields a temporary sibling path (ending in `suffix`), put at `out` on success.
+    """Write one file: yields a temporary sibling path (ending in `suffix`, created empty, so a folder
+    that takes no new file is refused before the writer starts), put at `out` on success.
 
     Refuses an existing `out` unless force (checked first and again, atomically, at the end).
     """
@@ -335,6 +336,10 @@ def new_file(out: Path, *, force: bool, suffix: str = "") -> Iterator[Path]:
         raise RunError(os_reason(out, e)) from None
     clean_stale(out)
     tmp = out.with_name(f".{out.name}{TMP_TAG}{os.getpid()}{suffix}")
+    try:
+        open(tmp, "xb").close()  # the folder takes a new file: known before any writer starts
+    except OSError as e:
+        raise RunError(f"{out}: {e.strerror or e}") from None
     try:
         yield tmp
         if force:
