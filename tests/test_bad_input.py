@@ -349,14 +349,17 @@ def _edit_links(d: Path, row: int, column: str, value: str) -> None:
         csv.writer(fh, lineterminator="\n").writerows(rows)
 
 
-@pytest.mark.parametrize("value", ["1e308", "1e6"])
-def test_a_range_beyond_the_physical_bound_is_refused_at_load_naming_row_and_column(dataset, capsys, value):
-    from testbed.replay.recording import MAX_RANGE_M
+@pytest.mark.parametrize("kind, value", [("uwb", "1e308"), ("uwb", "1e6"), ("uwb", "-1e308"), ("range-rate", "-1e308")])
+def test_a_range_beyond_the_physical_bound_is_refused_at_load_naming_row_and_column(dataset, capsys, kind, value):
+    """Refused at load, before any estimator computes with it: no overflow warning can follow."""
+    from testbed.replay.recording import MAX_RANGE_M, MAX_RANGE_RATE_M_S
 
-    assert float(value) > MAX_RANGE_M
+    bound = MAX_RANGE_M if kind == "uwb" else MAX_RANGE_RATE_M_S
+    assert abs(float(value)) > bound
+    _edit_links(dataset, 3, "kind", kind)
     _edit_links(dataset, 3, "value", value)
     line = _one_line(capsys, ["replay", str(dataset / "spec.toml"), "--out", str(dataset.parent / "o")])
-    assert f"{dataset / 'links.csv'}: row 3 (line 4), column value: " in line and f"{MAX_RANGE_M:g} m" in line, line
+    assert f"{dataset / 'links.csv'}: row 3 (line 4), column value: " in line and f"{bound:g}" in line, line
     assert not (dataset.parent / "o").exists()
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from testbed.errors import UsageError
+from testbed.errors import FieldError, UsageError
 from testbed.plugins.spec import EstimatorSpec
 
 GROUP = "testbed.estimators"
@@ -112,12 +112,28 @@ def check_protocol(entry: str, cls: object) -> None:
         pass
 
 
+def check_params(plugin: Plugin) -> None:
+    """The class's optional `check_params(params)` (docs/estimators.md): a FieldError or ValueError
+    it raises is the user's mistake, a UsageError naming the estimator, the key and the value."""
+    check = getattr(plugin.cls, "check_params", None)
+    if not callable(check):
+        return
+    try:
+        check(dict(plugin.params))
+    except FieldError as e:
+        raise UsageError(f"estimator {plugin.key!r} ({plugin.entry}) params: {e.key} = {e.value!r}: {e.reason}") from None
+    except ValueError as e:
+        raise UsageError(f"estimator {plugin.key!r} ({plugin.entry}) params: {e}".splitlines()[0]) from None
+
+
 def resolve(specs: tuple[EstimatorSpec, ...] | list[EstimatorSpec]) -> list[Plugin]:
-    """Load every spec's class (before simulating); duplicate metrics keys are a UsageError."""
+    """Load every spec's class and check its params (before simulating); duplicate metrics keys are
+    a UsageError."""
     plugins, seen = [], set()
     for s in specs:
         if s.key in seen:
             raise UsageError(f"estimator {s.entry!r}: a second estimator named {s.key!r}; give one a different name")
         seen.add(s.key)
         plugins.append(Plugin(s.key, s.entry, load_class(s.entry), dict(s.params)))
+        check_params(plugins[-1])
     return plugins
