@@ -45,8 +45,13 @@ def stderr_to(file: BinaryIO) -> Iterator[None]:
         os.close(saved)
 
 
-def last_line(file: BinaryIO) -> str:
-    """The last non-empty line written to `file` (a stderr_to target), else ''."""
+def written(file: BinaryIO) -> str:
+    """Everything written to `file` (a stderr_to target) so far, as text."""
     file.seek(0)
-    lines = [ln.strip() for ln in file.read().decode(errors="replace").splitlines() if ln.strip()]
+    return file.read().decode(errors="replace")
+
+
+def last_line(text: str) -> str:
+    """The last non-empty line of `text` (stripped), else ''."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return lines[-1] if lines else ""

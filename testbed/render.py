@@ -63,7 +63,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 from tqdm import tqdm
 
-from testbed.environment import last_line, stderr_to
+from testbed.environment import last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
 from testbed.render_overlay import GHOST_RGBA, LOS_RGBA, NLOS_RGBA, Overlays
@@ -623,7 +623,7 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
             except OSError as e:  # ffmpeg stopped (its stderr is in ffmpeg_log, not on the terminal)
                 with contextlib.suppress(Exception):
                     writer.close()
-                raise RunError(f"{out}: ffmpeg could not write the video: {last_line(ffmpeg_log) or _one_line(e)}") from None
+                raise RunError(f"{out}: ffmpeg could not write the video: {last_line(written(ffmpeg_log)) or _one_line(e)}") from None
             except BaseException:
                 # interrupted or failed: the partial file is discarded, so a writer that cannot close
                 # cleanly (ffmpeg stopped mid-frame) must not replace the reason we are unwinding

@@ -430,12 +430,12 @@ def test_ray_at_an_unreachable_address_is_one_line_within_the_stated_timeout(tmp
 
 
 def test_ray_authentication_failure_says_what_to_set():
-    """What Ray 2.60 printed to a driver without RAY_AUTH_MODE=token against a head started with a
-    token (docs/cluster.md), and the one line made of it."""
+    """The line Ray 2.60's driver wrote (49 times, then "Failed to connect to Ray cluster") against
+    `ray start --head` without RAY_AUTH_MODE=token in its environment, and the one line made of it."""
     from testbed.cluster import failure
 
-    seen = ("[2026-11-27 23:59:01,000 W 1 1] grpc_client.h:120: InvalidAuthToken: the request's "
-            "authentication token is missing or invalid\n")
-    line = failure("10.0.0.1:6379", seen, "Failed to connect to Ray cluster at 10.0.0.1:6379")
-    assert "RAY_AUTH_MODE=token" in line and "docs/cluster.md" in line and "\n" not in line
-    assert "RAY_AUTH_MODE" not in failure("10.0.0.1:6379", "", "Failed to connect to Ray cluster at 10.0.0.1:6379")
+    seen = ("[2026-11-27 23:59:50,287 W 24666 24666] gcs_client.cc:210: Failed to get cluster ID from GCS server: "
+            "Unauthenticated: RPC error: InvalidAuthToken: Authentication token is missing or incorrect\n")
+    line = failure("192.0.2.2:6391", seen, "Failed to connect to Ray cluster at 192.0.2.2:6391")
+    assert "192.0.2.2:6391" in line and "RAY_AUTH_MODE=token" in line and "docs/cluster.md" in line and "\n" not in line
+    assert "RAY_AUTH_MODE" not in failure("192.0.2.2:6391", "", "Failed to connect to Ray cluster at 192.0.2.2:6391")
