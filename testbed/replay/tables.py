@@ -2,7 +2,7 @@
 
 Each table has a fixed set of columns (SCHEMAS): required ones must be present with a value in
 every row, optional ones may be missing from the header or empty in a row (read as NaN). Every
-number must parse and be finite; an unknown column is a mistake. A mistake is one ConfigError
+number must parse, be finite and at most MAX_MAGNITUDE in size; an unknown column is a mistake. A mistake is one ConfigError
 (exit 2) naming the file, the row (1 = first data row, and its line in a CSV file) and the column.
 """
 from __future__ import annotations
@@ -32,6 +32,9 @@ SCHEMAS: dict[str, tuple[tuple[str, bool, bool], ...]] = {
               *((c, True, False) for c in ("vx", "vy", "vz", "wx", "wy", "wz"))),
 }
 REQUIRED_TABLES = ("links",)
+#: the largest magnitude of any number in a table (s, m, m/s, ...): Unix times until the year 2286,
+#: any coordinate on Earth; squares and sums of squares of such numbers stay far from overflow
+MAX_MAGNITUDE = 1e10
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,6 +164,10 @@ def _numbers(table: str, file: str, name: str, raw: np.ndarray, required: bool, 
     if bad.any():
         i = int(np.argmax(bad))
         raise ConfigError(f"{where(i)}, column {name}: must be a finite number, got {str(raw[i])!r}")
+    huge = np.abs(out) > MAX_MAGNITUDE
+    if huge.any():
+        i = int(np.argmax(huge))
+        raise ConfigError(f"{where(i)}, column {name}: must be at most {MAX_MAGNITUDE:g} in magnitude, got {str(raw[i])!r}")
     return out
 
 
