@@ -27,6 +27,8 @@ from testbed.reference import AIRFRAME_RADIUS, _close_pair, clearance
 from testbed.runner import run
 from testbed.world import MODELS
 
+ROOT = Path(__file__).resolve().parents[1]
+
 HOVER = """
 name = "hover"
 description = "one vehicle hovering near a box"
@@ -297,8 +299,6 @@ def test_the_python_api_checks_clearance_like_the_command_line(workdir, capsys):
 
 # ------------------------------------------------------- issue 27 section 5: bad input that still got through
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def _one_line(capsys, argv: list[str], code: int = 2) -> str:
     """Run the CLI in-process with every warning an error; assert the exit code and one stderr line; return it."""
@@ -322,6 +322,22 @@ def test_render_into_a_read_only_folder_is_one_line_without_ffmpeg_output(run_di
     lines = capfd.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"testbed: error: {ro / 'video.mp4'}: "), lines
     assert not any(p.name.startswith(".video.mp4") for p in ro.iterdir())
+
+
+def test_an_ffmpeg_failure_is_one_line_with_its_reason_and_no_file(run_dir, tmp_path):
+    """ffmpeg (here a stand-in that fails as a full disk makes it fail) writes to a temporary file,
+    not the terminal; its last line is the reason; no video is left."""
+    fake = tmp_path / "ffmpeg"
+    fake.write_text('#!/bin/sh\necho "[out#0/mp4 @ 0x1] Error opening output: No space left on device" >&2\n'
+                    'echo "Error opening output files: No space left on device" >&2\nexit 1\n')
+    fake.chmod(0o755)
+    env = {**os.environ, "IMAGEIO_FFMPEG_EXE": str(fake),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    p = subprocess.run([sys.executable, "-m", "testbed", "render", str(run_dir), "--out", str(tmp_path / "v.mp4"),
+                        "--max-seconds", "0.2", "--width", "64", "--height", "48"], capture_output=True, text=True, env=env, timeout=120)
+    assert p.returncode == 2 and p.stderr == (f"testbed: error: {tmp_path / 'v.mp4'}: ffmpeg could not write the video: "
+                                              "Error opening output files: No space left on device\n"), p.stderr
+    assert sorted(os.listdir(tmp_path)) == ["ffmpeg"]
 
 
 def test_export_of_a_truncated_log_is_one_line(run_dir, tmp_path, capsys):
