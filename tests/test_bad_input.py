@@ -4,9 +4,9 @@ of issue 13's "Bad input" section, plus the checks behind them (finite numbers, 
 the physics step bound, clearance of the reference paths)."""
 from __future__ import annotations
 
+import csv
 import dataclasses
 import math
-import csv
 import os
 import shutil
 import subprocess
