@@ -48,7 +48,7 @@ from testbed import provenance
 from testbed.environment import apply_defaults
 from testbed.errors import TestbedError, UsageError
 from testbed.interrupt import exit_code, signals_raise
-from testbed.outdir import check_new_file, out_arg
+from testbed.outdir import apart, check_new_file, out_arg
 
 
 class _Parser(argparse.ArgumentParser):
@@ -140,6 +140,16 @@ def _overrides(items: list[str]) -> dict[str, str]:
             raise UsageError(f"--set {item!r}: expected KEY=VALUE")
         out[key.strip()] = value.strip()
     return out
+
+
+def _inputs(args: argparse.Namespace, *paths: Path) -> list[Path]:
+    """What the command reads besides `paths`: its scenario file (not a built-in) and its plugin files."""
+    from testbed import scenario  # lazy: see the module docstring
+    from testbed.plugins.loading import entry_file
+
+    name = getattr(args, "scenario", None)
+    files = [Path(name)] if name is not None and not scenario.resolve(name)[0] else []
+    return [*paths, *files, *filter(None, map(entry_file, args.estimator))]
 
 
 def _load(args: argparse.Namespace):
@@ -289,6 +299,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.report import fmt
         from testbed.runner import run
 
+        apart(args.out, _inputs(args))
         sc = _load(args)
         metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty(), video=args.video)
         rmse = ", ".join(f"{x:.3g}" for x in metrics["tracking_rmse_m"])
@@ -304,6 +315,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         if not (args.run_dir / "scene.xml").is_file() or not (args.run_dir / "log.npz").is_file():
             raise UsageError(f"{args.run_dir}: not a run directory (needs scene.xml and log.npz)")
         check_new_file(args.out or args.run_dir / "video.mp4", force=args.force)  # the user's file first
+        apart(args.out or args.run_dir / "video.mp4", [args.run_dir / "scene.xml", args.run_dir / "log.npz"])
         check_run_dir(args.run_dir)
         out = render_run(
             args.run_dir, args.out, width=args.width, height=args.height, fps=args.fps, speed=args.speed,
@@ -316,6 +328,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.progress import wanted
         from testbed.sweep import sweep
 
+        apart(args.out, _inputs(args))
         summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
                         progress=wanted(args.quiet), backend=args.backend, address=args.address)
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
@@ -331,6 +344,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.progress import shown, wanted
         from testbed.reproduce import reproduce
 
+        apart(args.out, _inputs(args))
         specs = _estimator_specs(args.estimator)
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
         with shown(wanted(args.quiet)):
@@ -349,6 +363,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.replay.run import replay
         from testbed.report import fmt
 
+        apart(args.out, _inputs(args, args.spec.parent))  # the dataset: the spec and the tables beside it
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         for name, est in metrics["estimators"].items():
@@ -361,6 +376,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         if not (args.run_dir / "log.npz").is_file() or not (args.run_dir / "scenario.toml").is_file():
             raise UsageError(f"{args.run_dir}: not a run directory (needs scenario.toml and log.npz)")
+        apart(args.out, [args.run_dir])
         files = export(args.run_dir, args.out, force=args.force)
         print(f"{args.run_dir} -> {args.out}: {', '.join(files)}")
         return 0

@@ -18,18 +18,29 @@ Stopping (Ctrl-C, SIGTERM, SIGHUP, an error in the driver): every unfinished tas
 running task gets a KeyboardInterrupt (its output writer removes its temporary directory); tasks
 still running after CANCEL_GRACE_S are killed (force), which may leave a temporary directory named
 after the dead worker's pid, removed by the next command writing there (testbed.outdir).
+
+Joining a cluster (`address` given) takes at most CONNECT_TIMEOUT_S: a TCP connection to the
+address first, then a driver's handshake made by a child process that is stopped when the time is
+up (Ray's own client, in this process, retries an unreachable head for minutes and cannot be
+given a deadline). A failure is one line; one that Ray's messages show to be the cluster's token
+authentication says what to set (RAY_AUTH_MODE=token, docs/cluster.md). What Ray's C++ core
+writes to stderr while connecting goes to a temporary file, never to the terminal.
 """
 from __future__ import annotations
 
 import os
+import socket
+import subprocess
+import sys
+import tempfile
 import time
 from typing import Callable, Iterator, Sequence
 
-from testbed.environment import DEFAULTS, apply_defaults
+from testbed.environment import DEFAULTS, apply_defaults, last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.interrupt import signals_held
 
-__all__ = ["CANCEL_GRACE_S", "SYSTEM_RETRIES", "TaskLost", "connect", "run_ray"]
+__all__ = ["CANCEL_GRACE_S", "CONNECT_TIMEOUT_S", "SYSTEM_RETRIES", "TaskLost", "connect", "run_ray"]
 
 #: seconds a cancelled task gets to unwind (remove its temporary directory) before it is killed
 CANCEL_GRACE_S = 3.0
@@ -38,6 +49,11 @@ CANCEL_GRACE_S = 3.0
 SYSTEM_RETRIES = 3
 #: seconds of one wait for finished tasks
 WAIT_S = 0.2
+#: seconds joining a cluster at --address may take (TCP connection, then a driver's handshake)
+CONNECT_TIMEOUT_S = 30.0
+# the handshake, run by a child process: `python -c _HANDSHAKE ADDRESS`
+_HANDSHAKE = ("import sys, ray; ray.init(address=sys.argv[1], log_to_driver=False, configure_logging=False, "
+              "include_dashboard=False); ray.shutdown()")
 
 
 class TaskLost(RunError):
@@ -62,16 +78,51 @@ def _import_ray():
     return ray
 
 
+def failure(address: str | None, ray_stderr: str, reason: str) -> str:
+    """The one line for a failed connection: what Ray wrote to stderr (`ray_stderr`) tells an
+    authentication failure (Ray's InvalidAuthToken: docs/cluster.md), else `reason`."""
+    where = "a local Ray instance" if address is None else f"the Ray cluster at --address {address}"
+    if "InvalidAuthToken" in ray_stderr or "RAY_AUTH_MODE" in ray_stderr:
+        return (f"{where} refused this driver's authentication (Ray: InvalidAuthToken): set RAY_AUTH_MODE=token "
+                "in the environment, with the head's ~/.ray/auth_token on this machine (docs/cluster.md)")
+    return f"cannot connect to {where}: {reason}"
+
+
+def _reach(address: str) -> None:
+    """Within CONNECT_TIMEOUT_S: a TCP connection to HOST:PORT, then a driver's handshake in a child
+    process (module docstring); RunError (one line) if either fails."""
+    deadline = time.monotonic() + CONNECT_TIMEOUT_S
+    host, _, port = address.rpartition("://")[2].rpartition(":")
+    if host and port.isdigit():
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+        except OSError as e:
+            raise RunError(failure(address, "", e.strerror or str(e) or type(e).__name__)) from None
+    try:
+        p = subprocess.run([sys.executable, "-c", _HANDSHAKE, address], capture_output=True, text=True,
+                           timeout=max(1.0, deadline - time.monotonic()), stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired as e:
+        text = e.stderr.decode(errors="replace") if isinstance(e.stderr, bytes) else e.stderr or ""
+        raise RunError(failure(address, text, f"no answer within {CONNECT_TIMEOUT_S:g} s "
+                                              "(testbed.cluster.CONNECT_TIMEOUT_S)")) from None
+    if p.returncode != 0:
+        raise RunError(failure(address, p.stderr, last_line(p.stderr) or f"exit code {p.returncode}"))
+
+
 def connect(address: str | None) -> tuple[object, bool]:
     """(ray module, whether this call started the connection). address: see the module docstring."""
     ray = _import_ray()
     if ray.is_initialized():
         return ray, False
-    try:
-        ray.init(address=address, log_to_driver=False, configure_logging=False, include_dashboard=False)
-    except (ConnectionError, ValueError, RuntimeError) as e:
-        where = "a local Ray instance" if address is None else f"the Ray cluster at --address {address}"
-        raise RunError(f"cannot connect to {where}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    if address is not None:
+        _reach(address)
+    with tempfile.TemporaryFile() as log:
+        try:
+            with stderr_to(log):  # Ray's C++ core writes there while connecting
+                ray.init(address=address, log_to_driver=False, configure_logging=False, include_dashboard=False)
+        except (ConnectionError, ValueError, RuntimeError) as e:
+            reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise RunError(failure(address, written(log), reason)) from None
     return ray, True
 
 

@@ -115,7 +115,7 @@ def from_dict(cls: type, data: Any, file: str = "", path: str = "") -> Any:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     for key in data:
         if key not in fields:
-            raise _fail(file, f"{path}.{key}" if path else key, f"unknown key (known: {', '.join(sorted(fields))})")
+            raise _fail(file, f"{path}.{key}" if path else key, f"unknown key (known: {', '.join(sorted(fields))})", data[key])
     kwargs = {}
     for name, f in fields.items():
         sub = f"{path}.{name}" if path else name

@@ -20,10 +20,13 @@ from __future__ import annotations
 import io
 import shutil
 import zipfile
+import zlib
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
+
+from testbed.errors import RunError
 
 _EPOCH = (1980, 1, 1, 0, 0, 0)
 SPILL_BYTES = 4 * 2**20  # rows of one key held in memory before they go to a chunk file
@@ -189,9 +192,13 @@ class NpzLog(Mapping):
 
 
 def load_log(path: Path | str) -> dict[str, np.ndarray]:
-    """All arrays of a log.npz (a run directory or the file itself) as a dict."""
+    """All arrays of a log.npz (a run directory or the file itself) as a dict; RunError (one line)
+    if the file is not a readable npz (truncated, corrupt)."""
     path = Path(path)
     if path.is_dir():
         path = path / "log.npz"
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh: closed even when np.load fails
+            return {k: z[k] for k in z.files}
+    except (ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise RunError(f"{path}: not a readable run log: {type(e).__name__}: {e}".splitlines()[0]) from None

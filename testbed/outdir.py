@@ -9,6 +9,9 @@ An output location `OUT` is
 - refused without `--force`: a directory with the marker (an earlier output);
 - accepted: a path that does not exist yet, an empty directory.
 
+Whatever the output, it never overlaps an input of the command (`apart`): an output that is, contains
+or lies inside a file or directory the command reads is refused, `--force` or not.
+
 Writing takes an exclusive lock (`.OUT.testbed-lock` beside OUT, an flock released by the kernel when
 its holder dies; it names the holder's pid and command), writes into a temporary sibling
 `.OUT.testbed-tmp.PID/` and renames it to OUT only when complete. Replacing renames the old OUT aside
@@ -27,7 +30,7 @@ import shutil
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 from testbed import __version__, provenance
 from testbed.errors import RunError, UsageError
@@ -87,6 +90,17 @@ def check(out: Path, *, force: bool) -> None:
                        "refusing to replace it, --force or not")
     if not force:
         raise RunError(f"{out}: already exists (use --force to replace it)")
+
+
+def apart(out: Path, inputs: Iterable[Path]) -> None:
+    """Raise UsageError if `out` is, contains or lies inside one of `inputs` (files or directories
+    the command reads), compared after resolving symbolic links and relative paths; touches nothing."""
+    real = Path(out).resolve()
+    for path in inputs:
+        inp = Path(path).resolve()
+        how = "is" if real == inp else "contains" if real in inp.parents else "lies inside" if inp in real.parents else ""
+        if how:
+            raise UsageError(f"--out {out}: {how} the input {path}; refusing to write there, --force or not")
 
 
 def _pid_alive(pid: int) -> bool:
@@ -314,7 +328,8 @@ def check_new_file(out: Path, *, force: bool) -> None:
 
 @contextmanager
 def new_file(out: Path, *, force: bool, suffix: str = "") -> Iterator[Path]:
-    """Write one file: yields a temporary sibling path (ending in `suffix`), put at `out` on success.
+    """Write one file: yields a temporary sibling path (ending in `suffix`, created empty, so a folder
+    that takes no new file is refused before the writer starts), put at `out` on success.
 
     Refuses an existing `out` unless force (checked first and again, atomically, at the end).
     """
@@ -326,6 +341,10 @@ def new_file(out: Path, *, force: bool, suffix: str = "") -> Iterator[Path]:
         raise RunError(os_reason(out, e)) from None
     clean_stale(out)
     tmp = out.with_name(f".{out.name}{TMP_TAG}{os.getpid()}{suffix}")
+    try:
+        open(tmp, "xb").close()  # the folder takes a new file: known before any writer starts
+    except OSError as e:
+        raise RunError(f"{out}: {e.strerror or e}") from None
     try:
         yield tmp
         if force:

@@ -51,6 +51,7 @@ import math
 import os
 import subprocess
 import sys
+import tempfile
 import tomllib
 import zipfile
 from dataclasses import dataclass
@@ -62,6 +63,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 from tqdm import tqdm
 
+from testbed.environment import last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
 from testbed.render_overlay import GHOST_RGBA, LOS_RGBA, NLOS_RGBA, Overlays
@@ -608,22 +610,31 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
                        style=_Style(marker_px=marker_px, labels=labels))
     trail_frames = int(round(trail * fps))
     try:
-        with new_file(out, force=force, suffix=".mp4") as partial:
+        with tempfile.TemporaryFile() as ffmpeg_log, new_file(out, force=force, suffix=".mp4") as partial:
             writer = imageio.get_writer(partial, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=2, quality=None,
                                         output_params=["-crf", "20", "-preset", "veryfast"], ffmpeg_log_level="error")
+            failed = ""
             try:
                 for f in tqdm(range(n_frames), desc=f"render {replay.meta['name']}", unit="frame", disable=not progress, leave=False):
                     overlay = [replay.meta["name"], f"t = {times[f]:7.2f} s" + (f"   x{speed:g}" if speed != 1 else "")]
                     img = painter.frame(float(times[f]), track.lookat[f], float(track.distance[f]), track.azimuth, track.elevation,
                                         _trails(times, pos, f, trail_frames), overlay)
-                    writer.append_data(img)
+                    with stderr_to(ffmpeg_log) if f == 0 else contextlib.nullcontext():  # the first frame starts ffmpeg
+                        writer.append_data(img)
+                writer.close()
+            except OSError as e:  # ffmpeg stopped (its stderr is in ffmpeg_log, not on the terminal)
+                with contextlib.suppress(Exception):
+                    writer.close()
+                failed = _one_line(e)
             except BaseException:
                 # interrupted or failed: the partial file is discarded, so a writer that cannot close
                 # cleanly (ffmpeg stopped mid-frame) must not replace the reason we are unwinding
                 with contextlib.suppress(Exception):
                     writer.close()
                 raise
-            writer.close()
+            reason = last_line(written(ffmpeg_log)) or failed  # ffmpeg runs with -v error: a line it wrote is an error
+            if reason:  # the partial file is discarded
+                raise RunError(f"{out}: ffmpeg could not write the video: {reason}")
     finally:
         painter.close()
     return out

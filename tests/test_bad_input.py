@@ -4,10 +4,16 @@ of issue 13's "Bad input" section, plus the checks behind them (finite numbers, 
 the physics step bound, clearance of the reference paths)."""
 from __future__ import annotations
 
+import csv
 import dataclasses
 import math
 import os
 import shutil
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -20,6 +26,8 @@ from testbed.errors import ConfigError, FieldError
 from testbed.reference import AIRFRAME_RADIUS, _close_pair, clearance
 from testbed.runner import run
 from testbed.world import MODELS
+
+ROOT = Path(__file__).resolve().parents[1]
 
 HOVER = """
 name = "hover"
@@ -115,6 +123,7 @@ CASES = [
     ("unknown-builtin-with-local-file", ["run", "hover", "--out", "out"], "a scenario file is named by a path: ./hover"),
     ("path-through-floor", _set("visnav", "trajectory.leader_start=[0.0, 0.0, -5.0]"), "visnav.toml: trajectory: vehicle 1's reference is at z = -5.00 m"),
     ("path-through-obstacle", _set("./hover.toml", "world.obstacles[0].pos=[0.0, 0.5, 10.0]"), "hover.toml: world.obstacles[0]: vehicle 1"),
+    ("uwb-rate-0", _set("bandwidth", "sensors.uwb.rate_hz=0"), "bandwidth.toml: sensors.uwb.rate_hz"),
     ("vehicles-too-close", _set("visnav", "trajectory.follower_offset=[-0.3, 0.0, 0.0]"), "visnav.toml: trajectory: vehicles 1 and 2 are 0.30 m apart"),
 ]
 
@@ -286,3 +295,181 @@ def test_the_python_api_checks_clearance_like_the_command_line(workdir, capsys):
     assert not (workdir / "api-run").exists()
     with pytest.warns(UserWarning, match=r"world\.obstacles\[0\]: vehicle 1's reference passes .* \"warn\""):
         testbed.load_scenario("./hover.toml", {path: [0.0, 0.5, 10.0], "world.clearance": "warn"})
+
+
+# ------------------------------------------------------- issue 27 section 5: bad input that still got through
+
+
+def _one_line(capsys, argv: list[str], code: int = 2) -> str:
+    """Run the CLI in-process with every warning an error; assert the exit code and one stderr line; return it."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning reaching the terminal fails the test
+        got = main(argv)
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert got == code and len(lines) == 1 and lines[0].startswith("testbed: error: "), (got, err)
+    return lines[0]
+
+
+def test_render_into_a_read_only_folder_is_one_line_without_ffmpeg_output(run_dir, tmp_path, capfd):
+    """The output's folder is tried before ffmpeg starts; nothing of ffmpeg's reaches the terminal."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    if os.access(ro, os.W_OK):  # root ignores the mode: /sys refuses new files even to root
+        ro = Path("/sys")
+    assert main(["render", str(run_dir), "--out", str(ro / "video.mp4"), "--max-seconds", "0.2"]) == 2
+    lines = capfd.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"testbed: error: {ro / 'video.mp4'}: "), lines
+    assert not any(p.name.startswith(".video.mp4") for p in ro.iterdir())
+
+
+def test_an_ffmpeg_failure_is_one_line_with_its_reason_and_no_file(run_dir, tmp_path):
+    """ffmpeg (here a stand-in that fails as a full disk makes it fail) writes to a temporary file,
+    not the terminal; its last line is the reason; no video is left."""
+    fake = tmp_path / "ffmpeg"
+    fake.write_text('#!/bin/sh\necho "[out#0/mp4 @ 0x1] Error opening output: No space left on device" >&2\n'
+                    'echo "Error opening output files: No space left on device" >&2\nexit 1\n')
+    fake.chmod(0o755)
+    env = {**os.environ, "IMAGEIO_FFMPEG_EXE": str(fake),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    p = subprocess.run([sys.executable, "-m", "testbed", "render", str(run_dir), "--out", str(tmp_path / "v.mp4"),
+                        "--max-seconds", "0.2", "--width", "64", "--height", "48"], capture_output=True, text=True, env=env, timeout=120)
+    assert p.returncode == 2 and p.stderr == (f"testbed: error: {tmp_path / 'v.mp4'}: ffmpeg could not write the video: "
+                                              "Error opening output files: No space left on device\n"), p.stderr
+    assert sorted(os.listdir(tmp_path)) == ["ffmpeg"]
+
+
+def test_export_of_a_truncated_log_is_one_line(run_dir, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(run_dir, bad)
+    with open(bad / "log.npz", "r+b") as fh:
+        fh.truncate((bad / "log.npz").stat().st_size // 2)
+    assert "log.npz: not a readable run log" in _one_line(capsys, ["export", str(bad), "--out", str(tmp_path / "d")])
+    assert sorted(os.listdir(tmp_path)) == ["bad"]
+
+
+@pytest.fixture
+def dataset(tmp_path) -> Path:
+    """A copy of examples/replay (coop-fg, 18 UAVs, uwb links) to spoil; returns its directory."""
+    shutil.copytree(ROOT / "examples/replay", tmp_path / "data")
+    return tmp_path / "data"
+
+
+def _edit_links(d: Path, row: int, column: str, value: str) -> None:
+    """Set one cell of links.csv (row 1 = the first data row)."""
+    with open(d / "links.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    rows[row][rows[0].index(column)] = value
+    with open(d / "links.csv", "w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
+
+
+@pytest.mark.parametrize("kind, value", [("uwb", "1e6"), ("phase", "2e5"), ("range-rate", "-5e3")])
+def test_a_range_beyond_the_physical_bound_is_refused_at_load_naming_row_and_column(dataset, capsys, kind, value):
+    """Refused at load, before any estimator computes with it: no overflow warning can follow."""
+    from testbed.replay.recording import MAX_RANGE_M, MAX_RANGE_RATE_M_S
+
+    bound = MAX_RANGE_RATE_M_S if kind == "range-rate" else MAX_RANGE_M
+    assert abs(float(value)) > bound
+    _edit_links(dataset, 3, "kind", kind)
+    _edit_links(dataset, 3, "value", value)
+    line = _one_line(capsys, ["replay", str(dataset / "spec.toml"), "--out", str(dataset.parent / "o")])
+    assert f"{dataset / 'links.csv'}: row 3 (line 4), column value: " in line and f"{bound:g}" in line, line
+    assert not (dataset.parent / "o").exists()
+
+
+@pytest.mark.parametrize("table, column, value, named", [
+    ("links.csv", "value", "1e308", "at most 1e+10 in magnitude"),  # the issue's case
+    ("poses.csv", "x", "1e308", "at most 1e+10 in magnitude"),
+    ("links.csv", "sigma", "1e-300", "at least 1e-09"),
+    ("links.csv", "time", "-1e11", "at most 1e+10 in magnitude"),
+])
+def test_a_number_that_would_overflow_a_computation_is_refused_at_load(dataset, capsys, table, column, value, named):
+    """Each of these fed graph.poses or the scoring overflow warnings before the bounds (docs/replay.md)."""
+    with open(dataset / table, newline="") as fh:
+        rows = list(csv.reader(fh))
+    rows[2][rows[0].index(column)] = value
+    with open(dataset / table, "w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
+    line = _one_line(capsys, ["replay", str(dataset / "spec.toml"), "--out", str(dataset.parent / "o")])
+    assert f"{dataset / table}: row 2 (line 3), column {column}: " in line and named in line, line
+    assert not (dataset.parent / "o").exists()
+
+
+def test_csv_header_naming_a_column_twice_names_it(dataset, capsys):
+    text = (dataset / "links.csv").read_text().split("\n", 1)
+    (dataset / "links.csv").write_text(text[0].replace("sigma", "value") + "\n" + text[1])
+    assert "links.csv: the header names column 'value' twice" in _one_line(
+        capsys, ["replay", str(dataset / "spec.toml"), "--out", str(dataset.parent / "o")])
+
+
+def test_csv_cell_over_the_field_limit_names_row_and_column(dataset, capsys):
+    _edit_links(dataset, 5, "src", "x" * (csv.field_size_limit() + 1))
+    line = _one_line(capsys, ["replay", str(dataset / "spec.toml"), "--out", str(dataset.parent / "o")])
+    assert f"{dataset / 'links.csv'}: row 5 (line 6), column src: " in line and str(csv.field_size_limit()) in line, line
+    assert not (dataset.parent / "o").exists()
+
+
+def _spec_estimators(d: Path, table: str) -> None:
+    """Replace the [[estimators]] of the dataset's spec.toml by `table` (TOML array of tables)."""
+    text = (d / "spec.toml").read_text()
+    start, end = text.index("estimators = ["), text.index("[window]")
+    (d / "spec.toml").write_text(text[:start] + table + "\n\n" + text[end:])
+
+
+@pytest.mark.parametrize("table, named", [
+    ('estimators = [{ entry = "graph.poses", params = { epoch = -1 } }]', ("graph.poses", "epoch", "-1")),
+    ('estimators = [{ entry = "graph.poses", params = { loss = "bogus" } }]', ("graph.poses", "loss", "'bogus'")),
+    ('estimators = [{ entry = "nav.eskf", params = { bogus = 1 } }]', ("nav.eskf", "bogus", "1")),
+    ('estimators = [{ entry = "coop.window", params = { windw = 3 } }]', ("coop.window", "windw", "3")),
+    ('estimators = [{ entry = "coop.centralized", params = { huber_k = 2.0 } }]', ("coop.centralized", "huber_k", "2.0")),
+])
+def test_a_mistake_in_an_estimators_params_is_exit_2_before_it_runs(dataset, capsys, monkeypatch, table, named):
+    """Replay: refused before the dataset is fed; the line names the estimator, the key and the value."""
+    import testbed.replay.run as replay_run
+
+    monkeypatch.setattr(replay_run, "replay_recording", lambda *a, **k: pytest.fail("the estimators ran"))
+    _spec_estimators(dataset, table)
+    line = _one_line(capsys, ["replay", str(dataset / "spec.toml"), "--out", str(dataset.parent / "o")])
+    estimator, key, value = named
+    assert f"estimator {estimator!r}" in line and f"{key} = {value}" in line, line
+    assert not (dataset.parent / "o").exists()
+
+
+def test_a_mistake_in_a_scenarios_estimator_params_is_exit_2_before_anything_is_simulated(workdir, capsys, monkeypatch):
+    import testbed.runner
+
+    monkeypatch.setattr(testbed.runner, "record", lambda *a, **k: pytest.fail("simulated"))
+    (workdir / "est.toml").write_text(HOVER + '[[estimators]]\nentry = "nav.eskf"\nparams = { yaw = 0.5 }\n')
+    line = _one_line(capsys, ["run", "./est.toml", "--out", "out"])
+    assert "estimator 'nav.eskf'" in line and "yaw = 0.5" in line and "yaw0" in line, line
+    assert not (workdir / "out").exists()
+
+
+def test_ray_at_an_unreachable_address_is_one_line_within_the_stated_timeout(tmp_path):
+    """A subprocess, so that Ray's own C++ log lines (written to the process's stderr) would show."""
+    from testbed.cluster import CONNECT_TIMEOUT_S
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    t0 = time.monotonic()
+    p = subprocess.run([sys.executable, "-m", "testbed", "sweep", "bandwidth", "--runs", "2", "--duration", "0.5",
+                        "--backend", "ray", "--address", "127.0.0.1:1", "--out", str(tmp_path / "s")],
+                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=CONNECT_TIMEOUT_S + 50)
+    took = time.monotonic() - t0
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "127.0.0.1:1" in lines[0], p.stderr
+    assert took < CONNECT_TIMEOUT_S + 30, took
+    assert os.listdir(tmp_path) == []
+
+
+def test_ray_authentication_failure_says_what_to_set():
+    """The line Ray 2.60's driver wrote (49 times, then "Failed to connect to Ray cluster") against
+    `ray start --head` without RAY_AUTH_MODE=token in its environment, and the one line made of it."""
+    from testbed.cluster import failure
+
+    seen = ("[2026-11-27 23:59:50,287 W 24666 24666] gcs_client.cc:210: Failed to get cluster ID from GCS server: "
+            "Unauthenticated: RPC error: InvalidAuthToken: Authentication token is missing or incorrect\n")
+    line = failure("192.0.2.2:6391", seen, "Failed to connect to Ray cluster at 192.0.2.2:6391")
+    assert "192.0.2.2:6391" in line and "RAY_AUTH_MODE=token" in line and "docs/cluster.md" in line and "\n" not in line
+    assert "RAY_AUTH_MODE" not in failure("192.0.2.2:6391", "", "Failed to connect to Ray cluster at 192.0.2.2:6391")

@@ -6,6 +6,7 @@ left behind (no temporary sibling, no lock file).
 """
 import json
 import math
+import shutil
 from pathlib import Path
 
 import pytest
@@ -196,3 +197,74 @@ def test_metrics_are_strict_json_and_a_missing_score_is_null_with_a_reason(tmp_p
         assert est["null_reasons"] == {"rmse_position_rtk_mean_m": "no RTK vehicle in this scenario",
                                        "anees_rtk": "no RTK vehicle in this scenario"}
         assert isinstance(est["rmse_position_spp_mean_m"], float) and "rmse_position_spp_mean_m" not in est["null_reasons"]
+
+
+# ----------------------------------------------------------- --out never overlaps an input (issue 27)
+
+PLUGIN = "class Quiet:\n    def __init__(self, context, params):\n        pass\n\n    def process(self, m):\n        return []\n"
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> Path:
+    """A run directory `r` (bandwidth, 0.5 s) and its export `data` (a dataset with the marker)."""
+    root = tmp_path_factory.mktemp("inputs")
+    from testbed import scenario
+    from testbed.replay.export import export
+    from testbed.runner import run
+
+    run(scenario.load("bandwidth", duration=0.5), root / "r", plots=False)
+    export(root / "r", root / "data")
+    return root
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def _in_marked(cwd: Path, name: str, inner: str) -> Path:
+    """A directory `name` the testbed wrote (marker) holding `inner` (a copy of the run or a file)."""
+    d = cwd / name
+    d.mkdir()
+    outdir.write_marker(d, "run")
+    return d / inner
+
+
+@pytest.mark.parametrize("case", [
+    "replay-out-is-the-dataset", "replay-out-inside-the-dataset", "replay-out-is-the-dataset-through-a-link",
+    "export-out-is-the-run", "export-out-inside-the-run", "export-out-contains-the-run",
+    "render-out-is-the-log", "run-out-contains-the-scenario", "sweep-out-contains-the-scenario",
+    "run-out-contains-the-estimator", "reproduce-out-contains-the-estimator", "replay-out-contains-the-estimator",
+])
+def test_out_that_is_contains_or_lies_inside_an_input_is_refused(capsys, cwd, inputs, case):
+    """`--out` equal to, above or below any input (resolved: relative paths, symbolic links) is one
+    line and exit 2, --force or not; every input is left as it was."""
+    from testbed import scenario
+
+    shutil.copytree(inputs / "r", cwd / "r")
+    shutil.copytree(inputs / "data", cwd / "data")
+    if case.endswith("-scenario"):
+        _in_marked(cwd, "d", "s.toml").write_bytes((Path(scenario.__file__).parent / "scenarios/bandwidth.toml").read_bytes())
+    if case.endswith("-estimator"):
+        _in_marked(cwd, "d", "plug.py").write_text(PLUGIN)
+    if case == "export-out-contains-the-run":  # the run inside an earlier output of the testbed
+        shutil.copytree(cwd / "r", _in_marked(cwd, "d", "r"))
+    (cwd / "alias").symlink_to(cwd / "data")
+    argv = {
+        "replay-out-is-the-dataset": ["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data"],
+        "replay-out-inside-the-dataset": ["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/replay"],
+        "replay-out-is-the-dataset-through-a-link": ["replay", "alias/spec.toml", "--estimator", "graph.poses", "--out", "./data/"],
+        "export-out-is-the-run": ["export", "r", "--out", "r"],
+        "export-out-inside-the-run": ["export", "r", "--out", "r/dataset"],
+        "export-out-contains-the-run": ["export", "d/r", "--out", "d"],
+        "render-out-is-the-log": ["render", "r", "--out", "r/log.npz"],
+        "run-out-contains-the-scenario": ["run", "d/s.toml", "--out", "d"],
+        "sweep-out-contains-the-scenario": ["sweep", "d/s.toml", "--runs", "2", "--out", "d"],
+        "run-out-contains-the-estimator": RUN + ["--estimator", "d/plug.py:Quiet", "--out", "d"],
+        "reproduce-out-contains-the-estimator": ["reproduce", "phase", "--estimator", "d/plug.py:Quiet", "--out", "d"],
+        "replay-out-contains-the-estimator": ["replay", "data/spec.toml", "--estimator", "d/plug.py:Quiet", "--out", "d"],
+    }[case]
+    before = {p.name: _files(p) for p in cwd.iterdir() if p.is_dir() and not p.is_symlink()}
+    msg = _refused(capsys, argv + ["--force"])
+    assert f"--out {Path(argv[argv.index('--out') + 1])}: " in msg and " the input " in msg, msg
+    assert {p.name: _files(p) for p in cwd.iterdir() if p.is_dir() and not p.is_symlink()} == before
+    _no_debris(cwd)

@@ -21,7 +21,7 @@ from testbed.pipelines.coop import epoch_problem, gnss_covariances, solve_epoch
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
-from testbed.plugins.settings import settings
+from testbed.plugins.settings import check_known, pipeline_keys, settings
 from testbed.stream import gnss_sigma
 
 
@@ -29,6 +29,10 @@ class _CoopEpochs(EpochGrouping):
     """Base: one epoch's fixes and ranges (testbed.plugins.epochs); subclasses name the variant."""
 
     variant = ""
+
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, pipeline_keys(CoopPipelineConfig))
 
     def __init__(self, context: Context, params: dict):
         self.cfg = settings(CoopPipelineConfig, "coop-fg", context, params, f"coop.{self.variant}")

@@ -80,6 +80,7 @@ from testbed.network import Network
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import imu_noise, levelled_start
+from testbed.plugins.settings import check_known
 from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
@@ -94,10 +95,12 @@ class CoopIns:
     joint = True
     copies = 1  # filters per vehicle in self.ins (the distributed one adds its own-measurement filter)
 
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, set(DEFAULTS) - (set(DISTRIBUTED_ONLY) if cls.joint else set()))
+
     def __init__(self, context: Context, params: dict):
-        known = set(DEFAULTS) - (set(DISTRIBUTED_ONLY) if self.joint else set())
-        if set(params) - known:
-            raise ValueError(f"unknown params {sorted(set(params) - known)}; known: {sorted(known)}")
+        self.check_params(params)
         if "imu" not in context.sensors:
             raise ValueError("needs [sensors.imu]")
         self.p = {**DEFAULTS, **params}

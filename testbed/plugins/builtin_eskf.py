@@ -40,6 +40,7 @@ from estimators import eskf
 from estimators.core import symmetrize
 from estimators.so3 import quat_to_rotmat
 from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.settings import check_known
 from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, gate_prob=1e-4, output_every=1, iterations=1)
@@ -92,10 +93,12 @@ class _Vehicle:
 class NavEskf:
     description = "per-vehicle loosely coupled IMU + GNSS + UWB error-state EKF (estimators.eskf); flies in the loop"
 
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, DEFAULTS)
+
     def __init__(self, context: Context, params: dict):
-        unknown = set(params) - set(DEFAULTS)
-        if unknown:
-            raise ValueError(f"unknown params {sorted(unknown)}; known: {sorted(DEFAULTS)}")
+        self.check_params(params)
         if "imu" not in context.sensors:
             raise ValueError("needs [sensors.imu]")
         self.p = {**DEFAULTS, **params}

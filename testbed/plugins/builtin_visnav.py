@@ -29,13 +29,17 @@ from estimators.visnav import CameraFilter, CameraFrame, RelNavModel
 from testbed.pipelines.config import VisNavPipelineConfig
 from testbed.pipelines.visnav import estimator_config
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import settings
+from testbed.plugins.settings import check_known, pipeline_keys, settings
 
 
 class _VisNav:
     """Base: IMU pre-integration and camera-epoch bookkeeping; subclasses name the filter."""
 
     filter = ""
+
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, pipeline_keys(VisNavPipelineConfig))
 
     def __init__(self, context: Context, params: dict):
         cfg = settings(VisNavPipelineConfig, "visnav", context, params, f"visnav.{self.filter}")

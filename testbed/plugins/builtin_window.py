@@ -42,6 +42,7 @@ from testbed.network import Network, RoundTransport
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
+from testbed.plugins.settings import check_known
 from testbed.sensors.noise import range_variances
 
 DEFAULTS = dict(window=5, q=2.0, range_scale=1.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None,
@@ -51,10 +52,12 @@ DEFAULTS = dict(window=5, q=2.0, range_scale=1.0, huber=0.0, max_iter=5, max_rou
 class _WindowPlugin(EpochGrouping):
     """One epoch's fixes and ranges (testbed.plugins.epochs) and the output; subclasses make the solver."""
 
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, DEFAULTS)
+
     def __init__(self, context: Context, params: dict):
-        unknown = set(params) - set(DEFAULTS)
-        if unknown:
-            raise ValueError(f"unknown params {sorted(unknown)} (known: {sorted(DEFAULTS)})")
+        self.check_params(params)
         self.p = {**DEFAULTS, **params}
         self.vehicles = context.vehicles
         self.n = len(self.vehicles)

@@ -96,12 +96,13 @@ class _WindowIns(builtin_eskf.NavEskf):
     window_class: type = builtin_window.Window
     cascade_defaults: dict = {}  # this cascade's own defaults over CASCADE_DEFAULTS
 
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, set(builtin_eskf.DEFAULTS) | set(builtin_window.DEFAULTS) | set(CASCADE_DEFAULTS))
+
     def __init__(self, context: Context, params: dict):
         own = set(builtin_eskf.DEFAULTS)
-        known = own | set(builtin_window.DEFAULTS) | set(CASCADE_DEFAULTS)
-        unknown = set(params) - known
-        if unknown:
-            raise ValueError(f"unknown params {sorted(unknown)}; known: {sorted(known)}")
+        self.check_params(params)
         cascade = {**CASCADE_DEFAULTS, **self.cascade_defaults, **{k: v for k, v in params.items() if k in CASCADE_DEFAULTS}}
         self.decorrelate = bool(cascade["decorrelate"])
         self.start_epochs = int(cascade["start_epochs"])

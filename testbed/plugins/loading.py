@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from testbed.errors import UsageError
+from testbed.errors import FieldError, UsageError
 from testbed.plugins.spec import EstimatorSpec
 
 GROUP = "testbed.estimators"
@@ -62,6 +62,17 @@ def _import_file(entry: str, path: Path):
     return module
 
 
+def _is_file(where: str) -> bool:
+    """Does the part before ':' of an entry name a file (else a module)?"""
+    return where.endswith(".py") or "/" in where or "\\" in where
+
+
+def entry_file(entry: str) -> Path | None:
+    """The file a `path/to/file.py:Name` entry reads (an input of the command), else None."""
+    where = registered().get(entry, entry).rpartition(":")[0]
+    return Path(where) if where and _is_file(where) else None
+
+
 def load_class(entry: str) -> type:
     """The class an entry names (registered name, `module:Name` or `path.py:Name`); UsageError if not."""
     target = registered().get(entry, entry)
@@ -70,7 +81,7 @@ def load_class(entry: str) -> type:
         known = ", ".join(registered()) or "none"
         raise UsageError(f"estimator {entry!r}: expected a registered name ({known}), package.module:Name or path/to/file.py:Name")
     try:
-        if where.endswith(".py") or "/" in where or "\\" in where:
+        if _is_file(where):
             module = _import_file(entry, Path(where))
         else:
             module = importlib.import_module(where)
@@ -101,12 +112,28 @@ def check_protocol(entry: str, cls: object) -> None:
         pass
 
 
+def check_params(plugin: Plugin) -> None:
+    """The class's optional `check_params(params)` (docs/estimators.md): a FieldError or ValueError
+    it raises is the user's mistake, a UsageError naming the estimator, the key and the value."""
+    check = getattr(plugin.cls, "check_params", None)
+    if not callable(check):
+        return
+    try:
+        check(dict(plugin.params))
+    except FieldError as e:
+        raise UsageError(f"estimator {plugin.key!r} ({plugin.entry}) params: {e.key} = {e.value!r}: {e.reason}") from None
+    except ValueError as e:
+        raise UsageError(f"estimator {plugin.key!r} ({plugin.entry}) params: {e}".splitlines()[0]) from None
+
+
 def resolve(specs: tuple[EstimatorSpec, ...] | list[EstimatorSpec]) -> list[Plugin]:
-    """Load every spec's class (before simulating); duplicate metrics keys are a UsageError."""
+    """Load every spec's class and check its params (before simulating); duplicate metrics keys are
+    a UsageError."""
     plugins, seen = [], set()
     for s in specs:
         if s.key in seen:
             raise UsageError(f"estimator {s.entry!r}: a second estimator named {s.key!r}; give one a different name")
         seen.add(s.key)
         plugins.append(Plugin(s.key, s.entry, load_class(s.entry), dict(s.params)))
+        check_params(plugins[-1])
     return plugins

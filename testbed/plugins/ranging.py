@@ -44,6 +44,7 @@ from estimators.ranging import RangingEkf, RangingEpoch, RangingNoise, body_pose
 from estimators.so3 import quat_to_rotmat
 from testbed.errors import ConfigError
 from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.settings import check_known
 
 DEFAULTS = dict(q=1e-3, q_translation=1e-2, q_rotation=1e-2, gate_alpha=1e-3, iterations=1, sigma_range=0.1,
                 sigma_range_rate=0.1, sigma_height=0.1, use_rates=False, rate_window=None, v_sigma=1.0,
@@ -61,10 +62,12 @@ class RangingEkfEstimator:
 
     description = "ranging EKF, any antennas/lever arms, known poses from a pose stream, optional rates and height"
 
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        check_known(params, DEFAULTS)
+
     def __init__(self, context: Context, params: dict):
-        unknown = sorted(set(params) - set(DEFAULTS))
-        if unknown:
-            raise ConfigError(f"estimator ranging.ekf params: unknown key(s) {unknown}; known: {sorted(DEFAULTS)}")
+        self.check_params(params)
         p = {**DEFAULTS, **params}
         self.p = p
         vehicles = list(context.vehicles)

@@ -104,6 +104,10 @@ class PoseGraph:
 
     description = "per-epoch factor graph: multi-antenna robot poses, lever arms, anchors, known robots, GNSS, height"
 
+    @classmethod
+    def check_params(cls, params: dict) -> None:
+        from_dict(GraphParams, params)
+
     def __init__(self, context: Context, params: dict):
         self.p = from_dict(GraphParams, params, "estimator graph.poses params")
         unknown = sorted(set(self.p.initial) - set(context.vehicles))

@@ -29,6 +29,15 @@ from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_ta
 from testbed.rng import stream_rng
 
 LINK_KINDS = ("uwb", "phase", "range-rate")
+#: m: the longest range a link may report. Radio ranging between robots (UWB: tens to a few hundred
+#: metres; carrier phase between antennas of one swarm) never spans 100 km; a value beyond is a
+#: corrupt row, refused at load so that no residual, square or covariance of it can overflow.
+MAX_RANGE_M = 1e5
+#: m/s: the largest range rate a link may report (ten times the speed of sound), for the same reason.
+MAX_RANGE_RATE_M_S = 3.4e3
+#: the smallest 1-sigma a row may declare (m, m/s, m/s^2, rad/s): below any sensor's, and its inverse
+#: square (a weight) times a squared residual of table numbers stays far from overflow
+MIN_SIGMA = 1e-9
 POSE_KINDS = ("gnss", "mocap")
 #: (table, column of the per-row sigma(s), value columns) of the per-site/body tables
 QUAT = ("qw", "qx", "qy", "qz")
@@ -86,12 +95,15 @@ def _check_names(t: Table, column: str, allowed: set[str], what: str) -> None:
 
 
 def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
-    """Meaning of the rows: names known, kinds known, ranges >= 0, sigmas > 0, arrival >= time, quaternions unit."""
+    """Meaning of the rows: names known, kinds known, ranges in [0, MAX_RANGE_M] and range rates within
+    MAX_RANGE_RATE_M_S, sigmas >= MIN_SIGMA, arrival >= time, quaternions unit."""
     sites, bodies = set(spec.sites), set(spec.bodies)
     for name, t in tables.items():
         for c in ("sigma", "sigma_x", "sigma_y", "sigma_z", "sigma_accel", "sigma_gyro"):
-            if c in t.columns and np.any(t[c] <= 0):
-                raise t.error(int(np.argmax(t[c] <= 0)), c, f"must be positive (or empty), got {float(t[c][np.argmax(t[c] <= 0)]):g}")
+            if c in t.columns and np.any(t[c] < MIN_SIGMA):
+                i = int(np.argmax(t[c] < MIN_SIGMA))
+                want = "positive" if t[c][i] <= 0 else f"at least {MIN_SIGMA:g}"
+                raise t.error(i, c, f"must be {want} (or empty), got {float(t[c][i]):g}")
         if "arrival" in t.columns and np.any(t["arrival"] < t["time"]):
             raise t.error(int(np.argmax(t["arrival"] < t["time"])), "arrival", "is before the row's time")
     if "links" in tables:
@@ -102,9 +114,13 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
         same = t["src"] == t["dst"]
         if same.any():
             raise t.error(int(np.argmax(same)), "dst", "a link from a site to itself")
-        neg = (t["kind"] != "range-rate") & (t["value"] < 0)
-        if neg.any():
-            raise t.error(int(np.argmax(neg)), "value", f"a range cannot be negative, got {float(t['value'][np.argmax(neg)]):g}")
+        rate = t["kind"] == "range-rate"
+        bad = np.where(rate, np.abs(t["value"]) > MAX_RANGE_RATE_M_S, (t["value"] < 0) | (t["value"] > MAX_RANGE_M))
+        if bad.any():
+            i = int(np.argmax(bad))
+            want = (f"a range rate is at most {MAX_RANGE_RATE_M_S:g} m/s in magnitude" if rate[i]
+                    else f"a range is in [0, {MAX_RANGE_M:g}] m")
+            raise t.error(i, "value", f"{want} (docs/replay.md), got {float(t['value'][i]):g}")
     if "poses" in tables:
         t = tables["poses"]
         _check_names(t, "kind", set(POSE_KINDS), "a pose kind (gnss, mocap) ")

@@ -2,12 +2,14 @@
 
 Each table has a fixed set of columns (SCHEMAS): required ones must be present with a value in
 every row, optional ones may be missing from the header or empty in a row (read as NaN). Every
-number must parse and be finite; an unknown column is a mistake. A mistake is one ConfigError
+number must parse, be finite and at most MAX_MAGNITUDE in size; an unknown column is a mistake. A mistake is one ConfigError
 (exit 2) naming the file, the row (1 = first data row, and its line in a CSV file) and the column.
 """
 from __future__ import annotations
 
 import csv
+import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +32,9 @@ SCHEMAS: dict[str, tuple[tuple[str, bool, bool], ...]] = {
               *((c, True, False) for c in ("vx", "vy", "vz", "wx", "wy", "wz"))),
 }
 REQUIRED_TABLES = ("links",)
+#: the largest magnitude of any number in a table (s, m, m/s, ...): Unix times until the year 2286,
+#: any coordinate on Earth; squares and sums of squares of such numbers stay far from overflow
+MAX_MAGNITUDE = 1e10
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,7 +79,35 @@ def find(directory: Path, name: str) -> Path | None:
     return found[0] if found else None
 
 
+def _rows(reader) -> Iterator[tuple[list[str], int]]:
+    """(cells, line) of each data row of a CSV reader past its header; blank lines skipped."""
+    for cells in reader:  # cells are stripped per column by the caller
+        if not cells or (len(cells) == 1 and not cells[0].strip()):
+            continue
+        yield cells, reader.line_num
+
+
+def _oversized(path: Path, header: list[str]) -> str:
+    """Where the first cell longer than csv's field limit is ("row R (line L), column C"): the file
+    read again with the limit lifted for the search only."""
+    limit = csv.field_size_limit()
+    csv.field_size_limit(sys.maxsize)
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            next(reader)
+            for r, (cells, line) in enumerate(_rows(reader), start=1):
+                for j, cell in enumerate(cells):
+                    if len(cell) > limit:
+                        name = header[j] if j < len(header) else f"{j + 1} (beyond the header)"
+                        return f"row {r} (line {line}), column {name}: a cell of {len(cell)} characters"
+    finally:
+        csv.field_size_limit(limit)
+    return "the header"
+
+
 def _read_csv(path: Path) -> tuple[list[str], list[list[str]], list[int]]:
+    header: list[str] = []
     try:
         with open(path, newline="", encoding="utf-8") as fh:
             reader = csv.reader(fh)
@@ -84,18 +117,17 @@ def _read_csv(path: Path) -> tuple[list[str], list[list[str]], list[int]]:
             header = [h.strip() for h in header]
             rows, lines = [], []
             n = len(header)
-            for cells in reader:  # cells are stripped per column by the caller
-                if len(cells) != n or n == 1:
-                    if not cells or (len(cells) == 1 and not cells[0].strip()):
-                        continue
-                    if len(cells) != n:
-                        raise ConfigError(f"{path}: row {len(rows) + 1} (line {reader.line_num}): {len(cells)} cells, "
-                                          f"the header has {len(header)}")
+            for cells, line in _rows(reader):
+                if len(cells) != n:
+                    raise ConfigError(f"{path}: row {len(rows) + 1} (line {line}): {len(cells)} cells, the header has {n}")
                 rows.append(cells)
-                lines.append(reader.line_num)
+                lines.append(line)
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a UTF-8 text file") from None
     except csv.Error as e:
+        if "field limit" in str(e):
+            raise ConfigError(f"{path}: {_oversized(path, header)}, over the CSV field limit of "
+                              f"{csv.field_size_limit()} characters") from None
         raise ConfigError(f"{path}: not valid CSV: {e}") from None
     return header, rows, lines
 
@@ -132,6 +164,10 @@ def _numbers(table: str, file: str, name: str, raw: np.ndarray, required: bool, 
     if bad.any():
         i = int(np.argmax(bad))
         raise ConfigError(f"{where(i)}, column {name}: must be a finite number, got {str(raw[i])!r}")
+    huge = np.abs(out) > MAX_MAGNITUDE
+    if huge.any():
+        i = int(np.argmax(huge))
+        raise ConfigError(f"{where(i)}, column {name}: must be at most {MAX_MAGNITUDE:g} in magnitude, got {str(raw[i])!r}")
     return out
 
 
@@ -154,8 +190,9 @@ def read_table(path: Path, table: str) -> Table:
     for h in header:
         if h not in known:
             raise ConfigError(f"{path}: unknown column {h!r} (the {table} table has: {', '.join(known)})")
-    if len(set(header)) != len(header):
-        raise ConfigError(f"{path}: a column is named twice in the header")
+    twice = [h for j, h in enumerate(header) if h in header[:j]]
+    if twice:
+        raise ConfigError(f"{path}: the header names column {twice[0]!r} twice")
     missing = [c for c, _, req in schema if req and c not in cells]
     if missing:
         raise ConfigError(f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)} "

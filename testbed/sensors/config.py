@@ -151,9 +151,9 @@ class UwbConfig:
 
     def __post_init__(self) -> None:
         _fill(self, UWB_PRESETS[self.preset])
+        _check_rate(self)  # first: the slot's message divides by rate_hz
         require(self.schedule.policy == "all" or self.schedule.slot_s * self.rate_hz <= 1, "schedule.slot_s", self.schedule.slot_s,
                 f"one slot must fit in the {1 / self.rate_hz:g} s cycle of rate_hz = {self.rate_hz:g} Hz")
-        _check_rate(self)
         in_range(self, "max_range", 0, lo_open=True, unit="m")
         require(all(0 <= g <= 5 for g in self.los_groups), "los_groups", self.los_groups, f"geom groups are 0..5, got {list(self.los_groups)}")
         for k in ("noise", "clock_ppm", "reply_time", "antenna_delay_sigma", "link_bias_sigma", "nlos_bias_mean", "nlos_bias_per_m", "outlier_sigma"):
