@@ -1,4 +1,4 @@
-"""Provenance: how, where and with what an output was made (`provenance.json`, issue #27).
+"""Provenance: how, where and with what an output was made (`provenance.json`).
 
 Every output directory (run, sweep, reproduction, replay, exported dataset, demo) holds
 `provenance.json`, written by testbed.outdir.Output just before the directory is put in place;

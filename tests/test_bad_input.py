@@ -297,7 +297,7 @@ def test_the_python_api_checks_clearance_like_the_command_line(workdir, capsys):
         testbed.load_scenario("./hover.toml", {path: [0.0, 0.5, 10.0], "world.clearance": "warn"})
 
 
-# ------------------------------------------------------- issue 27 section 5: bad input that still got through
+# ------------------------------------------------------- bad input that still got through (a user found each case)
 
 
 def _one_line(capsys, argv: list[str], code: int = 2) -> str:
@@ -380,7 +380,7 @@ def test_a_range_beyond_the_physical_bound_is_refused_at_load_naming_row_and_col
 
 
 @pytest.mark.parametrize("table, column, value, named", [
-    ("links.csv", "value", "1e308", "at most 1e+10 in magnitude"),  # the issue's case
+    ("links.csv", "value", "1e308", "at most 1e+10 in magnitude"),
     ("poses.csv", "x", "1e308", "at most 1e+10 in magnitude"),
     ("links.csv", "sigma", "1e-300", "at least 1e-09"),
     ("links.csv", "time", "-1e11", "at most 1e+10 in magnitude"),

@@ -199,7 +199,7 @@ def test_metrics_are_strict_json_and_a_missing_score_is_null_with_a_reason(tmp_p
         assert isinstance(est["rmse_position_spp_mean_m"], float) and "rmse_position_spp_mean_m" not in est["null_reasons"]
 
 
-# ----------------------------------------------------------- --out never overlaps an input (issue 27)
+# ----------------------------------------------------------- --out never overlaps an input
 
 PLUGIN = "class Quiet:\n    def __init__(self, context, params):\n        pass\n\n    def process(self, m):\n        return []\n"
 

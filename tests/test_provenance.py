@@ -1,4 +1,4 @@
-"""Provenance (issue #27 section 3): provenance.json in every kind of output, its fields, strict
+"""Provenance: provenance.json in every kind of output, its fields, strict
 JSON, load_run's `provenance`, the git commit and dirty flag, the command carried into workers."""
 from __future__ import annotations
 
