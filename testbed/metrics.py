@@ -37,9 +37,70 @@ def anees(err: np.ndarray, cov: np.ndarray) -> float:
     return float(np.mean(nees(err, cov)))
 
 
-def anees_interval(dof: int, samples: int, level: float = 0.99) -> tuple[float, float]:
-    """Interval a consistent filter's ANEES falls in with probability `level` (independent samples)."""
+def anees_interval(dof: int, samples: float, level: float = 0.99) -> tuple[float, float]:
+    """Interval a consistent filter's ANEES falls in with probability `level`: the chi-square
+    interval of `samples` independent NEES samples of `dof` degrees each (estimators.core.chi2_interval).
+    For the NEES of a filter, whose errors are correlated in time, `samples` is their effective
+    number (effective_samples), not their count (docs/consistency.md)."""
     return chi2_interval(dof, samples, level)
+
+
+def integrated_time(x: np.ndarray) -> float:
+    """Integrated autocorrelation time tau = 1 + 2 sum_{k>=1} rho_k of a stationary series x (T,)
+    in its index (docs/consistency.md): rho_k its sample autocorrelation at lag k (FFT), the sum
+    truncated by Geyer's initial monotone sequence (pairs G_m = rho_2m + rho_2m+1 summed while
+    positive, each capped by the one before). Returns tau >= 1 (1 for a constant series or T < 4)."""
+    x = np.asarray(x, float)
+    n = x.size
+    d = x - x.mean()
+    if n < 4 or not np.any(d):
+        return 1.0
+    f = np.fft.rfft(d, 2 * n)  # zero-padded: the linear, not circular, autocovariance
+    acov = np.fft.irfft(f * np.conj(f), 2 * n)[:n]
+    rho = acov / acov[0]
+    pairs = rho[0 : n - 1 : 2] + rho[1:n:2]  # G_m, m = 0 .. n//2 - 1
+    stop = np.flatnonzero(pairs <= 0)
+    pairs = np.minimum.accumulate(pairs[: stop[0] if stop.size else pairs.size])
+    return max(1.0, float(2 * pairs.sum() - 1))
+
+
+def effective_samples(ne: np.ndarray) -> float:
+    """Effective number of independent samples behind the ANEES (mean of the non-NaN entries) of
+    NEES samples ne (T,) of one target in time order, or (T, m) of m targets at T common instants
+    (NaN: no sample of that target at that instant): n_eff with Var(ANEES) = 2 dof / n_eff for a
+    consistent estimator, so that anees_interval(dof, n_eff) holds (docs/consistency.md):
+
+        n_eff = min(N, T / (tau_y r)),   r = Var(y) / mean_i Var(ne_i)
+
+    y (T,) the per-instant mean over the targets, tau_y its integrated_time, r the share of a
+    single target's variance the per-instant mean keeps (1/m for independent targets, 1 for
+    targets that share their errors: a cooperative filter's), N the number of samples. Scale
+    free: an over-confident filter's NEES, scaled up, gets the same n_eff. 0 for no sample.
+    """
+    x = np.asarray(ne, float).reshape(len(ne), -1)
+    x = x[np.isfinite(x).any(axis=1)]
+    count = int(np.isfinite(x).sum())
+    if count < 2:
+        return float(count)
+    y = np.nanmean(x, axis=1)
+    var = np.nanvar(x, axis=0)
+    r = float(np.var(y) / np.mean(var)) if np.mean(var) > 0 else 1.0
+    return float(min(count, y.size / (integrated_time(y) * max(r, 1.0 / x.shape[1]))))
+
+
+def runs_effective_samples(n_eff: np.ndarray) -> float:
+    """Effective samples of the mean over R independent runs (their own seeds) of per-run ANEES
+    with effective samples n_eff (R,): R^2 / sum(1 / n_eff), from Var = (2 dof / R^2) sum 1/n_eff.
+    Independent-sample arithmetic is right here: runs share no noise (docs/consistency.md)."""
+    n = np.asarray(n_eff, float)
+    return float(n.size**2 / np.sum(1.0 / n))
+
+
+def anees_score(ne: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, tuple[float, float], float]:
+    """(ANEES, its interval at `level`, n_eff) of NEES samples ne (at least one) as for
+    effective_samples."""
+    n_eff = effective_samples(ne)
+    return float(np.nanmean(ne)), anees_interval(dof, n_eff, level), n_eff
 
 
 def anees_run_interval(per_run: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, float]:

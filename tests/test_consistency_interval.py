@@ -1,0 +1,87 @@
+"""The ANEES interval of correlated NEES samples (testbed.metrics.effective_samples, docs/consistency.md).
+
+Errors of a filter are autocorrelated; the chi-square interval that counts every output as an
+independent sample is far too narrow for them. Here the error is an AR(1) Gaussian sequence
+e_k = a e_{k-1} + w_k (3-D) with its exact stationary covariance P = I, so its NEES e^T P^-1 e is
+that of a consistent filter: its ANEES must fall in the interval built on the effective number of
+samples at the stated rate, which the exact binomial (Clopper-Pearson) interval of the count over
+SEQUENCES independent sequences checks; the interval that counts every sample rejects it far more
+often. White noise (a = 0) gets nearly the independent interval.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from testbed.metrics import anees_interval, anees_score, effective_samples, integrated_time, runs_effective_samples
+from testbed.stats import clopper_pearson
+
+SEQUENCES, STEPS, DOF, LEVEL = 400, 2000, 3, 0.99
+
+
+def _ar1(a: float, rng: np.random.Generator, shape=(SEQUENCES, STEPS, DOF)) -> np.ndarray:
+    """AR(1) errors (..., STEPS, DOF) along the steps axis, stationary with covariance I from k = 0."""
+    w = rng.standard_normal(shape) * np.sqrt(1 - a * a)
+    w[:, 0] = rng.standard_normal((shape[0],) + shape[2:])  # e_0 ~ N(0, I): stationary from the start
+    return lfilter([1.0], [1.0, -a], w, axis=1)
+
+
+def _inside(nees: np.ndarray, n: np.ndarray | float) -> int:
+    """How many sequences' ANEES (mean over axis 1) lie in anees_interval(DOF, n, LEVEL)."""
+    m = nees.mean(axis=1)
+    n = np.broadcast_to(n, m.shape)
+    return int(sum(lo <= x <= hi for x, lo, hi in ((x, *anees_interval(DOF, float(k), LEVEL)) for x, k in zip(m, n))))
+
+
+def test_ar1_errors_fall_in_the_correlated_interval_at_the_stated_rate_and_the_independent_one_rejects_them():
+    a = 0.9  # NEES autocorrelation a^(2k): tau = (1 + a^2) / (1 - a^2) = 9.5
+    nees = (_ar1(a, np.random.default_rng(32)) ** 2).sum(axis=-1)  # P = I
+    n_eff = np.array([effective_samples(x) for x in nees])
+    tau = (1 + a * a) / (1 - a * a)
+    assert abs(np.median(STEPS / n_eff) / tau - 1) < 0.1  # the estimated tau is the true one
+    new = clopper_pearson(_inside(nees, n_eff), SEQUENCES, level=0.999, sided="two-sided")
+    old = clopper_pearson(_inside(nees, STEPS), SEQUENCES, level=0.999, sided="two-sided")
+    assert new.interval[0] <= LEVEL <= new.interval[1], new
+    assert old.interval[1] < 0.8, old  # measured 0.59: the independent interval rejects a consistent filter
+
+
+def test_white_nees_gets_nearly_the_independent_interval():
+    nees = (np.random.default_rng(5).standard_normal((SEQUENCES, STEPS, DOF)) ** 2).sum(axis=-1)
+    n_eff = np.array([effective_samples(x) for x in nees])
+    assert np.all(n_eff <= STEPS)
+    # tau - 1 is a sum of a few sample autocorrelations of white noise, each of std 1/sqrt(STEPS)
+    assert np.median(STEPS / n_eff) < 1 + 6 / np.sqrt(STEPS)
+    lo, hi = anees_interval(DOF, float(np.median(n_eff)), LEVEL)
+    lo0, hi0 = anees_interval(DOF, STEPS, LEVEL)
+    assert abs(hi - hi0) < 0.1 * (hi0 - DOF) and abs(lo - lo0) < 0.1 * (DOF - lo0)
+    inside = clopper_pearson(_inside(nees, n_eff), SEQUENCES, level=0.999, sided="two-sided")
+    assert inside.interval[0] <= LEVEL <= inside.interval[1], inside
+
+
+def test_targets_sharing_their_errors_count_once_independent_ones_count_each():
+    """Per-instant samples of m targets: m independent targets give m times the samples of one;
+    m targets with one common error (a cooperative filter's) give those of one."""
+    rng = np.random.default_rng(7)
+    m, a = 6, 0.8
+    e = _ar1(a, rng, (m, STEPS, DOF))  # (m, T, 3): m independent targets
+    indep = (e**2).sum(-1).T  # (T, m)
+    shared = np.repeat(indep[:, :1], m, axis=1)
+    one = effective_samples(indep[:, 0])
+    assert abs(effective_samples(indep) / (m * one) - 1) < 0.25
+    assert effective_samples(shared) == pytest.approx(one)
+    # a target without a sample at an instant (NaN) is left out of that instant's mean
+    holes = indep.copy()
+    holes[::2, 0] = np.nan
+    assert 0.7 * effective_samples(indep) < effective_samples(holes) <= np.isfinite(holes).sum()
+
+
+def test_scale_free_and_edge_cases():
+    nees = (_ar1(0.7, np.random.default_rng(3), (1, 500, DOF))[0] ** 2).sum(-1)
+    assert effective_samples(10 * nees) == pytest.approx(effective_samples(nees))
+    assert integrated_time(np.full(10, 3.0)) == 1.0
+    assert effective_samples(np.array([2.0])) == 1.0
+    val, (lo, hi), n = anees_score(nees, DOF)
+    assert val == pytest.approx(nees.mean()) and lo < DOF < hi and n == effective_samples(nees)
+    assert runs_effective_samples(np.array([100.0, 100.0, 100.0])) == pytest.approx(300.0)
+    assert runs_effective_samples(np.array([10.0, 1000.0])) == pytest.approx(4 / (0.1 + 0.001))
