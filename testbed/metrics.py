@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import t as student_t
 
-from estimators.core import chi2_interval, nees
+from estimators.core import chi2_interval
 
 
 def rmse(err: np.ndarray, axis: int = 0) -> np.ndarray | float:
@@ -30,11 +30,6 @@ def attitude_error_vector(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     """Rotation vector (rad) of R_true^T R_est for rotation matrices (..., 3, 3): (..., 3)."""
     rel = Rotation.from_matrix(np.reshape(np.swapaxes(R_true, -1, -2) @ R_est, (-1, 3, 3)))
     return rel.as_rotvec().reshape(*np.shape(R_est)[:-2], 3)
-
-
-def anees(err: np.ndarray, cov: np.ndarray) -> float:
-    """Average NEES over all samples (and runs): err (..., n), cov (..., n, n)."""
-    return float(np.mean(nees(err, cov)))
 
 
 def anees_interval(dof: int, samples: float, level: float = 0.99) -> tuple[float, float]:
@@ -155,3 +150,36 @@ def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
     if "uwb/served" not in log:
         return None
     return float(log["uwb/served"].sum()) / duration
+
+
+#: Coverage tolerance (s): a truth instant is covered when an estimate lies at most this far from it
+COVERAGE_TOLERANCE_S = 0.5
+
+
+def coverage(truth_time: np.ndarray, time: np.ndarray, tolerance: float = COVERAGE_TOLERANCE_S) -> dict:
+    """How much of a run an estimator covered for one target (docs/consistency.md, "Coverage").
+
+    truth_time (N,) s: the instants the target's truth is known at (sorted); time (K,) s: its
+    estimates' times (sorted). Returns {"coverage": fraction of truth instants with an estimate
+    within `tolerance` s, "coverage_tolerance_s", "rate_hz": the output rate while it estimates,
+    (K - 1) over the span of its estimates (gaps and a late start show in the coverage), and
+    "first_estimate_s": time of the first estimate}; rate_hz is null for fewer than two estimate
+    times, first_estimate_s for no estimate (strict JSON; the reasons under "null_reasons")."""
+    tt, ts = np.asarray(truth_time, float), np.asarray(time, float)
+    out: dict = {"coverage": 0.0, "coverage_tolerance_s": tolerance, "rate_hz": None, "first_estimate_s": None}
+    why = {}
+    if ts.size:
+        j = np.clip(np.searchsorted(ts, tt), 1, max(ts.size - 1, 1))
+        near = np.minimum(np.abs(tt - ts[j - 1]), np.abs(ts[np.minimum(j, ts.size - 1)] - tt))
+        out["coverage"] = float(np.mean(near <= tolerance)) if tt.size else 0.0
+        out["first_estimate_s"] = float(ts[0])
+    else:
+        why["first_estimate_s"] = "no estimate"
+    span = float(ts[-1] - ts[0]) if ts.size > 1 else 0.0
+    if span > 0:
+        out["rate_hz"] = (ts.size - 1) / span
+    else:
+        why["rate_hz"] = "fewer than two estimate times"
+    if why:
+        out["null_reasons"] = why
+    return out

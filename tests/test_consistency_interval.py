@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from testbed.metrics import anees_interval, anees_score, effective_samples, integrated_time, runs_effective_samples
+from testbed.metrics import (COVERAGE_TOLERANCE_S, anees_interval, anees_score, coverage, effective_samples,
+                             integrated_time, runs_effective_samples)
 from testbed.stats import clopper_pearson
 
 SEQUENCES, STEPS, DOF, LEVEL = 400, 2000, 3, 0.99
@@ -85,3 +86,20 @@ def test_scale_free_and_edge_cases():
     assert val == pytest.approx(nees.mean()) and lo < DOF < hi and n == effective_samples(nees)
     assert runs_effective_samples(np.array([100.0, 100.0, 100.0])) == pytest.approx(300.0)
     assert runs_effective_samples(np.array([10.0, 1000.0])) == pytest.approx(4 / (0.1 + 0.001))
+
+
+def test_coverage_counts_the_truth_instants_near_an_estimate():
+    """Truth at 100 Hz over 10 s, estimates at 2 Hz from 4 s on, with a gap from 6 to 8 s: covered
+    are the instants within 0.5 s of an estimate, from 3.5 s on minus the gap's inside."""
+    truth = np.arange(1001) / 100.0
+    est = np.concatenate([np.arange(4.0, 6.01, 0.5), np.arange(8.0, 10.01, 0.5)])
+    c = coverage(truth, est)
+    expected = np.mean([any(abs(t - e) <= 0.5 + 1e-12 for e in est) for t in truth])
+    assert c["coverage"] == pytest.approx(expected, abs=2e-3)  # the 1e-12 at the ends: one instant each
+    assert c["rate_hz"] == pytest.approx((est.size - 1) / 6.0) and c["first_estimate_s"] == 4.0
+    assert c["coverage_tolerance_s"] == COVERAGE_TOLERANCE_S == 0.5
+    full = coverage(truth, np.arange(0.0, 10.01, 1.0))
+    assert full["coverage"] == 1.0 and full["rate_hz"] == pytest.approx(1.0)
+    none = coverage(truth, np.zeros(0))
+    assert none["coverage"] == 0.0 and none["rate_hz"] is None and none["first_estimate_s"] is None
+    assert set(none["null_reasons"]) == {"rate_hz", "first_estimate_s"}
