@@ -91,11 +91,13 @@ def runs_effective_samples(n_eff: np.ndarray) -> float:
     return float(n.size**2 / np.sum(1.0 / n))
 
 
-def anees_score(ne: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, tuple[float, float], float]:
-    """(ANEES, its interval at `level`, n_eff) of NEES samples ne (at least one) as for
-    effective_samples."""
+def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99) -> dict:
+    """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of
+    effective_samples): {key: the mean of the samples, KEY_interval_PCT: its interval at `level`
+    (PCT = 100 level, e.g. anees_interval_99), the key with "anees" -> "n_eff": effective_samples}."""
     n_eff = effective_samples(ne)
-    return float(np.nanmean(ne)), anees_interval(dof, n_eff, level), n_eff
+    return {key: float(np.nanmean(ne)), f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
+            key.replace("anees", "n_eff"): n_eff}
 
 
 def anees_run_interval(per_run: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, float]:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from testbed.metrics import (COVERAGE_TOLERANCE_S, anees_interval, anees_score, coverage, effective_samples,
+from testbed.metrics import (COVERAGE_TOLERANCE_S, anees_interval, anees_keys, coverage, effective_samples,
                              integrated_time, runs_effective_samples)
 from testbed.stats import clopper_pearson
 
@@ -82,8 +82,9 @@ def test_scale_free_and_edge_cases():
     assert effective_samples(10 * nees) == pytest.approx(effective_samples(nees))
     assert integrated_time(np.full(10, 3.0)) == 1.0
     assert effective_samples(np.array([2.0])) == 1.0
-    val, (lo, hi), n = anees_score(nees, DOF)
-    assert val == pytest.approx(nees.mean()) and lo < DOF < hi and n == effective_samples(nees)
+    keys = anees_keys(nees, DOF, "anees_position", 0.95)
+    assert keys["anees_position"] == pytest.approx(nees.mean()) and keys["n_eff_position"] == effective_samples(nees)
+    assert keys["anees_position_interval_95"] == list(anees_interval(DOF, effective_samples(nees), 0.95))
     assert runs_effective_samples(np.array([100.0, 100.0, 100.0])) == pytest.approx(300.0)
     assert runs_effective_samples(np.array([10.0, 1000.0])) == pytest.approx(4 / (0.1 + 0.001))
 

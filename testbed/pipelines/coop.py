@@ -267,7 +267,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
 def score(est: CoopEstimates) -> dict:
     """The `estimators` object of metrics.json (see the module docstring for the keys)."""
     # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
-    from testbed.metrics import anees_score, effective_samples, network_summary, rmse
+    from testbed.metrics import anees_keys, effective_samples, network_summary, rmse
 
     ep = est.epochs
     K, n = ep.gnss.shape[:2]
@@ -279,7 +279,6 @@ def score(est: CoopEstimates) -> dict:
         ne = nees(err, est.cov[w])  # (K, N)
         # the epochs of a run are correlated (shared radios, slow GNSS errors), and so are the
         # vehicles of one epoch: the interval counts the effective samples (docs/consistency.md)
-        val, interval, n_eff = anees_score(ne, 3)
         s = {
             "rmse_position_m": [float(x) for x in per_uav],
             "rmse_position_mean_m": float(np.mean(per_uav)),
@@ -291,11 +290,9 @@ def score(est: CoopEstimates) -> dict:
             "nonconverged_steps": int(np.count_nonzero(~est.converged[w])),
             "messages_per_epoch": float(np.mean(est.messages[w])),
             "bytes_per_epoch": float(np.mean(est.bytes[w])),
-            "anees": val,
+            **anees_keys(ne, 3),
             "anees_spp": _masked_mean(ne, spp),
             "anees_rtk": _masked_mean(ne, ~spp),
-            "anees_interval_99": list(interval),
-            "n_eff": n_eff,
             "n_eff_spp": effective_samples(ne[:, spp]) if spp.any() else None,
             "epochs": int(K),
         }
@@ -309,9 +306,8 @@ def score(est: CoopEstimates) -> dict:
         if w in est.network:
             s["network"] = network_summary(est.network[w])
         if w == "centralized":
-            s["anees_joint"], interval, s["n_eff_joint"] = anees_score(est.joint_nees, 3 * n)
+            s.update(anees_keys(est.joint_nees, 3 * n, "anees_joint"))
             s["anees_joint_dof"] = 3 * n
-            s["anees_joint_interval_99"] = list(interval)
         out[w] = s
     nl = np.concatenate(ep.nlos) if ep.nlos else np.zeros(0, bool)
     out["iterated"]["nlos_fraction"] = float(nl.mean()) if nl.size else 0.0

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from estimators.core import nees
-from testbed.metrics import anees_interval, anees_score, coverage, effective_samples, rmse
+from testbed.metrics import anees_keys, coverage, rmse
 from testbed.plugins.collect import Series, Track, natural
 from testbed.plugins.truth import Truth, errors
 
@@ -64,17 +64,21 @@ def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.nd
     out = {"samples": int(s.time.size), f"rmse_{u}": rmse(err) * k, f"rmse_axis_{u}": [x * k for x in _axis(err)]}
     ne = nees(err[s.has_cov], s.cov[s.has_cov]) if s.has_cov.any() else np.zeros(0)
     if ne.size:
-        val, interval, n_eff = anees_score(ne, 3, 0.95)
-        out.update({"anees": val, "anees_interval_95": list(interval), "nees_samples": int(ne.size), "n_eff": n_eff})
+        out.update({**anees_keys(ne, 3, "anees", 0.95), "nees_samples": int(ne.size)})
     return out, ne
 
 
 def _by_instant(rows: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """(T, m) values of m series [(time (k,), value (k,))] at their T distinct instants, NaN where
-    a series has none (effective_samples' layout)."""
-    t = np.unique(np.concatenate([r[0] for r in rows]))
-    out = np.full((t.size, len(rows)), np.nan)
-    for i, (ti, v) in enumerate(rows):
+    """(T, m) values of series [(time (k,) sorted, value (k,))] at their T distinct instants, NaN
+    where a column has none (effective_samples' layout): a column per series, and one more for
+    each further sample a series has at one instant."""
+    cols = []
+    for ti, v in rows:
+        occurrence = np.arange(ti.size) - np.searchsorted(ti, ti)  # 0 for the first sample at a time
+        cols += [(ti[occurrence == o], v[occurrence == o]) for o in range(int(occurrence.max()) + 1)]
+    t = np.unique(np.concatenate([c[0] for c in cols]))
+    out = np.full((t.size, len(cols)), np.nan)
+    for i, (ti, v) in enumerate(cols):
         out[np.searchsorted(t, ti), i] = v
     return out
 
@@ -110,10 +114,7 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
         out[f"coverage_{q}"] = float(np.mean([r[4] for r in rows]))
         with_cov = [(r[3], r[1]) for r in rows if r[1].size]
         if with_cov:
-            n_eff = effective_samples(_by_instant(with_cov))
-            out[f"anees_{q}"] = float(np.mean(np.concatenate([r[1] for r in with_cov])))
-            out[f"anees_{q}_interval_95"] = list(anees_interval(3, n_eff, 0.95))
-            out[f"n_eff_{q}"] = n_eff
+            out.update(anees_keys(_by_instant(with_cov), 3, f"anees_{q}", 0.95))
         if q in pcrb:
             out[f"pcrb_rmse_{q}_{u}"] = pcrb[q]
     out["targets"] = targets
