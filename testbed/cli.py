@@ -320,14 +320,16 @@ def _dispatch(args: argparse.Namespace) -> int:
         return 0
     if args.command == "replay":
         from testbed.replay.run import replay
-        from testbed.report import fmt
+        from testbed.report import fmt, fmt_anees
 
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
         print(f"{args.spec} -> {args.out}  ({sum(metrics['measurements'].values())} measurements, "
               f"truth {'yes' if metrics['truth'] else 'no'})")
         for name, est in metrics["estimators"].items():
-            keys = [k for k in est if k.startswith(("rmse_", "anees_")) and not k.endswith("interval_95")]
-            print(f"  {name}: " + (", ".join(f"{k} {fmt(est[k])}" for k in keys) or f"{est.get('estimates', 0)} estimates"))
+            # every ANEES with its interval and effective samples (docs/consistency.md)
+            scores = [f"{k} {fmt_anees(est, k) if k.startswith('anees_') else fmt(est[k])}" for k in est
+                      if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k]
+            print(f"  {name}: " + (", ".join(scores) or f"{est.get('estimates', 0)} estimates"))
         return 0
     if args.command == "export":
         from testbed.replay.export import export

@@ -154,6 +154,19 @@ def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
     return float(log["uwb/served"].sum()) / duration
 
 
+def anees_over_runs(runs: list[dict], key: str, dof: int, level: float = 0.99) -> dict:
+    """anees_keys of the mean over independent runs (their own seeds) of per-run ANEES: runs, each
+    run's keys as anees_keys wrote them (KEY and its n_eff key); the effective samples combined
+    by runs_effective_samples. Runs without the key are left out; {} if none has it."""
+    have = [r for r in runs if r.get(key) is not None]
+    if not have:
+        return {}
+    n_eff = runs_effective_samples(np.array([r[key.replace("anees", "n_eff")] for r in have]))
+    return {key: float(np.mean([r[key] for r in have])),
+            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
+            key.replace("anees", "n_eff"): n_eff}
+
+
 #: Coverage tolerance (s): a truth instant is covered when an estimate lies at most this far from it
 COVERAGE_TOLERANCE_S = 0.5
 

@@ -52,7 +52,7 @@ from testbed.log import load_log
 from testbed.metrics import anees_interval, anees_run_interval, mean_ci, runs_effective_samples
 from testbed.pipelines import coop
 from testbed.plots import compare_bars
-from testbed.report import Claim, Undefined, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, \
+from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, write_claims, write_csv, \
     write_markdown
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.scenario import Scenario, load
@@ -314,7 +314,8 @@ def decide(res: CoopResults) -> list[Claim]:
     # (runs_effective_samples) and the spread of their values gives an interval of its own
     corr = anees_interval(3 * n, runs_effective_samples([e["centralized"]["n_eff_joint"] for e in est]))
     jlo, jhi = anees_run_interval(joint_runs, 3 * n) if runs > 1 else corr
-    hi3 = anees_interval(3, runs_effective_samples([e["iterated"]["n_eff_spp"] for e in est]))[1]
+    it3, c3 = (anees_interval(3, runs_effective_samples([e[w]["n_eff_spp"] for e in est])) for w in ("iterated", "centralized"))
+    hi3 = it3[1]
     # the exact signed-rank test's smallest p-value is 2^-runs: below that many runs it cannot reach alpha
     min_runs = math.ceil(math.log2(1 / alpha))
     test_note = (f"one-sided Wilcoxon signed-rank test per UAV over {runs} paired runs, alpha = 0.01/{n}" if runs > 1
@@ -359,7 +360,8 @@ def decide(res: CoopResults) -> list[Claim]:
                    "over-confident",
               numbers={"anees_spp_iterated": anees_it, "anees_spp_centralized": anees_c,
                        "anees_joint_centralized": jn, "joint_dof": 3 * n,
-                       "interval_99_upper_3dof": hi3, "joint_interval_99": [jlo, jhi],
+                       "interval_99_upper_3dof": hi3, "interval_99_3dof_iterated": list(it3),
+                       "interval_99_3dof_centralized": list(c3), "joint_interval_99": [jlo, jhi],
                        "joint_interval_99_effective_epochs": list(corr),
                        "anees_joint_centralized_per_run": [float(x) for x in joint_runs],
                        "anees_iterated_run0": est[0]["iterated"]["anees"],
@@ -370,7 +372,8 @@ def decide(res: CoopResults) -> list[Claim]:
                         "joint ANEES (runs independent, epochs of a run not: Student t, runs - 1 dof; with 1 run the "
                         "chi-square interval of the run's effective epochs)",
               holds=bool(anees_it > hi3 and jlo <= jn <= jhi),
-              summary=f"ANEES iterated {fmt(anees_it)} vs centralized {fmt(anees_c)} (3 dof); joint {fmt(jn)} in "
+              summary=f"ANEES iterated {fmt_ci(anees_it, *it3)} vs centralized {fmt_ci(anees_c, *c3)} (3 dof, 99 %); "
+                      f"joint {fmt(jn)} in "
                       f"({fmt(jlo)}, {fmt(jhi)})", paper_value="(open question)",
               test=f"iterated ANEES {fmt(anees_it)} against the chi-square 99 % upper limit {fmt(hi3)} (3 dof); "
                    f"statistic and interval: the centralized joint ANEES ({3 * n} dof) and its Student t 99 % "
@@ -412,11 +415,11 @@ def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
                          + [["mean", *mean_row, "", "", "", *(float(np.nanmean(res.plugins[k])) for k in plug)]])
     agg = res.metrics[0]["estimators"]
     md += ["", "Run 0: " + "; ".join(f"{w}: {fmt(agg[w]['iterations_mean'])} iterations/epoch, "
-                                     f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt(agg[w]['anees'])}"
+                                     f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt_anees(agg[w])}"
                                      for w in VARIANTS), ""]
     if plug:  # plugin estimators (--estimator): their own scores, same runs
         md[-1:-1] = ["Plugin estimators, run 0: " + "; ".join(
-            f"{k}: mean RMSE {fmt(agg[k].get('rmse_position_mean_m'))} m, ANEES {fmt(agg[k].get('anees_position'))}"
+            f"{k}: mean RMSE {fmt(agg[k].get('rmse_position_mean_m'))} m, ANEES {fmt_anees(agg[k], 'anees_position') or 'n/a'}"
             for k in plug)]
     md += claims_section(claims)
     cap = res.cap
