@@ -334,9 +334,10 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                f"the q_rotation whose final attitude NEES (6 dof) is closest to 6. A consistent filter's mean "
                f"final NEES over the {n_cal} seeds lies in {fmt(list(anees_interval(6, n_cal)))} (99 %; one NEES "
                f"per seed, and seeds share no noise: independent samples).", ""]
-        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", "ANEES at each q",
+        within = fmt(list(anees_interval(6, n_cal)))  # one final NEES per seed: independent (above)
+        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", f"ANEES at each q {within}",
                               "q_rotation of the scenario [rad^2/s^3]", "q_rotation of the rule",
-                              "attitude ANEES at each q_rotation"],
+                              f"attitude ANEES at each q_rotation {within}"],
                              [[n, f"{v['q_scenario']:g}", f"{v['q_rule']:g}",
                                ", ".join(f"{q}: {a:.2f}" for q, a in v["anees_by_q"].items()),
                                f"{v['q_rotation_scenario']:g}", f"{v['q_rotation_rule']:g}",
