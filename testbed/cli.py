@@ -328,7 +328,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         for name, est in metrics["estimators"].items():
             # every ANEES with its interval and effective samples (docs/consistency.md)
             scores = [f"{k} {fmt_anees(est, k) if k.startswith('anees_') else fmt(est[k])}" for k in est
-                      if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k]
+                      if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k and not k.endswith("_dof")]
             print(f"  {name}: " + (", ".join(scores) or f"{est.get('estimates', 0)} estimates"))
         return 0
     if args.command == "export":

@@ -93,10 +93,12 @@ def runs_effective_samples(n_eff: np.ndarray) -> float:
 
 def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99) -> dict:
     """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of
-    effective_samples): {key: the mean of the samples, KEY_interval_PCT: its interval at `level`
-    (PCT = 100 level, e.g. anees_interval_99), the key with "anees" -> "n_eff": effective_samples}."""
+    effective_samples): {key: the mean of the samples, KEY_dof: dof, KEY_interval_PCT: its
+    interval at `level` (PCT = 100 level, e.g. anees_interval_99), the key with "anees" -> "n_eff":
+    effective_samples}."""
     n_eff = effective_samples(ne)
-    return {key: float(np.nanmean(ne)), f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
+    return {key: float(np.nanmean(ne)), f"{key}_dof": dof,
+            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
             key.replace("anees", "n_eff"): n_eff}
 
 
@@ -154,15 +156,16 @@ def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
     return float(log["uwb/served"].sum()) / duration
 
 
-def anees_over_runs(runs: list[dict], key: str, dof: int, level: float = 0.99) -> dict:
+def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
     """anees_keys of the mean over independent runs (their own seeds) of per-run ANEES: runs, each
-    run's keys as anees_keys wrote them (KEY and its n_eff key); the effective samples combined
-    by runs_effective_samples. Runs without the key are left out; {} if none has it."""
+    run's keys as anees_keys wrote them (KEY, KEY_dof and the n_eff key); the effective samples
+    combined by runs_effective_samples. Runs without the key are left out; {} if none has it."""
     have = [r for r in runs if r.get(key) is not None]
     if not have:
         return {}
+    dof = have[0][f"{key}_dof"]
     n_eff = runs_effective_samples(np.array([r[key.replace("anees", "n_eff")] for r in have]))
-    return {key: float(np.mean([r[key] for r in have])),
+    return {key: float(np.mean([r[key] for r in have])), f"{key}_dof": dof,
             f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
             key.replace("anees", "n_eff"): n_eff}
 

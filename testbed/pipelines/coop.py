@@ -307,7 +307,6 @@ def score(est: CoopEstimates) -> dict:
             s["network"] = network_summary(est.network[w])
         if w == "centralized":
             s.update(anees_keys(est.joint_nees, 3 * n, "anees_joint"))
-            s["anees_joint_dof"] = 3 * n
         out[w] = s
     nl = np.concatenate(ep.nlos) if ep.nlos else np.zeros(0, bool)
     out["iterated"]["nlos_fraction"] = float(nl.mean()) if nl.size else 0.0

@@ -319,7 +319,6 @@ def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true
         "position_error_final_m": e[-1, :3].tolist(),
         "sigma_position_final_m": np.sqrt(np.diag(Ppv[-1])[:3]).tolist(),
         **anees_keys(nees6[sc], 6),
-        "anees_dof": 6,
         **anees_keys(nees18[sc], 18, "anees_state18"),
         **anees_keys(nees6_act[sc], 6, "anees_body6_actual_cov"),
         "nees_final": float(nees18[-1]),

@@ -247,7 +247,6 @@ def metrics_of(track: Track, sc: Scored) -> dict:
         "rmse_velocity_mps": rmse(sc.err[:, 3:6]),
         "rmse_attitude_deg": float(np.sqrt(np.mean(sc.att_deg ** 2))),
         **anees_keys(sc.nees, 9),
-        "anees_dof": 9,
         "time_per_step_ms": 1e3 * (predict_s + update_s) / max(E, 1),
         "predict_per_epoch_ms": 1e3 * predict_s / max(E, 1),
         "update_ms": 1e3 * update_s / max(E, 1),

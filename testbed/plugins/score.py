@@ -2,7 +2,7 @@
 
 Per (target, quantity), at the estimate times against interpolated truth (testbed.plugins.truth):
 RMSE total (root mean of |e|^2) and per axis; with a covariance, NEES e^T P^-1 e per sample, their
-mean (ANEES, 3 dof), `n_eff` the effective number of independent samples behind it and
+mean (ANEES, `anees_dof` = 3), `n_eff` the effective number of independent samples behind it and
 `anees_interval_95` the two-sided 95 % interval of a consistent estimator's ANEES over n_eff
 samples (testbed.metrics.effective_samples: a filter's errors are correlated in time,
 docs/consistency.md); coverage (testbed.metrics.coverage): `coverage` the fraction of the

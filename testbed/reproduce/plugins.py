@@ -39,7 +39,7 @@ def table(groups: dict[str, list[dict]], keys: list[str]) -> tuple[list[str], li
         for k in keys:
             scores = [r[k] for r in runs]
             rows.append({"group": label, "estimator": k, "runs": len(scores),
-                         **{c: _stats(scores, c) for c, _ in COLUMNS}, ANEES: anees_over_runs(scores, ANEES, 3, 0.95)})
+                         **{c: _stats(scores, c) for c, _ in COLUMNS}, ANEES: anees_over_runs(scores, ANEES, 0.95)})
     cols = [c for c, _ in COLUMNS if any(r[c] is not None for r in rows)]
     return cols, rows
 

@@ -178,7 +178,7 @@ def summarize(results: list[dict], case: str) -> dict:
         for key, _, _ in QUANTITIES:
             m, lo, hi = mean_ci(_col(results, case, name, key))
             row[key] = {"mean": m, "lo": lo, "hi": hi}
-        row["anees"] = anees_over_runs([r[case]["metrics"][name] for r in results], "anees", 9)
+        row["anees"] = anees_over_runs([r[case]["metrics"][name] for r in results], "anees")
         row["time_per_step_ms"] = float(np.mean(_col(results, case, name, "time_per_step_ms")))
         row["finite_runs"] = int(np.sum(_col(results, case, name, "finite")))
         table[name] = row
