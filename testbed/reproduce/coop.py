@@ -52,8 +52,8 @@ from testbed.log import load_log
 from testbed.metrics import anees_interval, anees_run_interval, mean_ci, runs_effective_samples
 from testbed.pipelines import coop
 from testbed.plots import compare_bars
-from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, write_claims, write_csv, \
-    write_markdown
+from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
+    write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.scenario import Scenario, load
 from testbed.simulate import simulate
@@ -314,7 +314,8 @@ def decide(res: CoopResults) -> list[Claim]:
     # (runs_effective_samples) and the spread of their values gives an interval of its own
     corr = anees_interval(3 * n, runs_effective_samples([e["centralized"]["n_eff_joint"] for e in est]))
     jlo, jhi = anees_run_interval(joint_runs, 3 * n) if runs > 1 else corr
-    it3, c3 = (anees_interval(3, runs_effective_samples([e[w]["n_eff_spp"] for e in est])) for w in ("iterated", "centralized"))
+    it3, c3 = (anees_interval(3, runs_effective_samples([e[w]["n_eff_spp"] for e in est]))
+               for w in ("iterated", "centralized"))
     hi3 = it3[1]
     # the exact signed-rank test's smallest p-value is 2^-runs: below that many runs it cannot reach alpha
     min_runs = math.ceil(math.log2(1 / alpha))
@@ -419,7 +420,8 @@ def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
                                      for w in VARIANTS), ""]
     if plug:  # plugin estimators (--estimator): their own scores, same runs
         md[-1:-1] = ["Plugin estimators, run 0: " + "; ".join(
-            f"{k}: mean RMSE {fmt(agg[k].get('rmse_position_mean_m'))} m, ANEES {fmt_anees(agg[k], 'anees_position') or 'n/a'}"
+            f"{k}: mean RMSE {fmt(agg[k].get('rmse_position_mean_m'))} m, "
+            f"ANEES {fmt_anees(agg[k], 'anees_position') or 'n/a'}"
             for k in plug)]
     md += claims_section(claims)
     cap = res.cap

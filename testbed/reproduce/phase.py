@@ -50,8 +50,8 @@ from testbed import scenario as scenario_mod
 from testbed.metrics import anees_interval, anees_over_runs, mean_ci
 from testbed.pipelines.phase import window_keys
 from testbed.plots import compare_bars, figure, save
-from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, write_csv, \
-    write_markdown
+from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, \
+    write_csv, write_markdown
 from testbed.reproduce import phase_q
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs

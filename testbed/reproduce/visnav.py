@@ -49,8 +49,8 @@ from testbed import scenario as scenario_mod
 from testbed.metrics import anees_over_runs, mean_ci
 from testbed.pipelines.visnav import metrics_of, run_all
 from testbed.plots import compare_bars, error_envelope, save
-from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, write_json, \
-    write_markdown
+from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \
+    write_json, write_markdown
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.reproduce import plugins as plugin_rows
