@@ -65,12 +65,15 @@ def effective_samples(ne: np.ndarray) -> float:
     (NaN: no sample of that target at that instant): n_eff with Var(ANEES) = 2 dof / n_eff for a
     consistent estimator, so that anees_interval(dof, n_eff) holds (docs/consistency.md):
 
-        n_eff = min(N, T / (tau_y r)),   r = Var(y) / mean_i Var(ne_i)
+        n_eff = min(N, T / (tau_y r), sum_i T_i / tau_i),   r = Var(y) / mean_i Var(ne_i)
 
     y (T,) the per-instant mean over the targets, tau_y its integrated_time, r the share of a
     single target's variance the per-instant mean keeps (1/m for independent targets, 1 for
-    targets that share their errors: a cooperative filter's), N the number of samples. Scale
-    free: an over-confident filter's NEES, scaled up, gets the same n_eff. 0 for no sample.
+    targets that share their errors: a cooperative filter's), N the number of samples; T_i / tau_i
+    the effective samples of target i alone, whose sum (the targets taken as independent) bounds
+    n_eff when the targets' instants do not coincide (then y interleaves them and hides their own
+    correlation). Scale free: an over-confident filter's NEES, scaled up, gets the same n_eff.
+    0 for no sample.
     """
     x = np.asarray(ne, float).reshape(len(ne), -1)
     x = x[np.isfinite(x).any(axis=1)]
@@ -80,7 +83,8 @@ def effective_samples(ne: np.ndarray) -> float:
     y = np.nanmean(x, axis=1)
     var = np.nanvar(x, axis=0)
     r = float(np.var(y) / np.mean(var)) if np.mean(var) > 0 else 1.0
-    return float(min(count, y.size / (integrated_time(y) * max(r, 1.0 / x.shape[1]))))
+    alone = sum(col[np.isfinite(col)].size / integrated_time(col[np.isfinite(col)]) for col in x.T)
+    return float(min(count, y.size / (integrated_time(y) * max(r, 1.0 / x.shape[1])), alone))
 
 
 def runs_effective_samples(n_eff: np.ndarray) -> float:

@@ -75,6 +75,11 @@ def test_targets_sharing_their_errors_count_once_independent_ones_count_each():
     holes = indep.copy()
     holes[::2, 0] = np.nan
     assert 0.7 * effective_samples(indep) < effective_samples(holes) <= np.isfinite(holes).sum()
+    # targets whose instants never coincide (one sample per row): still about m times one, not T m
+    staggered = np.full((STEPS * m, m), np.nan)
+    for i in range(m):
+        staggered[i::m, i] = indep[:, i]
+    assert abs(effective_samples(staggered) / (m * one) - 1) < 0.25
 
 
 def test_scale_free_and_edge_cases():
