@@ -48,8 +48,9 @@ score exists only when the run covers its window (t_last - t_first >= W): on a s
 omitted (`last_window_s` and `last_window_omitted_reason` say so), never computed over a shorter
 span under the longer name (`window_keys` gives the names for a W); anees: mean over t >= score_start of the NEES
 of the body position and velocity (6 dof, linear in the state, so its covariance is exact);
-anees_state18: the same for the 18-state; each with its 99 % interval (`anees_interval_99`, ...)
-over its effective samples (`n_eff`, ...: the epochs' errors are correlated, docs/consistency.md); nees_final, nees_body6_final, nees_attitude6_final: the
+anees_state18: the same for the 18-state; each with its dof (`anees_dof`, ...) and its 99 %
+interval (`anees_interval_99`, ...) over its effective samples (`n_eff`, ...: the epochs' errors
+are correlated, docs/consistency.md); nees_final, nees_body6_final, nees_attitude6_final: the
 final epoch's NEES of the 18-state, of the body position and velocity (6 dof) and of the attitude
 and its rates (yaw, pitch, roll and their rates, 6 dof, eq. 30 linearized: `attitude_nees`);
 pcrb_rmse_position_m: sqrt of the mean over the same

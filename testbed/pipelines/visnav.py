@@ -25,10 +25,10 @@ Initial estimate: the relative navigation state at t = 0 is truth + a draw from 
 covariance (stream "init", the same draw for every filter); the biases start at their nominal 0
 with the configured prior std. Scores (per filter, at every camera epoch after the update):
 RMSE of the relative position (m), velocity (m/s) and attitude (deg, on SO(3) by
-testbed.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e) with its
-99 % interval over its effective samples (`anees_interval_99`, `n_eff`: docs/consistency.md), and the
-wall time per camera epoch (one update and its predicts). The wall time is the only part of
-metrics.json that is not bit-identical between two runs of the same seed.
+testbed.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e;
+`anees_dof` 9) with its 99 % interval over its effective samples (`anees_interval_99`, `n_eff`:
+docs/consistency.md), and the wall time per camera epoch (one update and its predicts). The wall
+time is the only part of metrics.json that is not bit-identical between two runs of the same seed.
 """
 from __future__ import annotations
 

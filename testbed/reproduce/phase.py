@@ -328,13 +328,13 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
         cal, horizon, long, rot = calibration
         rule = _q_rule(cal, rot, motion)
         n_cal = len({r["seed"] for rows_ in cal.values() for r in rows_})
+        within = fmt(list(anees_interval(6, n_cal)))  # one final NEES per seed, seeds share no noise: independent
         md += [f"Process noise q (testbed.reproduce.phase_q): the rule's q = the grid value whose final body NEES at "
                f"{horizon:g} s, mean over calibration seeds {phase_q.CALIBRATION_SEEDS[0]}.."
                f"{phase_q.CALIBRATION_SEEDS[n_cal - 1]}, is closest to 6 (plots/q_sweep.png); stage 2, with that q: "
                f"the q_rotation whose final attitude NEES (6 dof) is closest to 6. A consistent filter's mean "
-               f"final NEES over the {n_cal} seeds lies in {fmt(list(anees_interval(6, n_cal)))} (99 %; one NEES "
-               f"per seed, and seeds share no noise: independent samples).", ""]
-        within = fmt(list(anees_interval(6, n_cal)))  # one final NEES per seed: independent (above)
+               f"final NEES over the {n_cal} seeds lies in {within} (99 %; one NEES per seed, and seeds share no "
+               f"noise: independent samples).", ""]
         md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", f"ANEES at each q {within}",
                               "q_rotation of the scenario [rad^2/s^3]", "q_rotation of the rule",
                               f"attitude ANEES at each q_rotation {within}"],
