@@ -59,11 +59,13 @@ def integrated_time(x: np.ndarray) -> float:
     return max(1.0, float(2 * pairs.sum() - 1))
 
 
-def effective_samples(ne: np.ndarray) -> float:
-    """Effective number of independent samples behind the ANEES (mean of the non-NaN entries) of
+def effective_samples(ne: np.ndarray, instant: np.ndarray | None = None, target: np.ndarray | None = None) -> float:
+    """Effective number of independent samples behind the ANEES (mean of the finite entries) of
     NEES samples ne (T,) of one target in time order, or (T, m) of m targets at T common instants
-    (NaN: no sample of that target at that instant): n_eff with Var(ANEES) = 2 dof / n_eff for a
-    consistent estimator, so that anees_interval(dof, n_eff) holds (docs/consistency.md):
+    (NaN: no sample of that target at that instant), or (N,) samples with instant (N,) int, the
+    index of each sample's instant in time order, and target (N,) int, its target's (the same
+    layout without the T x m array): n_eff with Var(ANEES) = 2 dof / n_eff for a consistent
+    estimator, so that anees_interval(dof, n_eff) holds (docs/consistency.md):
 
         n_eff = min(N, T / (tau_y r), sum_i T_i / tau_i),   r = Var(y) / mean_i Var(ne_i)
 
@@ -75,16 +77,23 @@ def effective_samples(ne: np.ndarray) -> float:
     correlation). Scale free: an over-confident filter's NEES, scaled up, gets the same n_eff.
     0 for no sample.
     """
-    x = np.asarray(ne, float).reshape(len(ne), -1)
-    x = x[np.isfinite(x).any(axis=1)]
-    count = int(np.isfinite(x).sum())
-    if count < 2:
-        return float(count)
-    y = np.nanmean(x, axis=1)
-    var = np.nanvar(x, axis=0)
-    r = float(np.var(y) / np.mean(var)) if np.mean(var) > 0 else 1.0
-    alone = sum(col[np.isfinite(col)].size / integrated_time(col[np.isfinite(col)]) for col in x.T)
-    return float(min(count, y.size / (integrated_time(y) * max(r, 1.0 / x.shape[1])), alone))
+    x = np.asarray(ne, float)
+    if instant is None:
+        x = x.reshape(len(x), -1)
+        instant, target = np.nonzero(np.isfinite(x))
+        x = x[instant, target]
+    keep = np.isfinite(x)
+    x, instant, target = x[keep], np.asarray(instant)[keep], np.asarray(target)[keep]
+    if x.size < 2:
+        return float(x.size)
+    _, at = np.unique(instant, return_inverse=True)
+    y = np.bincount(at, x) / np.bincount(at)  # (T,) the per-instant mean
+    order = np.lexsort((instant, target))  # by target, each in time order
+    series = np.split(x[order], np.flatnonzero(np.diff(target[order])) + 1)
+    var = np.array([s.var() for s in series])
+    r = float(np.var(y) / var.mean()) if var.mean() > 0 else 1.0
+    alone = sum(s.size / integrated_time(s) for s in series)
+    return float(min(x.size, y.size / (integrated_time(y) * max(r, 1.0 / len(series))), alone))
 
 
 def runs_effective_samples(n_eff: np.ndarray) -> float:
@@ -95,12 +104,12 @@ def runs_effective_samples(n_eff: np.ndarray) -> float:
     return float(n.size**2 / np.sum(1.0 / n))
 
 
-def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99) -> dict:
+def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99, **layout) -> dict:
     """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of
-    effective_samples): {key: the mean of the samples, KEY_dof: dof, KEY_interval_PCT: its
-    interval at `level` (PCT = 100 level, e.g. anees_interval_99), the key with "anees" -> "n_eff":
-    effective_samples}."""
-    n_eff = effective_samples(ne)
+    effective_samples, `layout` its instant and target): {key: the mean of the samples, KEY_dof:
+    dof, KEY_interval_PCT: its interval at `level` (PCT = 100 level, e.g. anees_interval_99), the
+    key with "anees" -> "n_eff": effective_samples}."""
+    n_eff = effective_samples(ne, **layout)
     return {key: float(np.nanmean(ne)), f"{key}_dof": dof,
             f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
             key.replace("anees", "n_eff"): n_eff}

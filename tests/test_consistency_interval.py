@@ -80,6 +80,9 @@ def test_targets_sharing_their_errors_count_once_independent_ones_count_each():
     for i in range(m):
         staggered[i::m, i] = indep[:, i]
     assert abs(effective_samples(staggered) / (m * one) - 1) < 0.25
+    # the sparse layout (sample, its instant, its target) is the same as the (T, m) array
+    rows, cols = np.nonzero(np.isfinite(holes))
+    assert effective_samples(holes[rows, cols], instant=rows * 7, target=cols) == pytest.approx(effective_samples(holes))
 
 
 def test_scale_free_and_edge_cases():

@@ -68,21 +68,6 @@ def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.nd
     return out, ne
 
 
-def _by_instant(rows: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """(T, m) values of series [(time (k,) sorted, value (k,))] at their T distinct instants, NaN
-    where a column has none (effective_samples' layout): a column per series, and one more for
-    each further sample a series has at one instant."""
-    cols = []
-    for ti, v in rows:
-        occurrence = np.arange(ti.size) - np.searchsorted(ti, ti)  # 0 for the first sample at a time
-        cols += [(ti[occurrence == o], v[occurrence == o]) for o in range(int(occurrence.max()) + 1)]
-    t = np.unique(np.concatenate([c[0] for c in cols]))
-    out = np.full((t.size, len(cols)), np.nan)
-    for i, (ti, v) in enumerate(cols):
-        out[np.searchsorted(t, ti), i] = v
-    return out
-
-
 def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict, dict]:
     """metrics.json scores of one estimator, and its errors {(target, quantity): (K, 3)} for plots.
     bound: the scenario's PCRB, if it has one (module docstring)."""
@@ -114,7 +99,11 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
         out[f"coverage_{q}"] = float(np.mean([r[4] for r in rows]))
         with_cov = [(r[3], r[1]) for r in rows if r[1].size]
         if with_cov:
-            out.update(anees_keys(_by_instant(with_cov), 3, f"anees_{q}", 0.95))
+            # the targets' samples at common instants are averaged (effective_samples, sparse layout)
+            instant = np.unique(np.concatenate([r[0] for r in with_cov]), return_inverse=True)[1]
+            target = np.repeat(np.arange(len(with_cov)), [r[0].size for r in with_cov])
+            out.update(anees_keys(np.concatenate([r[1] for r in with_cov]), 3, f"anees_{q}", 0.95,
+                                  instant=instant, target=target))
         if q in pcrb:
             out[f"pcrb_rmse_{q}_{u}"] = pcrb[q]
     out["targets"] = targets
