@@ -540,11 +540,12 @@ def nees(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=256)  # scoring asks for the same (dof, runs) for every vehicle
-def chi2_interval(dof: int, runs: int, level: float = 0.99) -> tuple[float, float]:
+def chi2_interval(dof: int, runs: float, level: float = 0.99) -> tuple[float, float]:
     """Two-sided interval for the ANEES of `runs` independent NEES samples of `dof` degrees each.
 
     runs * ANEES ~ chi2(runs * dof) for a consistent filter; returns the interval divided by runs,
     so a consistent filter's ANEES (expected value dof) lies inside with probability `level`.
+    `runs` may be an effective (non-integer) number of samples of correlated NEES.
     """
     # lazy: scipy.stats takes seconds to import on a cold cache, and only scoring needs it
     from scipy.stats import chi2

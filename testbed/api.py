@@ -189,7 +189,8 @@ def score(estimates: Iterable[Estimate], run: Run, *, name: str = "estimates") -
     """Score estimates made outside the testbed (testbed.plugins.Estimate objects: a body or site
     of `run`, position m / velocity m/s / attitude wxyz, world frame, optional covariance) against
     the run's truth with the metrics every estimator gets (testbed.plugins.score: RMSE total, per
-    axis and per target, ANEES with its chi-square 95 % interval where a covariance is given).
+    axis and per target, coverage, ANEES with its 95 % interval over effective samples where a
+    covariance is given; docs/consistency.md).
 
     Returns the dict metrics.json would hold for an estimator called `name`. A bad estimate (unknown
     target, wrong shape, NaN, time outside the run, a covariance that is not SPD) raises PluginError.

@@ -361,14 +361,16 @@ def _dispatch(args: argparse.Namespace) -> int:
         return 0
     if args.command == "replay":
         from testbed.replay.run import replay
-        from testbed.report import fmt
+        from testbed.report import fmt, fmt_anees
 
         apart(args.out, _inputs(args, args.spec.parent))  # the dataset: the spec and the tables beside it
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         for name, est in metrics["estimators"].items():
-            keys = [k for k in est if k.startswith(("rmse_", "anees_")) and not k.endswith("interval_95")]
-            print(f"  {name}: " + (", ".join(f"{k} {fmt(est[k])}" for k in keys) or f"{est.get('estimates', 0)} estimates"))
+            # every ANEES with its interval and effective samples (docs/consistency.md)
+            scores = [f"{k} {fmt_anees(est, k) if k.startswith('anees_') else fmt(est[k])}" for k in est
+                      if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k and not k.endswith("_dof")]
+            print(f"  {name}: " + (", ".join(scores) or f"{est.get('estimates', 0)} estimates"))
         print(f"replay directory -> {args.out}")
         return 0
     if args.command == "export":

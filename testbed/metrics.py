@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import t as student_t
 
-from estimators.core import chi2_interval, nees
+from estimators.core import chi2_interval
 
 
 def rmse(err: np.ndarray, axis: int = 0) -> np.ndarray | float:
@@ -32,14 +32,87 @@ def attitude_error_vector(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     return rel.as_rotvec().reshape(*np.shape(R_est)[:-2], 3)
 
 
-def anees(err: np.ndarray, cov: np.ndarray) -> float:
-    """Average NEES over all samples (and runs): err (..., n), cov (..., n, n)."""
-    return float(np.mean(nees(err, cov)))
-
-
-def anees_interval(dof: int, samples: int, level: float = 0.99) -> tuple[float, float]:
-    """Interval a consistent filter's ANEES falls in with probability `level` (independent samples)."""
+def anees_interval(dof: int, samples: float, level: float = 0.99) -> tuple[float, float]:
+    """Interval a consistent filter's ANEES falls in with probability `level`: the chi-square
+    interval of `samples` independent NEES samples of `dof` degrees each (estimators.core.chi2_interval).
+    For the NEES of a filter, whose errors are correlated in time, `samples` is their effective
+    number (effective_samples), not their count (docs/consistency.md)."""
     return chi2_interval(dof, samples, level)
+
+
+def integrated_time(x: np.ndarray) -> float:
+    """Integrated autocorrelation time tau = 1 + 2 sum_{k>=1} rho_k of a stationary series x (T,)
+    in its index (docs/consistency.md): rho_k its sample autocorrelation at lag k (FFT), the sum
+    truncated by Geyer's initial monotone sequence (pairs G_m = rho_2m + rho_2m+1 summed while
+    positive, each capped by the one before). Returns tau >= 1 (1 for a constant series or T < 4)."""
+    x = np.asarray(x, float)
+    n = x.size
+    d = x - x.mean()
+    if n < 4 or not np.any(d):
+        return 1.0
+    f = np.fft.rfft(d, 2 * n)  # zero-padded: the linear, not circular, autocovariance
+    acov = np.fft.irfft(f * np.conj(f), 2 * n)[:n]
+    rho = acov / acov[0]
+    pairs = rho[0 : n - 1 : 2] + rho[1:n:2]  # G_m, m = 0 .. n//2 - 1
+    stop = np.flatnonzero(pairs <= 0)
+    pairs = np.minimum.accumulate(pairs[: stop[0] if stop.size else pairs.size])
+    return max(1.0, float(2 * pairs.sum() - 1))
+
+
+def effective_samples(ne: np.ndarray, instant: np.ndarray | None = None, target: np.ndarray | None = None) -> float:
+    """Effective number of independent samples behind the ANEES (mean of the finite entries) of
+    NEES samples ne (T,) of one target in time order, or (T, m) of m targets at T common instants
+    (NaN: no sample of that target at that instant), or (N,) samples with instant (N,) int, the
+    index of each sample's instant in time order, and target (N,) int, its target's (the same
+    layout without the T x m array): n_eff with Var(ANEES) = 2 dof / n_eff for a consistent
+    estimator, so that anees_interval(dof, n_eff) holds (docs/consistency.md):
+
+        n_eff = min(N, T / (tau_y r), sum_i T_i / tau_i),   r = Var(y) / mean_i Var(ne_i)
+
+    y (T,) the per-instant mean over the targets, tau_y its integrated_time, r the share of a
+    single target's variance the per-instant mean keeps (1/m for independent targets, 1 for
+    targets that share their errors: a cooperative filter's), N the number of samples; T_i / tau_i
+    the effective samples of target i alone, whose sum (the targets taken as independent) bounds
+    n_eff when the targets' instants do not coincide (then y interleaves them and hides their own
+    correlation). Scale free: an over-confident filter's NEES, scaled up, gets the same n_eff.
+    0 for no sample.
+    """
+    x = np.asarray(ne, float)
+    if instant is None:
+        x = x.reshape(len(x), -1)
+        instant, target = np.nonzero(np.isfinite(x))
+        x = x[instant, target]
+    keep = np.isfinite(x)
+    x, instant, target = x[keep], np.asarray(instant)[keep], np.asarray(target)[keep]
+    if x.size < 2:
+        return float(x.size)
+    _, at = np.unique(instant, return_inverse=True)
+    y = np.bincount(at, x) / np.bincount(at)  # (T,) the per-instant mean
+    order = np.lexsort((instant, target))  # by target, each in time order
+    series = np.split(x[order], np.flatnonzero(np.diff(target[order])) + 1)
+    var = np.array([s.var() for s in series])
+    r = float(np.var(y) / var.mean()) if var.mean() > 0 else 1.0
+    alone = sum(s.size / integrated_time(s) for s in series)
+    return float(min(x.size, y.size / (integrated_time(y) * max(r, 1.0 / len(series))), alone))
+
+
+def runs_effective_samples(n_eff: np.ndarray) -> float:
+    """Effective samples of the mean over R independent runs (their own seeds) of per-run ANEES
+    with effective samples n_eff (R,): R^2 / sum(1 / n_eff), from Var = (2 dof / R^2) sum 1/n_eff.
+    Independent-sample arithmetic is right here: runs share no noise (docs/consistency.md)."""
+    n = np.asarray(n_eff, float)
+    return float(n.size**2 / np.sum(1.0 / n))
+
+
+def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99, **layout) -> dict:
+    """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of
+    effective_samples, `layout` its instant and target): {key: the mean of the samples, KEY_dof:
+    dof, KEY_interval_PCT: its interval at `level` (PCT = 100 level, e.g. anees_interval_99), the
+    key with "anees" -> "n_eff": effective_samples}."""
+    n_eff = effective_samples(ne, **layout)
+    return {key: float(np.nanmean(ne)), f"{key}_dof": dof,
+            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
+            key.replace("anees", "n_eff"): n_eff}
 
 
 def anees_run_interval(per_run: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, float]:
@@ -94,3 +167,50 @@ def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
     if "uwb/served" not in log:
         return None
     return float(log["uwb/served"].sum()) / duration
+
+
+def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
+    """anees_keys of the mean over independent runs (their own seeds) of per-run ANEES: runs, each
+    run's keys as anees_keys wrote them (KEY, KEY_dof and the n_eff key); the effective samples
+    combined by runs_effective_samples. Runs without the key are left out; {} if none has it."""
+    have = [r for r in runs if r.get(key) is not None]
+    if not have:
+        return {}
+    dof = have[0][f"{key}_dof"]
+    n_eff = runs_effective_samples(np.array([r[key.replace("anees", "n_eff")] for r in have]))
+    return {key: float(np.mean([r[key] for r in have])), f"{key}_dof": dof,
+            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
+            key.replace("anees", "n_eff"): n_eff}
+
+
+#: Coverage tolerance (s): a truth instant is covered when an estimate lies at most this far from it
+COVERAGE_TOLERANCE_S = 0.5
+
+
+def coverage(truth_time: np.ndarray, time: np.ndarray, tolerance: float = COVERAGE_TOLERANCE_S) -> dict:
+    """How much of a run an estimator covered for one target (docs/consistency.md, "Coverage").
+
+    truth_time (N,) s: the instants the target's truth is known at (sorted); time (K,) s: its
+    estimates' times (sorted). Returns {"coverage": fraction of truth instants with an estimate
+    within `tolerance` s, "coverage_tolerance_s", "rate_hz": the output rate while it estimates,
+    (K - 1) over the span of its estimates (gaps and a late start show in the coverage), and
+    "first_estimate_s": time of the first estimate}; rate_hz is null for fewer than two estimate
+    times, first_estimate_s for no estimate (strict JSON; the reasons under "null_reasons")."""
+    tt, ts = np.asarray(truth_time, float), np.asarray(time, float)
+    out: dict = {"coverage": 0.0, "coverage_tolerance_s": tolerance, "rate_hz": None, "first_estimate_s": None}
+    why = {}
+    if ts.size:
+        j = np.clip(np.searchsorted(ts, tt), 1, max(ts.size - 1, 1))
+        near = np.minimum(np.abs(tt - ts[j - 1]), np.abs(ts[np.minimum(j, ts.size - 1)] - tt))
+        out["coverage"] = float(np.mean(near <= tolerance)) if tt.size else 0.0
+        out["first_estimate_s"] = float(ts[0])
+    else:
+        why["first_estimate_s"] = "no estimate"
+    span = float(ts[-1] - ts[0]) if ts.size > 1 else 0.0
+    if span > 0:
+        out["rate_hz"] = (ts.size - 1) / span
+    else:
+        why["rate_hz"] = "fewer than two estimate times"
+    if why:
+        out["null_reasons"] = why
+    return out

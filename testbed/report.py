@@ -60,6 +60,14 @@ def fmt_ci(mean: float, lo: float, hi: float) -> str:
     return f"{fmt(mean)} [{fmt(lo)}, {fmt(hi)}]"
 
 
+def fmt_anees(keys: dict, key: str = "anees") -> str:
+    """"ANEES [lo, hi] (n_eff N)" from the keys testbed.metrics.anees_keys writes ("" without KEY)."""
+    if keys.get(key) is None:
+        return ""
+    interval = next(v for k, v in keys.items() if k.startswith(f"{key}_interval_"))
+    return f"{fmt_ci(keys[key], *interval)} (n_eff {fmt(keys[key.replace('anees', 'n_eff')], 3)})"
+
+
 def fmt_list(values: Iterable[float], sep: str = ", ") -> str:
     """Every value of a sequence, formatted and joined (no summarizing)."""
     return sep.join(fmt(v) for v in values)

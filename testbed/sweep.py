@@ -4,7 +4,10 @@ Run i uses seed `scenario.seed + i` and writes `OUT/run-XXX/` (a full run direct
 deterministic in its seed, so the results are bit-identical to running the seeds one by one.
 The `metrics.json` files are aggregated into `OUT/summary.csv` and `OUT/summary.json`: mean,
 std (ddof=1), min, max and count of every numeric score, keyed by its dotted path
-(`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk.
+(`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk;
+an ANEES also gets the interval of a consistent estimator's mean over the runs (`interval`, at the
+runs' own level) and its effective samples (`n_eff`: testbed.metrics.anees_over_runs,
+docs/consistency.md), empty in summary.csv for the other scores.
 `OUT/sweep.toml` is the swept scenario (run i: its seed + i). Ctrl-C, SIGTERM or SIGHUP stop every
 worker at once (and so does a Ray task lost for good, testbed.cluster.TaskLost); the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
 "runs_done": k`, no summary.csv) and `testbed sweep ... --resume` finishes the sweep.
@@ -17,6 +20,7 @@ import csv
 import io
 import json
 import os
+import re
 import signal
 from pathlib import Path
 
@@ -27,6 +31,7 @@ from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
 from testbed.errors import RunError
 from testbed.interrupt import Interrupted
+from testbed.metrics import anees_over_runs
 from testbed.outdir import Output, marker, write_json, write_text
 from testbed.progress import bar as progress_bar
 from testbed.runner import run
@@ -55,7 +60,8 @@ def flatten(obj: object, prefix: str = "") -> dict[str, float]:
 
 
 def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
-    """Per-score statistics over runs: {key: {mean, std, min, max, n}}."""
+    """Per-score statistics over runs: {key: {mean, std, min, max, n}}; an ANEES (a key with its
+    KEY_dof beside it) also {interval, n_eff} of its mean over the runs (anees_over_runs)."""
     flat = [flatten(m) for m in metrics]
     keys = sorted({k for f in flat for k in f if k != "seed"})
     summary = {}
@@ -68,7 +74,22 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
             "max": float(v.max()),
             "n": int(v.size),
         }
+    for k in keys:
+        if f"{k}_dof" in summary:
+            summary[k].update(_over_runs(flat, k))
     return summary
+
+
+def _over_runs(flat: list[dict[str, float]], key: str) -> dict:
+    """{interval, n_eff} of the mean over the runs of the ANEES `key` (a dotted path), at the level
+    of the runs' own interval (KEY_interval_PCT.0 in the flattened metrics)."""
+    name = key.rpartition(".")[2]
+    n_eff = name.replace("anees", "n_eff")
+    pct = next(int(m[1]) for f in flat for k in f if (m := re.fullmatch(re.escape(key) + r"_interval_(\d+)\.0", k)))
+    runs = [{name: f[key], f"{name}_dof": f[f"{key}_dof"], n_eff: f[key[: len(key) - len(name)] + n_eff]}
+            for f in flat if key in f]
+    got = anees_over_runs(runs, name, pct / 100)
+    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[n_eff]}
 
 
 def run_complete(run_dir: Path) -> bool:
@@ -87,9 +108,10 @@ def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> d
     write_json(d / "summary.json", doc)
     buf = io.StringIO(newline="")
     w = csv.writer(buf)
-    w.writerow(["score", "mean", "std", "min", "max", "n"])
+    w.writerow(["score", "mean", "std", "min", "max", "n", "interval_lo", "interval_hi", "n_eff"])
     for k, s in summary.items():
-        w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"]])
+        extra = [repr(s["interval"][0]), repr(s["interval"][1]), repr(s["n_eff"])] if "interval" in s else ["", "", ""]
+        w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"], *extra])
     write_text(d / "summary.csv", buf.getvalue())
     return summary
 

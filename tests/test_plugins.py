@@ -11,6 +11,7 @@ import pytest
 from testbed import scenario
 from testbed.cli import main
 from testbed.errors import PluginError, UsageError
+from testbed.metrics import anees_interval
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
 from testbed.plugins.feed import measurements, run_plugin
@@ -235,6 +236,14 @@ def test_sweep_and_reproduce_take_plugins(tmp_path):
                  "--out", str(tmp_path / "s")]) == 0
     scores = json.loads((tmp_path / "s" / "summary.json").read_text())["scores"]
     assert scores["estimators.UwbEkf.rmse_position_mean_m"]["n"] == 2
+    # an ANEES's mean over the runs with its interval over the runs' combined effective samples
+    runs = [json.loads((tmp_path / "s" / f"run-{i:03d}" / "metrics.json").read_text())["estimators"] for i in range(2)]
+    for name, key in (("UwbEkf", "anees_position"), ("centralized", "anees_joint")):
+        s, n = scores[f"estimators.{name}.{key}"], [r[name][key.replace("anees", "n_eff")] for r in runs]
+        assert s["n_eff"] == pytest.approx(4 / sum(1 / x for x in n))
+        assert s["interval"] == pytest.approx(list(anees_interval(runs[0][name][f"{key}_dof"], s["n_eff"],
+                                                                  0.95 if name == "UwbEkf" else 0.99)))
+    assert "interval" not in scores["estimators.UwbEkf.rmse_position_mean_m"]
     from testbed.reproduce import coop as rep
 
     out = tmp_path / "rep"

@@ -11,6 +11,8 @@ from testbed.report import Claim, write_claims, write_markdown
 from testbed.reproduce import document
 from testbed.stats import clopper_pearson
 
+from table_checks import assert_every_anees_has_its_interval  # tests/ helper
+
 
 def _fake_reproduction(out):
     (out / "plots").mkdir(parents=True)
@@ -59,6 +61,7 @@ def test_phase_reproduction_writes_its_report(tmp_path):
     doc = json.loads((out / "claims.json").read_text())
     table = (out / "table.md").read_text()
     assert doc["window_s"] == 2.0 and "uses the last 2 s instead" in table and "RMSE pos last 2 s" in table
+    assert assert_every_anees_has_its_interval(table) == 8 * 3  # eight formations, three ANEES each
     assert "last_100s" not in (out / "table.csv").read_text()
     assert "testbed reproduce phase --out" in md and "--runs 2" in md and "--duration 4" in md
     for c in doc["claims"]:

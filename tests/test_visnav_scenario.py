@@ -20,6 +20,8 @@ from testbed.pipelines.config import FILTER_NAMES, VisNavPipelineConfig
 from testbed.runner import run
 from testbed.simulate import simulate
 
+from table_checks import assert_every_anees_has_its_interval  # tests/ helper
+
 FILTERS = FILTER_NAMES
 
 
@@ -155,3 +157,6 @@ def test_reproduce_writes_tables_claims_and_plots(tmp_path):
     assert all(c["test"]["name"] and c["test"]["n"] == 2 for c in claims)
     assert "testbed reproduce visnav" in (tmp_path / "report.md").read_text()
     assert "data:image/png;base64," in (tmp_path / "report.html").read_text()
+    # every ANEES with its interval (glint included): 5 filters x (2 noise cases + the extra runs: the other
+    # motion, 2 runs x 2 cases, and the pixel camera, 1)
+    assert assert_every_anees_has_its_interval((tmp_path / "table.md").read_text()) == 5 * (2 + 4 + 1)

@@ -48,7 +48,9 @@ score exists only when the run covers its window (t_last - t_first >= W): on a s
 omitted (`last_window_s` and `last_window_omitted_reason` say so), never computed over a shorter
 span under the longer name (`window_keys` gives the names for a W); anees: mean over t >= score_start of the NEES
 of the body position and velocity (6 dof, linear in the state, so its covariance is exact);
-anees_state18: the same for the 18-state; nees_final, nees_body6_final, nees_attitude6_final: the
+anees_state18: the same for the 18-state; each with its dof (`anees_dof`, ...) and its 99 %
+interval (`anees_interval_99`, ...) over its effective samples (`n_eff`, ...: the epochs' errors
+are correlated, docs/consistency.md); nees_final, nees_body6_final, nees_attitude6_final: the
 final epoch's NEES of the 18-state, of the body position and velocity (6 dof) and of the attitude
 and its rates (yaw, pitch, roll and their rates, 6 dof, eq. 30 linearized: `attitude_nees`);
 pcrb_rmse_position_m: sqrt of the mean over the same
@@ -291,7 +293,7 @@ def window_keys(window_s: float) -> dict[str, str]:
 def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true, bound) -> dict:
     """metrics.json `estimators.ekf` (module docstring) and the series the plots need."""
     # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
-    from testbed.metrics import attitude_error_vector, rmse
+    from testbed.metrics import anees_keys, attitude_error_vector, rmse
 
     t, means, covs = track.t, track.mean, track.cov
     acts = np.stack([b.actual for b in track.beliefs])
@@ -317,10 +319,9 @@ def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true
         "position_error_mid_m": e[mid, :3].tolist(),
         "position_error_final_m": e[-1, :3].tolist(),
         "sigma_position_final_m": np.sqrt(np.diag(Ppv[-1])[:3]).tolist(),
-        "anees": float(np.mean(nees6[sc])),
-        "anees_dof": 6,
-        "anees_state18": float(np.mean(nees18[sc])),
-        "anees_body6_actual_cov": float(np.mean(nees6_act[sc])),
+        **anees_keys(nees6[sc], 6),
+        **anees_keys(nees18[sc], 18, "anees_state18"),
+        **anees_keys(nees6_act[sc], 6, "anees_body6_actual_cov"),
         "nees_final": float(nees18[-1]),
         "nees_body6_final": float(nees6[-1]),
         "nees_attitude6_final": attitude_nees(means[-1], covs[-1], states_true[-1]),

@@ -25,9 +25,10 @@ Initial estimate: the relative navigation state at t = 0 is truth + a draw from 
 covariance (stream "init", the same draw for every filter); the biases start at their nominal 0
 with the configured prior std. Scores (per filter, at every camera epoch after the update):
 RMSE of the relative position (m), velocity (m/s) and attitude (deg, on SO(3) by
-testbed.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e), and the
-wall time per camera epoch (one update and its predicts). The wall time is the only part of
-metrics.json that is not bit-identical between two runs of the same seed.
+testbed.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e;
+`anees_dof` 9) with its 99 % interval over its effective samples (`anees_interval_99`, `n_eff`:
+docs/consistency.md), and the wall time per camera epoch (one update and its predicts). The wall
+time is the only part of metrics.json that is not bit-identical between two runs of the same seed.
 """
 from __future__ import annotations
 
@@ -236,7 +237,7 @@ def score_track(model, track: Track, truth: np.ndarray) -> Scored:
 def metrics_of(track: Track, sc: Scored) -> dict:
     """The metrics.json entry of one filter."""
     # lazy: see score_track
-    from testbed.metrics import rmse
+    from testbed.metrics import anees_keys, rmse
 
     E = track.t.size
     predict_s, update_s = float(track.predict_s.sum()), float(track.update_s.sum())
@@ -245,8 +246,7 @@ def metrics_of(track: Track, sc: Scored) -> dict:
         "rmse_position_m": rmse(sc.err[:, 0:3]),
         "rmse_velocity_mps": rmse(sc.err[:, 3:6]),
         "rmse_attitude_deg": float(np.sqrt(np.mean(sc.att_deg ** 2))),
-        "anees": float(np.mean(sc.nees)),
-        "anees_dof": 9,
+        **anees_keys(sc.nees, 9),
         "time_per_step_ms": 1e3 * (predict_s + update_s) / max(E, 1),
         "predict_per_epoch_ms": 1e3 * predict_s / max(E, 1),
         "update_ms": 1e3 * update_s / max(E, 1),

@@ -2,11 +2,17 @@
 
 Per (target, quantity), at the estimate times against interpolated truth (testbed.plugins.truth):
 RMSE total (root mean of |e|^2) and per axis; with a covariance, NEES e^T P^-1 e per sample, their
-mean (ANEES, 3 dof) and the two-sided chi-square 95 % interval of a consistent estimator's ANEES.
+mean (ANEES, `anees_dof` = 3), `n_eff` the effective number of independent samples behind it and
+`anees_interval_95` the two-sided 95 % interval of a consistent estimator's ANEES over n_eff
+samples (testbed.metrics.effective_samples: a filter's errors are correlated in time,
+docs/consistency.md); coverage (testbed.metrics.coverage): `coverage` the fraction of the
+target's truth instants with an estimate within `coverage_tolerance_s`, `rate_hz` and
+`first_estimate_s`.
 Summaries over targets, per quantity q with unit u (position m, velocity m_s, attitude deg):
 `rmse_{q}_mean_{u}` (mean over targets of the per-target RMSE, as the built-in coop scores),
 `rmse_{q}_{u}` (pooled over all samples), `rmse_{q}_axis_{u}`, `anees_{q}` (all samples with a
-covariance), `anees_{q}_interval_95`.
+covariance), `n_eff_{q}` (the targets' NEES at common instants averaged, then as for one target),
+`anees_{q}_interval_95`, `coverage_{q}` (mean over the targets estimated).
 PCRB: where the scenario has one (seed 003 phase-ekf: the posterior Cramer-Rao bound of the
 follower's body position, with the scenario's measurement and motion model, computed along the
 true trajectory by testbed.pipelines.phase.position_bound), a world-frame position series of that
@@ -21,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.core import chi2_interval, nees
-from testbed.metrics import rmse
+from estimators.core import nees
+from testbed.metrics import anees_keys, coverage, rmse
 from testbed.plugins.collect import Series, Track, natural
 from testbed.plugins.truth import Truth, errors
 
@@ -58,8 +64,7 @@ def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.nd
     out = {"samples": int(s.time.size), f"rmse_{u}": rmse(err) * k, f"rmse_axis_{u}": [x * k for x in _axis(err)]}
     ne = nees(err[s.has_cov], s.cov[s.has_cov]) if s.has_cov.any() else np.zeros(0)
     if ne.size:
-        lo, hi = chi2_interval(3, int(ne.size), 0.95)
-        out.update({"anees": float(np.mean(ne)), "anees_interval_95": [lo, hi], "nees_samples": int(ne.size)})
+        out.update({**anees_keys(ne, 3, "anees", 0.95), "nees_samples": int(ne.size)})
     return out, ne
 
 
@@ -74,6 +79,7 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
         e = errors(truth, target, q, s.time, s.value, s.frame)
         errs[(target, q)] = e
         sc, ne = score_series(e, s, q)
+        sc.update(coverage(truth.times(target), s.time))
         if s.frame != "world":
             sc["frame"] = s.frame
         hit, B = bound.at(s, target, q) if bound is not None else (np.zeros(0, int), None)
@@ -82,19 +88,22 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
                        "rmse_at_pcrb_epochs_m": rmse(e[hit])})
             pcrb[q] = sc["pcrb_rmse_m"]
         targets.setdefault(target, {})[q] = sc
-        pooled.setdefault(q, []).append((e, ne, sc[f"rmse_{UNIT[q]}"]))
+        pooled.setdefault(q, []).append((e, ne, sc[f"rmse_{UNIT[q]}"], s.time[s.has_cov], sc["coverage"]))
     out: dict = {"estimates": int(sum(s.time.size for s in track.values()))}
     for q, rows in pooled.items():
         u, k = UNIT[q], SCALE[q]
         e_all = np.concatenate([r[0] for r in rows])
-        ne_all = np.concatenate([r[1] for r in rows])
         out[f"rmse_{q}_mean_{u}"] = float(np.mean([r[2] for r in rows]))
         out[f"rmse_{q}_{u}"] = rmse(e_all) * k
         out[f"rmse_{q}_axis_{u}"] = [x * k for x in _axis(e_all)]
-        if ne_all.size:
-            lo, hi = chi2_interval(3, int(ne_all.size), 0.95)
-            out[f"anees_{q}"] = float(np.mean(ne_all))
-            out[f"anees_{q}_interval_95"] = [lo, hi]
+        out[f"coverage_{q}"] = float(np.mean([r[4] for r in rows]))
+        with_cov = [(r[3], r[1]) for r in rows if r[1].size]
+        if with_cov:
+            # the targets' samples at common instants are averaged (effective_samples, sparse layout)
+            instant = np.unique(np.concatenate([r[0] for r in with_cov]), return_inverse=True)[1]
+            target = np.repeat(np.arange(len(with_cov)), [r[0].size for r in with_cov])
+            out.update(anees_keys(np.concatenate([r[1] for r in with_cov]), 3, f"anees_{q}", 0.95,
+                                  instant=instant, target=target))
         if q in pcrb:
             out[f"pcrb_rmse_{q}_{u}"] = pcrb[q]
     out["targets"] = targets

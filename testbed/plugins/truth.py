@@ -28,6 +28,10 @@ class Truth:
         self.sites = context.sites
         self._slerp: dict[int, Slerp] = {}  # per vehicle, built on first use
 
+    def times(self, target: str) -> np.ndarray:
+        """The instants (K,) s the truth of `target` is logged at (every vehicle's: the log's ticks)."""
+        return self.t
+
     def _lin(self, arr: np.ndarray, i: int, t: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(t, self.t, arr[:, i, a]) for a in range(arr.shape[2])], axis=1)
 

@@ -273,6 +273,10 @@ class RecordedTruth:
     def body_of(self, target: str) -> str:
         return self.sites[target][0] if target in self.sites else target
 
+    def times(self, target: str) -> np.ndarray:
+        """The instants (K,) s of the truth rows of `target`'s body (window clock)."""
+        return self.by_body[self.body_of(target)].t
+
     def known(self, target: str, quantity: str) -> bool:
         """Is there truth for this target and quantity (velocity needs vel and omega rows)?"""
         body = self.body_of(target)

@@ -78,7 +78,7 @@ def run_case(model: bw.NetworkModel, S: np.ndarray, P: np.ndarray, K: int, runs:
     ks = np.arange(1, K + 1)
     anees_sig = nees(e[:, ks], Sig[None, ks]).mean(0)  # (K, N)
     anees_M = nees(e[:, ks], M[None, ks]).mean(0)
-    lo, hi = chi2_interval(n, runs, 0.99)
+    lo, hi = chi2_interval(n, runs, 0.99)  # per step, over the runs: independent (separate draws of the noise)
     rms_node = np.sqrt((e[:, 1:] ** 2).sum(-1).mean(axis=(0, 1)))  # (N,) m, time-averaged
     bias_final = e[:, -1].mean(0)  # (N, n)
     bias_se = e[:, -1].std(0, ddof=1) / np.sqrt(runs)

@@ -34,6 +34,7 @@ import math
 from dataclasses import replace
 
 from testbed import scenario as scenario_mod
+from testbed.report import fmt_anees
 from testbed.plugins.spec import EstimatorSpec
 
 CALIBRATION_SEEDS = (1000, 1001, 1002)
@@ -47,7 +48,8 @@ def _name(kappa: float) -> str:
 
 
 def calibrate(seeds=CALIBRATION_SEEDS, kappas=KAPPA_GRID, duration: float = CALIBRATION_HORIZON_S) -> list[dict]:
-    """Rows {seed, estimator, kappa (None: centralized), anees_position, rmse_position_mean_m}: each
+    """Rows {seed, estimator, kappa (None: centralized), anees_position (with its dof, interval and
+    n_eff: testbed.metrics.anees_keys), rmse_position_mean_m}: each
     seed simulated once (controller on truth) with the centralized filter and the distributed one
     at every kappa scored on it."""
     from testbed.api import run  # lazy: MuJoCo only when a calibration runs
@@ -61,7 +63,7 @@ def calibrate(seeds=CALIBRATION_SEEDS, kappas=KAPPA_GRID, duration: float = CALI
             for spec, kappa in zip(specs, (None,) + tuple(kappas)):
                 m = r.metrics["estimators"][spec.name]
                 rows.append({"seed": int(seed), "estimator": spec.name, "kappa": kappa,
-                             "anees_position": float(m["anees_position"]),
+                             **{k: m[k] for k in m if k.startswith("anees_position") or k == "n_eff_position"},
                              "rmse_position_mean_m": float(m["rmse_position_mean_m"])})
     return rows
 
@@ -79,7 +81,8 @@ def choose(rows: list[dict]) -> float:
 def main() -> None:
     rows = calibrate()
     for r in rows:
-        print(f"seed {r['seed']}  {r['estimator']:>10}  ANEES {r['anees_position']:8.2f}  RMSE {r['rmse_position_mean_m']:.3f} m")
+        print(f"seed {r['seed']}  {r['estimator']:>10}  ANEES {fmt_anees(r, 'anees_position')}  "
+              f"RMSE {r['rmse_position_mean_m']:.3f} m")
     print(f"rule's peer_inflation: {choose(rows):g}")
 
 

@@ -47,11 +47,11 @@ from pathlib import Path
 import numpy as np
 
 from testbed import scenario as scenario_mod
-from testbed.metrics import mean_ci
+from testbed.metrics import anees_interval, anees_over_runs, mean_ci
 from testbed.pipelines.phase import window_keys
 from testbed.plots import compare_bars, figure, save
-from testbed.report import Claim, claims_section, fmt, fmt_list, fmt_pm, markdown_table, write_claims, write_csv, \
-    write_markdown
+from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, \
+    write_csv, write_markdown
 from testbed.reproduce import phase_q
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
@@ -213,21 +213,27 @@ def _cols(R: dict[str, list[dict]]) -> list[tuple[str, str]]:
     return [("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos [m]"),
             (k["rmse"], f"RMSE pos {w} [m]"), (k["pcrb_rmse"], f"PCRB {w} [m]"),
             ("rmse_velocity_mps", "RMSE vel [m/s]"), ("rmse_attitude_deg", "RMSE att [deg]"),
-            ("anees", "ANEES body (6)"), ("anees_state18", "ANEES (18)"),
-            ("anees_body6_actual_cov", "ANEES body vs P_act (6)"),
             ("covariance_repairs", "cov. repairs"), ("rejected_measurements", "rejected rows"),
             ("nonconverged_steps", "non-converged steps")]
 
 
+#: (metrics key, column header) of the table's ANEES columns: mean over runs [99 % interval] (n_eff)
+ANEES_COLS = (("anees", "ANEES body (6)"), ("anees_state18", "ANEES (18)"),
+              ("anees_body6_actual_cov", "ANEES body vs P_act (6)"))
+
+
 def _table_rows(R: dict[str, list[dict]]) -> list[dict]:
-    """Per scenario: mean and std (ddof 1) over runs of every table score; max abs position error over
-    the window per axis, (mean, worst) over runs."""
+    """Per scenario: mean and std (ddof 1) over runs of every table score; each ANEES's mean over
+    runs with its 99 % interval and effective samples (testbed.metrics.anees_over_runs); max abs
+    position error over the window per axis, (mean, worst) over runs."""
     rows = []
     for name, runs in R.items():
         row = {"scenario": name, "runs": len(runs)}
         for key, _ in _cols(R):
             x = np.array([r[key] for r in runs], float)
             row[key] = (float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else 0.0)
+        for key, _ in ANEES_COLS:
+            row[key] = anees_over_runs(runs, key)
         mx = np.array([r[_keys(runs)["max_abs_position"]] for r in runs])
         row["max_abs_window"] = (mx.mean(0), mx.max(0))
         rows.append(row)
@@ -297,18 +303,23 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
     tag = w.replace(" ", "_")
     write_csv(out / "table.csv",
               ["scenario", "runs"] + [f"{k}_{s}" for k, _ in cols for s in ("mean", "std")]
+              + [c for k, _ in ANEES_COLS
+                 for c in (f"{k}_mean", f"{k}_interval_99_lo", f"{k}_interval_99_hi", k.replace("anees", "n_eff"))]
               + [f"max_abs_pos_{tag}_{a}_{s}" for s in ("mean", "worst") for a in "xyz"],
               [[r["scenario"], r["runs"]] + [v for k, _ in cols for v in r[k]]
+               + [v for k, _ in ANEES_COLS for v in (r[k][k], *r[k][f"{k}_interval_99"], r[k][k.replace("anees", "n_eff")])]
                + np.concatenate(r["max_abs_window"]).tolist() for r in rows])
     md = [f"# Seed 003 reproduction: eight formations, {motion}, {runs} run(s) each, seeds "
           f"{base_seed}..{base_seed + runs - 1}", ""]
-    md += markdown_table(["scenario", "runs"] + [h for _, h in cols]
+    md += markdown_table(["scenario", "runs"] + [h for _, h in cols] + [h for _, h in ANEES_COLS]
                          + [f"max abs pos {w} x / y / z [m] (mean; worst)"],
                          [[r["scenario"], r["runs"]] + [fmt_pm(*r[k]) for k, _ in cols]
+                          + [fmt_anees(r[k], k) for k, _ in ANEES_COLS]
                           + [fmt_list(r["max_abs_window"][0], " / ") + "; "
                              + fmt_list(r["max_abs_window"][1], " / ")] for r in rows])
-    md += ["", "mean ± std over runs; RMSE over t >= 10 s; axes of N: x forward, y left, z up "
-               "(paper X = x, Y = z, Z = -y).", ""]
+    md += ["", "mean ± std over runs; ANEES: mean over runs [99 % interval of a consistent filter] (effective "
+               "samples: the epochs of a run are correlated, docs/consistency.md); RMSE over t >= 10 s; axes of N: "
+               "x forward, y left, z up (paper X = x, Y = z, Z = -y).", ""]
     if not w.startswith(f"last {PAPER_WINDOW_S:g} s"):
         md += [f"The runs are too short for the paper's last {PAPER_WINDOW_S:g} s: every window score and claim "
                f"uses the {w} instead.", ""]
@@ -317,13 +328,16 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
         cal, horizon, long, rot = calibration
         rule = _q_rule(cal, rot, motion)
         n_cal = len({r["seed"] for rows_ in cal.values() for r in rows_})
+        within = fmt(list(anees_interval(6, n_cal)))  # one final NEES per seed, seeds share no noise: independent
         md += [f"Process noise q (testbed.reproduce.phase_q): the rule's q = the grid value whose final body NEES at "
                f"{horizon:g} s, mean over calibration seeds {phase_q.CALIBRATION_SEEDS[0]}.."
                f"{phase_q.CALIBRATION_SEEDS[n_cal - 1]}, is closest to 6 (plots/q_sweep.png); stage 2, with that q: "
-               f"the q_rotation whose final attitude NEES (6 dof) is closest to 6.", ""]
-        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", "ANEES at each q",
+               f"the q_rotation whose final attitude NEES (6 dof) is closest to 6. A consistent filter's mean "
+               f"final NEES over the {n_cal} seeds lies in {within} (99 %; one NEES per seed, and seeds share no "
+               f"noise: independent samples).", ""]
+        md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", f"ANEES at each q {within}",
                               "q_rotation of the scenario [rad^2/s^3]", "q_rotation of the rule",
-                              "attitude ANEES at each q_rotation"],
+                              f"attitude ANEES at each q_rotation {within}"],
                              [[n, f"{v['q_scenario']:g}", f"{v['q_rule']:g}",
                                ", ".join(f"{q}: {a:.2f}" for q, a in v["anees_by_q"].items()),
                                f"{v['q_rotation_scenario']:g}", f"{v['q_rotation_rule']:g}",

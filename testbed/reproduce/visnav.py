@@ -23,7 +23,9 @@ each (the same decision as the upper end of a two-sided 95 % interval below +5 %
 Also run (short): the other motion mode (2 runs, both noise cases) and the pixel camera path
 (1 run, 10 s): finite, scored, shown in the table.
 
-Outputs: table.md, table.csv, claims.json, runs.json (every run's metrics), plots/.
+Outputs: table.md, table.csv (per case, filter and score: mean, lo, hi: an RMSE's 95 % confidence
+interval, the ANEES's 99 % interval of a consistent filter over its effective samples n_eff, a row
+of its own), claims.json, runs.json (every run's metrics), plots/.
 While the reproduction is incomplete (interrupted), each finished run's result is kept in runs/run-XXX.pkl
 (runs-extra/ for the extra runs) for `--resume`; they are removed when it completes.
 
@@ -44,11 +46,11 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from testbed import scenario as scenario_mod
-from testbed.metrics import mean_ci
+from testbed.metrics import anees_over_runs, mean_ci
 from testbed.pipelines.visnav import metrics_of, run_all
 from testbed.plots import compare_bars, error_envelope, save
-from testbed.report import Claim, claims_section, fmt, fmt_ci, markdown_table, write_claims, write_csv, write_json, \
-    write_markdown
+from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \
+    write_json, write_markdown
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.progress import bar
@@ -169,14 +171,15 @@ def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
 
 
 def summarize(results: list[dict], case: str) -> dict:
-    """Per filter: mean and 95 % interval of each RMSE, mean ANEES, time per step, runs finite."""
+    """Per filter: mean and 95 % interval of each RMSE, the mean ANEES over the runs with its 99 %
+    interval and effective samples (testbed.metrics.anees_over_runs), time per step, runs finite."""
     table = {}
     for name in FILTERS:
         row = {}
         for key, _, _ in QUANTITIES:
             m, lo, hi = mean_ci(_col(results, case, name, key))
             row[key] = {"mean": m, "lo": lo, "hi": hi}
-        row["anees"] = float(np.mean(_col(results, case, name, "anees")))
+        row["anees"] = anees_over_runs([r[case]["metrics"][name] for r in results], "anees")
         row["time_per_step_ms"] = float(np.mean(_col(results, case, name, "time_per_step_ms")))
         row["finite_runs"] = int(np.sum(_col(results, case, name, "finite")))
         table[name] = row
@@ -240,19 +243,21 @@ def _markdown(summaries: dict, meta: dict, extra: dict, claims: list[Claim]) -> 
     lines = [f"# Seed 004 reproduction: {meta['runs']} runs x {fmt(meta['duration'])} s, motion {meta['motion']}, "
              f"geometric camera, seeds {meta['seeds'][0]}..{meta['seeds'][-1]}",
              "", "RMSE over the run (mean over runs [95 % interval]); ANEES of the 9 navigation states "
-             "(expected 9); time per camera epoch (one update + two 20 Hz predicts).", ""]
+             "(expected 9) [99 % interval of a consistent filter] (effective samples: the epochs of a run are "
+             "correlated, docs/consistency.md); time per camera epoch (one update + two 20 Hz predicts).", ""]
     for case, summ in summaries.items():
         lines += [f"## {case}", ""]
         lines += markdown_table(["filter", "position (m)", "velocity (m/s)", "attitude (deg)", "ANEES", "ms/epoch",
                                  "finite runs"],
                                 [[name] + [fmt_ci(**r[key]) for key, _, _ in QUANTITIES]
-                                 + [r["anees"], r["time_per_step_ms"], r["finite_runs"]] for name, r in summ.items()])
+                                 + [fmt_anees(r["anees"]), r["time_per_step_ms"], r["finite_runs"]]
+                                 for name, r in summ.items()])
         lines.append("")
     for label, ex in extra.items():
         lines += [f"## {label}", ""]
         lines += markdown_table(["case", "filter", "position (m)", "velocity (m/s)", "attitude (deg)", "ANEES"],
                                 [[case, name, m["rmse_position_m"], m["rmse_velocity_mps"], m["rmse_attitude_deg"],
-                                  m["anees"]] for case, per in ex.items() for name, m in per.items()])
+                                  fmt_anees(m)] for case, per in ex.items() for name, m in per.items()])
         lines.append("")
     lines += [f"Wall time: {fmt(meta['wall_s'])} s with {meta['workers']} worker(s).", ""]
     return lines + claims_section(claims)
@@ -263,11 +268,16 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
     for case, summ in summaries.items():
         for name, r in summ.items():
             rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
-            rows += [[case, name, key, r[key], None, None] for key in ("anees", "time_per_step_ms")]
+            rows += [[case, name, "anees", r["anees"]["anees"], *r["anees"]["anees_interval_99"]],
+                     [case, name, "n_eff", r["anees"]["n_eff"], None, None],
+                     [case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
     for label, ex in extra.items():
-        rows += [[f"{label}/{case}", name, key, m[key], None, None] for case, per in ex.items()
-                 for name, m in per.items() for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg",
-                                                        "anees")]
+        for case, per in ex.items():
+            for name, m in per.items():
+                rows += [[f"{label}/{case}", name, key, m[key], None, None]
+                         for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg")]
+                rows += [[f"{label}/{case}", name, "anees", m["anees"], *m["anees_interval_99"]],
+                         [f"{label}/{case}", name, "n_eff", m["n_eff"], None, None]]
     return rows
 
 
@@ -317,7 +327,8 @@ def write(out: Path, res: VisnavResults, claims: list[Claim], keys: tuple[str, .
     at = next((i for i, line in enumerate(md) if line.startswith("Wall time")), len(md))
     write_markdown(out / "table.md", md[:at] + plugin_rows.markdown(groups, list(keys), "case") + md[at:])
     plugin_rows.write(out / "table_plugins.csv", groups, list(keys))
-    write_csv(out / "table.csv", ["case", "filter", "score", "mean", "ci95_lo", "ci95_hi"],
+    # lo, hi: the 95 % confidence interval of an RMSE's mean; the 99 % interval of a consistent filter's ANEES
+    write_csv(out / "table.csv", ["case", "filter", "score", "mean", "lo", "hi"],
               _csv_rows(summaries, res.extra))
     write_plots(out, results, summaries)
     doc = write_claims(out / "claims.json", claims, paper="004", scenario="visnav", motion=meta["motion"],
