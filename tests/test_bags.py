@@ -84,7 +84,8 @@ def test_bag_replay_gives_the_estimates_of_the_csv_replay(exported, capsys):
 def test_the_bag_is_ros2_mcap_with_the_topics_types_and_counts(exported):
     d = exported
     bag = d / "mcap" / "bag"
-    assert (bag / "bag.mcap").read_bytes()[:8] == b"\x89MCAP0\r\n"
+    raw = (bag / "bag.mcap").read_bytes()
+    assert raw[:8] == b"\x89MCAP0\r\n" and raw[8] == 1 and raw[17:25] == b"\x04\x00\x00\x00ros2"  # header: profile ros2
     meta = (bag / "metadata.yaml").read_text()
     assert "storage_identifier: mcap" in meta and "serialization_format: cdr" in meta
     from testbed.api import load_run

@@ -14,12 +14,14 @@ stamp; the bag's clock is the run's (0 s at its start). Topics (N vehicles uavI)
                 child_frame_id the antenna site, pose covariance diag(sigma_x^2, sigma_y^2, sigma_z^2)
   /uavI/truth   nav_msgs/msg/Odometry: the true pose; twist in the body frame (ROS convention)
   /estimates/EST/TARGET  nav_msgs/msg/Odometry: each position estimate of a plugin estimator
-                (estimates.npz; EST its key with '.' and '-' as '_'), pose covariance's position block
-                the estimate's covariance (zero where it gave none)
+                (estimates.npz; EST its key with '.' and '-' as '_'), in the world frame (or the
+                vehicle's body frame, frame_id uavJ, for an estimate relative to it); the pose
+                covariance's position block is the estimate's covariance (zero where it gave none)
   /tf           tf2_msgs/msg/TFMessage: world -> uavI, the true poses at every log instant
 Orientation is not part of a GNSS fix or a position estimate: (1, 0, 0, 0), covariance block zero.
-Every message's header.frame_id is "world" but the IMU's. A message's log time is the row's
-arrival (when it reached the estimator), its header.stamp the time of validity.
+Odometry and tf are in the frame "world" (local ENU, m); a Link's frame_id is empty. A message's
+log time is the row's arrival (when it reached the estimator), its header.stamp the time of
+validity; estimates and truth are logged at their own time.
 """
 from __future__ import annotations
 
@@ -60,16 +62,17 @@ class _Messages:
     def vec(self, v):
         return self.ts.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
-    def odometry(self, t: float, child: str, p, q, cov: np.ndarray, v_body=(0.0, 0.0, 0.0), w_body=(0.0, 0.0, 0.0)):
-        """nav_msgs/Odometry in the world frame: position p (3,) m, attitude q (4,) wxyz, pose
-        covariance cov (6, 6), twist in the body frame (m/s, rad/s)."""
+    def odometry(self, t: float, child: str, p, q, cov: np.ndarray, v_body=(0.0, 0.0, 0.0), w_body=(0.0, 0.0, 0.0),
+                 frame: str = WORLD):
+        """nav_msgs/Odometry of child in `frame`: position p (3,) m, attitude q (4,) wxyz, pose
+        covariance cov (6, 6) (m, rad), twist in the child's frame (m/s, rad/s)."""
         T = self.ts.types
         pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
                                            orientation=T["geometry_msgs/msg/Quaternion"](w=float(q[0]), x=float(q[1]),
                                                                                           y=float(q[2]), z=float(q[3])))
         twist = T["geometry_msgs/msg/Twist"](linear=self.vec(v_body), angular=self.vec(w_body))
         return T["nav_msgs/msg/Odometry"](
-            header=self.header(t, WORLD), child_frame_id=child,
+            header=self.header(t, frame), child_frame_id=child,
             pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.ascontiguousarray(cov, float).ravel()),
             twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
 
@@ -154,8 +157,8 @@ def _estimates(m: _Messages, run_dir: Path) -> None:
                 continue
             for k in range(s.time.size):
                 t = float(s.time[k])
-                msg = m.odometry(t, target, s.value[k], (1.0, 0.0, 0.0, 0.0), _position_cov(s.cov[k]))
-                msg.header.frame_id = s.frame if s.frame != "world" else WORLD
+                msg = m.odometry(t, target, s.value[k], (1.0, 0.0, 0.0, 0.0), _position_cov(s.cov[k]),
+                                 frame=WORLD if s.frame == "world" else s.frame)
                 m.add(f"/estimates/{topic_name(key)}/{target}", msg, t)
 
 
