@@ -191,6 +191,9 @@ def _topic(spec: dict, topic: str) -> dict:
     (lambda s: _topic(s, "/links/uwb").update(fields={"value": "distance"}),
      "bag.topics[0].fields.value: 'distance': no such field in testbed_msgs/msg/Link"),
     (lambda s: _topic(s, "/links/uwb").update(fields={"range": "value"}), "bag.topics[0].fields.range: 'range': not a column of links"),
+    (lambda s: _topic(s, "/links/uwb").update(fields={"value": "src"}),
+     "bag.topics[0].fields.value: 'src': a str in testbed_msgs/msg/Link, not a number"),
+    (lambda s: _topic(s, "/uav1/gnss").update(fields={"value": "x"}), "].fields: {'value': 'x'}: only a link stream"),
     (lambda s: _topic(s, "/uav1/imu").update(stream="lidar"), "bag.topics[", ),
     (lambda s: s["bag"].update(path="nowhere"), "bag.path: 'nowhere': no such file or directory"),
     (lambda s: s["bag"].update(path=str(Path(s["bag"]["path"]).parent / "spec.toml")), "bag.path: "),
@@ -202,6 +205,14 @@ def test_a_bad_bag_or_topic_map_is_one_line_naming_spec_key_and_value(exported, 
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith(f"testbed: error: {spec}: ") and message in err, err
     assert not (tmp_path / "rep").exists()
+
+
+def test_a_bad_row_names_the_bag_table_row_and_column(exported, tmp_path, capsys):
+    spec = _spec_with(exported, tmp_path, lambda s: s["bodies"].pop("uav18"))
+    assert main(["replay", str(spec), "--out", str(tmp_path / "rep")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "rep").exists()
+    assert err.startswith(f"testbed: error: {exported / 'mcap' / 'bag'} (links rows): row ") and "'uav18/uwb' is not a site" in err, err
 
 
 def test_the_bag_is_the_only_source_and_rosbags_is_needed(exported, tmp_path, capsys, monkeypatch):

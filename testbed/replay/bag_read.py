@@ -74,6 +74,9 @@ def _row(topic: BagTopic, msg, arrival: float, rows: _Rows, where: str) -> None:
         if missing:
             raise ConfigError(f"{where}.fields.{missing[0]}: {f[missing[0]]!r}: no such field in {msg.__msgtype__}")
         cells = {c: _field(msg, f[c]) if _has(msg, f[c]) else np.nan for c in LINK_FIELDS}
+        for c in ("value", "sigma"):
+            if not isinstance(cells[c], (int, float)) or isinstance(cells[c], bool):
+                raise ConfigError(f"{where}.fields.{c}: {f[c]!r}: a {type(cells[c]).__name__} in {msg.__msgtype__}, not a number")
         rows.add(time=_stamp(msg.header), src=str(cells["src"]), dst=str(cells["dst"]), kind=s, value=float(cells["value"]),
                  sigma=float(cells["sigma"]), arrival=arrival)
     elif s == "imu":
@@ -157,7 +160,12 @@ def bag_tables(spec: ReplaySpec, spec_path: Path) -> dict[str, Table]:
         conns = [c for c in reader.connections if c.id in by_conn]
         for conn, ns, raw in reader.messages(connections=conns):
             topic, where = by_conn[conn.id]
-            _row(topic, reader.deserialize(raw, conn.msgtype), seconds(ns), rows[TABLE[topic.stream]], where)
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as e:  # a corrupt message: rosbags raises whatever its decoder met
+                raise ConfigError(f"{path}: topic {conn.topic}: the message logged at {ns} ns cannot be decoded as "
+                                  f"{conn.msgtype}: {type(e).__name__}: {e}".splitlines()[0]) from None
+            _row(topic, msg, seconds(ns), rows[TABLE[topic.stream]], where)
     finally:
         reader.close()
     return {name: _table(r, f"{path} ({name} rows)") for name, r in rows.items()}
