@@ -46,11 +46,12 @@ LINK_TOPICS = {"uwb": "/links/uwb", "phase": "/links/phase", "range-rate": "/lin
 
 
 class _Messages:
-    """Messages built with one typestore: (topic, msgtype, log time ns, message) in write order."""
+    """Messages built with one typestore, kept serialized (CDR): (topic, msgtype, log time ns, bytes)
+    in the order added."""
 
     def __init__(self, store):
         self.ts = store
-        self.items: list[tuple[str, str, int, object]] = []
+        self.items: list[tuple[str, str, int, bytes]] = []
         self.streams: dict[str, str] = {}  # {topic: the stream a replay reads from it}
 
     def header(self, t: float, frame: str):
@@ -62,14 +63,17 @@ class _Messages:
     def vec(self, v):
         return self.ts.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
+    def quat(self, q):
+        """geometry_msgs/Quaternion of q (4,) wxyz."""
+        return self.ts.types["geometry_msgs/msg/Quaternion"](w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
+
     def odometry(self, t: float, child: str, p, q, cov: np.ndarray, v_body=(0.0, 0.0, 0.0), w_body=(0.0, 0.0, 0.0),
                  frame: str = WORLD):
         """nav_msgs/Odometry of child in `frame`: position p (3,) m, attitude q (4,) wxyz, pose
         covariance cov (6, 6) (m, rad), twist in the child's frame (m/s, rad/s)."""
         T = self.ts.types
         pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                                           orientation=T["geometry_msgs/msg/Quaternion"](w=float(q[0]), x=float(q[1]),
-                                                                                          y=float(q[2]), z=float(q[3])))
+                                           orientation=self.quat(q))
         twist = T["geometry_msgs/msg/Twist"](linear=self.vec(v_body), angular=self.vec(w_body))
         return T["nav_msgs/msg/Odometry"](
             header=self.header(t, frame), child_frame_id=child,
@@ -78,7 +82,7 @@ class _Messages:
 
     def add(self, topic: str, msg, arrival: float, stream: str | None = None) -> None:
         """Queue msg on topic at log time `arrival` (s); stream: what a replay reads it as (None: not read)."""
-        self.items.append((topic, msg.__msgtype__, nanoseconds(arrival), msg))
+        self.items.append((topic, msg.__msgtype__, nanoseconds(arrival), bytes(self.ts.serialize_cdr(msg, msg.__msgtype__))))
         if stream is not None:
             self.streams[topic] = stream
 
@@ -101,7 +105,7 @@ def _links(m: _Messages, links: dict) -> None:
 
 def _imu(m: _Messages, imu: dict) -> None:
     T = m.ts.types
-    ident = T["geometry_msgs/msg/Quaternion"](w=1.0, x=0.0, y=0.0, z=0.0)
+    ident = m.quat((1.0, 0.0, 0.0, 0.0))
     unknown = np.zeros(9)
     unknown[0] = -1.0  # sensor_msgs/Imu: no orientation estimate
     for i in range(imu["time"].size):
@@ -132,15 +136,14 @@ def _truth(m: _Messages, truth: dict) -> None:
         p = [truth[c][i] for c in "xyz"]
         m.add(f"/{body}/truth", m.odometry(t, body, p, q[i], np.zeros((6, 6)), v_body[i], [truth[c][i] for c in ("wx", "wy", "wz")]), t,
               "truth")
-        tr = T["geometry_msgs/msg/Transform"](translation=m.vec(p), rotation=T["geometry_msgs/msg/Quaternion"](
-            w=float(q[i, 0]), x=float(q[i, 1]), y=float(q[i, 2]), z=float(q[i, 3])))
+        tr = T["geometry_msgs/msg/Transform"](translation=m.vec(p), rotation=m.quat(q[i]))
         frames.setdefault(t, []).append(T["geometry_msgs/msg/TransformStamped"](header=m.header(t, WORLD), child_frame_id=body,
                                                                                transform=tr))
     for t, transforms in frames.items():
         m.add("/tf", T["tf2_msgs/msg/TFMessage"](transforms=transforms), t)
 
 
-def topic_name(key: str) -> str:
+def _topic_token(key: str) -> str:
     """An estimator key as a ROS topic name token: '.' and '-' become '_'."""
     return key.replace(".", "_").replace("-", "_")
 
@@ -159,25 +162,21 @@ def _estimates(m: _Messages, run_dir: Path) -> None:
                 t = float(s.time[k])
                 msg = m.odometry(t, target, s.value[k], (1.0, 0.0, 0.0, 0.0), _position_cov(s.cov[k]),
                                  frame=WORLD if s.frame == "world" else s.frame)
-                m.add(f"/estimates/{topic_name(key)}/{target}", msg, t)
+                m.add(f"/estimates/{_topic_token(key)}/{target}", msg, t)
 
 
-def write_bag(path: Path, m: _Messages) -> dict[str, str]:
-    """The messages as a ROS 2 bag directory (MCAP) at path, in order of log time (stable);
-    returns {topic: msgtype}."""
+def write_bag(path: Path, m: _Messages) -> int:
+    """The messages as a ROS 2 bag directory (MCAP) at path, in order of log time (ties: in the
+    order added); returns the number of topics."""
     r2 = rosbags("rosbag2")
-    topics: dict[str, str] = {}
-    order = sorted(range(len(m.items)), key=lambda i: m.items[i][2])
     with r2.Writer(path, version=9, storage_plugin=r2.StoragePlugin.MCAP) as w:
         conns = {}
         for topic, msgtype, _, _ in m.items:
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, msgtype, typestore=m.ts)
-                topics[topic] = msgtype
-        for i in order:
-            topic, msgtype, ns, msg = m.items[i]
-            w.write(conns[topic], ns, m.ts.serialize_cdr(msg, msgtype))
-    return topics
+        for topic, _, ns, data in sorted(m.items, key=lambda item: item[2]):
+            w.write(conns[topic], ns, data)
+    return len(conns)
 
 
 def export_bag(run_dir: Path, out: Path, *, force: bool = False) -> list[str]:
@@ -195,6 +194,7 @@ def export_bag(run_dir: Path, out: Path, *, force: bool = False) -> list[str]:
     with Output(Path(out), kind="dataset", force=force) as o:
         topics = write_bag(o.path / BAG, m)
         spec = spec_toml(sc, run_dir, lever_arms(world.build(sc)), sc.vehicles)
-        (o.path / "spec.toml").write_text(spec + "\n" + tomli_w.dumps({"bag": {"path": BAG, "topics": [{"topic": t, "stream": s} for t, s in m.streams.items()]}}))
+        bag = {"path": BAG, "topics": [{"topic": t, "stream": s} for t, s in m.streams.items()]}
+        (o.path / "spec.toml").write_text(spec + "\n" + tomli_w.dumps({"bag": bag}))
         o.commit()
-    return ["spec.toml", f"{BAG}/ ({len(m.items)} messages on {len(topics)} topics)"]
+    return ["spec.toml", f"{BAG}/ ({len(m.items)} messages on {topics} topics)"]
