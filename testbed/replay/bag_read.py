@@ -81,7 +81,8 @@ def _row(topic: BagTopic, msg, arrival: float, rows: _Rows, where: str) -> None:
                  sigma=float(cells["sigma"]), arrival=arrival)
     elif s == "imu":
         rows.add(time=_stamp(msg.header), site=topic.source or str(msg.header.frame_id),
-                 **dict(zip(("ax", "ay", "az"), _xyz(msg.linear_acceleration))), **dict(zip(("gx", "gy", "gz"), _xyz(msg.angular_velocity))),
+                 **dict(zip(("ax", "ay", "az"), _xyz(msg.linear_acceleration))),
+                 **dict(zip(("gx", "gy", "gz"), _xyz(msg.angular_velocity))),
                  sigma_accel=_sigma(msg.linear_acceleration_covariance[0]), sigma_gyro=_sigma(msg.angular_velocity_covariance[0]),
                  arrival=arrival)
     else:

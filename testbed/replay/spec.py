@@ -62,9 +62,11 @@ class BagTopic:
         link = self.stream in LINK_STREAMS
         require(not (link and self.source), "source", self.source,
                 f"{self.source!r}: a {self.stream} message names its own src and dst (map them with fields)")
-        require(not self.fields or link, "fields", self.fields, f"{self.fields}: only a link stream (uwb, phase, range-rate) takes fields")
+        require(not self.fields or link, "fields", self.fields,
+                f"{self.fields}: only a link stream (uwb, phase, range-rate) takes fields")
         for column, path in self.fields.items():
-            require(column in LINK_FIELDS, f"fields.{column}", column, f"{column!r}: not a column of links (one of {', '.join(LINK_FIELDS)})")
+            require(column in LINK_FIELDS, f"fields.{column}", column,
+                    f"{column!r}: not a column of links (one of {', '.join(LINK_FIELDS)})")
             require(isinstance(path, str) and _FIELD.fullmatch(path) is not None, f"fields.{column}", path,
                     f"{path!r}: expected a message field path such as \"range\" or \"header.frame_id\"")
 
@@ -79,7 +81,8 @@ class BagSource:
     topics: tuple[BagTopic, ...]
 
     def __post_init__(self) -> None:
-        require(bool(self.path), "path", self.path, "empty: name the bag (a ROS 2 bag directory or .mcap file, or a ROS 1 .bag file)")
+        require(bool(self.path), "path", self.path,
+                "empty: name the bag (a ROS 2 bag directory or .mcap file, or a ROS 1 .bag file)")
         require(bool(self.topics), "topics", self.topics, "empty: map at least one topic ([[bag.topics]] topic, stream)")
         names = [t.topic for t in self.topics]
         for i, name in enumerate(names):
