@@ -14,7 +14,7 @@
     testbed demo [--out DIR] [--force]
     testbed schema
     testbed replay SPEC.toml --out DIR [--estimator ENTRY ...] [--force]
-    testbed export RUN_DIR --out DIR [--force]
+    testbed export RUN_DIR --out DIR [--format csv|mcap] [--force]
     testbed view RUN_OR_REPLAY_DIR [--out FILE.rrd] [--force] [--spawn]
 
 Long commands show a progress bar on stderr when it is a terminal (sweep and reproduce: over the
@@ -267,6 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="write a run directory as a recorded dataset (docs/replay.md)")
     p.add_argument("run_dir", type=Path)
     p.add_argument("--out", type=out_arg, required=True, help="dataset directory to write")
+    p.add_argument("--format", choices=["csv", "mcap"], default="csv",
+                   help="csv: spec.toml and CSV tables; mcap: a ROS 2 bag (MCAP) and its spec.toml (the bags extra)")
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
 
     p = sub.add_parser("view", help="write an interactive 3-D recording of a run or a replay (Rerun .rrd; the viz extra)")
@@ -374,12 +376,13 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"replay directory -> {args.out}")
         return 0
     if args.command == "export":
+        from testbed.replay.bag_export import export_bag
         from testbed.replay.export import export
 
         if not (args.run_dir / "log.npz").is_file() or not (args.run_dir / "scenario.toml").is_file():
             raise UsageError(f"{args.run_dir}: not a run directory (needs scenario.toml and log.npz)")
         apart(args.out, [args.run_dir])
-        files = export(args.run_dir, args.out, force=args.force)
+        files = (export_bag if args.format == "mcap" else export)(args.run_dir, args.out, force=args.force)
         print(f"{args.run_dir} -> {args.out}: {', '.join(files)}")
         return 0
     if args.command == "view":

@@ -93,40 +93,52 @@ def spec_toml(scenario, run_dir: Path, arms: dict, n: int) -> str:
     return "\n".join(lines)
 
 
+def tables(scenario, log: dict) -> dict[str, dict[str, np.ndarray]]:
+    """The dataset's tables of a run, {table: {column: (n,) array}} in the columns of docs/replay.md:
+    links, poses (GNSS fixes), imu (when the run has one) and truth; what `export` writes as CSV and
+    testbed.replay.bag_export as ROS 2 messages."""
+    out = {}
+    links = _links(log, scenario)
+    if links is not None:
+        out["links"] = links
+    if "gnss/value" in log:
+        g = stream_arrays("gnss", log)
+        sig = declared_sigma("gnss", g, scenario)
+        out["poses"] = {"time": g["time"], "body": g["src"], "kind": np.full(g["time"].size, "gnss"),
+                        **{c: g["value"][:, k] for k, c in enumerate("xyz")},
+                        **{f"sigma_{c}": sig[:, k] for k, c in enumerate("xyz")}, "arrival": g["arrival"]}
+    if "imu/value" in log:
+        m = stream_arrays("imu", log)
+        sig = declared_sigma("imu", m, scenario)
+        out["imu"] = {"time": m["time"], "site": m["src"],
+                      **{c: m["value"][:, k] for k, c in enumerate(("ax", "ay", "az", "gx", "gy", "gz"))},
+                      "sigma_accel": sig[:, 0], "sigma_gyro": sig[:, 3], "arrival": m["arrival"]}
+    T, V = log["truth/pos"].shape[:2]
+    cols = {"time": np.repeat(log["time"], V), "body": np.tile([f"uav{i}" for i in range(1, V + 1)], T)}
+    for key, names in (("truth/pos", ("x", "y", "z")), ("truth/quat", ("qw", "qx", "qy", "qz")),
+                       ("truth/vel", ("vx", "vy", "vz")), ("truth/omega", ("wx", "wy", "wz"))):
+        cols.update({c: log[key][:, :, k].ravel() for k, c in enumerate(names)})
+    out["truth"] = cols
+    return out
+
+
+def note_camera(run_dir: Path, log: dict) -> None:
+    """The one-line note that a run's camera stream has no place in the format."""
+    if "camera/value" in log:
+        print(f"testbed: note: {run_dir}: the camera stream is not exported (the format has no camera table)", file=sys.stderr)
+
+
 def export(run_dir: Path, out: Path, *, force: bool = False) -> list[str]:
     """Write the run at run_dir as a dataset directory at out (testbed.outdir); returns the files written."""
     run = load_run(run_dir)
     sc, log = run.scenario, run.log
     arms = lever_arms(world.build(sc))
-    if "camera/value" in log:
-        print(f"testbed: note: {run_dir}: the camera stream is not exported (the format has no camera table)", file=sys.stderr)
+    note_camera(Path(run_dir), log)
     with Output(Path(out), kind="dataset", force=force) as o:
-        written = ["spec.toml"]
         (o.path / "spec.toml").write_text(spec_toml(sc, Path(run_dir), arms, sc.vehicles))
-        links = _links(log, sc)
-        if links is not None:
-            write_csv(o.path / "links.csv", links)
-            written.append("links.csv")
-        if "gnss/value" in log:
-            g = stream_arrays("gnss", log)
-            sig = declared_sigma("gnss", g, sc)
-            write_csv(o.path / "poses.csv", {"time": g["time"], "body": g["src"], "kind": np.full(g["time"].size, "gnss"),
-                                             **{c: g["value"][:, k] for k, c in enumerate("xyz")},
-                                             **{f"sigma_{c}": sig[:, k] for k, c in enumerate("xyz")}, "arrival": g["arrival"]})
-            written.append("poses.csv")
-        if "imu/value" in log:
-            m = stream_arrays("imu", log)
-            sig = declared_sigma("imu", m, sc)
-            write_csv(o.path / "imu.csv", {"time": m["time"], "site": m["src"],
-                                           **{c: m["value"][:, k] for k, c in enumerate(("ax", "ay", "az", "gx", "gy", "gz"))},
-                                           "sigma_accel": sig[:, 0], "sigma_gyro": sig[:, 3], "arrival": m["arrival"]})
-            written.append("imu.csv")
-        T, V = log["truth/pos"].shape[:2]
-        cols = {"time": np.repeat(log["time"], V), "body": np.tile([f"uav{i}" for i in range(1, V + 1)], T)}
-        for key, names in (("truth/pos", ("x", "y", "z")), ("truth/quat", ("qw", "qx", "qy", "qz")),
-                           ("truth/vel", ("vx", "vy", "vz")), ("truth/omega", ("wx", "wy", "wz"))):
-            cols.update({c: log[key][:, :, k].ravel() for k, c in enumerate(names)})
-        write_csv(o.path / "truth.csv", cols)
-        written.append("truth.csv")
+        written = ["spec.toml"]
+        for name, columns in tables(sc, log).items():
+            write_csv(o.path / f"{name}.csv", columns)
+            written.append(f"{name}.csv")
         o.commit()
     return written

@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 from testbed.errors import ConfigError
 from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.truth import Truth, relative
+from testbed.replay.bag_read import bag_tables
 from testbed.replay.spec import ReplaySpec, load_spec
 from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_table
 from testbed.rng import stream_rng
@@ -219,18 +220,25 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 def load_recording(spec_path: Path) -> Recording:
-    """Read spec.toml and the tables beside it, check everything, build the feed; ConfigError on a mistake."""
+    """Read spec.toml and the tables beside it (or the ROS bag its [bag] names:
+    testbed.replay.bag_read), check everything, build the feed; ConfigError on a mistake."""
     spec_path = Path(spec_path)
     spec = load_spec(spec_path)
     directory = spec_path.parent
-    tables = {}
-    for name in SCHEMAS:
-        path = find(directory, name)
-        if path is None:
-            if name in REQUIRED_TABLES:
-                raise ConfigError(f"{directory}: no {name}.csv (or {name}.parquet) beside {spec_path.name}")
-            continue
-        tables[name] = read_table(path, name)
+    if spec.bag is not None:
+        beside = [path.name for name in SCHEMAS if (path := find(directory, name)) is not None]
+        if beside:
+            raise ConfigError(f"{spec_path}: bag: the spec reads a bag, but {beside[0]} lies beside it: keep one source")
+        tables = bag_tables(spec, spec_path)
+    else:
+        tables = {}
+        for name in SCHEMAS:
+            path = find(directory, name)
+            if path is None:
+                if name in REQUIRED_TABLES:
+                    raise ConfigError(f"{directory}: no {name}.csv (or {name}.parquet) beside {spec_path.name}")
+                continue
+            tables[name] = read_table(path, name)
     _check(spec, tables)
     w = spec.window
     for name, t in tables.items():

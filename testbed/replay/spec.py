@@ -11,6 +11,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from testbed.plugins.spec import EstimatorSpec
 
 FORMAT = 1
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+_FIELD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+LINK_STREAMS = ("uwb", "phase", "range-rate")
+LINK_FIELDS = ("src", "dst", "value", "sigma")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -34,6 +38,55 @@ class Window:
         in_range(self, "start", unit="s")
         in_range(self, "end", unit="s")
         require(self.end > self.start, "end", self.end, f"must be after window.start = {self.start:g} s")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class BagTopic:
+    """One topic of a bag and the stream its messages are read as (docs/replay.md, "ROS bags").
+
+    topic: its name in the bag. stream: uwb, phase, range-rate (links rows), gnss (poses rows of
+    kind gnss), imu or truth. source: the site (imu, gnss) or body (truth) measured; "" takes it
+    from each message (Imu: header.frame_id; Odometry: child_frame_id); link streams name theirs
+    in the message. fields (link streams only): {column: field path} for the columns src, dst,
+    value, sigma of a message type other than testbed_msgs/msg/Link (a dotted path such as
+    "header.frame_id"); a column not named takes the Link message's field of its name.
+    """
+
+    topic: str
+    stream: Literal["uwb", "phase", "range-rate", "gnss", "imu", "truth"]
+    source: str = ""
+    fields: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        require(self.topic.startswith("/"), "topic", self.topic, f"{self.topic!r}: a ROS topic name starts with '/'")
+        link = self.stream in LINK_STREAMS
+        require(not (link and self.source), "source", self.source,
+                f"{self.source!r}: a {self.stream} message names its own src and dst (map them with fields)")
+        require(not self.fields or link, "fields", self.fields,
+                f"{self.fields}: only a link stream (uwb, phase, range-rate) takes fields")
+        for column, path in self.fields.items():
+            require(column in LINK_FIELDS, f"fields.{column}", column,
+                    f"{column!r}: not a column of links (one of {', '.join(LINK_FIELDS)})")
+            require(isinstance(path, str) and _FIELD.fullmatch(path) is not None, f"fields.{column}", path,
+                    f"{path!r}: expected a message field path such as \"range\" or \"header.frame_id\"")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class BagSource:
+    """The dataset as a ROS bag. path: relative to the spec's directory, a ROS 2 bag directory (or
+    its .mcap file) or a ROS 1 .bag file; topics: the topics read, each with its stream (topics not
+    listed are skipped)."""
+
+    path: str
+    topics: tuple[BagTopic, ...]
+
+    def __post_init__(self) -> None:
+        require(bool(self.path), "path", self.path,
+                "empty: name the bag (a ROS 2 bag directory or .mcap file, or a ROS 1 .bag file)")
+        require(bool(self.topics), "topics", self.topics, "empty: map at least one topic ([[bag.topics]] topic, stream)")
+        names = [t.topic for t in self.topics]
+        for i, name in enumerate(names):
+            require(name not in names[:i], f"topics[{i}].topic", name, f"{name!r} is mapped twice")
 
 
 def _point(value: object) -> bool:
@@ -62,7 +115,8 @@ class ReplaySpec:
     [x, y, z] m, body frame FLU}}}, in order (the vehicles of the Context); the site's full name is
     "body/site". anchors: {name: [x, y, z] m, world ENU}, fixed. sensors: {stream: table} the declared
     sensor models handed to estimators as Context.sensors (free tables). estimators: [[estimators]]
-    tables as in a scenario (entry, name, params).
+    tables as in a scenario (entry, name, params). bag: the measurements and truth are read from
+    this ROS bag instead of the CSV tables beside the spec (None: from the tables).
     """
 
     format: int = FORMAT
@@ -73,6 +127,7 @@ class ReplaySpec:
     anchors: dict = field(default_factory=dict)
     sensors: dict = field(default_factory=dict)
     estimators: tuple[EstimatorSpec, ...] = ()
+    bag: BagSource | None = None
 
     def __post_init__(self) -> None:
         require(self.format == FORMAT, "format", self.format, f"this testbed reads format {FORMAT}")
