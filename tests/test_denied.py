@@ -165,7 +165,7 @@ def test_swarm_flies_on_the_distributed_estimate_over_the_network(tmp_path, atti
     sc = denied.variant(load("coop-denied", duration=4.0), "coop_distributed")
     sc = replace(sc, control=replace(sc.control, attitude=attitude))
     metrics = run(sc, tmp_path / "r", plots=False)
-    f = denied.flight(sc, tmp_path / "r", metrics, denied.COOP)
+    f = denied.flight(tmp_path / "r", metrics, denied.COOP)
     assert f["tracking_max_m"] < 6.0
     assert f["contacts_vehicle"] == f["contacts_obstacle"] == f["contacts_floor"] == 0
     health = f["health"]
@@ -263,7 +263,7 @@ def test_swarm_flies_on_the_distributed_window_cascade(tmp_path):
                                                params={"network": to_dict(sc.network)}),),
                  control=replace(sc.control, feedback="estimate:coop"))
     metrics = run(sc, tmp_path / "r", plots=False)
-    f = denied.flight(sc, tmp_path / "r", metrics, "coop")
+    f = denied.flight(tmp_path / "r", metrics, "coop")
     assert f["tracking_max_m"] < 3.0
     assert f["contacts_vehicle"] == f["contacts_obstacle"] == f["contacts_floor"] == 0
     assert f["health"]["sent"] > 0 and f["health"]["bytes_sent"] > 0

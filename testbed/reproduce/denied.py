@@ -27,11 +27,10 @@ The three variants on coop.ins_distributed start with the initialization phase (
 release_sigmas = RELEASE_SIGMAS): each vehicle flies on its reference until its estimate has
 converged (docs/control.md); the others fly on their estimator's first output.
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
-max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
-separation between vehicles (body origins, every logged instant); contact events: MuJoCo
-contacts of a vehicle with another or with an obstacle in the logged states replayed through
-collision (Physics.contacts_at; an event is a pair coming into contact; floor contacts counted
-apart); seconds without a GNSS fix per vehicle (gnss/fix at the logged instants).
+max over vehicles and time); the feedback estimator's position RMSE (metrics.json); and from the
+run's safety (metrics.json `flight`, testbed.safety, as in every flown run): minimum separation
+between vehicles, contact events by kind (vehicle, obstacle, floor), crashed vehicles, seconds
+without a GNSS fix per vehicle.
 
 Claims (criteria fixed here, before the runs): no contact when flying on the cooperative
 estimate, centralized, distributed, distributed without truth, and on the two window cascades
@@ -58,7 +57,6 @@ from testbed.report import Claim, fmt, markdown_table, write_claims, write_csv, 
 from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 from testbed.scenario import Scenario, load
 from testbed.stats import wilcoxon_paired
-from testbed.world import FLOOR, OBSTACLE, build
 
 VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard", "window", "window_distributed")
 TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
@@ -78,7 +76,7 @@ COOP_ENTRY = {"truth": "coop.ins", "coop": "coop.ins", "coop_distributed": "coop
 # within the tilt limit (1 sigma; rule stated before the calibration flights, docs/denied.md)
 RELEASE_SIGMAS = 1.0
 METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
-           "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
+           "contacts_obstacle", "contacts_floor", "crashed", "no_fix_mean_s", "no_fix_max_s")
 
 
 def variant(base: Scenario, name: str) -> Scenario:
@@ -99,38 +97,20 @@ def variant(base: Scenario, name: str) -> Scenario:
                    control=replace(base.control, feedback=feedback, attitude=attitude, release_sigmas=release))
 
 
-def _episodes(pairs: list[np.ndarray]) -> dict[str, int]:
-    """Contact events: a (vehicle, other) pair in contact at a logged instant and not at the
-    previous one, by kind of other."""
-    out = {"contacts_vehicle": 0, "contacts_obstacle": 0, "contacts_floor": 0}
-    before: set = set()
-    for p in pairs:
-        now = {tuple(r) for r in p.tolist()}
-        for _, o in now - before:
-            out["contacts_obstacle" if o == OBSTACLE else "contacts_floor" if o == FLOOR else "contacts_vehicle"] += 1
-        before = now
-    return out
-
-
-def flight(scenario: Scenario, run_dir: Path, metrics: dict, estimator: str) -> dict:
-    """The flight metrics of one run (module docstring); estimator: the key of the estimator whose
-    position RMSE is the estimation error."""
+def flight(run_dir: Path, metrics: dict, estimator: str) -> dict:
+    """The flight metrics of one run (module docstring): tracking from its log, safety from its
+    metrics.json's `flight` (testbed.safety); estimator: the key of the estimator whose position
+    RMSE is the estimation error."""
     log = load_log(run_dir)
     err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)  # (T, N) m
-    p = log["truth/pos"]
-    n = p.shape[1]
-    iu = np.triu_indices(n, 1)
-    sep = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1)[:, iu[0], iu[1]]
-    physics = build(scenario)
-    contacts = _episodes([physics.contacts_at(q) for q in log["qpos"]])
-    fix = log["gnss/fix"]  # (T, N) bool at log["time"]
-    dt = np.diff(log["time"])
-    no_fix = ((~fix[1:]) * dt[:, None]).sum(axis=0)  # (N,) s
+    safe = metrics["flight"]
+    no_fix = np.array(safe["no_fix_s"])  # (N,) s
     est = metrics["estimators"][estimator]
     return {"tracking_rms_m": float(np.sqrt(np.mean(err ** 2))), "tracking_max_m": float(err.max()),
-            "estimation_rmse_m": float(est["rmse_position_mean_m"]), "min_separation_m": float(sep.min()),
-            **contacts, "no_fix_mean_s": float(no_fix.mean()), "no_fix_max_s": float(no_fix.max()),
-            "no_fix_s": no_fix.tolist(), "health": est.get("health", {})}
+            "estimation_rmse_m": float(est["rmse_position_mean_m"]), "min_separation_m": safe["min_separation_m"],
+            **{f"contacts_{k}": c["events"] for k, c in safe["contacts"].items()},
+            "crashed": len(safe["crash"]["vehicles"]), "no_fix_mean_s": float(no_fix.mean()),
+            "no_fix_max_s": float(no_fix.max()), "no_fix_s": no_fix.tolist(), "health": est.get("health", {})}
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -154,7 +134,7 @@ def compute(out: Path, *, runs: int, duration: float | None, workers: int | None
         sc = variant(base, v)
         dirs = sweep_runs(sc, runs, out / "runs" / v, workers=workers)
         key = EKF if v == "gnss_ekf" else COOP
-        flights[v] = [flight(sc, d, m, key) for d, m in zip(dirs, load_metrics(dirs))]
+        flights[v] = [flight(d, m, key) for d, m in zip(dirs, load_metrics(dirs))]
     return DeniedResults(scenario=base, runs=runs, flights=flights)
 
 
@@ -207,9 +187,9 @@ def write(out: Path, res: DeniedResults, claims: list[Claim]) -> dict:
     md = [f"# coop-denied: {runs} run(s) of {fmt(sc.duration)} s per variant, seeds {sc.seed}..{sc.seed + runs - 1}", "",
           "Means over the runs. Tracking: |true - reference| position; estimation: position RMSE of the estimator "
           "the controller flies on (truth variant: the cooperative estimator, scored but not fed back); contacts: "
-          "events (a pair coming into contact); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
+          "events (a pair coming into contact); crashed: vehicles per run (testbed.safety's rules); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
     md += markdown_table(["variant", "tracking RMS m", "tracking max m", "estimation RMSE m", "min separation m",
-                          "contacts veh.", "contacts obst.", "contacts floor", "no fix mean s", "no fix max s"],
+                          "contacts veh.", "contacts obst.", "contacts floor", "crashed", "no fix mean s", "no fix max s"],
                          [[TITLES[r[0]], *r[1:]] for r in rows])
     md += ["", "Estimator health, run 0: " + "; ".join(
         f"{v}: " + ", ".join(f"{k} {x}" for k, x in res.flights[v][0]["health"].items()) for v in VARIANTS)]
