@@ -342,6 +342,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "reproduce":
         from testbed.plugins.loading import resolve
         from testbed.progress import shown, wanted
+        from testbed.report import tally
         from testbed.reproduce import reproduce
 
         specs = _estimator_specs(args.estimator)
@@ -350,8 +351,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
                       force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume)
         claims = json.loads((args.out / "claims.json").read_text()).get("claims", [])
-        held = sum(c.get("holds") is True for c in claims)
-        print(f"reproduce {args.paper}: {held} of {len(claims)} claims hold -> {args.out}/report.html")
+        print(f"reproduce {args.paper}: {tally(c.get('holds') for c in claims)} -> {args.out}/report.html")
         return 0
     if args.command == "demo":
         from testbed.demo import demo

@@ -367,8 +367,9 @@ class Control:
     n (kx sigma_p + kv sigma_v) <= g tan(max_tilt_deg) (sigma: the RMS of the position and
     velocity errors, sqrt of the covariance's trace), or, flown on the estimated attitude, until
     sigma_p is no larger than the drift of its open-loop hold; from then on it flies on the
-    estimate (needs feedback = "estimate:NAME" and max_tilt_deg > 0; 0 = off: flown on the first
-    estimate).
+    estimate (needs max_tilt_deg > 0; 0 = off: flown on the first estimate; with feedback =
+    "truth" nothing is fed back and it has no effect, so that flying a scenario on truth is the one
+    key feedback).
     """
 
     kx: float = key(4.0, unit="1/s^2")
@@ -395,8 +396,8 @@ class Control:
         require(not self.feedback_vehicles or self.feedback != "truth", "feedback_vehicles", list(self.feedback_vehicles),
                 f'{list(self.feedback_vehicles)}: only with feedback = "estimate:NAME"')
         in_range(self, "release_sigmas", 0)
-        require(not self.release_sigmas or (self.feedback != "truth" and self.max_tilt_deg > 0), "release_sigmas",
-                self.release_sigmas, f'{self.release_sigmas:g}: only with feedback = "estimate:NAME" and max_tilt_deg > 0')
+        require(not self.release_sigmas or self.feedback == "truth" or self.max_tilt_deg > 0, "release_sigmas",
+                self.release_sigmas, f'{self.release_sigmas:g}: only with max_tilt_deg > 0')
 
     @property
     def feedback_estimator(self) -> str:

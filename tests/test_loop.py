@@ -257,8 +257,7 @@ def test_a_plugin_flown_crash_is_reported(tmp_path, capsys, monkeypatch, fail):
     ('attitude = "mahony"', 'motion = "prescribed"', "control.attitude"),
     ('attitude = "kalman"', "", "control.attitude"),
     ('attitude = "estimate"', "", "control.attitude: 'estimate' needs feedback = \"estimate:NAME\""),
-    ('release_sigmas = 1.0\nmax_tilt_deg = 35.0', "", "control.release_sigmas: 1: only with feedback"),
-    ('feedback = "estimate:nav"\nrelease_sigmas = 1.0', "", "control.release_sigmas: 1: only with feedback"),
+    ('feedback = "estimate:nav"\nrelease_sigmas = 1.0', "", "control.release_sigmas: 1: only with max_tilt_deg > 0"),
     ('feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = -1.0', "", "control.release_sigmas"),
 ])
 def test_bad_feedback_keys_are_refused_at_load(tmp_path, capsys, monkeypatch, control, extra, says):
