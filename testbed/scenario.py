@@ -445,9 +445,11 @@ class Scenario:
         """[control] feedback and attitude: flown motion, a known estimator, existing vehicles, an IMU."""
         c = self.control
         name = c.feedback_estimator
-        if name or c.attitude != "truth":
-            what, value = ("control.feedback", c.feedback) if name else ("control.attitude", c.attitude)
-            require(self.motion == "flown", what, value, f'{value!r} needs motion = "flown" (a prescribed motion has no controller)')
+        # feedback = "estimate:NAME" with a prescribed motion: nothing is flown, the estimator runs on the log
+        # (so that --motion prescribed plays back a scenario written to fly on its estimate)
+        if c.attitude != "truth":
+            require(self.motion == "flown", "control.attitude", c.attitude,
+                    f'{c.attitude!r} needs motion = "flown" (a prescribed motion has no controller)')
         if name:
             names = [e.key for e in self.estimators]
             require(name in names, "control.feedback", c.feedback,

@@ -13,6 +13,8 @@ import pytest
 
 from testbed import reference
 from testbed.config import from_dict, to_dict
+from testbed.plugins.loading import resolve
+from testbed.plugins.online import in_the_loop
 from testbed.plugins.spec import EstimatorSpec
 from testbed.render_overlay import FEEDBACK_FILE, Overlays
 from testbed.reproduce import denied
@@ -55,6 +57,8 @@ def test_the_scenario_flies_on_the_distributed_filter_and_on_truth_by_one_key():
     v = denied.variant(sc, "coop_distributed")
     assert (v.control, v.estimators[0].entry) == (sc.control, est.entry)
     assert load("coop-denied", overrides={"control.feedback": "truth"}).control.feedback == "truth"
+    played = load("coop-denied", motion="prescribed")  # nothing flown: the estimator runs on the log
+    assert in_the_loop(played, build(played), resolve(played.estimators)) is None
 
 
 def test_contacts_are_classified_from_the_mujoco_state():

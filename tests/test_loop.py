@@ -253,7 +253,6 @@ def test_a_plugin_flown_crash_is_reported(tmp_path, capsys, monkeypatch, fail):
     ('feedback = "estimate"', "", "control.feedback"),
     ('feedback = "estimate:nav"\nfeedback_vehicles = [2]', "", "control.feedback_vehicles"),
     ('feedback_vehicles = [1]', "", "only with feedback"),
-    ('feedback = "estimate:nav"', 'motion = "prescribed"', "needs motion = \"flown\""),
     ('attitude = "mahony"', 'motion = "prescribed"', "control.attitude"),
     ('attitude = "kalman"', "", "control.attitude"),
     ('attitude = "estimate"', "", "control.attitude: 'estimate' needs feedback = \"estimate:NAME\""),

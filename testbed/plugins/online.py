@@ -239,10 +239,11 @@ class OnlineEstimator:
 
 
 def in_the_loop(scenario: Scenario, physics: Physics, plugins: list[Plugin]) -> OnlineEstimator | None:
-    """The estimator [control] feedback names, constructed for this run (None: truth feedback).
+    """The estimator [control] feedback names, constructed for this run (None: truth feedback or a
+    prescribed motion).
     Its Context is the one the offline feed gives, without a prior (priors come from the log)."""
     name = scenario.control.feedback_estimator
-    if not name:
+    if not name or scenario.motion != "flown":  # prescribed: no controller, the estimator runs on the log
         return None
     plugin = next(p for p in plugins if p.key == name)  # the scenario checked the name
     return OnlineEstimator(scenario, plugin, make_context(scenario, physics, plugin.key, plugin.params))
