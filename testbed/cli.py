@@ -303,8 +303,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         if "flight" in metrics:
             from testbed.safety import crash_warning, summary_line
 
-            fed = sc.control.feedback.partition(":")[2]
-            print(summary_line(metrics["flight"], metrics["estimators"].get(fed)))
+            print(summary_line(metrics["flight"], metrics["estimators"].get(sc.control.feedback_estimator)))
             crash = crash_warning(metrics["flight"])
         print(f"run directory -> {args.out}")
         if crash:

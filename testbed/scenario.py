@@ -354,7 +354,8 @@ class Control:
 
     kx (1/s^2), kv (1/s) position and velocity; kr (1/s^2), kw (1/s) attitude and rate.
     feedback: "truth" (the MuJoCo state) or "estimate:NAME", the position and velocity of the
-    `[[estimators]]` table named NAME, run online inside the loop (flown motion only);
+    `[[estimators]]` table named NAME, run online inside the loop (flown motion; a prescribed
+    one flies nothing and the estimator runs on the log);
     feedback_vehicles: the vehicles (1-based) flown on that estimate, the others on truth
     (empty: every vehicle). attitude: "truth"; "mahony", the onboard complementary filter on
     each vehicle's IMU with gains mahony_kp (1/s) and mahony_ki (1/s^2); or "estimate", the
