@@ -303,7 +303,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         if "flight" in metrics:
             from testbed.safety import crash_warning, summary_line
 
-            print(summary_line(metrics["flight"], metrics["estimators"].get(sc.control.feedback_estimator)))
+            print(summary_line(metrics["flight"], metrics["estimators"], sc.control.feedback_estimator))
             crash = crash_warning(metrics["flight"])
         print(f"run directory -> {args.out}")
         if crash:

@@ -124,9 +124,20 @@ def flight(log: Mapping[str, np.ndarray], physics: Physics) -> dict:
     return out
 
 
-def summary_line(flight: Mapping, estimator: Mapping | None = None) -> str:
-    """The flight's safety in one line (and the network statistics of `estimator`'s health,
-    the metrics.json entry of the estimator the controller flies on, when it has them)."""
+def _network(name: str, health: Mapping) -> str | None:
+    """An estimator's network statistics (its health counts) in a few words; None without."""
+    if "sent" not in health:
+        return None
+    dropped = health.get("dropped", sum(v for k, v in health.items() if k.startswith("dropped_")))
+    lat = ", ".join(f"{q} {fmt(health[f'latency_{q}_us'] / 1e3)} ms" for q in ("p50", "p95") if f"latency_{q}_us" in health)
+    return (f"network ({name}): {health['sent']} sent, {dropped} dropped, {health.get('bytes_sent', 0)} bytes"
+            + (f", latency {lat}" if lat else ""))
+
+
+def summary_line(flight: Mapping, estimators: Mapping[str, Mapping] | None = None, flown_on: str = "") -> str:
+    """The flight's safety in one line, with the network statistics in the health of the
+    estimator the controller flies on (`flown_on`, a key of `estimators`, metrics.json's entries),
+    or, flown on the truth (""), of every estimator that reports them."""
     c = flight["contacts"]
     first = [c[k]["first_s"] for k in KINDS if c[k]["first_s"] is not None]
     parts = ["contacts " + ", ".join(f"{k} {c[k]['events']}" for k in KINDS)
@@ -138,11 +149,9 @@ def summary_line(flight: Mapping, estimator: Mapping | None = None) -> str:
     if "no_fix_s" in flight:
         nf = flight["no_fix_s"]
         parts.append(f"no GNSS fix: mean {fmt(float(np.mean(nf)))} s, max {fmt(max(nf))} s")
-    health = (estimator or {}).get("health", {})
-    if "sent" in health:
-        lat = ", ".join(f"{q} {fmt(health[f'latency_{q}_us'] / 1e3)} ms" for q in ("p50", "p95") if f"latency_{q}_us" in health)
-        parts.append(f"network: {health['sent']} sent, {health['dropped']} dropped, {health['bytes_sent']} bytes"
-                     + (f", latency {lat}" if lat else ""))
+    for name, est in (estimators or {}).items():
+        if (not flown_on or name == flown_on) and (net := _network(name, est.get("health", {}))):
+            parts.append(net)
     return "safety: " + "; ".join(parts)
 
 

@@ -47,6 +47,13 @@ def test_contacts_separation_crashes_and_gnss_outages():
     line = safety.summary_line(f)
     assert line.startswith("safety: contacts vehicle 1, obstacle 0, floor 1 (first at 0.1 s)") and "4 crashed" in line
     assert safety.crash_warning(f).startswith("crash: uav1 at 0.1 s (contact force), uav2 at")
+    # the network statistics of the estimator flown on (or, on the truth, of every one that has them)
+    ests = {"a": {"health": {"sent": 10, "dropped": 2, "bytes_sent": 1520, "latency_p50_us": 5000}},
+            "w": {"health": {"sent": 8, "dropped_range": 1, "dropped_loss": 2, "bytes_sent": 64}}, "x": {}}
+    assert safety.summary_line(f, ests, "a").endswith("; network (a): 10 sent, 2 dropped, 1520 bytes, latency p50 5 ms")
+    assert safety.summary_line(f, ests).endswith("; network (a): 10 sent, 2 dropped, 1520 bytes, latency p50 5 ms; "
+                                                 "network (w): 8 sent, 3 dropped, 64 bytes")
+    assert "network" not in safety.summary_line(f, ests, "x")
 
 
 def test_a_slow_touchdown_is_a_contact_not_a_crash():
