@@ -3,7 +3,7 @@
     testbed list
     testbed estimators
     testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
-                [--set key=value ...] [--estimator ENTRY ...] [--video] [--force]
+                [--set key=value ...] [--estimator ENTRY ...] [--video] [--fail-on-crash] [--force]
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
@@ -27,7 +27,9 @@ an output location that is not the testbed's, an OS error such as a full disk) p
 follow testbed.outdir: only a directory the testbed wrote (its `.testbed` marker) is ever replaced.
 SIGINT, SIGTERM and SIGHUP stop the command cleanly (temporary files removed, workers stopped, one
 line) with exit code 128 + the signal number; a closed stdout (`testbed list | head -1`) ends it
-quietly.
+quietly. A flown run prints its safety in one line (testbed.safety) and, if a vehicle crashed,
+a warning naming it as the last line on stderr; it still exits 0 (its run directory is complete
+and scored) unless --fail-on-crash is given, then 1.
 
 Imports: this module loads only the standard library and light testbed modules at the top; each
 command imports what it needs inside `_dispatch` (numpy, mujoco, scipy, matplotlib come with
@@ -208,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--out", type=out_arg, required=True, help="run directory to write")
     p.add_argument("--video", action="store_true", help="also render video.mp4")
+    p.add_argument("--fail-on-crash", action="store_true", help="exit with code 1 when a flown vehicle crashed")
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
 
     p = sub.add_parser("render", help="render a run directory to video.mp4 (headless)")
@@ -309,8 +312,17 @@ def _dispatch(args: argparse.Namespace) -> int:
         for name, est in metrics["estimators"].items():
             keys = [k for k in est if k.startswith("rmse_")]
             print(f"  {name}: " + ", ".join(f"{k} {fmt(est[k])}" for k in keys))
+        crash = None
+        if "flight" in metrics:
+            from testbed.safety import crash_warning, summary_line
+
+            print(summary_line(metrics["flight"], metrics["estimators"], sc.control.feedback_estimator))
+            crash = crash_warning(metrics["flight"])
         print(f"run directory -> {args.out}")
-        return 0
+        if crash:
+            sys.stdout.flush()
+            print(f"testbed: warning: {crash}", file=sys.stderr)
+        return 1 if crash and args.fail_on_crash else 0
     if args.command == "render":
         from testbed.render import check_run_dir, render_run
 
@@ -344,6 +356,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "reproduce":
         from testbed.plugins.loading import resolve
         from testbed.progress import shown, wanted
+        from testbed.report import tally
         from testbed.reproduce import reproduce
 
         apart(args.out, _inputs(args))
@@ -353,8 +366,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
                       force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume)
         claims = json.loads((args.out / "claims.json").read_text()).get("claims", [])
-        held = sum(c.get("holds") is True for c in claims)
-        print(f"reproduce {args.paper}: {held} of {len(claims)} claims hold -> {args.out}/report.html")
+        print(f"reproduce {args.paper}: {tally(c.get('holds') for c in claims)} -> {args.out}/report.html")
         return 0
     if args.command == "demo":
         from testbed.demo import demo

@@ -73,8 +73,21 @@ def fmt_list(values: Iterable[float], sep: str = ", ") -> str:
     return sep.join(fmt(v) for v in values)
 
 
-def verdict(holds: bool) -> str:
+def verdict(holds: bool | None, not_decidable: str = "") -> str:
+    """A claim's verdict in words; not_decidable: why the runs cannot decide it (then holds is None
+    or ignored)."""
+    if not_decidable:
+        return f"not decidable: {not_decidable}"
     return "holds" if holds else "does not hold"
+
+
+def tally(verdicts: Iterable[bool | None]) -> str:
+    """"H of D claims hold" over the decided claims (True / False), the undecidable ones (None)
+    counted apart: "H of D claims hold, U not decidable"."""
+    v = list(verdicts)
+    undecided = sum(x is None for x in v)
+    line = f"{sum(x is True for x in v)} of {len(v) - undecided} claims hold"
+    return line + (f", {undecided} not decidable" if undecided else "")
 
 
 # ------------------------------------------------------------------------------- claims
@@ -95,7 +108,11 @@ class Claim:
     id: stable key (unique within a reproduction, with `context`); text: the claim as the paper
     states it; criterion: how it is decided (test, threshold, sample), fixed before the runs;
     holds: the verdict; numbers: what it was judged on (JSON-able; numpy values, `Undefined` and
-    non-finite floats are converted by `write_json`); summary: the decisive numbers in one line,
+    non-finite floats are converted by `write_json`); not_decidable: when set, the reason the runs
+    cannot decide the claim (its condition never occurred in them: no vehicle lost its fix, no link
+    was dropped, ...): the claim neither holds nor fails, is written with "holds": null and
+    "not_decidable": the reason, and counted apart (`tally`); holds is then False and means
+    nothing; summary: the decisive numbers in one line,
     for the verdict table; note: a remark for the reader; context: keys that locate the claim
     (e.g. {"mode": "paper", "reading": "a_dt1"}).
 
@@ -122,15 +139,18 @@ class Claim:
     n: int | None = None
     level: float | None = None
     paper_value: str = ""
+    not_decidable: str = ""
 
     def __post_init__(self) -> None:
         if not isinstance(self.holds, bool):
             raise TypeError(f"Claim {self.id!r}: holds must be a bool, got {type(self.holds).__name__}")
 
     def to_json(self) -> dict:
-        """{"id", <context keys>, "claim", "criterion", "holds", "numbers"[, "summary"][, "note"]}."""
+        """{"id", <context keys>, "claim", "criterion", "holds"[, "not_decidable"], "numbers"[, "summary"][, "note"]}."""
         out = {"id": self.id, **self.context, "claim": self.text, "criterion": self.criterion,
-               "holds": self.holds, "numbers": dict(self.numbers)}
+               "holds": None if self.not_decidable else self.holds, "numbers": dict(self.numbers)}
+        if self.not_decidable:
+            out["not_decidable"] = self.not_decidable
         if self.summary:
             out["summary"] = self.summary
         if self.note:
@@ -175,10 +195,9 @@ def format_test(name: str, statistic: float | None = None, p_value: float | None
 def claims_section(claims: Sequence[Claim], heading: str = "## Claims") -> list[str]:
     """Markdown lines: the verdict table (claim, the paper's words and number, ours, criterion,
     test with statistic, p-value or interval and n, verdict)."""
-    rows = [[c.label(), c.text, c.paper_value, c.summary, c.criterion, c.test_line(), f"**{verdict(c.holds)}**"]
-            for c in claims]
-    held = sum(c.holds for c in claims)
-    return [heading, "", f"{held} of {len(claims)} claims hold.", "",
+    rows = [[c.label(), c.text, c.paper_value, c.summary, c.criterion, c.test_line(),
+             f"**{verdict(c.holds, c.not_decidable)}**"] for c in claims]
+    return [heading, "", tally(None if c.not_decidable else c.holds for c in claims) + ".", "",
             *markdown_table(["claim", "paper", "paper's number", "ours", "criterion", "test", "verdict"], rows)]
 
 

@@ -2,7 +2,7 @@
 
 `run(scenario, out)` simulates (with the estimator of [control] feedback in the loop, if any,
 testbed.plugins.online), runs the scenario's estimator pipeline and its plugin estimators
-(`[[estimators]]`, testbed.plugins), and writes
+(`[[estimators]]`, testbed.plugins), scores a flown run's safety (testbed.safety), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
 `estimates.npz` (every estimate of the plugin estimators, when there are any),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
@@ -30,6 +30,7 @@ from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
 from testbed.plugins.run import run_estimators
+from testbed.safety import flight
 from testbed.scenario import Scenario
 from testbed.simulate import record
 from testbed.world import build
@@ -117,6 +118,8 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             scores, tracks = run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
                                             done)
             estimators.update(scores)
+            if scenario.motion == "flown":  # contacts, separation, crashes, GNSS outages (testbed.safety)
+                metrics["flight"] = flight(log, physics)
         metrics["estimators"], timing = split_timing(estimators)
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))

@@ -354,7 +354,8 @@ class Control:
 
     kx (1/s^2), kv (1/s) position and velocity; kr (1/s^2), kw (1/s) attitude and rate.
     feedback: "truth" (the MuJoCo state) or "estimate:NAME", the position and velocity of the
-    `[[estimators]]` table named NAME, run online inside the loop (flown motion only);
+    `[[estimators]]` table named NAME, run online inside the loop (flown motion; a prescribed
+    one flies nothing and the estimator runs on the log);
     feedback_vehicles: the vehicles (1-based) flown on that estimate, the others on truth
     (empty: every vehicle). attitude: "truth"; "mahony", the onboard complementary filter on
     each vehicle's IMU with gains mahony_kp (1/s) and mahony_ki (1/s^2); or "estimate", the
@@ -367,8 +368,9 @@ class Control:
     n (kx sigma_p + kv sigma_v) <= g tan(max_tilt_deg) (sigma: the RMS of the position and
     velocity errors, sqrt of the covariance's trace), or, flown on the estimated attitude, until
     sigma_p is no larger than the drift of its open-loop hold; from then on it flies on the
-    estimate (needs feedback = "estimate:NAME" and max_tilt_deg > 0; 0 = off: flown on the first
-    estimate).
+    estimate (needs max_tilt_deg > 0; 0 = off: flown on the first estimate; with feedback =
+    "truth" nothing is fed back and it has no effect, so that flying a scenario on truth is the one
+    key feedback).
     """
 
     kx: float = key(4.0, unit="1/s^2")
@@ -395,8 +397,8 @@ class Control:
         require(not self.feedback_vehicles or self.feedback != "truth", "feedback_vehicles", list(self.feedback_vehicles),
                 f'{list(self.feedback_vehicles)}: only with feedback = "estimate:NAME"')
         in_range(self, "release_sigmas", 0)
-        require(not self.release_sigmas or (self.feedback != "truth" and self.max_tilt_deg > 0), "release_sigmas",
-                self.release_sigmas, f'{self.release_sigmas:g}: only with feedback = "estimate:NAME" and max_tilt_deg > 0')
+        require(not self.release_sigmas or self.feedback == "truth" or self.max_tilt_deg > 0, "release_sigmas",
+                self.release_sigmas, f'{self.release_sigmas:g}: only with max_tilt_deg > 0')
 
     @property
     def feedback_estimator(self) -> str:
@@ -444,9 +446,11 @@ class Scenario:
         """[control] feedback and attitude: flown motion, a known estimator, existing vehicles, an IMU."""
         c = self.control
         name = c.feedback_estimator
-        if name or c.attitude != "truth":
-            what, value = ("control.feedback", c.feedback) if name else ("control.attitude", c.attitude)
-            require(self.motion == "flown", what, value, f'{value!r} needs motion = "flown" (a prescribed motion has no controller)')
+        # feedback = "estimate:NAME" with a prescribed motion: nothing is flown, the estimator runs on the log
+        # (so that --motion prescribed plays back a scenario written to fly on its estimate)
+        if c.attitude != "truth":
+            require(self.motion == "flown", "control.attitude", c.attitude,
+                    f'{c.attitude!r} needs motion = "flown" (a prescribed motion has no controller)')
         if name:
             names = [e.key for e in self.estimators]
             require(name in names, "control.feedback", c.feedback,

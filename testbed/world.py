@@ -264,8 +264,8 @@ class Physics:
         self._gyro_idx = np.array([s.adr[0] for s in gyr])[:, None] + np.arange(3)
         self.imu_idx = np.concatenate([self._acc_idx, self._gyro_idx], axis=1)  # (N, 6) into sensordata
         self._site_ids: dict[str, int] = {}
-        self.__dict__.pop("vehicle_mass", None)
-        self.__dict__.pop("vehicle_inertia", None)
+        for key in ("vehicle_mass", "vehicle_inertia", "_geom_vehicle", "_geom_obstacle"):
+            self.__dict__.pop(key, None)
 
     # ------------------------------------------------------------------ names and sites
     @property
@@ -526,11 +526,7 @@ class Physics:
         c = d.contact[: d.ncon]
         if d.ncon == 0:
             return np.zeros((0, 2), np.int64)
-        veh = np.full(m.nbody, -1)
-        veh[self.body_ids] = np.arange(self.n)
-        root = m.body_rootid[m.geom_bodyid]  # (ngeom,) root body of each geom
-        who = veh[root]  # vehicle of each geom or -1
-        obstacle = np.array([(m.geom(g).name or "").startswith("obstacle") for g in range(m.ngeom)])
+        who, obstacle = self._geom_vehicle, self._geom_obstacle
         a, b = who[c.geom1], who[c.geom2]
         other_a = np.where(obstacle[c.geom1], OBSTACLE, FLOOR)
         other_b = np.where(obstacle[c.geom2], OBSTACLE, FLOOR)
@@ -539,6 +535,37 @@ class Physics:
         v = np.where((a >= 0) & (b >= 0), np.minimum(a, b), v)
         keep = (a >= 0) | (b >= 0)
         return np.stack([v[keep], o[keep]], axis=1).astype(np.int64)
+
+    @cached_property
+    def _geom_vehicle(self) -> np.ndarray:
+        """(ngeom,) int: the vehicle index of each geom, -1 for the world's."""
+        m = self.model
+        veh = np.full(m.nbody, -1)
+        veh[self.body_ids] = np.arange(self.n)
+        return veh[m.body_rootid[m.geom_bodyid]]
+
+    @cached_property
+    def _geom_obstacle(self) -> np.ndarray:
+        """(ngeom,) bool: the geom is one of `world.obstacles`."""
+        m = self.model
+        return np.array([(m.geom(g).name or "").startswith("obstacle") for g in range(m.ngeom)])
+
+    def contact_forces_at(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """(N,) N: the normal contact force on each vehicle, summed over its contacts, in the state
+        qpos (nq,), qvel (nv,) with the rotors and applied forces off (mj_forward: MuJoCo's soft
+        contacts give the force of that penetration and approach speed)."""
+        m, d = self.model, self.data
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        d.ctrl[:] = 0.0
+        d.xfrc_applied[:] = 0.0
+        mujoco.mj_forward(m, d)
+        out, f = np.zeros(self.n), np.zeros(6)
+        who = self._geom_vehicle
+        for i in range(d.ncon):
+            mujoco.mj_contactForce(m, d, i, f)
+            for v in {int(who[d.contact.geom1[i]]), int(who[d.contact.geom2[i]])} - {-1}:
+                out[v] += abs(f[0])
+        return out
 
     def warnings(self) -> dict[str, int]:
         """MuJoCo warnings raised so far, by name (empty if none)."""

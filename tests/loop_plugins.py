@@ -63,3 +63,25 @@ class ConvergingAttitude(Converging):
         out = super().process(m)
         return out + [Estimate(time=e.time, target=e.target, quantity="attitude", value=np.array([1.0, 0.0, 0.0, 0.0]),
                                cov=self.TILT ** 2 * np.eye(3)) for e in out if e.quantity == "position"]
+
+
+class SiteEcho:
+    """Each GNSS fix as the position of its antenna site ("uav1/uwb"): a site, where the
+    controller needs the body."""
+
+    def __init__(self, context, params):
+        pass
+
+    def process(self, m):
+        return [Estimate(time=m.time, target=m.src, quantity="position", value=m.value)] if m.stream == "gnss" else []
+
+
+class Sinking(GnssEcho):
+    """GnssEcho HEIGHT m too high: the controller, believing it is above its path, flies the
+    vehicle into the floor."""
+
+    HEIGHT = 15.0
+
+    def process(self, m):
+        return [Estimate(time=e.time, target=e.target, quantity="position", value=e.value + [0.0, 0.0, self.HEIGHT])
+                for e in super().process(m)]

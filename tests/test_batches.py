@@ -79,7 +79,7 @@ def test_the_first_bad_covariance_of_a_batch_is_named_when_the_track_is_built():
 @pytest.fixture(scope="module")
 def denied_log():
     """coop-denied, 3 s on the truth, every sensor; coop.ins and coop.ins_distributed resolved."""
-    sc = scenario.load("coop-denied", duration=3.0)
+    sc = scenario.load("coop-denied", duration=3.0, overrides={"control.feedback": "truth"})
     sc = dataclasses.replace(sc, estimators=(EstimatorSpec(entry="coop.ins", name="c"),
                                              EstimatorSpec(entry="coop.ins_distributed", name="d")))
     log, physics = simulate(sc)

@@ -15,7 +15,7 @@ from testbed.world import build
 def _commands(max_tilt: float, pos_error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rotor thrusts (N, 4), desired thrust axis b3d (N, 3)) of a level hovering swarm whose
     position is off its reference by pos_error (N, 3) m."""
-    sc = load("coop-denied", duration=1.0)
+    sc = load("coop-denied", duration=1.0, overrides={"control.feedback": "truth"})
     physics = build(sc)
     n = physics.n
     ctl = GeometricController(physics, replace(sc.control, max_tilt_deg=max_tilt))

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from testbed import reference
-from testbed.config import to_dict
+from testbed.config import from_dict, to_dict
+from testbed.plugins.loading import resolve
+from testbed.plugins.online import in_the_loop
 from testbed.plugins.spec import EstimatorSpec
 from testbed.render_overlay import FEEDBACK_FILE, Overlays
 from testbed.reproduce import denied
@@ -39,6 +41,24 @@ def test_gnss_is_lost_under_the_covered_passage():
     sky = Sky(sc.sensors.gnss.sky, physics, stream_rng(sc.seed, "constellation"), physics.body_ids[:2])
     _, vis = sky.visible(physics, 0.0, np.array([[135.0, 0.0, 8.0], [-30.0, 0.0, 8.0]]))
     assert vis[0].sum() == 0 and vis[1].sum() >= 4
+
+
+def test_the_scenario_flies_on_the_distributed_filter_and_on_truth_by_one_key():
+    """coop-denied flies on coop.ins_distributed over the scenario's own [network] (the file says
+    it twice: the estimator's params and [network], and they agree), as reproduce denied's
+    coop_distributed variant; --set control.feedback=truth is the one key to fly on the state."""
+    sc = load("coop-denied")
+    (est,) = sc.estimators
+    assert (est.entry, est.name, sc.control.feedback) == ("coop.ins_distributed", denied.COOP, f"estimate:{denied.COOP}")
+    assert sc.control.release_sigmas == 1.0 and sc.control.max_tilt_deg > 0
+    net = to_dict(sc.network)
+    assert {k: net[k] for k in est.params["network"]} == est.params["network"]
+    assert to_dict(from_dict(type(sc.network), dict(est.params["network"]), "params")) == net
+    v = denied.variant(sc, "coop_distributed")
+    assert (v.control, v.estimators[0].entry) == (sc.control, est.entry)
+    assert load("coop-denied", overrides={"control.feedback": "truth"}).control.feedback == "truth"
+    played = load("coop-denied", motion="prescribed")  # nothing flown: the estimator runs on the log
+    assert in_the_loop(played, build(played), resolve(played.estimators)) is None
 
 
 def test_contacts_are_classified_from_the_mujoco_state():
@@ -131,6 +151,31 @@ def test_reproduce_denied_end_to_end(tmp_path):
     assert doc["flights"]["truth"][0]["tracking_max_m"] < 0.05  # flown on the state itself
     text = (out / "report.md").read_text()
     assert "cooperative, centralized" in text and "--motion flown" in text
+    # 1.2 s in the open street: no vehicle lost its fix, so the claims about the denied street say so
+    undecided = [c for c in result["claims"] if c["id"].endswith("beats_gnss_only")]
+    assert all(c["holds"] is None and c["not_decidable"].startswith("no vehicle lost GNSS") for c in undecided)
+    assert all(isinstance(c["holds"], bool) for c in result["claims"] if c not in undecided)
+    assert "5 not decidable" in text and "**not decidable: no vehicle lost GNSS" in text
+
+
+def _results(no_fix_max_s: float, rmse: dict) -> denied.DeniedResults:
+    """Six runs per variant (a one-sided signed-rank test can reach p = 1/64) with the given
+    estimation RMSE (m) and time without a fix."""
+    row = {k: 0.0 for k in denied.METRICS}
+    flights = {v: [{**row, "estimation_rmse_m": rmse.get(v, 1.0) + 0.01 * i, "no_fix_max_s": no_fix_max_s}
+                   for i in range(6)] for v in denied.VARIANTS}
+    return denied.DeniedResults(scenario=load("coop-denied"), runs=6, flights=flights)
+
+
+def test_denied_street_claims_are_decided_only_when_a_vehicle_lost_gnss():
+    better = {v: 0.5 for v in denied.COOPERATIVE}
+    for lost, decided in ((0.0, False), (3.2, True)):
+        claims = {c.id: c for c in denied.decide(_results(lost, {"gnss_ekf": 2.0, **better}))}
+        for v in denied.COOPERATIVE:
+            c = claims[f"{v}_beats_gnss_only"]
+            assert (c.not_decidable == "") is decided
+            assert c.to_json()["holds"] is (True if decided else None)
+            assert claims[f"{v}_flight_without_contact"].to_json()["holds"] is True  # always decidable
 
 
 def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
@@ -165,7 +210,7 @@ def test_swarm_flies_on_the_distributed_estimate_over_the_network(tmp_path, atti
     sc = denied.variant(load("coop-denied", duration=4.0), "coop_distributed")
     sc = replace(sc, control=replace(sc.control, attitude=attitude))
     metrics = run(sc, tmp_path / "r", plots=False)
-    f = denied.flight(sc, tmp_path / "r", metrics, denied.COOP)
+    f = denied.flight(tmp_path / "r", metrics, denied.COOP)
     assert f["tracking_max_m"] < 6.0
     assert f["contacts_vehicle"] == f["contacts_obstacle"] == f["contacts_floor"] == 0
     health = f["health"]
@@ -263,7 +308,7 @@ def test_swarm_flies_on_the_distributed_window_cascade(tmp_path):
                                                params={"network": to_dict(sc.network)}),),
                  control=replace(sc.control, feedback="estimate:coop"))
     metrics = run(sc, tmp_path / "r", plots=False)
-    f = denied.flight(sc, tmp_path / "r", metrics, "coop")
+    f = denied.flight(tmp_path / "r", metrics, "coop")
     assert f["tracking_max_m"] < 3.0
     assert f["contacts_vehicle"] == f["contacts_obstacle"] == f["contacts_floor"] == 0
     assert f["health"]["sent"] > 0 and f["health"]["bytes_sent"] > 0

@@ -7,7 +7,10 @@
 - nav.eskf is consistent over seeds: the ANEES of position, velocity and attitude across runs
   inside the chi-square interval (all the bmi088's errors but the gyro's turn-on bias);
 - an estimator in the loop that produces nothing or NaN stops the run with one line, exit 1,
-  no run directory; bad keys are refused at load with exit 2;
+  no run directory; one that estimates a site instead of the flown body stops within 1 s of
+  simulated time; bad keys are refused at load with exit 2;
+- a vehicle flown into the floor on a wrong estimate is reported as a crash (safety line,
+  metrics.json, a warning; exit 1 with --fail-on-crash);
 - the Mahony filter alone: converges on a static tilt; flown, within a bound from the IMU's
   declared biases;
 - an estimate steers from the tick after its measurement arrived; feedback_vehicles leaves the
@@ -17,6 +20,8 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -209,17 +214,49 @@ def test_a_loop_estimator_that_fails_stops_the_run(tmp_path, capsys, monkeypatch
     assert not (tmp_path / "out").exists() and [p.name for p in tmp_path.iterdir()] == ["s.toml"]
 
 
+def test_site_estimates_in_the_loop_stop_the_run_within_one_second(tmp_path, capsys, monkeypatch):
+    """A feedback estimator that estimates its antenna site ("uav1/uwb") instead of the body
+    "uav1": one line by 1 s of simulated time naming what arrived and what is needed (the run
+    lasts 20 s; the line reports the measurements fed, fewer than 1.1 s of them), exit 1, no run
+    directory."""
+    monkeypatch.chdir(tmp_path)
+    path = _write(tmp_path, duration=20.0, entry=f"{PLUGINS}:SiteEcho", outages="[]")
+    assert main(["run", str(path), "--out", "out"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'nav'" in err[0] and "by 1 s" in err[0], err
+    assert "position of 'uav1/uwb'" in err[0] and "no position estimate of uav1 " in err[0], err
+    fed = int(err[0].rsplit("; ", 1)[1].split()[0])
+    assert 0 < fed < 1.1 * (100 + 4 * 10 + 5)  # IMU 100 Hz, UWB to 4 anchors at 10 Hz, GNSS 5 Hz: rows in 1.1 s
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("fail", [False, True])
+def test_a_plugin_flown_crash_is_reported(tmp_path, capsys, monkeypatch, fail):
+    """Flown on an estimate 15 m too high, the vehicle falls from 10 m into the floor: the run's
+    safety line counts the floor contact, metrics.json names the crash (impact: it falls at about
+    sqrt(2 g 10 m) = 14 m/s), the last line on stderr warns; exit 0, or 1 with --fail-on-crash."""
+    monkeypatch.chdir(tmp_path)
+    path = _write(tmp_path, duration=3.0, entry=f"{PLUGINS}:Sinking", outages="[]")
+    assert main(["run", str(path), "--out", "out", *(["--fail-on-crash"] if fail else [])]) == (1 if fail else 0)
+    out, err = capsys.readouterr()
+    assert re.search(r"safety: contacts vehicle 0, obstacle 0, floor [1-9]\d* \(first at [\d.]+ s\); 1 crashed", out), out
+    assert err.strip().splitlines()[-1].startswith("testbed: warning: crash: uav1 at "), err
+    flight = json.loads((tmp_path / "out" / "metrics.json").read_text())["flight"]
+    assert flight["contacts"]["floor"]["events"] >= 1 and flight["crash"]["crashed"]
+    assert [c["vehicle"] for c in flight["crash"]["vehicles"]] == [1]
+    assert flight["crash"]["vehicles"][0]["cause"] in ("impact", "contact force")
+    assert flight["crash"]["vehicles"][0]["time_s"] == flight["contacts"]["floor"]["first_s"]
+
+
 @pytest.mark.parametrize("control, extra, says", [
     ('feedback = "estimate:other"', "", "control.feedback: 'estimate:other': no [[estimators]] named 'other'"),
     ('feedback = "estimate"', "", "control.feedback"),
     ('feedback = "estimate:nav"\nfeedback_vehicles = [2]', "", "control.feedback_vehicles"),
     ('feedback_vehicles = [1]', "", "only with feedback"),
-    ('feedback = "estimate:nav"', 'motion = "prescribed"', "needs motion = \"flown\""),
     ('attitude = "mahony"', 'motion = "prescribed"', "control.attitude"),
     ('attitude = "kalman"', "", "control.attitude"),
     ('attitude = "estimate"', "", "control.attitude: 'estimate' needs feedback = \"estimate:NAME\""),
-    ('release_sigmas = 1.0\nmax_tilt_deg = 35.0', "", "control.release_sigmas: 1: only with feedback"),
-    ('feedback = "estimate:nav"\nrelease_sigmas = 1.0', "", "control.release_sigmas: 1: only with feedback"),
+    ('feedback = "estimate:nav"\nrelease_sigmas = 1.0', "", "control.release_sigmas: 1: only with max_tilt_deg > 0"),
     ('feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = -1.0', "", "control.release_sigmas"),
 ])
 def test_bad_feedback_keys_are_refused_at_load(tmp_path, capsys, monkeypatch, control, extra, says):

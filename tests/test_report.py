@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from testbed.report import (
-    NULL_SUFFIX, Claim, Undefined, claims_section, fmt, fmt_ci, fmt_pm, markdown_table, write_claims, write_csv,
-    write_json,
+    NULL_SUFFIX, Claim, Undefined, claims_section, fmt, fmt_ci, fmt_pm, markdown_table, tally, write_claims,
+    write_csv, write_json,
 )
 
 
@@ -58,6 +58,20 @@ def test_verdict_table_counts_and_labels_claims():
     assert "1 of 2 claims hold." in lines
     assert any(ln.startswith("| a | A |") and "**holds**" in ln for ln in lines)
     assert any(ln.startswith("| b [r1] | B |") and "**does not hold**" in ln for ln in lines)
+
+
+def test_a_claim_whose_condition_did_not_occur_is_counted_apart(tmp_path):
+    claims = [Claim(id="a", text="A", criterion="ka", holds=True, numbers={}),
+              Claim(id="b", text="B", criterion="kb", holds=False, numbers={}, not_decidable="no link was dropped"),
+              Claim(id="c", text="C", criterion="kc", holds=False, numbers={})]
+    lines = claims_section(claims)
+    assert "1 of 2 claims hold, 1 not decidable." in lines
+    assert any(ln.startswith("| b | B |") and "**not decidable: no link was dropped**" in ln for ln in lines)
+    doc = write_claims(tmp_path / "claims.json", claims)
+    assert [c["holds"] for c in doc["claims"]] == [True, None, False]
+    assert doc["claims"][1]["not_decidable"] == "no link was dropped" and "not_decidable" not in doc["claims"][0]
+    assert tally(c["holds"] for c in doc["claims"]) == "1 of 2 claims hold, 1 not decidable"
+    assert tally([True, False]) == "1 of 2 claims hold"
 
 
 def test_numbers_for_people_are_formatted_in_one_way():

@@ -77,10 +77,10 @@ def test_phase_claims_of_one_run_are_strict_json(tmp_path):
     assert test["n"] == 1 and test["p_value"] is None
 
 
-def _visnav_results(runs: int, glint_scale: list[float], rng: np.random.Generator) -> list[dict]:
+def _visnav_results(runs: int, glint_scale: list[float], rng: np.random.Generator, glints: float = 0.1) -> list[dict]:
     def case(scale):
         return {"metrics": {n: {k: s * (1 + 0.05 * rng.random()) for k, _, _ in visnav.QUANTITIES}
-                            for n, s in zip(visnav.FILTERS, scale)}}
+                            for n, s in zip(visnav.FILTERS, scale)}, "glint_fraction": glints}
     return [{"glint": case(glint_scale), "gaussian": case([1.0] * 5)} for _ in range(runs)]
 
 
@@ -97,6 +97,15 @@ def test_visnav_claims_are_decided_by_their_named_tests():
             r["gaussian"]["metrics"]["rhcf"][k] *= 1.2
     no = visnav.decide(visnav.VisnavResults(results=bad, extra={}, meta={}))
     assert [c.holds for c in no] == [False, False]
+    assert [c.not_decidable for c in ok + no] == [""] * 4
+
+
+def test_visnav_glint_ordering_is_not_decidable_without_a_glint():
+    rng = np.random.default_rng(3)
+    res = visnav.VisnavResults(results=_visnav_results(12, [5, 5, 4, 3, 2], rng, glints=0.0), extra={}, meta={})
+    glint, cost = visnav.decide(res)
+    assert glint.not_decidable.startswith("no glint outlier") and glint.to_json()["holds"] is None
+    assert not cost.not_decidable and cost.holds  # the Gaussian case needs no event
 
 
 def _sweep_rows(anees: dict[float, list[float]]) -> list[dict]:

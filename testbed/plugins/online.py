@@ -20,6 +20,12 @@ estimated attitude, once sigma_p is no larger than the drift of the open-loop ho
 from the attitude's declared tilt (docs/control.md, the initialization phase); an estimate without
 a covariance never releases it.
 
+Target check: at the first tick from TARGET_CHECK_S (1 s) on at which the estimator has given any
+estimate, every fed-back vehicle must have a world position estimate of its body "uavI", unless
+the estimates name only flown bodies (a vehicle may still be waiting for its first fix); otherwise
+the run stops there with a PluginError naming what arrived (e.g. the site "uav1/uwb") and what is
+needed, instead of flying the whole run on the reference.
+
 Order check: batches are cut at tick times and sorted inside, and a measurement arrives no
 earlier than it was taken, so the concatenated batches are the offline feed's order.
 """
@@ -42,6 +48,7 @@ from testbed.scenario import Scenario
 from testbed.world import Physics
 
 ARRIVAL_TOLERANCE = 1e-9  # s: an arrival this close after a tick time counts as at the tick
+TARGET_CHECK_S = 1.0  # s: by then (or at the first estimates after it) the estimates must name the flown bodies
 HELD = {"position": 0, "velocity": 1, "attitude": 2}  # the quantities held for the controller
 
 
@@ -74,6 +81,7 @@ class OnlineEstimator:
         self._pending: list = []  # heap of (arrival, time, stream, row, columns, index)
         self._rows: dict[str, int] = {}
         self.fed = 0
+        self.arrived: set[tuple] | None = set()  # (target, quantity, frame) of the estimates until the target check
 
     def measured(self, name: str, rows: dict[str, np.ndarray]) -> None:
         """The rows a sensor just recorded (Recorder.new_rows), queued by arrival."""
@@ -105,10 +113,34 @@ class OnlineEstimator:
                     self._hold(process(self.plugin, self.est, self.col, cols.measurement(k)))
             self.fed += end - r
         self.wall += wallclock.perf_counter() - t0
+        if self.arrived is not None and t >= TARGET_CHECK_S and self.arrived:
+            self._check_targets(t)
+
+    def _check_targets(self, t: float) -> None:
+        """The target check, once, at the first tick t (s) from TARGET_CHECK_S on at which the
+        estimator has given estimates: a fed-back vehicle without a world position estimate, while
+        the estimates name other targets (a site such as "uav1/uwb", another frame) or none of the
+        flown bodies, is a mistake of the estimator's targets; PluginError naming what arrived and
+        what is needed. (Before any estimate the vehicles fly on their reference: an estimator may
+        wait for its first fix.)"""
+        arrived, self.arrived = self.arrived, None
+        missing = [f"uav{i + 1}" for i in np.flatnonzero(self.vehicles & ~self.has[0])]
+        flown = {f"uav{i + 1}" for i in np.flatnonzero(self.vehicles)}
+        other = sorted(a for a in arrived if not (a[0] in flown and a[1] in HELD and a[2] == "world"))
+        if not missing or not (other or len(missing) == len(flown)):
+            return
+        seen = ", ".join(f"{q} of {tg!r}" + ("" if f == "world" else f" in frame {f!r}") for tg, q, f in other[:6])
+        more = f" and {len(other) - 6} more" if len(other) > 6 else ""
+        raise PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) in the control loop (control.feedback): "
+                          f"by {t:.3g} s it estimated {seen or 'no position of a flown body'}{more}; the controller needs "
+                          f"a world position of each flown body: no position estimate of {', '.join(missing)} "
+                          f"(targets 'uavI', not sites such as 'uav1/uwb'; {self.fed} measurements fed)")
 
     def _hold(self, estimates: list) -> None:
         """Keep the latest (by time of validity) world position, velocity and attitude of each vehicle."""
         for e in estimates:
+            if self.arrived is not None:  # until the target check (_check_targets)
+                self.arrived.update((tg, e.quantity, e.frame) for tg in ((e.target,) if isinstance(e.target, str) else set(e.target)))
             if isinstance(e, EstimateBatch):
                 self._hold_batch(e)
                 continue
@@ -207,10 +239,11 @@ class OnlineEstimator:
 
 
 def in_the_loop(scenario: Scenario, physics: Physics, plugins: list[Plugin]) -> OnlineEstimator | None:
-    """The estimator [control] feedback names, constructed for this run (None: truth feedback).
+    """The estimator [control] feedback names, constructed for this run (None: truth feedback or a
+    prescribed motion).
     Its Context is the one the offline feed gives, without a prior (priors come from the log)."""
     name = scenario.control.feedback_estimator
-    if not name:
+    if not name or scenario.motion != "flown":  # prescribed: no controller, the estimator runs on the log
         return None
     plugin = next(p for p in plugins if p.key == name)  # the scenario checked the name
     return OnlineEstimator(scenario, plugin, make_context(scenario, physics, plugin.key, plugin.params))

@@ -24,20 +24,22 @@ updated by it).
 - window_distributed: flies on `coop.window_distributed_ins`: the window per vehicle, seed 001's
                message iteration over the scenario's [network].
 The three variants on coop.ins_distributed start with the initialization phase ([control]
-release_sigmas = RELEASE_SIGMAS): each vehicle flies on its reference until its estimate has
+release_sigmas, the scenario file's 1 sigma): each vehicle flies on its reference until its estimate has
 converged (docs/control.md); the others fly on their estimator's first output.
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
-max over vehicles and time); the feedback estimator's position RMSE (metrics.json); minimum
-separation between vehicles (body origins, every logged instant); contact events: MuJoCo
-contacts of a vehicle with another or with an obstacle in the logged states replayed through
-collision (Physics.contacts_at; an event is a pair coming into contact; floor contacts counted
-apart); seconds without a GNSS fix per vehicle (gnss/fix at the logged instants).
+max over vehicles and time); the feedback estimator's position RMSE (metrics.json); and from the
+run's safety (metrics.json `flight`, testbed.safety, as in every flown run): minimum separation
+between vehicles, contact events by kind (vehicle, obstacle, floor), crashed vehicles, seconds
+without a GNSS fix per vehicle.
 
 Claims (criteria fixed here, before the runs): no contact when flying on the cooperative
 estimate, centralized, distributed, distributed without truth, and on the two window cascades
 (one claim each; the window variants' claims were added before their first run on these seeds);
 cooperation's estimation error below GNSS-only's, the same five (one-sided Wilcoxon
-signed-rank over paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so).
+signed-rank over paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so); these
+are about a street that denies GNSS, so they are "not decidable" (testbed.report.Claim) unless a
+vehicle of the variant's or the GNSS-only runs spent some time without a fix (a short run that
+never reaches the covered passage).
 
 Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
 claims), `write` (files through testbed.report); `reproduce` chains them.
@@ -58,7 +60,6 @@ from testbed.report import Claim, fmt, markdown_table, write_claims, write_csv, 
 from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 from testbed.scenario import Scenario, load
 from testbed.stats import wilcoxon_paired
-from testbed.world import FLOOR, OBSTACLE, build
 
 VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard", "window", "window_distributed")
 TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
@@ -73,12 +74,8 @@ ALPHA = 0.05
 COOP_ENTRY = {"truth": "coop.ins", "coop": "coop.ins", "coop_distributed": "coop.ins_distributed",
               "coop_lossy": "coop.ins_distributed", "coop_onboard": "coop.ins_distributed",
               "window": "coop.window_ins", "window_distributed": "coop.window_distributed_ins"}
-# the distributed variants' initialization phase ([control] release_sigmas, docs/control.md): a vehicle
-# flies on its estimate once the controller's answer to its RMS error, kx sigma_p + kv sigma_v, is
-# within the tilt limit (1 sigma; rule stated before the calibration flights, docs/denied.md)
-RELEASE_SIGMAS = 1.0
 METRICS = ("tracking_rms_m", "tracking_max_m", "estimation_rmse_m", "min_separation_m", "contacts_vehicle",
-           "contacts_obstacle", "contacts_floor", "no_fix_mean_s", "no_fix_max_s")
+           "contacts_obstacle", "contacts_floor", "crashed", "no_fix_mean_s", "no_fix_max_s")
 
 
 def variant(base: Scenario, name: str) -> Scenario:
@@ -89,48 +86,30 @@ def variant(base: Scenario, name: str) -> Scenario:
     if name == "gnss_ekf":
         return replace(base, sensors=replace(base.sensors, uwb=None), network=net,
                        estimators=(EstimatorSpec(entry="coop.ins", name=EKF),),
-                       control=replace(base.control, feedback=f"estimate:{EKF}"))
+                       control=replace(base.control, feedback=f"estimate:{EKF}", release_sigmas=0.0))
     coop = EstimatorSpec(entry=COOP_ENTRY[name], name=COOP,
                          params={} if name in ("truth", "coop", "window") else {"network": to_dict(net)})
     feedback = "truth" if name == "truth" else f"estimate:{COOP}"
     attitude = "estimate" if name == "coop_onboard" else base.control.attitude
-    release = RELEASE_SIGMAS if COOP_ENTRY[name] == "coop.ins_distributed" else base.control.release_sigmas
+    release = base.control.release_sigmas if COOP_ENTRY[name] == "coop.ins_distributed" else 0.0
     return replace(base, network=net, estimators=(coop,),
                    control=replace(base.control, feedback=feedback, attitude=attitude, release_sigmas=release))
 
 
-def _episodes(pairs: list[np.ndarray]) -> dict[str, int]:
-    """Contact events: a (vehicle, other) pair in contact at a logged instant and not at the
-    previous one, by kind of other."""
-    out = {"contacts_vehicle": 0, "contacts_obstacle": 0, "contacts_floor": 0}
-    before: set = set()
-    for p in pairs:
-        now = {tuple(r) for r in p.tolist()}
-        for _, o in now - before:
-            out["contacts_obstacle" if o == OBSTACLE else "contacts_floor" if o == FLOOR else "contacts_vehicle"] += 1
-        before = now
-    return out
-
-
-def flight(scenario: Scenario, run_dir: Path, metrics: dict, estimator: str) -> dict:
-    """The flight metrics of one run (module docstring); estimator: the key of the estimator whose
-    position RMSE is the estimation error."""
+def flight(run_dir: Path, metrics: dict, estimator: str) -> dict:
+    """The flight metrics of one run (module docstring): tracking from its log, safety from its
+    metrics.json's `flight` (testbed.safety); estimator: the key of the estimator whose position
+    RMSE is the estimation error."""
     log = load_log(run_dir)
     err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)  # (T, N) m
-    p = log["truth/pos"]
-    n = p.shape[1]
-    iu = np.triu_indices(n, 1)
-    sep = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1)[:, iu[0], iu[1]]
-    physics = build(scenario)
-    contacts = _episodes([physics.contacts_at(q) for q in log["qpos"]])
-    fix = log["gnss/fix"]  # (T, N) bool at log["time"]
-    dt = np.diff(log["time"])
-    no_fix = ((~fix[1:]) * dt[:, None]).sum(axis=0)  # (N,) s
+    safe = metrics["flight"]
+    no_fix = np.array(safe["no_fix_s"])  # (N,) s
     est = metrics["estimators"][estimator]
     return {"tracking_rms_m": float(np.sqrt(np.mean(err ** 2))), "tracking_max_m": float(err.max()),
-            "estimation_rmse_m": float(est["rmse_position_mean_m"]), "min_separation_m": float(sep.min()),
-            **contacts, "no_fix_mean_s": float(no_fix.mean()), "no_fix_max_s": float(no_fix.max()),
-            "no_fix_s": no_fix.tolist(), "health": est.get("health", {})}
+            "estimation_rmse_m": float(est["rmse_position_mean_m"]), "min_separation_m": safe["min_separation_m"],
+            **{f"contacts_{k}": c["events"] for k, c in safe["contacts"].items()},
+            "crashed": len(safe["crash"]["vehicles"]), "no_fix_mean_s": float(no_fix.mean()),
+            "no_fix_max_s": float(no_fix.max()), "no_fix_s": no_fix.tolist(), "health": est.get("health", {})}
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -154,7 +133,7 @@ def compute(out: Path, *, runs: int, duration: float | None, workers: int | None
         sc = variant(base, v)
         dirs = sweep_runs(sc, runs, out / "runs" / v, workers=workers)
         key = EKF if v == "gnss_ekf" else COOP
-        flights[v] = [flight(sc, d, m, key) for d, m in zip(dirs, load_metrics(dirs))]
+        flights[v] = [flight(d, m, key) for d, m in zip(dirs, load_metrics(dirs))]
     return DeniedResults(scenario=base, runs=runs, flights=flights)
 
 
@@ -175,6 +154,8 @@ def decide(res: DeniedResults) -> list[Claim]:
     b = res.column("gnss_ekf", "estimation_rmse_m")
     for v in COOPERATIVE:
         a = res.column(v, "estimation_rmse_m")
+        # a claim about the denied street needs a street that denied: some vehicle without a fix
+        lost = max(res.column(v, "no_fix_max_s").max(), res.column("gnss_ekf", "no_fix_max_s").max())
         t = wilcoxon_paired(a, b, alternative="less", level=1 - ALPHA) if runs > 1 else None
         better = bool(np.mean(a) < np.mean(b)) if t is None else bool(np.isfinite(t.p_value) and t.p_value < ALPHA)
         claims.append(Claim(
@@ -186,7 +167,8 @@ def decide(res: DeniedResults) -> list[Claim]:
             summary=f"mean position RMSE {fmt(float(np.mean(a)))} m vs {fmt(float(np.mean(b)))} m",
             test=t.test if t else "point comparison", statistic=t.statistic if t else None,
             p_value=t.p_value if t else None, n=runs, level=1 - ALPHA if t else None,
-            paper_value="(issue #18)"))
+            paper_value="(issue #18)",
+            not_decidable="" if lost > 0 else "no vehicle lost GNSS in these runs (0 s without a fix)"))
     return claims
 
 
@@ -207,9 +189,9 @@ def write(out: Path, res: DeniedResults, claims: list[Claim]) -> dict:
     md = [f"# coop-denied: {runs} run(s) of {fmt(sc.duration)} s per variant, seeds {sc.seed}..{sc.seed + runs - 1}", "",
           "Means over the runs. Tracking: |true - reference| position; estimation: position RMSE of the estimator "
           "the controller flies on (truth variant: the cooperative estimator, scored but not fed back); contacts: "
-          "events (a pair coming into contact); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
+          "events (a pair coming into contact); crashed: vehicles per run (testbed.safety's rules); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
     md += markdown_table(["variant", "tracking RMS m", "tracking max m", "estimation RMSE m", "min separation m",
-                          "contacts veh.", "contacts obst.", "contacts floor", "no fix mean s", "no fix max s"],
+                          "contacts veh.", "contacts obst.", "contacts floor", "crashed", "no fix mean s", "no fix max s"],
                          [[TITLES[r[0]], *r[1:]] for r in rows])
     md += ["", "Estimator health, run 0: " + "; ".join(
         f"{v}: " + ", ".join(f"{k} {x}" for k, x in res.flights[v][0]["health"].items()) for v in VARIANTS)]

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import testbed
 from testbed import provenance
-from testbed.report import format_test, markdown_table, verdict, write_markdown
+from testbed.report import format_test, markdown_table, tally, verdict, write_markdown
 
 DEPENDENCIES = ("numpy", "scipy", "mujoco", "gtsam", "matplotlib")
 TITLES = {"phase": "Seed 003 (Pan, Yin, Xu 2023): carrier-phase relative navigation of formations",
@@ -56,7 +56,7 @@ def _claim_rows(claims: Sequence[Mapping]) -> list[list[str]]:
         rows.append([f"{c['id']} [{ctx}]" if ctx else c["id"], c["claim"], c.get("paper_value", ""), c.get("summary", ""),
                      c["criterion"], format_test(t.get("name", ""), t.get("statistic"), t.get("p_value"),
                                                  t.get("interval"), t.get("n"), t.get("level")),
-                     f"**{verdict(c['holds'])}**"])
+                     f"**{verdict(c['holds'], c.get('not_decidable', ''))}**"])
     return rows
 
 
@@ -69,8 +69,7 @@ def markdown(out: Path, *, paper: str, command: str) -> list[str]:
              "## How this was made", "", "```", command, "```", ""]
     lines += [f"- {s}" for s in _seeds(doc)]
     lines += ["- versions: " + ", ".join(f"{k} {v}" for k, v in versions().items()), ""]
-    held = sum(bool(c["holds"]) for c in claims)
-    lines += ["## Claims", "", f"{held} of {len(claims)} claims hold. Each is decided by the test named beside it "
+    lines += ["## Claims", "", f"{tally(c['holds'] for c in claims)}. Each is decided by the test named beside it "
               "(statistic; p-value or confidence interval; n = Monte Carlo runs unless stated).", ""]
     lines += markdown_table(["claim", "paper", "paper's number", "ours", "criterion", "test", "verdict"],
                             _claim_rows(claims))

@@ -58,7 +58,7 @@ def calibrate(seeds=CALIBRATION_SEEDS, kappas=KAPPA_GRID, duration: float = CALI
         EstimatorSpec(entry="coop.ins_distributed", name=_name(k), params={"peer_inflation": float(k)}) for k in kappas)
     rows = []
     for seed in seeds:
-        sc = scenario_mod.load("coop-denied", seed=int(seed), duration=duration)
+        sc = scenario_mod.load("coop-denied", {"control.feedback": "truth"}, seed=int(seed), duration=duration)
         with run(replace(sc, estimators=specs), plots=False) as r:
             for spec, kappa in zip(specs, (None,) + tuple(kappas)):
                 m = r.metrics["estimators"][spec.name]
