@@ -14,6 +14,9 @@ from matplotlib.figure import Figure
 
 from testbed.interrupt import poll
 
+#: a value axis whose positive values span more than this ratio is drawn on a log scale (spans_decades)
+LOG_RATIO = 30.0
+
 
 def figure(**kwargs) -> Figure:
     """A new figure on its own Agg canvas; kwargs go to `Figure` (figsize in inches, ...)."""
@@ -55,13 +58,24 @@ def error_envelope(t: np.ndarray, err: np.ndarray, sigma: np.ndarray | None, pat
     return save(fig, path)
 
 
+def spans_decades(values: np.ndarray, ratio: float = LOG_RATIO) -> bool:
+    """True when `values` (any shape) are all finite and positive and the largest exceeds `ratio`
+    times the smallest: on a linear axis the small ones would be flattened (87 m beside 0.3 m)."""
+    v = np.asarray(values, dtype=float).ravel()
+    return v.size > 1 and bool(np.all(np.isfinite(v)) and np.all(v > 0)) and v.max() > ratio * v.min()
+
+
 def compare_bars(names: list[str], means: np.ndarray, lo: np.ndarray, hi: np.ndarray, path: Path, *,
                  title: str, ylabel: str) -> Path:
-    """Bar chart of a score per method with confidence intervals (lo, hi)."""
+    """Bar chart of a score per method with confidence intervals (lo, hi); the value axis is
+    logarithmic when the means span decades (`spans_decades`), and says so."""
     fig = figure(figsize=(1.1 * len(names) + 2.5, 3.2))
     ax = fig.subplots()
     means, lo, hi = map(np.asarray, (means, lo, hi))
     ax.bar(names, means, yerr=[means - lo, hi - means], capsize=4, color=[f"C{i}" for i in range(len(names))])
+    if spans_decades(means):
+        ax.set_yscale("log")
+        ylabel += " (log scale)"
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)

@@ -30,7 +30,7 @@ TITLES = {"phase": "Seed 003 (Pan, Yin, Xu 2023): carrier-phase relative navigat
           "visnav": "Seed 004 (Jin et al. 2017): vision-aided relative navigation with glint noise",
           "bandwidth": "Seed 000 (Zhao et al. 2020): bandwidth-limited distributed fusion",
           "coop": "Seed 001 (Chen et al. 2020): factor-graph cooperative navigation",
-          "denied": "Issue #18: cooperative flight through GNSS-denied streets (coop-denied)"}
+          "denied": "GNSS-denied cooperative flight (coop-denied): 18 UAVs through streets where GNSS fades"}
 _IMAGE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<src>[^)]+)\)$")
 
 
