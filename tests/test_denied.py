@@ -131,6 +131,9 @@ def test_reproduce_denied_end_to_end(tmp_path):
     assert doc["flights"]["truth"][0]["tracking_max_m"] < 0.05  # flown on the state itself
     text = (out / "report.md").read_text()
     assert "cooperative, centralized" in text and "--motion flown" in text
+    # written for its reader: the scenario and its page, no tracker number
+    assert text.startswith("# GNSS-denied cooperative flight (coop-denied") and "issue" not in text.lower()
+    assert "(no paper: docs/denied.md)" in text
 
 
 def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
