@@ -1,6 +1,6 @@
 """Cooperative inertial navigation of a swarm: one IMU error-state EKF per vehicle, batched over
 the vehicles, updated by GNSS fixes, UWB ranges to anchors and UWB ranges between vehicles
-(issue #18: the estimate a swarm flies on through GNSS-denied space).
+(the estimate a swarm flies on through GNSS-denied space: docs/denied.md).
 
 Per vehicle i the nominal state (world ENU, body FLU): position p (3) m and velocity v (3) m/s
 of the IMU (the body origin), attitude q (4) wxyz body-to-world, accelerometer bias b_a (3) m/s^2

@@ -579,7 +579,7 @@ def solve_centralized(
     cost_tol: if > 0, also stop when the relative cost decrease is below it on two consecutive
     steps. Off by default: the cost's evaluation scatters by ~3e-14 relative (round-off of
     d - |p_i - p_j|), so it cannot order iterates closer than ~5e-7 m along the weakest direction;
-    a cost test stopped at up to 5e-7 m from the optimum on coop-fg epochs (issue #15);
+    a cost test stopped at up to 5e-7 m from the optimum on coop-fg epochs;
     covariance: "marginal" (n,3,3 blocks; dense inverse up to 3n = 600 unknowns, above that the
     sparse selected inverse `_marginal_blocks`), "full" (also the (3n,3n) matrix) or "none".
     A step that increases the cost is halved (up to max_halvings); if no halving decreases it the

@@ -7,7 +7,7 @@ enough dimensions: four or more points not on one plane for a 3-D position from 
 three not on one line when the plane's mirror ambiguity is resolved otherwise (a height aid).
 On degenerate geometry the normal equations are singular, and a Cholesky factorization of them
 either fails or, worse, succeeds on round-off and returns an arbitrary position hundreds of
-metres away (issue 16: 581 m for four coplanar anchors). The functions here detect it from the
+metres away (581 m for four coplanar anchors, measured). The functions here detect it from the
 singular values, with a relative tolerance well above round-off, and say so.
 
 Pure numpy; never imports mujoco or testbed.

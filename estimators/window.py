@@ -1,4 +1,4 @@
-"""Seed 001's factor graph over a sliding window of epochs, online (issue #18).
+"""Seed 001's factor graph over a sliding window of epochs, online (the GNSS-denied flight: docs/denied.md).
 
 Variables: at each epoch k of the window (K <= `window` epochs, oldest first) the position p_i
 (3,) m and velocity v_i (3,) m/s, world ENU, of every vehicle i's antenna (the GNSS antenna =

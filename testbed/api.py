@@ -81,8 +81,8 @@ class Run:
     metrics: metrics.json as a dict (`estimators` -> name -> scores). provenance: provenance.json
     as a dict (testbed version and git commit, command, Python and package versions, BLAS kernel,
     CPU, wall and CPU time: testbed.provenance), None for a run written before it existed.
-    time: (K,) s, the log instants. log: every array of log.npz by key (data contract, README
-    "Run directory").
+    time: (K,) s, the log instants. log: every array of log.npz by key (data contract,
+    docs/usage.md "Run directory").
     Loaded lazily from disk, except for a temporary run (`run(..., out=None)`), which is read in
     at once. Use as a context manager to remove a temporary run's directory on exit.
     """

@@ -116,7 +116,7 @@ class Claim:
     for the verdict table; note: a remark for the reader; context: keys that locate the claim
     (e.g. {"mode": "paper", "reading": "a_dt1"}).
 
-    Verdict fields (issue 15: every claim decided by a stated test), shown on the verdict line:
+    Verdict fields (every claim decided by a stated test, testbed.stats), shown on the verdict line:
     test: the test's name (e.g. "Wilcoxon signed-rank (less)", "Clopper-Pearson (upper)", or
     "deterministic comparison" when nothing is sampled); statistic; p_value (None when the test
     gives an interval only); interval: (lo, hi) at `level`; n: the sample size (Monte Carlo runs);

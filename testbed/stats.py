@@ -1,4 +1,4 @@
-"""Statistical tests that decide the paper claims of the reproductions (issue 15).
+"""Statistical tests that decide the paper claims of the reproductions (`testbed reproduce`).
 
 Every test returns a `TestResult`: the test's name, its statistic, the p-value and/or a
 confidence interval, the sample size n and the level, so that a verdict line can show all of them.

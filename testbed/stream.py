@@ -1,7 +1,7 @@
 """Typed access to one sensor stream of a run log (`Run.stream(name)`).
 
-A stream's rows are what `log.npz` holds under `NAME/...` (the data contract, README "Run
-directory"); `Stream` gives them names, shapes and units, and adds the sigma the scenario declares
+A stream's rows are what `log.npz` holds under `NAME/...` (the data contract, docs/usage.md
+"Run directory"); `Stream` gives them names, shapes and units, and adds the sigma the scenario declares
 for each row (`declared_sigma`), which the log does not store. Rows are in time order; row m was
 measured from the MuJoCo state of log instant `state_index[m]` (so the truth of a measurement is
 `run.truth(name).pos[stream.state_index]`).

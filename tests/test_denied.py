@@ -156,6 +156,9 @@ def test_reproduce_denied_end_to_end(tmp_path):
     assert all(c["holds"] is None and c["not_decidable"].startswith("no vehicle lost GNSS") for c in undecided)
     assert all(isinstance(c["holds"], bool) for c in result["claims"] if c not in undecided)
     assert "5 not decidable" in text and "**not decidable: no vehicle lost GNSS" in text
+    # written for its reader: the scenario and its page, no tracker number
+    assert text.startswith("# GNSS-denied cooperative flight (coop-denied") and "issue" not in text.lower()
+    assert "(no paper: docs/denied.md)" in text
 
 
 def _results(no_fix_max_s: float, rmse: dict) -> denied.DeniedResults:

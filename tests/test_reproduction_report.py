@@ -74,3 +74,19 @@ def test_phase_reproduction_writes_its_report(tmp_path):
     made = json.loads((out / "provenance.json").read_text())  # and each of its runs (testbed.provenance)
     assert made["output"] == "reproduce-phase" and made["command"]["function"] == "testbed.reproduce.reproduce"
     assert json.loads((out / "runs" / "phase-cross-h000" / "run-000" / "provenance.json").read_text())["output"] == "run"
+
+
+def test_bars_spanning_decades_are_drawn_on_a_log_axis(tmp_path, monkeypatch):
+    """The denied reproduction's RMSE bars: GNSS only 87 m beside 0.27-0.63 m would flatten the
+    cooperative bars on a linear axis; within a factor 30 the axis stays linear."""
+    from testbed import plots
+
+    drawn = []
+    monkeypatch.setattr(plots, "save", lambda fig, path: drawn.append(fig) or path)
+    for means in ([0.3, 87.0, 0.27, 0.63], [0.3, 0.5, 0.27, 0.63]):
+        m = np.array(means)
+        plots.compare_bars(["truth", "gnss_ekf", "coop", "window"], m, 0.9 * m, 1.1 * m, tmp_path / "b.png",
+                           title="t", ylabel="position RMSE [m]")
+    assert [f.axes[0].get_yscale() for f in drawn] == ["log", "linear"]
+    assert drawn[0].axes[0].get_ylabel() == "position RMSE [m] (log scale)"
+    assert not plots.spans_decades([0.0, 87.0]) and not plots.spans_decades([np.nan, 1.0, 100.0])

@@ -1,4 +1,4 @@
-"""A general factor graph over points, poses and scalars (issue #16 section 2).
+"""A general factor graph over points, poses and scalars (recorded data: docs/replay.md).
 
 Variables (`Graph.add_variable(key, kind, fixed=False)`):
 - "point": p (3,) m, world frame (a UAV with one tag, a velocity, an anchor when fixed);

@@ -1,6 +1,6 @@
 """`testbed bench replay`: recorded-data throughput of the centralized factor graph (graph.poses).
 
-Synthetic multi-robot ranging data like a multi-robot UWB dataset (issue #16): three robots, each
+Synthetic multi-robot ranging data like a multi-robot UWB dataset (docs/replay.md): three robots, each
 with six antennas on a flat 0.6 m hexagon (so a height aid is needed against the mirror
 ambiguity), every antenna of one robot ranging every antenna of another (36 antenna pairs per robot
 pair, 108 ranges an epoch) at 10 Hz, robot 1 known by motion capture (fixed), robots 2 and 3

@@ -71,6 +71,7 @@ from estimators.window import equivalent_measurement
 from testbed.plugins import builtin_eskf, builtin_window
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.collect import cov_problem, cov_problems
+from testbed.plugins.settings import check_known
 
 
 class _Epoch:

@@ -67,7 +67,7 @@ ALPHA_RANK = 0.05
 CAP_EPOCHS = 60
 CAP_LARGE = 5000
 NLOS_DURATION = 60.0
-#: issue #15: our centralized optimum vs GTSAM's Gauss-Newton on every epoch (both reach ~1e-11 m of it)
+#: our centralized optimum vs GTSAM's Gauss-Newton on every epoch (both reach ~1e-11 m of it)
 GTSAM_POS_TOL_M = 1e-8
 #: relative to each UAV's largest marginal entry: above the round-off of inverting A^T A
 #: (cond(A^T A) eps <= 1.9e4 * 2.2e-16 = 4e-12; measured <= 2e-13) and above what the 1e-8 m position

@@ -1,4 +1,4 @@
-"""`testbed reproduce denied`: cooperative flight through GNSS-denied streets (issue #18).
+"""`testbed reproduce denied`: cooperative flight through GNSS-denied streets (docs/denied.md).
 
 Scenario `coop-denied` (18 UAVs down an urban street and under a covered passage; GNSS by sky
 visibility, UWB among vehicles and to anchors, network on; docs/denied.md) flown over `runs`
@@ -150,7 +150,7 @@ def decide(res: DeniedResults) -> list[Claim]:
             holds=contacts[v] == 0, numbers={"contacts": contacts, "runs": runs},
             summary=", ".join(f"{k}: {c}" for k, c in contacts.items()),
             test="count over every logged state of every run (nothing sampled beyond the runs)", n=runs,
-            paper_value="(issue #18)"))
+            paper_value="(no paper: docs/denied.md)"))
     b = res.column("gnss_ekf", "estimation_rmse_m")
     for v in COOPERATIVE:
         a = res.column(v, "estimation_rmse_m")
@@ -167,7 +167,7 @@ def decide(res: DeniedResults) -> list[Claim]:
             summary=f"mean position RMSE {fmt(float(np.mean(a)))} m vs {fmt(float(np.mean(b)))} m",
             test=t.test if t else "point comparison", statistic=t.statistic if t else None,
             p_value=t.p_value if t else None, n=runs, level=1 - ALPHA if t else None,
-            paper_value="(issue #18)",
+            paper_value="(no paper: docs/denied.md)",
             not_decidable="" if lost > 0 else "no vehicle lost GNSS in these runs (0 s without a fix)"))
     return claims
 

@@ -8,8 +8,12 @@ table.md, plots/), from those files only:
    (statistic, p-value or interval, n) and the verdict (from claims.json);
 3. the figures (every PNG of DIR/plots: error curves with 3-sigma envelopes, RMSE against the PCRB
    where there is one, ...): linked in report.md, embedded as base64 PNG in report.html;
-4. the reproduction's tables (table.md).
-The HTML needs nothing but itself: styles inline, figures as data: URIs.
+4. the reproduction's tables (table.md);
+5. the 3-D recordings (`testbed view`) found under DIR, linked.
+The HTML needs nothing but itself: styles and script inline, figures as data: URIs, no request
+leaves the file. Its figures are interactive: the wheel zooms about the cursor, a drag pans, a
+double click resets, and the data values under the cursor are shown (each PNG's own map from
+pixels to data, testbed.plots.axes_map). Hand-written script, no library: the page opens offline.
 """
 from __future__ import annotations
 
@@ -23,6 +27,7 @@ from pathlib import Path
 
 import testbed
 from testbed import provenance
+from testbed.plots import read_axes_map
 from testbed.report import format_test, markdown_table, tally, verdict, write_markdown
 
 DEPENDENCIES = ("numpy", "scipy", "mujoco", "gtsam", "matplotlib")
@@ -30,7 +35,7 @@ TITLES = {"phase": "Seed 003 (Pan, Yin, Xu 2023): carrier-phase relative navigat
           "visnav": "Seed 004 (Jin et al. 2017): vision-aided relative navigation with glint noise",
           "bandwidth": "Seed 000 (Zhao et al. 2020): bandwidth-limited distributed fusion",
           "coop": "Seed 001 (Chen et al. 2020): factor-graph cooperative navigation",
-          "denied": "Issue #18: cooperative flight through GNSS-denied streets (coop-denied)"}
+          "denied": "GNSS-denied cooperative flight (coop-denied, 18 UAVs through streets where GNSS fades)"}
 _IMAGE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<src>[^)]+)\)$")
 
 
@@ -82,6 +87,10 @@ def markdown(out: Path, *, paper: str, command: str) -> list[str]:
     if (out / "table.md").exists():
         lines += ["## Tables", ""]
         lines += ["#" + ln if ln.startswith("#") else ln for ln in (out / "table.md").read_text().splitlines()]
+    recordings = sorted(out.rglob("*.rrd"))
+    if recordings:
+        lines += ["", "## 3-D recordings", "", "Open one in the Rerun viewer: `rerun FILE`.", ""]
+        lines += [f"- [{f.relative_to(out).as_posix()}]({f.relative_to(out).as_posix()})" for f in recordings]
     return lines
 
 
@@ -90,12 +99,64 @@ def markdown(out: Path, *, paper: str, command: str) -> list[str]:
 _STYLE = ("body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;line-height:1.4}"
           "table{border-collapse:collapse;font-size:0.85em;margin:1em 0}td,th{border:1px solid #bbb;"
           "padding:3px 6px;vertical-align:top}th{background:#eee}img{max-width:100%}"
-          "pre{background:#f4f4f4;padding:0.6em;overflow-x:auto}figure{margin:1em 0}")
+          "pre{background:#f4f4f4;padding:0.6em;overflow-x:auto}figure{margin:1em 0}"
+          ".plot{position:relative;overflow:hidden;display:inline-block;max-width:100%;cursor:crosshair}"
+          ".plot img{display:block;transform-origin:0 0}.tip{position:absolute;display:none;pointer-events:none;"
+          "background:#fffe;border:1px solid #888;padding:1px 4px;font-size:0.8em;white-space:nowrap}")
+# Zoom, pan and the values under the cursor for every div.plot (its data-axes: plots.axes_map);
+# body's data-plots counts the figures it made interactive (tests read it).
+_SCRIPT = """
+(function () {
+  function value(lim, scale, t) {
+    return scale === "log" ? lim[0] * Math.pow(lim[1] / lim[0], t) : lim[0] + t * (lim[1] - lim[0]);
+  }
+  function fmt(v) { return Math.abs(v) >= 1e4 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(3) : v.toPrecision(4); }
+  var boxes = document.querySelectorAll("div.plot");
+  boxes.forEach(function (box) {
+    var img = box.querySelector("img"), tip = box.querySelector(".tip");
+    var axes = JSON.parse(box.dataset.axes), s = 1, x = 0, y = 0, drag = null;
+    function show() {
+      var w = box.clientWidth, h = box.clientHeight;
+      x = Math.min(0, Math.max(w - s * w, x)); y = Math.min(0, Math.max(h - s * h, y));
+      img.style.transform = "translate(" + x + "px," + y + "px) scale(" + s + ")";
+    }
+    function readout(e) {
+      var r = img.getBoundingClientRect(), fx = (e.clientX - r.left) / r.width, fy = (e.clientY - r.top) / r.height;
+      var a = axes.filter(function (a) { return fx >= a.box[0] && fx <= a.box[2] && fy >= a.box[1] && fy <= a.box[3]; })[0];
+      if (!a) { tip.style.display = "none"; return; }
+      var xv = value(a.xlim, a.xscale, (fx - a.box[0]) / (a.box[2] - a.box[0]));
+      var yv = value(a.ylim, a.yscale, (a.box[3] - fy) / (a.box[3] - a.box[1]));
+      var xs = a.xcat ? (a.xcat[Math.round(xv)] || "") : (a.xlabel || "x") + " = " + fmt(xv);
+      tip.textContent = (a.title ? a.title + ": " : "") + xs + ", " + (a.ylabel || "y") + " = " + fmt(yv);
+      var b = box.getBoundingClientRect();
+      tip.style.left = Math.min(e.clientX - b.left + 12, b.width - tip.offsetWidth) + "px";
+      tip.style.top = (e.clientY - b.top + 12) + "px";
+      tip.style.display = "block";
+    }
+    box.addEventListener("wheel", function (e) {
+      e.preventDefault();
+      var b = box.getBoundingClientRect(), cx = e.clientX - b.left, cy = e.clientY - b.top;
+      var k = Math.min(Math.max(s * (e.deltaY < 0 ? 1.25 : 0.8), 1), 20) / s;
+      x = cx - k * (cx - x); y = cy - k * (cy - y); s *= k; show(); readout(e);
+    }, {passive: false});
+    box.addEventListener("mousedown", function (e) { e.preventDefault(); drag = [e.clientX - x, e.clientY - y]; });
+    box.addEventListener("mousemove", function (e) {
+      if (drag) { x = e.clientX - drag[0]; y = e.clientY - drag[1]; show(); }
+      readout(e);
+    });
+    box.addEventListener("mouseup", function () { drag = null; });
+    box.addEventListener("mouseleave", function () { drag = null; tip.style.display = "none"; });
+    box.addEventListener("dblclick", function () { s = 1; x = 0; y = 0; show(); });
+  });
+  document.body.dataset.plots = String(boxes.length);
+})();
+"""
 
 
 def _inline(text: str) -> str:
-    """Escaped text with **bold** and `code`."""
+    """Escaped text with **bold**, `code` and [links](relative/path)."""
     t = html.escape(text, quote=False)
+    t = re.sub(r"\[([^\]]+)\]\(([^)\s\"]+)\)", r'<a href="\2">\1</a>', t)
     t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
     return re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
 
@@ -105,8 +166,8 @@ def _cells(line: str) -> list[str]:
 
 
 def to_html(lines: Sequence[str], base: Path, title: str) -> str:
-    """HTML of the Markdown subset report.md uses (headings, tables, lists, code blocks, images
-    relative to `base`, embedded as base64 PNG, and paragraphs)."""
+    """HTML of the Markdown subset report.md uses (headings, tables, lists, links, code blocks,
+    images relative to `base`, embedded as base64 PNG in an interactive figure, and paragraphs)."""
     body: list[str] = []
     i = 0
     while i < len(lines):
@@ -138,7 +199,9 @@ def to_html(lines: Sequence[str], base: Path, title: str) -> str:
         m = _IMAGE.match(ln)
         if m:
             data = base64.b64encode((base / m["src"]).read_bytes()).decode("ascii")
-            body.append(f'<figure><img alt="{html.escape(m["alt"])}" src="data:image/png;base64,{data}">'
+            axes = html.escape(json.dumps(read_axes_map(base / m["src"])))
+            body.append(f'<figure><div class="plot" data-axes="{axes}"><img alt="{html.escape(m["alt"])}" '
+                        f'src="data:image/png;base64,{data}"><div class="tip"></div></div>'
                         f"<figcaption>{_inline(m['alt'])}</figcaption></figure>")
         elif ln.startswith("#"):
             level = min(len(ln) - len(ln.lstrip("#")), 6)
@@ -147,7 +210,7 @@ def to_html(lines: Sequence[str], base: Path, title: str) -> str:
             body.append(f"<p>{_inline(ln)}</p>")
         i += 1
     return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
-            f"<style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+            f"<style>{_STYLE}</style></head><body>\n" + "\n".join(body) + f"\n<script>{_SCRIPT}</script>\n</body></html>\n")
 
 
 def write_report(out: Path, *, paper: str, command: str) -> tuple[Path, Path]:

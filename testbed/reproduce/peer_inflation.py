@@ -1,5 +1,5 @@
 """The distributed cooperative filter's `peer_inflation`, chosen by a stated rule on calibration
-seeds (issue #18; testbed.plugins.builtin_coop_ins).
+seeds (docs/denied.md; testbed.plugins.builtin_coop_ins).
 
 `coop.ins_distributed` fuses a range to a neighbour with the neighbour's broadcast antenna
 position as a known point, the broadcast covariance Sigma_j added to the range variance

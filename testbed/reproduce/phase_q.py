@@ -1,4 +1,4 @@
-"""Seed 003 process noise q chosen by a stated rule on calibration seeds (issue 15, defect 2).
+"""Seed 003 process noise q chosen by a stated rule on calibration seeds (docs/papers.md).
 
 The phase EKF's q (white acceleration per antenna axis, m^2/s^3; estimators.phase_ekf) is a
 modelling choice: the eq. 31 body moves at exactly constant velocity and its antennas accelerate
