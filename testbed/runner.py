@@ -25,7 +25,7 @@ from testbed.log import LogWriter, NpzLog, save_npz
 from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
-from testbed.plugins.collect import track_arrays
+from testbed.plugins.collect import ESTIMATES_FILE, track_arrays
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
@@ -34,7 +34,6 @@ from testbed.scenario import Scenario
 from testbed.simulate import record
 from testbed.world import build
 
-ESTIMATES_FILE = "estimates.npz"  # the plugin estimators' estimates (testbed.plugins.collect.track_arrays)
 SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
 
