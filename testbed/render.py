@@ -618,7 +618,8 @@ def _scale_bar(img: np.ndarray, px_per_m: float) -> None:
 
 def _legend(img: np.ndarray, entries: list[tuple[str, tuple, str]]) -> None:
     """The legend in the bottom-right corner: a dark box with one swatch and text per entry
-    (kind, RGB, text) of _Painter._legend_entries; img RGB, modified in place."""
+    (kind, RGB, text) of _Painter._legend_entries, left out of a picture too small to hold it;
+    img RGB, modified in place."""
     H, W = img.shape[:2]
     s = max(0.32, 0.38 * H / 540)  # smaller text loses its spaces
     th = max(1, round(s * 2))
@@ -628,6 +629,8 @@ def _legend(img: np.ndarray, entries: list[tuple[str, tuple, str]]) -> None:
     tw = max(cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, s, th)[0][0] for _, _, text in entries)
     w, h = pad * 3 + sw + tw, pad * 2 + row * len(entries)
     x0, y0 = W - w - pad, H - h - pad
+    if x0 < 0 or y0 < 0:  # a picture too small to hold it goes without
+        return
     box = img[y0 : y0 + h, x0 : x0 + w]
     box[:] = (0.35 * box + 0.65 * 25).astype(np.uint8)  # darkened, still see-through
     lw = max(1, round(H / 360))
