@@ -27,9 +27,10 @@ What a frame shows
   for the leader of seed 004 by default.
 - A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
 - Obstacles translucent (OBSTACLE_ALPHA), UWB anchors as yellow diamonds of constant size, and
-  from the run directory (testbed.render_overlay): each vehicle's reference path (white); the UWB
-  links of the latest sample (LOS blue, NLOS orange), thinned by the option `links` (default: each
-  vehicle's 2 shortest, `nearest_links`); the estimate (of the estimator flown on, else the first
+  from the run directory (testbed.render_overlay): each vehicle's reference path from 3 s before
+  to 10 s after the frame's time (white, REFERENCE_SPAN); the UWB links of the latest sample (LOS
+  blue, NLOS orange), thinned by the option `links` (default: each vehicle's 2 shortest,
+  `nearest_links`); the estimate (of the estimator flown on, else the first
   of estimates.npz) as a magenta segment from the true vehicle to the estimated position and the
   3-sigma ellipse of its horizontal covariance about it, to scale unless `error_scale` says
   otherwise (`error_drawing`); vehicle numbers green with a GNSS fix and red without.
@@ -85,10 +86,10 @@ BACKENDS = ("egl", "osmesa")
 OBSTACLE_ALPHA = 0.45  # opacity of world.obstacles in a video (their material "obstacle")
 FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo's free-camera default)
 LINKS = ("nearest", "epoch", "none")  # which UWB links a frame draws (render_run, `links`)
-REFERENCE_RGBA = np.array([1.0, 1.0, 1.0, 0.6], np.float32)  # reference paths
+REFERENCE_RGB = (235, 235, 235)  # reference paths (drawn on the picture)
 ESTIMATE_RGB = (255, 60, 255)  # error segment and covariance ellipse (RGB, drawn on the picture)
 ANCHOR_RGB = (255, 205, 25)  # UWB anchors (as their sites in models: yellow)
-REFERENCE_POINTS = 120  # vertices of each drawn reference path
+REFERENCE_SPAN = (3.0, 10.0)  # s of each vehicle's reference path drawn before and after the frame's time
 
 
 def _mujoco():
@@ -425,11 +426,7 @@ class _Painter:
         self.cam = mujoco.MjvCamera()
         self.cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         self.zfar0 = float(m.vis.map.zfar)
-        ref = replay.overlays.reference
-        self.reference = None  # (N, P, 3) m world: each vehicle's reference path, at most REFERENCE_POINTS vertices
-        if style.reference and ref is not None:
-            idx = np.unique(np.linspace(0, len(ref) - 1, REFERENCE_POINTS).round().astype(int))
-            self.reference = np.transpose(ref[idx], (1, 0, 2))
+        self.reference = replay.overlays.reference if style.reference else None  # (T, N, 3) m world at overlays.time
         self.pip = None
         if pip_vehicle:
             if not 1 <= pip_vehicle <= replay.n:
@@ -478,10 +475,6 @@ class _Painter:
                     rgba[3] = 0.15 + 0.75 * (j + 1) / (len(P) - 1)
                     _add_line(scn, P[j], P[j + 1], self.style.trail_px, rgba)
         ov = rp.overlays
-        if self.reference is not None:
-            for P in self.reference:
-                for j in range(len(P) - 1):
-                    _add_line(scn, P[j], P[j + 1], 1.5, REFERENCE_RGBA)
         src, dst, nlos = ov.links(t)
         ranged, ranged_nlos = len(src), int(nlos.sum())
         if self.style.links == "none":
@@ -498,6 +491,14 @@ class _Painter:
         img = np.ascontiguousarray(self.renderer.render())
         m.vis.map.zfar = self.zfar0
         lw = max(1, round(self.height / 360))
+        if self.reference is not None:  # on the picture: as 3-D lines they would double a frame's cost on llvmpipe
+            lo, hi = np.searchsorted(ov.time, [t - REFERENCE_SPAN[0], t + REFERENCE_SPAN[1]])
+            ref = self.reference[max(0, lo - 1) : hi + 1]  # (P, N, 3): the span, and the rows either side
+            uv, front = proj.pixels(ref.reshape(-1, 3))
+            uv, front = uv.reshape(*ref.shape[:2], 2), front.reshape(ref.shape[:2])
+            for i in range(rp.n):
+                if len(ref) > 1 and front[:, i].all():
+                    cv2.polylines(img, [np.round(uv[:, i]).astype(np.int32)], False, REFERENCE_RGB, 1, cv2.LINE_AA)
         if rp.anchor_ids.size:  # constant-size markers: a 10 cm site is below a pixel at swarm scale
             uv, front = proj.pixels(rp.data.site_xpos[rp.anchor_ids])
             for (u, v) in uv[front].round().astype(int):
@@ -546,7 +547,7 @@ class _Painter:
         rp, ov = self.replay, self.replay.overlays
         out = [("dot", tuple(int(c) for c in 255 * rp.colors[0][:3]), "vehicle (true), its trail")]
         if self.reference is not None:
-            out.append(("line", tuple(int(c) for c in 255 * REFERENCE_RGBA[:3]), "reference path"))
+            out.append(("line", REFERENCE_RGB, f"reference path, {-REFERENCE_SPAN[0]:g} s to +{REFERENCE_SPAN[1]:g} s"))
         if ov.series is not None:
             scale = "" if self.style.error_scale == 1 else f" (x{self.style.error_scale:g})"
             out.append(("line", ESTIMATE_RGB, f"error of {ov.estimator}{' (flown on)' if ov.flown else ''}{scale}"))
