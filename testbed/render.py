@@ -34,8 +34,9 @@ What a frame shows
   of estimates.npz) as a magenta segment from the true vehicle to the estimated position and the
   3-sigma ellipse of its horizontal covariance about it, to scale unless `error_scale` says
   otherwise (`error_drawing`); vehicle numbers green with a GNSS fix and red without.
-- A legend of what the frame shows (bottom right) and a scale bar (bottom left: a round length
-  at the depth of the camera's lookat, the middle of the swarm).
+- A legend of what the frame shows (bottom right, see-through, under the anchors, estimates and
+  numbers) and a scale bar (bottom left: a round length at the depth of the camera's lookat, the
+  middle of the swarm).
 
 Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
 (the command line sets `egl` unless the user chose, testbed/environment.py). If the renderer cannot be created in
@@ -499,6 +500,10 @@ class _Painter:
             for i in range(rp.n):
                 if len(ref) > 1 and front[:, i].all():
                     cv2.polylines(img, [np.round(uv[:, i]).astype(np.int32)], False, REFERENCE_RGB, 1, cv2.LINE_AA)
+        fixed = ov.fixed(t)
+        if self.style.legend:  # under the anchors, estimates and numbers: a legend never hides them
+            _scale_bar(img, float(proj.px_per_metre(np.asarray(look, float)[None])[0]))
+            _legend(img, self._legend_entries(fixed is not None, ov.uwb is not None and self.style.links != "none"))
         if rp.anchor_ids.size:  # constant-size markers: a 10 cm site is below a pixel at swarm scale
             uv, front = proj.pixels(rp.data.site_xpos[rp.anchor_ids])
             for (u, v) in uv[front].round().astype(int):
@@ -511,7 +516,6 @@ class _Painter:
                     uv, front = proj.pixels(line)
                     if front.all():
                         cv2.polylines(img, [np.round(uv).astype(np.int32)], False, ESTIMATE_RGB, lw, cv2.LINE_AA)
-        fixed = ov.fixed(t)
         if self.style.labels:  # vehicle numbers; with GNSS, green with a fix, red without
             uv, front = proj.pixels(pos)
             for i in range(rp.n):
@@ -537,9 +541,6 @@ class _Painter:
         for k, line in enumerate(overlay):
             s = 0.55 * self.height / 540
             _text(img, line, (int(12 * s / 0.55), int((26 + 24 * k) * s / 0.55)), s)
-        if self.style.legend:
-            _scale_bar(img, float(proj.px_per_metre(np.asarray(look, float)[None])[0]))
-            _legend(img, self._legend_entries(fixed is not None, ov.uwb is not None and self.style.links != "none"))
         return img
 
     def _legend_entries(self, gnss: bool, uwb: bool) -> list[tuple[str, tuple, str]]:
