@@ -314,3 +314,31 @@ def test_bad_link_option_is_refused(runs):
 
     with pytest.raises(ValueError, match="links must be one of nearest, epoch, none"):
         render_run(runs["lf"], runs["lf"] / "x.mp4", links="all")
+
+
+def test_demo_flies_and_renders_the_closed_loop_beside_the_phase_scenario(tmp_path, monkeypatch):
+    """make demo: coop-denied flown on its distributed cooperative estimate, and a video of it
+    beside the carrier-phase formation's (the runs and renders replaced by recorders)."""
+    import testbed.demo as demo
+
+    flown, rendered = {}, []
+
+    def fly(sc, out, progress):
+        flown[out.name] = sc
+        return {"tracking_rmse_m": [0.0], "estimators": {}}
+
+    def render(run_dir, **options):
+        rendered.append(run_dir.name)
+        return run_dir / "video.mp4"
+
+    monkeypatch.setattr(demo, "run", fly)
+    monkeypatch.setattr(demo, "reproduce", lambda *a, **k: None)
+    monkeypatch.setattr(demo, "render_run", render)
+    demo._demo(tmp_path)
+    loop = flown["coop-denied-distributed"]
+    assert loop.name == "coop-denied" and loop.control.feedback == "estimate:coop" and loop.duration <= 10.0
+    assert [e.entry for e in loop.estimators] == ["coop.ins_distributed"]
+    assert rendered == ["phase-cross-h000", "coop-denied-distributed"]
+    summary = (tmp_path / "summary.md").read_text()
+    assert "`coop-denied-distributed` (flown on its coop_distributed estimate, 10 s" in summary
+    assert "video: `coop-denied-distributed/video.mp4`" in summary
