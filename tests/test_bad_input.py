@@ -161,6 +161,7 @@ def run_dir(tmp_path_factory):
 @pytest.mark.parametrize("victim, content, named", [
     ("log.npz", b"garbage", "log.npz: not a readable run log"),
     ("scene.xml", b"<mujoco><oops", "scene.xml: not a readable MuJoCo model"),
+    ("estimates.npz", b"garbage", "estimates.npz: not readable as a run's estimates"),
 ])
 def test_render_of_a_corrupt_run_directory_is_one_line(run_dir, tmp_path, capsys, victim, content, named):
     bad = tmp_path / "bad"
