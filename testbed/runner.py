@@ -120,7 +120,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
-        if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)
+        if online is not None:  # what the controller flew on (the video draws that estimator: testbed.render_overlay)
             save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
         if tracks:  # every estimate of the plugin estimators, for `testbed view` (testbed.viewer)
             save_npz(tmp / ESTIMATES_FILE, {k: v for key, track in tracks.items() for k, v in track_arrays(key, track).items()})
