@@ -5,7 +5,7 @@
     testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
                 [--set key=value ...] [--estimator ENTRY ...] [--video] [--fail-on-crash] [--force]
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
-                       --shadow-size N --samples N]
+                       --shadow-size N --samples N --links nearest|epoch|none --nearest K --error-scale X]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [--quiet] [run options]
     testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
@@ -224,6 +224,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-seconds", type=_float_in(0, 1e9), help="cap on the video length (s of video, > 0; simulated time = this x --speed)")
     p.add_argument("--shadow-size", type=_int_in(0, 16384), default=1024, help="shadow map size, 0..16384 (smaller is faster on llvmpipe)")
     p.add_argument("--samples", type=_int_in(0, 16), default=0, help="multisampling, 0..16 (0 is fastest on llvmpipe)")
+    p.add_argument("--links", choices=("nearest", "epoch", "none"), default="nearest",
+                   help="UWB links drawn: each vehicle's --nearest shortest of the latest sample (default), all of it, or none")
+    p.add_argument("--nearest", type=_int_in(1, 1000), default=2, help="links kept per vehicle with --links nearest, 1..1000 (default 2)")
+    p.add_argument("--error-scale", type=_float_in(0, 1e6), default=1.0,
+                   help="draw the estimate's error segment and 3-sigma ellipse this many times their size (default 1: to scale)")
 
     p = sub.add_parser("sweep", help="Monte Carlo: run N seeds in parallel and aggregate metrics")
     _add_run_options(p)
@@ -334,7 +339,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         out = render_run(
             args.run_dir, args.out, width=args.width, height=args.height, fps=args.fps, speed=args.speed,
             max_seconds=args.max_seconds, shadow_size=args.shadow_size, samples=args.samples, progress=sys.stderr.isatty(),
-            force=args.force,
+            links=args.links, nearest=args.nearest, error_scale=args.error_scale, force=args.force,
         )
         print(f"video of {args.run_dir} -> {out}")
         return 0

@@ -6,9 +6,9 @@ writes one PNG of the same view. Nothing is simulated again: every frame is the 
 that instant (geodesic interpolation between the two nearest log rows), then `mj_forward`.
 
 What a frame shows
-- A tracking camera (a free `mjvCamera`) that keeps every vehicle in view: its lookat follows
-  the swarm centroid and its distance is the smallest that keeps every vehicle inside the
-  picture with a margin (from the vehicles' offsets in camera axes), both smoothed offline with
+- A tracking camera (a free `mjvCamera`) that keeps every vehicle, and every UWB anchor the swarm
+  ranges to, in view: its lookat follows the middle of them and its distance is the smallest that
+  keeps them all inside the picture with a margin (from their offsets in camera axes), both smoothed offline with
   a zero-phase Gaussian (no lag, no jitter; the distance is smoothed as an upper envelope so
   nobody leaves the picture when the swarm spreads). See `camera_track`. The
   viewing direction is fixed for the whole run: azimuth perpendicular to the direction of the
@@ -26,9 +26,17 @@ What a frame shows
   with the same 4:3 aspect and field of view) in the top-right corner with a thin border,
   for the leader of seed 004 by default.
 - A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
-- Obstacles translucent (OBSTACLE_ALPHA), and from the run directory (testbed.render_overlay):
-  the UWB links of the latest sample (LOS blue, NLOS orange), ghosts of the estimate a
-  controller flew on, vehicle numbers green with a GNSS fix and red without.
+- Obstacles translucent (OBSTACLE_ALPHA), UWB anchors as yellow diamonds of constant size, and
+  from the run directory (testbed.render_overlay): each vehicle's reference path from 3 s before
+  to 10 s after the frame's time (white, REFERENCE_SPAN); the UWB links of the latest sample (LOS
+  blue, NLOS orange), thinned by the option `links` (default: each vehicle's 2 shortest,
+  `nearest_links`); the estimate (of the estimator flown on, else the first
+  of estimates.npz) as a magenta segment from the true vehicle to the estimated position and the
+  3-sigma ellipse of its horizontal covariance about it, to scale unless `error_scale` says
+  otherwise (`error_drawing`); vehicle numbers green with a GNSS fix and red without.
+- A legend of what the frame shows (bottom right, see-through, under the anchors, estimates and
+  numbers) and a scale bar (bottom left: a round length at the depth of the camera's lookat, the
+  middle of the swarm).
 
 Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
 (the command line sets `egl` unless the user chose, testbed/environment.py). If the renderer cannot be created in
@@ -66,7 +74,7 @@ from tqdm import tqdm
 from testbed.environment import last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
-from testbed.render_overlay import GHOST_RGBA, LOS_RGBA, NLOS_RGBA, Overlays
+from testbed.render_overlay import LOS_RGBA, NLOS_RGBA, OverlayError, Overlays
 from testbed.workers import worker_init
 
 from testbed.errors import UsageError
@@ -78,6 +86,11 @@ INSTALL_HINT = (
 BACKENDS = ("egl", "osmesa")
 OBSTACLE_ALPHA = 0.45  # opacity of world.obstacles in a video (their material "obstacle")
 FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo's free-camera default)
+LINKS = ("nearest", "epoch", "none")  # which UWB links a frame draws (render_run, `links`)
+REFERENCE_RGB = (235, 235, 235)  # reference paths (drawn on the picture)
+ESTIMATE_RGB = (255, 60, 255)  # error segment and covariance ellipse (RGB, drawn on the picture)
+ANCHOR_RGB = (255, 205, 25)  # UWB anchors (as their sites in models: yellow)
+REFERENCE_SPAN = (3.0, 10.0)  # s of each vehicle's reference path drawn before and after the frame's time
 
 
 def _mujoco():
@@ -201,10 +214,20 @@ class _Replay:
             raise RenderError(f"{run_dir}: scene.xml has no vehicle body uav1/base")
         self.body_ids = np.array(ids)
         self.n = len(ids)
+        anchors = []
+        while (a := mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, f"anchor{len(anchors) + 1}")) >= 0:
+            anchors.append(a)
+        self.anchor_ids = np.array(anchors, int)
+        vehicle_of_body = np.full(self.model.nbody, -1)
+        vehicle_of_body[self.body_ids] = np.arange(self.n)
+        self.site_vehicle = vehicle_of_body[self.model.body_rootid[self.model.site_bodyid]]  # (nsite,) 0-based, -1: none
         self.colors = np.array([self._vehicle_rgba(i) for i in range(1, self.n + 1)], np.float32)
         self.meta = _read_meta(run_dir)
         self._v = np.zeros(self.model.nv)
-        self.overlays = Overlays(run_dir, lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name), self.n)
+        try:
+            self.overlays = Overlays(run_dir, lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name), self.n)
+        except OverlayError as e:
+            raise RenderError(str(e)) from None
         mid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_MATERIAL, "obstacle")
         if mid >= 0:  # obstacles translucent: vehicles behind a building or under a roof stay in view
             self.model.mat_rgba[mid, 3] = OBSTACLE_ALPHA
@@ -302,15 +325,19 @@ class CameraTrack:
 
 
 def camera_track(times: np.ndarray, pos: np.ndarray, *, aspect: float, smooth: float, fovy: float = FOVY_TRACK,
-                 margin: float = 1.2, min_distance: float = 6.0, body_radius: float = 1.0) -> CameraTrack:
-    """Frame the swarm at every sample: times (F,) s, pos (F, N, 3) m world.
+                 margin: float = 1.2, min_distance: float = 6.0, body_radius: float = 1.0,
+                 anchors: np.ndarray | None = None, in_use: np.ndarray | None = None) -> CameraTrack:
+    """Frame the swarm and its anchors at every sample: times (F,) s, pos (F, N, 3) m world the
+    vehicles; anchors (A, 3) m world, of which those of in_use (F, A) bool are framed at each
+    sample (the anchors the swarm ranges to; none if not given).
 
     1. Direction, fixed for the run, from the horizontal layout about the centroid (all samples):
        azimuth perpendicular to the principal axis of largest spread, turned to look north-ish
        (east on the right); looking north when the layout is nearly isotropic. Elevation
        -(20 + 25 s_minor / s_major) deg: a line is seen from low, a 2-D layout from higher up.
-    2. Lookat: the centroid, Gaussian-smoothed in time (sigma = `smooth` samples, zero phase).
-    3. Distance: the smallest that keeps every vehicle (a sphere of `body_radius` m) inside the
+    2. Lookat: the middle of the box around the framed points (the vehicles and the anchors in
+       use), Gaussian-smoothed in time (sigma = `smooth` samples, zero phase).
+    3. Distance: the smallest that keeps every framed point (a sphere of `body_radius` m) inside the
        picture with `margin`: in camera axes (right x, up y, forward z) an offset d from the
        lookat needs D >= margin (|x| + R) / tan(hfov / 2) - z and likewise for y with fovy;
        then the Gaussian of a running maximum (+-2 sigma) in log space, so the camera backs off
@@ -335,17 +362,23 @@ def camera_track(times: np.ndarray, pos: np.ndarray, *, aspect: float, smooth: f
         azimuth = (azimuth + 180.0) % 360.0 - 180.0
         ratio = s_minor / s_major
     elevation = -(20.0 + 25.0 * ratio)
-    lookat = gaussian_filter1d(centroid, sigma, axis=0, mode="nearest") if F > 1 else centroid
+    points, framed = pos, np.ones(pos.shape[:2], bool)
+    if anchors is not None and len(anchors):
+        points = np.concatenate([pos, np.broadcast_to(anchors, (F, *np.shape(anchors)))], axis=1)
+        framed = np.concatenate([framed, in_use], axis=1)
+    box = np.where(framed[..., None], points, np.nan)
+    middle = (np.nanmin(box, axis=1) + np.nanmax(box, axis=1)) / 2
+    lookat = gaussian_filter1d(middle, sigma, axis=0, mode="nearest") if F > 1 else middle
     az, el = math.radians(azimuth), math.radians(elevation)
     fwd = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
     right = np.array([math.sin(az), -math.cos(az), 0.0])
     up = np.cross(right, fwd)
-    d = pos - lookat[:, None]  # (F, N, 3)
+    d = points - lookat[:, None]  # (F, M, 3)
     ty = math.tan(math.radians(fovy) / 2)
     tx = ty * aspect
     need_x = margin * (np.abs(d @ right) + body_radius) / tx - d @ fwd
     need_y = margin * (np.abs(d @ up) + body_radius) / ty - d @ fwd
-    dist = np.maximum(min_distance, np.maximum(need_x, need_y).max(axis=1))
+    dist = np.maximum(min_distance, np.where(framed, np.maximum(need_x, need_y), -np.inf).max(axis=1))
     if F > 1:
         win = 2 * int(math.ceil(2 * sigma)) + 1
         dist = np.exp(gaussian_filter1d(np.log(maximum_filter1d(dist, win, mode="nearest")), sigma, mode="nearest"))
@@ -361,6 +394,19 @@ class _Style:
     trail_px: float = 2.0  # trail line width, px
     labels: bool = True
     droplines: bool = True  # vertical line from each far vehicle's marker to the ground (z = 0)
+    links: str = "nearest"  # UWB links drawn: "nearest" (each vehicle's `nearest` shortest), "epoch" (all), "none"
+    nearest: int = 2
+    error_scale: float = 1.0  # the error segment and ellipse drawn this many times their size
+    reference: bool = True  # the reference paths
+    legend: bool = True  # the legend and the scale bar
+
+    def __post_init__(self):
+        if self.links not in LINKS:
+            raise ValueError(f"links must be one of {', '.join(LINKS)}, got {self.links!r}")
+        if self.nearest < 1:
+            raise ValueError(f"nearest must be >= 1, got {self.nearest}")
+        if not self.error_scale > 0:
+            raise ValueError(f"error_scale must be positive, got {self.error_scale}")
 
 
 class _Painter:
@@ -384,6 +430,7 @@ class _Painter:
         self.cam = mujoco.MjvCamera()
         self.cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         self.zfar0 = float(m.vis.map.zfar)
+        self.reference = replay.overlays.reference if style.reference else None  # (T, N, 3) m world at overlays.time
         self.pip = None
         if pip_vehicle:
             if not 1 <= pip_vehicle <= replay.n:
@@ -433,20 +480,45 @@ class _Painter:
                     _add_line(scn, P[j], P[j + 1], self.style.trail_px, rgba)
         ov = rp.overlays
         src, dst, nlos = ov.links(t)
-        for a, b, bad in zip(src, dst, nlos):  # UWB links ranged at the latest sample
+        ranged, ranged_nlos = len(src), int(nlos.sum())
+        if self.style.links == "none":
+            src, dst, nlos = src[:0], dst[:0], nlos[:0]
+        elif self.style.links == "nearest":
+            keep = nearest_links(rp.data.site_xpos[src], rp.data.site_xpos[dst], rp.site_vehicle[src], rp.site_vehicle[dst], self.style.nearest)
+            src, dst, nlos = src[keep], dst[keep], nlos[keep]
+        for a, b, bad in zip(src, dst, nlos):
             _add_line(scn, rp.data.site_xpos[a], rp.data.site_xpos[b], 1.5, NLOS_RGBA if bad else LOS_RGBA)
-        ghosts = ov.ghosts(t)
-        if ghosts is not None:  # the estimate the controller flies on, beside the true vehicle
-            for i in np.flatnonzero(np.isfinite(ghosts[:, 0])):
-                _add_sphere(scn, ghosts[i], max(0.6, 0.8 * self.style.marker_px / px_per_m[i]), GHOST_RGBA)
-                _add_line(scn, pos[i], ghosts[i], 1.0, GHOST_RGBA)
         for i in np.flatnonzero(small):
             _add_sphere(scn, pos[i], self.style.marker_px / px_per_m[i], rp.colors[i])
             if self.style.droplines and pos[i, 2] > 0:  # altitude cue: a thin line down to the ground
                 _add_line(scn, pos[i], np.array([pos[i, 0], pos[i, 1], 0.0]), 1.0, np.array([*rp.colors[i][:3], 0.45], np.float32))
         img = np.ascontiguousarray(self.renderer.render())
         m.vis.map.zfar = self.zfar0
+        lw = max(1, round(self.height / 360))
+        if self.reference is not None:  # on the picture: as 3-D lines they would double a frame's cost on llvmpipe
+            lo, hi = np.searchsorted(ov.time, [t - REFERENCE_SPAN[0], t + REFERENCE_SPAN[1]])
+            ref = self.reference[max(0, lo - 1) : hi + 1]  # (P, N, 3): the span, and the rows either side
+            uv, front = proj.pixels(ref.reshape(-1, 3))
+            uv, front = uv.reshape(*ref.shape[:2], 2), front.reshape(ref.shape[:2])
+            for i in range(rp.n):
+                if len(ref) > 1 and front[:, i].all():
+                    cv2.polylines(img, [np.round(uv[:, i]).astype(np.int32)], False, REFERENCE_RGB, 1, cv2.LINE_AA)
         fixed = ov.fixed(t)
+        if self.style.legend:  # under the anchors, estimates and numbers: a legend never hides them
+            _scale_bar(img, float(proj.px_per_metre(np.asarray(look, float)[None])[0]))
+            _legend(img, self._legend_entries(fixed is not None, ov.uwb is not None and self.style.links != "none"))
+        if rp.anchor_ids.size:  # constant-size markers: a 10 cm site is below a pixel at swarm scale
+            uv, front = proj.pixels(rp.data.site_xpos[rp.anchor_ids])
+            for (u, v) in uv[front].round().astype(int):
+                r = int(round(0.8 * self.style.marker_px))
+                cv2.fillPoly(img, [np.array([[u, v - r], [u + r, v], [u, v + r], [u - r, v]])], ANCHOR_RGB, cv2.LINE_AA)
+        estimate = ov.estimate(t)
+        if estimate is not None:  # the estimate: an error segment from the true vehicle, its 3-sigma ellipse
+            for i in np.flatnonzero(np.isfinite(estimate[0][:, 0])):
+                for line in error_drawing(pos[i], estimate[0][i], estimate[1][i], self.style.error_scale):
+                    uv, front = proj.pixels(line)
+                    if front.all():
+                        cv2.polylines(img, [np.round(uv).astype(np.int32)], False, ESTIMATE_RGB, lw, cv2.LINE_AA)
         if self.style.labels:  # vehicle numbers; with GNSS, green with a fix, red without
             uv, front = proj.pixels(pos)
             for i in range(rp.n):
@@ -456,11 +528,10 @@ class _Painter:
                     _text(img, str(i + 1), (int(uv[i, 0] + off), int(uv[i, 1] - off)), 0.45 * self.height / 540, color)
         overlay = list(overlay)
         if fixed is not None:
-            overlay.append(f"GNSS fix {int(fixed.sum())}/{rp.n} (labels green: fix, red: none)")
+            overlay.append(f"GNSS fix {int(fixed.sum())}/{rp.n}")
         if ov.uwb is not None:
-            overlay.append(f"UWB {len(src)} links: {int((~nlos).sum())} LOS (blue), {int(nlos.sum())} NLOS (orange)")
-        if ghosts is not None:
-            overlay.append(f"ghosts: estimate of {ov.estimator} (flown on)")
+            shown = {"nearest": f", {len(src)} drawn", "epoch": "", "none": ", none drawn"}[self.style.links]
+            overlay.append(f"UWB {ranged} links ranged ({ranged_nlos} NLOS){shown}")
         if self.pip is not None:
             self.pip.update_scene(rp.data, self.pip_cam)
             sub = self.pip.render()
@@ -474,6 +545,114 @@ class _Painter:
             s = 0.55 * self.height / 540
             _text(img, line, (int(12 * s / 0.55), int((26 + 24 * k) * s / 0.55)), s)
         return img
+
+    def _legend_entries(self, gnss: bool, uwb: bool) -> list[tuple[str, tuple, str]]:
+        """(kind, RGB, text) of what this run's frames show: kind "line", "ring", "diamond", "dot" or "text"."""
+        rp, ov = self.replay, self.replay.overlays
+        out = [("dot", tuple(int(c) for c in 255 * rp.colors[0][:3]), "vehicle (true), its trail")]
+        if self.reference is not None:
+            out.append(("line", REFERENCE_RGB, f"reference path, {-REFERENCE_SPAN[0]:g} s to +{REFERENCE_SPAN[1]:g} s"))
+        if ov.series is not None:
+            scale = "" if self.style.error_scale == 1 else f" (x{self.style.error_scale:g})"
+            out.append(("line", ESTIMATE_RGB, f"error of {ov.estimator}{' (flown on)' if ov.flown else ''}{scale}"))
+            out.append(("ring", ESTIMATE_RGB, f"3-sigma ellipse, horizontal{scale}"))
+        if uwb:
+            what = f" ({self.style.nearest} shortest per vehicle)" if self.style.links == "nearest" else ""
+            out.append(("line", tuple(int(c) for c in 255 * LOS_RGBA[:3]), f"UWB LOS{what}"))
+            out.append(("line", tuple(int(c) for c in 255 * NLOS_RGBA[:3]), "UWB NLOS"))
+        if rp.anchor_ids.size:
+            out.append(("diamond", ANCHOR_RGB, "UWB anchor"))
+        if gnss and self.style.labels:
+            out.append(("text", (120, 255, 120), "GNSS fix; red: none"))
+        return out
+
+
+def nearest_links(a: np.ndarray, b: np.ndarray, va: np.ndarray, vb: np.ndarray, k: int) -> np.ndarray:
+    """(L,) bool: the links each vehicle keeps when it keeps its k shortest (a union over vehicles).
+
+    a, b: (L, 3) m world, the two ends of each link; va, vb: (L,) 0-based vehicle of each end, -1
+    for an anchor.
+    """
+    length = np.linalg.norm(a - b, axis=1)
+    keep = np.zeros(len(length), bool)
+    for v in np.unique(np.concatenate([va, vb])):
+        if v < 0:
+            continue
+        mine = np.flatnonzero((va == v) | (vb == v))
+        keep[mine[np.argsort(length[mine], kind="stable")[:k]]] = True
+    return keep
+
+
+def error_drawing(truth: np.ndarray, estimate: np.ndarray, cov: np.ndarray, scale: float = 1.0, sigmas: float = 3.0,
+                  points: int = 48) -> list[np.ndarray]:
+    """The polylines (each (P, 3) m world) that show one estimate: the segment from the true
+    position to the estimate, and the sigmas-sigma ellipse of the horizontal covariance
+    (cov[:2, :2]) about the estimate, in the horizontal plane at its height; both `scale` times
+    their size about the true position. truth, estimate: (3,) m world; cov: (3, 3) m^2 (NaN: no ellipse).
+    """
+    end = truth + scale * (estimate - truth)
+    out = [np.stack([truth, end])]
+    c = np.asarray(cov, float)[:2, :2]
+    if np.isfinite(c).all():
+        w, V = np.linalg.eigh((c + c.T) / 2)
+        a = np.linspace(0.0, 2 * np.pi, points + 1)
+        xy = (V * (scale * sigmas * np.sqrt(np.maximum(w, 0.0)))) @ np.stack([np.cos(a), np.sin(a)])
+        out.append(np.column_stack([end[0] + xy[0], end[1] + xy[1], np.full(points + 1, end[2])]))
+    return out
+
+
+def _scale_bar(img: np.ndarray, px_per_m: float) -> None:
+    """A scale bar at the bottom left: a round length (1, 2 or 5 x 10^k m) of about a sixth of the
+    width at the depth of the camera's lookat (the swarm's middle); img RGB, modified in place."""
+    H, W = img.shape[:2]
+    if not np.isfinite(px_per_m) or px_per_m <= 0:
+        return
+    target = W / 6 / px_per_m
+    e = 10.0 ** math.floor(math.log10(target))
+    length = max(f * e for f in (1, 2, 5) if f * e <= target)
+    n = int(round(length * px_per_m))
+    s = 0.45 * H / 540
+    x0, y0 = int(14 * H / 540) + 4, H - int(22 * H / 540) - 4
+    lw = max(2, round(H / 270))
+    for c, w in (((20, 20, 20), lw + 2), ((255, 255, 255), lw)):
+        cv2.line(img, (x0, y0), (x0 + n, y0), c, w)
+        for x in (x0, x0 + n):
+            cv2.line(img, (x, y0 - 3 * lw), (x, y0), c, w)
+    _text(img, f"{length:g} m (at the swarm)", (x0, y0 - 4 * lw), s)
+
+
+def _legend(img: np.ndarray, entries: list[tuple[str, tuple, str]]) -> None:
+    """The legend in the bottom-right corner: a dark box with one swatch and text per entry
+    (kind, RGB, text) of _Painter._legend_entries, left out of a picture too small to hold it;
+    img RGB, modified in place."""
+    H, W = img.shape[:2]
+    s = max(0.32, 0.38 * H / 540)  # smaller text loses its spaces
+    th = max(1, round(s * 2))
+    row = int(50 * s) + 2
+    sw = int(22 * H / 540) + 4  # swatch width
+    pad = int(6 * H / 540) + 2
+    tw = max(cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, s, th)[0][0] for _, _, text in entries)
+    w, h = pad * 3 + sw + tw, pad * 2 + row * len(entries)
+    x0, y0 = W - w - pad, H - h - pad
+    if x0 < 0 or y0 < 0:  # a picture too small to hold it goes without
+        return
+    box = img[y0 : y0 + h, x0 : x0 + w]
+    box[:] = (0.35 * box + 0.65 * 25).astype(np.uint8)  # darkened, still see-through
+    lw = max(1, round(H / 360))
+    for k, (kind, rgb, text) in enumerate(entries):
+        cy, cx = y0 + pad + row * k + row // 2, x0 + pad + sw // 2
+        if kind == "line":
+            cv2.line(img, (x0 + pad, cy), (x0 + pad + sw, cy), rgb, lw + 1)
+        elif kind == "ring":
+            cv2.ellipse(img, (cx, cy), (sw // 2, row // 3), 0, 0, 360, rgb, lw)
+        elif kind == "diamond":
+            r = row // 3
+            cv2.fillPoly(img, [np.array([[cx, cy - r], [cx + r, cy], [cx, cy + r], [cx - r, cy]])], rgb)
+        elif kind == "dot":
+            cv2.circle(img, (cx, cy), row // 3, rgb, -1)
+        else:
+            _text(img, "12", (x0 + pad, cy + row // 4), s, rgb)
+        _text(img, text, (x0 + 2 * pad + sw, cy + row // 4), s)
 
 
 class _Projection:
@@ -567,9 +746,22 @@ def _trails(times: np.ndarray, pos: np.ndarray, f: int, n_frames: int, points: i
     return None if idx.size < 2 else np.transpose(pos[idx], (1, 0, 2))
 
 
+def _track(replay: _Replay, times: np.ndarray, pos: np.ndarray, aspect: float, fps: float) -> CameraTrack:
+    """The camera path of a video: the vehicles pos (F, N, 3) m world at times (F,) s, and the
+    anchors the swarm ranged to at the latest UWB sample of each time (all of them without UWB)."""
+    anchors = replay.data.site_xpos[replay.anchor_ids].copy()
+    in_use = np.ones((len(times), len(anchors)), bool)
+    if replay.overlays.uwb is not None:
+        for f, t in enumerate(times):
+            src, dst, _ = replay.overlays.links(float(t))
+            in_use[f] = np.isin(replay.anchor_ids, np.concatenate([src, dst]))
+    return camera_track(times, pos, aspect=aspect, smooth=0.75 * fps, anchors=anchors, in_use=in_use)
+
+
 def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, height: int = 540, fps: int = 30, speed: float = 1.0,
                max_seconds: float | None = None, shadow_size: int = 1024, samples: int = 0, pip_vehicle: int | None = None,
-               progress: bool = False, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True, force: bool = False) -> Path:
+               progress: bool = False, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True, links: str = "nearest",
+               nearest: int = 2, error_scale: float = 1.0, legend: bool = True, reference: bool = True, force: bool = False) -> Path:
     """Render a run directory to an MP4; returns its path (default `run_dir/video.mp4`).
 
     Video time runs at `speed` x simulated time from the first logged instant; frame k shows
@@ -579,8 +771,12 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     pip_vehicle: 1-based vehicle whose `uav{i}/cam` is shown in the corner; None = from
     scenario.toml (vehicle 1 when paper = "004", else none); 0 = none. trail: trail length in
     video seconds (0 = none); marker_px: on-screen radius (px) of the markers of far vehicles;
-    labels: write vehicle numbers. The file is written beside `out` and renamed when complete; an
-    existing `out` is refused (RunError) unless force.
+    labels: write vehicle numbers. links: the UWB links drawn, "nearest" (default: of the links
+    ranged at the latest sample, each vehicle's `nearest` shortest, anchors included), "epoch" (all
+    of them) or "none". error_scale: the estimate's error segment and 3-sigma ellipse are drawn this
+    many times their size (1: to scale; the legend says so otherwise). legend: the legend and the
+    scale bar; reference: the reference paths. The file is written beside `out` and renamed when
+    complete; an existing `out` is refused (RunError) unless force.
     """
 
     run_dir = Path(run_dir)
@@ -591,11 +787,12 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
         raise RunError(f"{out}: is a directory; give a file name")
     if out.exists() and not force:
         raise RunError(f"{out}: already exists (use --force to replace it)")
+    look = dict(marker_px=marker_px, labels=labels, links=links, nearest=nearest, error_scale=error_scale, legend=legend, reference=reference)
+    style = _Style(**look)
     backend = choose_backend()
     if backend is not None:
         call = dict(fn="render_run", run_dir=str(run_dir), out=str(out), width=width, height=height, fps=fps, speed=speed, max_seconds=max_seconds,
-                    shadow_size=shadow_size, samples=samples, pip_vehicle=pip_vehicle, progress=progress, trail=trail, marker_px=marker_px, labels=labels,
-                    force=force)
+                    shadow_size=shadow_size, samples=samples, pip_vehicle=pip_vehicle, progress=progress, trail=trail, force=force, **look)
         return _delegate(backend, call)
     replay = _Replay(run_dir)
     t0, t1 = float(replay.time[0]), float(replay.time[-1])
@@ -605,9 +802,8 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     n_frames = max(1, int(round(video_s * fps)))
     times = t0 + np.arange(n_frames) * speed / fps
     pos = replay.positions(times)
-    track = camera_track(times, pos, aspect=width / height, smooth=0.75 * fps)
-    painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle),
-                       style=_Style(marker_px=marker_px, labels=labels))
+    track = _track(replay, times, pos, width / height, fps)
+    painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle), style=style)
     trail_frames = int(round(trail * fps))
     try:
         with tempfile.TemporaryFile() as ffmpeg_log, new_file(out, force=force, suffix=".mp4") as partial:
@@ -641,26 +837,28 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
 
 
 def save_frame(run_dir: Path, t: float, path: Path, *, width: int = 960, height: int = 540, shadow_size: int = 1024, samples: int = 0,
-               pip_vehicle: int | None = None, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True) -> Path:
+               pip_vehicle: int | None = None, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True, links: str = "nearest",
+               nearest: int = 2, error_scale: float = 1.0, legend: bool = True, reference: bool = True) -> Path:
     """Write one PNG of the tracking view at simulated time t (s), as the video (30 fps, 1x) shows it.
 
     Options as for `render_run`. Returns the path.
     """
 
     path = Path(path)
+    look = dict(marker_px=marker_px, labels=labels, links=links, nearest=nearest, error_scale=error_scale, legend=legend, reference=reference)
+    style = _Style(**look)
     backend = choose_backend()
     if backend is not None:
         call = dict(fn="save_frame", run_dir=str(run_dir), t=t, path=str(path), width=width, height=height, shadow_size=shadow_size,
-                    samples=samples, pip_vehicle=pip_vehicle, trail=trail, marker_px=marker_px, labels=labels)
+                    samples=samples, pip_vehicle=pip_vehicle, trail=trail, **look)
         return _delegate(backend, call)
     replay = _Replay(Path(run_dir))
     fps = 30
     t0, t1 = float(replay.time[0]), float(replay.time[-1])
     times = t0 + np.arange(int(math.floor((t1 - t0) * fps)) + 1) / fps
     pos = replay.positions(times)
-    track = camera_track(times, pos, aspect=width / height, smooth=0.75 * fps)
-    painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle),
-                       style=_Style(marker_px=marker_px, labels=labels))
+    track = _track(replay, times, pos, width / height, fps)
+    painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle), style=style)
     try:
         f = int(np.clip(round((t - t0) * fps), 0, len(times) - 1))
         look, dist = track.at(t)

@@ -1,28 +1,34 @@
-"""What a rendered frame shows besides the scene: UWB links, estimate ghosts, GNSS fix state.
+"""What a rendered frame shows besides the scene: reference paths, UWB links, the estimate with its
+covariance, GNSS fix state.
 
 Read from the run directory only (testbed.render draws them):
+- reference paths: log.npz `reference/pos` (T, N, 3) m world at the logged instants `time`;
 - UWB links: the rows of log.npz `uwb/*` whose time of validity is in (t - T, t], T the
   shortest interval between two UWB samples: the links ranged at the latest sample, drawn
   between the two sites' positions of the frame, LOS and NLOS (`uwb/nlos`) in two colours;
-- ghosts: feedback.npz (written by the runner when a controller flew on an estimate,
-  `[control] feedback = "estimate:NAME"`): per vehicle the body positions the estimator gave
-  (`uavI/time` (K,) s, `uavI/pos` (K, 3) m world) and `estimator` (NAME); the ghost at t is the
-  latest estimate of time <= t;
+- the estimate: estimates.npz (testbed.plugins.collect.track_arrays) of one estimator, the one
+  the controller flew on when the run did (feedback.npz `estimator`, written by the runner with
+  `[control] feedback = "estimate:NAME"`), else the first by name: per vehicle `uavI` its world
+  position estimates (K, 3) m and their covariances (K, 3, 3) m^2; the estimate at t is the latest
+  of time <= t;
 - GNSS fix state: log.npz `gnss/fix` (T, N) bool at the logged instants `time`, the row at or
   before t.
-Any of them is absent when its arrays are (older runs, scenarios without that sensor).
+Any of them is absent when its arrays are (older runs, scenarios without that sensor, runs without
+a plugin estimator).
 """
 from __future__ import annotations
 
+import contextlib
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from testbed.plugins.collect import ESTIMATES_FILE, natural, read_tracks
+
 FEEDBACK_FILE = "feedback.npz"
 LOS_RGBA = np.array([0.25, 0.85, 1.0, 0.75], np.float32)
 NLOS_RGBA = np.array([1.0, 0.45, 0.1, 0.9], np.float32)
-GHOST_RGBA = np.array([0.95, 0.95, 0.95, 0.45], np.float32)
 
 
 def feedback_arrays(track: dict, vehicles: int, name: str) -> dict[str, np.ndarray]:
@@ -34,6 +40,10 @@ def feedback_arrays(track: dict, vehicles: int, name: str) -> dict[str, np.ndarr
         if s is not None and s.frame == "world":
             out[f"uav{i}/time"], out[f"uav{i}/pos"] = s.time, s.value
     return out
+
+
+class OverlayError(ValueError):
+    """A file of the run directory that an overlay reads is there but unreadable (the message names it)."""
 
 
 def _load(path: Path) -> dict[str, np.ndarray]:
@@ -64,9 +74,22 @@ class Overlays:
             nlos = log["uwb/nlos"][order] if "uwb/nlos" in log else np.zeros(t.size, bool)
             self.uwb = (t[order], src, dst, nlos.astype(bool))
         self.fix = (log["time"], log["gnss/fix"]) if "gnss/fix" in log and "time" in log else None
+        self.reference = log["reference/pos"] if "reference/pos" in log and "time" in log else None  # (T, N, 3)
+        self.time = log.get("time")
         fb = _load(Path(run_dir) / FEEDBACK_FILE)
-        self.estimator = str(fb["estimator"]) if "estimator" in fb else ""
-        self.ghost = [(fb.get(f"uav{i}/time"), fb.get(f"uav{i}/pos")) for i in range(1, n + 1)] if fb else None
+        path = Path(run_dir) / ESTIMATES_FILE
+        try:
+            with np.load(path, allow_pickle=False) if path.exists() else contextlib.nullcontext({}) as z:
+                tracks = read_tracks({k: z[k] for k in z})
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+            raise OverlayError(f"{path}: not readable as a run's estimates ({type(e).__name__}: {' '.join(str(e).split())[:200]})") from None
+        flown = str(fb["estimator"]) if "estimator" in fb else ""
+        self.estimator = flown if flown in tracks else min(tracks, key=natural, default="")
+        self.flown = bool(flown) and flown == self.estimator
+        series = [tracks[self.estimator].get((f"uav{i}", "position")) if self.estimator else None for i in range(1, n + 1)]
+        self.series = [s if s is not None and s.frame == "world" and s.time.size else None for s in series]
+        if not any(s is not None for s in self.series):
+            self.series = None
 
     def links(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(src site ids, dst site ids, nlos) of the links ranged at the latest UWB sample by t."""
@@ -78,17 +101,19 @@ class Overlays:
         keep = (src[lo:hi] >= 0) & (dst[lo:hi] >= 0)
         return src[lo:hi][keep], dst[lo:hi][keep], nlos[lo:hi][keep]
 
-    def ghosts(self, t: float) -> np.ndarray | None:
-        """(N, 3) m world: each vehicle's latest estimate by t (NaN before its first), or None."""
-        if self.ghost is None:
+    def estimate(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(N, 3) m world positions and (N, 3, 3) m^2 covariances: each vehicle's latest estimate
+        by t (NaN before its first, and for the covariance of an estimate without one), or None
+        without estimates."""
+        if self.series is None:
             return None
-        out = np.full((self.n, 3), np.nan)
-        for i, (time, pos) in enumerate(self.ghost):
-            if time is not None and time.size:
-                k = np.searchsorted(time, t + 1e-9, side="right") - 1
+        pos, cov = np.full((self.n, 3), np.nan), np.full((self.n, 3, 3), np.nan)
+        for i, s in enumerate(self.series):
+            if s is not None:
+                k = np.searchsorted(s.time, t + 1e-9, side="right") - 1
                 if k >= 0:
-                    out[i] = pos[k]
-        return out
+                    pos[i], cov[i] = s.value[k], s.cov[k]
+        return pos, cov
 
     def fixed(self, t: float) -> np.ndarray | None:
         """(N,) bool: which vehicles have a GNSS fix at t, or None without GNSS."""

@@ -25,7 +25,7 @@ from testbed.log import LogWriter, NpzLog, save_npz
 from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
-from testbed.plugins.collect import track_arrays
+from testbed.plugins.collect import ESTIMATES_FILE, track_arrays
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
@@ -35,7 +35,6 @@ from testbed.scenario import Scenario
 from testbed.simulate import record
 from testbed.world import build
 
-ESTIMATES_FILE = "estimates.npz"  # the plugin estimators' estimates (testbed.plugins.collect.track_arrays)
 SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
 
@@ -124,7 +123,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
-        if online is not None:  # what the controller flew on, for the video's ghosts (testbed.render_overlay)
+        if online is not None:  # what the controller flew on (the video draws that estimator: testbed.render_overlay)
             save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
         if tracks:  # every estimate of the plugin estimators, for `testbed view` (testbed.viewer)
             save_npz(tmp / ESTIMATES_FILE, {k: v for key, track in tracks.items() for k, v in track_arrays(key, track).items()})

@@ -102,6 +102,9 @@ CASES = [
     ("render-speed-inf", ["render", "r", "--speed", "inf"], "argument --speed"),
     ("render-max-seconds-0", ["render", "r", "--max-seconds", "0"], "argument --max-seconds"),
     ("render-max-seconds-neg", ["render", "r", "--max-seconds", "-2"], "argument --max-seconds"),
+    ("render-links-all", ["render", "r", "--links", "all"], "argument --links"),
+    ("render-nearest-0", ["render", "r", "--nearest", "0"], "argument --nearest"),
+    ("render-error-scale-0", ["render", "r", "--error-scale", "0"], "argument --error-scale"),
     ("sweep-workers-0", ["sweep", "visnav", "--runs", "2", "--workers", "0", "--out", "out"], "argument --workers"),
     ("sweep-workers-neg", ["sweep", "visnav", "--runs", "2", "--workers", "-3", "--out", "out"], "argument --workers"),
     ("sweep-runs-0", ["sweep", "visnav", "--runs", "0", "--out", "out"], "argument --runs"),
@@ -161,6 +164,7 @@ def run_dir(tmp_path_factory):
 @pytest.mark.parametrize("victim, content, named", [
     ("log.npz", b"garbage", "log.npz: not a readable run log"),
     ("scene.xml", b"<mujoco><oops", "scene.xml: not a readable MuJoCo model"),
+    ("estimates.npz", b"garbage", "estimates.npz: not readable as a run's estimates"),
 ])
 def test_render_of_a_corrupt_run_directory_is_one_line(run_dir, tmp_path, capsys, victim, content, named):
     bad = tmp_path / "bad"

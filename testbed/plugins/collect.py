@@ -186,6 +186,7 @@ class Collector:
 
 
 NAN33 = np.full((3, 3), np.nan)
+ESTIMATES_FILE = "estimates.npz"  # a run's or a replay's plugin estimates (track_arrays)
 
 
 def track_arrays(key: str, track: Track) -> dict[str, np.ndarray]:
