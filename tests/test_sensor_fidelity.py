@@ -133,6 +133,26 @@ def test_rotor_vibration_repeats_with_the_seed_and_leaves_the_other_draws():
     assert np.abs(a["imu/value"] - off["imu/value"])[:, :3].max() > 0.1
 
 
+def test_rotor_vibration_sample_by_sample_equals_all_at_once():
+    """Online (one sample per call) and offline (the whole series) give the same numbers."""
+    from testbed.rng import stream_rng
+    from testbed.sensors.noise import device_rng
+    from testbed.sensors.vibration import RotorVibration
+    from testbed.world import build
+
+    sc = _vibrating({"preset": "mpu9250"})
+    physics = build(sc)
+    thrust = 16.9 + np.random.default_rng(0).normal(0.0, 3.0, (50, 2, 4))
+
+    def model():
+        rngs = [device_rng(stream_rng(3, "imu"), f"uav{i}/vibration") for i in (1, 2)]
+        return RotorVibration(sc.sensors.imu.vibration, physics, rngs, 0.005, 200.0)
+
+    whole, one = model().sample(thrust), model()
+    np.testing.assert_array_equal(whole, np.concatenate([one.sample(thrust[k:k + 1]) for k in range(50)]))
+    assert np.abs(whole[:, :, :3]).max() > 0.1 and np.abs(whole[:, :, 3:]).max() > 0.0
+
+
 def test_rotor_vibration_keys_are_checked():
     """One amplitude per harmonic in both directions; positive thrust coefficient."""
     with pytest.raises(FieldError, match="sensors.imu.vibration.accel_z"):

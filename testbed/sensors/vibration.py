@@ -54,8 +54,8 @@ class RotorVibration:
         thrust = np.maximum(thrust, 0.0)
         f = np.sqrt(thrust / self.cfg.thrust_coefficient)  # (n, V, 4) rev/s
         steps = np.concatenate([self.phase[None], 2.0 * np.pi * f * self.dt])
-        phase = np.cumsum(steps, axis=0)[1:]  # (n, V, 4) rad, added in sample order
-        self.phase = phase[-1] % (2.0 * np.pi)
+        phase = np.cumsum(steps, axis=0)[1:]  # (n, V, 4) rad, added in sample order (never wrapped:
+        self.phase = phase[-1]                # sample by sample or all at once, the same numbers)
         out = np.zeros(thrust.shape[:2] + (6,))
         direction_xy = np.stack([np.ones(4), -1j * SPIN, np.zeros(4)], axis=1)  # (4, 3)
         for h, (cxy, cz) in enumerate(zip(self.cfg.accel_xy, self.cfg.accel_z), start=1):
