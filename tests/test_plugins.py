@@ -519,3 +519,19 @@ def test_a_reproduction_writes_its_report_without_the_failed_estimator_and_exits
     good, bad = header.index("rmse_Good_m"), header.index("rmse_Bad_m")
     rows = [r.split(",") for r in table[1:]]
     assert all(math.isfinite(float(r[good])) for r in rows) and all(r[bad] in ("", "nan") or math.isnan(float(r[bad])) for r in rows)
+
+
+def test_a_reproduction_scored_in_process_reports_the_failed_estimator_too(tmp_path, capsys):
+    """visnav scores its plugins in process (no run directories): runs.json lists the failed one
+    by seed, with each run's time and reason; the report is written; exit 1."""
+    path = _write(tmp_path, FAILING_AND_GOOD)
+    out = tmp_path / "rv"
+    assert main(["reproduce", "visnav", "--runs", "1", "--duration", "2", "--workers", "1", "--out", str(out), "--quiet",
+                 "--estimator", f"{path}:Bad"]) == 1
+    err = capsys.readouterr().err
+    assert err.splitlines()[-1].startswith("testbed: error: estimators failed in 1 runs") and "seed 1: Bad" in err
+    runs = json.loads((out / "runs.json").read_text())
+    assert runs["failed_estimators"] == {"Bad": [1]}
+    failed = runs["runs"][0]["gaussian"]["plugins"]["Bad"]["failed"]
+    assert failed["time_s"] >= 1.0 and "raised ZeroDivisionError: diverged" in failed["reason"]
+    assert (out / "report.md").is_file() and (out / "claims.json").is_file()

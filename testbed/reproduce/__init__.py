@@ -73,7 +73,7 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | N
         o.commit()
     if failed := failed_runs(Path(out)):  # scored without them; exit 1 once everything is written
         raise EstimatorsFailed(f"estimators failed in {len(failed)} runs of {out}, the tables hold the others (each run's "
-                               "metrics.json says when and why, marked incomplete): "
+                               "metrics.json, or runs.json, says when and why): "
                                + ", ".join(f"{run}: {', '.join(keys)}" for run, keys in failed.items()))
     return result
 

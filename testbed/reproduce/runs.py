@@ -70,11 +70,17 @@ def runs_done(out: Path) -> int:
 
 
 def failed_runs(out: Path) -> dict[str, list[str]]:
-    """{run directory relative to out: the estimators that failed in it} over a reproduction's run
-    directories (their metrics.json `failed_estimators`, testbed.plugins.failures)."""
-    found = {}
+    """{run: the estimators that failed in it} of a reproduction (testbed.plugins.failures): its run
+    directories' metrics.json `failed_estimators`, and runs.json's {key: [seeds]} of a reproduction
+    that scores its runs in process (visnav)."""
+    found: dict[str, list[str]] = {}
     for path in sorted(Path(out).rglob("run-*/metrics.json")):
         keys = json.loads(path.read_text()).get("failed_estimators", [])
         if keys:
             found[str(path.parent.relative_to(out))] = keys
+    runs_json = Path(out) / "runs.json"
+    if runs_json.is_file():
+        for key, seeds in json.loads(runs_json.read_text()).get("failed_estimators", {}).items():
+            for seed in seeds:
+                found.setdefault(f"seed {seed}", []).append(key)
     return found
