@@ -71,10 +71,10 @@ class Vibration:
     """
 
     enabled: bool | None = None
-    thrust_coefficient: float | None = None
-    accel_xy: tuple[float, ...] | None = None
-    accel_z: tuple[float, ...] | None = None
-    cutoff_ratio: float | None = None
+    thrust_coefficient: float | None = key(None, unit="N s^2", range="> 0")
+    accel_xy: tuple[float, ...] | None = key(None, unit="m/s^2/N", range=">= 0")
+    accel_z: tuple[float, ...] | None = key(None, unit="m/s^2/N", range=">= 0")
+    cutoff_ratio: float | None = key(None, unit="-", range="> 0")
 
     def __post_init__(self) -> None:
         for name in ("thrust_coefficient", "cutoff_ratio"):
