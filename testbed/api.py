@@ -158,7 +158,8 @@ def run(scenario: Scenario, out: str | Path | None = None, *, force: bool = Fals
     output of the testbed; replaced only with force). None: a fresh temporary directory, removed
     by Run.close() (see the module docstring). plots: write plots/*.png; video: video.mp4.
     The reference paths' clearance is checked first, as in load_scenario (the message names the
-    scenario by its name).
+    scenario by its name). A plugin estimator that fails: the run directory is still written
+    (metrics.json marked incomplete, testbed.plugins.failures), then EstimatorsFailed is raised.
     """
     _check_clearance(scenario, scenario.name)
     tmp = None

@@ -42,8 +42,19 @@ class RunError(TestbedError):
 class PluginError(TestbedError):
     """A plugin estimator failed during a run (raised, returned NaN or a wrong shape): exit code 1.
 
-    The message names the estimator, the time and what was wrong. A plugin that cannot be
-    loaded or lacks the protocol is a UsageError (exit 2), found before anything is simulated.
+    The message names the estimator, the time and what was wrong; `time` (s, run clock) is the
+    time of the measurement it was given when it failed, None when it failed outside the feed
+    (constructor, finish, health). A plugin that cannot be loaded or lacks the protocol is a
+    UsageError (exit 2), found before anything is simulated.
     """
 
     exit_code = 1
+
+    def __init__(self, message: str, time: float | None = None) -> None:
+        super().__init__(message)
+        self.time = time
+
+
+class EstimatorsFailed(PluginError):
+    """Some estimators of a run, replay or sweep failed; the others were scored and the output
+    was written anyway, marked incomplete (testbed.plugins.failures): exit code 1."""

@@ -7,7 +7,9 @@ testbed.plugins.online), runs the scenario's estimator pipeline and its plugin e
 `estimates.npz` (every estimate of the plugin estimators, when there are any),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
 `.testbed` into a temporary sibling directory that is renamed to `out` only when everything
-succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-written.
+succeeded (testbed.outdir): an interrupted or failed run leaves nothing half-written. A plugin
+estimator that fails is its own result (testbed.plugins.failures): the run is written, marked
+incomplete, and then raises EstimatorsFailed (exit 1).
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.collect import ESTIMATES_FILE, track_arrays
+from testbed.plugins.failures import mark_incomplete, raise_failed
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
@@ -120,6 +123,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             if scenario.motion == "flown":  # contacts, separation, crashes, GNSS outages (testbed.safety)
                 metrics["flight"] = flight(log, physics)
         metrics["estimators"], timing = split_timing(estimators)
+        mark_incomplete(metrics)
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
@@ -135,6 +139,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
 
             render_run(tmp, progress=progress)
         o.commit()
+    raise_failed(metrics, Path(out) / "metrics.json")
     return metrics
 
 

@@ -8,7 +8,9 @@ std (ddof=1), min, max and count of every numeric score, keyed by its dotted pat
 an ANEES also gets the interval of a consistent estimator's mean over the runs (`interval`, at the
 runs' own level) and its effective samples (`n_eff`: testbed.metrics.anees_over_runs,
 docs/consistency.md), empty in summary.csv for the other scores.
-`OUT/sweep.toml` is the swept scenario (run i: its seed + i). Ctrl-C, SIGTERM or SIGHUP stop every
+`OUT/sweep.toml` is the swept scenario (run i: its seed + i). A plugin estimator that fails in a
+run is that run's result (testbed.plugins.failures): the sweep goes on, summary.json lists
+`failed_estimators` {KEY: [run indices]}, and sweep raises EstimatorsFailed (exit 1) once written. Ctrl-C, SIGTERM or SIGHUP stop every
 worker at once (and so does a Ray task lost for good, testbed.cluster.TaskLost); the finished runs are kept with summary.json marked incomplete (`"incomplete": true,
 "runs_done": k`, no summary.csv) and `testbed sweep ... --resume` finishes the sweep.
 Backends (testbed.workers): a local process pool (default) or Ray tasks (`--backend ray`, on this
@@ -29,7 +31,7 @@ import numpy as np
 from testbed import scenario as scenario_mod
 from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
-from testbed.errors import RunError
+from testbed.errors import EstimatorsFailed, RunError
 from testbed.interrupt import Interrupted
 from testbed.metrics import anees_over_runs
 from testbed.outdir import Output, marker, write_json, write_text
@@ -42,7 +44,10 @@ from testbed.workers import backend as use_backend, current_backend, run_paralle
 def _one(args: tuple[dict, int, str]) -> None:
     table, seed, out = args
     scenario = from_dict(Scenario, {**table, "seed": seed}, "sweep")
-    run(scenario, Path(out), progress=False)
+    try:
+        run(scenario, Path(out), progress=False)
+    except EstimatorsFailed:  # the run is written, marked incomplete; the sweep reports it at the end
+        pass
 
 
 def flatten(obj: object, prefix: str = "") -> dict[str, float]:
@@ -99,8 +104,15 @@ def run_complete(run_dir: Path) -> bool:
 
 def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> dict:
     """summary.json (+ summary.csv when all runs are done) from the runs' metrics.json on disk."""
-    summary = summarize([json.loads((d / f"run-{i:03d}" / "metrics.json").read_text()) for i in done])
+    metrics = [json.loads((d / f"run-{i:03d}" / "metrics.json").read_text()) for i in done]
+    summary = summarize(metrics)
     doc = {"scenario": scenario.name, "runs": runs, "seeds": [scenario.seed + i for i in done], "scores": summary}
+    failed: dict[str, list[int]] = {}
+    for i, m in zip(done, metrics):
+        for key in m.get("failed_estimators", []):
+            failed.setdefault(key, []).append(i)
+    if failed:  # their runs' metrics.json say when and why (testbed.plugins.failures)
+        doc["failed_estimators"] = failed
     if len(done) < runs:  # marked incomplete; `--resume` finishes it
         write_json(d / "summary.json", {**doc, "incomplete": True, "runs_done": len(done)})
         (d / "summary.csv").unlink(missing_ok=True)
@@ -173,6 +185,11 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         bar.close()
         summary = _write_summary(d, scenario, runs, sorted(done))
         o.commit()
+    failed = json.loads((out / "summary.json").read_text()).get("failed_estimators", {})
+    if failed:
+        raise EstimatorsFailed(f"estimators failed in some runs, the others were scored ({out / 'summary.json'}; each run's "
+                               f"metrics.json says when and why): "
+                               + ", ".join(f"{k} in runs {', '.join(map(str, v))}" for k, v in failed.items()))
     return summary
 
 

@@ -1,6 +1,7 @@
 """Estimators as plugins: loading, feeding in arrival order, truth for scoring, errors, docs example."""
 import dataclasses
 import json
+import math
 import re
 import textwrap
 from pathlib import Path
@@ -145,18 +146,46 @@ def test_bad_entries_exit_2_before_simulating(tmp_path, capsys, entry, message):
     ("return [Estimate(time=m.time, target='uav1', quantity='position', value=np.zeros(3), cov=-np.eye(3))]", "not positive definite"),
     ("return [m]", "not a testbed.plugins.Estimate"),
 ])
-def test_a_failing_plugin_exits_1_naming_it_and_the_time(tmp_path, capsys, body, message):
+def test_a_failing_plugin_is_its_own_result_and_exits_1(tmp_path, capsys, body, message):
+    """The failing estimator is named with its time and reason on stderr (one line) and in
+    metrics.json; the other plugin and the pipeline are still scored; the run directory is
+    written (strict JSON, marked incomplete) and the command exits 1."""
     path = _write(tmp_path, f"""
         class Bad:
             def __init__(self, context, params): pass
             def process(self, m):
                 {body}
+        class Good:
+            def __init__(self, context, params): pass
+            def process(self, m):
+                if m.stream == "gnss":
+                    yield Estimate(time=m.time, target=m.src, quantity="position", value=m.value)
+    """)
+    out = tmp_path / "out"
+    assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", f"{path}:Bad",
+                 "--estimator", f"{path}:Good"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("testbed: error: ") and f"estimator 'Bad' ({path}:Bad) at t = 0 s" in err
+    assert message in err and str(out / "metrics.json") in err and err.count("\n") == 1
+    metrics = json.loads((out / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    assert metrics["incomplete"] is True and metrics["failed_estimators"] == ["Bad"]
+    assert metrics["estimators"]["Bad"]["failed"]["time_s"] == 0.0 and message in metrics["estimators"]["Bad"]["failed"]["reason"]
+    assert metrics["estimators"]["Good"]["rmse_position_m"] >= 0.0
+    assert all("failed" not in v for k, v in metrics["estimators"].items() if k != "Bad") and len(metrics["estimators"]) >= 3
+    assert not list(tmp_path.glob(".*out*"))
+
+
+def test_a_plugin_failing_outside_the_feed_has_no_time(tmp_path, capsys):
+    """A constructor that raises: time_s is null, the reason says where."""
+    path = _write(tmp_path, """
+        class Bad:
+            def __init__(self, context, params): raise ValueError("no")
+            def process(self, m): return []
     """)
     out = tmp_path / "out"
     assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", f"{path}:Bad"]) == 1
-    err = capsys.readouterr().err
-    assert err.startswith(f"testbed: error: estimator 'Bad' ({path}:Bad) ") and message in err and err.count("\n") == 1
-    assert not out.exists() and not list(tmp_path.glob(".*out*"))
+    failed = json.loads((out / "metrics.json").read_text())["estimators"]["Bad"]["failed"]
+    assert failed["time_s"] is None and "constructor: raised ValueError: no" in failed["reason"]
 
 
 def test_duplicate_names_are_refused():
@@ -450,3 +479,68 @@ def test_diagnostics_are_collected_when_asked_and_checked():
         Diag.bad = bad
         with pytest.raises(PluginError, match="estimator 'd' .*diagnostics"):
             run_plugin(Plugin("d", "d", Diag, {}), ctx, [b], {})
+
+
+FAILING_AND_GOOD = """
+    class Bad:
+        def __init__(self, context, params): pass
+        def process(self, m):
+            if m.time >= 1.0:
+                raise ZeroDivisionError("diverged")
+            return []
+    class Good:
+        def __init__(self, context, params): pass
+        def process(self, m):
+            if m.stream == "gnss":
+                yield Estimate(time=m.time, target=m.src, quantity="position", value=m.value)
+"""
+
+
+def test_a_sweep_scores_the_others_and_lists_the_failed_runs(tmp_path):
+    """Every run is written (its metrics.json marked incomplete), summary.json lists the failed
+    estimator by run and holds the other plugin's scores; then EstimatorsFailed (exit 1)."""
+    from testbed.errors import EstimatorsFailed
+    from testbed.sweep import sweep
+
+    path = _write(tmp_path, FAILING_AND_GOOD)
+    sc = scenario.load("coop-fg", duration=2.0, seed=3)
+    sc = dataclasses.replace(sc, estimators=(EstimatorSpec(entry=f"{path}:Bad"), EstimatorSpec(entry=f"{path}:Good")))
+    with pytest.raises(EstimatorsFailed, match=r"Bad in runs 0, 1") as e:
+        sweep(sc, 2, tmp_path / "sweep", workers=1, progress=False)
+    assert e.value.exit_code == 1
+    summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
+    assert summary["failed_estimators"] == {"Bad": [0, 1]} and summary["scores"]["estimators.Good.rmse_position_m"]["n"] == 2
+    for i in range(2):
+        m = json.loads((tmp_path / "sweep" / f"run-{i:03d}" / "metrics.json").read_text())
+        assert m["incomplete"] is True and m["estimators"]["Bad"]["failed"]["time_s"] >= 1.0
+
+
+def test_a_reproduction_writes_its_report_without_the_failed_estimator_and_exits_1(tmp_path, capsys):
+    path = _write(tmp_path, FAILING_AND_GOOD)
+    out = tmp_path / "rp"
+    assert main(["reproduce", "coop", "--runs", "2", "--duration", "2", "--workers", "1", "--out", str(out), "--quiet",
+                 "--estimator", f"{path}:Bad", "--estimator", f"{path}:Good"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "estimators failed in 2 runs" in err and "runs/run-000: Bad" in err
+    assert (out / "claims.json").is_file() and (out / "report.md").is_file()
+    table = (out / "table.csv").read_text().splitlines()
+    header = table[0].split(",")
+    good, bad = header.index("rmse_Good_m"), header.index("rmse_Bad_m")
+    rows = [r.split(",") for r in table[1:]]
+    assert all(math.isfinite(float(r[good])) for r in rows) and all(r[bad] in ("", "nan") or math.isnan(float(r[bad])) for r in rows)
+
+
+def test_a_reproduction_scored_in_process_reports_the_failed_estimator_too(tmp_path, capsys):
+    """visnav scores its plugins in process (no run directories): runs.json lists the failed one
+    by seed, with each run's time and reason; the report is written; exit 1."""
+    path = _write(tmp_path, FAILING_AND_GOOD)
+    out = tmp_path / "rv"
+    assert main(["reproduce", "visnav", "--runs", "1", "--duration", "2", "--workers", "1", "--out", str(out), "--quiet",
+                 "--estimator", f"{path}:Bad"]) == 1
+    err = capsys.readouterr().err
+    assert err.splitlines()[-1].startswith("testbed: error: estimators failed in 1 runs") and "seed 1: Bad" in err
+    runs = json.loads((out / "runs.json").read_text())
+    assert runs["failed_estimators"] == {"Bad": [1]}
+    failed = runs["runs"][0]["gaussian"]["plugins"]["Bad"]["failed"]
+    assert failed["time_s"] >= 1.0 and "raised ZeroDivisionError: diverged" in failed["reason"]
+    assert (out / "report.md").is_file() and (out / "claims.json").is_file()

@@ -88,6 +88,30 @@ def test_the_shipped_example_replays(tmp_path, capsys):
     assert "PoseGraph: rmse_position_mean_m" in capsys.readouterr().out
 
 
+def test_a_replay_with_one_failing_estimator_still_scores_the_others(tmp_path, capsys):
+    """An estimator that raises at its 10th measurement is reported in metrics.json (time and
+    reason) and on stderr in one line; the spec's five estimators are scored; exit 1, the
+    directory written and marked incomplete."""
+    (tmp_path / "bad.py").write_text(
+        "class Bad:\n"
+        "    def __init__(self, context, params): self.n = 0\n"
+        "    def process(self, m):\n"
+        "        self.n += 1\n"
+        "        if self.n == 10: raise FloatingPointError('overflow')\n"
+        "        return []\n")
+    out = tmp_path / "D"
+    assert main(["replay", str(ROOT / "examples/replay/spec.toml"), "--out", str(out), "--estimator", f"{tmp_path / 'bad.py'}:Bad"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "estimator 'Bad'" in err and "raised FloatingPointError: overflow" in err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["incomplete"] is True and m["failed_estimators"] == ["Bad"]
+    failed = m["estimators"]["Bad"]["failed"]
+    tenth = sorted(x.time for x in load_recording(ROOT / "examples/replay/spec.toml").measurements())[9]
+    assert failed["time_s"] == pytest.approx(tenth) and f"at t = {tenth:.6g} s" in failed["reason"]
+    assert all(m["estimators"][k]["estimates"] == 18 * 5 for k in m["estimators"] if k != "Bad")
+    assert (out / ".testbed").is_file()
+
+
 def _dataset(tmp_path: Path) -> Path:
     d = tmp_path / "data"
     shutil.copytree(ROOT / "examples/replay", d)

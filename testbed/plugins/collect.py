@@ -56,10 +56,10 @@ class Collector:
         self._calls: list[str] = []  # `where` of each add() call
         self._seq = 0
 
-    def _fail(self, where: str, e: object, reason: str) -> PluginError:
+    def _fail(self, where: str, e: object, reason: str, time: float | None = None) -> PluginError:
         what = (f"estimate of {e[0]} {e[1]}" if isinstance(e, tuple) else f"estimate of {e.target} {e.quantity}" if isinstance(e, Estimate)
                 else f"estimates of {e.quantity} (a batch of {len(e)})" if isinstance(e, EstimateBatch) else f"estimate of {type(e).__name__}")
-        return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: {what}: {reason}")
+        return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: {what}: {reason}", time)
 
     def add(self, estimates: list, where: str) -> None:
         self._calls.append(where)
@@ -167,16 +167,16 @@ class Collector:
         arrival order raises)."""
         series = {key: [np.concatenate(c) for c in zip(*parts)] for key, parts in self._series().items()}
         first = None
-        for key, (_, _, cov, has, seq, call) in series.items():
+        for key, (time, _, cov, has, seq, call) in series.items():
             idx = np.flatnonzero(has)
             reasons = cov_problems(cov[idx]) if idx.size else []
             bad = [k for k, r in enumerate(reasons) if r is not None]
             if bad:
                 k = min(bad, key=lambda k: seq[idx[k]])
                 if first is None or seq[idx[k]] < first[0]:
-                    first = (seq[idx[k]], self._calls[call[idx[k]]], key, reasons[k])
-        if first is not None:
-            raise self._fail(first[1], first[2], first[3])
+                    first = (seq[idx[k]], self._calls[call[idx[k]]], key, reasons[k], float(time[idx[k]]))
+        if first is not None:  # its time: the bad estimate's
+            raise self._fail(*first[1:])
         out = {}
         for key in sorted(series, key=lambda kq: natural(kq[0]) + [kq[1]]):
             time, value, cov, has, seq, _ = series[key]

@@ -146,15 +146,20 @@ def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | Me
     `diagnostics` is a dict, it receives the estimator's optional per-epoch diagnostics()
     ({name: (K,) finite numbers}, one length), checked.
 
-    Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate.
+    Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate, with the
+    time of the measurement (or the first of the batch) it was given then.
     """
     t0 = wallclock.perf_counter()
     est, col = start_plugin(plugin, context)
     for item in feed:
-        if isinstance(item, MeasurementBatch):
-            process_batch(plugin, est, col, item)
-        else:
-            process(plugin, est, col, item)
+        try:
+            if isinstance(item, MeasurementBatch):
+                process_batch(plugin, est, col, item)
+            else:
+                process(plugin, est, col, item)
+        except PluginError as e:
+            e.time = float(item.time[0] if isinstance(item, MeasurementBatch) else item.time)
+            raise
     health = finish_plugin(plugin, est, col)
     if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
         diagnostics.update(_diagnostics(plugin, call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))

@@ -2,7 +2,8 @@
 
 Each plugin gets its own Context, the same measurements in the same order (testbed.plugins.feed),
 and is scored by testbed.plugins.score against the log's truth (with the scenario's PCRB where it
-has one: seed 003 phase-ekf); its figures overlay every plugin of the run. The result is merged into metrics.json `estimators` under each plugin's key.
+has one: seed 003 phase-ekf); its figures overlay every plugin of the run. The result is merged into metrics.json `estimators` under each plugin's key;
+a plugin that fails gets its failure there instead (testbed.plugins.failures) and the others go on.
 """
 from __future__ import annotations
 
@@ -10,10 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.errors import ConfigError
+from testbed.errors import ConfigError, PluginError
 from testbed.interrupt import poll
 from testbed.pipelines.phase import position_bound
 from testbed.plugins.context import make_context, priors
+from testbed.plugins.failures import failed_entry
 from testbed.plugins.feed import batched, run_plugin
 from testbed.plugins.loading import Plugin
 from testbed.plugins.score import Bound, plot_errors, score
@@ -27,7 +29,8 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
     """({key: scores}, {key: Track}) of every plugin (wall time under `wall_ms`, which the runner
     moves to timing.json; the Tracks go to the run's estimates.npz). taken: keys the pipeline
     already uses (a clash is a ConfigError). done: {key: (estimates, health, wall ms)}
-    of plugins already run (online, in the loop: scored, not rerun)."""
+    of plugins already run (online, in the loop: scored, not rerun). A plugin that fails gets
+    failed_entry (no Track); the caller marks the metrics (testbed.plugins.failures)."""
     if not plugins:
         return {}, {}
     done = done or {}
@@ -41,7 +44,11 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
                               "give it another name ([[estimators]] name)")
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, physics, p.key, p.params, prior)
-        track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed)
+        try:
+            track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed)
+        except PluginError as e:  # its own result; the others are still scored (testbed.plugins.failures)
+            out[p.key] = failed_entry(p.entry, e)
+            continue
         scores, errs = score(track, Truth(log, ctx), bound)
         out[p.key] = {"entry": p.entry, **scores, **({"health": health} if health else {}), "wall_ms": wall_ms}
         shown[p.key] = (track, errs)

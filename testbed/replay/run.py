@@ -15,6 +15,8 @@ sibling, marker, atomic rename) and holds
   and an estimator's per-epoch diagnostics (e.g. graph.poses: iterations, final cost, converged),
   `KEY/diagnostics/NAME` (summarized in metrics.json under `diagnostics`);
 - timing.json: wall-clock per estimator; plots/: error plots as a simulated run's.
+An estimator that fails is its own result (testbed.plugins.failures): the others are scored, the
+directory is written with metrics.json marked incomplete, then EstimatorsFailed (exit 1).
 """
 from __future__ import annotations
 
@@ -23,10 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.errors import ConfigError
+from testbed.errors import ConfigError, PluginError
 from testbed.log import save_npz
 from testbed.outdir import Output, write_json
 from testbed.plugins.collect import Series, Track, track_arrays
+from testbed.plugins.failures import failed_entry, mark_incomplete, raise_failed
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import resolve
 from testbed.plugins.score import plot_errors, score
@@ -81,7 +84,11 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
     arrays, timing, shown = {}, {}, {}
     for p in plugins:
         diagnostics: dict = {}
-        track, health, wall_ms = run_plugin(p, rec.context(p.key, p.params), rec.feed, diagnostics)
+        try:
+            track, health, wall_ms = run_plugin(p, rec.context(p.key, p.params), rec.feed, diagnostics)
+        except PluginError as e:  # its own result; the others are still scored (testbed.plugins.failures)
+            metrics["estimators"][p.key] = failed_entry(p.entry, e)
+            continue
         entry: dict = {"entry": p.entry}
         if truth is not None:
             scored, unscored = _scorable(track, truth)
@@ -102,6 +109,7 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
         timing[p.key] = {"wall_ms": wall_ms}
     if out_dir is not None and shown:
         plot_errors(shown, Path(out_dir) / "plots")
+    mark_incomplete(metrics)
     return metrics, arrays, timing
 
 
@@ -123,4 +131,5 @@ def replay(spec_path: Path, out: Path, *, estimators: tuple[EstimatorSpec, ...] 
         write_json(o.path / "timing.json", {"spec": str(spec_path), "estimators": timing})
         save_npz(o.path / "estimates.npz", arrays)
         o.commit()
+    raise_failed(metrics, Path(out) / "metrics.json")
     return metrics

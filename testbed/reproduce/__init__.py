@@ -19,6 +19,10 @@ keeps its finished runs at DIR with `DIR/summary.json` marked incomplete (`"inco
 same options, skipping the finished runs (testbed.reproduce.runs), and removes summary.json when
 done: the outputs are then byte-identical to an uninterrupted reproduction's (all but visnav's
 wall-clock columns, its time per filter step and wall time, which differ between any two runs).
+A plugin estimator (`--estimator`) that fails in a run is that run's result: its run directory is
+written with metrics.json marked incomplete (testbed.plugins.failures), the tables are computed
+from the runs where it did not fail, and once everything is written EstimatorsFailed (exit 1)
+names the runs and estimators.
 """
 from __future__ import annotations
 
@@ -27,11 +31,11 @@ import json
 import signal
 from pathlib import Path
 
-from testbed.errors import RunError, UsageError
+from testbed.errors import EstimatorsFailed, RunError, UsageError
 from testbed.interrupt import Interrupted
 from testbed.outdir import Output, write_json
 from testbed.reproduce.document import write_report
-from testbed.reproduce.runs import runs_done
+from testbed.reproduce.runs import failed_runs, runs_done
 from testbed.workers import backend as use_backend
 
 DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20, "denied": 5}
@@ -68,6 +72,10 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | N
             raise _keep_finished(o, options, getattr(e, "signum", signal.SIGINT)) from None
         (o.path / SUMMARY).unlink(missing_ok=True)
         o.commit()
+    if failed := failed_runs(Path(out)):  # scored without them; exit 1 once everything is written
+        raise EstimatorsFailed(f"estimators failed in {len(failed)} runs of {out}, the tables hold the others (each run's "
+                               "metrics.json, or runs.json, says when and why): "
+                               + ", ".join(f"{run}: {', '.join(keys)}" for run, keys in failed.items()))
     return result
 
 

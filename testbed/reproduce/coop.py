@@ -82,6 +82,12 @@ NLOS_OBSTACLES = (
 )
 
 
+def _mean_of_finite(x: np.ndarray) -> float:
+    """Mean of the finite entries of x; NaN when there is none (an estimator that failed in every run)."""
+    finite = x[np.isfinite(x)]
+    return float(finite.mean()) if finite.size else float("nan")
+
+
 def _pooled(x: np.ndarray) -> np.ndarray:
     """Pooled RMSE over runs from per-run RMSEs x (runs, N): sqrt(mean_runs x^2)."""
     return np.sqrt(np.mean(np.asarray(x) ** 2, axis=0))
@@ -266,8 +272,9 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None, worker
 
 
 def _plugin_rmse(metrics: list[dict], key: str, n: int) -> np.ndarray:
-    """(N,) m: a plugin's RMSE of each UAV's uwb site, pooled over runs (NaN where it gave none)."""
-    per_run = np.array([[m["estimators"][key]["targets"].get(f"uav{i}/uwb", {}).get("position", {}).get("rmse_m", np.nan)
+    """(N,) m: a plugin's RMSE of each UAV's uwb site, pooled over runs (NaN where it gave none or
+    failed: testbed.plugins.failures)."""
+    per_run = np.array([[m["estimators"][key].get("targets", {}).get(f"uav{i}/uwb", {}).get("position", {}).get("rmse_m", np.nan)
                          for i in range(1, n + 1)] for m in metrics])
     return _pooled(per_run)
 
@@ -413,7 +420,7 @@ def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
     md += markdown_table(["UAV", "GNSS only", "one optimization", "message iteration", "centralized", "x one",
                           "x iter", "x central", *plug],
                          [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows]
-                         + [["mean", *mean_row, "", "", "", *(float(np.nanmean(res.plugins[k])) for k in plug)]])
+                         + [["mean", *mean_row, "", "", "", *(_mean_of_finite(res.plugins[k]) for k in plug)]])
     agg = res.metrics[0]["estimators"]
     md += ["", "Run 0: " + "; ".join(f"{w}: {fmt(agg[w]['iterations_mean'])} iterations/epoch, "
                                      f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt_anees(agg[w])}"

@@ -37,7 +37,7 @@ def table(groups: dict[str, list[dict]], keys: list[str]) -> tuple[list[str], li
     rows = []
     for label, runs in groups.items():
         for k in keys:
-            scores = [r[k] for r in runs]
+            scores = [r[k] for r in runs if "failed" not in r[k]]  # a failed run has no scores (testbed.plugins.failures)
             rows.append({"group": label, "estimator": k, "runs": len(scores),
                          **{c: _stats(scores, c) for c, _ in COLUMNS}, ANEES: anees_over_runs(scores, ANEES, 0.95)})
     cols = [c for c, _ in COLUMNS if any(r[c] is not None for r in rows)]

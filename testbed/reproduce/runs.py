@@ -11,6 +11,7 @@ import os
 import pickle
 from pathlib import Path
 
+from testbed.errors import EstimatorsFailed
 from testbed.scenario import Scenario
 from testbed.outdir import TMP_TAG
 from testbed.progress import enabled
@@ -31,7 +32,10 @@ def sweep_runs(scenario: Scenario, runs: int, root: Path, *, workers: int | None
     """Simulate and score runs 0..runs-1 of `scenario` into root/run-XXX (testbed.sweep), skipping
     the runs already finished there, with a bar over them where the command shows progress
     (testbed.progress); returns the run directories in run order."""
-    sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=enabled())
+    try:
+        sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=enabled())
+    except EstimatorsFailed:  # every run is written; the reproduction reports them at its end (failed_runs)
+        pass
     return [Path(root) / run_name(i) for i in range(runs)]
 
 
@@ -63,3 +67,20 @@ def runs_done(out: Path) -> int:
     """How many finished Monte Carlo runs a reproduction directory holds (run directories and kept
     results anywhere below it)."""
     return sum(run_complete(p) if p.is_dir() else p.suffix == ".pkl" for p in Path(out).rglob("run-*"))
+
+
+def failed_runs(out: Path) -> dict[str, list[str]]:
+    """{run: the estimators that failed in it} of a reproduction (testbed.plugins.failures): its run
+    directories' metrics.json `failed_estimators`, and runs.json's {key: [seeds]} of a reproduction
+    that scores its runs in process (visnav)."""
+    found: dict[str, list[str]] = {}
+    for path in sorted(Path(out).rglob("run-*/metrics.json")):
+        keys = json.loads(path.read_text()).get("failed_estimators", [])
+        if keys:
+            found[str(path.parent.relative_to(out))] = keys
+    runs_json = Path(out) / "runs.json"
+    if runs_json.is_file():
+        for key, seeds in json.loads(runs_json.read_text()).get("failed_estimators", {}).items():
+            for seed in seeds:
+                found.setdefault(f"seed {seed}", []).append(key)
+    return found

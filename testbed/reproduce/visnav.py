@@ -340,7 +340,12 @@ def write(out: Path, res: VisnavResults, claims: list[Claim], keys: tuple[str, .
                                       "leds_per_epoch": r[c]["leds_per_epoch"],
                                       **({"plugins": r[c]["plugins"]} if "plugins" in r[c] else {})} for c in CASES}}
                 for seed, r in zip(meta["seeds"], results)]
-    write_json(out / "runs.json", {"meta": meta, "runs": runs_out, "extra": res.extra})
+    failed: dict[str, list[int]] = {}  # plugin estimators that failed (testbed.plugins.failures): {key: [seeds]}
+    for seed, r in zip(meta["seeds"], results):
+        for key in dict.fromkeys(k for c in CASES for k, v in r[c].get("plugins", {}).items() if "failed" in v):
+            failed.setdefault(key, []).append(seed)
+    write_json(out / "runs.json", {"meta": meta, "runs": runs_out, "extra": res.extra,
+                                   **({"failed_estimators": failed} if failed else {})})
     return {"summary": summaries, "claims": doc["claims"], "meta": meta}
 
 

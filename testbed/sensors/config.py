@@ -58,10 +58,39 @@ class InertialErrors:
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
+class Vibration:
+    """[sensors.imu.vibration]: rotor vibration seen by the IMU in flown motion (testbed.sensors.vibration).
+
+    enabled: on in flown runs (prescribed motion has no rotor speeds: always off). thrust_coefficient
+    k (N s^2): the airframe's rotor thrust T = k f^2 at rotation frequency f (rev/s).
+    accel_xy, accel_z (m/s^2 per N of rotor thrust): acceleration amplitude of one rotor at its
+    harmonics 1, 2, .. (one entry per harmonic), in the rotor plane (a vector turning with the rotor)
+    and along body z; proportional to the thrust because an imbalance force m e omega^2 is.
+    cutoff_ratio: the IMU's anti-alias low-pass (-3 dB, second-order Butterworth) as a fraction of
+    rate_hz. Omitted keys come from the IMU preset.
+    """
+
+    enabled: bool | None = None
+    thrust_coefficient: float | None = key(None, unit="N s^2", range="> 0")
+    accel_xy: tuple[float, ...] | None = key(None, unit="m/s^2/N", range=">= 0")
+    accel_z: tuple[float, ...] | None = key(None, unit="m/s^2/N", range=">= 0")
+    cutoff_ratio: float | None = key(None, unit="-", range="> 0")
+
+    def __post_init__(self) -> None:
+        for name in ("thrust_coefficient", "cutoff_ratio"):
+            if getattr(self, name) is not None:
+                in_range(self, name, 0, lo_open=True)
+        for name in ("accel_xy", "accel_z"):
+            if getattr(self, name) is not None:
+                in_range(self, name, 0, unit="m/s^2/N")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class ImuConfig:
     """[sensors.imu]: accelerometer + gyro of every vehicle's `imu` site (seed 004 eqs. 1-4).
 
-    vehicles: 1-based vehicle numbers carrying an IMU (empty = all).
+    vehicles: 1-based vehicle numbers carrying an IMU (empty = all). vibration: the rotors'
+    vibration in flown runs (Vibration).
     """
 
     preset: Literal["paper004", "bmi088", "mpu9250", "ideal"] = "paper004"
@@ -70,14 +99,18 @@ class ImuConfig:
     vehicles: tuple[int, ...] = ()
     accel: InertialErrors | None = None
     gyro: InertialErrors | None = None
+    vibration: Vibration | None = None
 
     def __post_init__(self) -> None:
         table = IMU_PRESETS[self.preset]
-        for name in ("accel", "gyro"):
-            cur = getattr(self, name) or InertialErrors()
+        for name, kind in (("accel", InertialErrors), ("gyro", InertialErrors), ("vibration", Vibration)):
+            cur = getattr(self, name) or kind()
             filled = replace(cur)
             _fill(filled, table[name])
             object.__setattr__(self, name, filled)
+        vib = self.vibration
+        require(len(vib.accel_xy) == len(vib.accel_z), "vibration.accel_z", list(vib.accel_z),
+                f"needs one amplitude per harmonic, as many as vibration.accel_xy ({len(vib.accel_xy)})")
         _check_rate(self)
         in_range(self, "vehicles", 1)
 

@@ -26,8 +26,43 @@ ARW_DEG_SQRT_H = DEG / 60.0  # rad/s/sqrt(Hz) per deg/sqrt(h): 1 sqrt(h) = 60 sq
 #   misalign_sigma  axis misalignment / cross-axis 1 sigma (rad), off-diagonal of K_g / K_a
 _ZERO_INSTR = dict(noise_density=0.0, bias=0.0, bias_sigma=0.0, bias_walk=0.0, gm_sigma=0.0, gm_tau=0.0, scale_sigma=0.0, misalign_sigma=0.0)
 
-IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
-    "ideal": {"accel": dict(_ZERO_INSTR), "gyro": dict(_ZERO_INSTR)},
+# Rotor vibration ([sensors.imu.vibration], testbed.sensors.vibration), for the airframe of
+# models/quadrotor.xml (DJI M300 class, 21-inch propellers, hover thrust 16.922 N per rotor):
+#   thrust_coefficient  k = C_T rho D^4 = 0.1 x 1.225 kg/m^3 x (0.5334 m)^4 = 9.92e-3 N s^2, with
+#                       C_T = 0.1 assumed (typical static thrust coefficient of fixed-pitch propellers):
+#                       hover at f = sqrt(16.922 / k) = 41.3 rev/s (2480 rpm).
+#   accel_xy, accel_z   harmonics 1 (imbalance) and 2 (blade passing of a two-blade propeller), one
+#                       amplitude c for all four (assumed: nothing measured favours one), per N of thrust.
+#   c, the stated rule: in a hover sampled at 200 Hz, each axis's vibration (four rotors of random phase,
+#   through the anti-alias filter) has a per-sample RMS of VIBRATION_RATIO times the preset's static
+#   white-noise sigma N sqrt(200 Hz). VIBRATION_RATIO = sqrt(7 x 17) = 10.9, the geometric mean of the
+#   in-flight/static ratios (7 to 17) measured on a public recording of three quadrotors (docs/sensors.md).
+#   Per axis: RMS^2 = 4 rotors x sum_h (c T |H(h f)|)^2 / 2 (the rotor-plane vector gives cos and sin).
+# The vibration is off in `ideal` and in `paper004` (the paper's simulation has none).
+HOVER_THRUST = 16.922  # N per rotor, docs/models.md
+THRUST_COEFFICIENT = 0.1 * 1.225 * 0.5334**4  # N s^2 (T = k f^2, f in rev/s)
+VIBRATION_RATIO = math.sqrt(7.0 * 17.0)
+
+
+def _butterworth2(f: float, cutoff: float) -> float:
+    """|H(f)| of a second-order Butterworth low-pass with -3 dB frequency cutoff (Hz)."""
+    return 1.0 / math.sqrt(1.0 + (f / cutoff) ** 4)
+
+
+def _vibration(noise_density: float, cutoff_ratio: float, rate: float = 200.0) -> dict:
+    """The vibration table of a hardware preset by the rule above (accel noise density m/s^2/sqrt(Hz))."""
+    f = math.sqrt(HOVER_THRUST / THRUST_COEFFICIENT)
+    gain2 = sum(_butterworth2(h * f, cutoff_ratio * rate) ** 2 for h in (1, 2))
+    c = VIBRATION_RATIO * noise_density * math.sqrt(rate) / (HOVER_THRUST * math.sqrt(2.0 * gain2))
+    return dict(enabled=True, thrust_coefficient=THRUST_COEFFICIENT, accel_xy=(c, c), accel_z=(c, c),
+                cutoff_ratio=cutoff_ratio)
+
+
+_NO_VIBRATION = dict(enabled=False, thrust_coefficient=THRUST_COEFFICIENT, accel_xy=(0.0, 0.0), accel_z=(0.0, 0.0),
+                     cutoff_ratio=0.4)
+
+IMU_PRESETS: dict[str, dict[str, dict]] = {
+    "ideal": {"accel": dict(_ZERO_INSTR), "gyro": dict(_ZERO_INSTR), "vibration": dict(_NO_VIBRATION)},
     # Seed 004, section 4: accel constant bias 250 micro-g, accel random noise "50 micro-g/sqrt(h)",
     # gyro constant drift 0.1 deg/h, gyro white noise 0.08 deg/sqrt(h). The accel noise unit
     # micro-g/sqrt(h) is not a noise-density unit; read as 50 micro-g/sqrt(Hz) (a navigation-grade
@@ -40,6 +75,7 @@ IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
     "paper004": {
         "accel": {**_ZERO_INSTR, "noise_density": 50.0 * UG, "bias_sigma": 250.0 * UG},
         "gyro": {**_ZERO_INSTR, "noise_density": 0.08 * ARW_DEG_SQRT_H, "bias_sigma": 0.1 * DPH},
+        "vibration": dict(_NO_VIBRATION),
     },
     # Bosch BMI088 (data sheet BST-BMI088-DS001, Table 1 "accelerometer" / Table 2 "gyroscope"),
     # typical values, each datasheet +/- tolerance taken as 1 sigma:
@@ -49,11 +85,14 @@ IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
     #   sensitivity tolerance +/-1 %; cross-axis sensitivity +/-1 %.
     # Bias instability is not in the data sheet: assumed Gauss-Markov, tau 100 s, with sigma
     # 0.1 mg (accel) and 5 deg/h (gyro), typical of this class of MEMS (Allan-deviation floors).
+    # Anti-alias filter: accelerometer bandwidth in normal mode 80 Hz at 200 Hz output data rate
+    # (40 Hz at 100 Hz): cutoff_ratio 0.4.
     "bmi088": {
         "accel": dict(noise_density=175.0 * UG, bias=0.0, bias_sigma=20e-3 * G0, bias_walk=0.0,
                       gm_sigma=0.1e-3 * G0, gm_tau=100.0, scale_sigma=0.005, misalign_sigma=0.005),
         "gyro": dict(noise_density=0.014 * DEG, bias=0.0, bias_sigma=1.0 * DEG, bias_walk=0.0,
                      gm_sigma=5.0 * DPH, gm_tau=100.0, scale_sigma=0.01, misalign_sigma=0.01),
+        "vibration": _vibration(175.0 * UG, 0.4),
     },
     # InvenSense MPU-9250 (product specification PS-MPU-9250A-01 rev 1.1, tables 1 and 2):
     #   gyro rate noise spectral density 0.01 deg/s/sqrt(Hz); initial zero-rate offset tolerance
@@ -62,12 +101,14 @@ IMU_PRESETS: dict[str, dict[str, dict[str, float]]] = {
     #   tolerance +/-60 mg (x, y; +/-80 mg z, 60 mg used); initial sensitivity tolerance +/-3 %;
     #   cross-axis sensitivity +/-2 %.
     # Bias instability not in the data sheet: assumed Gauss-Markov, tau 100 s, 0.2 mg and
-    # 10 deg/h.
+    # 10 deg/h. Anti-alias filter: the digital low-pass A_DLPF_CFG = 2 (92 Hz) at a 200 Hz
+    # sample rate, an assumed flight-controller setting: cutoff_ratio 0.46.
     "mpu9250": {
         "accel": dict(noise_density=300.0 * UG, bias=0.0, bias_sigma=60e-3 * G0, bias_walk=0.0,
                       gm_sigma=0.2e-3 * G0, gm_tau=100.0, scale_sigma=0.03, misalign_sigma=0.02),
         "gyro": dict(noise_density=0.01 * DEG, bias=0.0, bias_sigma=5.0 * DEG, bias_walk=0.0,
                      gm_sigma=10.0 * DPH, gm_tau=100.0, scale_sigma=0.03, misalign_sigma=0.02),
+        "vibration": _vibration(300.0 * UG, 0.46),
     },
 }
 

@@ -29,7 +29,7 @@ def make_sensors(scenario: Scenario, physics: Physics) -> list[Sensor]:
 
     out: list[Sensor] = []
     if cfg.imu is not None:
-        out.append(Imu(cfg.imu, physics, stream_rng(seed, "imu"), ticks(cfg.imu.rate_hz), tick))
+        out.append(Imu(cfg.imu, physics, stream_rng(seed, "imu"), ticks(cfg.imu.rate_hz), tick, scenario.motion == "flown"))
     if cfg.uwb is not None:
         out.append(Uwb(cfg.uwb, physics, stream_rng(seed, "uwb"), ticks(cfg.uwb.rate_hz), len(scenario.world.anchors)))
     if cfg.phase is not None:
