@@ -4,6 +4,7 @@ One 30 s uwb-mode run (300 filter steps, 4 nodes) is shared by the tests of this
 """
 import dataclasses
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -127,3 +128,17 @@ def test_dt_not_multiple_of_uwb_period_is_a_config_error(uwb_run):
     sc = uwb_run[0]
     with pytest.raises(ConfigError, match=r"pipeline\.dt"):  # refused when the scenario is built, before any run
         dataclasses.replace(sc, pipeline=dataclasses.replace(sc.pipeline, dt=0.15))
+
+
+def test_a_node_without_pseudo_measurements_gets_null_and_its_reason(tmp_path):
+    """An anchor of node 1's group moved 1000 km away (a case the fuzz test found): node 1 never has
+    a pseudo-measurement, so its RMS sigma cannot exist; metrics.json says null with the reason,
+    stays strict JSON, and no numpy warning is raised on the way."""
+    sc = scenario_mod.load("bandwidth", duration=2.0, overrides={"world.anchors[0]": "[1000000.0, 0.0, 0.0]"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        metrics = run(sc, tmp_path / "run", plots=False)
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text(), parse_constant=pytest.fail)["estimators"]["bandwidth"]
+    assert m["rms_pseudo_measurement_sigma_m"][0] is None and all(v > 0 for v in m["rms_pseudo_measurement_sigma_m"][1:])
+    assert m["null_reasons"]["rms_pseudo_measurement_sigma_m"] == "nodes [1]: no UWB pseudo-measurement in the run"
+    assert metrics["estimators"]["bandwidth"]["rms_pseudo_measurement_sigma_m"] == m["rms_pseudo_measurement_sigma_m"]

@@ -280,8 +280,9 @@ def scores(est: dict) -> dict:
         "J_empirical": float(se.sum()),
         "J_bound": float(trM.sum()),
         "rmse_position_m": [float(v) for v in np.sqrt(se.mean(0))],
-        "rms_pseudo_measurement_sigma_m": [float(v) for v in np.sqrt(np.nanmean(
-            np.where(avail, np.trace(est["V"], axis1=-2, axis2=-1), np.nan), axis=0))],
+        # null for a node that never had a pseudo-measurement (reason in null_reasons)
+        "rms_pseudo_measurement_sigma_m": [float(np.sqrt(v / n)) if n else None for v, n in zip(
+            np.where(avail, np.trace(est["V"], axis1=-2, axis2=-1), 0.0).sum(0), avail.sum(0))],
         "final_trace_M_m2": [float(v) for v in trM[-1]],
         "bound_holds": [bool(se[:, i].mean() <= trM[:, i].mean()) for i in range(N_NODES)],
         "bound_holds_basis": "single run: time-mean |e_i|^2 <= time-mean tr M_i; per step needs a Monte Carlo",
@@ -292,18 +293,22 @@ def scores(est: dict) -> dict:
         "within_budget": comm.within_budget(),
         **est["health"],
     }
+    reasons = {}
+    if (~avail.any(0)).any():
+        reasons["rms_pseudo_measurement_sigma_m"] = (
+            f"nodes {[i + 1 for i in np.flatnonzero(~avail.any(0)).tolist()]}: no UWB pseudo-measurement in the run")
     finite = np.isfinite(se).all(0) & np.isfinite(trM).all(0)  # (N,) per node
     if not finite.all():
         # strict JSON: what a diverged estimate cannot give is null, with the reason beside it
         seen = est["t"][avail.any(1)]
         why = (f"not finite: the fusion diverged (no UWB pseudo-measurement after t = {seen[-1]:g} s)" if seen.size
                else "not finite: the fusion diverged (no UWB pseudo-measurement in the run)")
-        reasons = {}
         for key in ("J_empirical", "J_bound"):
             out[key], reasons[key] = None, why
         for key in ("rmse_position_m", "final_trace_M_m2", "bound_holds"):
             out[key] = [v if ok else None for v, ok in zip(out[key], finite)]
             reasons[key] = f"nodes {[i + 1 for i in np.flatnonzero(~finite).tolist()]}: {why}"
+    if reasons:
         out["null_reasons"] = reasons
     if "network" in est:
         from testbed.metrics import network_summary  # lazy: scipy.stats, only with a [network]
