@@ -233,7 +233,7 @@ def test_one_antenna_follower_has_no_body_pose_but_a_position():
 
 # ------------------------------------------------------------------ the plugin (testbed/plugins/ranging.py)
 def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
-    """Fed one Measurement at a time as by testbed.plugins.feed: uav1's pose on the "pose" stream
+    """Fed one Measurement at a time as by testbed.plugins.feed: uav1's pose on the "mocap" stream (the default)
     (known, moving), 6 x 6 UWB ranges, uav2's height. The plugin builds its prior from the first
     epoch, estimates every antenna and the body (position, attitude) within a few sigma, and skips
     and counts an epoch that cannot start the filter (ranges with no height: mirror ambiguity)."""
@@ -242,12 +242,11 @@ def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
 
     arms1, arms2 = _hexagon(0.4), _hexagon(0.5)
     sites = {f"uav{b}/ant{k + 1}": (f"uav{b}", a) for b, arms in ((1, arms1), (2, arms2)) for k, a in enumerate(arms)}
-    sites["uav2/imu"] = ("uav2", np.zeros(3))
     ctx = Context(vehicles=("uav1", "uav2"), sites=sites, anchors={}, sensors={}, duration=30.0, seed=0,
                   rng=np.random.default_rng(0))
     est = RangingEkfEstimator(ctx, {"follower": "uav2", "sigma_range": 0.05, "sigma_height": 0.05, "level_sigma": 0.05,
                                     "q": 1e-6, "q_translation": 1e-3, "q_rotation": 1e-4, "v_sigma": 0.1})
-    assert est.antennas == [f"uav2/ant{k}" for k in range(1, 7)]
+    assert est.antennas == [f"uav2/ant{k}" for k in range(1, 7)]  # by default every site of the follower
     rng = np.random.default_rng(11)
     q2 = quat_exp(np.array([0.0, 0.0, 0.7]))
     R2 = quat_to_rotmat(q2)
@@ -256,7 +255,7 @@ def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
         t = float(k)
         p1 = np.array([0.1 * t, 0.0, 1.0])
         p2 = np.array([2.5 + 0.1 * t, 1.0, 3.0])
-        feed = [Measurement(stream="pose", time=t, arrival=t, value=np.r_[p1, 1.0, 0, 0, 0], src="uav1")]
+        feed = [Measurement(stream="mocap", time=t, arrival=t, value=np.r_[p1, 1.0, 0, 0, 0], src="uav1")]
         X1, X2 = p1 + arms1, p2 + arms2 @ R2.T
         for i in range(6):
             for j in range(6):

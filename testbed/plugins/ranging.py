@@ -11,7 +11,8 @@ Streams (names configurable in params):
   src and dst are site (or anchor) names, one end a follower antenna, the other a known point;
 - range rates (only with use_rates = true): `rate_streams` {stream: column} (default
   {"range-rate": 0, "phase": 2}), m/s, same src/dst;
-- known poses: `pose_stream` (default "pose"), src = body, value (7,) = position m, quaternion
+- known poses: `pose_stream` (default "mocap", the recorded-data format's stream of known poses,
+  docs/replay.md), src = body, value (7,) = position m, quaternion
   wxyz body to world; the latest pose at or before an epoch is used, and the velocity of a known
   antenna (for the rates) is the difference of its last two positions;
 - height: `height_stream` (default "height"), src = the follower, value (1,) m: the height of
@@ -28,7 +29,7 @@ other end is neither an anchor nor a site of a known body with a pose yet: unkno
 the follower body's position, velocity and attitude when its lever arms determine an attitude.
 
 params: follower (default: the only vehicle that is not known and has ranges; required when
-ambiguous), antennas (the follower's site names, default: its sites named "ant*" or "uwb*"),
+ambiguous), antennas (the follower's site names, default: every site of the follower),
 known (bodies on the pose stream; default all other vehicles), q, q_translation, q_rotation
 (m^2/s^3, rad^2/s^3), gate_alpha, iterations, sigma_range, sigma_range_rate, sigma_height,
 use_rates, rate_window (s or none), v_sigma (m/s prior per axis), shape_sigma (m), level_sigma
@@ -49,7 +50,7 @@ from testbed.plugins.settings import check_known
 DEFAULTS = dict(q=1e-3, q_translation=1e-2, q_rotation=1e-2, gate_alpha=1e-3, iterations=1, sigma_range=0.1,
                 sigma_range_rate=0.1, sigma_height=0.1, use_rates=False, rate_window=None, v_sigma=1.0,
                 shape_sigma=0.01, level_sigma=None, range_streams={"uwb": 0, "phase": 1},
-                rate_streams={"range-rate": 0, "phase": 2}, pose_stream="pose", height_stream="height",
+                rate_streams={"range-rate": 0, "phase": 2}, pose_stream="mocap", height_stream="height",
                 height_weights=None, follower=None, antennas=None, known=None)
 
 
@@ -78,8 +79,7 @@ class RangingEkfEstimator:
         if follower not in vehicles:
             raise ConfigError(f"estimator ranging.ekf params: follower {p['follower']!r} must name one of {vehicles}")
         self.follower = follower
-        ants = p["antennas"] or sorted(s for s, (b, _) in context.sites.items()
-                                       if b == follower and s.split("/", 1)[1].startswith(("ant", "uwb")))
+        ants = p["antennas"] or sorted(s for s, (b, _) in context.sites.items() if b == follower)
         if not ants or any(a not in context.sites for a in ants):
             raise ConfigError(f"estimator ranging.ekf params: antennas {ants!r} are not sites of {follower}")
         self.antennas = list(ants)

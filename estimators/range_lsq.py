@@ -1,0 +1,73 @@
+"""Per-epoch least-squares fit of one body from its ranges to known points (scipy least_squares).
+
+The baseline the recursive estimators are compared against: each epoch alone, no motion model.
+Unknowns x = [p (3,) m world, theta (3,) rad] with R = exp([theta]x) R0 (body-to-world, the
+rotation vector a body-frame increment of the start attitude R0), or x = p alone when the
+measured lever arms do not determine an attitude (fewer than three, or all on one line).
+Residual of range k between the body's lever arm l_k (body frame, m) and the known point X_k
+(world, m):  e_k = (r_k - |p + R l_k - X_k|) / sigma_k.
+Covariance at the fit: (J^T J)^-1 of the whitened Jacobian (Gauss-Newton information), so its
+consistency rests on the declared sigmas. Never imports mujoco or testbed.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy import linalg, optimize
+
+from estimators.geometry import numerical_rank, spanned_dimension
+from estimators.so3 import quat_exp, quat_to_rotmat
+
+__all__ = ["RangeFit", "fit_ranges"]
+
+
+class RangeFit(NamedTuple):
+    """p (3,) m world; R (3, 3) body-to-world (None when the attitude is not estimated); cov (3, 3)
+    or (6, 6) m^2 / rad^2 of [p, theta body frame]; converged; observable (the information matrix
+    has full rank)."""
+
+    p: np.ndarray
+    R: np.ndarray | None
+    cov: np.ndarray | None
+    converged: bool
+    observable: bool
+
+
+def fit_ranges(arms: np.ndarray, known: np.ndarray, ranges: np.ndarray, sigma: np.ndarray,
+               p0: np.ndarray, R0: np.ndarray | None = None) -> RangeFit:
+    """Fit a body to ranges k = 1..K: arms (K, 3) m body frame, known (K, 3) m world, ranges (K,)
+    m, sigma (K,) m; start p0 (3,) m and, for a pose fit, R0 (3, 3) (None: position only, arms
+    taken as they are, e.g. all zero for a point)."""
+    arms, known = np.asarray(arms, float).reshape(-1, 3), np.asarray(known, float).reshape(-1, 3)
+    r, w = np.asarray(ranges, float), 1.0 / np.asarray(sigma, float)
+    pose = R0 is not None
+
+    def rot(x):
+        return R0 @ quat_to_rotmat(quat_exp(x[3:])) if pose else np.eye(3)
+
+    def res(x):
+        return (r - np.linalg.norm(x[:3] + arms @ rot(x).T - known, axis=1)) * w
+
+    def jac(x):
+        R = rot(x)
+        d = x[:3] + arms @ R.T - known
+        u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+        J = -u
+        if pose:  # d|d| / dtheta = u^T (-R [l]x) = l x (R^T u); the residual's is minus that
+            J = np.concatenate([J, np.cross(u @ R, arms)], axis=1)
+        return J * w[:, None]
+
+    x0 = np.concatenate([p0, np.zeros(3)]) if pose else np.asarray(p0, float)
+    sol = optimize.least_squares(res, x0, jac=jac, method="lm", xtol=1e-10, ftol=1e-10)
+    J = sol.jac
+    N = J.T @ J
+    observable = numerical_rank(N)[0] == N.shape[0]
+    cov = linalg.cho_solve(linalg.cho_factor(N), np.eye(N.shape[0])) if observable else None
+    return RangeFit(sol.x[:3], rot(sol.x) if pose else None, None if cov is None else 0.5 * (cov + cov.T),
+                    bool(sol.status > 0), observable)
+
+
+def determines_attitude(arms: np.ndarray) -> bool:
+    """True when lever arms (K, 3) m span a plane (three or more not on one line)."""
+    return spanned_dimension(np.unique(np.round(np.asarray(arms, float), 9), axis=0)) >= 2
