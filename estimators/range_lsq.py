@@ -19,17 +19,18 @@ from scipy import linalg, optimize
 from estimators.geometry import numerical_rank, spanned_dimension
 from estimators.so3 import quat_exp, quat_to_rotmat
 
-__all__ = ["RangeFit", "fit_ranges"]
+__all__ = ["RangeFit", "determines_attitude", "fit_ranges", "fresh_fit"]
 
 
 class RangeFit(NamedTuple):
     """p (3,) m world; R (3, 3) body-to-world (None when the attitude is not estimated); cov (3, 3)
-    or (6, 6) m^2 / rad^2 of [p, theta body frame]; converged; observable (the information matrix
-    has full rank)."""
+    or (6, 6) m^2 / rad^2 of [p, theta body frame]; cost: sum of the squared whitened residuals at
+    the fit; converged; observable (the information matrix has full rank)."""
 
     p: np.ndarray
     R: np.ndarray | None
     cov: np.ndarray | None
+    cost: float
     converged: bool
     observable: bool
 
@@ -65,9 +66,25 @@ def fit_ranges(arms: np.ndarray, known: np.ndarray, ranges: np.ndarray, sigma: n
     observable = numerical_rank(N)[0] == N.shape[0]
     cov = linalg.cho_solve(linalg.cho_factor(N), np.eye(N.shape[0])) if observable else None
     return RangeFit(sol.x[:3], rot(sol.x) if pose else None, None if cov is None else 0.5 * (cov + cov.T),
-                    bool(sol.status > 0), observable)
+                    2.0 * float(sol.cost), bool(sol.status > 0), observable)
 
 
 def determines_attitude(arms: np.ndarray) -> bool:
     """True when lever arms (K, 3) m span a plane (three or more not on one line)."""
     return spanned_dimension(np.unique(np.round(np.asarray(arms, float), 9), axis=0)) >= 2
+
+
+def fresh_fit(arms: np.ndarray, known: np.ndarray, ranges: np.ndarray, sigma: np.ndarray, p0: np.ndarray,
+              R0: np.ndarray | None = None, yaw_starts: int = 4) -> RangeFit:
+    """A fit without a prior estimate: fit_ranges from p0 and, for a pose, from R0 turned about the
+    world z axis by yaw_starts equally spaced angles; the lowest cost wins among the converged
+    fits (the first fit when none converged)."""
+    if R0 is None:
+        return fit_ranges(arms, known, ranges, sigma, p0)
+    best = None
+    for yaw in 2.0 * np.pi * np.arange(yaw_starts) / yaw_starts:
+        Rz = quat_to_rotmat(np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]))
+        fit = fit_ranges(arms, known, ranges, sigma, p0, Rz @ R0)
+        if best is None or (fit.converged, -fit.cost) > (best.converged, -best.cost):
+            best = fit
+    return best

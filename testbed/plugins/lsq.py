@@ -5,7 +5,8 @@ body that is not known (no pose on the stream "mocap") and has ranges to known p
 sites of known bodies at their latest pose) is fitted by scipy least_squares. A body whose
 measured lever arms determine an attitude (three or more, not on one line) is a pose (position
 and attitude of the body); otherwise each of its measured sites is a point. The fit starts from
-the body's previous fit, else from the centroid of the epoch's known points (identity attitude).
+the body's previous fit, else (estimators.range_lsq.fresh_fit) from the centroid of the epoch's
+known points, at four headings.
 Covariance: the Gauss-Newton (J^T J)^-1 with the rows' declared sigmas (range_sigma where none).
 A fit with fewer ranges than unknowns, or whose information matrix is singular, is withheld and
 counted; so is one that did not converge (it is never a start either).
@@ -20,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimators.range_lsq import determines_attitude, fit_ranges
+from estimators.range_lsq import determines_attitude, fit_ranges, fresh_fit
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat
 from testbed.config import from_dict, in_range, require
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
@@ -137,9 +138,10 @@ class RangeLsq:
             self.counts["underdetermined"] += 1
             return []
         prev = self.last.get(key)
-        p0 = prev[0] if prev is not None else X.mean(axis=0)
-        R0 = (prev[1] if prev is not None and prev[1] is not None else np.eye(3)) if pose else None
-        fit = fit_ranges(arms, X, d, s, p0, R0)
+        if prev is None:
+            fit = fresh_fit(arms, X, d, s, X.mean(axis=0), np.eye(3) if pose else None)
+        else:
+            fit = fit_ranges(arms, X, d, s, prev[0], prev[1] if pose else None)
         if not fit.observable:
             self.counts["unobservable"] += 1
             return []
