@@ -19,6 +19,11 @@ from scipy import linalg, optimize
 from estimators.geometry import numerical_rank, spanned_dimension
 from estimators.so3 import quat_exp, quat_to_rotmat
 
+# Gauss-Newton from a start within the basin takes a handful of evaluations; a fit still moving
+# after this many is reported not converged (scipy's own limit, 100 (n + 1), spends seconds on
+# the ill-posed fits of small arrays far from their known points)
+MAX_EVALUATIONS = 50
+
 __all__ = ["RangeFit", "determines_attitude", "fit_ranges", "fresh_fit"]
 
 
@@ -60,7 +65,7 @@ def fit_ranges(arms: np.ndarray, known: np.ndarray, ranges: np.ndarray, sigma: n
         return J * w[:, None]
 
     x0 = np.concatenate([p0, np.zeros(3)]) if pose else np.asarray(p0, float)
-    sol = optimize.least_squares(res, x0, jac=jac, method="lm", xtol=1e-10, ftol=1e-10)
+    sol = optimize.least_squares(res, x0, jac=jac, method="lm", xtol=1e-10, ftol=1e-10, max_nfev=MAX_EVALUATIONS)
     J = sol.jac
     N = J.T @ J
     observable = numerical_rank(N)[0] == N.shape[0]

@@ -37,7 +37,8 @@ def test_the_frame_convention_found_makes_the_ranges_agree_with_the_truth():
 def test_convert_then_replay_every_ranging_estimator(tmp_path, capsys):
     """Two seconds after the calibration segment, calibrated: graph.poses, ranging.ekf and the
     ranging.lsq baseline all give the trolley's position, scored, with health counts; the window
-    starts after the calibration segment (scoring never sees it)."""
+    starts after the calibration segment (scoring never sees it). ranging.ekf estimates the body
+    and each tag: the headline is the body's, the tags' summary is apart (`sites`)."""
     t = _trolley()
     spec = t.convert(tmp_path / "data", calibrated=True, seconds=2.0)
     assert main(["replay", str(spec), "--out", str(tmp_path / "out")]) == 0
@@ -50,3 +51,20 @@ def test_convert_then_replay_every_ranging_estimator(tmp_path, capsys):
         assert pos["samples"] >= 150, key  # 100 Hz epochs
         assert np.isfinite(pos["rmse_m"]) and pos["rmse_m"] < 1.0, key
         assert e["health"], key
+    ekf = m["estimators"]["ranging.ekf"]  # the body and its three tags: the body's headline, the tags' apart
+    assert ekf["rmse_position_m"] == ekf["targets"]["trolley"]["position"]["rmse_m"]
+    tags = [ekf["targets"][f"trolley/tag{k}"]["position"] for k in range(3)]
+    pooled = np.sqrt(sum(t["rmse_m"] ** 2 * t["samples"] for t in tags) / sum(t["samples"] for t in tags))
+    assert np.isclose(ekf["sites"]["rmse_position_m"], pooled, rtol=1e-12)
+
+
+def test_an_estimator_that_gives_nothing_says_why_in_health_and_on_stderr(tmp_path, capsys):
+    """coop.one_shot on the trolley data (no GNSS, no sites it knows): exit 0, no estimate, and one
+    line saying what it was fed and what it counted, in metrics.json's health block and on stderr."""
+    spec = _trolley().convert(tmp_path / "data", seconds=0.3)
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--estimator", "coop.one_shot"]) == 0
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    reason = m["estimators"]["coop.one_shot"]["health"]["no_estimates"]
+    assert reason.startswith("coop.one_shot: no estimates from the rows fed (uwb ") and "health counts" in reason
+    err = capsys.readouterr().err
+    assert f"testbed: note: {reason}\n" in err and err.count("no estimates") == 1

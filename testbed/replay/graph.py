@@ -56,8 +56,9 @@ class GraphParams:
     or is shorter than step_sigma standard deviations of the estimate (sqrt(delta^T N delta); 0: off);
     motion_window: s, the warm start fits a constant velocity and body rate to the robot's estimates
     of this span before the batch (0: the last estimate, held); horizon: s, the warm start never
-    predicts further past the robot's last estimate (the rule of the default: as far ahead as
-    the default motion_window reaches behind, 1 s);
+    predicts further past the robot's last estimate (the rule of the default, 2 s: twice the
+    default motion_window, the line is never extrapolated further than twice the span it was
+    fitted on);
     initial: {body: [x, y, z] or [x, y, z, qw, qx, qy, qz]} m world, quaternion body-to-world: the
     starting pose of robots without a fix or an earlier estimate.
     """
@@ -74,7 +75,7 @@ class GraphParams:
     cost_tol: float = 1e-9
     step_sigma: float = 1e-3
     motion_window: float = 1.0
-    horizon: float = 1.0
+    horizon: float = 2.0
     initial: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -412,14 +413,18 @@ class PoseGraph:
             i = j
         return out
 
-    def _starts(self, present: tuple[str, ...], eps: list[_Epoch], times: np.ndarray, warm: bool) -> tuple:
+    def _starts(self, present: tuple[str, ...], eps: list[_Epoch], times: np.ndarray, warm: bool,
+                only: np.ndarray | None = None) -> tuple:
         """Starting p0 (E, V, 3), R0 (E, V, 3, 3) and how each was found (E, V) (see _initial);
-        warm: use the warm start where it is within the horizon."""
+        warm: use the warm start where it is within the horizon; only: (E,) bool, the epochs to
+        start (the others are left at the origin, how None)."""
         E, V = len(eps), len(present)
         fits = {v: fit for v in present if warm and (fit := self._motion(v)) is not None}
         guesses = {v: fit.predict(times) for v, fit in fits.items()}
         p0, R0, how = np.zeros((E, V, 3)), np.tile(np.eye(3), (E, V, 1, 1)), np.empty((E, V), object)
         for e, ep in enumerate(eps):
+            if only is not None and not only[e]:
+                continue
             fixed = [self.anchors[n] for pair in zip(ep.r_src, ep.r_dst) for n in pair if n in self.anchors] + \
                 [p for p, _ in ep.mocap.values()]
             for i, v in enumerate(present):
@@ -444,7 +449,7 @@ class PoseGraph:
         iterations = res.iterations.copy()
         retry = ~res.converged & res.observable & (how == "warm").any(axis=1)
         if retry.any():  # a recovery: the epochs that failed from their warm start, again from fresh starts
-            p1, R1, _ = self._starts(present, eps, times, warm=False)
+            p1, R1, _ = self._starts(present, eps, times, warm=False, only=retry)
             p1[~retry], R1[~retry] = res.p[~retry], res.R[~retry]  # the others restart at their solution
             again = solve(p1, R1)
             self.counts["recoveries"] += int((retry & again.converged).sum())
