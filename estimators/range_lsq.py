@@ -17,7 +17,7 @@ import numpy as np
 from scipy import linalg, optimize
 
 from estimators.geometry import numerical_rank, spanned_dimension
-from estimators.so3 import quat_exp, quat_to_rotmat
+from estimators.so3 import quat_exp, quat_to_rotmat, so3_right_jacobian
 
 # Gauss-Newton from a start within the basin takes a handful of evaluations; a fit still moving
 # after this many is reported not converged (scipy's own limit, 100 (n + 1), spends seconds on
@@ -55,18 +55,20 @@ def fit_ranges(arms: np.ndarray, known: np.ndarray, ranges: np.ndarray, sigma: n
     def res(x):
         return (r - np.linalg.norm(x[:3] + arms @ rot(x).T - known, axis=1)) * w
 
-    def jac(x):
+    def jac(x, increment=False):
+        """d res / dx; increment: with respect to [dp, dtheta] of R exp([dtheta]x) at x instead."""
         R = rot(x)
         d = x[:3] + arms @ R.T - known
         u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
         J = -u
-        if pose:  # d|d| / dtheta = u^T (-R [l]x) = l x (R^T u); the residual's is minus that
-            J = np.concatenate([J, np.cross(u @ R, arms)], axis=1)
+        if pose:  # d|d| / dtheta = u^T (-R [l]x) J_r = (l x (R^T u)) J_r; the residual's is minus that
+            Jr = np.eye(3) if increment else so3_right_jacobian(x[3:])
+            J = np.concatenate([J, np.cross(u @ R, arms) @ Jr], axis=1)
         return J * w[:, None]
 
     x0 = np.concatenate([p0, np.zeros(3)]) if pose else np.asarray(p0, float)
     sol = optimize.least_squares(res, x0, jac=jac, method="lm", xtol=1e-10, ftol=1e-10, max_nfev=MAX_EVALUATIONS)
-    J = sol.jac
+    J = jac(sol.x, increment=True)  # the covariance of [dp, dtheta body frame] at the fit
     N = J.T @ J
     observable = numerical_rank(N)[0] == N.shape[0]
     cov = linalg.cho_solve(linalg.cho_factor(N), np.eye(N.shape[0])) if observable else None
