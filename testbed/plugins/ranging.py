@@ -11,11 +11,16 @@ Streams (names configurable in params):
   src and dst are site (or anchor) names, one end a follower antenna, the other a known point;
 - range rates (only with use_rates = true): `rate_streams` {stream: column} (default
   {"range-rate": 0, "phase": 2}), m/s, same src/dst;
-- known poses: `pose_stream` (default "pose"), src = body, value (7,) = position m, quaternion
+- known poses: `pose_stream` (default "mocap", the recorded-data format's stream of known poses,
+  docs/replay.md), src = body, value (7,) = position m, quaternion
   wxyz body to world; the latest pose at or before an epoch is used, and the velocity of a known
   antenna (for the rates) is the difference of its last two positions;
-- height: `height_stream` (default "height"), src = the follower, value (1,) m: the height of
-  the centroid of its antennas (height_weights in params to say otherwise).
+- height: `height_stream` (default "height"), value (1,) m: the up coordinate of its src, as
+  everywhere (docs/replay.md): src = one of the follower's antennas, that antenna; src = the
+  follower, its body origin, the affine combination sum_j c_j x_j of the antennas with
+  sum_j c_j l_j = 0 (least norm; where the origin lies off the antennas' affine hull, e.g. above
+  a flat array, the nearest such point, its height offset from the origin taken as for a level
+  body). height_weights in params replaces the c_j for heights of the follower.
 The sigma of each row is the measurement's declared sigma at that column when given, else
 sigma_range / sigma_range_rate / sigma_height from params.
 
@@ -28,7 +33,7 @@ other end is neither an anchor nor a site of a known body with a pose yet: unkno
 the follower body's position, velocity and attitude when its lever arms determine an attitude.
 
 params: follower (default: the only vehicle that is not known and has ranges; required when
-ambiguous), antennas (the follower's site names, default: its sites named "ant*" or "uwb*"),
+ambiguous), antennas (the follower's site names, default: every site of the follower),
 known (bodies on the pose stream; default all other vehicles), q, q_translation, q_rotation
 (m^2/s^3, rad^2/s^3), gate_alpha, iterations, sigma_range, sigma_range_rate, sigma_height,
 use_rates, rate_window (s or none), v_sigma (m/s prior per axis), shape_sigma (m), level_sigma
@@ -49,7 +54,7 @@ from testbed.plugins.settings import check_known
 DEFAULTS = dict(q=1e-3, q_translation=1e-2, q_rotation=1e-2, gate_alpha=1e-3, iterations=1, sigma_range=0.1,
                 sigma_range_rate=0.1, sigma_height=0.1, use_rates=False, rate_window=None, v_sigma=1.0,
                 shape_sigma=0.01, level_sigma=None, range_streams={"uwb": 0, "phase": 1},
-                rate_streams={"range-rate": 0, "phase": 2}, pose_stream="pose", height_stream="height",
+                rate_streams={"range-rate": 0, "phase": 2}, pose_stream="mocap", height_stream="height",
                 height_weights=None, follower=None, antennas=None, known=None)
 
 
@@ -78,14 +83,19 @@ class RangingEkfEstimator:
         if follower not in vehicles:
             raise ConfigError(f"estimator ranging.ekf params: follower {p['follower']!r} must name one of {vehicles}")
         self.follower = follower
-        ants = p["antennas"] or sorted(s for s, (b, _) in context.sites.items()
-                                       if b == follower and s.split("/", 1)[1].startswith(("ant", "uwb")))
+        ants = p["antennas"] or sorted(s for s, (b, _) in context.sites.items() if b == follower)
         if not ants or any(a not in context.sites for a in ants):
             raise ConfigError(f"estimator ranging.ekf params: antennas {ants!r} are not sites of {follower}")
         self.antennas = list(ants)
         self.index = {a: k for k, a in enumerate(self.antennas)}
         self.arms = np.stack([np.asarray(context.sites[a][1], float) for a in self.antennas])
         self.n = len(self.antennas)
+        # the body origin as an affine combination of the antennas: c = 1/n + N w (sum c = 1, N a basis
+        # of the vectors summing to 0), w the least-norm minimizer of |arms^T c| (the hull's nearest point)
+        N = np.linalg.svd(np.ones((1, self.n)))[2][1:].T
+        c0 = np.full(self.n, 1.0 / self.n)
+        self.origin_weights = c0 + N @ np.linalg.lstsq(self.arms.T @ N, -self.arms.T @ c0, rcond=None)[0]
+        self.origin_offset = float((self.origin_weights @ self.arms)[2])  # m, up, of that point from the origin
         self.known = set(p["known"] if p["known"] is not None else [v for v in vehicles if v != follower])
         self.sites = context.sites
         self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
@@ -142,8 +152,14 @@ class RangingEkfEstimator:
                 hist = self.poses.setdefault(m.src, [])
                 hist.append((m.time, v[:3].copy(), quat_to_rotmat(v[3:7] / np.linalg.norm(v[3:7]))))
                 del hist[:-2]
-        elif m.stream == p["height_stream"] and m.src == self.follower:
-            self.height = (float(m.value[0]), self._sigma(m, 0, p["sigma_height"]))
+        elif m.stream == p["height_stream"] and (m.src == self.follower or m.src in self.index):
+            if m.src in self.index:
+                c, z = np.eye(self.n)[self.index[m.src]], float(m.value[0])
+            elif p["height_weights"] is not None:
+                c, z = np.asarray(p["height_weights"], float), float(m.value[0])
+            else:
+                c, z = self.origin_weights, float(m.value[0]) + self.origin_offset
+            self.height = (z, self._sigma(m, 0, p["sigma_height"]), c)
         else:
             ends = [(m.src, m.dst), (m.dst, m.src)]
             for mine, other in ends:
@@ -183,7 +199,7 @@ class RangingEkfEstimator:
                             range_rates=rd if use_rates else None, known_vel=V if use_rates else None,
                             sigma_range_rate=sd, rate_window=self.p["rate_window"],
                             height=None if h is None else h[0], sigma_height=1.0 if h is None else h[1],
-                            height_weights=None if self.p["height_weights"] is None else np.asarray(self.p["height_weights"], float))
+                            height_weights=None if h is None else h[2])
 
     def _solve(self) -> list[Estimate]:
         epoch = self._epoch()

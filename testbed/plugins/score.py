@@ -12,7 +12,10 @@ Summaries over targets, per quantity q with unit u (position m, velocity m_s, at
 `rmse_{q}_mean_{u}` (mean over targets of the per-target RMSE, as the built-in coop scores),
 `rmse_{q}_{u}` (pooled over all samples), `rmse_{q}_axis_{u}`, `anees_{q}` (all samples with a
 covariance), `n_eff_{q}` (the targets' NEES at common instants averaged, then as for one target),
-`anees_{q}_interval_95`, `coverage_{q}` (mean over the targets estimated).
+`anees_{q}_interval_95`, `coverage_{q}` (mean over the targets estimated). An estimator that
+estimates a quantity of bodies and of sites (e.g. a body's position and each antenna's) has the
+bodies' in these headlines and the sites' apart, under `sites` with the same keys; with bodies only
+or sites only, they are the headline.
 PCRB: where the scenario has one (seed 003 phase-ekf: the posterior Cramer-Rao bound of the
 follower's body position, with the scenario's measurement and motion model, computed along the
 true trajectory by testbed.pipelines.phase.position_bound), a world-frame position series of that
@@ -88,26 +91,35 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
                        "rmse_at_pcrb_epochs_m": rmse(e[hit])})
             pcrb[q] = sc["pcrb_rmse_m"]
         targets.setdefault(target, {})[q] = sc
-        pooled.setdefault(q, []).append((e, ne, sc[f"rmse_{UNIT[q]}"], s.time[s.has_cov], sc["coverage"]))
+        pooled.setdefault(q, {}).setdefault("/" in target, []).append(
+            (e, ne, sc[f"rmse_{UNIT[q]}"], s.time[s.has_cov], sc["coverage"]))
     out: dict = {"estimates": int(sum(s.time.size for s in track.values()))}
-    for q, rows in pooled.items():
-        u, k = UNIT[q], SCALE[q]
-        e_all = np.concatenate([r[0] for r in rows])
-        out[f"rmse_{q}_mean_{u}"] = float(np.mean([r[2] for r in rows]))
-        out[f"rmse_{q}_{u}"] = rmse(e_all) * k
-        out[f"rmse_{q}_axis_{u}"] = [x * k for x in _axis(e_all)]
-        out[f"coverage_{q}"] = float(np.mean([r[4] for r in rows]))
-        with_cov = [(r[3], r[1]) for r in rows if r[1].size]
-        if with_cov:
-            # the targets' samples at common instants are averaged (effective_samples, sparse layout)
-            instant = np.unique(np.concatenate([r[0] for r in with_cov]), return_inverse=True)[1]
-            target = np.repeat(np.arange(len(with_cov)), [r[0].size for r in with_cov])
-            out.update(anees_keys(np.concatenate([r[1] for r in with_cov]), 3, f"anees_{q}", 0.95,
-                                  instant=instant, target=target))
+    for q, kinds in pooled.items():
+        apart = len(kinds) == 2  # bodies and sites: the bodies' headline, the sites' apart
+        out.update(_summary(q, kinds[False] if apart else next(iter(kinds.values()))))
+        if apart:
+            out.setdefault("sites", {}).update(_summary(q, kinds[True]))
         if q in pcrb:
-            out[f"pcrb_rmse_{q}_{u}"] = pcrb[q]
+            out[f"pcrb_rmse_{q}_{UNIT[q]}"] = pcrb[q]
     out["targets"] = targets
     return out, errs
+
+
+def _summary(q: str, rows: list[tuple]) -> dict:
+    """The summary keys of quantity q over targets' rows (errors (K, 3), NEES (K',), RMSE, the
+    times of the NEES samples (K',) s, coverage)."""
+    u, k = UNIT[q], SCALE[q]
+    e_all = np.concatenate([r[0] for r in rows])
+    out = {f"rmse_{q}_mean_{u}": float(np.mean([r[2] for r in rows])), f"rmse_{q}_{u}": rmse(e_all) * k,
+           f"rmse_{q}_axis_{u}": [x * k for x in _axis(e_all)], f"coverage_{q}": float(np.mean([r[4] for r in rows]))}
+    with_cov = [(r[3], r[1]) for r in rows if r[1].size]
+    if with_cov:
+        # the targets' samples at common instants are averaged (effective_samples, sparse layout)
+        instant = np.unique(np.concatenate([r[0] for r in with_cov]), return_inverse=True)[1]
+        target = np.repeat(np.arange(len(with_cov)), [r[0].size for r in with_cov])
+        out.update(anees_keys(np.concatenate([r[1] for r in with_cov]), 3, f"anees_{q}", 0.95,
+                              instant=instant, target=target))
+    return out
 
 
 def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targets: int = 2,

@@ -10,10 +10,17 @@ on the antenna with the fix's sigma), heights (stream "height", the up coordinat
 Robust loss on the ranges (params loss, loss_scale). Epochs are buffered and solved `batch` at a
 time (Levenberg-Marquardt, all epochs at once); each starts from its GNSS fix where it has one,
 else from a constant-velocity and body-rate fit to the robot's estimates of the last
-`motion_window` seconds (warm start, estimators.graph.warmstart), else from params `initial`, else
-near the epoch's fixed points. Estimates: a pose robot's position and attitude (body), a point robot's site
+`motion_window` seconds (warm start, estimators.graph.warmstart) -- never predicted more than
+`horizon` seconds past the robot's last estimate: a batch is solved in consecutive parts, each
+within the horizon of the estimates of the part before --, else from a fresh start (a
+least-squares fit of the robot alone to its ranges to fixed points, estimators.range_lsq.fresh_fit,
+from params `initial` or the fixed points' centroid), else from `initial`, else near the epoch's
+fixed points. An epoch that does not converge from its warm start is solved again from a fresh
+start (a recovery, counted when it then converges); one that still does not converge is withheld:
+no estimate, never a warm start, counted. Estimates: a pose robot's position and attitude (body), a point robot's site
 position, with the marginal covariances; an epoch that is unobservable (gauge freedom) gives no
-estimate. Counted in health(): epochs, nonconverged_epochs, unobservable_epochs,
+estimate. Counted in health(): epochs, nonconverged_epochs (withheld), recoveries, fresh_starts
+(epochs solved from a fresh start at once: no estimate within the horizon), unobservable_epochs,
 late_measurements (older than the epoch being collected), unused_measurements, lm_iterations (linear
 solves, summed over the epochs solved) and lm_iterations_max (of one epoch); per epoch, in
 diagnostics(): time, iterations, final cost, converged, observable.
@@ -22,6 +29,7 @@ The variable kind of each robot is decided from the sites measured in the first 
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -30,6 +38,7 @@ import numpy as np
 from estimators.graph.batch import EpochFactors, solve_epochs
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
+from estimators.range_lsq import determines_attitude, fresh_fit
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat
 from testbed.config import from_dict, in_range, require
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
@@ -46,7 +55,10 @@ class GraphParams:
     converged when a step is below step_tol, or an accepted step lowers the cost by less than cost_tol
     or is shorter than step_sigma standard deviations of the estimate (sqrt(delta^T N delta); 0: off);
     motion_window: s, the warm start fits a constant velocity and body rate to the robot's estimates
-    of this span before the batch (0: the last estimate, held);
+    of this span before the batch (0: the last estimate, held); horizon: s, the warm start never
+    predicts further past the robot's last estimate (the rule of the default, 2 s: twice the
+    default motion_window, the line is never extrapolated further than twice the span it was
+    fitted on);
     initial: {body: [x, y, z] or [x, y, z, qw, qx, qy, qz]} m world, quaternion body-to-world: the
     starting pose of robots without a fix or an earlier estimate.
     """
@@ -63,6 +75,7 @@ class GraphParams:
     cost_tol: float = 1e-9
     step_sigma: float = 1e-3
     motion_window: float = 1.0
+    horizon: float = 2.0
     initial: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -77,6 +90,7 @@ class GraphParams:
         in_range(self, "cost_tol", 0, lo_open=True)
         in_range(self, "step_sigma", 0)
         in_range(self, "motion_window", 0, unit="s")
+        in_range(self, "horizon", 0, unit="s")
         for body, p in self.initial.items():
             require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
                     f"initial.{body}", p, "expected [x, y, z] (m, world) or [x, y, z, qw, qx, qy, qz]")
@@ -123,7 +137,8 @@ class PoseGraph:
         self.key = None
         self.current: _Epoch | None = None
         self.pending: list[_Epoch] = []
-        self.counts = {"epochs": 0, "nonconverged_epochs": 0, "unobservable_epochs": 0, "late_measurements": 0,
+        self.counts = {"epochs": 0, "nonconverged_epochs": 0, "recoveries": 0, "fresh_starts": 0, "unobservable_epochs": 0,
+                       "late_measurements": 0,
                        "unused_measurements": 0, "lm_iterations": 0, "lm_iterations_max": 0}
         self.per_epoch: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "iterations", "cost", "converged", "observable")}
 
@@ -270,20 +285,57 @@ class PoseGraph:
         while h[0][0] < t - self.p.motion_window - 1e-9:
             h.pop(0)
 
-    def _initial(self, body: str, ep: _Epoch, guess: tuple | None, fixed_points: list, index: int) -> tuple[np.ndarray, np.ndarray]:
+    def _initial(self, body: str, ep: _Epoch, guess: tuple | None, fixed_points: list, index: int) -> tuple[np.ndarray, np.ndarray, str]:
+        """Starting (p, R) of a robot at an epoch and how it was found: "fix", "warm" (the guess),
+        "fresh" (a fit to its ranges to fixed points), "initial" or "centre" (near the fixed points)."""
         init = self.p.initial.get(body)
         R = guess[1] if guess is not None else (quat_to_rotmat(np.array(init[3:], float)) if init and len(init) == 7 else np.eye(3))
         kind, site = self.kind[body]
         for name, z, _ in ep.fixes:
             b, arm = self._arm(name)
             if b == body:
-                return (z - R @ arm if kind == "pose" else z.copy()), R
+                return (z - R @ arm if kind == "pose" else z.copy()), R, "fix"
         if guess is not None:
-            return guess[0], R
+            return guess[0], R, "warm"
+        fresh = self._fresh(body, ep, None if not init else np.array(init[:3], float), R)
+        if fresh is not None:
+            return fresh[0], fresh[1], "fresh"
         if init:
-            return np.array(init[:3], float), R
+            return np.array(init[:3], float), R, "initial"
         centre = np.mean(fixed_points, axis=0) if fixed_points else np.zeros(3)
-        return centre + np.array([1.0 + index, 0.5 * index, 0.0]), R
+        return centre + np.array([1.0 + index, 0.5 * index, 0.0]), R, "centre"
+
+    def _fresh(self, body: str, ep: _Epoch, p0: np.ndarray | None, R0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """A fresh start of a robot: the least-squares fit of it alone to the epoch's ranges between
+        its sites and fixed points (estimators.range_lsq.fresh_fit, from p0, else the fixed points'
+        centroid lifted to the robot's measured height when it has one -- the side of a plane of
+        fixed points --, and R0 at four headings); None when those ranges do not determine it or the fit
+        fails. A pose robot whose measured lever arms do not determine an attitude gets none."""
+        kind, site = self.kind[body]
+        rows = []
+        for a, b, d, sigma in zip(ep.r_src, ep.r_dst, ep.r_d, ep.r_sigma):
+            for mine, other in ((a, b), (b, a)):
+                owner, arm = self._arm(mine)
+                end = self._end(other, ep, {}) if owner == body else None  # {}: only fixed ends
+                if end is None or (kind == "point" and not np.allclose(arm, self._arm(site)[1])):
+                    continue
+                rows.append((arm if kind == "pose" else np.zeros(3), end[1], d, sigma))
+        if not rows:
+            return None
+        arms, X, d, sigma = (np.array(c) for c in zip(*rows))
+        pose = kind == "pose"
+        if len(d) < (6 if pose else 3) or (pose and not determines_attitude(arms)):
+            return None
+        if p0 is None:
+            p0 = X.mean(axis=0)
+            for name, z, _ in ep.heights:
+                owner, arm = self._arm(name)
+                if owner == body:
+                    p0[2] = z - (R0 @ arm)[2] if pose else z
+        fit = fresh_fit(arms, X, d, sigma, p0, R0 if pose else None)
+        if not (fit.converged and fit.observable):
+            return None
+        return fit.p, (fit.R if pose else R0)
 
     def _factors(self, ep: _Epoch, free: dict, e: int, rows: dict, ends: dict) -> None:
         """Append the factors of epoch e to rows; ranges as indices into ends ({"var": [], "arm": []}:
@@ -348,35 +400,73 @@ class PoseGraph:
         return sorted(out, key=lambda est: est.time)
 
     def _solve_group(self, present: tuple[str, ...], eps: list[_Epoch]) -> list[Estimate]:
+        """Solve the epochs of one set of present robots in consecutive parts, each no further than
+        `horizon` past every present robot's last estimate (at least one epoch per part)."""
+        times = np.array([np.mean(ep.times) for ep in eps])
+        out, i = [], 0
+        while i < len(eps):
+            last = min((self.history[v][-1][0] if self.history.get(v) else -math.inf) for v in present)
+            j = i + 1
+            while j < len(eps) and times[j] <= last + self.p.horizon + 1e-9:
+                j += 1
+            out += self._solve_part(present, eps[i:j], times[i:j])
+            i = j
+        return out
+
+    def _starts(self, present: tuple[str, ...], eps: list[_Epoch], times: np.ndarray, warm: bool,
+                only: np.ndarray | None = None) -> tuple:
+        """Starting p0 (E, V, 3), R0 (E, V, 3, 3) and how each was found (E, V) (see _initial);
+        warm: use the warm start where it is within the horizon; only: (E,) bool, the epochs to
+        start (the others are left at the origin, how None)."""
+        E, V = len(eps), len(present)
+        fits = {v: fit for v in present if warm and (fit := self._motion(v)) is not None}
+        guesses = {v: fit.predict(times) for v, fit in fits.items()}
+        p0, R0, how = np.zeros((E, V, 3)), np.tile(np.eye(3), (E, V, 1, 1)), np.empty((E, V), object)
+        for e, ep in enumerate(eps):
+            if only is not None and not only[e]:
+                continue
+            fixed = [self.anchors[n] for pair in zip(ep.r_src, ep.r_dst) for n in pair if n in self.anchors] + \
+                [p for p, _ in ep.mocap.values()]
+            for i, v in enumerate(present):
+                near = v in guesses and times[e] - fits[v].t_last <= self.p.horizon + 1e-9
+                guess = (guesses[v][0][e, 0], guesses[v][1][e, 0]) if near else None
+                p0[e, i], R0[e, i], how[e, i] = self._initial(v, eps[e], guess, fixed, i)
+        return p0, R0, how
+
+    def _solve_part(self, present: tuple[str, ...], eps: list[_Epoch], times: np.ndarray) -> list[Estimate]:
         free = {v: i for i, v in enumerate(present)}
         kinds = tuple(self.kind[v][0] for v in present)
         rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "q": [], "h": []}
         ends: dict[str, list] = {"var": [], "arm": []}
-        E, V = len(eps), len(present)
-        times = np.array([np.mean(ep.times) for ep in eps])
-        guesses = {v: fit.predict(times) for v in present if (fit := self._motion(v)) is not None}
-        p0, R0 = np.zeros((E, V, 3)), np.tile(np.eye(3), (E, V, 1, 1))
         for e, ep in enumerate(eps):
             self._factors(ep, free, e, rows, ends)
-            fixed = [self.anchors[n] for pair in zip(ep.r_src, ep.r_dst) for n in pair if n in self.anchors] + \
-                [p for p, _ in ep.mocap.values()]
-            for v, i in free.items():
-                guess = (guesses[v][0][e, 0], guesses[v][1][e, 0]) if v in guesses else None
-                p0[e, i], R0[e, i] = self._initial(v, ep, guess, fixed, i)
         f = _factor_arrays(kinds, self._range_rows(rows, ends), rows)
-        res = solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol, step_sigma=self.p.step_sigma,
-                           cost_tol=self.p.cost_tol)
-        self.counts["nonconverged_epochs"] += int((~res.converged).sum())
-        self.counts["lm_iterations"] += int(res.iterations.sum())
-        self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(res.iterations.max(initial=0)))
+        solve = lambda p0, R0: solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter,  # noqa: E731
+                                            step_tol=self.p.step_tol, step_sigma=self.p.step_sigma, cost_tol=self.p.cost_tol)
+        p0, R0, how = self._starts(present, eps, times, warm=True)
+        self.counts["fresh_starts"] += int((how == "fresh").any(axis=1).sum())
+        res = solve(p0, R0)
+        iterations = res.iterations.copy()
+        retry = ~res.converged & res.observable & (how == "warm").any(axis=1)
+        if retry.any():  # a recovery: the epochs that failed from their warm start, again from fresh starts
+            p1, R1, _ = self._starts(present, eps, times, warm=False, only=retry)
+            p1[~retry], R1[~retry] = res.p[~retry], res.R[~retry]  # the others restart at their solution
+            again = solve(p1, R1)
+            self.counts["recoveries"] += int((retry & again.converged).sum())
+            iterations += np.where(retry, again.iterations, 0)
+            pick = lambda a, b: np.where(retry.reshape((-1,) + (1,) * (a.ndim - 1)), b, a)  # noqa: E731
+            res = dataclasses.replace(res, **{k: pick(getattr(res, k), getattr(again, k))
+                                              for k in ("p", "R", "cov", "cost", "converged", "observable")})
+        ok = res.converged & res.observable
+        self.counts["nonconverged_epochs"] += int((~res.converged & res.observable).sum())
+        self.counts["lm_iterations"] += int(iterations.sum())
+        self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(iterations.max(initial=0)))
         self.counts["unobservable_epochs"] += int((~res.observable).sum())
-        for k, v in (("time", times), ("iterations", res.iterations), ("cost", res.cost), ("converged", res.converged),
+        for k, v in (("time", times), ("iterations", iterations), ("cost", res.cost), ("converged", res.converged),
                      ("observable", res.observable)):
             self.per_epoch[k].append(np.asarray(v, float))
         out = []
-        for e, ep in enumerate(eps):
-            if not res.observable[e]:
-                continue
+        for e in np.flatnonzero(ok):  # a non-converged epoch is withheld, and never a warm start
             t = float(times[e])
             for v, i in free.items():
                 o = res.offsets[i]

@@ -17,10 +17,13 @@ sibling, marker, atomic rename) and holds
 - timing.json: wall-clock per estimator; plots/: error plots as a simulated run's.
 An estimator that fails is its own result (testbed.plugins.failures): the others are scored, the
 directory is written with metrics.json marked incomplete, then EstimatorsFailed (exit 1).
+An estimator that gives no estimate says why in one line (silence_reason): in its health block
+(`no_estimates`) and on stderr.
 """
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +68,17 @@ def _summary(diagnostics: dict[str, np.ndarray]) -> dict:
     return out
 
 
+def silence_reason(key: str, health: dict[str, int], fed: dict[str, int]) -> str:
+    """One line saying why estimator `key` gave no estimate: what it was fed (rows per stream)
+    and what its health counted (its nonzero counts), or that it counted nothing, so it used
+    none of those rows (no stream, site or body it knows)."""
+    rows = ", ".join(f"{k} {n}" for k, n in fed.items() if n) or "nothing"
+    counted = ", ".join(f"{k} {n}" for k, n in health.items() if n)
+    why = f"its health counts {counted}" if counted else \
+        "its health counts nothing: none of them is of a stream, site or body it uses"
+    return f"{key}: no estimates from the rows fed ({rows}); {why}"
+
+
 def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: Path | None) -> tuple[dict, dict, dict]:
     """Run and score every estimator on a loaded recording; returns (metrics, estimates arrays,
     timing). out_dir: where plots/ goes (None: no plots)."""
@@ -99,6 +113,10 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
         else:
             entry["estimates"] = int(sum(s.time.size for s in track.values()))
             entry["unscored_reason"] = "the dataset has no truth table"
+        if not any(s.time.size for s in track.values()):
+            reason = silence_reason(p.key, health, rec.counts())
+            health = {**health, "no_estimates": reason}
+            print(f"testbed: note: {reason}", file=sys.stderr)
         if health:
             entry["health"] = health
         if diagnostics:
