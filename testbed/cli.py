@@ -379,10 +379,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         demo(args.out, force=args.force)
         return 0
     if args.command == "replay":
+        from testbed.replay.recording import dataset_files
         from testbed.replay.run import replay
         from testbed.report import fmt, fmt_anees
 
-        apart(args.out, _inputs(args, args.spec.parent))  # the dataset: the spec and the tables beside it
+        apart(args.out, _inputs(args, *dataset_files(args.spec)))  # the spec, its tables or bag
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         for name, est in metrics["estimators"].items():

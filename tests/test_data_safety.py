@@ -230,7 +230,7 @@ def _in_marked(cwd: Path, name: str, inner: str) -> Path:
 
 
 @pytest.mark.parametrize("case", [
-    "replay-out-is-the-dataset", "replay-out-inside-the-dataset", "replay-out-is-the-dataset-through-a-link",
+    "replay-out-is-the-dataset", "replay-out-is-a-table", "replay-out-is-the-dataset-through-a-link",
     "export-out-is-the-run", "export-out-inside-the-run", "export-out-contains-the-run",
     "render-out-is-the-log", "run-out-contains-the-scenario", "sweep-out-contains-the-scenario",
     "run-out-contains-the-estimator", "reproduce-out-contains-the-estimator", "replay-out-contains-the-estimator",
@@ -251,7 +251,7 @@ def test_out_that_is_contains_or_lies_inside_an_input_is_refused(capsys, cwd, in
     (cwd / "alias").symlink_to(cwd / "data")
     argv = {
         "replay-out-is-the-dataset": ["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data"],
-        "replay-out-inside-the-dataset": ["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/replay"],
+        "replay-out-is-a-table": ["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/links.csv"],
         "replay-out-is-the-dataset-through-a-link": ["replay", "alias/spec.toml", "--estimator", "graph.poses", "--out", "./data/"],
         "export-out-is-the-run": ["export", "r", "--out", "r"],
         "export-out-inside-the-run": ["export", "r", "--out", "r/dataset"],
@@ -268,3 +268,13 @@ def test_out_that_is_contains_or_lies_inside_an_input_is_refused(capsys, cwd, in
     assert f"--out {Path(argv[argv.index('--out') + 1])}: " in msg and " the input " in msg, msg
     assert {p.name: _files(p) for p in cwd.iterdir() if p.is_dir() and not p.is_symlink()} == before
     _no_debris(cwd)
+
+
+def test_a_replay_may_write_beside_its_dataset_files_and_leaves_them_as_they_were(cwd, inputs):
+    """The inputs of a replay are the files it reads (the spec, its tables or bag), not the folder
+    they lie in: replaying from inside a dataset folder into a new folder there is allowed."""
+    shutil.copytree(inputs / "data", cwd / "data")
+    before = _files(cwd / "data")
+    assert main(["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/replay"]) == 0
+    assert {k: v for k, v in _files(cwd / "data").items() if not k.startswith("replay/")} == before
+    assert (cwd / "data" / "replay" / "metrics.json").is_file()

@@ -219,6 +219,15 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def dataset_files(spec_path: Path) -> list[Path]:
+    """The files a replay of spec_path reads: the spec, the tables beside it and the bag its [bag]
+    names (what an output must never overlap: testbed.outdir.apart). ConfigError on a bad spec."""
+    spec_path = Path(spec_path)
+    spec = load_spec(spec_path)
+    files = [spec_path, *filter(None, (find(spec_path.parent, name) for name in SCHEMAS))]
+    return files + ([spec_path.parent / spec.bag.path] if spec.bag is not None else [])
+
+
 def load_recording(spec_path: Path) -> Recording:
     """Read spec.toml and the tables beside it (or the ROS bag its [bag] names:
     testbed.replay.bag_read), check everything, build the feed; ConfigError on a mistake."""
