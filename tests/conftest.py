@@ -4,8 +4,9 @@ order and grouping that keep `make test` (pytest-xdist, one worker per core) fas
 - a test that uses a module-scoped fixture joins the xdist group of that fixture, so the fixture
   (a Monte Carlo of several simulated runs) is computed once, on one worker, not once per worker
   (`--dist loadgroup`, set by the Makefile; without xdist the marks change nothing);
-- tests marked `slow` are collected first, so the long ones start early and the short ones fill
-  the end; no test depends on the order (every draw is seeded in the test, docs/testing.md).
+- the modules holding a test marked `slow` are collected first (each module whole, in its own
+  order), so the long ones start early and the short ones fill the end; no test depends on the
+  order (every draw is seeded in the test, docs/testing.md).
 """
 import os
 
@@ -35,4 +36,7 @@ def pytest_collection_modifyitems(config, items):
         shared = _module_fixture(item)
         if shared is not None:
             item.add_marker(pytest.mark.xdist_group(f"{item.module.__name__}::{shared}"))
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable: slow ones first
+    # modules with a slow test first, each module's tests kept together and in order (a module
+    # fixture is built once per worker only while its tests run back to back)
+    slow = {item.module.__name__ for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.module.__name__ not in slow)  # stable
