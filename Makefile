@@ -10,7 +10,7 @@ EXTRAS := test
 export MUJOCO_GL ?= egl
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
-PYTEST := -m pytest -q -ra -n auto --dist loadgroup --durations=20
+PYTEST := -m pytest -q -ra -n auto --dist loadfile --durations=20
 
 .PHONY: demo test setup lock test-latest test-kernels clean
 
@@ -32,7 +32,7 @@ test: setup
 test-kernels: setup
 	@if [ -n "$${OPENBLAS_CORETYPE:-}" ]; then echo "test-kernels: OPENBLAS_CORETYPE=$$OPENBLAS_CORETYPE is set by this machine; not overridden"; \
 	elif ! grep -qw avx2 /proc/cpuinfo 2>/dev/null; then echo "test-kernels: no AVX2 on this CPU; the Haswell kernel cannot run"; \
-	else OPENBLAS_CORETYPE=Haswell $(PY) -m pytest -q -ra -n auto --dist loadgroup tests/test_golden.py; fi
+	else OPENBLAS_CORETYPE=Haswell $(PY) -m pytest -q -ra -n auto tests/test_golden.py; fi
 
 demo: setup
 	$(PY) -m testbed demo --out runs/demo
