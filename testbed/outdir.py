@@ -143,6 +143,24 @@ def clean_stale(out: Path) -> None:
                 print(f"testbed: removed {entry} (left by pid {pid}, which died)", file=sys.stderr)
 
 
+def remove_unheld_locks(directory: Path) -> None:
+    """Remove the lock files in `directory` that no process holds: left by a writer killed before it
+    could release its lock (a Ray task cancelled by force). A lock someone holds is left alone; a
+    writer taking one at the same time sees its file gone and takes a new one (Lock.acquire)."""
+    for path in sorted(Path(directory).glob(f".*{LOCK_TAG}")):
+        try:
+            fd = os.open(path, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            path.unlink(missing_ok=True)
+        except BlockingIOError:
+            pass  # held: its writer is alive
+        finally:
+            os.close(fd)
+
+
 class Lock:
     """Exclusive right to write `out`: an flock on `.OUT.testbed-lock` beside it (see the module docstring)."""
 

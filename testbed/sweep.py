@@ -34,7 +34,7 @@ from testbed.config import from_dict, to_dict
 from testbed.errors import EstimatorsFailed, RunError
 from testbed.interrupt import Interrupted
 from testbed.metrics import anees_over_runs
-from testbed.outdir import Output, marker, write_json, write_text
+from testbed.outdir import Output, marker, remove_unheld_locks, write_json, write_text
 from testbed.progress import bar as progress_bar
 from testbed.runner import run
 from testbed.scenario import Scenario
@@ -173,6 +173,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
             bar.close()
             # runs that completed while the others were being stopped count as well
             done = [i for i in range(runs) if run_complete(d / f"run-{i:03d}")]
+            remove_unheld_locks(d)  # of runs whose task was killed before it could release them
             if done and (o.resume or not o.existed):
                 _write_summary(d, scenario, runs, sorted(done))
                 o.commit()

@@ -278,3 +278,17 @@ def test_a_replay_may_write_beside_its_dataset_files_and_leaves_them_as_they_wer
     assert main(["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/replay"]) == 0
     assert {k: v for k, v in _files(cwd / "data").items() if not k.startswith("replay/")} == before
     assert (cwd / "data" / "replay" / "metrics.json").is_file()
+
+
+def test_unheld_lock_files_are_removed_and_held_ones_kept(tmp_path):
+    """After an interrupted Ray sweep, a run's lock whose task was killed before releasing it is
+    removed by the sweep (outdir.remove_unheld_locks); a lock a live writer holds stays."""
+    from testbed.outdir import LOCK_TAG, Lock, remove_unheld_locks
+
+    held = Lock(tmp_path / "run-000")
+    held.acquire()
+    (tmp_path / f".run-001{LOCK_TAG}").write_text("pid 1 (killed)\n")
+    remove_unheld_locks(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f".run-000{LOCK_TAG}"]
+    held.release()
+    assert list(tmp_path.iterdir()) == []
