@@ -74,7 +74,7 @@ from tqdm import tqdm
 from testbed.environment import last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
-from testbed.render_overlay import LOS_RGBA, NLOS_RGBA, OverlayError, Overlays
+from testbed.render_overlay import LOS_RGBA, NLOS_RGBA, Overlays
 from testbed.workers import worker_init
 
 from testbed.errors import UsageError
@@ -224,10 +224,7 @@ class _Replay:
         self.colors = np.array([self._vehicle_rgba(i) for i in range(1, self.n + 1)], np.float32)
         self.meta = _read_meta(run_dir)
         self._v = np.zeros(self.model.nv)
-        try:
-            self.overlays = Overlays(run_dir, lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name), self.n)
-        except OverlayError as e:
-            raise RenderError(str(e)) from None
+        self.overlays = Overlays(run_dir, lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, name), self.n)
         mid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_MATERIAL, "obstacle")
         if mid >= 0:  # obstacles translucent: vehicles behind a building or under a roof stay in view
             self.model.mat_rgba[mid, 3] = OBSTACLE_ALPHA

@@ -18,13 +18,12 @@ a plugin estimator).
 """
 from __future__ import annotations
 
-import contextlib
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from testbed.plugins.collect import ESTIMATES_FILE, natural, read_tracks
+from testbed.plugins.collect import ESTIMATES_FILE, load_tracks, natural
 
 FEEDBACK_FILE = "feedback.npz"
 LOS_RGBA = np.array([0.25, 0.85, 1.0, 0.75], np.float32)
@@ -40,10 +39,6 @@ def feedback_arrays(track: dict, vehicles: int, name: str) -> dict[str, np.ndarr
         if s is not None and s.frame == "world":
             out[f"uav{i}/time"], out[f"uav{i}/pos"] = s.time, s.value
     return out
-
-
-class OverlayError(ValueError):
-    """A file of the run directory that an overlay reads is there but unreadable (the message names it)."""
 
 
 def _load(path: Path) -> dict[str, np.ndarray]:
@@ -77,12 +72,7 @@ class Overlays:
         self.reference = log["reference/pos"] if "reference/pos" in log and "time" in log else None  # (T, N, 3)
         self.time = log.get("time")
         fb = _load(Path(run_dir) / FEEDBACK_FILE)
-        path = Path(run_dir) / ESTIMATES_FILE
-        try:
-            with np.load(path, allow_pickle=False) if path.exists() else contextlib.nullcontext({}) as z:
-                tracks = read_tracks({k: z[k] for k in z})
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
-            raise OverlayError(f"{path}: not readable as a run's estimates ({type(e).__name__}: {' '.join(str(e).split())[:200]})") from None
+        tracks = load_tracks(Path(run_dir) / ESTIMATES_FILE)
         flown = str(fb["estimator"]) if "estimator" in fb else ""
         self.estimator = flown if flown in tracks else min(tracks, key=natural, default="")
         self.flown = bool(flown) and flown == self.estimator

@@ -53,11 +53,10 @@ from testbed.errors import RunError, UsageError
 from testbed.log import NpzLog
 from testbed.metrics import anees_interval
 from testbed.outdir import check_new_file, new_file
-from testbed.plugins.collect import Series, Track, natural, read_tracks
+from testbed.plugins.collect import ESTIMATES_FILE, Series, Track, load_tracks, natural
 from testbed.plugins.context import make_context
 from testbed.plugins.truth import Truth, errors
 from testbed.render_overlay import LOS_RGBA, NLOS_RGBA
-from testbed.runner import ESTIMATES_FILE
 from testbed.world import build
 
 APP = "testbed"
@@ -187,10 +186,8 @@ def _log_run(rr, rec, run_dir: Path) -> None:
         _log_epochs(rr, rec, "world/camera/detections", log["camera/time"], rr.LineStrips3D, strips=ends)
         if "camera/pixel" in log:
             _log_epochs(rr, rec, "camera/pixels", log["camera/time"], rr.Points2D, positions=log["camera/pixel"])
-    estimates = run_dir / ESTIMATES_FILE
-    if estimates.is_file():
-        with np.load(estimates, allow_pickle=False) as z:
-            tracks = read_tracks({k: z[k] for k in z.files})
+    tracks = load_tracks(run_dir / ESTIMATES_FILE)
+    if tracks:
         _log_estimates(rr, rec, tracks, truth)
 
 
@@ -348,8 +345,7 @@ def _log_replay(rr, rec, replay_dir: Path) -> None:
     as metrics.json names it, still in place) the bodies' true paths, the anchors, the errors and NEES."""
     from testbed.replay.recording import RecordedTruth, load_recording  # lazy: only for a replay
 
-    with np.load(replay_dir / ESTIMATES_FILE, allow_pickle=False) as z:
-        tracks = read_tracks({k: z[k] for k in z.files})
+    tracks = load_tracks(replay_dir / ESTIMATES_FILE)
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     truth = None
     metrics = json.loads((replay_dir / "metrics.json").read_text())

@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import math
 import re
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from testbed.errors import PluginError
+from testbed.errors import PluginError, RunError
 from testbed.plugins.api import VALUE_SIZE, Estimate, EstimateBatch
 from testbed.plugins.loading import Plugin
 
@@ -201,6 +203,20 @@ def track_arrays(key: str, track: Track) -> dict[str, np.ndarray]:
         if s.frame != "world":
             out[f"{key}/{target}/{q}/frame"] = np.array(s.frame)
     return out
+
+
+def load_tracks(path: Path) -> dict[str, Track]:
+    """{estimator key: Track} of an estimates.npz (read_tracks); {} when the file is absent;
+    RunError naming the file when it is there but unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return read_tracks({k: z[k] for k in z.files})
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise RunError(f"{path}: not readable as a run's estimates ({type(e).__name__}: "
+                       f"{' '.join(str(e).split())[:200]})") from None
 
 
 def read_tracks(arrays) -> dict[str, Track]:

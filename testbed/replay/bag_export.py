@@ -34,11 +34,10 @@ from scipy.spatial.transform import Rotation
 from testbed import world
 from testbed.api import load_run
 from testbed.outdir import Output
-from testbed.plugins.collect import read_tracks
+from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
 from testbed.plugins.context import lever_arms
 from testbed.replay.export import note_camera, spec_toml, tables
 from testbed.replay.ros import LINK_TYPE, nanoseconds, rosbags, typestore
-from testbed.runner import ESTIMATES_FILE
 
 WORLD = "world"
 BAG = "bag"  # the bag's directory inside the dataset
@@ -149,11 +148,7 @@ def _topic_token(key: str) -> str:
 
 
 def _estimates(m: _Messages, run_dir: Path) -> None:
-    path = run_dir / ESTIMATES_FILE
-    if not path.is_file():
-        return
-    with np.load(path) as arrays:
-        tracks = read_tracks({k: arrays[k] for k in arrays.files})
+    tracks = load_tracks(run_dir / ESTIMATES_FILE)
     for key, track in tracks.items():
         for (target, q), s in track.items():
             if q != "position":

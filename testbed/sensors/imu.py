@@ -57,7 +57,7 @@ class Imu:
             self.vibration = RotorVibration(cfg.vibration, physics, [device_rng(rng, f"uav{i}/vibration") for i in self.vehicles],
                                             dt, cfg.rate_hz)
             self.actuator_idx = physics.actuator_idx[self.vehicles - 1]  # (V, 4) rotor1..rotor4
-        self.thrusts: list[np.ndarray | None] = []  # (V, 4) rotor thrusts (N) per sample when vibrating
+        self.thrusts: list[np.ndarray] = []  # (V, 4) rotor thrusts (N) per sample, only when vibrating
         self.src = np.array([f"uav{i}/imu" for i in self.vehicles])
         self.rec = Recorder("imu", {**common_keys(6), "vehicle": ((), "i8"), "bias": ((6,), "f8")})
         self.clean: list[np.ndarray] = []  # (V, 6) per sample
@@ -72,7 +72,8 @@ class Imu:
             self._sample_online(clean, thrust, t, state_index)
             return
         self.clean.append(clean)
-        self.thrusts.append(thrust)
+        if thrust is not None:
+            self.thrusts.append(thrust)
         self.times.append((t, state_index))
 
     def _sensed(self, clean: np.ndarray, thrusts: list[np.ndarray]) -> np.ndarray:
