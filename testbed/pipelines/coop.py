@@ -54,12 +54,12 @@ import numpy as np
 
 from estimators.core import nees
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
+from estimators.sensor_models import twr_range_covariance, twr_range_variance
 from testbed.errors import ConfigError
 from testbed.interrupt import poll
 from testbed.network import Network, NetworkConfig, RoundTransport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.rng import stream_rng
-from testbed.sensors.noise import twr_range_covariance, twr_range_variance
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 

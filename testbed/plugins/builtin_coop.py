@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.sensor_models import gnss_sigma
 from testbed.pipelines.coop import epoch_problem, gnss_covariances, solve_epoch
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
-from testbed.plugins.settings import check_known, pipeline_keys, settings
-from testbed.stream import gnss_sigma
+from testbed.plugins.settings import settings
 
 
 class _CoopEpochs(EpochGrouping):
@@ -30,9 +30,7 @@ class _CoopEpochs(EpochGrouping):
 
     variant = ""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(CoopPipelineConfig))
+    Params = CoopPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         self.cfg = settings(CoopPipelineConfig, "coop-fg", context, params, f"coop.{self.variant}")
