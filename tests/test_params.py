@@ -131,3 +131,12 @@ def test_the_estimator_runtime_takes_its_sensor_models_from_estimators_not_the_s
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom):
                 assert not (node.module or "").startswith("testbed.sensors"), f"{path.name} imports {node.module}"
+
+
+@pytest.mark.parametrize("command", [["sweep", "coop-fg", "--runs", "2"], ["reproduce", "coop", "--runs", "2"]])
+def test_sweep_and_reproduce_refuse_a_bad_param_before_running(tmp_path, capsys, command):
+    out = tmp_path / "out"
+    assert main([*command, "--duration", "1", "--out", str(out), "--estimator", "nav.eskf", "--param", "gate_prob=-1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "estimator 'nav.eskf' (nav.eskf) params: gate_prob = -1.0: must be in [0, 1)" in err, err
+    assert not out.exists()
