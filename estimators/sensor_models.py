@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.eskf import ImuNoise
-
 C_LIGHT = 299_792_458.0  # m/s
 
 
@@ -95,9 +93,12 @@ def _walk(errors: dict) -> float:
     return float(np.hypot(errors["bias_walk"], gm))
 
 
-def imu_noise(imu: dict) -> ImuNoise:
-    """The filter's IMU noise model from the declared [sensors.imu] table (Context.sensors["imu"]):
-    white densities, and bias walks standing for the declared walk and Gauss-Markov terms."""
+def imu_noise(imu: dict):
+    """The filter's IMU noise model (estimators.eskf.ImuNoise) from the declared [sensors.imu]
+    table (Context.sensors["imu"]): white densities, and bias walks standing for the declared walk
+    and Gauss-Markov terms."""
+    from estimators.eskf import ImuNoise  # here: the scenario schema loads this module, numpy only
+
     acc, gyr = imu["accel"], imu["gyro"]
     return ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
 

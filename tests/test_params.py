@@ -109,6 +109,10 @@ def test_the_assumed_range_model_is_the_declared_one_unless_set():
     mismatch = scenario.load("coop-fg", {"sensors.uwb.noise": "0.25", "pipeline.range_sigma": "0.3"})
     assert (mismatch.pipeline.range_sigma, mismatch.pipeline.twr_mode) == (0.3, u.mode)
     assert scenario.load("phase-line-h000", {"sensors.phase.phase_noise": "0.07"}).pipeline.range_sigma == 0.07
+    assert (fg.pipeline.gnss_sigma_h, fg.pipeline.gnss_sigma_v, fg.pipeline.rtk_sigma_h, fg.pipeline.rtk_sigma_v) == (1.5, 3.0, 0.02, 0.03)
+    gnss = scenario.load("coop-fg", {"sensors.gnss.receiver.noise_h": "1.2", "sensors.gnss.receiver.bias_h": "0.5",
+                                      "sensors.gnss.receiver.bias_tau": "60"}).pipeline
+    assert gnss.gnss_sigma_h == pytest.approx(1.3, rel=1e-12) and gnss.gnss_sigma_v == 3.0
     assert scenario.load("bandwidth", {"sensors.uwb.noise": "0.2"}).pipeline.range_sigma == 0.2
 
 

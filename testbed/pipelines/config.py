@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from collections.abc import Callable
+from operator import itemgetter
 from typing import Any, Literal
 
 import numpy as np
 
+from estimators.sensor_models import gnss_sigma
 from estimators.visnav_paper import PAPER_ACCEL_BIAS, PAPER_ACCEL_NOISE, PAPER_GYRO_BIAS, PAPER_GYRO_NOISE, PAPER_VISION_SIGMA
 from testbed.config import check_fields, key, require, whole_ratio
 from testbed.sensors.config import SensorsConfig
@@ -25,19 +28,20 @@ Vec3 = tuple[float, float, float]
 class _PipelineConfig:
     """What every [pipeline] table offers besides its fields.
 
-    _assumed: {field: (sensor stream, key of its declared table)}: the sensor-model keys the
-    estimators assume that default (None) to the scenario's declared model (`assumed`).
+    _assumed: {field: (sensor stream, its value from the stream's declared table)}: the
+    sensor-model keys the estimators assume that default (None) to the scenario's declared model
+    (`assumed`).
     """
 
     __slots__ = ()
-    _assumed: dict[str, tuple[str, str]] = {}
+    _assumed: dict[str, tuple[str, Callable[[dict], Any]]] = {}
 
     def assumed(self, sensors: dict):
         """This table with every assumed sensor-model key left unset (None) taken from the
         declared sensor tables `sensors` ({stream: table as a dict}, as Context.sensors gives them);
         one without its sensor stays None (the estimator cannot use that stream). Called by
         Scenario.__post_init__ and testbed.plugins.settings: the one place a default is derived."""
-        fill = {k: sensors[s][key] for k, (s, key) in self._assumed.items() if getattr(self, k) is None and s in sensors}
+        fill = {k: value(sensors[s]) for k, (s, value) in self._assumed.items() if getattr(self, k) is None and s in sensors}
         return dataclasses.replace(self, **fill) if fill else self
 
     def derived(self) -> set[str]:
@@ -130,7 +134,7 @@ class PhasePipelineConfig(_PipelineConfig):
     def __post_init__(self) -> None:
         check_fields(self)
 
-    _assumed = {"range_sigma": ("phase", "phase_noise")}
+    _assumed = {"range_sigma": ("phase", itemgetter("phase_noise"))}
 
     def cross_check(self, sc: Any) -> None:
         """phase-ekf needs the carrier-phase stream, and its navigation frame is a master's."""
@@ -276,7 +280,7 @@ class BandwidthPipelineConfig(_PipelineConfig):
         require(self.selection == "search" or self.budget == 5, "budget", self.budget,
                 f"the paper's {self.selection} is for budget 5, got {self.budget}; use selection = \"search\"")
 
-    _assumed = {"range_sigma": ("uwb", "noise")}
+    _assumed = {"range_sigma": ("uwb", itemgetter("noise"))}
 
     def cross_check(self, sc: Any) -> None:
         """bandwidth estimates the point of a straight-line formation of N_NODES UAVs; its epochs
@@ -305,7 +309,8 @@ class CoopPipelineConfig(_PipelineConfig):
     """[pipeline] table of a seed 001 scenario.
 
     gnss_sigma_h, gnss_sigma_v / rtk_sigma_h, rtk_sigma_v: the GNSS noise the estimators assume,
-    1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`).
+    1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`); default:
+    the declared [sensors.gnss.receiver] / [sensors.gnss.rtk] white noise and bias combined.
     range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock frequency offset
     (ppm, 1 sigma per device); twr_mode ("scale" | "ss-twr" | "ds-twr"), reply_time (s) and
     antenna_delay_sigma (m of range per device, 1 sigma): the assumed two-way ranging scheme;
@@ -327,10 +332,10 @@ class CoopPipelineConfig(_PipelineConfig):
     """
 
     kind: Literal["coop-fg"]
-    gnss_sigma_h: float = key(1.5, lo=0, lo_open=True, unit="m", doc="assumed SPP noise, horizontal, 1 sigma")
-    gnss_sigma_v: float = key(3.0, lo=0, lo_open=True, unit="m", doc="assumed SPP noise, up, 1 sigma")
-    rtk_sigma_h: float = key(0.02, lo=0, lo_open=True, unit="m", doc="assumed RTK noise, horizontal, 1 sigma")
-    rtk_sigma_v: float = key(0.03, lo=0, lo_open=True, unit="m", doc="assumed RTK noise, up, 1 sigma")
+    gnss_sigma_h: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed SPP noise, horizontal, 1 sigma (none: [sensors.gnss.receiver])")
+    gnss_sigma_v: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed SPP noise, up, 1 sigma (none: [sensors.gnss.receiver])")
+    rtk_sigma_h: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed RTK noise, horizontal, 1 sigma (none: [sensors.gnss.rtk])")
+    rtk_sigma_v: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed RTK noise, up, 1 sigma (none: [sensors.gnss.rtk])")
     range_sigma: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed UWB range noise, 1 sigma (none: [sensors.uwb] noise)")
     clock_ppm: float | None = key(None, lo=0, unit="ppm", doc="assumed clock frequency offset, 1 sigma per device (none: [sensors.uwb] clock_ppm)")
     twr_mode: Literal["scale", "ss-twr", "ds-twr"] | None = key(None, doc="assumed two-way ranging scheme (none: [sensors.uwb] mode)")
@@ -353,8 +358,14 @@ class CoopPipelineConfig(_PipelineConfig):
         require(len(self.plot_uavs) in (0, 4) and all(u >= 1 for u in self.plot_uavs), "plot_uavs", self.plot_uavs,
                 f"must be empty or four 1-based UAV numbers, got {list(self.plot_uavs)}")
 
-    _assumed = {"range_sigma": ("uwb", "noise"), "clock_ppm": ("uwb", "clock_ppm"), "twr_mode": ("uwb", "mode"),
-                "reply_time": ("uwb", "reply_time"), "antenna_delay_sigma": ("uwb", "antenna_delay_sigma")}
+    _assumed = {"range_sigma": ("uwb", itemgetter("noise")), "clock_ppm": ("uwb", itemgetter("clock_ppm")),
+                "twr_mode": ("uwb", itemgetter("mode")), "reply_time": ("uwb", itemgetter("reply_time")),
+                "antenna_delay_sigma": ("uwb", itemgetter("antenna_delay_sigma")),
+                # (east, north, up) declared sigmas of the receiver's and the RTK error tables
+                "gnss_sigma_h": ("gnss", lambda g: float(gnss_sigma(g["receiver"])[0])),
+                "gnss_sigma_v": ("gnss", lambda g: float(gnss_sigma(g["receiver"])[2])),
+                "rtk_sigma_h": ("gnss", lambda g: float(gnss_sigma(g["rtk"])[0])),
+                "rtk_sigma_v": ("gnss", lambda g: float(gnss_sigma(g["rtk"])[2]))}
 
     def cross_check(self, sc: Any) -> None:
         """coop-fg needs GNSS at the UWB tag on every UAV, UWB tag-to-tag links sampled at every
