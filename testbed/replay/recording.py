@@ -9,6 +9,9 @@ Streams fed (Measurement.stream, value, sigma; src, dst site or body names):
   quaternion wxyz (body to world), sigma (3,) m or None.
 - imu.csv: stream "imu", value (6,) specific force m/s^2 then angular rate rad/s (site frame),
   sigma (6,) or None. height.csv: stream "height", value (1,) up coordinate m, sigma (1,) or None.
+- camera.csv: stream "camera", src the camera site, dst the seen site, value (5,) [alpha, beta]
+  focal-plane coordinates (units of the focal length) and [bx, by, bz] the unit line of sight
+  (camera frame), sigma None (testbed.sensors.camera).
 Times: the files' clock minus window.start; arrival: the row's arrival (default its time).
 Order: as a simulated run's (testbed.plugins.feed): arrival, time, stream name, row of the stream.
 """
@@ -26,7 +29,7 @@ from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.bag_read import bag_tables
 from testbed.replay.spec import ReplaySpec, load_spec
-from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_table
+from testbed.replay.tables import CAMERA_COLUMNS, REQUIRED_TABLES, SCHEMAS, Table, find, read_table
 from testbed.rng import stream_rng
 
 LINK_KINDS = ("uwb", "phase", "range-rate")
@@ -60,11 +63,14 @@ class Recording:
         return self.spec.window.end - self.spec.window.start
 
     def context(self, key: str, params: dict) -> Context:
-        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed)."""
+        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed); of an
+        exported run, the Context the estimator had in the simulation (Context.pipeline aside: {},
+        the exported built-ins carry their resolved params; testbed.replay.export)."""
         return Context(
             vehicles=tuple(self.spec.bodies), sites=self.spec.sites, anchors=self.spec.anchor_points,
-            sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior={}, params=dict(params),
-            duration=self.duration, seed=self.spec.seed, rng=stream_rng(self.spec.seed, f"estimator/{key}"),
+            sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior=self.spec.priors, params=dict(params),
+            duration=self.duration, motion=self.spec.motion, seed=self.spec.seed,
+            rng=stream_rng(self.spec.seed, f"estimator/{key}"),
         )
 
     def measurements(self) -> list[Measurement]:
@@ -137,6 +143,10 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
     for name, column in (("imu", "site"), ("height", "site")):
         if name in tables:
             _check_names(tables[name], column, sites | bodies, "a body or a site")
+    if "camera" in tables:
+        t = tables["camera"]
+        _check_names(t, "src", sites, "a site (body/site)")
+        _check_names(t, "dst", sites, "a site (body/site)")
     if "truth" in tables:
         t = tables["truth"]
         _check_names(t, "body", bodies, "a body")
@@ -187,6 +197,10 @@ def _streams(tables: dict[str, Table], start: float) -> list[tuple]:
     if "height" in tables:
         t = tables["height"]
         out.append(_stream("height", t, np.ones(len(t), bool), t["value"][:, None], t["sigma"][:, None], t["site"], None, start))
+    if "camera" in tables:
+        t = tables["camera"]
+        value = np.stack([t[c] for c in CAMERA_COLUMNS], axis=1)
+        out.append(_stream("camera", t, np.ones(len(t), bool), value, None, t["src"], t["dst"], start))
     return sorted(out, key=lambda s: s[0])
 
 
