@@ -154,6 +154,22 @@ def test_the_export_lists_the_pipelines_builtins_with_the_params_they_ran_with()
     assert [s.key for s in specs] == [*COOP, "huber"] and specs[-1].params == {**table, "robust": "huber"}
 
 
+SPEC = "[window]\nend = 1.0\n[bodies.uav1.sites]\ncam = [0.0, 0.0, 0.0]\nled1 = [0.1, 0.0, 0.0]\n[anchors]\nanchor1 = [0.0, 0.0, 2.0]\n"
+
+
+def _refused(tmp_path, capsys, files: dict[str, str]) -> tuple[Path, str]:
+    """(the dataset directory, the one error line) of a replay of a dataset of these files and an
+    empty links.csv; asserts exit 2 and nothing written."""
+    d = tmp_path / "data"
+    d.mkdir()
+    for name, text in {"links.csv": "time,src,dst,kind,value\n", **files}.items():
+        (d / name).write_text(text)
+    assert main(["replay", str(d / "spec.toml"), "--out", str(tmp_path / "o"), "--estimator", ECHO]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "o").exists(), err
+    return d, err
+
+
 @pytest.mark.parametrize("prior, key", [
     ("mean = [1.0, 2.0]\ncov = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]", "prior.uav1.cov"),
     ("mean = [1.0, 2.0]\ncov = [[1.0, 0.0], [0.0]]", "prior.uav1.cov"),
@@ -162,14 +178,8 @@ def test_the_export_lists_the_pipelines_builtins_with_the_params_they_ran_with()
     ("mean = [1.0]", "prior.uav1"),
 ])
 def test_a_bad_prior_is_one_line_naming_its_key(tmp_path, capsys, prior, key):
-    d = tmp_path / "data"
-    d.mkdir()
-    (d / "links.csv").write_text("time,src,dst,kind,value\n")
-    (d / "spec.toml").write_text(f"[window]\nend = 1.0\n[bodies.uav1.sites]\nuwb = [0.0, 0.0, 0.0]\n[prior.uav1]\n{prior}\n")
-    assert main(["replay", str(d / "spec.toml"), "--out", str(tmp_path / "o"), "--estimator", ECHO]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and err.startswith(f"testbed: error: {d / 'spec.toml'}: {key}: ")
-    assert not (tmp_path / "o").exists()
+    d, err = _refused(tmp_path, capsys, {"spec.toml": f"{SPEC}[prior.uav1]\n{prior}\n"})
+    assert err.startswith(f"testbed: error: {d / 'spec.toml'}: {key}: "), err
 
 
 @pytest.mark.parametrize("row, column", [
@@ -178,13 +188,5 @@ def test_a_bad_prior_is_one_line_naming_its_key(tmp_path, capsys, prior, key):
     ("0.0,uav1/cam,uav1/led1,0.1,,0.1,0.0,-0.99", "beta"),
 ])
 def test_a_bad_camera_row_is_one_line_naming_its_file_row_and_column(tmp_path, capsys, row, column):
-    d = tmp_path / "data"
-    d.mkdir()
-    (d / "links.csv").write_text("time,src,dst,kind,value\n")
-    (d / "camera.csv").write_text(f"time,src,dst,alpha,beta,bx,by,bz\n{row}\n")
-    (d / "spec.toml").write_text("[window]\nend = 1.0\n[bodies.uav1.sites]\ncam = [0.0, 0.0, 0.0]\nled1 = [0.1, 0.0, 0.0]\n"
-                                 "[anchors]\nanchor1 = [0.0, 0.0, 2.0]\n")
-    assert main(["replay", str(d / "spec.toml"), "--out", str(tmp_path / "o"), "--estimator", ECHO]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and err.startswith(f"testbed: error: {d / 'camera.csv'}: row 1 (line 2), column {column}: "), err
-    assert not (tmp_path / "o").exists()
+    d, err = _refused(tmp_path, capsys, {"spec.toml": SPEC, "camera.csv": f"time,src,dst,alpha,beta,bx,by,bz\n{row}\n"})
+    assert err.startswith(f"testbed: error: {d / 'camera.csv'}: row 1 (line 2), column {column}: "), err
