@@ -34,17 +34,16 @@ COOP = ("coop.gnss_only", "coop.one_shot", "coop.iterated", "coop.centralized")
 VISNAV = tuple(f"visnav.{f}" for f in ("ekf", "ckf", "hckf", "mckf", "rhcf"))
 NETWORK = dict(latency=0.005, jitter=0.002, loss_prob=0.01, nlos_loss=0.1, max_range=100.0, round_s=0.01)
 # per scenario: the [[estimators]] of the run (the built-ins with no params: they resolve theirs
-# from the scenario's [pipeline]), and the estimators the export cannot reproduce
+# from the scenario's [pipeline]), and those a bag export cannot carry (no phase, no camera topic)
 CASES = {
-    "coop-fg": ([*(EstimatorSpec(entry=e) for e in COOP), EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], set()),
+    "coop-fg": ([*(EstimatorSpec(entry=e) for e in COOP), EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
     "bandwidth": ([EstimatorSpec(entry="bandwidth.fusion"), EstimatorSpec(entry="testbed.replay.graph:PoseGraph"),
-                   EstimatorSpec(entry=ECHO)], set()),
-    "phase-line-h000": ([EstimatorSpec(entry="phase.ekf"), EstimatorSpec(entry=ECHO)], {"phase.ekf"}),
-    "visnav": ([*(EstimatorSpec(entry=e) for e in VISNAV), EstimatorSpec(entry=ECHO)], set()),
+                   EstimatorSpec(entry=ECHO)], ()),
+    "phase-line-h000": ([EstimatorSpec(entry="phase.ekf"), EstimatorSpec(entry=ECHO)], ("phase.ekf",)),
+    "visnav": ([*(EstimatorSpec(entry=e) for e in VISNAV), EstimatorSpec(entry=ECHO)], VISNAV),
     "coop-denied": ([EstimatorSpec(entry="coop.ins_distributed", name="coop", params={"network": NETWORK}),
-                     EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], set()),
+                     EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
 }
-WHY = {"phase.ekf": "master antenna position and velocity"}
 NOTE = re.compile(r"testbed: note: \S+: (\S+) is not exported: (.+)")
 
 
@@ -67,7 +66,7 @@ def test_the_replay_of_an_export_gives_the_estimates_of_the_simulation(exported)
     name, sc, d, _ = exported
     sim, rep = load_tracks(d / "run" / ESTIMATES_FILE), load_tracks(d / "rep" / ESTIMATES_FILE)
     assert set(sim) == {s.key for s in sc.estimators}  # each gave estimates in the run
-    assert set(rep) == set(sim) - CASES[name][1]
+    assert set(rep) == set(sim)
     for key in rep:
         assert rep[key].keys() == sim[key].keys()
         for tq, s in sim[key].items():
@@ -86,32 +85,31 @@ def test_the_replay_of_an_export_gives_the_estimates_of_the_simulation(exported)
             np.testing.assert_allclose(replayed[key][k], v, rtol=1e-9, atol=1e-12, err_msg=f"{key} {k}")
 
 
-def test_the_export_names_each_estimator_it_cannot_reproduce(exported):
-    """One note line on stderr and one comment line in spec.toml per estimator left out, saying why;
-    the rest are the spec's [[estimators]]."""
-    name, sc, d, notes = exported
-    skipped = CASES[name][1]
+def _left_out(notes: str, spec: Path, keys: set[str]) -> dict[str, str]:
+    """{key: why} of the estimators an export's notes say it left out; checks that each has its
+    comment line in the spec and that the spec lists all the others of `keys`."""
     said = dict(m.groups() for m in map(NOTE.fullmatch, notes.splitlines()) if m)
-    assert set(said) == skipped
-    for key, why in said.items():
-        assert WHY[key] in why
-    text = (d / "data" / "spec.toml").read_text()
-    assert sorted(line for line in text.splitlines() if line.startswith("# ")) == \
+    assert sorted(line for line in spec.read_text().splitlines() if line.startswith("# ")) == \
         sorted(f"# {key} is not exported: {why}" for key, why in said.items())
-    listed = {s.key for s in load_recording(d / "data" / "spec.toml").spec.estimators}
-    assert listed == {s.key for s in sc.estimators} - skipped and not listed & skipped
+    assert {s.key for s in load_spec(spec).estimators} == keys - set(said)
+    return said
 
 
-def test_a_bag_export_names_the_estimators_its_bag_cannot_drive(exported, tmp_path, capsys):
-    """A bag has no camera topic: a visnav run exported as MCAP leaves visnav.* out, saying so."""
+def test_a_csv_export_lists_every_estimator_of_the_run(exported):
+    name, sc, d, notes = exported
+    assert _left_out(notes, d / "data" / "spec.toml", {s.key for s in sc.estimators}) == {}
+
+
+def test_a_bag_export_names_each_estimator_its_bag_cannot_drive(exported, tmp_path, capsys):
+    """A bag has no phase and no camera topic: phase.ekf and visnav.* are left out of its spec, one
+    note line and one comment line each saying why."""
     name, sc, d, _ = exported
-    if name != "visnav":
-        pytest.skip("the camera stream is visnav's")
     pytest.importorskip("rosbags")
     assert main(["export", str(d / "run"), "--out", str(tmp_path / "bag"), "--format", "mcap"]) == 0
-    said = dict(m.groups() for m in map(NOTE.fullmatch, capsys.readouterr().err.splitlines()) if m)
-    assert set(said) == set(VISNAV) and all("a bag export does not carry" in why for why in said.values())
-    assert {s.key for s in load_spec(tmp_path / "bag" / "spec.toml").estimators} == {ECHO.rpartition(":")[2]}
+    said = _left_out(capsys.readouterr().err, tmp_path / "bag" / "spec.toml", {s.key for s in sc.estimators})
+    assert set(said) == set(CASES[name][1])
+    stream = "phase" if name.startswith("phase") else "camera"
+    assert all(f"the {stream} stream" in why and "a bag export does not carry" in why for why in said.values())
 
 
 def _plain(x):
@@ -190,3 +188,26 @@ def test_a_bad_prior_is_one_line_naming_its_key(tmp_path, capsys, prior, key):
 def test_a_bad_camera_row_is_one_line_naming_its_file_row_and_column(tmp_path, capsys, row, column):
     d, err = _refused(tmp_path, capsys, {"spec.toml": SPEC, "camera.csv": f"time,src,dst,alpha,beta,bx,by,bz\n{row}\n"})
     assert err.startswith(f"testbed: error: {d / 'camera.csv'}: row 1 (line 2), column {column}: "), err
+
+
+PHASE_HEADER = ("time,src,dst,phase,range,master_x,master_y,master_z,master_vx,master_vy,master_vz,"
+                "rate_periods,wavelength,slip\n")
+
+
+@pytest.mark.parametrize("cells, column", [
+    ("1.0,10.0,0,0,0,0,0,0,2,0.19,2", "slip"),
+    ("1.0,10.0,0,0,0,0,0,0,-1,0.19,0", "rate_periods"),
+    ("1.0,10.0,0,0,0,0,0,0,1.5,0.19,0", "rate_periods"),
+    ("1.0,10.0,0,0,0,0,0,0,1,0,0", "wavelength"),
+    ("1.0,,0,0,0,0,0,0,1,0.19,0", "range"),
+])
+def test_a_bad_phase_row_is_one_line_naming_its_file_row_and_column(tmp_path, capsys, cells, column):
+    d, err = _refused(tmp_path, capsys, {"spec.toml": SPEC, "phase.csv": f"{PHASE_HEADER}0.0,uav1/cam,uav1/led1,{cells}\n"})
+    assert err.startswith(f"testbed: error: {d / 'phase.csv'}: row 1 (line 2), column {column}: "), err
+
+
+def test_the_phase_stream_from_two_tables_is_refused(tmp_path, capsys):
+    links = "time,src,dst,kind,value\n0.0,uav1/cam,anchor1,phase,2.0\n"
+    phase = f"{PHASE_HEADER}0.0,uav1/cam,uav1/led1,1.0,10.0,0,0,0,0,0,0,1,0.19,0\n"
+    d, err = _refused(tmp_path, capsys, {"spec.toml": SPEC, "links.csv": links, "phase.csv": phase})
+    assert err.startswith(f"testbed: error: {d / 'phase.csv'}: row 1 (line 2), column phase: ") and "links.csv" in err, err

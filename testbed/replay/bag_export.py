@@ -180,7 +180,7 @@ def export_bag(run_dir: Path, out: Path, *, force: bool = False) -> list[str]:
     sc, log = run.scenario, run.log
     m = _Messages(typestore())
     spec = run_spec(run_dir, sc, log, bag=True)
-    rows = tables(sc, log)
+    rows = tables(sc, log, bag=True)
     for name, add in (("links", _links), ("poses", _gnss), ("imu", _imu), ("truth", _truth)):
         if name in rows:
             add(m, rows[name])

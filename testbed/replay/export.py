@@ -9,16 +9,18 @@ back exactly the floats the run fed its estimators):
   Context.rng is the stream "estimator/KEY" of it, KEY kept) and the window [0, duration]; and the
   run's estimators (`exported_estimators`): the built-ins of its [pipeline] and its [[estimators]],
   each with its resolved params, so Context.pipeline (left empty on replay) is never needed;
-- links.csv: uwb rows (range m, the declared sigma); phase rows as kind phase (the stream's range
-  column, m) and kind range-rate (its eq. 7 rate, m/s, rows where it is defined);
+- links.csv: uwb rows (range m, the declared sigma); none without a uwb stream;
 - poses.csv: the GNSS fixes (kind gnss, of the antenna site, declared sigma per axis);
 - imu.csv: the IMU samples with the declared sigmas (when the run has an IMU stream);
+- phase.csv: the phase stream whole (when the run has one): carrier phase, range, rate, the
+  masters' navigation solution, rate windows, wavelength, slip flags, declared sigmas;
 - camera.csv: the camera rows (when the run has a camera stream): focal-plane coordinates and line
   of sight of each seen LED;
 - truth.csv: every vehicle's base pose and twist at every log instant.
-The phase stream is carried in part, and a bag (testbed.replay.bag_export) has no camera topic
-(left_out: a note on stderr says so); every estimator the export cannot drive is left out of the
-spec (unreproducible: a note on stderr and a comment in spec.toml name it).
+What the export cannot carry is a note on stderr (left_out): a phase row's infinite rate sigma (no
+rate yet) becomes none; a bag (testbed.replay.bag_export) has no phase or camera topic (the phase
+stream goes as links of its range and range rate), and the estimators that read them are left
+out of its spec (unreproducible: a note on stderr and a comment in spec.toml name each).
 """
 from __future__ import annotations
 
@@ -40,14 +42,17 @@ from testbed.plugins.loading import resolve
 from testbed.plugins.settings import settings
 from testbed.plugins.spec import EstimatorSpec
 from testbed.replay.spec import FORMAT
-from testbed.replay.tables import CAMERA_COLUMNS
+from testbed.replay.tables import CAMERA_COLUMNS, PHASE_MASTER_COLUMNS
 from testbed.stream import declared_sigma, stream_arrays
 
 
 def _cells(col: np.ndarray) -> list[str]:
-    """One column as CSV cells: strings as they are, numbers by repr (exact), NaN as empty."""
+    """One column as CSV cells: strings as they are, integers and booleans as integers, other
+    numbers by repr (exact), NaN as empty."""
     if col.dtype.kind in "US":
         return [str(x) for x in col.tolist()]
+    if col.dtype.kind in "iub":
+        return [str(int(x)) for x in col.tolist()]
     return ["" if x != x else repr(float(x)) for x in np.asarray(col, float).tolist()]
 
 
@@ -63,12 +68,12 @@ def _stack(*parts: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def _links(log: dict, scenario) -> dict[str, np.ndarray]:
-    """The links table (uwb, phase and range-rate rows); no row when the run has no link stream
-    (the table is required: an empty one says so)."""
+def _links(log: dict, scenario, bag: bool) -> dict[str, np.ndarray]:
+    """The links table: uwb rows (bag: and the phase stream as phase and range-rate rows); no row
+    when the run has no such stream (the table is required: an empty one says so)."""
     empty, text = np.zeros(0), np.zeros(0, str)
     parts = [{"time": empty, "src": text, "dst": text, "kind": text, "value": empty, "sigma": empty, "arrival": empty}]
-    for name in ("uwb", "phase"):
+    for name in ("uwb", "phase") if bag else ("uwb",):
         if f"{name}/value" not in log:
             continue
         a = stream_arrays(name, log)
@@ -89,13 +94,12 @@ _VISNAV = (builtin_visnav.Ekf, builtin_visnav.Ckf, builtin_visnav.Hckf, builtin_
 #: (their classes, the config they resolve to, its kind)
 _SETTINGS = ((_COOP, CoopPipelineConfig, "coop-fg"), ((builtin_phase.PhaseEkf,), PhasePipelineConfig, "phase-ekf"),
              ((builtin_bandwidth.Fusion,), BandwidthPipelineConfig, "bandwidth"), (_VISNAV, VisNavPipelineConfig, "visnav"))
-#: the built-ins a replay cannot drive, and why: what they read has no place in the format (in a
-#: bag export: BAG_UNREPRODUCIBLE too)
-UNREPRODUCIBLE = (
-    ((builtin_phase.PhaseEkf,), "it reads each phase row's master antenna position and velocity, rate window and "
-                                "slip flag, which the links table has no columns for"),
+#: the built-ins a replay of a bag export cannot drive, and why: what they read has no topic
+BAG_UNREPRODUCIBLE = (
+    ((builtin_phase.PhaseEkf,), "it reads the phase stream's carrier phase, master navigation solution, rate windows "
+                                "and slip flags, which a bag export does not carry (export as csv)"),
+    (_VISNAV, "it reads the camera stream, which a bag export does not carry (export as csv)"),
 )
-BAG_UNREPRODUCIBLE = ((_VISNAV, "it reads the camera stream, which a bag export does not carry (export as csv)"),)
 
 
 def pipeline_estimators(pipeline) -> tuple[str, ...]:
@@ -112,9 +116,8 @@ def pipeline_estimators(pipeline) -> tuple[str, ...]:
 
 def unreproducible(cls: type, bag: bool = False) -> str:
     """Why a replay of a CSV export (bag: of a bag export) cannot drive the estimator class cls
-    ("" when it can)."""
-    reasons = UNREPRODUCIBLE + (BAG_UNREPRODUCIBLE if bag else ())
-    return next((why for classes, why in reasons if issubclass(cls, classes)), "")
+    ("" when it can: a CSV export carries every stream a built-in reads)."""
+    return next((why for classes, why in BAG_UNREPRODUCIBLE if issubclass(cls, classes)), "") if bag else ""
 
 
 def exported_estimators(scenario, physics, prior: dict, bag: bool = False) -> tuple[list[EstimatorSpec], list[str]]:
@@ -181,12 +184,18 @@ def spec_toml(scenario, run_dir: Path, arms: dict, n: int, estimators: list[Esti
     return "\n".join(lines)
 
 
-def tables(scenario, log: dict) -> dict[str, dict[str, np.ndarray]]:
+def _finite(x: np.ndarray) -> np.ndarray:
+    """x with its non-finite entries NaN (an empty cell: the format refuses inf)."""
+    return np.where(np.isfinite(x), x, np.nan)
+
+
+def tables(scenario, log: dict, bag: bool = False) -> dict[str, dict[str, np.ndarray]]:
     """The dataset's tables of a run, {table: {column: (n,) array}} in the columns of docs/replay.md:
-    links (always: without a row when the run has no link stream), poses (GNSS fixes), imu and
-    camera (when the run has them) and truth; what `export` writes as CSV and
-    testbed.replay.bag_export as ROS 2 messages (all but camera)."""
-    out = {"links": _links(log, scenario)}
+    links (always: without a row when the run has no link stream), poses (GNSS fixes), imu, phase
+    and camera (when the run has them) and truth: what `export` writes as CSV. bag: those
+    testbed.replay.bag_export writes as ROS 2 messages, which have no phase and no camera topic:
+    the phase stream as links rows of its range (kind phase) and range rate (kind range-rate)."""
+    out = {"links": _links(log, scenario, bag)}
     if "gnss/value" in log:
         g = stream_arrays("gnss", log)
         sig = declared_sigma("gnss", g, scenario)
@@ -205,7 +214,16 @@ def tables(scenario, log: dict) -> dict[str, dict[str, np.ndarray]]:
                        ("truth/vel", ("vx", "vy", "vz")), ("truth/omega", ("wx", "wy", "wz"))):
         cols.update({c: log[key][:, :, k].ravel() for k, c in enumerate(names)})
     out["truth"] = cols
-    if "camera/value" in log:
+    if "phase/value" in log and not bag:
+        p = stream_arrays("phase", log)
+        sig = _finite(declared_sigma("phase", p, scenario))
+        pv = np.concatenate([p["master_pos"], p["master_vel"]], axis=1)
+        out["phase"] = {"time": p["time"], "src": p["src"], "dst": p["dst"],
+                        **{c: p["value"][:, k] for k, c in enumerate(("phase", "range", "rate"))},
+                        **{c: pv[:, k] for k, c in enumerate(PHASE_MASTER_COLUMNS)}, "rate_periods": p["rate_periods"],
+                        "wavelength": p["wavelength"], "slip": p["slip"],
+                        **{f"sigma_{c}": sig[:, k] for k, c in enumerate(("phase", "range", "rate"))}, "arrival": p["arrival"]}
+    if "camera/value" in log and not bag:
         c = stream_arrays("camera", log)
         out["camera"] = {"time": c["time"], "src": c["src"], "dst": c["dst"],
                          **{k: c["value"][:, j] for j, k in enumerate(CAMERA_COLUMNS)}, "arrival": c["arrival"]}
@@ -216,10 +234,14 @@ def left_out(log: dict, bag: bool = False) -> list[str]:
     """One line per stream of the run that the export (bag: a bag export) leaves out or carries
     in part."""
     out = []
-    if "phase/value" in log:
-        out.append("the phase stream is exported as rows of its range (kind phase) and range rate (kind range-rate), "
+    undefined = int(np.sum(log["phase/rate_periods"] == 0)) if "phase/value" in log else 0
+    if bag and "phase/value" in log:
+        out.append("the phase stream is exported as links of its range (kind phase) and range rate (kind range-rate), "
                    "without its carrier phase, the masters' navigation solution, rate windows and slip flags: an "
-                   "estimator that reads those columns of the simulated stream is fed other measurements on replay")
+                   "estimator that reads those is fed other measurements on replay (export as csv to keep them)")
+    elif undefined:
+        out.append(f"{undefined} phase rows without a range rate (no period averaged yet) have an infinite declared "
+                   "rate sigma in the run; the format has no infinity: on replay they declare no sigma (None)")
     if bag and "camera/value" in log:
         out.append("the camera stream is not exported: a bag has no camera topic (export as csv to keep it)")
     return out
