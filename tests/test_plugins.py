@@ -299,13 +299,13 @@ def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
 def _feed(sc, log, physics, cls, key="p"):
     """Run one plugin class through the testbed's feed on a log: its Track and its scores."""
     from testbed.plugins.context import priors
-    from testbed.plugins.run import scenario_bound
+    from testbed.plugins.hooks import scenario_hooks
     from testbed.plugins.score import score
 
     plugin = Plugin(key, key, cls, {})
     ctx = make_context(sc, physics, key, {}, priors(sc, log))
     track, health, _ = run_plugin(plugin, ctx, list(measurements(sc, log)))
-    return track, score(track, Truth(log, ctx), scenario_bound(sc, log))[0], health
+    return track, score(track, Truth(log, ctx), scenario_hooks(sc, log), health)[0], health
 
 
 def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
