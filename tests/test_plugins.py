@@ -257,6 +257,16 @@ def test_coop_builtins_as_protocol_estimators_equal_the_pipeline(tmp_path):
         np.testing.assert_allclose(per_uav, est[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(p["anees_position"], est[w]["anees"], rtol=1e-12)
         assert p["estimates"] == 18 * 5 and p["health"]["nonconverged_epochs"] <= 5
+        # the coop scoring hook gives every fitting estimator the pipeline's own keys
+        want = {k: v for k, v in est[w].items() if k not in ("rmse_position_m", "network", "nlos_fraction")
+                and not k.startswith("anees_joint") and not k.startswith("n_eff_joint")}
+        got = {k: p[k] for k in want}
+        np.testing.assert_allclose(p["rmse_position_per_vehicle_m"], est[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
+        for k, v in want.items():
+            if isinstance(v, (dict, type(None))) or isinstance(v, int) and not isinstance(v, bool):
+                assert got[k] == v, k
+            else:
+                np.testing.assert_allclose(got[k], v, rtol=1e-12, err_msg=k)
 
 
 def test_sweep_and_reproduce_take_plugins(tmp_path):
