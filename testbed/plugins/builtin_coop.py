@@ -22,7 +22,7 @@ import numpy as np
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
 from estimators.transport import Transport
 from testbed.pipelines.config import CoopPipelineConfig
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, EstimateBatch, Measurement
 from testbed.plugins.epochs import EpochGrouping
 from testbed.plugins.settings import check_known, pipeline_keys, settings
 from testbed.sensors.noise import twr_range_covariance, twr_range_variance
@@ -118,7 +118,7 @@ class _CoopEpochs(EpochGrouping):
         self.edges: list[tuple[int, int]] = []
         self.ranges: list[float] = []
 
-    def _close(self) -> list[Estimate]:
+    def _close(self) -> list[EstimateBatch]:
         if np.isnan(self.fix).all():  # only ranges at this instant: not an epoch
             return []
         missing = [f"uav{i + 1}" for i in np.flatnonzero(np.isnan(self.fix[:, 0]))]
@@ -134,8 +134,10 @@ class _CoopEpochs(EpochGrouping):
         c["messages_total"] += int(messages)
         c["bytes_total"] += int(nbytes)
         c["nonconverged_epochs"] += int(not converged)
-        return [Estimate(time=self.t, target=site, quantity="position", value=res.positions[i], cov=res.cov[i])
-                for site, i in self.index.items()]
+        sites = list(self.index)  # vehicle order: site i is res row i
+        # the centralized solver has the cross-covariances of the whole epoch: its joint covariance too
+        return [EstimateBatch(time=np.full(self.n, self.t), target=sites, quantity="position", value=res.positions, cov=res.cov,
+                              cov_joint=getattr(res, "cov_full", None))]
 
     def _take(self, i: int, m: Measurement) -> None:
         if m.stream == "gnss":

@@ -14,6 +14,8 @@ estimate's own (3, 3) covariance, 3 dof):
 - `anees`, `anees_dof`, `anees_interval_99`, `n_eff` (testbed.metrics.anees_keys of the (K, N)
   NEES: the epochs and vehicles of a run are correlated, the interval counts the effective
   samples, docs/consistency.md); `anees_spp`, `anees_rtk`, `n_eff_spp`; `epochs` = K;
+- `anees_joint` (with its _dof = 3N, _interval_99 and `n_eff_joint`): the NEES of all 3N coordinates
+  of each epoch with the estimator's joint covariance, when it gives one (EstimateBatch.cov_joint);
 - from the estimator's health() counts, when it reports them (a per-epoch solver: `epochs`,
   `rounds_total`, `rounds_max`, `messages_total`, `bytes_total`, `nonconverged_epochs`):
   `iterations_mean`, `iterations_max`, `converged_fraction`, `nonconverged_steps`,
@@ -198,7 +200,31 @@ class CoopHook(Hook):
         if got is None:
             return {}
         pos, cov = got
-        return {**position_scores(pos - self.epochs.truth, cov, self.epochs.is_rtk), **solver_scores(health)}
+        err = pos - self.epochs.truth
+        out = {**position_scores(err, cov, self.epochs.is_rtk), **solver_scores(health)}
+        joint = self.joint_nees(track, err)
+        if joint is not None:
+            out.update(anees_keys(joint, 3 * err.shape[1], "anees_joint"))
+        return out
+
+    def joint_nees(self, track: Track, err: np.ndarray) -> np.ndarray | None:
+        """(K,) NEES of all 3N coordinates of each epoch with the estimator's joint covariance
+        (EstimateBatch.cov_joint, 3N dof), errors err (K, N, 3) m; None unless it gave one of every
+        vehicle's uwb site in the world at every epoch (1e-9 s)."""
+        K, n = err.shape[:2]
+        order = {f"uav{i + 1}/uwb": i for i in range(n)}
+        at = {}
+        for j in getattr(track, "joint", {}).get("position", []):
+            if j.frame == "world" and sorted(j.targets) == sorted(order):
+                at[round(j.time, 9)] = j
+        out = np.empty(K)
+        for k, t in enumerate(self.epochs.time):
+            j = at.get(round(float(t), 9))
+            if j is None:
+                return None
+            e = err[k, [order[s] for s in j.targets]].reshape(-1)  # the joint covariance's block order
+            out[k] = float(nees(e, j.cov))
+        return out
 
     def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
         from testbed.plots import compare_bars, error_envelope  # lazy: matplotlib, only when plots are written
