@@ -56,7 +56,7 @@ from estimators.core import nees
 from testbed.interrupt import poll
 from testbed.network import Network, NetworkConfig, RoundTransport
 from testbed.pipelines.config import CoopPipelineConfig
-from testbed.plugins.builtin_coop import epoch_problem, gnss_covariances, solve_epoch
+from testbed.plugins.builtin_coop import NETWORKED, epoch_problem, gnss_covariances, solve_epoch
 from testbed.plugins.coop_scores import Epochs, choose_four, epochs_from_log, plot_error_vs_time
 from testbed.rng import stream_rng
 
@@ -87,9 +87,6 @@ class CoopEstimates:
     converged: dict
     joint_nees: np.ndarray
     network: dict = field(default_factory=dict)
-
-
-NETWORKED = ("one_shot", "iterated")  # the estimators whose messages travel over [network]
 
 
 def epoch_los(epochs: Epochs, k: int, n: int) -> np.ndarray:

@@ -163,7 +163,10 @@ class Context:
     pipeline: the scenario's [pipeline] table with every default written out ({} without one):
     the built-in estimators' settings, their defaults when `params` does not override them;
     params: this estimator's params table; duration: run length (s); motion: "prescribed"
-    (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
+    (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME";
+    channel: the network of a distributed estimator's messages when the scenario has [network]
+    and the estimator runs on a log (testbed.plugins.channel.Channel: `transport(t)` gives an
+    estimators.transport.Transport for the rounds of one solve starting at t s), else None (ideal).
     """
 
     vehicles: tuple[str, ...]
@@ -177,6 +180,7 @@ class Context:
     motion: str = "prescribed"
     seed: int
     rng: np.random.Generator
+    channel: object | None = None
 
 
 @runtime_checkable

@@ -5,7 +5,9 @@ UWB ranges of one time of validity (an epoch: the instant of the GNSS fixes) and
 epoch when a measurement of a later time arrives (or at finish), with the per-epoch code below
 (`solve_epoch`, which the coop-fg pipeline also runs); estimates are each vehicle's
 `uav{i}/uwb` site position with its covariance. Ranges at instants without GNSS fixes are not
-part of an epoch and are ignored, as in the pipeline.
+part of an epoch and are ignored, as in the pipeline. Under a [network] table, the broadcasts of
+one_shot and iterated travel through the network the runtime hands them (Context.channel,
+testbed.plugins.channel), as the pipeline's do.
 
 params: the coop-fg [pipeline] keys (the known noise model and solver settings); a key not given
 takes the scenario's own [pipeline] value on a coop-fg scenario (testbed.plugins.settings). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
@@ -90,6 +92,9 @@ def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rn
 
 
 
+NETWORKED = ("one_shot", "iterated")  # the variants whose messages travel over [network]
+
+
 class _CoopEpochs(EpochGrouping):
     """Base: one epoch's fixes and ranges (testbed.plugins.epochs); subclasses name the variant."""
 
@@ -106,6 +111,7 @@ class _CoopEpochs(EpochGrouping):
         gnss = context.sensors.get("gnss", {})
         self.rtk_sigma = gnss_sigma(gnss["rtk"]) if "rtk" in gnss else None
         self.rng = context.rng
+        self.channel = context.channel  # the runtime's network under [network] (None: ideal)
         self.t = None
         # health(): the per-epoch solver counts the coop scores read (testbed.plugins.coop_scores.SOLVER_COUNTS)
         self.counts = dict.fromkeys(("epochs", "rounds_total", "rounds_max", "messages_total", "bytes_total",
@@ -126,7 +132,8 @@ class _CoopEpochs(EpochGrouping):
             raise ValueError(f"epoch at t = {self.t:g} s has no GNSS fix of {', '.join(missing)}")
         edges = np.array(self.edges, dtype=np.int64).reshape(-1, 2)
         prob = epoch_problem(self.cfg, self.fix, gnss_covariances(self.cfg, self.is_rtk), edges, np.array(self.ranges, float))
-        res, rounds, converged, messages, nbytes = solve_epoch(self.cfg, self.variant, prob, self.t, self.rng)
+        transport = self.channel.transport(self.t) if self.channel is not None and self.variant in NETWORKED else None
+        res, rounds, converged, messages, nbytes = solve_epoch(self.cfg, self.variant, prob, self.t, self.rng, transport)
         c = self.counts
         c["epochs"] += 1
         c["rounds_total"] += int(rounds)
