@@ -19,6 +19,7 @@ from testbed.errors import ConfigError
 from testbed.network import Network, NetworkConfig, stationary_loss
 from testbed.pipelines import bandwidth as pb
 from testbed.pipelines import coop
+from testbed.plugins.coop_scores import epochs_from_log
 from testbed.rng import stream_rng
 from testbed.metrics import ranging_rate
 from testbed.scenario import Scenario, load
@@ -227,7 +228,7 @@ def test_seed000_budget_is_one_instance_of_the_network_budget():
 def test_seed001_messages_over_the_network():
     sc = load("coop-fg", duration=2.0)
     log, _ = simulate(sc)
-    ep = coop.epochs_from_log(log, sc.vehicles)
+    ep = epochs_from_log(log, sc.vehicles)
     which = ("one_shot", "iterated")
     ideal = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which))
     default = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which, network=NetworkConfig()))
@@ -255,7 +256,7 @@ def test_seed001_plugins_get_the_runtime_network():
     log, physics = simulate(sc)
     plugins = [replace(p, key=p.key[2:]) for p in resolve(sc.estimators)]  # the pipeline's names: its network streams
     scores, tracks = run_estimators(sc, physics, log, plugins, None)
-    ep = coop.epochs_from_log(log, sc.vehicles)
+    ep = epochs_from_log(log, sc.vehicles)
     want = coop.estimate(sc.pipeline, ep, sc.seed, which=("one_shot", "iterated"), network=cfg)
     ref = coop.score(want)
     for w in ("one_shot", "iterated"):

@@ -1,4 +1,11 @@
-"""Seed 001 estimator pipeline (kind "coop-fg"): run log -> epochs -> four estimators -> scores.
+"""Seed 001 batch estimation over a run's epochs (kind "coop-fg"): epochs -> four estimators -> scores.
+
+A run of coop-fg runs the four estimators as plugins (coop.gnss_only, coop.one_shot,
+coop.iterated, coop.centralized: testbed.plugins.builtin_coop, the defaults of the kind,
+testbed.plugins.defaults) and scores them with the seed 001 hook (testbed.plugins.coop_scores).
+What is left here is the same per-epoch code run over a whole log at once, for the reproduction's
+re-solves of a run (its round-cap and NLOS experiments, figure 6 of run 0) and the tests; given
+the same names it gives the plugins' estimates number for number.
 
 Epochs. One epoch per GNSS sample instant (`gnss/time`; 1 Hz in coop-fg). The UWB ranges of an
 epoch are the `uwb` rows taken at the same controller tick (same `state_index`), i.e. the same
@@ -34,8 +41,8 @@ Each has `nonconverged_steps`: epochs whose solver stopped at its iteration or r
 unconverged (counted, never hidden; converged_fraction is the complement over the epochs).
 Faults (item 7): `silent_uav` stops broadcasting from `silent_from_s` on (it still receives,
 computes and ranges); each directed delivery is lost with probability `message_loss`, drawn from
-`stream_rng(seed, "links")`; receivers keep a neighbour's last message for `max_age` rounds
-(-1 = for the whole epoch). Tables start empty at every epoch.
+the estimator's own stream `stream_rng(seed, "estimator/NAME")` (its plugin's Context.rng);
+receivers keep a neighbour's last message for `max_age` rounds (-1 = for the whole epoch). Tables start empty at every epoch.
 Network ([network] set; testbed.network, docs/network.md): the broadcasts of one_shot and
 iterated go through a network of their own (streams "network/one_shot", "network/iterated"),
 round r of the epoch at t_k starting at t_k + r round_s; a message is used in its round only if
@@ -48,7 +55,6 @@ Without [network] nothing changes (ideal channel).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -57,7 +63,7 @@ from testbed.interrupt import poll
 from testbed.network import Network, NetworkConfig, RoundTransport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.builtin_coop import NETWORKED, epoch_problem, gnss_covariances, solve_epoch
-from testbed.plugins.coop_scores import Epochs, choose_four, epochs_from_log, plot_error_vs_time
+from testbed.plugins.coop_scores import Epochs
 from testbed.rng import stream_rng
 
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
@@ -103,7 +109,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
     network streams); network: the scenario's [network] (None: ideal, module docstring)."""
 
     K, n = epochs.gnss.shape[:2]
-    rng = stream_rng(seed, "links")
+    rng = {w: stream_rng(seed, f"estimator/{w}") for w in which}  # the plugins' Context.rng
     Sg = gnss_covariances(cfg, epochs.is_rtk)
     pos = {w: np.empty((K, n, 3)) for w in which}
     cov = {w: np.empty((K, n, 3, 3)) for w in which}
@@ -122,7 +128,7 @@ def estimate(cfg: CoopPipelineConfig, epochs: Epochs, seed: int, *, which=ESTIMA
             if w in nets:
                 nets[w].set_geometry(epochs.time[k], epochs.truth[k], epoch_los(epochs, k, n))
                 transport = RoundTransport(nets[w], epochs.time[k], network.round_s)
-            res, rounds[w][k], conv[w][k], messages[w][k], nbytes[w][k] = solve_epoch(cfg, w, prob, epochs.time[k], rng, transport)
+            res, rounds[w][k], conv[w][k], messages[w][k], nbytes[w][k] = solve_epoch(cfg, w, prob, epochs.time[k], rng[w], transport)
             if transport is not None:
                 late[w] += transport.late
             pos[w][k], cov[w][k] = res.positions, res.cov
@@ -160,37 +166,3 @@ def score(est: CoopEstimates) -> dict:
     nl = np.concatenate(ep.nlos) if ep.nlos else np.zeros(0, bool)
     out["iterated"]["nlos_fraction"] = float(nl.mean()) if nl.size else 0.0
     return out
-
-
-# ----------------------------------------------------------------------------------------------
-# Plots
-# ----------------------------------------------------------------------------------------------
-def write_plots(est: CoopEstimates, scores: dict, uavs: list[int], plots_dir: Path) -> None:
-    """Figure 6, the iterated error of the first chosen UAV with its own 3-sigma envelope (shows
-    the over-confidence), the centralized one likewise, and the mean RMSE per estimator."""
-    # lazy: matplotlib, only when plots are written
-    from testbed.plots import compare_bars, error_envelope
-
-    plot_error_vs_time(est.epochs, est.pos, uavs, plots_dir / "fig6_error_vs_time.png", "Position error of four UAVs")
-    u = uavs[0] - 1
-    for w in ("iterated", "centralized"):
-        if w in est.pos:
-            err = est.pos[w][:, u] - est.epochs.truth[:, u]
-            sig = np.sqrt(np.diagonal(est.cov[w][:, u], axis1=1, axis2=2))
-            error_envelope(est.epochs.time, err, sig, plots_dir / f"{w}_uav{u + 1}_envelope.png",
-                           title=f"{w}: UAV {u + 1} position error and its own 3-sigma", ylabel="m", labels=("E", "N", "U"))
-    names = list(scores)
-    means = np.array([scores[w]["rmse_position_mean_m"] for w in names])
-    compare_bars(names, means, means, means, plots_dir / "rmse_mean.png", title="Mean per-UAV position RMSE",
-                 ylabel="RMSE [m]")
-
-
-def run(scenario, log, plots_dir):
-    """Pipeline entry: (scenario, run log, plots dir or None) -> metrics.json `estimators`."""
-    ep = epochs_from_log(log, scenario.vehicles)
-    est = estimate(scenario.pipeline, ep, scenario.seed, network=scenario.network)
-    scores = score(est)
-    uavs = list(scenario.pipeline.plot_uavs) or choose_four(ep)
-    if plots_dir is not None:
-        write_plots(est, scores, uavs, Path(plots_dir))
-    return scores

@@ -12,8 +12,8 @@ testbed.plugins.channel), as the pipeline's do.
 params: the coop-fg [pipeline] keys (the known noise model and solver settings); a key not given
 takes the scenario's own [pipeline] value on a coop-fg scenario (testbed.plugins.settings). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
 sets by the fix type the receiver reports. Message loss (params message_loss > 0) draws from the
-estimator's own Context.rng, not the pipeline's shared "links" stream, so only loss-free runs
-match the pipeline number for number (a test checks that they do).
+estimator's own Context.rng (stream "estimator/NAME"), as testbed.pipelines.coop.estimate does
+for the same name.
 """
 from __future__ import annotations
 

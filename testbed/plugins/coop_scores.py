@@ -20,6 +20,7 @@ estimate's own (3, 3) covariance, 3 dof):
   `rounds_total`, `rounds_max`, `messages_total`, `bytes_total`, `nonconverged_epochs`):
   `iterations_mean`, `iterations_max`, `converged_fraction`, `nonconverged_steps`,
   `messages_per_epoch`, `bytes_per_epoch`;
+- `nlos_fraction`: the fraction of the epochs' tag-to-tag ranges that were NLOS (truth);
 - `null_reasons`: a score that cannot exist (no SPP or no RTK vehicle) is null, the reason here.
 Figures (`CoopHook.plot`, every fitting estimator overlaid): fig6_error_vs_time.png (the error
 norm of four vehicles, `choose_four`), {name}_uav{i}_envelope.png (the first chosen vehicle's
@@ -202,6 +203,8 @@ class CoopHook(Hook):
         pos, cov = got
         err = pos - self.epochs.truth
         out = {**position_scores(err, cov, self.epochs.is_rtk), **solver_scores(health)}
+        nl = np.concatenate(self.epochs.nlos) if self.epochs.nlos else np.zeros(0, bool)
+        out["nlos_fraction"] = float(nl.mean()) if nl.size else 0.0
         joint = self.joint_nees(track, err)
         if joint is not None:
             out.update(anees_keys(joint, 3 * err.shape[1], "anees_joint"))

@@ -13,7 +13,10 @@ from testbed.plugins.spec import EstimatorSpec
 from testbed.scenario import Scenario
 
 # [pipeline] kind -> ((metrics.json name, registered estimator), ...), in metrics.json order
-DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {}
+DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {
+    "coop-fg": (("gnss_only", "coop.gnss_only"), ("one_shot", "coop.one_shot"), ("iterated", "coop.iterated"),
+                ("centralized", "coop.centralized")),
+}
 
 
 def default_specs(scenario: Scenario) -> tuple[EstimatorSpec, ...]:

@@ -265,7 +265,7 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None, worker
     est0 = coop.estimate(cfg, ep, scenario.seed)
     return CoopResults(
         scenario=scenario, motion=motion, runs=runs, metrics=metrics,
-        rmse={w: np.array([m["estimators"][w]["rmse_position_m"] for m in metrics]) for w in VARIANTS},
+        rmse={w: np.array([m["estimators"][w]["rmse_position_per_vehicle_m"] for m in metrics]) for w in VARIANTS},
         epochs=ep, est0=est0, neighbours=nb, rtk_neighbours=nr, four=list(cfg.plot_uavs) or coop_scores.choose_four(ep),
         gtsam=_gtsam_check(cfg, ep), cap=_cap_effect(cfg, ep, scenario.seed, est0),
         nlos=_nlos_experiment(replace(scenario, estimators=()), scenario.seed) if nlos else None,
