@@ -189,9 +189,10 @@ class PiecewisePolynomial:
         return out
 
 
-@lru_cache(maxsize=64)
-def _min_snap_cached(points: tuple, durations: tuple, closed: bool) -> PiecewisePolynomial:
-    P, T = np.array(points, float), np.array(durations, float)
+def snap_qp(P: np.ndarray, T: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The QP of (S2)-(S4) for waypoints P (M, 3) m and durations T (S,) s: min c^T Q c subject to
+    A c = b, per axis; c stacks the S segments' 8 coefficients (S1). Returns Q (8S, 8S),
+    A (m, 8S), b (m, 3)."""
     S = len(T)
     n = S * (DEGREE + 1)
     Q = np.zeros((n, n))
@@ -215,17 +216,25 @@ def _min_snap_cached(points: tuple, durations: tuple, closed: bool) -> Piecewise
     for i in joints:
         j = (i + 1) % S
         for r in range(1, CONTINUOUS + 1):
-            # (S4) T_i^-r p_i^(r)(1) - T_j^-r p_j^(r)(0) = 0
-            constraint([(i, _row(1.0, r) / T[i] ** r), (j, -_row(0.0, r) / T[j] ** r)], zero)
+            # (S4) T_i^-r p_i^(r)(1) - T_j^-r p_j^(r)(0) = 0, times min(T_i, T_j)^r (rows of order 1)
+            u = min(T[i], T[j])
+            constraint([(i, _row(1.0, r) * (u / T[i]) ** r), (j, -_row(0.0, r) * (u / T[j]) ** r)], zero)
     if not closed:
         for r in range(1, REST + 1):
             # (S4) at rest at both ends
             constraint([(0, _row(0.0, r))], zero)
             constraint([(S - 1, _row(1.0, r))], zero)
-    A, B = np.array(rows), np.array(b)
-    m = len(A)
-    # (S5) [2Q A^T; A 0] [c; lambda] = [0; b]
-    kkt = np.block([[2 * Q, A.T], [A, np.zeros((m, m))]])
+    return Q, np.array(rows), np.array(b)
+
+
+@lru_cache(maxsize=64)
+def _min_snap_cached(points: tuple, durations: tuple, closed: bool) -> PiecewisePolynomial:
+    T = np.array(durations, float)
+    Q, A, B = snap_qp(np.array(points, float), T, closed)
+    n, m = len(Q), len(A)
+    S = len(T)
+    # (S5) [2Q A^T; A 0] [c; lambda] = [0; b]; Q scaled to entries of order 1 (same optimum)
+    kkt = np.block([[2 * Q / np.abs(Q).max(), A.T], [A, np.zeros((m, m))]])
     sol = np.linalg.solve(kkt, np.vstack([np.zeros((n, 3)), B]))
     knots = np.concatenate([[0.0], np.cumsum(T)])
     return PiecewisePolynomial(knots, sol[:n].reshape(S, DEGREE + 1, 3), closed)
