@@ -338,7 +338,7 @@ class Spline:
     """
 
     kind: Literal["spline"]
-    points: tuple[Vec3, ...] = key(unit="m")
+    points: tuple[Vec3, ...] = key(unit="m", range="2 to 256 points")
     times: tuple[float, ...] = key((), unit="s", range="empty, or one per point (closed: one more) from 0, increasing")
     speed: float = key(5.0, unit="m/s", range="> 0 (used when times is empty)")
     closed: bool = False
@@ -346,8 +346,9 @@ class Spline:
     yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        require(len(self.points) >= 2, "points", self.points, "need at least two waypoints")
-        require(self.speed > 0 and math.isfinite(self.speed), "speed", self.speed, f"must be a positive number of m/s, got {self.speed}")
+        most = trajectories.MAX_POINTS
+        require(2 <= len(self.points) <= most, "points", self.points, f"need 2 to {most} waypoints, got {len(self.points)}")
+        in_range(self, "speed", 0, lo_open=True, unit="m/s")
         if self.times:
             need = len(self.points) + self.closed
             require(len(self.times) == need, "times", self.times,

@@ -135,9 +135,10 @@ def sections(cls: type = Scenario, path: str = "", title: str = "", optional: bo
                 kind = _kind(sub) if len(subs) > 1 else None
                 sub_path = f"{key}[i]" if many else key
                 sub_title = f"[{sub_path}]" + (f' kind = "{kind}"' if kind else "")
-                below += sections(sub, sub_path, sub_title, opt, ranges)
+                table = sections(sub, sub_path, sub_title, opt, ranges)
                 if kind and key == "trajectory":
-                    below[-1]["picture"] = PICTURE.format(kind=kind)
+                    table[0]["picture"] = PICTURE.format(kind=kind)
+                below += table
             continue
         lo_hi = ranges.get((cls, f.name))
         unit = f.metadata.get("unit") or (lo_hi[4] if lo_hi else "")

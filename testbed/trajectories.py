@@ -41,6 +41,7 @@ AIRFRAME_FILE = Path(__file__).resolve().parent.parent / "models" / "quadrotor.x
 DEGREE = 7  # polynomial degree of a minimum-snap segment (2 x 4 - 1)
 CONTINUOUS = 4  # derivatives 1..CONTINUOUS imposed continuous at interior waypoints (S4)
 REST = 3  # an open path's derivatives 1..REST are zero at both ends (S4)
+MAX_POINTS = 256  # waypoints of one spline: its KKT system (S5) is solved dense, ~(14 S)^2 entries
 MIN_SEGMENT = 0.5  # s: shortest segment the time allocation gives (a repeated waypoint: a pause)
 # Fraction of the airframe's total thrust a reference may ask for: the rest is the feedback
 # controller's headroom (at full collective thrust the rotors have no differential thrust left
