@@ -56,7 +56,7 @@ from estimators.core import symmetrize
 from estimators.graph.banded import factor_banded, selected_inverse_diag
 from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd, narrow_band
 from estimators.graph.lm import ROUNDOFF, minimize
-from estimators.graph.losses import Loss, loss_rho, loss_weight
+from estimators.graph.losses import HUBER_DELTA, Loss, huber_rho, huber_weight, loss_rho, loss_weight
 from estimators.transport import Transport
 
 __all__ = [
@@ -81,8 +81,6 @@ __all__ = [
     "neighbours",
 ]
 
-#: Huber threshold, in units of the whitened residual (sigma): 95 % Gaussian efficiency.
-HUBER_DELTA = 1.345
 #: Payload of one broadcast: position (3) + unique covariance entries (6), float64.
 MESSAGE_BYTES = (3 + 6) * 8
 #: Levenberg term (m^-2) of the local step of a node without a prior (distributed solver).
@@ -237,22 +235,6 @@ def coincident_directions(shape: tuple[int, ...]) -> np.ndarray:
     phi = k * 2.399963229728653  # golden angle, rad
     rho = np.sqrt(1.0 - z * z)
     return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1).reshape(tuple(shape) + (3,))
-
-
-def huber_weight(r: np.ndarray, delta: float | None) -> np.ndarray:
-    """IRLS weight of the Huber loss on whitened residuals r (...,): min(1, delta/|r|); 1 if delta None."""
-    r = np.abs(np.asarray(r, dtype=float))
-    if delta is None:
-        return np.ones_like(r)
-    return np.where(r <= delta, 1.0, delta / np.maximum(r, delta))
-
-
-def huber_rho(r: np.ndarray, delta: float | None) -> np.ndarray:
-    """Loss of whitened residuals r (...,): r^2/2 (delta None or |r| <= delta), else delta|r| - delta^2/2."""
-    r = np.abs(np.asarray(r, dtype=float))
-    if delta is None:
-        return 0.5 * r * r
-    return np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)
 
 
 def _gnss_sqrt_info(cov: np.ndarray) -> np.ndarray:

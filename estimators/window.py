@@ -103,7 +103,7 @@ from scipy.sparse import csgraph
 
 from estimators import layout
 from estimators.core import white_acceleration_q
-from estimators.factor_graph import huber_rho, huber_weight
+from estimators.graph.losses import huber_rho, huber_weight
 from estimators.transport import Transport
 
 __all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_BYTES", "equivalent_measurement"]

@@ -26,39 +26,11 @@ import numpy as np
 from estimators.graph.linear import GAUGE_RATIO, factor_spd
 from estimators.graph.lm import ROUNDOFF
 from estimators.graph.losses import Loss, loss_rho, loss_weight
+from estimators.so3 import so3_exp
 
-__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch", "so3_log_batch"]
+__all__ = ["EpochFactors", "EpochsResult", "solve_epochs"]
 
 DIMS = {"pose": 6, "point": 3}
-
-
-def so3_exp_batch(w: np.ndarray) -> np.ndarray:
-    """exp([w]x) for rotation vectors w (..., 3) rad -> (..., 3, 3) (Rodrigues, series near 0)."""
-    th = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = _skew(w)
-    small = th < 1e-8
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def so3_log_batch(R: np.ndarray) -> np.ndarray:
-    """Log of rotations R (..., 3, 3) -> rotation vectors (..., 3) rad, |w| < pi (series near 0)."""
-    c = np.clip(0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
-    th = np.arccos(c)[..., None]
-    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
-    small = th < 1e-8
-    return v * np.where(small, 0.5, th / (2.0 * np.sin(np.where(small, 1.0, th))))
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]x for v (..., 3) -> (..., 3, 3)."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,7 +243,7 @@ def _retract(lay: _Layout, p, R, delta):
     cols = lay.colmap  # (V, 6); sink column k reads zero
     d = np.concatenate([delta, np.zeros((delta.shape[0], 1))], axis=1)[:, cols]  # (E, V, 6)
     p_new = p + d[..., :3]
-    R_new = np.where(lay.is_pose[None, :, None, None], R @ so3_exp_batch(d[..., 3:]), R)
+    R_new = np.where(lay.is_pose[None, :, None, None], R @ so3_exp(d[..., 3:]), R)
     return p_new, R_new
 
 

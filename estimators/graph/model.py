@@ -29,46 +29,17 @@ import numpy as np
 from scipy import linalg, sparse
 
 from estimators.core import white_acceleration_q
-from estimators.so3 import skew
+from estimators.so3 import skew, so3_exp, so3_log, so3_right_jacobian_inv
 from estimators.graph.linear import GaugeWarning, factor_spd
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
 __all__ = [
     "Graph", "GraphResult", "Prior", "PosePositionPrior", "PoseRotationPrior", "Range", "Height",
-    "ConstantVelocity", "so3_exp", "so3_log", "solve_graph", "DIMS",
+    "ConstantVelocity", "solve_graph", "DIMS",
 ]
 
 DIMS = {"point": 3, "pose": 6, "scalar": 1}
-
-
-# ------------------------------------------------------------------------------------ SO(3)
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """exp([w]x): (3,) rad -> (3, 3) rotation (Rodrigues)."""
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(th) / th * K + (1.0 - np.cos(th)) / th ** 2 * K @ K
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Log(R): (3, 3) rotation -> (3,) rad, |w| < pi."""
-    c = np.clip(0.5 * (np.trace(R) - 1.0), -1.0, 1.0)
-    th = np.arccos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if th < 1e-8:
-        return 0.5 * v
-    return th / (2.0 * np.sin(th)) * v
-
-
-def _so3_right_jacobian_inv(w: np.ndarray) -> np.ndarray:
-    """J_r^-1(w): Log(R exp(d)) = w + J_r^-1(w) d + O(d^2), w = Log(R). (3,) -> (3, 3)."""
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * K
-    return np.eye(3) + 0.5 * K + (1.0 / th ** 2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))) * K @ K
 
 
 def _sqrt_info(cov) -> np.ndarray:
@@ -118,7 +89,7 @@ class PoseRotationPrior(Prior):
     def linearize(self, values, kinds):
         W = _sqrt_info(self.cov)
         w = so3_log(np.asarray(self.z).T @ values[self.key][1])
-        J = np.hstack([np.zeros((3, 3)), _so3_right_jacobian_inv(w)])
+        J = np.hstack([np.zeros((3, 3)), so3_right_jacobian_inv(w)])
         return -W @ w, {self.key: W @ J}
 
 
