@@ -50,11 +50,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg, sparse
-from scipy.sparse import linalg as splinalg
 
 from estimators.core import symmetrize
-from estimators.graph.banded import factor_banded, selected_inverse_diag
-from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd, narrow_band
+from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, dense_covariance, factor_spd, marginal_blocks, solve_normal
 from estimators.graph.lm import ROUNDOFF, minimize
 from estimators.graph.losses import HUBER_DELTA, Loss, huber_rho, huber_weight, loss_rho, loss_weight
 from estimators.transport import Transport
@@ -407,27 +405,6 @@ class CentralizedResult:
 
 
 _DIVERGED_M = 1e5  # a local step this large (metres) means the iteration diverged
-_DENSE_LIMIT = DENSE_LIMIT  # below this many unknowns the dense Cholesky beats the sparse LU
-
-
-def _solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(Delta, g) of eq. 16, A^T C A Delta = g = A^T b, C = diag(curv) (identity if None).
-
-    Dense Cholesky for small systems, a banded Cholesky after a reverse Cuthill-McKee ordering when
-    the band is narrow (estimators.graph.linear.narrow_band), sparse LU otherwise.
-    """
-    Ac = A if curv is None else sparse.diags(curv) @ A
-    N = (A.T @ Ac).tocsc()
-    g = A.T @ b
-    if N.shape[0] <= _DENSE_LIMIT:
-        return linalg.cho_solve(linalg.cho_factor(N.toarray()), g), g
-    order = narrow_band(N)
-    if order is not None:  # banded Cholesky after reverse Cuthill-McKee (estimators.graph.banded)
-        fac = factor_banded(N)
-        if fac is None:
-            raise np.linalg.LinAlgError("_solve_normal: A^T A is not positive definite")
-        return fac.solve(g), g
-    return splinalg.splu(N, permc_spec="MMD_AT_PLUS_A").solve(g), g
 
 
 def _gn_direction(problem: CoopProblem, X: np.ndarray, huber: float | None, newton: bool) -> tuple[np.ndarray, float]:
@@ -441,88 +418,15 @@ def _gn_direction(problem: CoopProblem, X: np.ndarray, huber: float | None, newt
     """
     if huber is None or not newton:
         A, b = whitened_system(problem, X, huber)
-        delta, g = _solve_normal(A, b)
+        delta, g = solve_normal(A, b)
         return delta.reshape(-1, 3), 0.5 * float(g @ delta)
     A, b = whitened_system(problem, X, None)
     ng = 3 * problem.n
     r = b[ng:]
     rhs = np.concatenate([b[:ng], np.clip(r, -huber, huber)])
     curv = np.concatenate([np.ones(ng), (np.abs(r) <= huber).astype(float)])
-    delta, g = _solve_normal(A, rhs, curv)
+    delta, g = solve_normal(A, rhs, curv)
     return delta.reshape(-1, 3), 0.5 * float(g @ delta)
-
-
-def _covariance(A: sparse.csr_matrix) -> np.ndarray:
-    """(A^T A)^-1 (3n, 3n): dense Cholesky factor and its inverse (LAPACK potrf/potri)."""
-    N = (A.T @ A).toarray()
-    c, info = linalg.lapack.dpotrf(N, lower=False)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"_covariance: A^T A not positive definite (potrf info {info})")
-    inv, info = linalg.lapack.dpotri(c, lower=False)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"_covariance: potri failed (info {info})")
-    # eq. 19 on the whole graph: Sigma = (R^T R)^-1 = (A^T A)^-1; potri fills the upper triangle
-    return np.triu(inv) + np.triu(inv, 1).T
-
-
-def _marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
-    """Diagonal 3x3 blocks of N^-1 (n, 3, 3), m^2, for a sparse SPD N (3n, 3n), without the full inverse.
-
-    A narrow band after reverse Cuthill-McKee: the banded Cholesky and its selected inverse
-    (estimators.graph.banded). Otherwise:
-    selected inverse (Takahashi, Fagan, Chen 1973) on a sparse LDL^T factor, supernode by supernode:
-    SuperLU with a symmetric fill-reducing ordering and no pivoting gives P N P^T = L D L^T (L unit
-    lower, U = D L^T). Z = N^-1 satisfies Z L = L^-T D^-1 (upper triangular), so for a supernode of
-    columns J with the rows S below it (struct of L):
-        Z_SJ = -Z_SS L_SJ L_JJ^-1,   Z_JJ = (L_JJ^-T D_J^-1 - Z_SJ^T L_SJ) L_JJ^-1,
-    from the last supernode to the first; only entries on the (chordal) pattern of L are computed,
-    and that pattern holds every 3x3 block of N's diagonal. Work ~ sum over supernodes of |S|^2 |J|.
-    The working array is dense (3n)^2 (72 MB at n = 1000); the flops are the sparse ones.
-    Falls back to the dense inverse if SuperLU permuted rows and columns differently.
-    """
-    nv = N.shape[0]
-    order = narrow_band(N)
-    if order is not None:
-        fac = factor_banded(N)
-        if fac is None:
-            raise np.linalg.LinAlgError("_marginal_blocks: N is not positive definite")
-        return selected_inverse_diag(fac)
-    lu = splinalg.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    if not np.array_equal(lu.perm_r, lu.perm_c):
-        full = linalg.cho_solve(linalg.cho_factor(N.toarray()), np.eye(nv))
-        idx = np.arange(n)
-        return full.reshape(n, 3, n, 3)[idx, :, idx, :]
-    L = lu.L.tocsc()
-    L.sort_indices()
-    d = lu.U.diagonal()
-    ip, ix = L.indptr, L.indices
-    starts = [0]
-    for i in range(nv - 1):  # column i + 1 continues i's supernode if struct(i) \ {i} == struct(i + 1)
-        a, b = ix[ip[i] + 1: ip[i + 1]], ix[ip[i + 1]: ip[i + 2]]
-        if not (a.size == b.size and np.array_equal(a, b)):
-            starts.append(i + 1)
-    starts.append(nv)
-    Z = np.zeros((nv, nv))
-    for k in range(len(starts) - 2, -1, -1):
-        c0, c1 = starts[k], starts[k + 1]
-        rows = ix[ip[c0]: ip[c0 + 1]]
-        S = rows[rows >= c1]
-        blk = L[:, c0:c1]
-        LJJ = blk[c0:c1].toarray()
-        # L_JJ^-T D_J^-1
-        M = linalg.solve_triangular(LJJ, np.diag(1.0 / d[c0:c1]), lower=True, trans="T", unit_diagonal=True)
-        if S.size:
-            LSJ = blk[S].toarray()
-            # Z_SJ = -Z_SS L_SJ L_JJ^-1
-            ZSJ = -linalg.solve_triangular(LJJ, (Z[np.ix_(S, S)] @ LSJ).T, lower=True, trans="T", unit_diagonal=True).T
-            Z[np.ix_(S, np.arange(c0, c1))] = ZSJ
-            Z[np.ix_(np.arange(c0, c1), S)] = ZSJ.T
-            M = M - ZSJ.T @ LSJ
-        # Z_JJ = (L_JJ^-T D_J^-1 - Z_SJ^T L_SJ) L_JJ^-1
-        ZJJ = linalg.solve_triangular(LJJ, M.T, lower=True, trans="T", unit_diagonal=True).T
-        Z[c0:c1, c0:c1] = 0.5 * (ZJJ + ZJJ.T)
-    idx = lu.perm_c.reshape(n, 3)  # position of variable v in the factored order: perm_c[v]
-    return Z[idx[:, :, None], idx[:, None, :]]
 
 
 def solve_centralized(
@@ -563,7 +467,7 @@ def solve_centralized(
     d - |p_i - p_j|), so it cannot order iterates closer than ~5e-7 m along the weakest direction;
     a cost test stopped at up to 5e-7 m from the optimum on coop-fg epochs;
     covariance: "marginal" (n,3,3 blocks; dense inverse up to 3n = 600 unknowns, above that the
-    sparse selected inverse `_marginal_blocks`), "full" (also the (3n,3n) matrix) or "none".
+    sparse selected inverse `marginal_blocks`), "full" (also the (3n,3n) matrix) or "none".
     A step that increases the cost is halved (up to max_halvings); if no halving decreases it the
     solver stops with converged=False unless the step was already below step_tol. A step whose
     predicted decrease (g^T Delta / 2) is below ROUNDOFF of the cost is taken whole whatever the
@@ -633,13 +537,13 @@ def solve_centralized(
     if covariance != "none":
         A, _ = whitened_system(problem, X, huber)
         n = problem.n
-        if covariance == "full" or 3 * n <= _DENSE_LIMIT:
-            full = _covariance(A)
+        if covariance == "full" or 3 * n <= DENSE_LIMIT:
+            full = dense_covariance(A)
             idx = np.arange(n)
             cov = full.reshape(n, 3, n, 3)[idx, :, idx, :]
             cov_full = full if covariance == "full" else None
         else:
-            cov = _marginal_blocks((A.T @ A).tocsc(), n)
+            cov = marginal_blocks((A.T @ A).tocsc(), n)
     return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history))
 
 
@@ -676,13 +580,13 @@ def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_i
         if not observable:
             cov[free] = np.nan
             full_free = np.full((3 * nf, 3 * nf), np.nan)
-        elif covariance == "full" or 3 * nf <= _DENSE_LIMIT:
+        elif covariance == "full" or 3 * nf <= DENSE_LIMIT:
             full_free = fac.solve(np.eye(3 * nf))
             full_free = 0.5 * (full_free + full_free.T)
             idx = np.arange(nf)
             cov[free] = full_free.reshape(nf, 3, nf, 3)[idx, :, idx, :]
         else:
-            cov[free] = _marginal_blocks(N, nf)
+            cov[free] = marginal_blocks(N, nf)
         if covariance == "full":
             sel = np.flatnonzero(np.repeat(free, 3))
             cov_full = np.zeros((3 * n, 3 * n))
