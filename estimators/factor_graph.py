@@ -41,7 +41,10 @@ Conventions chosen here (see also the report of the seed):
   once it is older than k rounds, and with it the range factor to that neighbour (a range to a
   neighbour of unknown position carries no information about one's own position).
 
-This module never imports mujoco, testbed or gtsam.
+Built from the graph library (estimators.graph): its factors (graph.factors: range and GNSS
+measurement functions, whitening, the inflated range variance), robust losses (graph.losses), the
+Gauss-Newton / Levenberg-Marquardt iteration of the general path (graph.lm) and the linear algebra
+(graph.linear). This module never imports mujoco, testbed or gtsam.
 """
 from __future__ import annotations
 
@@ -52,6 +55,9 @@ import numpy as np
 from scipy import linalg, sparse
 
 from estimators.core import symmetrize
+from estimators.graph.factors import (
+    gnss_h, gnss_jacobian, inflated_range_variance, range_h, range_jacobian, range_terms, sqrt_information,
+)
 from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, dense_covariance, factor_spd, marginal_blocks, solve_normal
 from estimators.graph.lm import ROUNDOFF, minimize
 from estimators.graph.losses import HUBER_DELTA, Loss, huber_rho, huber_weight, loss_rho, loss_weight
@@ -188,65 +194,12 @@ class CoopProblem:
         return bool(self.prior.all() and not self.fixed.any())
 
 
-# ----------------------------------------------------------------------------------------------
-# Factors: measurement functions with analytic Jacobians
-# ----------------------------------------------------------------------------------------------
-def gnss_h(p: np.ndarray) -> np.ndarray:
-    """GNSS measurement function h(p) = p. p: (..., 3) metres ENU -> (..., 3) metres."""
-    return np.asarray(p, dtype=float)
-
-
-def gnss_jacobian(p: np.ndarray) -> np.ndarray:
-    """dh/dp of the GNSS factor: (..., 3, 3) identity (unitless)."""
-    p = np.asarray(p, dtype=float)
-    return np.broadcast_to(np.eye(3), p.shape[:-1] + (3, 3)).copy()
-
-
-def range_h(p_i: np.ndarray, p_j: np.ndarray) -> np.ndarray:
-    """Range measurement function |p_i - p_j|. p_i, p_j: (..., 3) metres -> (...,) metres."""
-    return np.linalg.norm(np.asarray(p_i, float) - np.asarray(p_j, float), axis=-1)
-
-
-def range_jacobian(p_i: np.ndarray, p_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(dh/dp_i, dh/dp_j) of the range factor: (..., 3) each, unitless.
-
-    dh/dp_i = u = (p_i - p_j) / |p_i - p_j| (unit vector from j to i), dh/dp_j = -u.
-    At coincident points (co-located initial guesses) the range is not differentiable; any unit
-    vector is a valid subgradient direction, and `coincident_directions` gives each factor of the
-    batch its own fixed one, so that co-located nodes separate in different directions.
-    """
-    diff = np.asarray(p_i, float) - np.asarray(p_j, float)
-    r = np.linalg.norm(diff, axis=-1, keepdims=True)
-    if np.any(r == 0.0):
-        zero = r[..., 0] == 0.0
-        diff = np.where(zero[..., None], coincident_directions(diff.shape[:-1]), diff)
-        r = np.where(zero[..., None], 1.0, r)
-    u = diff / r
-    return u, -u
-
-
-def coincident_directions(shape: tuple[int, ...]) -> np.ndarray:
-    """Deterministic unit vectors (*shape, 3), one per element: a golden-angle spiral on the
-    sphere indexed by the element's flat index (directions of co-located range factors)."""
-    k = np.arange(int(np.prod(shape, dtype=np.int64))) + 0.5
-    z = 1.0 - 2.0 * ((k * 0.6180339887498949) % 1.0)
-    phi = k * 2.399963229728653  # golden angle, rad
-    rho = np.sqrt(1.0 - z * z)
-    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1).reshape(tuple(shape) + (3,))
-
-
-def _gnss_sqrt_info(cov: np.ndarray) -> np.ndarray:
-    """W_i = L_i^{-1} with Sigma_i = L_i L_i^T, so W_i^T W_i = Sigma_i^{-1}. cov: (n,3,3) -> (n,3,3)."""
-    L = np.linalg.cholesky(cov)
-    return np.linalg.inv(L)
-
-
 def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whitened range residuals r (m,) and unit vectors u_k (m, 3): r_k = (d_k - |p_i - p_j|)/sigma_k,
     or with range_cov = L L^T, r = L^{-1} (d - |p_i - p_j|) (correlated ranges)."""
     i, j = problem.edges[:, 0], problem.edges[:, 1]
-    u, _ = range_jacobian(X[i], X[j])
-    res = problem.ranges - range_h(X[i], X[j])
+    h, u = range_terms(X[i], X[j])
+    res = problem.ranges - h
     if problem.range_cov is None:
         return res / problem.range_sigma, u
     return linalg.solve_triangular(problem.range_chol, res, lower=True), u
@@ -279,7 +232,7 @@ def _robust_terms(problem: CoopProblem, X: np.ndarray, losses: dict):
         raise ValueError("CoopProblem: range_cov (correlated ranges) needs the plain least-squares path "
                          "(every node with a prior, none fixed, no robust loss, method 'gn')")
     pri = np.flatnonzero(problem.prior & ~problem.fixed)
-    W = _gnss_sqrt_info(problem.gnss_cov[pri])
+    W = sqrt_information(problem.gnss_cov[pri])
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos[pri] - X[pri])
     wg = loss_weight(losses.get("gnss"), np.linalg.norm(bg, axis=1))
     r, u = _range_residuals(problem, X)
@@ -332,7 +285,7 @@ def cost(problem: CoopProblem, X: np.ndarray, huber: float | None = None, *, los
         if huber is not None:
             raise ValueError("cost: give either huber or losses")
         return _general_cost(problem, X, _check_losses(losses))
-    W = _gnss_sqrt_info(problem.gnss_cov)
+    W = sqrt_information(problem.gnss_cov)
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X)
     r, _ = _range_residuals(problem, X)
     return float(0.5 * np.sum(bg * bg) + np.sum(huber_rho(r, huber)))
@@ -349,7 +302,7 @@ def whitened_system(
     range rows are L^{-1} J (J: the unwhitened rows (u, -u)) and b = L^{-1} (d - h) (no huber).
     """
     n, m = problem.n, problem.m
-    W = _gnss_sqrt_info(problem.gnss_cov)
+    W = sqrt_information(problem.gnss_cov)
     # eq. 13-14: whitening, A_k = Sigma_k^{-1/2} H_k, b_k = Sigma_k^{-1/2} (z_k - h_k(x0))
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X).reshape(-1)
     rows_g = np.repeat(np.arange(3 * n).reshape(n, 3), 3, axis=1).reshape(-1)
@@ -628,15 +581,15 @@ def local_step_qr(
     nv = 3 + 3 * k
     A = np.zeros((3 + 3 * k + k, nv))
     b = np.zeros(3 + 3 * k + k)
-    Wg = np.linalg.inv(np.linalg.cholesky(gnss_cov_i))
+    Wg = sqrt_information(gnss_cov_i)
     A[:3, :3] = Wg
     b[:3] = Wg @ (z_i - x_i)
     if k:
-        Wn = np.linalg.inv(np.linalg.cholesky(nbr_cov))
+        Wn = sqrt_information(nbr_cov)
         for a in range(k):
             A[3 + 3 * a: 6 + 3 * a, 3 + 3 * a: 6 + 3 * a] = Wn[a]  # prior residual is 0 at the broadcast
-        u, _ = range_jacobian(x_i, nbr_pos)
-        r = (ranges - range_h(x_i, nbr_pos)) / range_sigma
+        h, u = range_terms(x_i, nbr_pos)
+        r = (ranges - h) / range_sigma
         rows = 3 + 3 * k + np.arange(k)
         A[rows, 0:3] = u / range_sigma[:, None]
         for a in range(k):
@@ -801,11 +754,11 @@ def solve_distributed(
                 )
         else:
             v = np.flatnonzero(valid)
-            u, _ = range_jacobian(X[dst[v]], tab_pos[v])
-            res = d[v] - range_h(X[dst[v]], tab_pos[v])
+            h, u = range_terms(X[dst[v]], tab_pos[v])
+            res = d[v] - h
             if neighbour_model == "prior":
                 # Schur complement of the neighbour prior: var = sigma_d^2 + u^T Sigma_j u
-                s2 = sig2[v] + np.einsum("ka,kab,kb->k", u, tab_cov[v], u)
+                s2 = inflated_range_variance(sig2[v], u, tab_cov[v])
             else:
                 s2 = sig2[v]
             w = huber_weight(res / np.sqrt(s2), huber) / s2

@@ -103,6 +103,7 @@ from scipy.sparse import csgraph
 
 from estimators import layout
 from estimators.core import white_acceleration_q
+from estimators.graph.factors import inflated_range_variance, range_terms
 from estimators.graph.losses import huber_rho, huber_weight
 from estimators.transport import Transport
 
@@ -459,10 +460,8 @@ class _Window:
                 r = ep.fix[has] - P[k, has]
                 self._add_block(sys, k, has, has, w[:, :, None] * np.eye(3), w * r, 0.5 * (w * r * r).sum(1))
             if ep.anchor_vehicle.size:
-                diff = P[k, ep.anchor_vehicle] - ep.anchor_pos
-                dist = np.linalg.norm(diff, axis=1)
-                self._add_point(sys, k, ep.anchor_vehicle, diff / np.maximum(dist, 1e-9)[:, None],
-                                ep.anchor_range - dist, ep.anchor_sigma)
+                dist, u = range_terms(P[k, ep.anchor_vehicle], ep.anchor_pos)
+                self._add_point(sys, k, ep.anchor_vehicle, u, ep.anchor_range - dist, ep.anchor_sigma)
             if ranges and ep.edges.size:
                 self._ranges(k, P, sys)
         Hpp, Rp, C = sys
@@ -637,9 +636,7 @@ class Centralized(_Window):
     def _ranges(self, k, P, sys):
         ep = self.epochs[k]
         i, j = ep.edges[:, 0], ep.edges[:, 1]
-        diff = P[k, i] - P[k, j]
-        dist = np.linalg.norm(diff, axis=1)
-        u = diff / np.maximum(dist, 1e-9)[:, None]
+        dist, u = range_terms(P[k, i], P[k, j])
         r = ep.ranges - dist
         w = self._add_point(sys, k, i, u, r, ep.range_sigma)
         self._add_point(sys, k, j, -u, r, ep.range_sigma, count=False)
@@ -707,9 +704,8 @@ class Distributed(_Window):
             me, other = ep.edges[:, a], ep.edges[:, b]
             ok = self.heard[k][me, other]
             me, other, d, sigma = me[ok], other[ok], ep.ranges[ok], self.range_sigma[k][a, ok]
-            diff = P[k, me] - self.heard_pos[k][me, other]
-            dist = np.linalg.norm(diff, axis=1)
-            self._add_point(sys, k, me, diff / np.maximum(dist, 1e-9)[:, None], d - dist, sigma)
+            dist, u = range_terms(P[k, me], self.heard_pos[k][me, other])
+            self._add_point(sys, k, me, u, d - dist, sigma)
 
     def _weigh(self) -> None:
         """Each range's 1-sigma with its neighbour's broadcast covariance, sqrt(sigma_d^2 + u^T
@@ -723,9 +719,8 @@ class Distributed(_Window):
             sig = np.zeros((2, len(ep.ranges)))
             for a, b in ((0, 1), (1, 0)):
                 me, other = ep.edges[:, a], ep.edges[:, b]
-                diff = P[k, me] - self.heard_pos[k][me, other]
-                u = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-9)[:, None]
-                sig[a] = np.sqrt(ep.range_sigma ** 2 + np.einsum("mi,mij,mj->m", u, self.heard_cov[k][me, other], u))
+                u = range_terms(P[k, me], self.heard_pos[k][me, other])[1]
+                sig[a] = np.sqrt(inflated_range_variance(ep.range_sigma ** 2, u, self.heard_cov[k][me, other]))
             self.range_sigma.append(sig)
 
     def _start(self, ep: Epoch, transport: Transport | None) -> tuple[np.ndarray, int, int]:

@@ -23,8 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.graph.factors import range_terms
 from estimators.graph.linear import GAUGE_RATIO, factor_spd
-from estimators.graph.lm import ROUNDOFF
+from estimators.graph.lm import ROUNDOFF, damping_update, marquardt_scaling
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 from estimators.so3 import so3_exp
 
@@ -177,10 +178,7 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R):
         A, B = lay.ends["ra"], lay.ends["rb"]
         ea, Ra = A.points(p, R)
         eb, Rb = B.points(p, R)
-        diff = ea - eb
-        r = np.sqrt(np.einsum("ni,ni->n", diff, diff))
-        safe = r > 0
-        u = np.where(safe[:, None], diff / np.where(safe, r, 1.0)[:, None], [0.0, 0.0, 1.0])
+        r, u = range_terms(ea, eb)
         e = ((f.r_d - r) / f.r_sigma)[:, None]
         out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / f.r_sigma[A.at, None])[:, None]),
                                                                    (B, (-B.row(Rb, u) / f.r_sigma[B.at, None])[:, None])]))
@@ -249,8 +247,7 @@ def _retract(lay: _Layout, p, R, delta):
 
 def _damped_solve(N, g, lam):
     """Solve (N + lam D) delta = g per epoch, D = diag(N) floored; returns delta (E, k) and D."""
-    diag = np.diagonal(N, axis1=1, axis2=2)
-    D = np.maximum(diag, 1e-12 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300))
+    D = marquardt_scaling(np.diagonal(N, axis1=1, axis2=2))
     A = N + (lam[:, None] * D)[:, :, None] * np.eye(N.shape[1])
     try:
         L = np.linalg.cholesky(A)
@@ -338,8 +335,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         accept = active & (q > 0)
         reject = active & ~accept
         step = np.abs(delta).max(axis=1, initial=0.0)
-        lam = np.where(accept, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3), np.where(reject, lam * nu, lam))
-        nu = np.where(accept, 2.0, np.where(reject, nu * 2.0, nu))
+        lam_new, nu_new = damping_update(lam, nu, q, accept)
+        lam, nu = np.where(active, lam_new, lam), np.where(active, nu_new, nu)
         small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
         if step_sigma > 0:
             small |= accept & (np.einsum("ei,eij,ej->e", delta, N, delta) < step_sigma ** 2)

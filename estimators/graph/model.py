@@ -26,10 +26,11 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, sparse
+from scipy import sparse
 
 from estimators.core import white_acceleration_q
 from estimators.so3 import skew, so3_exp, so3_log, so3_right_jacobian_inv
+from estimators.graph.factors import range_terms, sqrt_information
 from estimators.graph.linear import GaugeWarning, factor_spd
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
@@ -43,9 +44,8 @@ DIMS = {"point": 3, "pose": 6, "scalar": 1}
 
 
 def _sqrt_info(cov) -> np.ndarray:
-    """W with W^T W = cov^-1: (d, d)."""
-    cov = np.atleast_2d(np.asarray(cov, float))
-    return linalg.solve_triangular(np.linalg.cholesky(cov), np.eye(cov.shape[0]), lower=True)
+    """W with W^T W = cov^-1: (d, d), for a covariance (d, d) or a variance (scalar)."""
+    return sqrt_information(np.atleast_2d(np.asarray(cov, float)))
 
 
 def _endpoint(values: dict, kinds: dict, key, lever) -> tuple[np.ndarray, np.ndarray]:
@@ -96,8 +96,8 @@ class PoseRotationPrior(Prior):
 @dataclass(frozen=True, slots=True)
 class Range:
     """Range d (m, sigma m) between point/pose a (lever_a, body m) and b (lever_b), plus an
-    optional scalar bias variable (m): h = |e_a - e_b| + bias. Co-located endpoints get a fixed
-    unit subgradient direction (as estimators.factor_graph.range_jacobian)."""
+    optional scalar bias variable (m): h = |e_a - e_b| + bias (estimators.graph.factors.range_terms:
+    co-located endpoints get a fixed unit subgradient direction)."""
 
     a: object
     b: object
@@ -111,10 +111,8 @@ class Range:
     def linearize(self, values, kinds):
         ea, Ja = _endpoint(values, kinds, self.a, self.lever_a)
         eb, Jb = _endpoint(values, kinds, self.b, self.lever_b)
-        diff = ea - eb
-        r = float(np.linalg.norm(diff))
-        u = diff / r if r > 0 else np.array([0.0, 0.0, 1.0])
-        h = r + (float(values[self.bias][0]) if self.bias is not None else 0.0)
+        r, u = range_terms(ea, eb)
+        h = float(r) + (float(values[self.bias][0]) if self.bias is not None else 0.0)
         jac = {self.a: (u @ Ja)[None] / self.sigma}
         jb = -(u @ Jb)[None] / self.sigma
         jac[self.b] = jac[self.b] + jb if self.b in jac else jb
