@@ -6,6 +6,10 @@ analytic Jacobians (batched over leading axes), and their whitening.
 - Range factor: h = |p_i - p_j| (m), dh/dp_i = u (unit vector from j to i), dh/dp_j = -u; a
   co-located pair gets a fixed direction per factor (`coincident_directions`). With a lever arm
   the points are p + R l (estimators.graph.model, estimators.graph.batch).
+- Motion (white-noise acceleration of density q, m^2/s^3 per axis, between epochs dt s apart):
+  the residual [p1 - p0 - v0 dt - dp; v1 - v0 - dv] ~ N(0, Q (x) I3), Q = q [[dt^3/3, dt^2/2],
+  [dt^2/2, dt]] (`motion_covariance`, `motion_jacobian`; in information form over a vehicle's
+  [p, v] at both epochs `motion_blocks`, with a known input [dp, dv] `motion_input_blocks`).
 - A neighbour's broadcast (position, covariance) as the far end of a range: the range variance
   inflated by the broadcast's covariance along u (`inflated_range_variance`; the distributed
   schemes of estimators.factor_graph and estimators.window).
@@ -14,10 +18,15 @@ estimators.graph.gbp and estimators.window. Never imports mujoco, testbed or gts
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
+from estimators.core import white_acceleration_q
+
 __all__ = ["gnss_h", "gnss_jacobian", "range_h", "range_terms", "range_jacobian", "coincident_directions",
-           "sqrt_information", "inflated_range_variance"]
+           "sqrt_information", "inflated_range_variance", "motion_covariance", "motion_jacobian", "motion_blocks",
+           "motion_input_blocks"]
 
 
 def gnss_h(p: np.ndarray) -> np.ndarray:
@@ -82,3 +91,35 @@ def inflated_range_variance(var: np.ndarray, u: np.ndarray, cov: np.ndarray) -> 
     covariance cov (m, 3, 3) m^2, seen along the unit vectors u (m, 3): var + u^T cov u, var (m,)
     the range's own variance (the Schur complement of the neighbour's prior, seed 001 section 2.3.2)."""
     return var + np.einsum("ka,kab,kb->k", u, cov, u)
+
+
+@functools.lru_cache(maxsize=64)
+def motion_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Information blocks (M00, M01, M11), each (6, 6) over one vehicle's [p, v] at k and k+1, of
+    the white-noise-acceleration factor (module docstring) over dt (s) with density q (m^2/s^3)."""
+    Q = motion_covariance(dt, q)
+    J = motion_jacobian(dt)
+    M = np.kron(J.T @ np.linalg.solve(Q, J), np.eye(3))  # (12, 12): ordering [p0, v0, p1, v1] x axis
+    return M[:6, :6], M[:6, 6:], M[6:, 6:]
+
+
+def motion_covariance(dt: float, q: float) -> np.ndarray:
+    """Covariance Q (2, 2) per axis of the motion residual [e_p, e_v] over dt (s) with density q
+    (m^2/s^3): q [[dt^3/3, dt^2/2], [dt^2/2, dt]] (m^2, m^2/s, m^2/s^2)."""
+    return q * white_acceleration_q(dt)
+
+
+def motion_jacobian(dt: float) -> np.ndarray:
+    """(2, 4) d[e_p, e_v]/d[p0, v0, p1, v1] of the motion residual, per axis."""
+    return np.array([[-1.0, -dt, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0]])
+
+
+@functools.lru_cache(maxsize=64)
+def motion_input_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(G0, G1, W), each (6, 6), of the motion factor's known input u = [dp, dv] (6,) over dt (s)
+    with density q (m^2/s^3): the factor's cost 1/2 (J x - u)^T Q^-1 (J x - u) adds -(G0 u) . x0
+    - (G1 u) . x1 + 1/2 u^T W u to the input-free one (x0, x1 (6,) one vehicle's [p, v] at k, k+1;
+    G = J^T Q^-1 (x) I3 split by epoch, W = Q^-1 (x) I3)."""
+    Qi = np.linalg.inv(motion_covariance(dt, q))
+    G = np.kron(motion_jacobian(dt).T @ Qi, np.eye(3))  # (12, 6)
+    return G[:6], G[6:], np.kron(Qi, np.eye(3))

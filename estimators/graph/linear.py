@@ -10,7 +10,8 @@ k * BAND_FRACTION, else SuperLU with a symmetric fill-reducing ordering and no p
 the smallest relative pivot min_i D_i / N_ii; `observable` is that ratio above `GAUGE_RATIO`.
 The seed 001 solvers' linear algebra: `solve_normal` (a Gauss-Newton step from the whitened
 system), `dense_covariance` ((A^T A)^-1 by potrf/potri) and `marginal_blocks` (the 3x3 diagonal
-blocks of N^-1 by a selected inverse, for large swarms).
+blocks of N^-1 by a selected inverse, for large swarms). The sliding window's block-tridiagonal
+solve: `solve_block_tridiagonal`.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from scipy.sparse import linalg as splinalg
 from estimators.graph.banded import BandOrder, band_order, factor_banded, selected_inverse_diag
 
 __all__ = ["BAND_FRACTION", "DENSE_LIMIT", "GAUGE_RATIO", "GaugeWarning", "SpdFactor", "factor_spd", "narrow_band",
-           "solve_normal", "dense_covariance", "marginal_blocks"]
+           "solve_normal", "dense_covariance", "marginal_blocks", "solve_block_tridiagonal"]
 
 #: below this many unknowns the dense Cholesky beats the sparse factorization
 DENSE_LIMIT = 600
@@ -199,3 +200,40 @@ def marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
         Z[c0:c1, c0:c1] = 0.5 * (ZJJ + ZJJ.T)
     idx = lu.perm_c.reshape(n, 3)  # position of variable v in the factored order: perm_c[v]
     return Z[idx[:, :, None], idx[:, None, :]]
+
+
+class _Spd:
+    """A batch of SPD matrices (B, s, s) factored once: Cholesky (scipy) for one large matrix,
+    numpy's batched LU for many small ones (a per-vehicle 6 x 6 block)."""
+
+    def __init__(self, S: np.ndarray):
+        self.one = S.shape[0] == 1
+        self.f = linalg.cho_factor(S[0], check_finite=False) if self.one else S
+
+    def solve(self, Y: np.ndarray) -> np.ndarray:
+        """S^-1 Y for Y (B, s) or (B, s, r)."""
+        if self.one:
+            return linalg.cho_solve(self.f, Y[0], check_finite=False)[None]
+        return np.linalg.solve(self.f, Y[..., None])[..., 0] if Y.ndim == 2 else np.linalg.solve(self.f, Y)
+
+
+def solve_block_tridiagonal(D: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve the block-tridiagonal SPD system H delta = R (a chain of epochs linked by motion
+    factors: the sliding window, estimators.window), batched over B agents, by forward block
+    elimination and back substitution.
+
+    D (B, K, s, s) diagonal blocks, U (B, K-1, s, s) blocks H[k, k+1], R (B, K, s).
+    Returns delta (B, K, s) and S (B, s, s): the last Schur complement, the information of the
+    newest epoch's marginal (its inverse is that epoch's covariance)."""
+    K = D.shape[1]
+    S, Y = D[:, 0], [R[:, 0]]
+    F = [_Spd(S)]
+    for k in range(1, K):
+        Wk = F[-1].solve(U[:, k - 1])  # S_{k-1}^{-1} U_{k-1}
+        S = D[:, k] - np.swapaxes(U[:, k - 1], 1, 2) @ Wk
+        Y.append(R[:, k] - np.einsum("bij,bi->bj", Wk, Y[-1]))
+        F.append(_Spd(S))
+    delta = [F[-1].solve(Y[-1])]
+    for k in range(K - 2, -1, -1):
+        delta.append(F[k].solve(Y[k] - np.einsum("bij,bj->bi", U[:, k], delta[-1])))
+    return np.stack(delta[::-1], axis=1), S

@@ -28,9 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 
-from estimators.core import white_acceleration_q
 from estimators.so3 import skew, so3_exp, so3_log, so3_right_jacobian_inv
-from estimators.graph.factors import range_terms, sqrt_information
+from estimators.graph.factors import motion_covariance, range_terms, sqrt_information
 from estimators.graph.linear import GaugeWarning, factor_spd
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
@@ -150,8 +149,7 @@ class ConstantVelocity:
 
     def linearize(self, values, kinds):
         dt = self.dt
-        Q1 = white_acceleration_q(dt) * self.q
-        W = np.kron(_sqrt_info(Q1), np.eye(3))  # (6, 6)
+        W = np.kron(_sqrt_info(motion_covariance(dt, self.q)), np.eye(3))  # (6, 6)
         e0, J0 = _endpoint(values, kinds, self.p0, None)
         e1, J1 = _endpoint(values, kinds, self.p1, None)
         v0, v1 = np.asarray(values[self.v0], float), np.asarray(values[self.v1], float)
