@@ -48,14 +48,13 @@ def range_h(p_i: np.ndarray, p_j: np.ndarray) -> np.ndarray:
 def range_terms(p_i: np.ndarray, p_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(h, u) of the range factor at once: h = |p_i - p_j| (...,) m and u = dh/dp_i (..., 3),
     unitless, for p_i, p_j (..., 3) m (see `range_jacobian`)."""
-    diff = np.asarray(p_i, float) - np.asarray(p_j, float)
-    r = np.linalg.norm(diff, axis=-1, keepdims=True)
-    h = r[..., 0]
-    if np.any(r == 0.0):
-        zero = h == 0.0
-        diff = np.where(zero[..., None], coincident_directions(diff.shape[:-1]), diff)
-        r = np.where(zero[..., None], 1.0, r)
-    return h, diff / r
+    diff = np.subtract(p_i, p_j, dtype=float)
+    h = np.sqrt(np.add.reduce(diff * diff, axis=-1))  # |diff| summed as np.linalg.norm sums it, without its overhead
+    if h.all():
+        return h, diff / h[..., None]
+    zero = h == 0.0
+    diff = np.where(zero[..., None], coincident_directions(diff.shape[:-1]), diff)
+    return h, diff / np.where(zero, 1.0, h)[..., None]
 
 
 def range_jacobian(p_i: np.ndarray, p_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
