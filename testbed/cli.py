@@ -203,10 +203,11 @@ def _with_estimators(sc, args: argparse.Namespace):
     """The scenario plus one [[estimators]] table per --estimator, every entry loaded (checked) now."""
     import dataclasses
 
+    from testbed.plugins.defaults import estimator_specs
     from testbed.plugins.loading import resolve
 
     sc = dataclasses.replace(sc, estimators=sc.estimators + _estimator_specs(args))
-    resolve(sc.estimators)  # exit 2 on a bad entry before anything is simulated
+    resolve(estimator_specs(sc))  # exit 2 on a bad entry (or a name clash) before anything is simulated
     return sc
 
 

@@ -1,8 +1,9 @@
 """Writing a run directory (the data contract) atomically.
 
 `run(scenario, out)` simulates (with the estimator of [control] feedback in the loop, if any,
-testbed.plugins.online), runs the scenario's estimator pipeline and its plugin estimators
-(`[[estimators]]`, testbed.plugins), scores a flown run's safety (testbed.safety), and writes
+testbed.plugins.online), runs the scenario's estimators (the defaults of its [pipeline] kind and its
+`[[estimators]]`, testbed.plugins.defaults; a kind not yet converted to plugins still runs its
+pipeline, testbed.pipelines.registry), scores a flown run's safety (testbed.safety), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
 `estimates.npz` (every estimate of the plugin estimators, when there are any),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
@@ -28,6 +29,7 @@ from testbed.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.collect import ESTIMATES_FILE, track_arrays
+from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.failures import mark_incomplete, raise_failed
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
@@ -89,7 +91,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
     (testbed.log.LogWriter) and then into log.npz, from which the scoring reads the arrays it
     needs: a long run of a large swarm never holds its whole log in memory.
     """
-    plugins = resolve(scenario.estimators)  # a bad plugin entry stops here, before anything is written
+    plugins = resolve(estimator_specs(scenario))  # a bad plugin entry stops here, before anything is written
     with _long_lived_frozen(), Output(Path(out), kind="run", force=force) as o:
         tmp = o.path
         writer = LogWriter(tmp / SPILL_DIR)

@@ -34,7 +34,12 @@ means the scenario must give it. Ranges are what the loader checks; a value outs
 `testbed: error: FILE: KEY: ...` and exit code 2. `--set KEY=VALUE` (and `overrides=` of
 `testbed.load_scenario`) addresses any key below; list elements by 0-based index, e.g.
 `--set 'world.obstacles[0].size=[1,2,3]'` or `--set 'trajectory.offsets[2]=[1,0,0]'`.
+Each trajectory kind has a picture of an example seen from above, drawn by
+`docs/trajectory_pictures.py` from the scenario it names (the new kinds' examples are in
+`examples/trajectories/`, runnable as they are).
 """
+# the picture of a trajectory kind, relative to docs/ (drawn by docs/trajectory_pictures.py)
+PICTURE = "images/trajectory-{kind}.png"
 
 
 def declared_ranges() -> dict[tuple[type, str], tuple]:
@@ -98,7 +103,10 @@ def sections(cls: type = Scenario, path: str = "", title: str = "", optional: bo
                 kind = _kind(sub) if len(subs) > 1 else None
                 sub_path = f"{key}[i]" if many else key
                 sub_title = f"[{sub_path}]" + (f' kind = "{kind}"' if kind else "")
-                below += sections(sub, sub_path, sub_title, opt, ranges)
+                table = sections(sub, sub_path, sub_title, opt, ranges)
+                if kind and key == "trajectory":
+                    table[0]["picture"] = PICTURE.format(kind=kind)
+                below += table
             continue
         lo_hi = ranges.get((cls, f.name))
         unit = f.metadata.get("unit") or (lo_hi[4] if lo_hi else "")
@@ -122,5 +130,7 @@ def markdown() -> str:
         out += [f"| `{k}` | {t} | {u} | {d} | {r} |".replace("|  |", "| |") for k, t, u, d, r in s["rows"]]
         if s["doc"]:
             out.append("\n" + "\n".join(f"> {line}".rstrip() for line in s["doc"].splitlines()))
+        if "picture" in s:
+            out.append(f"\n![{s['title'].removeprefix('[trajectory] ')}]({s['picture']})")
         out.append("")
     return "\n".join(out)

@@ -418,7 +418,7 @@ def test_csv_cell_over_the_field_limit_names_row_and_column(dataset, capsys):
 def _spec_estimators(d: Path, table: str) -> None:
     """Replace the [[estimators]] of the dataset's spec.toml by `table` (TOML array of tables)."""
     text = (d / "spec.toml").read_text()
-    start, end = text.index("estimators = ["), text.index("[window]")
+    start, end = text.index("[[estimators]]"), text.index("[window]")
     (d / "spec.toml").write_text(text[:start] + table + "\n\n" + text[end:])
 
 

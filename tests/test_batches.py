@@ -65,6 +65,26 @@ def test_a_bad_row_of_an_estimate_batch_is_named(change, message):
         col.add([dataclasses.replace(good, **change)], "at t = 1 s")
 
 
+@pytest.mark.parametrize("change, message", [
+    (dict(cov_joint=np.eye(6)), r"cov_joint has shape \(6, 6\), expected \(9, 9\) for 3 targets"),
+    (dict(time=np.array([1.0, 1.0, 2.0])), "cov_joint needs rows of one time of validity"),
+    (dict(cov_joint=np.triu(np.ones((9, 9))) + 9 * np.eye(9)), "cov_joint is not symmetric"),
+    (dict(cov=None), r"cov_joint needs cov, its \(3, 3\) diagonal blocks"),
+    (dict(cov=np.tile(2 * np.eye(3), (3, 1, 1))), r"cov_joint does not have cov as its \(3, 3\) diagonal blocks"),
+])
+def test_a_joint_covariance_is_checked_and_kept(change, message):
+    """EstimateBatch.cov_joint: kept per quantity (Track.joint) when it fits the batch, else named."""
+    C = np.eye(9) + 0.1 * (np.ones((9, 9)) - np.kron(np.eye(3), np.ones((3, 3))))  # cross-covariances only
+    good = EstimateBatch(time=np.ones(3), target=["uav2", "uav1", "uav3"], quantity="position", value=np.zeros((3, 3)),
+                         cov=np.tile(np.eye(3), (3, 1, 1)), cov_joint=C)
+    col = Collector(_P(), {"uav1", "uav2", "uav3"}, 10.0)
+    col.add([good], "at t = 1 s")
+    (j,) = col.track().joint["position"]
+    assert (j.time, j.targets, j.frame) == (1.0, ("uav2", "uav1", "uav3"), "world") and np.array_equal(j.cov, C)
+    with pytest.raises(PluginError, match=f"at t = 1 s: estimates of position \\(a batch of 3\\): {message}"):
+        Collector(_P(), {"uav1", "uav2", "uav3"}, 10.0).add([dataclasses.replace(good, **change)], "at t = 1 s")
+
+
 def test_the_first_bad_covariance_of_a_batch_is_named_when_the_track_is_built():
     cov = np.tile(np.eye(3), (3, 1, 1))
     cov[2] = -np.eye(3)

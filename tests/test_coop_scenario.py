@@ -1,5 +1,5 @@
-"""Seed 001 through the real testbed: scenario coop-fg -> MuJoCo -> GNSS + UWB streams -> the
-coop-fg pipeline -> metrics.json, on short horizons.
+"""Seed 001 through the real testbed: scenario coop-fg -> MuJoCo -> GNSS + UWB streams -> its
+default estimators (the coop.* plugins) and the seed 001 scoring hook -> metrics.json, on short horizons.
 
 Statistical assertions are sign tests over epochs (GNSS and UWB noise are white, so epochs are
 independent; binomial under H0: p = 1/2, alpha = 1e-3) or chi-square intervals at the stated
@@ -19,9 +19,22 @@ from testbed.errors import ConfigError
 from testbed.log import load_log
 from testbed.metrics import anees_interval
 from testbed.pipelines import coop
+from testbed.plugins.coop_scores import epochs_from_log
 from testbed.runner import run
 
-KEYS = ("rmse_position_m", "rmse_position_mean_m", "iterations_mean", "messages_per_epoch", "anees")
+KEYS = ("rmse_position_per_vehicle_m", "rmse_position_mean_m", "iterations_mean", "messages_per_epoch", "anees")
+
+
+def _as_library(got: dict, want: dict) -> None:
+    """The run's scores of one estimator (plugin + hook) against the batch library's
+    (testbed.pipelines.coop.score, whose per-vehicle RMSE is `rmse_position_m`): every key equal,
+    floats to 1e-12 relative (a mean of counts is summed in another order)."""
+    for k, v in want.items():
+        g = got["rmse_position_per_vehicle_m" if k == "rmse_position_m" else k]
+        if isinstance(v, float) or isinstance(v, list) and v and isinstance(v[0], float):
+            np.testing.assert_allclose(g, v, rtol=1e-12, atol=0, err_msg=k)
+        else:
+            assert g == v, k
 
 
 def _sign_test_min(k: int, alpha: float = 1e-3) -> int:
@@ -51,18 +64,19 @@ def test_coop_fg_end_to_end(tmp_path):
     for name in coop.ESTIMATORS:
         s = est_m[name]
         assert all(k in s for k in KEYS), name
-        assert len(s["rmse_position_m"]) == 18 and np.all(np.isfinite(s["rmse_position_m"]))
-        assert s["rmse_position_mean_m"] == pytest.approx(np.mean(s["rmse_position_m"]))
+        assert len(s["rmse_position_per_vehicle_m"]) == 18 and np.all(np.isfinite(s["rmse_position_per_vehicle_m"]))
+        assert s["rmse_position_mean_m"] == pytest.approx(np.mean(s["rmse_position_per_vehicle_m"]))
     assert est_m["gnss_only"]["messages_per_epoch"] == 0 and est_m["one_shot"]["messages_per_epoch"] == 18
     assert est_m["iterated"]["messages_per_epoch"] == 18 * est_m["iterated"]["iterations_mean"]
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["estimators"] == est_m
 
-    # the pipeline's scores are reproducible from the logged streams alone
-    ep = coop.epochs_from_log(load_log(tmp_path / "run"), sc.vehicles)
+    # the scores are reproducible from the logged streams alone (the batch library, same code)
+    ep = epochs_from_log(load_log(tmp_path / "run"), sc.vehicles)
     K = ep.time.size
     assert K == 20 and ep.is_rtk.sum() == 3 and list(np.flatnonzero(ep.is_rtk) + 1) == [3, 9, 15]
     est = coop.estimate(sc.pipeline, ep, sc.seed)
-    assert coop.score(est) == est_m
+    for name, want in coop.score(est).items():
+        _as_library(est_m[name], want)
     spp = ~ep.is_rtk
     g = _epoch_mse(est, "gnss_only", spp)
     for name in ("one_shot", "iterated", "centralized"):
@@ -86,8 +100,8 @@ def test_coop_fg_node_failure_and_message_loss(tmp_path):
                                                           "pipeline.message_loss": "0.3", "pipeline.max_rounds": "150"})
     m = run(sc, tmp_path / "run")
     it = m["estimators"]["iterated"]
-    assert np.all(np.isfinite(it["rmse_position_m"])) and np.isfinite(it["anees"])
-    ep = coop.epochs_from_log(load_log(tmp_path / "run"), sc.vehicles)
+    assert np.all(np.isfinite(it["rmse_position_per_vehicle_m"])) and np.isfinite(it["anees"])
+    ep = epochs_from_log(load_log(tmp_path / "run"), sc.vehicles)
     est = coop.estimate(sc.pipeline, ep, sc.seed, which=("gnss_only", "iterated"))
     after = ep.time >= 10.0
     r = est.rounds["iterated"]
@@ -98,8 +112,8 @@ def test_coop_fg_node_failure_and_message_loss(tmp_path):
     i = _epoch_mse(est, "iterated", survivors)[after]
     assert int(after.sum()) == 20
     assert int(np.sum(i < g)) >= _sign_test_min(20)
-    # the same seed gives the same losses: the run's metrics are reproduced exactly
-    assert coop.score(coop.estimate(sc.pipeline, ep, sc.seed))["iterated"] == it
+    # the same seed gives the same losses (stream estimator/iterated): the run's metrics are reproduced
+    _as_library(it, coop.score(coop.estimate(sc.pipeline, ep, sc.seed))["iterated"])
 
 
 def test_coop_fg_flown_runs_end_to_end(tmp_path):
@@ -109,8 +123,19 @@ def test_coop_fg_flown_runs_end_to_end(tmp_path):
     m = run(sc, tmp_path / "run", plots=False)["estimators"]
     assert m["centralized"]["epochs"] == 4
     for name in coop.ESTIMATORS:
-        assert np.all(np.isfinite(m[name]["rmse_position_m"]))
+        assert np.all(np.isfinite(m[name]["rmse_position_per_vehicle_m"]))
     assert m["centralized"]["rmse_position_spp_mean_m"] < m["gnss_only"]["rmse_position_spp_mean_m"]
+
+
+def test_a_user_estimator_named_like_a_default_one_is_refused(tmp_path, capsys):
+    """coop-fg's defaults are named gnss_only, one_shot, iterated, centralized: a [[estimators]]
+    entry of one of these names is one line, exit 2, nothing written."""
+    out = tmp_path / "run"
+    assert main(["run", "coop-fg", "--out", str(out), "--duration", "2", "--set",
+                 'estimators=[{entry = "coop.iterated", name = "iterated"}]']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'iterated' is taken by a default estimator of the coop-fg pipeline" in err[0]
+    assert not out.exists()
 
 
 def test_coop_fg_bad_input_is_one_line_exit_2(tmp_path, capsys):
@@ -174,7 +199,7 @@ def test_centralized_equals_gtsam_to_1e_8_m_on_every_physics_epoch():
 
     sc = scenario.load("coop-fg", seed=1, duration=30.0)
     log, _ = simulate(sc)
-    ep = coop.epochs_from_log(log, sc.vehicles)
+    ep = epochs_from_log(log, sc.vehicles)
     check = rep._gtsam_check(sc.pipeline, ep)
     assert check["epochs"] == ep.time.size == 31
     assert rep.GTSAM_POS_TOL_M == 1e-8 and check["max_position_diff_m"] <= 1e-8

@@ -241,8 +241,9 @@ def test_an_installed_entry_point_is_registered(monkeypatch):
     assert loading.load_class("third.party").__name__ == "GnssOnly"
 
 
-def test_coop_builtins_as_protocol_estimators_equal_the_pipeline(tmp_path):
-    """Fed measurement by measurement, the four seed 001 estimators give the pipeline's scores."""
+def test_coop_builtins_as_protocol_estimators_equal_the_batch_library(tmp_path):
+    """Fed measurement by measurement, the four seed 001 estimators (under other names than the
+    defaults, beside them) give the batch library's estimates and, through the hook, its scores."""
     # a non-default known ranging model: the plugins take the scenario's [pipeline] without params
     sc = scenario.load("coop-fg", duration=4.0, overrides={"pipeline.twr_mode": "ds-twr", "pipeline.antenna_delay_sigma": "0.02"})
     names = ("gnss_only", "one_shot", "iterated", "centralized")
@@ -250,13 +251,28 @@ def test_coop_builtins_as_protocol_estimators_equal_the_pipeline(tmp_path):
                                                   for w, c in zip(names, ("GnssOnly", "OneShot", "Iterated", "Centralized"))))
     from testbed.runner import run
 
+    from testbed.log import load_log
+    from testbed.pipelines import coop
+    from testbed.plugins.coop_scores import epochs_from_log
+
     est = run(sc, tmp_path / "r", plots=False)["estimators"]
+    lib = coop.score(coop.estimate(sc.pipeline, epochs_from_log(load_log(tmp_path / "r"), 18), sc.seed))
     for w in names:
         p = est[f"coop.{w}"]
         per_uav = [p["targets"][f"uav{i}/uwb"]["position"]["rmse_m"] for i in range(1, 19)]
-        np.testing.assert_allclose(per_uav, est[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(p["anees_position"], est[w]["anees"], rtol=1e-12)
+        np.testing.assert_allclose(per_uav, lib[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(p["anees_position"], lib[w]["anees"], rtol=1e-12)
         assert p["estimates"] == 18 * 5 and p["health"]["nonconverged_epochs"] <= 5
+        # the coop scoring hook gives every fitting estimator the library's own keys
+        want = {k: v for k, v in lib[w].items() if k not in ("rmse_position_m", "network", "nlos_fraction")}
+        assert ("anees_joint" in p) == (w == "centralized")  # the one with the joint covariance
+        got = {k: p[k] for k in want}
+        np.testing.assert_allclose(p["rmse_position_per_vehicle_m"], lib[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
+        for k, v in want.items():
+            if isinstance(v, (dict, type(None))) or isinstance(v, int) and not isinstance(v, bool):
+                assert got[k] == v, k
+            else:
+                np.testing.assert_allclose(got[k], v, rtol=1e-12, err_msg=k)
 
 
 def test_sweep_and_reproduce_take_plugins(tmp_path):
@@ -299,13 +315,13 @@ def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
 def _feed(sc, log, physics, cls, key="p"):
     """Run one plugin class through the testbed's feed on a log: its Track and its scores."""
     from testbed.plugins.context import priors
-    from testbed.plugins.run import scenario_bound
+    from testbed.plugins.hooks import scenario_hooks
     from testbed.plugins.score import score
 
     plugin = Plugin(key, key, cls, {})
     ctx = make_context(sc, physics, key, {}, priors(sc, log))
     track, health, _ = run_plugin(plugin, ctx, list(measurements(sc, log)))
-    return track, score(track, Truth(log, ctx), scenario_bound(sc, log))[0], health
+    return track, score(track, Truth(log, ctx), scenario_hooks(sc, log), health)[0], health
 
 
 def test_phase_builtin_equals_the_pipeline_with_its_pcrb():

@@ -83,8 +83,8 @@ def test_an_exported_dataset_and_its_replay_record_their_provenance(run_dir, tmp
     spec = tmp_path / "ex" / "spec.toml"
     shutil.copytree(ROOT / "examples/replay", spec.parent)
     text = spec.read_text()
-    start, end = text.index("estimators = ["), text.index("]\n", text.index("estimators = [")) + 2
-    spec.write_text(text[:start] + 'estimators = [{ entry = "coop.gnss_only" }]\n' + text[end:])  # one fast estimator
+    start, end = text.index("[[estimators]]"), text.index("[window]")  # its five [[estimators]] tables
+    spec.write_text(text[:start] + '[[estimators]]\nentry = "coop.gnss_only"\n\n' + text[end:])  # one fast estimator
     assert main(["replay", str(spec), "--out", "rp"]) == 0, capsys.readouterr().err
     doc = _strict(tmp_path / "rp" / "provenance.json")
     _check(doc, "replay")

@@ -126,7 +126,11 @@ class EstimateBatch:
     checks and scores it exactly as its rows, `rows()`, without a Python object per row).
 
     time: (n,) s; target: (n,) str; quantity, frame: as Estimate, the same for every row;
-    value: (n, 3), or (n, 4) for attitude; cov: optional (n, 3, 3), for every row.
+    value: (n, 3), or (n, 4) for attitude; cov: optional (n, 3, 3), for every row;
+    cov_joint: optional (3n, 3n) joint covariance of all the rows' values (rows in order, the
+    batch's rows of one time of validity, position or velocity, with cov its (3, 3) diagonal
+    blocks), for an estimator that has the cross-covariances (a centralized solver): scored by
+    the hooks that use it (the joint ANEES of testbed.plugins.coop_scores), kept out of estimates.npz.
     """
 
     time: np.ndarray
@@ -135,6 +139,7 @@ class EstimateBatch:
     value: np.ndarray
     cov: np.ndarray | None = None
     frame: str = "world"
+    cov_joint: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.target)
@@ -158,7 +163,10 @@ class Context:
     pipeline: the scenario's [pipeline] table with every default written out ({} without one):
     the built-in estimators' settings, their defaults when `params` does not override them;
     params: this estimator's params table; duration: run length (s); motion: "prescribed"
-    (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME".
+    (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME";
+    channel: the network of a distributed estimator's messages when the scenario has [network]
+    and the estimator runs on a log (testbed.plugins.channel.Channel: `transport(t)` gives an
+    estimators.transport.Transport for the rounds of one solve starting at t s), else None (ideal).
     """
 
     vehicles: tuple[str, ...]
@@ -172,6 +180,7 @@ class Context:
     motion: str = "prescribed"
     seed: int
     rng: np.random.Generator
+    channel: object | None = None
 
 
 @runtime_checkable

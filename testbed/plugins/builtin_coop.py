@@ -2,27 +2,96 @@
 
 Each is a per-epoch solver and naturally online: it collects the GNSS fixes and the tag-to-tag
 UWB ranges of one time of validity (an epoch: the instant of the GNSS fixes) and solves that
-epoch when a measurement of a later time arrives (or at finish), with the same per-epoch code
-as the coop-fg pipeline (testbed.pipelines.coop.solve_epoch); estimates are each vehicle's
+epoch when a measurement of a later time arrives (or at finish), with the per-epoch code below
+(`solve_epoch`, which the coop-fg pipeline also runs); estimates are each vehicle's
 `uav{i}/uwb` site position with its covariance. Ranges at instants without GNSS fixes are not
-part of an epoch and are ignored, as in the pipeline.
+part of an epoch and are ignored, as in the pipeline. Under a [network] table, the broadcasts of
+one_shot and iterated travel through the network the runtime hands them (Context.channel,
+testbed.plugins.channel), as the pipeline's do.
 
 params: the coop-fg [pipeline] keys (the known noise model and solver settings); a key not given
 takes the scenario's own [pipeline] value on a coop-fg scenario (testbed.plugins.settings). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
 sets by the fix type the receiver reports. Message loss (params message_loss > 0) draws from the
-estimator's own Context.rng, not the pipeline's shared "links" stream, so only loss-free runs
-match the pipeline number for number (a test checks that they do).
+estimator's own Context.rng (stream "estimator/NAME"), as testbed.pipelines.coop.estimate does
+for the same name.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from estimators.sensor_models import gnss_sigma
-from testbed.pipelines.coop import epoch_problem, gnss_covariances, solve_epoch
+from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
+from estimators.sensor_models import gnss_sigma, twr_range_covariance, twr_range_variance
+from estimators.transport import Transport
 from testbed.pipelines.config import CoopPipelineConfig
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, EstimateBatch, Measurement
 from testbed.plugins.epochs import EpochGrouping
 from testbed.plugins.settings import settings
+
+
+def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
+    """Known GNSS covariances (N, 3, 3) m^2, diagonal (s_h^2, s_h^2, s_v^2) by fix type."""
+    sig = np.where(is_rtk[:, None], [cfg.rtk_sigma_h, cfg.rtk_sigma_h, cfg.rtk_sigma_v],
+                   [cfg.gnss_sigma_h, cfg.gnss_sigma_h, cfg.gnss_sigma_v])
+    cov = np.zeros((is_rtk.size, 3, 3))
+    cov[:, [0, 1, 2], [0, 1, 2]] = sig ** 2
+    return cov
+
+
+def range_sigmas(cfg: CoopPipelineConfig, d: np.ndarray) -> np.ndarray:
+    """Range standard deviations (m) the estimators assume for ranges d (m): the white noise plus the
+    two-way ranging clock and antenna-delay variance of the known model, absorbed as white."""
+    return np.sqrt(cfg.range_sigma ** 2 + twr_range_variance(cfg.twr_mode, d, cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma))
+
+
+def range_covariance(cfg: CoopPipelineConfig, edges: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Joint covariance (m, m) m^2 the centralized estimator assumes for one epoch's ranges d (m,)
+    m on edges (m, 2): the white noise range_sigma^2 I plus the per-device clock and antenna-delay
+    terms of the known model, shared by the links of one radio (estimators.sensor_models.
+    twr_range_covariance); its diagonal is range_sigmas(cfg, d)^2."""
+    twr = twr_range_covariance(cfg.twr_mode, d, edges[:, 0], edges[:, 1], cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma)
+    return cfg.range_sigma ** 2 * np.eye(d.size) + twr
+
+
+def epoch_problem(cfg: CoopPipelineConfig, gnss: np.ndarray, gnss_cov: np.ndarray, edges: np.ndarray,
+                  ranges: np.ndarray) -> CoopProblem:
+    """One epoch's problem: fixes (N, 3) m with known covariances (N, 3, 3), edges (m, 2), ranges (m,) m;
+    with the joint range covariance (range_covariance) when the known model has per-device terms."""
+    cov = range_covariance(cfg, edges, ranges) if cfg.clock_ppm > 0 or cfg.antenna_delay_sigma > 0 else None
+    return CoopProblem(gnss_pos=gnss, gnss_cov=gnss_cov, edges=edges, ranges=ranges, range_sigma=range_sigmas(cfg, ranges),
+                       range_cov=cov)
+
+
+def solve_epoch(cfg: CoopPipelineConfig, w: str, prob: CoopProblem, t: float, rng: np.random.Generator,
+                transport: Transport | None = None):
+    """Estimator `w` on one epoch at time t (s): (result, rounds, converged, messages, bytes).
+
+    result has positions (N, 3), cov (N, 3, 3) and, for "centralized", cov_full (3N, 3N); rng: the
+    message-loss draws (used only when cfg.message_loss > 0 and w is a distributed variant);
+    transport: the channel of a distributed variant's broadcasts (None: ideal)."""
+    n = prob.gnss_pos.shape[0]
+    huber = cfg.huber_delta if cfg.robust == "huber" else None
+    if w == "centralized":
+        if huber is not None:  # the Huber loss is defined on independent whitened ranges
+            prob = replace(prob, range_cov=None)
+        res = solve_centralized(prob, huber=huber, covariance="full")
+        # every UAV uploads its fix + covariance (9 floats) and the ranges it initiated
+        # (value + neighbour id): n messages, 8 (9 n + 2 m) bytes
+        return res, res.iterations, res.converged, n, 8 * (9 * n + 2 * prob.m)
+    silent = {cfg.silent_uav - 1: 0} if cfg.silent_uav and t >= cfg.silent_from_s else None
+    mode = {"gnss_only": "gnss", "one_shot": "single", "iterated": "iterate"}[w]
+    loss = cfg.message_loss if mode != "gnss" else 0.0
+    res = solve_distributed(prob, mode=mode, neighbour_model=cfg.neighbour_model, max_rounds=cfg.max_rounds,
+                            tol=cfg.tol, huber=huber, silent_from=silent, loss_prob=loss,
+                            rng=rng if loss > 0 else None, max_age=None if cfg.max_age < 0 else cfg.max_age,
+                            damping=cfg.damping, transport=transport)
+    return res, res.rounds, res.converged, res.messages, res.bytes_sent
+
+
+
+
+NETWORKED = ("one_shot", "iterated")  # the variants whose messages travel over [network]
 
 
 class _CoopEpochs(EpochGrouping):
@@ -39,8 +108,11 @@ class _CoopEpochs(EpochGrouping):
         gnss = context.sensors.get("gnss", {})
         self.rtk_sigma = gnss_sigma(gnss["rtk"]) if "rtk" in gnss else None
         self.rng = context.rng
+        self.channel = context.channel  # the runtime's network under [network] (None: ideal)
         self.t = None
-        self.nonconverged = 0
+        # health(): the per-epoch solver counts the coop scores read (testbed.plugins.coop_scores.SOLVER_COUNTS)
+        self.counts = dict.fromkeys(("epochs", "rounds_total", "rounds_max", "messages_total", "bytes_total",
+                                     "nonconverged_epochs"), 0)
         self._reset()
 
     def _reset(self) -> None:
@@ -49,7 +121,7 @@ class _CoopEpochs(EpochGrouping):
         self.edges: list[tuple[int, int]] = []
         self.ranges: list[float] = []
 
-    def _close(self) -> list[Estimate]:
+    def _close(self) -> list[EstimateBatch]:
         if np.isnan(self.fix).all():  # only ranges at this instant: not an epoch
             return []
         missing = [f"uav{i + 1}" for i in np.flatnonzero(np.isnan(self.fix[:, 0]))]
@@ -57,10 +129,19 @@ class _CoopEpochs(EpochGrouping):
             raise ValueError(f"epoch at t = {self.t:g} s has no GNSS fix of {', '.join(missing)}")
         edges = np.array(self.edges, dtype=np.int64).reshape(-1, 2)
         prob = epoch_problem(self.cfg, self.fix, gnss_covariances(self.cfg, self.is_rtk), edges, np.array(self.ranges, float))
-        res, _, converged, _, _ = solve_epoch(self.cfg, self.variant, prob, self.t, self.rng)
-        self.nonconverged += int(not converged)
-        return [Estimate(time=self.t, target=site, quantity="position", value=res.positions[i], cov=res.cov[i])
-                for site, i in self.index.items()]
+        transport = self.channel.transport(self.t) if self.channel is not None and self.variant in NETWORKED else None
+        res, rounds, converged, messages, nbytes = solve_epoch(self.cfg, self.variant, prob, self.t, self.rng, transport)
+        c = self.counts
+        c["epochs"] += 1
+        c["rounds_total"] += int(rounds)
+        c["rounds_max"] = max(c["rounds_max"], int(rounds))
+        c["messages_total"] += int(messages)
+        c["bytes_total"] += int(nbytes)
+        c["nonconverged_epochs"] += int(not converged)
+        sites = list(self.index)  # vehicle order: site i is res row i
+        # the centralized solver has the cross-covariances of the whole epoch: its joint covariance too
+        return [EstimateBatch(time=np.full(self.n, self.t), target=sites, quantity="position", value=res.positions, cov=res.cov,
+                              cov_joint=getattr(res, "cov_full", None))]
 
     def _take(self, i: int, m: Measurement) -> None:
         if m.stream == "gnss":
@@ -71,7 +152,9 @@ class _CoopEpochs(EpochGrouping):
             self.ranges.append(float(m.value[0]))
 
     def health(self) -> dict[str, int]:
-        return {"nonconverged_epochs": self.nonconverged}
+        """Epochs solved; solver rounds (iterations) in total and at most; messages and bytes sent
+        in total; epochs whose solver stopped at its cap unconverged."""
+        return dict(self.counts)
 
 
 class GnssOnly(_CoopEpochs):

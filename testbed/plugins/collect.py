@@ -39,8 +39,24 @@ class Series:
     frame: str = "world"
 
 
-# {(target, quantity): Series}
-Track = dict[tuple[str, str], Series]
+@dataclass(frozen=True, slots=True)
+class Joint:
+    """A joint covariance of several targets' estimates at one time (EstimateBatch.cov_joint):
+    time s, targets (n,) in the order of cov's blocks, frame, cov (3n, 3n)."""
+
+    time: float
+    targets: tuple[str, ...]
+    frame: str
+    cov: np.ndarray
+
+
+class Track(dict):
+    """{(target, quantity): Series}; `joint` {quantity: [Joint, ...] in arrival order}, the joint
+    covariances an estimator gave (empty for most; not kept in estimates.npz)."""
+
+    def __init__(self, *args, joint: dict | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.joint = joint or {}
 
 
 class Collector:
@@ -56,6 +72,7 @@ class Collector:
         self._frame: dict[tuple[str, str], str] = {}
         self._checked: set[tuple] = set()  # (targets, quantity, frame) of batches whose keys were checked
         self._calls: list[str] = []  # `where` of each add() call
+        self._joint: dict[str, list[Joint]] = {}
         self._seq = 0
 
     def _fail(self, where: str, e: object, reason: str, time: float | None = None) -> PluginError:
@@ -139,8 +156,29 @@ class Collector:
                 bad = np.flatnonzero(np.abs(norm - 1.0) > 1e-6)[0]
                 raise self._fail(where, (target[bad], b.quantity), f"quaternion norm {norm[bad]:.9g} is not 1")
             value = value / norm[:, None]
+        if b.cov_joint is not None:
+            self._add_joint(b, where, target, t, cov)
         self._batches.append((b.quantity, target, t, value, cov, self._seq, len(self._calls) - 1))
         self._seq += k
+
+    def _add_joint(self, b: EstimateBatch, where: str, target: tuple, t: np.ndarray, cov: np.ndarray | None) -> None:
+        """Check a batch's cov_joint (EstimateBatch) and keep it."""
+        k = len(target)
+        C = np.asarray(b.cov_joint, dtype=float)
+        reason = ("is given for attitude (position or velocity only)" if b.quantity == "attitude"
+                  else f"has shape {C.shape}, expected {(3 * k, 3 * k)} for {k} targets" if C.shape != (3 * k, 3 * k)
+                  else "needs rows of one time of validity" if k and np.ptp(t) > 0
+                  else "is not finite" if not np.isfinite(C).all()
+                  else "is not symmetric" if not np.allclose(C, C.T, rtol=1e-9, atol=1e-12 * max(1.0, np.abs(C).max(initial=0.0)))
+                  else "needs cov, its (3, 3) diagonal blocks" if cov is None
+                  else "does not have cov as its (3, 3) diagonal blocks"
+                  if not np.allclose(np.stack([C[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(k)]).reshape(cov.shape), cov,
+                                     rtol=1e-9, atol=1e-12 * max(1.0, np.abs(C).max(initial=0.0)))
+                  else None)
+        if reason is not None:
+            raise self._fail(where, b, f"cov_joint {reason}")
+        if k:
+            self._joint.setdefault(b.quantity, []).append(Joint(float(t[0]), target, b.frame, C))
 
     def _series(self) -> dict[tuple[str, str], list[tuple[np.ndarray, ...]]]:
         """Per (target, quantity), its estimates in parts: time (K,), value (K, d), cov (K, 3, 3)
@@ -184,7 +222,7 @@ class Collector:
             time, value, cov, has, seq, _ = series[key]
             order = np.lexsort((seq, time))  # by time; ties keep arrival order
             out[key] = Series(time[order], value[order], cov[order], has[order], self._frame[key])
-        return out
+        return Track(out, joint=self._joint)
 
 
 NAN33 = np.full((3, 3), np.nan)

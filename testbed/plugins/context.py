@@ -61,9 +61,10 @@ def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, t
 
 
 def make_context(scenario: Scenario, physics: Physics, key: str, params: dict,
-                 prior: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Context:
+                 prior: dict[str, tuple[np.ndarray, np.ndarray]] | None = None, channel: object | None = None) -> Context:
     """The Context of estimator `key` in this run (its rng: stream "estimator/KEY" of the seed).
-    prior: priors(scenario, log), computed once per run (None: none)."""
+    prior: priors(scenario, log), computed once per run (None: none); channel: its network
+    (testbed.plugins.channel.Channel) or None."""
     anchors = {f"anchor{k}": np.array(p, float) for k, p in enumerate(scenario.world.anchors, start=1)}
     return Context(
         vehicles=tuple(f"uav{i}" for i in range(1, scenario.vehicles + 1)),
@@ -77,4 +78,5 @@ def make_context(scenario: Scenario, physics: Physics, key: str, params: dict,
         motion=scenario.motion,
         seed=scenario.seed,
         rng=stream_rng(scenario.seed, f"estimator/{key}"),
+        channel=channel,
     )

@@ -1,24 +1,29 @@
 """Running a scenario's plugin estimators on a run log and scoring them (the runner's one call).
 
 Each plugin gets its own Context, the same measurements in the same order (testbed.plugins.feed),
-and is scored by testbed.plugins.score against the log's truth (with the scenario's PCRB where it
-has one: seed 003 phase-ekf); its figures overlay every plugin of the run. The result is merged into metrics.json `estimators` under each plugin's key;
+and is scored by testbed.plugins.score against the log's truth, with the run's scoring hooks
+(testbed.plugins.hooks: e.g. the PCRB of seed 003 phase-ekf); its figures overlay every plugin of the run.
+With a [network] table each plugin run on the log gets its own network (Context.channel,
+testbed.plugins.channel); a plugin that used it has its counts under `network`. The result is merged into metrics.json `estimators` under each plugin's key;
 a plugin that fails gets its failure there instead (testbed.plugins.failures) and the others go on.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from testbed.errors import ConfigError, PluginError
 from testbed.interrupt import poll
-from testbed.pipelines.phase import position_bound
+from testbed.metrics import network_summary
+from testbed.plugins.channel import Channel
 from testbed.plugins.context import make_context, priors
 from testbed.plugins.failures import failed_entry
 from testbed.plugins.feed import batched, run_plugin
 from testbed.plugins.loading import Plugin
-from testbed.plugins.score import Bound, plot_errors, score
+from testbed.plugins.hooks import scenario_hooks
+from testbed.plugins.score import plot_errors, score
 from testbed.plugins.truth import Truth
 from testbed.scenario import Scenario
 from testbed.world import Physics
@@ -36,7 +41,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
     done = done or {}
     feed = list(batched(scenario, log)) if any(p.key not in done for p in plugins) else []
     prior = priors(scenario, log)
-    bound = scenario_bound(scenario, log)
+    hooks = scenario_hooks(scenario, log)
     out, shown = {}, {}
     for p in plugins:
         if p.key in taken:
@@ -44,23 +49,21 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
                               "give it another name ([[estimators]] name)")
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, physics, p.key, p.params, prior)
+        truth = Truth(log, ctx)
+        channel = Channel(scenario.network, truth, log, ctx.vehicles, scenario.seed, p.key) \
+            if scenario.network is not None and p.key not in done else None
+        ctx = replace(ctx, channel=channel)
         try:
             track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed)
         except PluginError as e:  # its own result; the others are still scored (testbed.plugins.failures)
             out[p.key] = failed_entry(p.entry, e)
             continue
-        scores, errs = score(track, Truth(log, ctx), bound)
-        out[p.key] = {"entry": p.entry, **scores, **({"health": health} if health else {}), "wall_ms": wall_ms}
+        scores, errs = score(track, truth, hooks, health)
+        network = channel.stats() if channel is not None else None
+        out[p.key] = {"entry": p.entry, **scores, **({"health": health} if health else {}),
+                      **({"network": network_summary(network)} if network is not None else {}), "wall_ms": wall_ms}
         shown[p.key] = (track, errs)
     if plots_dir is not None:
-        plot_errors(shown, Path(plots_dir), bound=bound)
+        plot_errors(shown, Path(plots_dir), hooks=hooks)
     return out, {key: track for key, (track, _) in shown.items()}
 
-
-def scenario_bound(scenario: Scenario, log: dict[str, np.ndarray]) -> Bound | None:
-    """The scenario's PCRB for plugin scores: seed 003 phase-ekf's, of the follower's body
-    position (testbed.pipelines.phase.position_bound); None for the other scenarios."""
-    if getattr(scenario.pipeline, "kind", None) != "phase-ekf":
-        return None
-    t, B, follower = position_bound(scenario, log)
-    return Bound(f"uav{follower}", t, B)

@@ -16,12 +16,19 @@ covariance), `n_eff_{q}` (the targets' NEES at common instants averaged, then as
 estimates a quantity of bodies and of sites (e.g. a body's position and each antenna's) has the
 bodies' in these headlines and the sites' apart, under `sites` with the same keys; with bodies only
 or sites only, they are the headline.
-PCRB: where the scenario has one (seed 003 phase-ekf: the posterior Cramer-Rao bound of the
-follower's body position, with the scenario's measurement and motion model, computed along the
-true trajectory by testbed.pipelines.phase.position_bound), a world-frame position series of that
-body gets `pcrb_rmse_m` = sqrt(mean trace B) over its estimates at the bound's epochs
-(`pcrb_samples` of them; `rmse_at_pcrb_epochs_m` is its RMSE over the same samples), and the
-summary `pcrb_rmse_position_m`; the error plot overlays +/-3 sqrt(diag B).
+Scoring hooks (`Hook`): the extra scores a paper defines (a PCRB, a joint ANEES, ...) are given to
+ANY estimator whose outputs fit, never to a named one. A hook is built per run from the scenario
+and its log (testbed.plugins.hooks.scenario_hooks) and is asked, for every estimator: `series`
+(extra keys of one (target, quantity) series, beside its scores under `targets`), `summary`
+(extra top-level keys of the estimator, from its Track, errors and health(); {} when its outputs
+do not fit), and, once per run, `plot` (figures of its own) and `overlay` (lines drawn on the
+shared error plots). A hook reads the log's truth; the estimators never do.
+PCRB (`Bound`, seed 003 phase-ekf: the posterior Cramer-Rao bound of the follower's body position,
+with the scenario's measurement and motion model, computed along the true trajectory by
+testbed.pipelines.phase.position_bound): a world-frame position series of that body gets
+`pcrb_rmse_m` = sqrt(mean trace B) over its estimates at the bound's epochs (`pcrb_samples` of
+them; `rmse_at_pcrb_epochs_m` is its RMSE over the same samples), and the summary
+`pcrb_rmse_position_m`; the error plot overlays +/-3 sqrt(diag B).
 """
 from __future__ import annotations
 
@@ -39,8 +46,32 @@ UNIT = {"position": "m", "velocity": "m_s", "attitude": "deg"}
 SCALE = {"position": 1.0, "velocity": 1.0, "attitude": float(np.degrees(1.0))}
 
 
+class Hook:
+    """A scoring hook (module docstring). Every method is optional: the defaults add nothing."""
+
+    def series(self, target: str, quantity: str, s: Series, err: np.ndarray) -> dict:
+        """Extra keys of one series: s its estimates (K samples), err (K, 3) its errors."""
+        return {}
+
+    def summary(self, track: Track, errs: dict, health: dict) -> dict:
+        """Extra top-level keys of one estimator: its Track, errors {(target, quantity): (K, 3)}
+        and health() counts; {} when its outputs do not fit."""
+        return {}
+
+    def first(self, quantity: str) -> tuple[str, ...]:
+        """Targets of `quantity` the shared error plots should show first."""
+        return ()
+
+    def overlay(self, axes, target: str, quantity: str) -> None:
+        """Draw on the three axes (x, y, z) of the shared error plot of (target, quantity)."""
+
+    def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
+        """Figures of the hook's own: shown {name: (Track, errors)} of every scored estimator."""
+        return []
+
+
 @dataclass(frozen=True, slots=True)
-class Bound:
+class Bound(Hook):
     """A scenario's PCRB of one target's world position: time (K,) s, cov (K, 3, 3) m^2."""
 
     target: str
@@ -55,6 +86,31 @@ class Bound:
         j = np.minimum(np.searchsorted(self.time, s.time - 1e-9), self.time.size - 1)
         hit = np.flatnonzero(np.abs(self.time[j] - s.time) < 1e-9)
         return hit, self.cov[j[hit]]
+
+    def series(self, target: str, quantity: str, s: Series, err: np.ndarray) -> dict:
+        hit, B = self.at(s, target, quantity)
+        if not hit.size:
+            return {}
+        return {"pcrb_rmse_m": float(np.sqrt(np.mean(np.trace(B, axis1=1, axis2=2)))), "pcrb_samples": int(hit.size),
+                "rmse_at_pcrb_epochs_m": rmse(err[hit])}
+
+    def summary(self, track: Track, errs: dict, health: dict) -> dict:
+        s = track.get((self.target, "position"))
+        if s is None:
+            return {}
+        hit, B = self.at(s, self.target, "position")
+        return {"pcrb_rmse_position_m": float(np.sqrt(np.mean(np.trace(B, axis1=1, axis2=2))))} if hit.size else {}
+
+    def first(self, quantity: str) -> tuple[str, ...]:
+        return (self.target,) if quantity == "position" else ()
+
+    def overlay(self, axes, target: str, quantity: str) -> None:
+        if target != self.target or quantity != "position":
+            return
+        pc = 3 * np.sqrt(np.clip(np.diagonal(self.cov, axis1=1, axis2=2), 0, None))
+        for a, ax in enumerate(axes):
+            ax.plot(self.time, pc[:, a], "k--", lw=0.8, label="PCRB ±3σ" if a == 0 else None)
+            ax.plot(self.time, -pc[:, a], "k--", lw=0.8)
 
 
 def _axis(e: np.ndarray) -> list[float]:
@@ -71,13 +127,12 @@ def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.nd
     return out, ne
 
 
-def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict, dict]:
+def score(track: Track, truth: Truth, hooks: tuple[Hook, ...] | list[Hook] = (), health: dict | None = None) -> tuple[dict, dict]:
     """metrics.json scores of one estimator, and its errors {(target, quantity): (K, 3)} for plots.
-    bound: the scenario's PCRB, if it has one (module docstring)."""
+    hooks: the run's scoring hooks (module docstring); health: the estimator's health() counts."""
     targets: dict = {}
     errs: dict = {}
     pooled: dict[str, list] = {}
-    pcrb: dict[str, float] = {}
     for (target, q), s in track.items():
         e = errors(truth, target, q, s.time, s.value, s.frame)
         errs[(target, q)] = e
@@ -85,11 +140,8 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
         sc.update(coverage(truth.times(target), s.time))
         if s.frame != "world":
             sc["frame"] = s.frame
-        hit, B = bound.at(s, target, q) if bound is not None else (np.zeros(0, int), None)
-        if hit.size:
-            sc.update({"pcrb_rmse_m": float(np.sqrt(np.mean(np.trace(B, axis1=1, axis2=2)))), "pcrb_samples": int(hit.size),
-                       "rmse_at_pcrb_epochs_m": rmse(e[hit])})
-            pcrb[q] = sc["pcrb_rmse_m"]
+        for h in hooks:
+            sc.update(h.series(target, q, s, e))
         targets.setdefault(target, {})[q] = sc
         pooled.setdefault(q, {}).setdefault("/" in target, []).append(
             (e, ne, sc[f"rmse_{UNIT[q]}"], s.time[s.has_cov], sc["coverage"]))
@@ -99,8 +151,8 @@ def score(track: Track, truth: Truth, bound: Bound | None = None) -> tuple[dict,
         out.update(_summary(q, kinds[False] if apart else next(iter(kinds.values()))))
         if apart:
             out.setdefault("sites", {}).update(_summary(q, kinds[True]))
-        if q in pcrb:
-            out[f"pcrb_rmse_{q}_{UNIT[q]}"] = pcrb[q]
+    for h in hooks:
+        out.update(h.summary(track, errs, health or {}))
     out["targets"] = targets
     return out, errs
 
@@ -123,16 +175,17 @@ def _summary(q: str, rows: list[tuple]) -> dict:
 
 
 def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targets: int = 2,
-                bound: Bound | None = None) -> list[Path]:
-    """Per quantity and for the first `max_targets` targets (sorted, the PCRB's target first):
-    every estimator's error per axis against time with its own 3-sigma envelope, overlaid, and the
-    scenario's +/-3 sqrt(diag PCRB) where it has one. tracks: {name: (track, errors)}."""
+                hooks: tuple[Hook, ...] | list[Hook] = ()) -> list[Path]:
+    """Per quantity and for the first `max_targets` targets (sorted, the hooks' first targets
+    first): every estimator's error per axis against time with its own 3-sigma envelope, overlaid,
+    and the hooks' overlays (the scenario's +/-3 sqrt(diag PCRB) where it has one); then each
+    hook's own figures. tracks: {name: (track, errors)}."""
     from testbed.plots import figure, save  # lazy: matplotlib, only when plots are written
 
     keys = sorted({k for track, _ in tracks.values() for k in track}, key=lambda k: (k[1], k[0]))
     paths = []
     for q in UNIT:
-        first = (bound.target,) if bound is not None and q == "position" else ()
+        first = tuple(t for h in hooks for t in h.first(q))
         for target in sorted({t for t, qq in keys if qq == q}, key=lambda t: (t not in first, natural(t)))[:max_targets]:
             fig = figure(figsize=(8, 6.2))
             axes = fig.subplots(3, 1, sharex=True)
@@ -145,11 +198,8 @@ def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targ
                     ax.plot(s.time, e[:, a], lw=0.8, color=f"C{c}", label=name)
                     if s.has_cov.any():
                         ax.fill_between(s.time, -3 * sig[:, a], 3 * sig[:, a], color=f"C{c}", alpha=0.15, lw=0)
-            if target in first:
-                pc = 3 * np.sqrt(np.clip(np.diagonal(bound.cov, axis1=1, axis2=2), 0, None))
-                for a, ax in enumerate(axes):
-                    ax.plot(bound.time, pc[:, a], "k--", lw=0.8, label="PCRB ±3σ" if a == 0 else None)
-                    ax.plot(bound.time, -pc[:, a], "k--", lw=0.8)
+            for h in hooks:
+                h.overlay(axes, target, q)
             for a, ax in enumerate(axes):
                 ax.set_ylabel(f"{'xyz'[a]} [{UNIT[q].replace('_', '/')}]")
                 ax.grid(alpha=0.3)
@@ -157,4 +207,6 @@ def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targ
             axes[0].legend(fontsize=7, ncol=4, loc="upper right")
             axes[-1].set_xlabel("time [s]")
             paths.append(save(fig, plots_dir / f"estimators_{q}_{target.replace('/', '_')}.png"))
+    for h in hooks:
+        paths += h.plot(tracks, plots_dir)
     return paths

@@ -4,7 +4,8 @@ spec.toml that replays it (docs/replay.md, "ROS bags").
 DIR/bag/ is the bag (metadata.yaml and bag.mcap, rosbag2 format 9, CDR messages with their
 definitions embedded); DIR/spec.toml is the spec of the CSV export (testbed.replay.export) plus a
 [bag] table naming the bag and mapping its topics to the format's streams. The messages carry
-exactly the rows of the CSV export (testbed.replay.export.tables), times rounded to the ns of a ROS
+exactly the rows of the CSV export (testbed.replay.export.tables) but the camera's (no topic: the
+estimators that read it are left out of the spec, a note says so), times rounded to the ns of a ROS
 stamp; the bag's clock is the run's (0 s at its start). Topics (N vehicles uavI):
 
   /links/uwb, /links/phase, /links/range_rate  testbed_msgs/msg/Link (testbed.replay.ros.LINK_MSG)
@@ -31,12 +32,10 @@ import numpy as np
 import tomli_w
 from scipy.spatial.transform import Rotation
 
-from testbed import world
 from testbed.api import load_run
 from testbed.outdir import Output
 from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
-from testbed.plugins.context import lever_arms
-from testbed.replay.export import note_camera, spec_toml, tables
+from testbed.replay.export import run_spec, tables
 from testbed.replay.ros import LINK_TYPE, nanoseconds, rosbags, typestore
 
 WORLD = "world"
@@ -180,15 +179,14 @@ def export_bag(run_dir: Path, out: Path, *, force: bool = False) -> list[str]:
     run = load_run(run_dir)
     sc, log = run.scenario, run.log
     m = _Messages(typestore())
-    note_camera(run_dir, log)
-    rows = tables(sc, log)
+    spec = run_spec(run_dir, sc, log, bag=True)
+    rows = tables(sc, log, bag=True)
     for name, add in (("links", _links), ("poses", _gnss), ("imu", _imu), ("truth", _truth)):
         if name in rows:
             add(m, rows[name])
     _estimates(m, run_dir)
     with Output(Path(out), kind="dataset", force=force) as o:
         topics = write_bag(o.path / BAG, m)
-        spec = spec_toml(sc, run_dir, lever_arms(world.build(sc)), sc.vehicles)
         bag = {"path": BAG, "topics": [{"topic": t, "stream": s} for t, s in m.streams.items()]}
         (o.path / "spec.toml").write_text(spec + "\n" + tomli_w.dumps({"bag": bag}))
         o.commit()

@@ -9,11 +9,20 @@ Streams fed (Measurement.stream, value, sigma; src, dst site or body names):
   quaternion wxyz (body to world), sigma (3,) m or None.
 - imu.csv: stream "imu", value (6,) specific force m/s^2 then angular rate rad/s (site frame),
   sigma (6,) or None. height.csv: stream "height", value (1,) up coordinate m, sigma (1,) or None.
+- phase.csv: stream "phase" as a simulated run feeds it (testbed.sensors.phase): value (3,)
+  [carrier phase rad, range m, range rate m/s (NaN: none)], sigma (3,) or None, extra master_pos
+  (3,) m and master_vel (3,) m/s (the src antenna by its master's navigation solution, world),
+  rate_periods (int), wavelength (m), slip (bool); one Measurement per row (a batch has no extra).
+  A dataset takes the phase stream from phase.csv or from links rows of kind phase, not both.
+- camera.csv: stream "camera", src the camera site, dst the seen site, value (5,) [alpha, beta]
+  focal-plane coordinates (units of the focal length) and [bx, by, bz] the unit line of sight
+  (camera frame), sigma None (testbed.sensors.camera).
 Times: the files' clock minus window.start; arrival: the row's arrival (default its time).
 Order: as a simulated run's (testbed.plugins.feed): arrival, time, stream name, row of the stream.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -26,7 +35,7 @@ from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.bag_read import bag_tables
 from testbed.replay.spec import ReplaySpec, load_spec
-from testbed.replay.tables import REQUIRED_TABLES, SCHEMAS, Table, find, read_table
+from testbed.replay.tables import CAMERA_COLUMNS, PHASE_MASTER_COLUMNS, REQUIRED_TABLES, SCHEMAS, Table, find, read_table
 from testbed.rng import stream_rng
 
 LINK_KINDS = ("uwb", "phase", "range-rate")
@@ -60,11 +69,14 @@ class Recording:
         return self.spec.window.end - self.spec.window.start
 
     def context(self, key: str, params: dict) -> Context:
-        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed)."""
+        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed); of an
+        exported run, the Context the estimator had in the simulation (Context.pipeline aside: {},
+        the exported built-ins carry their resolved params; testbed.replay.export)."""
         return Context(
             vehicles=tuple(self.spec.bodies), sites=self.spec.sites, anchors=self.spec.anchor_points,
-            sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior={}, params=dict(params),
-            duration=self.duration, seed=self.spec.seed, rng=stream_rng(self.spec.seed, f"estimator/{key}"),
+            sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior=self.spec.priors, params=dict(params),
+            duration=self.duration, motion=self.spec.motion, seed=self.spec.seed,
+            rng=stream_rng(self.spec.seed, f"estimator/{key}"),
         )
 
     def measurements(self) -> list[Measurement]:
@@ -100,7 +112,7 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
     MAX_RANGE_RATE_M_S, sigmas >= MIN_SIGMA, arrival >= time, quaternions unit."""
     sites, bodies = set(spec.sites), set(spec.bodies)
     for name, t in tables.items():
-        for c in ("sigma", "sigma_x", "sigma_y", "sigma_z", "sigma_accel", "sigma_gyro"):
+        for c in ("sigma", "sigma_x", "sigma_y", "sigma_z", "sigma_accel", "sigma_gyro", "sigma_phase", "sigma_range", "sigma_rate"):
             if c in t.columns and np.any(t[c] < MIN_SIGMA):
                 i = int(np.argmax(t[c] < MIN_SIGMA))
                 want = "positive" if t[c][i] <= 0 else f"at least {MIN_SIGMA:g}"
@@ -137,6 +149,22 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
     for name, column in (("imu", "site"), ("height", "site")):
         if name in tables:
             _check_names(tables[name], column, sites | bodies, "a body or a site")
+    if "camera" in tables:
+        t = tables["camera"]
+        _check_names(t, "src", sites, "a site (body/site)")
+        _check_names(t, "dst", sites, "a site (body/site)")
+    if "phase" in tables:
+        t = tables["phase"]
+        if "links" in tables and np.any(tables["links"]["kind"] == "phase"):
+            raise t.error(0, "phase", f"the phase stream comes from here and from the links rows of kind phase "
+                                      f"({tables['links'].file}): keep one")
+        _check_names(t, "src", sites, "a site (body/site)")
+        _check_names(t, "dst", sites, "a site (body/site)")
+        for c, ok, want in (("rate_periods", (t["rate_periods"] >= 0) & (t["rate_periods"] == np.round(t["rate_periods"])),
+                             "a whole number of periods, 0 or more"), ("slip", np.isin(t["slip"], (0.0, 1.0)), "0 or 1"),
+                            ("wavelength", t["wavelength"] > 0, "a positive wavelength (m)")):
+            if not ok.all():
+                raise t.error(int(np.argmin(ok)), c, f"must be {want}, got {float(t[c][np.argmin(ok)]):g}")
     if "truth" in tables:
         t = tables["truth"]
         _check_names(t, "body", bodies, "a body")
@@ -149,8 +177,9 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
 
 
 def _stream(name: str, t: Table, rows: np.ndarray, value: np.ndarray, sigma: np.ndarray | None, src: np.ndarray,
-            dst: np.ndarray | None, start: float) -> tuple:
-    """(name, time, arrival, value, src, dst, sigma) of one stream's rows (read-only arrays)."""
+            dst: np.ndarray | None, start: float, extra: dict | None = None) -> tuple:
+    """(name, time, arrival, value, src, dst, sigma, extra) of one stream's rows (read-only arrays;
+    extra: {column: (n, ...) array} of a stream whose rows carry Measurement.extra, else None)."""
     time = t["time"][rows] - start
     arrival = (np.where(np.isnan(t["arrival"][rows]), t["time"][rows], t["arrival"][rows]) - start
                if "arrival" in t.columns else time)
@@ -159,7 +188,8 @@ def _stream(name: str, t: Table, rows: np.ndarray, value: np.ndarray, sigma: np.
     if sigma is not None:
         sigma = np.ascontiguousarray(sigma[rows], dtype=float)
         sigma.flags.writeable = False
-    return (name, time, arrival, value, src[rows], np.full(rows.sum(), "") if dst is None else dst[rows], sigma)
+    extra = None if extra is None else {k: _frozen(v[rows]) for k, v in extra.items()}
+    return (name, time, arrival, value, src[rows], np.full(rows.sum(), "") if dst is None else dst[rows], sigma, extra)
 
 
 def _streams(tables: dict[str, Table], start: float) -> list[tuple]:
@@ -187,13 +217,26 @@ def _streams(tables: dict[str, Table], start: float) -> list[tuple]:
     if "height" in tables:
         t = tables["height"]
         out.append(_stream("height", t, np.ones(len(t), bool), t["value"][:, None], t["sigma"][:, None], t["site"], None, start))
+    if "phase" in tables:
+        t = tables["phase"]
+        value = np.stack([t["phase"], t["range"], t["rate"]], axis=1)
+        sig = np.stack([t[f"sigma_{c}"] for c in ("phase", "range", "rate")], axis=1)
+        pv = np.stack([t[c] for c in PHASE_MASTER_COLUMNS], axis=1)
+        extra = {"master_pos": pv[:, :3], "master_vel": pv[:, 3:], "rate_periods": t["rate_periods"].astype(np.int64),
+                 "wavelength": t["wavelength"], "slip": t["slip"].astype(bool)}
+        out.append(_stream("phase", t, np.ones(len(t), bool), value, sig, t["src"], t["dst"], start, extra))
+    if "camera" in tables:
+        t = tables["camera"]
+        value = np.stack([t[c] for c in CAMERA_COLUMNS], axis=1)
+        out.append(_stream("camera", t, np.ones(len(t), bool), value, None, t["src"], t["dst"], start))
     return sorted(out, key=lambda s: s[0])
 
 
 def _measurements(streams: list[tuple]) -> list[Measurement | MeasurementBatch]:
     """Every row in the order of testbed.plugins.feed.measurements (arrival, time, stream, row): a
-    run of consecutive rows of one stream as one MeasurementBatch, a lone row as a Measurement; a
-    row whose sigma is (partly) missing has sigma None (NaN in a batch)."""
+    run of consecutive rows of one stream as one MeasurementBatch, a lone row or a row of a stream
+    with extra columns as a Measurement; a row whose sigma is (partly) missing has sigma None (NaN
+    in a batch)."""
     if not streams:
         return []
     arrival = np.concatenate([s[2] for s in streams])
@@ -205,11 +248,14 @@ def _measurements(streams: list[tuple]) -> list[Measurement | MeasurementBatch]:
     cuts = np.concatenate([[0], np.flatnonzero(np.diff(sid)) + 1, [sid.size]]).tolist()
     out: list[Measurement | MeasurementBatch] = []
     for lo, hi in zip(cuts[:-1], cuts[1:]):
-        name, t, a, value, src, dst, sigma = streams[sid[lo]]
+        name, t, a, value, src, dst, sigma, extra = streams[sid[lo]]
         rows = row[lo:hi]
         b = MeasurementBatch(stream=name, time=_frozen(t[rows]), arrival=_frozen(a[rows]), value=_frozen(value[rows]),
                              src=_frozen(src[rows]), dst=_frozen(dst[rows]), sigma=None if sigma is None else _frozen(sigma[rows]))
-        out += b.rows() if hi - lo == 1 else [b]
+        if extra is not None:
+            out += [dataclasses.replace(m, extra={k: v[r] for k, v in extra.items()}) for m, r in zip(b.rows(), rows.tolist())]
+        else:
+            out += b.rows() if hi - lo == 1 else [b]
     return out
 
 

@@ -42,19 +42,20 @@ from testbed.replay.recording import RecordedTruth, Recording, load_recording
 
 
 def _scorable(track: Track, truth: RecordedTruth) -> tuple[Track, dict[str, int]]:
-    """The estimates truth can score, and the count of the others per "target quantity"."""
+    """The estimates truth can score, and the count of the others per "target quantity"; an
+    estimate relative to a body (its frame) needs that body's truth too, at its time."""
     keep: Track = {}
     dropped: dict[str, int] = {}
     for (target, q), s in track.items():
-        if not truth.known(target, q):
+        bodies = [truth.body_of(target)] + ([s.frame] if s.frame != "world" else [])
+        if not truth.known(target, q) or not all(truth.known(b, q) for b in bodies[1:]):
             dropped[f"{target} {q}"] = int(s.time.size)
             continue
-        lo, hi = truth.span[truth.body_of(target)]
-        inside = (s.time >= lo) & (s.time <= hi)
+        inside = np.logical_and.reduce([(s.time >= truth.span[b][0]) & (s.time <= truth.span[b][1]) for b in bodies])
         if not inside.all():
             dropped[f"{target} {q}"] = int((~inside).sum())
         if inside.any():
-            keep[(target, q)] = Series(s.time[inside], s.value[inside], s.cov[inside], s.has_cov[inside])
+            keep[(target, q)] = Series(s.time[inside], s.value[inside], s.cov[inside], s.has_cov[inside], s.frame)
     return keep, dropped
 
 

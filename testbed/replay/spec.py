@@ -89,9 +89,26 @@ class BagSource:
             require(name not in names[:i], f"topics[{i}].topic", name, f"{name!r} is mapped twice")
 
 
+def _finite(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def _point(value: object) -> bool:
-    return (isinstance(value, (list, tuple)) and len(value) == 3
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+    return isinstance(value, (list, tuple)) and len(value) == 3 and all(_finite(v) for v in value)
+
+
+def _check_prior(prior: dict) -> None:
+    for target, table in prior.items():
+        key = f"prior.{target}"
+        require(isinstance(table, dict) and set(table) == {"mean", "cov"}, key, table,
+                "expected a table with two keys, mean = [n numbers] and cov = [k rows of k numbers], k <= n")
+        mean, cov = table["mean"], table["cov"]
+        require(isinstance(mean, list) and bool(mean) and all(_finite(v) for v in mean), f"{key}.mean", mean,
+                "expected a non-empty array of finite numbers")
+        k = len(cov) if isinstance(cov, list) else 0
+        require(0 < k <= len(mean) and all(isinstance(r, list) and len(r) == k and all(_finite(v) for v in r) for r in cov),
+                f"{key}.cov", cov, f"expected a square array of finite numbers, at most {len(mean)} rows "
+                "(the covariance of mean, or of its tangent space on a manifold)")
 
 
 def _check_bodies(bodies: dict) -> None:
@@ -114,7 +131,11 @@ class ReplaySpec:
     Context.rng (stream "estimator/NAME"). window: the time window. bodies: {body: {sites: {site:
     [x, y, z] m, body frame FLU}}}, in order (the vehicles of the Context); the site's full name is
     "body/site". anchors: {name: [x, y, z] m, world ENU}, fixed. sensors: {stream: table} the declared
-    sensor models handed to estimators as Context.sensors (free tables). estimators: [[estimators]]
+    sensor models handed to estimators as Context.sensors (free tables). motion: Context.motion,
+    "prescribed" (kinematic) or "flown" (closed loop). prior: {target: {mean: (n,), cov: (k, k)}}
+    the prior the built-in estimators start from, in their own state (Context.prior; an exported
+    run's, testbed.plugins.context.priors; k = n, or k < n for the tangent space where the state
+    lives on a manifold, as visnav's (22,) state with a (21, 21) covariance). estimators: [[estimators]]
     tables as in a scenario (entry, name, params). bag: the measurements and truth are read from
     this ROS bag instead of the CSV tables beside the spec (None: from the tables).
     """
@@ -126,6 +147,8 @@ class ReplaySpec:
     bodies: dict
     anchors: dict = field(default_factory=dict)
     sensors: dict = field(default_factory=dict)
+    motion: Literal["prescribed", "flown"] = "prescribed"
+    prior: dict = field(default_factory=dict)
     estimators: tuple[EstimatorSpec, ...] = ()
     bag: BagSource | None = None
 
@@ -140,6 +163,7 @@ class ReplaySpec:
             require(_point(p), f"anchors.{name}", p, "expected a position [x, y, z] of finite numbers (m, world ENU)")
         for name, table in self.sensors.items():
             require(isinstance(table, dict), f"sensors.{name}", table, "expected a table (the declared sensor model)")
+        _check_prior(self.prior)
 
     @property
     def sites(self) -> dict[str, tuple[str, np.ndarray]]:
@@ -151,6 +175,11 @@ class ReplaySpec:
                 a.flags.writeable = False
                 out[f"{body}/{site}"] = (body, a)
         return out
+
+    @property
+    def priors(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """{target: (mean (n,), cov (k, k))} as Context.prior."""
+        return {t: (np.array(p["mean"], float), np.array(p["cov"], float)) for t, p in self.prior.items()}
 
     @property
     def anchor_points(self) -> dict[str, np.ndarray]:

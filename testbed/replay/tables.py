@@ -17,6 +17,12 @@ import numpy as np
 
 from testbed.errors import ConfigError
 
+#: the value columns of a camera row: the focal-plane coordinates of the seen point (units of the
+#: focal length) and its unit line of sight in the camera frame (testbed.sensors.camera)
+CAMERA_COLUMNS = ("alpha", "beta", "bx", "by", "bz")
+#: the phase table's columns of the src antenna's position (m) and velocity (m/s), world, from its
+#: master's own navigation solution (testbed.sensors.phase: phase/master_pos, phase/master_vel)
+PHASE_MASTER_COLUMNS = ("master_x", "master_y", "master_z", "master_vx", "master_vy", "master_vz")
 #: (column, is a number, required) per table
 SCHEMAS: dict[str, tuple[tuple[str, bool, bool], ...]] = {
     "links": (("time", True, True), ("src", False, True), ("dst", False, True), ("kind", False, True),
@@ -28,6 +34,12 @@ SCHEMAS: dict[str, tuple[tuple[str, bool, bool], ...]] = {
             ("sigma_accel", True, False), ("sigma_gyro", True, False), ("arrival", True, False)),
     "height": (("time", True, True), ("site", False, True), ("value", True, True), ("sigma", True, False),
                ("arrival", True, False)),
+    "phase": (("time", True, True), ("src", False, True), ("dst", False, True), ("phase", True, True),
+              ("range", True, True), ("rate", True, False), *((c, True, True) for c in PHASE_MASTER_COLUMNS),
+              ("rate_periods", True, True), ("wavelength", True, True), ("slip", True, True),
+              *((f"sigma_{c}", True, False) for c in ("phase", "range", "rate")), ("arrival", True, False)),
+    "camera": (("time", True, True), ("src", False, True), ("dst", False, True),
+               *((c, True, True) for c in CAMERA_COLUMNS), ("arrival", True, False)),
     "truth": (("time", True, True), ("body", False, True), *((c, True, True) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")),
               *((c, True, False) for c in ("vx", "vy", "vz", "wx", "wy", "wz"))),
 }

@@ -9,7 +9,7 @@ then writes:
   solution (pooled over runs: sqrt of the mean of the per-run squared RMSEs), and the
   improvement factors RMSE_gnss / RMSE_variant;
 - figure 6 (plots/fig6_error_vs_time.png): position error against time in run 0 for four SPP
-  UAVs chosen like the paper's UAVs 1, 7, 12, 13 (testbed.pipelines.coop.choose_four: different
+  UAVs chosen like the paper's UAVs 1, 7, 12, 13 (testbed.plugins.coop_scores.choose_four: different
   neighbour counts);
 - table.md, table.csv, claims.json (each claim with its numbers and `holds`; testbed.report).
 Also: the GTSAM check of the centralized solution (every epoch of run 0), the effect of the round
@@ -51,6 +51,7 @@ from testbed.config import from_dict, to_dict
 from testbed.log import load_log
 from testbed.metrics import anees_interval, anees_run_interval, mean_ci, runs_effective_samples
 from testbed.pipelines import coop
+from testbed.plugins import builtin_coop, coop_scores
 from testbed.plots import compare_bars
 from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
     write_claims, write_csv, write_markdown
@@ -114,10 +115,10 @@ def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
     return {"per_uav": per, "uavs_better": int(sum(p["better"] for p in per)), "uavs": n, "fields": fields}
 
 
-def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
+def _gtsam_check(cfg, ep: coop_scores.Epochs) -> dict:
     """Centralized solution and marginals vs GTSAM on every epoch of a run, on the graph with
     independent ranges (range_sigmas; GTSAM's range factors are independent): the solver check. The
-    scored centralized estimate also whitens the ranges jointly (coop.range_covariance).
+    scored centralized estimate also whitens the ranges jointly (builtin_coop.range_covariance).
 
     Both sides stop on the step, not on the cost (ours: solve_centralized's defaults; GTSAM:
     Gauss-Newton with QR, driven to a step below 1e-10 m, estimators.gtsam_reference.solve_gtsam),
@@ -128,12 +129,12 @@ def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
     # lazy: GTSAM is a heavy optional dependency, loaded only for this check
     from estimators.gtsam_reference import solve_gtsam
 
-    Sg = coop.gnss_covariances(cfg, ep.is_rtk)
+    Sg = builtin_coop.gnss_covariances(cfg, ep.is_rtk)
     dpos = np.zeros(ep.time.size)
     dcov, dlm = 0.0, 0.0
     for k in range(ep.time.size):
         d = ep.ranges[k]
-        prob = CoopProblem(gnss_pos=ep.gnss[k], gnss_cov=Sg, edges=ep.edges[k], ranges=d, range_sigma=coop.range_sigmas(cfg, d))
+        prob = CoopProblem(gnss_pos=ep.gnss[k], gnss_cov=Sg, edges=ep.edges[k], ranges=d, range_sigma=builtin_coop.range_sigmas(cfg, d))
         ours = solve_centralized(prob)
         Xg, Pg = solve_gtsam(prob)
         Xl, _ = solve_gtsam(prob, optimizer="lm", marginals=False)
@@ -150,10 +151,10 @@ def _gtsam_check(cfg, ep: coop.Epochs) -> dict:
                          "Levenberg-Marquardt reported only: its cost-based acceptance stalls at round-off)"}
 
 
-def _cap_effect(cfg, ep: coop.Epochs, seed: int, est: coop.CoopEstimates) -> dict:
+def _cap_effect(cfg, ep: coop_scores.Epochs, seed: int, est: coop.CoopEstimates) -> dict:
     """Iterated solution of the first CAP_EPOCHS epochs with the scenario cap vs CAP_LARGE rounds."""
     K = min(CAP_EPOCHS, ep.time.size)
-    sub = coop.Epochs(ep.time[:K], ep.gnss[:K], ep.is_rtk, ep.truth[:K], ep.edges[:K], ep.ranges[:K], ep.nlos[:K])
+    sub = coop_scores.Epochs(ep.time[:K], ep.gnss[:K], ep.is_rtk, ep.truth[:K], ep.edges[:K], ep.ranges[:K], ep.nlos[:K])
     big = coop.estimate(replace(cfg, max_rounds=CAP_LARGE), sub, seed, which=("iterated", "centralized"))
     spp = ~ep.is_rtk
 
@@ -182,7 +183,7 @@ def _nlos_experiment(scenario: Scenario, seed: int) -> dict:
     table["seed"] = seed
     sc = from_dict(Scenario, table, "coop-fg (NLOS experiment)")
     log, physics = simulate(sc)
-    ep = coop.epochs_from_log(log, sc.vehicles)
+    ep = coop_scores.epochs_from_log(log, sc.vehicles)
     out = {"duration_s": sc.duration, "obstacles": list(NLOS_OBSTACLES),
            "nlos_fraction": float(np.concatenate(ep.nlos).mean()),
            "nlos_error_mean_m": float(np.mean((log["uwb/value"][:, 0] - log["uwb/clean"][:, 0])[log["uwb/nlos"]]))
@@ -224,7 +225,7 @@ class CoopResults:
     runs: int
     metrics: list[dict]
     rmse: dict[str, np.ndarray]
-    epochs: coop.Epochs
+    epochs: coop_scores.Epochs
     est0: coop.CoopEstimates
     neighbours: np.ndarray
     rtk_neighbours: np.ndarray
@@ -259,13 +260,13 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None, worker
     run_dirs = sweep_runs(scenario, runs, out / "runs", workers=workers)
     metrics = load_metrics(run_dirs)
     # run 0 again, for the geometry (Table 3), figure 6, the GTSAM check and the cap effect
-    ep = coop.epochs_from_log(load_log(run_dirs[0]), scenario.vehicles)
-    nb, nr = coop.neighbour_counts(ep)
+    ep = coop_scores.epochs_from_log(load_log(run_dirs[0]), scenario.vehicles)
+    nb, nr = coop_scores.neighbour_counts(ep)
     est0 = coop.estimate(cfg, ep, scenario.seed)
     return CoopResults(
         scenario=scenario, motion=motion, runs=runs, metrics=metrics,
-        rmse={w: np.array([m["estimators"][w]["rmse_position_m"] for m in metrics]) for w in VARIANTS},
-        epochs=ep, est0=est0, neighbours=nb, rtk_neighbours=nr, four=list(cfg.plot_uavs) or coop.choose_four(ep),
+        rmse={w: np.array([m["estimators"][w]["rmse_position_per_vehicle_m"] for m in metrics]) for w in VARIANTS},
+        epochs=ep, est0=est0, neighbours=nb, rtk_neighbours=nr, four=list(cfg.plot_uavs) or coop_scores.choose_four(ep),
         gtsam=_gtsam_check(cfg, ep), cap=_cap_effect(cfg, ep, scenario.seed, est0),
         nlos=_nlos_experiment(replace(scenario, estimators=()), scenario.seed) if nlos else None,
         plugins={s.key: _plugin_rmse(metrics, s.key, scenario.vehicles) for s in estimators})
@@ -455,8 +456,8 @@ def write(out: Path, res: CoopResults, claims: list[Claim]) -> dict:
     (out / "plots").mkdir(parents=True, exist_ok=True)
     for f in sorted((out / "runs" / run_name(0) / "plots").glob("*_envelope.png")):
         shutil.copy(f, out / "plots" / f"run0_{f.name}")
-    coop.plot_error_vs_time(res.est0, res.four, out / "plots" / "fig6_error_vs_time.png",
-                            f"Figure 6 (run 0, seed {sc.seed}): position error, UAVs {res.four}")
+    coop_scores.plot_error_vs_time(res.est0.epochs, res.est0.pos, res.four, out / "plots" / "fig6_error_vs_time.png",
+                                   f"Figure 6 (run 0, seed {sc.seed}): position error, UAVs {res.four}")
     stats = [mean_ci(res.rmse[w].mean(axis=1)) for w in VARIANTS]
     compare_bars(list(VARIANTS), np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
                  np.array([s[2] for s in stats]), out / "plots" / "rmse_mean.png",

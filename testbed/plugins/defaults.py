@@ -1,0 +1,37 @@
+"""A scenario's estimators: the default ones its `[pipeline]` kind names, then its own `[[estimators]]`.
+
+A `[pipeline]` table is the paper's parameter table; its kind names the paper's estimators, which
+run as plugins like any other (the built-ins take the table's keys as their settings,
+testbed.plugins.settings) under the names metrics.json has always given them. `DEFAULTS` holds
+the kinds converted so far; the others still run through their pipeline
+(testbed.pipelines.registry) until they are converted.
+"""
+from __future__ import annotations
+
+from testbed.errors import ConfigError
+from testbed.plugins.spec import EstimatorSpec
+from testbed.scenario import Scenario
+
+# [pipeline] kind -> ((metrics.json name, registered estimator), ...), in metrics.json order
+DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {
+    "coop-fg": (("gnss_only", "coop.gnss_only"), ("one_shot", "coop.one_shot"), ("iterated", "coop.iterated"),
+                ("centralized", "coop.centralized")),
+}
+
+
+def default_specs(scenario: Scenario) -> tuple[EstimatorSpec, ...]:
+    """The default estimators of the scenario's [pipeline] kind (none without one)."""
+    kind = getattr(scenario.pipeline, "kind", None)
+    return tuple(EstimatorSpec(entry=entry, name=name) for name, entry in DEFAULTS.get(kind, ()))
+
+
+def estimator_specs(scenario: Scenario) -> tuple[EstimatorSpec, ...]:
+    """Every estimator a run of the scenario scores: its defaults, then its [[estimators]].
+    A user estimator named like a default one is a ConfigError naming both."""
+    defaults = default_specs(scenario)
+    taken = {s.key for s in defaults}
+    for s in scenario.estimators:
+        if s.key in taken:
+            raise ConfigError(f"estimator {s.entry!r}: the name {s.key!r} is taken by a default estimator of the "
+                              f"{scenario.pipeline.kind} pipeline; give it another name ([[estimators]] name)")
+    return defaults + tuple(scenario.estimators)
