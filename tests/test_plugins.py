@@ -448,6 +448,9 @@ def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
     assert "Plugin estimators" in (out / "report.md").read_text()
     head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
     assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)
+    if paper == "phase":  # its runs' metrics hold the built-in too: compared over the same 2 seeds
+        _, *paired = (out / "table_plugins_paired.csv").read_text().strip().splitlines()
+        assert any(r.startswith(f"{group},Origin,") and r.split(",")[3] == "2" for r in paired)
 
 
 def test_the_covariance_check_agrees_with_eigenvalues():
@@ -600,3 +603,28 @@ def test_a_reproduction_scored_in_process_reports_the_failed_estimator_too(tmp_p
     failed = runs["runs"][0]["gaussian"]["plugins"]["Bad"]["failed"]
     assert failed["time_s"] >= 1.0 and "raised ZeroDivisionError: diverged" in failed["reason"]
     assert (out / "report.md").is_file() and (out / "claims.json").is_file()
+
+
+def test_plugin_rows_are_paired_with_every_other_estimator_of_the_same_runs():
+    """testbed.reproduce.plugins.paired: a plugin against each other estimator with a position RMSE
+    in the same runs (a run where either failed is left out of that pair), the factor of the means
+    and scipy's two-sided Wilcoxon signed-rank p of the paired differences; the section and
+    table_plugins_paired.csv carry them."""
+    from scipy.stats import wilcoxon
+
+    from testbed.reproduce import plugins as rows
+
+    rng = np.random.default_rng(5)
+    mine, ekf = rng.uniform(1.0, 2.0, 8), rng.uniform(1.5, 3.0, 8)
+    runs = [{"mine": {"rmse_position_m": float(a)}, "ekf": {"rmse_position_m": float(b)}, "graph": {"rmse_position_m": [1.0]}}
+            for a, b in zip(mine, ekf)]
+    runs[3]["ekf"] = {"failed": "in process()"}
+    got = rows.paired({"case": runs}, ["mine"])
+    assert [(r["estimator"], r["against"], r["runs"]) for r in got] == [("mine", "ekf", 7)]  # graph's RMSE is not a number
+    keep = np.arange(8) != 3
+    r = got[0]
+    assert r["factor"] == pytest.approx(ekf[keep].mean() / mine[keep].mean(), rel=1e-12)
+    assert r["p_two_sided"] == pytest.approx(wilcoxon(mine[keep] - ekf[keep]).pvalue, rel=1e-12)
+    assert rows.paired({"case": [{"mine": {"rmse_position_m": 1.0}}]}, ["mine"]) == []
+    md = rows.markdown({"case": runs}, ["mine"], "case")
+    assert any(line.startswith("| case | mine | ekf | 7 |") for line in md)
