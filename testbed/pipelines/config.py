@@ -317,8 +317,8 @@ class CoopPipelineConfig(_PipelineConfig):
     each of these five defaults to the declared [sensors.uwb] value (noise, clock_ppm, mode,
     reply_time, antenna_delay_sigma): set one only to study a mismatch;
     clock and antenna-delay errors enter the centralized estimator as the joint covariance of an
-    epoch's ranges (shared by the links of one radio, pipelines.coop.range_covariance) and the
-    distributed ones as extra white variance (pipelines.coop.range_sigmas).
+    epoch's ranges (shared by the links of one radio, plugins.builtin_coop.range_covariance) and the
+    distributed ones as extra white variance (plugins.builtin_coop.range_sigmas).
     robust: "none" (least squares) or "huber" range factors, threshold huber_delta (in sigmas).
     neighbour_model: "prior" (the paper: neighbours' broadcasts as priors with their covariances)
     or "fixed" (neighbours fixed, block-Jacobi: converges to the centralized optimum, slower).

@@ -7,13 +7,13 @@ epoch when a measurement of a later time arrives (or at finish), with the per-ep
 `uav{i}/uwb` site position with its covariance. Ranges at instants without GNSS fixes are not
 part of an epoch and are ignored, as in the pipeline. Under a [network] table, the broadcasts of
 one_shot and iterated travel through the network the runtime hands them (Context.channel,
-testbed.plugins.channel), as the pipeline's do.
+testbed.plugins.channel). `factor_graphs()` gives the epoch graphs an estimator was given to solve
+(the GTSAM check of the centralized solver, testbed.plugins.graph_check).
 
 params: the coop-fg [pipeline] keys (the known noise model and solver settings); a key not given
 takes the scenario's own [pipeline] value on a coop-fg scenario (testbed.plugins.settings). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
 sets by the fix type the receiver reports. Message loss (params message_loss > 0) draws from the
-estimator's own Context.rng (stream "estimator/NAME"), as testbed.pipelines.coop.estimate does
-for the same name.
+estimator's own Context.rng (stream "estimator/NAME").
 """
 from __future__ import annotations
 
@@ -113,6 +113,7 @@ class _CoopEpochs(EpochGrouping):
         # health(): the per-epoch solver counts the coop scores read (testbed.plugins.coop_scores.SOLVER_COUNTS)
         self.counts = dict.fromkeys(("epochs", "rounds_total", "rounds_max", "messages_total", "bytes_total",
                                      "nonconverged_epochs"), 0)
+        self.solved: list[tuple] = []  # (t, fixes, fix types, edges, ranges) of every epoch: factor_graphs()
         self._reset()
 
     def _reset(self) -> None:
@@ -128,7 +129,9 @@ class _CoopEpochs(EpochGrouping):
         if missing:
             raise ValueError(f"epoch at t = {self.t:g} s has no GNSS fix of {', '.join(missing)}")
         edges = np.array(self.edges, dtype=np.int64).reshape(-1, 2)
-        prob = epoch_problem(self.cfg, self.fix, gnss_covariances(self.cfg, self.is_rtk), edges, np.array(self.ranges, float))
+        ranges = np.array(self.ranges, float)
+        self.solved.append((self.t, self.fix.copy(), self.is_rtk.copy(), edges, ranges))
+        prob = epoch_problem(self.cfg, self.fix, gnss_covariances(self.cfg, self.is_rtk), edges, ranges)
         transport = self.channel.transport(self.t) if self.channel is not None and self.variant in NETWORKED else None
         res, rounds, converged, messages, nbytes = solve_epoch(self.cfg, self.variant, prob, self.t, self.rng, transport)
         c = self.counts
@@ -150,6 +153,11 @@ class _CoopEpochs(EpochGrouping):
         elif m.stream == "uwb" and m.dst in self.index:
             self.edges.append((i, self.index[m.dst]))
             self.ranges.append(float(m.value[0]))
+
+    def factor_graphs(self) -> list[tuple[float, CoopProblem]]:
+        """(t s, the epoch's CoopProblem) of every epoch solved, in time order: the graph this
+        estimator was given (fixes with their known covariances, ranges with the known model)."""
+        return [(t, epoch_problem(self.cfg, fix, gnss_covariances(self.cfg, rtk), e, d)) for t, fix, rtk, e, d in self.solved]
 
     def health(self) -> dict[str, int]:
         """Epochs solved; solver rounds (iterations) in total and at most; messages and bytes sent
