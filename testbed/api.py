@@ -33,6 +33,7 @@ from testbed.log import load_log
 from testbed.plugins.api import Estimate
 from testbed.plugins.collect import Collector
 from testbed.plugins.context import make_context
+from testbed.world import lever_arms
 from testbed.plugins.loading import Plugin
 from testbed.plugins.score import score as score_track
 from testbed.plugins.truth import Truth as PluginTruth
@@ -197,7 +198,7 @@ def score(estimates: Iterable[Estimate], run: Run, *, name: str = "estimates") -
     target, wrong shape, NaN, time outside the run, a covariance that is not SPD) raises PluginError.
     """
     physics = world.build(run.scenario)
-    context = make_context(run.scenario, physics, name, {})
+    context = make_context(run.scenario, lever_arms(physics), name, {})
     collector = Collector(Plugin(key=name, entry="testbed.score", cls=object), set(context.vehicles) | set(context.sites),
                           run.scenario.duration)
     collector.add(list(estimates), "in testbed.score")

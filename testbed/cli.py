@@ -193,7 +193,7 @@ def _load(args: argparse.Namespace):
 
 def _estimator_specs(args: argparse.Namespace) -> tuple:
     """One [[estimators]] table (EstimatorSpec) per --estimator ENTRY, with its --param values."""
-    from testbed.plugins.spec import EstimatorSpec
+    from testbed.estimator_spec import EstimatorSpec
 
     params = args.params + [{}] * (len(args.estimator) - len(args.params))
     return tuple(EstimatorSpec(entry=e, params=p) for e, p in zip(args.estimator, params))

@@ -75,7 +75,7 @@ from testbed.environment import last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
 from testbed.render_overlay import LOS_RGBA, NLOS_RGBA, Overlays
-from testbed.workers import worker_init
+from testbed.worker_process import worker_init
 
 from testbed.errors import UsageError
 

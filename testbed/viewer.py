@@ -57,7 +57,7 @@ from testbed.plugins.collect import ESTIMATES_FILE, Series, Track, load_tracks, 
 from testbed.plugins.context import make_context
 from testbed.plugins.truth import Truth, errors
 from testbed.render_overlay import LOS_RGBA, NLOS_RGBA
-from testbed.world import build
+from testbed.world import build, lever_arms
 
 APP = "testbed"
 TIMELINE = "time"
@@ -137,7 +137,7 @@ def _log_run(rr, rec, run_dir: Path) -> None:
     """Everything of the module docstring that a run directory holds."""
     scenario = scenario_mod.load(str(run_dir / "scenario.toml"))
     physics = build(scenario)
-    context = make_context(scenario, physics, "view", {})
+    context = make_context(scenario, lever_arms(physics), "view", {})
     model = mujoco.MjModel.from_xml_path(str(run_dir / "scene.xml"))
     with NpzLog(run_dir / "log.npz") as npz:
         keys = set(npz)

@@ -21,120 +21,28 @@ its last atexit callback): freeing every module of a simulation takes seconds of
 """
 from __future__ import annotations
 
-import atexit
 import contextvars
 import ctypes
 import functools
 import multiprocessing as mp
 import os
 import signal
-import sys
 import threading
-import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence
 
-from testbed import interrupt, provenance
+from testbed import provenance
 from testbed.cluster import run_ray
-from testbed.environment import apply_defaults
 from testbed.errors import UsageError
 from testbed.interrupt import Interrupted, signals_held
+from testbed.worker_process import Stopped, run_job, worker_init
 
 #: the backends of run_parallel
 BACKENDS = ("local", "ray")
 _backend: contextvars.ContextVar[tuple[str, str | None]] = contextvars.ContextVar("backend", default=("local", None))
 
-PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 #: seconds a stopping worker may take before it is terminated
 GRACE_S = 3.0
-
-#: in a worker: its parent's pid, whether it is inside a job, and its exit code
-_parent = 0
-_busy = False
-_exit_code = 0
-
-
-class Stopped:
-    """The result of a job that a stop request ended (signum: the request's signal)."""
-
-    def __init__(self, signum: int):
-        self.signum = signum
-
-
-def _on_sigterm(signum: int, frame: object) -> None:
-    """A worker's SIGTERM (see the module docstring)."""
-    if not _busy:
-        os._exit(128 + signum)  # between jobs or shutting down: nothing of ours to clean
-    if interrupt.requested() or os.getppid() != _parent:
-        _exit_as(128 + signum)  # asked before, or orphaned: unwind now
-    interrupt.request(signum)
-
-
-def _exit_as(code: int) -> None:
-    global _exit_code
-    _exit_code = code
-    raise SystemExit(code)
-
-
-def _exit_now() -> None:
-    """A worker's last atexit callback: flush and exit without the interpreter's teardown."""
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(_exit_code)
-
-
-def _watch_parent(parent: int) -> None:
-    while os.getppid() == parent:
-        time.sleep(0.5)
-    os.kill(os.getpid(), signal.SIGTERM)
-
-
-def die_with_parent(parent: int) -> None:
-    """Make this process receive SIGTERM when process `parent` (its parent) dies."""
-    ok = False
-    if sys.platform.startswith("linux"):
-        try:
-            ok = ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) == 0
-        except (OSError, AttributeError):
-            ok = False
-    if not ok:
-        threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
-    if os.getppid() != parent:  # it died before we asked
-        os.kill(os.getpid(), signal.SIGTERM)
-
-
-def worker_init(parent: int, stop=None) -> None:
-    """Pool initializer: the process defaults (testbed.environment), the signal dispositions of a
-    worker and the parent's stop request `stop` (a RawValue; see the module docstring)."""
-    global _parent
-    _parent = parent
-    atexit.register(_exit_now)  # registered first, so it runs last
-    apply_defaults()
-    if stop is not None:
-        interrupt.watch(stop)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _on_sigterm)
-    die_with_parent(parent)
-
-
-def _indexed(fn: Callable, item: tuple[int, object]) -> tuple[int, object]:
-    """(i, fn(job)) in a worker, or (i, Stopped) when a stop request ended or skipped the job."""
-    global _busy
-    i, job = item
-    _busy = True
-    try:
-        interrupt.poll()
-        return i, fn(job)
-    except Interrupted as e:
-        if os.getppid() != _parent:  # nobody to report to
-            os._exit(128 + e.signum)
-        return i, Stopped(e.signum)
-    finally:
-        _busy = False
 
 
 def _stop(pool, stop, signum: int) -> None:
@@ -186,7 +94,7 @@ def run_parallel(fn: Callable, jobs: Sequence, workers: int | None) -> Iterator[
     pool = ctx.Pool(min(workers, len(jobs)), initializer=worker_init, initargs=(os.getpid(), stop))
     finished = False
     try:
-        for i, result in pool.imap_unordered(functools.partial(_indexed, provenance.carried(fn)), enumerate(jobs)):
+        for i, result in pool.imap_unordered(functools.partial(run_job, provenance.carried(fn)), enumerate(jobs)):
             if isinstance(result, Stopped):  # a worker was sent SIGTERM by someone else
                 raise Interrupted(result.signum)
             yield i, result

@@ -574,3 +574,23 @@ class Physics:
     def to_xml(self) -> str:
         """The exact model simulated, loadable with mujoco.MjModel.from_xml_string."""
         return self.spec.to_xml()
+
+
+def lever_arms(physics: Physics) -> dict[str, tuple[str, np.ndarray]]:
+    """{site: (vehicle body "uavI", lever arm (3,) m in that vehicle's base frame)} for every vehicle site,
+    by forward kinematics at the model's reference pose (the vehicles are rigid, so a site's offset
+    in its vehicle's base frame is constant): the Context's `sites` (testbed.plugins.context)."""
+    m = physics.model
+    d = mujoco.MjData(m)  # a scratch state: the run's own data is left alone
+    mujoco.mj_kinematics(m, d)
+    out = {}
+    for i, bid in enumerate(physics.body_ids, start=1):
+        prefix = f"uav{i}/"
+        R = d.xmat[bid].reshape(3, 3)
+        for sid in range(m.nsite):
+            name = m.site(sid).name
+            if name.startswith(prefix) and m.body_rootid[m.site_bodyid[sid]] == m.body_rootid[bid]:
+                arm = R.T @ (d.site_xpos[sid] - d.xpos[bid])
+                arm.flags.writeable = False
+                out[name] = (f"uav{i}", arm)
+    return out

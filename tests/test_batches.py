@@ -11,9 +11,10 @@ from testbed.errors import PluginError
 from testbed.plugins.api import Estimate, EstimateBatch, MeasurementBatch
 from testbed.plugins.collect import Collector
 from testbed.plugins.context import make_context
+from testbed.world import lever_arms
 from testbed.plugins.feed import batched, measurements, run_plugin
 from testbed.plugins.loading import resolve
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.simulate import simulate
 
 
@@ -125,7 +126,7 @@ def test_coop_ins_gives_the_same_estimates_from_batches_as_from_rows(denied_log,
     """process_batch (IMU instants and UWB epochs at once) == process row by row, bit for bit."""
     sc, log, physics = denied_log
     plugin = next(p for p in resolve(sc.estimators) if p.key == key)
-    tracks = [run_plugin(plugin, make_context(sc, physics, plugin.key, plugin.params), feed)[0]
+    tracks = [run_plugin(plugin, make_context(sc, lever_arms(physics), plugin.key, plugin.params), feed)[0]
               for feed in (list(batched(sc, log)), list(measurements(sc, log)))]
     assert sorted(tracks[0]) == sorted(tracks[1]) and len(tracks[0]) == 3 * sc.vehicles
     for k in tracks[0]:

@@ -15,12 +15,12 @@ from testbed import reference
 from testbed.config import from_dict, to_dict
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.render_overlay import FEEDBACK_FILE, Overlays
 from testbed.reproduce import denied
 from testbed.runner import run
 from testbed.scenario import load
-from testbed.world import FLOOR, OBSTACLE, build
+from testbed.world import FLOOR, OBSTACLE, build, lever_arms
 
 
 def test_reference_clears_the_block_and_a_path_into_a_building_is_refused():
@@ -190,7 +190,7 @@ def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
     from testbed.plugins.context import make_context
 
     sc = load("coop-denied", duration=1.0)
-    ins = WindowIns(make_context(sc, build(sc), "ins", {}), {})
+    ins = WindowIns(make_context(sc, lever_arms(build(sc)), "ins", {}), {})
     level = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])  # at rest: specific force up, no rate
 
     def imu(t):
@@ -232,7 +232,7 @@ def test_cascade_decorrelated_feeds_the_epochs_equivalent_measurement():
     from testbed.plugins.context import make_context
 
     sc = load("coop-denied", duration=1.0)
-    ins = WindowIns(make_context(sc, build(sc), "ins", {"decorrelate": True}), {"decorrelate": True})
+    ins = WindowIns(make_context(sc, lever_arms(build(sc)), "ins", {"decorrelate": True}), {"decorrelate": True})
     assert ins.window.solver.tracklets
     level = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
     ins.process(Measurement(stream="imu", time=0.0, arrival=0.0, value=level, src="uav2/imu"))
@@ -259,7 +259,7 @@ def test_window_range_scale_multiplies_the_range_sigma_and_the_cascade_defaults_
     from testbed.plugins.context import make_context
 
     sc = load("coop-denied", duration=1.0)
-    ctx = make_context(sc, build(sc), "w", {})
+    ctx = make_context(sc, lever_arms(build(sc)), "w", {})
     m = Measurement(stream="uwb", time=0.0, arrival=0.0, value=np.array([7.0]), src="uav1/uwb", dst="uav2/uwb",
                     sigma=np.array([0.1]))
     one, three = Window(ctx, {}), Window(ctx, {"range_scale": 3.0})
@@ -282,7 +282,7 @@ def test_distributed_cascade_gives_its_window_the_imu_motion():
     from testbed.plugins.context import make_context
 
     sc = load("coop-denied", duration=1.0, seed=1000)
-    ctx = make_context(sc, build(sc), "ins", {})
+    ctx = make_context(sc, lever_arms(build(sc)), "ins", {})
     assert WindowIns(ctx, {}).window.motion is None and WindowIns(ctx, {}).start_epochs == 1  # centralized: off
     default = WindowDistributedIns(ctx, {})
     assert default.window.motion == default._motion and default.start_epochs == 5

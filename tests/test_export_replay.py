@@ -22,6 +22,7 @@ from testbed.config import to_dict
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
 from testbed.plugins.context import make_context, priors
+from testbed.world import lever_arms
 from testbed.replay.export import exported_estimators
 from testbed.replay.recording import load_recording
 from testbed.replay.spec import load_spec
@@ -124,7 +125,7 @@ def test_the_replay_gives_each_estimator_the_context_it_had_in_the_simulation(ex
     rec = load_recording(d / "data" / "spec.toml")
     physics, prior = world.build(sc), priors(sc, load_run(d / "run").log)
     for s in rec.spec.estimators:
-        a, b = make_context(sc, physics, s.key, s.params, prior), rec.context(s.key, s.params)
+        a, b = make_context(sc, lever_arms(physics), s.key, s.params, prior), rec.context(s.key, s.params)
         assert (a.vehicles, a.duration, a.motion, a.seed, a.params) == (b.vehicles, b.duration, b.motion, b.seed, b.params)
         assert a.sites.keys() == b.sites.keys() and a.anchors.keys() == b.anchors.keys() and a.prior.keys() == b.prior.keys()
         for site, (body, arm) in a.sites.items():

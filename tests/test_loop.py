@@ -37,7 +37,7 @@ from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.simulate import simulate
-from testbed.world import build
+from testbed.world import build, lever_arms
 from tests import loop_plugins
 
 HERE = Path(__file__).resolve().parent
@@ -187,7 +187,7 @@ def test_eskf_is_consistent_over_seeds(tmp_path):
         physics = build(sc)
         log, physics = simulate(sc, physics)
         plugin = resolve(sc.estimators)[0]
-        track, _, _ = run_plugin(plugin, make_context(sc, physics, plugin.key, plugin.params), list(measurements(sc, log)))
+        track, _, _ = run_plugin(plugin, make_context(sc, lever_arms(physics), plugin.key, plugin.params), list(measurements(sc, log)))
         for q in nees:
             s = track[("uav1", q)]
             k = np.searchsorted(s.time, times)

@@ -230,7 +230,7 @@ def test_seed001_messages_over_the_network():
     iterated estimate."""
     from testbed.plugins.loading import resolve
     from testbed.plugins.run import run_estimators
-    from testbed.plugins.spec import EstimatorSpec
+    from testbed.estimator_spec import EstimatorSpec
 
     sc = load("coop-fg", duration=2.0)
     log, physics = simulate(sc)

@@ -15,6 +15,7 @@ from testbed.errors import PluginError, UsageError
 from testbed.metrics import anees_interval
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
+from testbed.world import lever_arms
 from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import Plugin, load_class
 from testbed.plugins.truth import Truth
@@ -55,7 +56,7 @@ def test_uwb_ekf_example_is_scored_beside_the_built_ins(tmp_path, capsys):
 
 def test_site_truth_from_body_pose_and_lever_arm_equals_the_physics(coop_run):
     sc, log, physics = coop_run
-    ctx = make_context(sc, physics, "t", {})
+    ctx = make_context(sc, lever_arms(physics), "t", {})
     truth = Truth(log, ctx)
     for v in (1, 7, 18):
         rows = log["gnss/vehicle"] == v
@@ -109,7 +110,7 @@ def test_scenario_params_reach_the_plugin(coop_run, tmp_path):
     """)
     spec = EstimatorSpec(entry=f"{path}:Echo", params={"offset": 2.0})
     plugin = Plugin(spec.key, spec.entry, load_class(spec.entry), spec.params)
-    track, health, _ = run_plugin(plugin, make_context(sc, physics, spec.key, spec.params), list(measurements(sc, log)))
+    track, health, _ = run_plugin(plugin, make_context(sc, lever_arms(physics), spec.key, spec.params), list(measurements(sc, log)))
     s = track[("uav1/uwb", "position")]
     np.testing.assert_allclose(s.value - 2.0, log["gnss/value"][log["gnss/vehicle"] == 1])
     assert not s.has_cov.any() and health == {}
@@ -344,12 +345,12 @@ def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
 
     sc, _, physics = coop_run
     sc = dataclasses.replace(sc, pipeline=dataclasses.replace(sc.pipeline, twr_mode="ss-twr", range_sigma=0.2))
-    est = Centralized(make_context(sc, physics, "c", {}), {})
+    est = Centralized(make_context(sc, lever_arms(physics), "c", {}), {})
     assert (est.cfg.twr_mode, est.cfg.range_sigma) == ("ss-twr", 0.2)
-    est = Centralized(make_context(sc, physics, "c", {"range_sigma": 0.3}), {"range_sigma": 0.3})
+    est = Centralized(make_context(sc, lever_arms(physics), "c", {"range_sigma": 0.3}), {"range_sigma": 0.3})
     assert (est.cfg.twr_mode, est.cfg.range_sigma) == ("ss-twr", 0.3)
     with pytest.raises(Exception, match="estimator coop.centralized params"):
-        Centralized(make_context(sc, physics, "c", {}), {"range_sigma": -1.0})
+        Centralized(make_context(sc, lever_arms(physics), "c", {}), {"range_sigma": -1.0})
 
 
 def _feed(sc, log, physics, cls, key="p"):
@@ -359,7 +360,7 @@ def _feed(sc, log, physics, cls, key="p"):
     from testbed.plugins.score import score
 
     plugin = Plugin(key, key, cls, {})
-    ctx = make_context(sc, physics, key, {}, priors(sc, log))
+    ctx = make_context(sc, lever_arms(physics), key, {}, priors(sc, log))
     track, health, _ = run_plugin(plugin, ctx, list(measurements(sc, log)))
     return track, score(track, Truth(log, ctx), scenario_hooks(sc, log), health)[0], health
 

@@ -18,6 +18,7 @@ from testbed.config import to_dict
 from testbed.metrics import anees_interval, effective_samples
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
+from testbed.world import lever_arms
 from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.replay.recording import load_recording
@@ -58,7 +59,7 @@ def test_export_then_replay_gives_the_estimates_of_the_simulation(tmp_path, name
     rec = load_recording(tmp_path / "data" / "spec.toml")
     assert len(rec.measurements()) == len(feed_sim) > len(rec.feed)  # runs of rows are batches
     for p in resolve(specs):
-        sim, _, _ = run_plugin(p, make_context(sc, physics, p.key, p.params), feed_sim)
+        sim, _, _ = run_plugin(p, make_context(sc, lever_arms(physics), p.key, p.params), feed_sim)
         rep, _, _ = run_plugin(p, rec.context(p.key, p.params), rec.feed)
         _tracks_equal(sim, rep)
         a, b = metrics["estimators"][p.key], replayed["estimators"][p.key]

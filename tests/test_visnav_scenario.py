@@ -16,7 +16,7 @@ from testbed import scenario
 from testbed.config import to_dict
 from testbed.errors import ConfigError
 from testbed.pipelines import visnav as pv
-from testbed.pipelines.config import FILTER_NAMES, VisNavPipelineConfig
+from testbed.pipeline_config import FILTER_NAMES, VisNavPipelineConfig
 from testbed.runner import run
 from testbed.simulate import simulate
 

@@ -37,7 +37,7 @@ from testbed.reproduce.denied import COOP, variant
 from testbed.runner import run
 from testbed.scenario import load
 from testbed.simulate import record
-from testbed.world import build
+from testbed.world import build, lever_arms
 
 DURATION_S = 10.0
 REPEAT = 3  # runs per variant: the median is reported (a shared machine's noise), the first too
@@ -58,7 +58,7 @@ def bench_denied(duration: float = DURATION_S, name: str = "coop_distributed", r
     cpu_runs = [r[1] for r in runs]
     wall, cpu, est_ms, metrics = runs[int(np.argsort(cpu_runs)[len(runs) // 2])]  # the median run by CPU (of two, the slower)
     plugin = next(p for p in resolve(sc.estimators) if p.key == COOP)
-    ctx = make_context(sc, build(sc), plugin.key, plugin.params)
+    ctx = make_context(sc, lever_arms(build(sc)), plugin.key, plugin.params)
     c1 = time.process_time()
     run_plugin(plugin, ctx, feed)
     est_cpu = time.process_time() - c1

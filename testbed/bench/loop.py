@@ -25,10 +25,10 @@ from testbed.plugins.api import Estimate
 from testbed.plugins.context import make_context
 from testbed.plugins.loading import Plugin, load_class
 from testbed.plugins.online import OnlineEstimator
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.scenario import Scenario
 from testbed.simulate import simulate
-from testbed.world import build
+from testbed.world import build, lever_arms
 
 SIZES = (1, 10, 30)
 SENSORS = {
@@ -66,7 +66,7 @@ def _cpu(sc: Scenario, cls: type | None) -> tuple[float, int]:
     online = None
     if cls is not None:
         spec = sc.estimators[0]
-        online = OnlineEstimator(sc, Plugin(spec.key, spec.entry, cls), make_context(sc, physics, spec.key, {}))
+        online = OnlineEstimator(sc, Plugin(spec.key, spec.entry, cls), make_context(sc, lever_arms(physics), spec.key, {}))
     c = time.process_time()
     simulate(sc, physics, feedback=online)
     if online is not None:

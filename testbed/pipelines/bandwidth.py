@@ -52,7 +52,7 @@ from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
 from testbed.interrupt import poll
 from testbed.network import Network
-from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
+from testbed.pipeline_config import N_NODES, BandwidthPipelineConfig
 from testbed.rng import stream_rng
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
 

@@ -77,7 +77,7 @@ from estimators.phase_ekf import (
 from estimators.phase_model import antenna_state_from_body, body_from_antennas, rotation_from_antennas
 from estimators.so3 import euler_from_rotation, rot_zyx, rot_zyx_dot, skew
 from testbed.errors import ConfigError
-from testbed.pipelines.config import PhasePipelineConfig
+from testbed.pipeline_config import PhasePipelineConfig
 from testbed.reference import evaluate
 from testbed.rng import stream_rng
 

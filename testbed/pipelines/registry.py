@@ -3,7 +3,7 @@ and `run_pipeline`, the runner's entry point for them (shrinking as each kind is
 
 A pipeline is a function `run(scenario, log, plots_dir) -> dict` returning the `estimators` object
 of metrics.json (keyed by estimator name). A new kind adds its config dataclass to
-testbed.pipelines.config (and to its `PipelineConfig` union) and its `run` here.
+testbed.pipeline_config (and to its `PipelineConfig` union) and its `run` here.
 """
 from __future__ import annotations
 

@@ -49,7 +49,7 @@ from estimators.visnav import (
     VisNavConfig,
 )
 from testbed.errors import ConfigError
-from testbed.pipelines.config import VisNavPipelineConfig
+from testbed.pipeline_config import VisNavPipelineConfig
 from testbed.rng import stream_rng
 
 _DEG = math.pi / 180.0

@@ -28,7 +28,7 @@ from estimators import bandwidth as bw
 from estimators.bandwidth import uwb_pseudo_measurement
 from estimators.core import Epoch, Stepper
 from testbed.pipelines.bandwidth import initial_estimate, known_config
-from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
+from testbed.pipeline_config import N_NODES, BandwidthPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.settings import settings
 from testbed.synthetic.bandwidth import P_SETS, T_SETS

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 from estimators.core import Epoch, Gate, Stepper
 from estimators.phase_ekf import AnalyzedGaussian, PhaseEkfCovarianceAnalysis
 from estimators.phase_model import rotation_from_antennas
-from testbed.pipelines.config import PhasePipelineConfig
+from testbed.pipeline_config import PhasePipelineConfig
 from testbed.pipelines.phase import BODY_PV, BODY_POS, measurement_epochs, phase_inputs, process_noise_model
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.settings import settings

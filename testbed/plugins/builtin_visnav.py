@@ -26,7 +26,7 @@ import numpy as np
 from estimators.core import Epoch, Stepper
 from estimators.sigma_filters import ManifoldGaussian, make_filter
 from estimators.visnav import CameraFilter, CameraFrame, RelNavModel
-from testbed.pipelines.config import VisNavPipelineConfig
+from testbed.pipeline_config import VisNavPipelineConfig
 from testbed.pipelines.visnav import estimator_config
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.settings import settings

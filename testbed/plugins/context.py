@@ -1,11 +1,11 @@
 """The `Context` of a run: geometry, declared sensor models, the pipeline's settings and priors.
 
-Lever arms are read from the compiled MuJoCo model (forward kinematics at the model's reference
-pose: the vehicles are rigid, so a site's offset in its vehicle's base frame is constant).
+The lever arms are handed in (the simulator reads them from the compiled model,
+testbed.world.lever_arms; a replay from its dataset), so the estimator runtime never imports the
+simulator.
 """
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
 from testbed.config import to_dict
@@ -13,25 +13,6 @@ from testbed.pipelines import bandwidth, phase, visnav
 from testbed.plugins.api import Context
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
-from testbed.world import Physics
-
-
-def lever_arms(physics: Physics) -> dict[str, tuple[str, np.ndarray]]:
-    """{site: (vehicle body "uavI", lever arm (3,) m in that vehicle's base frame)} for every vehicle site."""
-    m = physics.model
-    d = mujoco.MjData(m)  # a scratch state: the run's own data is left alone
-    mujoco.mj_kinematics(m, d)
-    out = {}
-    for i, bid in enumerate(physics.body_ids, start=1):
-        prefix = f"uav{i}/"
-        R = d.xmat[bid].reshape(3, 3)
-        for sid in range(m.nsite):
-            name = m.site(sid).name
-            if name.startswith(prefix) and m.body_rootid[m.site_bodyid[sid]] == m.body_rootid[bid]:
-                arm = R.T @ (d.site_xpos[sid] - d.xpos[bid])
-                arm.flags.writeable = False
-                out[name] = (f"uav{i}", arm)
-    return out
 
 
 def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -60,15 +41,16 @@ def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, t
     return {"formation": (bandwidth.initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
 
 
-def make_context(scenario: Scenario, physics: Physics, key: str, params: dict,
+def make_context(scenario: Scenario, sites: dict[str, tuple[str, np.ndarray]], key: str, params: dict,
                  prior: dict[str, tuple[np.ndarray, np.ndarray]] | None = None, channel: object | None = None) -> Context:
     """The Context of estimator `key` in this run (its rng: stream "estimator/KEY" of the seed).
+    sites: {site: (vehicle body, lever arm (3,) m in its base frame)} (testbed.world.lever_arms);
     prior: priors(scenario, log), computed once per run (None: none); channel: its network
     (testbed.plugins.channel.Channel) or None."""
     anchors = {f"anchor{k}": np.array(p, float) for k, p in enumerate(scenario.world.anchors, start=1)}
     return Context(
         vehicles=tuple(f"uav{i}" for i in range(1, scenario.vehicles + 1)),
-        sites=lever_arms(physics),
+        sites=dict(sites),
         anchors=anchors,
         sensors={name: to_dict(cfg) for name, cfg in scenario.sensors.streams().items()},
         prior=dict(prior or {}),

@@ -9,7 +9,7 @@ the kinds converted so far; the others still run through their pipeline
 from __future__ import annotations
 
 from testbed.errors import ConfigError
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.scenario import Scenario
 
 # [pipeline] kind -> ((metrics.json name, registered estimator), ...), in metrics.json order

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from testbed.errors import FieldError, UsageError
 from testbed.plugins import params as typed_params
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 
 GROUP = "testbed.estimators"
 

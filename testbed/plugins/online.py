@@ -45,7 +45,7 @@ from testbed.plugins.feed import finish_plugin, measurement_columns, process, pr
 from testbed.plugins.loading import Plugin
 from testbed.plugins.context import make_context
 from testbed.scenario import Scenario
-from testbed.world import Physics
+from testbed.world import Physics, lever_arms
 
 ARRIVAL_TOLERANCE = 1e-9  # s: an arrival this close after a tick time counts as at the tick
 TARGET_CHECK_S = 1.0  # s: by then (or at the first estimates after it) the estimates must name the flown bodies
@@ -246,4 +246,4 @@ def in_the_loop(scenario: Scenario, physics: Physics, plugins: list[Plugin]) -> 
     if not name or scenario.motion != "flown":  # prescribed: no controller, the estimator runs on the log
         return None
     plugin = next(p for p in plugins if p.key == name)  # the scenario checked the name
-    return OnlineEstimator(scenario, plugin, make_context(scenario, physics, plugin.key, plugin.params))
+    return OnlineEstimator(scenario, plugin, make_context(scenario, lever_arms(physics), plugin.key, plugin.params))

@@ -26,7 +26,7 @@ from testbed.plugins.hooks import scenario_hooks
 from testbed.plugins.score import plot_errors, score
 from testbed.plugins.truth import Truth
 from testbed.scenario import Scenario
-from testbed.world import Physics
+from testbed.world import Physics, lever_arms
 
 
 def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],
@@ -50,7 +50,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
             raise ConfigError(f"estimator {p.entry!r}: the name {p.key!r} is taken by the {scenario.pipeline.kind} pipeline; "
                               "give it another name ([[estimators]] name)")
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
-        ctx = make_context(scenario, physics, p.key, p.params, prior)
+        ctx = make_context(scenario, lever_arms(physics), p.key, p.params, prior)
         truth = Truth(log, ctx)
         channel = Channel(scenario.network, truth, log, ctx.vehicles, scenario.seed, p.key) \
             if scenario.network is not None and p.key not in done else None

@@ -4,7 +4,7 @@ What goes where (every number written with Python's shortest round-tripping repr
 back exactly the floats the run fed its estimators):
 - spec.toml: what makes each estimator's Context on replay the one it had in the run
   (testbed.plugins.context.make_context): the vehicles and every one of their sites with its lever
-  arm (from the compiled model, testbed.plugins.context.lever_arms), the anchors, the declared
+  arm (from the compiled model, testbed.world.lever_arms), the anchors, the declared
   sensor tables (Context.sensors), the motion, the built-ins' prior (Context.prior), the seed (each
   Context.rng is the stream "estimator/KEY" of it, KEY kept) and the window [0, duration]; and the
   run's estimators (`exported_estimators`): the built-ins of its [pipeline] and its [[estimators]],
@@ -34,13 +34,14 @@ from testbed import world
 from testbed.api import load_run
 from testbed.config import to_dict
 from testbed.outdir import Output
-from testbed.pipelines.config import (BandwidthPipelineConfig, CoopPipelineConfig, PhasePipelineConfig,
+from testbed.pipeline_config import (BandwidthPipelineConfig, CoopPipelineConfig, PhasePipelineConfig,
                                       VisNavPipelineConfig)
 from testbed.plugins import builtin_bandwidth, builtin_coop, builtin_phase, builtin_visnav
-from testbed.plugins.context import lever_arms, make_context, priors
+from testbed.plugins.context import make_context, priors
+from testbed.world import lever_arms
 from testbed.plugins.loading import resolve
 from testbed.plugins.settings import settings
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.replay.spec import FORMAT
 from testbed.replay.tables import CAMERA_COLUMNS, PHASE_MASTER_COLUMNS
 from testbed.stream import declared_sigma, stream_arrays
@@ -142,7 +143,7 @@ def exported_estimators(scenario, physics, prior: dict, bag: bool = False) -> tu
         params = dict(p.params)
         for classes, cfg_cls, kind in _SETTINGS:
             if issubclass(p.cls, classes):
-                cfg = settings(cfg_cls, kind, make_context(scenario, physics, p.key, p.params, prior), p.params, p.entry)
+                cfg = settings(cfg_cls, kind, make_context(scenario, lever_arms(physics), p.key, p.params, prior), p.params, p.entry)
                 params = {k: v for k, v in to_dict(cfg).items() if k != "kind"}
         out.append(EstimatorSpec(entry=spec.entry, name=spec.name, params=params))
     return out, skipped

@@ -17,7 +17,7 @@ import numpy as np
 
 from testbed.config import from_dict, in_range, require
 from testbed.errors import ConfigError
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 
 FORMAT = 1
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")

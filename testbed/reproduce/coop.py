@@ -68,7 +68,7 @@ from testbed.plugins.collect import load_tracks
 from testbed.plugins.graph_check import exposes_graphs, gtsam_check
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.plots import compare_bars
 from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
     write_claims, write_csv, write_markdown

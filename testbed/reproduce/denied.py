@@ -55,7 +55,7 @@ from testbed.config import to_dict
 from testbed.errors import UsageError
 from testbed.log import load_log
 from testbed.plots import compare_bars
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 from testbed.report import Claim, fmt, markdown_table, write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 from testbed.scenario import Scenario, load

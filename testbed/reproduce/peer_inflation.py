@@ -35,7 +35,7 @@ from dataclasses import replace
 
 from testbed import scenario as scenario_mod
 from testbed.report import fmt_anees
-from testbed.plugins.spec import EstimatorSpec
+from testbed.estimator_spec import EstimatorSpec
 
 CALIBRATION_SEEDS = (1000, 1001, 1002)
 CALIBRATION_HORIZON_S = 30.0

@@ -5,7 +5,7 @@ the pipelines' compute modules, scipy or mujoco. Each table checks its own value
 `__post_init__` and, through `cross_check(scenario)`, what it needs from the rest of the
 scenario (called by `Scenario.__post_init__`, so before anything is simulated; keys dotted from
 the scenario root). The compute
-side of each kind lives in testbed.pipelines.{phase,visnav,bandwidth,coop}.
+side of each kind lives in the built-in plugins (testbed.plugins.builtin_*).
 """
 from __future__ import annotations
 
