@@ -30,8 +30,11 @@ rule's kappa (the command that produced the default in testbed.plugins.builtin_c
 """
 from __future__ import annotations
 
+import json
 import math
+import tempfile
 from dataclasses import replace
+from pathlib import Path
 
 from testbed import scenario as scenario_mod
 from testbed.report import fmt_anees
@@ -52,16 +55,18 @@ def calibrate(seeds=CALIBRATION_SEEDS, kappas=KAPPA_GRID, duration: float = CALI
     n_eff: testbed.metrics.anees_keys), rmse_position_mean_m}: each
     seed simulated once (controller on truth) with the centralized filter and the distributed one
     at every kappa scored on it."""
-    from testbed.api import run  # lazy: MuJoCo only when a calibration runs
+    from testbed import runner  # lazy: MuJoCo only when a calibration runs
 
     specs = (EstimatorSpec(entry="coop.ins", name=CENTRAL),) + tuple(
         EstimatorSpec(entry="coop.ins_distributed", name=_name(k), params={"peer_inflation": float(k)}) for k in kappas)
     rows = []
     for seed in seeds:
         sc = scenario_mod.load("coop-denied", {"control.feedback": "truth"}, seed=int(seed), duration=duration)
-        with run(replace(sc, estimators=specs), plots=False) as r:
+        with tempfile.TemporaryDirectory(prefix="testbed-calibration-") as tmp:
+            runner.run(replace(sc, estimators=specs), Path(tmp) / "run", plots=False)
+            metrics = json.loads((Path(tmp) / "run" / "metrics.json").read_text())
             for spec, kappa in zip(specs, (None,) + tuple(kappas)):
-                m = r.metrics["estimators"][spec.name]
+                m = metrics["estimators"][spec.name]
                 rows.append({"seed": int(seed), "estimator": spec.name, "kappa": kappa,
                              **{k: m[k] for k in m if k.startswith("anees_position") or k == "n_eff_position"},
                              "rmse_position_mean_m": float(m["rmse_position_mean_m"])})
