@@ -4,9 +4,10 @@ order that keeps `make test` (pytest-xdist, one worker per core, `--dist loadfil
 - each test file runs whole on one worker (`--dist loadfile`, set by the Makefile), so a
   module-scoped fixture (a Monte Carlo of several simulated runs) is built once, not once per
   worker that runs one of its tests;
-- the files holding a test marked `slow` are collected first (each file whole, in its own order),
-  so the long ones start early and the short ones fill the end; no test depends on the order
-  (every draw is seeded in the test, docs/testing.md).
+- the files holding a test marked `slow` (a Monte Carlo, a reproduction, commands interrupted in
+  subprocesses: about 10 s or more) are collected first (each file whole, in its own order), so the
+  long ones start early and the short ones fill the end; no test depends on the order (every draw
+  is seeded in the test, docs/testing.md).
 """
 import os
 

@@ -62,6 +62,7 @@ def _same_estimates(a: Path, b: Path) -> None:
         np.testing.assert_allclose(mb["estimators"][key]["rmse_position_m"], ma["estimators"][key]["rmse_position_m"], rtol=1e-9)
 
 
+@pytest.mark.slow  # the shared run, its exports and two replays of coop-denied, ~20 s
 def test_bag_replay_gives_the_estimates_of_the_csv_replay(exported, capsys):
     d = exported
     assert sorted(p.name for p in (d / "mcap").iterdir() if not p.name.startswith(".")) == ["bag", "provenance.json", "spec.toml"]

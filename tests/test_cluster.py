@@ -26,13 +26,22 @@ def local_ray():
     ray.shutdown()
 
 
-def test_ray_sweep_is_byte_identical_to_the_local_pool(tmp_path, local_ray):
+@pytest.fixture(scope="module")
+def local_pool(tmp_path_factory):
+    """The reference both Ray tests compare with: bandwidth, seed 3, 1 s, 3 runs swept by the local
+    process pool (2 workers), computed once: (its directory, its summary)."""
+    out = tmp_path_factory.mktemp("local") / "sw"
+    summary = sweep(scenario.load("bandwidth", duration=1.0, seed=3), 3, out, workers=2, progress=False)
+    return out, summary
+
+
+def test_ray_sweep_is_byte_identical_to_the_local_pool(tmp_path, local_ray, local_pool):
     sc = scenario.load("bandwidth", duration=1.0, seed=3)
     by_ray = sweep(sc, 3, tmp_path / "ray", backend="ray", progress=False)
-    local = sweep(sc, 3, tmp_path / "local", workers=2, progress=False)
+    local_dir, local = local_pool
     assert by_ray == local and local["tracking_rmse_m.0"]["n"] == 3
     for f in FILES:
-        assert (tmp_path / "ray" / f).read_bytes() == (tmp_path / "local" / f).read_bytes(), f
+        assert (tmp_path / "ray" / f).read_bytes() == (local_dir / f).read_bytes(), f
     made = json.loads((tmp_path / "ray" / "run-000" / "provenance.json").read_text())
     assert made["output"] == "run" and made["command"]["function"] == "testbed.sweep.sweep"  # carried into the task
     assert _debris(tmp_path) == []
@@ -60,8 +69,8 @@ def test_a_task_lost_for_good_keeps_the_finished_runs(tmp_path, monkeypatch):
     assert _debris(tmp_path) == []
 
 
-@pytest.mark.slow  # starts Ray twice from the command line, ~2 min on a loaded machine
-def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tmp_path):
+@pytest.mark.slow  # starts Ray twice from the command line, ~1.5 min on a loaded machine
+def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tmp_path, local_pool):
     args = ["sweep", "bandwidth", "--runs", "3", "--duration", "1.0", "--seed", "3", "--backend", "ray"]
     # one task at a time: with two, the second finishes with the first, and the signal that follows
     # the first would meet the second's completion (a race inside Ray, not the testbed's to test)
@@ -81,8 +90,7 @@ def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tm
     assert _debris(tmp_path) == []
     q = _testbed(tmp_path, *args, "--out", "sw", "--resume")
     assert q.returncode == 0, q.stderr
-    r = _testbed(tmp_path, *args[:-2], "--workers", "2", "--out", "whole")
-    assert r.returncode == 0, r.stderr
+    whole = local_pool[0]  # the same sweep uninterrupted (the local pool: the Ray sweep's bytes, test above)
     for f in FILES:
-        assert (tmp_path / "sw" / f).read_bytes() == (tmp_path / "whole" / f).read_bytes(), f
+        assert (tmp_path / "sw" / f).read_bytes() == (whole / f).read_bytes(), f
     assert _debris(tmp_path) == []

@@ -109,7 +109,7 @@ def test_coop_fg_node_failure_and_message_loss(tmp_path):
     Measured: 20/20 epochs; survivors' RMSE 3.74 -> 0.98 m; the silent UAV 4.12 -> 1.29 m."""
     sc = scenario.load("coop-fg", duration=29.0, overrides={"pipeline.silent_uav": "2", "pipeline.silent_from_s": "10.0",
                                                           "pipeline.message_loss": "0.3", "pipeline.max_rounds": "150"})
-    m = run(sc, tmp_path / "run")
+    m = run(sc, tmp_path / "run", plots=False)  # figures: test_coop_fg_end_to_end
     it = m["estimators"]["iterated"]
     assert np.all(np.isfinite(it["rmse_position_per_vehicle_m"])) and np.isfinite(it["anees"])
     pos, ep = _positions(sc, tmp_path / "run")
@@ -170,6 +170,7 @@ def test_coop_fg_bad_input_is_one_line_exit_2(tmp_path, capsys):
         scenario.load("coop-fg", overrides={"pipeline.silent_uav": "19"})
 
 
+@pytest.mark.slow  # a short reproduction with its figures, ~12 s
 def test_reproduce_coop_writes_tables_figure_and_decided_claims(tmp_path):
     """`testbed reproduce coop` on 2 runs of 9 s (10 epochs each; NLOS experiment off): Table 3/4
     in table.md and table.csv (18 UAV rows), figure 6, every claim decided (holds is a bool, with

@@ -136,6 +136,7 @@ def test_video_overlays_read_the_run(flown):
     assert ov.fixed(1.0).shape == (18,)
 
 
+@pytest.mark.slow  # six flights with their estimators and figures, ~30 s
 def test_reproduce_denied_end_to_end(tmp_path):
     from testbed.reproduce import reproduce
 

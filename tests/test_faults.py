@@ -1,8 +1,11 @@
 """Faults: signals mid-run and mid-sweep, killed parents, concurrent writers, full and read-only disks,
 closed pipes. Every case ends in one line and a known exit code, with nothing half-written left.
 
-The commands run as subprocesses (`python -m testbed`, this checkout first on PYTHONPATH) in a
-temporary working directory; short bandwidth runs keep each case to seconds.
+The command under fault runs as a subprocess (`python -m testbed`, this checkout first on
+PYTHONPATH) in a temporary working directory; a command that only prepares a case or follows it
+(the run to render, the next command after a kill, an uninterrupted reference) runs in this
+process (`testbed.cli.main`), which saves an interpreter start. Short bandwidth runs keep each
+case to seconds.
 """
 import errno
 import json
@@ -96,7 +99,7 @@ def test_signal_mid_run_removes_the_temporary_directory(tmp_path, sig):
     assert sorted(os.listdir(tmp_path)) == []
 
 
-def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(tmp_path):
+def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(tmp_path, monkeypatch, capsys):
     p = _start(tmp_path, "run", "bandwidth", "--duration", "3600", "--out", "r")
     _wait_for(lambda: _tmp_dirs(tmp_path, "r"), "the run's temporary directory")
     stale = _tmp_dirs(tmp_path, "r")[0]
@@ -105,18 +108,19 @@ def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(
     assert not (tmp_path / "r").exists()
     assert all(n.startswith(".r.testbed-") for n in os.listdir(tmp_path))
     assert stale.name.endswith(str(p.pid))  # recognisable: it names the dead writer
-    q = _testbed(tmp_path, "run", "bandwidth", "--duration", "0.5", "--out", "r")
-    assert q.returncode == 0, q.stderr
-    assert q.stderr.splitlines() == [f"testbed: removed {stale.name} (left by pid {p.pid}, which died)"]
+    monkeypatch.chdir(tmp_path)  # the next command, in this process (the killed one was a real one)
+    capsys.readouterr()
+    assert main(["run", "bandwidth", "--duration", "0.5", "--out", "r"]) == 0
+    assert capsys.readouterr().err.splitlines() == [f"testbed: removed {stale.name} (left by pid {p.pid}, which died)"]
     assert sorted(os.listdir(tmp_path)) == ["r"] and _debris(tmp_path) == []
 
 
-def _sweep_args(out: str) -> list[str]:
-    return ["sweep", "bandwidth", "--runs", "4", "--workers", "2", "--duration", "1.5", "--out", out]
+def _sweep_args(out: str, workers: int = 2) -> list[str]:
+    return ["sweep", "bandwidth", "--runs", "4", "--workers", str(workers), "--duration", "1.5", "--out", out]
 
 
 @pytest.mark.slow  # three sweeps, ~40 s
-def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_identical(tmp_path):
+def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_identical(tmp_path, monkeypatch):
     p = _start(tmp_path, *_sweep_args("sw"))
     _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
               "a finished run")
@@ -141,8 +145,10 @@ def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_id
     q = _testbed(tmp_path, *_sweep_args("sw"), "--resume")
     assert q.returncode == 0, q.stderr
     assert {d: (tmp_path / "sw" / d / "log.npz").stat().st_mtime_ns for d in done} == before  # finished runs not redone
-    r = _testbed(tmp_path, *_sweep_args("whole"))
-    assert r.returncode == 0, r.stderr
+    # the uninterrupted reference, in this process and its runs one after the other (no worker to
+    # start; the bytes do not depend on the number of workers)
+    monkeypatch.chdir(tmp_path)
+    assert main(_sweep_args("whole", workers=1)) == 0
     for f in ["summary.json", "summary.csv", "sweep.toml", *(f"run-{i:03d}/metrics.json" for i in range(4))]:
         assert (tmp_path / "sw" / f).read_bytes() == (tmp_path / "whole" / f).read_bytes(), f
     assert _debris(tmp_path) == []
@@ -179,7 +185,7 @@ def _tree(root: Path) -> dict[str, bytes]:
 
 
 @pytest.mark.slow  # three short coop reproductions, ~4 min on a loaded 2-core machine
-def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tmp_path):
+def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tmp_path, monkeypatch):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     p = _start(tmp_path / "a", *_reproduce_args("rp"))
@@ -205,8 +211,9 @@ def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tm
     assert q.returncode == 0, q.stderr
     assert {d: (rp / d / "log.npz").stat().st_mtime_ns for d in done} == before  # finished runs not redone
     assert not (rp / "summary.json").exists()
-    r = _testbed(tmp_path / "b", *_reproduce_args("rp"))
-    assert r.returncode == 0, r.stderr
+    # the uninterrupted reference, in this process (the same command: its report shows it)
+    monkeypatch.chdir(tmp_path / "b")
+    assert main(_reproduce_args("rp")) == 0
     resumed, whole = _tree(rp), _tree(tmp_path / "b" / "rp")
     assert sorted(resumed) == sorted(whole)
     assert [f for f in resumed if resumed[f] != whole[f]] == []
@@ -235,8 +242,9 @@ def test_reproduce_resume_refuses_other_options_and_a_complete_reproduction(tmp_
     assert sorted(os.listdir(tmp_path / "rp")) == [".testbed"]
 
 
-def test_sigint_mid_render_removes_the_partial_video(tmp_path):
-    assert _testbed(tmp_path, "run", "bandwidth", "--duration", "2", "--out", "r").returncode == 0
+def test_sigint_mid_render_removes_the_partial_video(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "bandwidth", "--duration", "2", "--out", "r"]) == 0  # the run to render
     p = _start(tmp_path, "render", "r", "--width", "64", "--height", "48", "--speed", "0.01")
     _wait_for(lambda: list((tmp_path / "r").glob(".video.mp4.testbed-tmp.*")), "the partial video")
     p.send_signal(signal.SIGINT)
@@ -245,14 +253,16 @@ def test_sigint_mid_render_removes_the_partial_video(tmp_path):
     assert not (tmp_path / "r" / "video.mp4").exists() and _debris(tmp_path) == []
 
 
-def test_resume_refuses_a_different_scenario(tmp_path):
-    assert _testbed(tmp_path, "sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw").returncode == 0
-    q = _testbed(tmp_path, "sweep", "bandwidth", "--runs", "2", "--duration", "0.6", "--out", "sw", "--resume")
-    assert q.returncode == 2 and q.stderr.splitlines() == [
+def test_resume_refuses_a_different_scenario(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw"]) == 0
+    capsys.readouterr()
+    assert main(["sweep", "bandwidth", "--runs", "2", "--duration", "0.6", "--out", "sw", "--resume"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
         "testbed: error: sw: was swept with a different scenario (sw/sweep.toml); cannot resume it with this one"]
 
 
-def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path):
+def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path, monkeypatch):
     p = _start(tmp_path, "sweep", "bandwidth", "--runs", "4", "--workers", "2", "--duration", "30", "--out", "sw")
     _wait_for(lambda: any(t.glob(".run-*.testbed-tmp.*") for t in _tmp_dirs(tmp_path, "sw")), "a run in a worker")
     # the pool's processes (resource tracker + 2 workers) may still be starting: wait for them
@@ -264,20 +274,21 @@ def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path):
     _wait_for(lambda: _gone(workers), "the orphaned workers to exit", timeout=5.0)
     assert time.monotonic() - t0 < 5.0
     assert not (tmp_path / "sw").exists()
-    q = _testbed(tmp_path, "sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw")
-    assert q.returncode == 0, q.stderr
+    monkeypatch.chdir(tmp_path)  # the next sweep, in this process
+    assert main(["sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw"]) == 0
     assert _debris(tmp_path) == []
 
 
-def test_two_writers_of_one_output_exactly_one_wins(tmp_path):
+def test_two_writers_of_one_output_exactly_one_wins(tmp_path, monkeypatch, capsys):
     # the first writer must still be writing when the second one starts (its own start-up takes
     # ~1.5 s): 8 s of bandwidth took ~2 s all told and once finished before it (a CI failure);
     # 600 s keeps it writing for several seconds (the test: 8.4 s)
     a = _start(tmp_path, "run", "bandwidth", "--duration", "600", "--out", "r")
     _wait_for(lambda: (tmp_path / ".r.testbed-lock").is_file() and _tmp_dirs(tmp_path, "r"), "the first writer's lock")
-    b = _testbed(tmp_path, "run", "bandwidth", "--duration", "0.5", "--out", "r", "--force")
-    assert b.returncode == 2
-    (line,) = b.stderr.splitlines()
+    monkeypatch.chdir(tmp_path)  # the second writer, in this process
+    capsys.readouterr()
+    assert main(["run", "bandwidth", "--duration", "0.5", "--out", "r", "--force"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith("testbed: error: r: is being written by ") and f"pid {a.pid} (testbed run bandwidth --duration 600" in line
     a.communicate(timeout=120)
     assert a.returncode == 0

@@ -431,6 +431,7 @@ def test_bandwidth_builtin_equals_the_pipeline():
         np.testing.assert_allclose(s.cov, est["M"][:, i], rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.slow  # two short reproductions, ~30 s
 @pytest.mark.parametrize("paper, group", [("phase", "phase-cross-h000"), ("visnav", "gaussian")])
 def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
     path = _write(tmp_path, """

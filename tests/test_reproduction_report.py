@@ -5,6 +5,7 @@ import json
 import re
 
 import numpy as np
+import pytest
 
 from testbed.plots import figure, save
 from testbed.report import Claim, write_claims, write_markdown
@@ -50,6 +51,7 @@ def test_report_markdown_and_self_contained_html(tmp_path):
     assert "http" not in page.replace("http-equiv", "") and "<table>" in page and "<b>holds</b>" in page
 
 
+@pytest.mark.slow  # a short phase reproduction, ~12 s
 def test_phase_reproduction_writes_its_report(tmp_path):
     """A short `testbed reproduce phase` (2 runs of 4 s): report.md and report.html exist, the window
     is the run's last half and says so, every claim shows its test and n, RMSE vs PCRB is a figure."""
