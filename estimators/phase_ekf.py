@@ -44,7 +44,7 @@ a + alpha x rho_j, rho_j = x_j - (x_2 + x_3) / 2 its lever arm from the body ori
 The 9 x 9 acceleration density of the stacked antennas is then
     S_ij = q_t I3 + q_r [rho_i]x [rho_j]x^T   (+ q I3 if i = j, the independent term above),
 and Q = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]], with rho from the state the prediction starts
-from. This is exactly the motion of a scenario's [disturbance] (testbed.disturbance) on a body
+from. This is exactly the motion of a scenario's [disturbance] (testbed.sim.disturbance) on a body
 whose attitude changes slowly over dt. At the small q the built-in scenarios use, the independent
 term no longer covers the deterministic attitude-driven antenna accelerations of eq. 31; the
 rotational term does, and the scenarios set it by the rule's stage 2 (testbed/reproduce/phase_q.py). A rigid body has no random motion in the 6 directions

@@ -3,7 +3,7 @@
 A distributed estimator of this library calls `deliver` once per synchronous round with the
 directed messages it sends; the transport says which of them reach their receiver in time for
 that round's local step. None (the default of every solver) is the ideal channel: everything sent
-arrives. The testbed implements it over its network model (testbed.network.RoundTransport);
+arrives. The testbed implements it over its network model (testbed.sim.network.RoundTransport);
 anything with this method works, so a recorded or synthetic channel can be replayed here too.
 """
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Runs N seeds of `coop-fg` with `testbed.sweep.sweep` (parallel worker processes, run i with seed
 + i, one run directory each), reads every run back with `testbed.load_run`, and plots the mean
 position RMSE of each estimator with its Student-t 95 % interval over the runs
-(`testbed.metrics.mean_ci`). Writes OUT/sweep/ (the runs), monte_carlo.png and prints the table.
+(`testbed.scoring.metrics.mean_ci`). Writes OUT/sweep/ (the runs), monte_carlo.png and prints the table.
 
     python examples/monte_carlo.py [OUT_DIR]       # TESTBED_EXAMPLE_SHORT=1: 2 runs of 2 s
 """
@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt
 from _common import SHORT, out_dir
 
 import testbed
-from testbed.metrics import mean_ci
+from testbed.scoring.metrics import mean_ci
 from testbed.sweep import sweep
 
 RUNS = 2 if SHORT else 10

@@ -27,13 +27,15 @@ from typing import Any, Iterable
 import mujoco
 import numpy as np
 
-from testbed import provenance, reference, runner, scenario as scenario_mod, world
+from testbed import provenance, runner, scenario as scenario_mod
+from testbed.sim import reference
+from testbed.sim import world
 from testbed.errors import RunError
 from testbed.log import load_log
 from testbed.plugins.api import Estimate
 from testbed.plugins.collect import Collector
 from testbed.plugins.context import make_context
-from testbed.world import lever_arms
+from testbed.sim.world import lever_arms
 from testbed.plugins.loading import Plugin
 from testbed.plugins.score import score as score_track
 from testbed.plugins.truth import Truth as PluginTruth
@@ -69,7 +71,7 @@ def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = N
 
 
 def _check_clearance(sc: Scenario, label: str) -> None:
-    """world.clearance (testbed.reference.check_clearance): ConfigError, or a UserWarning."""
+    """world.clearance (testbed.sim.reference.check_clearance): ConfigError, or a UserWarning."""
     warning = reference.check_clearance(sc, label)
     if warning is not None:
         warnings.warn(warning, UserWarning, stacklevel=3)

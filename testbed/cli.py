@@ -28,7 +28,7 @@ an output location that is not the testbed's, an OS error such as a full disk) p
 follow testbed.outdir: only a directory the testbed wrote (its `.testbed` marker) is ever replaced.
 SIGINT, SIGTERM and SIGHUP stop the command cleanly (temporary files removed, workers stopped, one
 line) with exit code 128 + the signal number; a closed stdout (`testbed list | head -1`) ends it
-quietly. A flown run prints its safety in one line (testbed.safety) and, if a vehicle crashed,
+quietly. A flown run prints its safety in one line (testbed.scoring.safety) and, if a vehicle crashed,
 a warning naming it as the last line on stderr; it still exits 0 (its run directory is complete
 and scored) unless --fail-on-crash is given, then 1.
 
@@ -177,8 +177,9 @@ def _inputs(args: argparse.Namespace, *paths: Path) -> list[Path]:
 
 def _load(args: argparse.Namespace):
     """The scenario of a run or sweep, checked whole before anything is simulated: its values
-    (testbed.scenario.load) and its reference paths' clearance (testbed.reference.clearance)."""
-    from testbed import reference, scenario  # lazy: see the module docstring
+    (testbed.scenario.load) and its reference paths' clearance (testbed.sim.reference.clearance)."""
+    from testbed import scenario  # lazy: see the module docstring
+    from testbed.sim import reference  # lazy: see the module docstring
 
     builtin, label = scenario.resolve(args.scenario)
     sc = scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)
@@ -338,7 +339,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"{name:{width}s}  {description(load_class(name))}  ({target})")
         return 0
     if args.command == "run":
-        from testbed.report import fmt
+        from testbed.outputs.report import fmt
         from testbed.runner import run
 
         apart(args.out, _inputs(args))
@@ -351,7 +352,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"  {name}: " + ", ".join(f"{k} {fmt(est[k])}" for k in keys))
         crash = None
         if "flight" in metrics:
-            from testbed.safety import crash_warning, summary_line
+            from testbed.scoring.safety import crash_warning, summary_line
 
             print(summary_line(metrics["flight"], metrics["estimators"], sc.control.feedback_estimator))
             crash = crash_warning(metrics["flight"])
@@ -361,7 +362,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"testbed: warning: {crash}", file=sys.stderr)
         return 1 if crash and args.fail_on_crash else 0
     if args.command == "render":
-        from testbed.render import check_run_dir, render_run
+        from testbed.outputs.render import check_run_dir, render_run
 
         if not (args.run_dir / "scene.xml").is_file() or not (args.run_dir / "log.npz").is_file():
             raise UsageError(f"{args.run_dir}: not a run directory (needs scene.xml and log.npz)")
@@ -393,7 +394,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "reproduce":
         from testbed.plugins.loading import resolve
         from testbed.progress import shown, wanted
-        from testbed.report import tally
+        from testbed.outputs.report import tally
         from testbed.reproduce import reproduce
 
         apart(args.out, _inputs(args))
@@ -413,7 +414,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "replay":
         from testbed.replay.recording import dataset_files
         from testbed.replay.run import replay
-        from testbed.report import fmt, fmt_anees
+        from testbed.outputs.report import fmt, fmt_anees
 
         apart(args.out, _inputs(args, *dataset_files(args.spec)))  # the spec, its tables or bag
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from testbed import scenario
 from testbed.outdir import Output, marker
-from testbed.report import fmt
-from testbed.render import render_run
+from testbed.outputs.report import fmt
+from testbed.outputs.render import render_run
 from testbed.reproduce import reproduce
 from testbed.reproduce.denied import variant
 from testbed.runner import run

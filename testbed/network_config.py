@@ -1,4 +1,4 @@
-"""[network]: the communication model between vehicles (testbed.network, docs/network.md).
+"""[network]: the communication model between vehicles (testbed.sim.network, docs/network.md).
 
 A missing table means an ideal network (no latency, no loss, no limits): every existing run is
 unchanged. Units SI: s, m, bytes, bytes/s. Probabilities are per message and directed link.
@@ -13,7 +13,7 @@ from testbed.config import in_range, key, require
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class NetworkConfig:
-    """[network]: latency, loss, range and bandwidth of every directed link (testbed.network).
+    """[network]: latency, loss, range and bandwidth of every directed link (testbed.sim.network).
 
     Latency of a message (s): latency + jitter term. jitter_model "normal": jitter * z,
     z ~ N(0, 1), the total clipped at 0 (the configured percentiles hold while latency >= 3

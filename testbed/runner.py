@@ -3,7 +3,7 @@
 `run(scenario, out)` simulates (with the estimator of [control] feedback in the loop, if any,
 testbed.plugins.online), runs the scenario's estimators (the defaults of its [pipeline] kind and its
 `[[estimators]]`, testbed.plugins.defaults; a kind not yet converted to plugins still runs its
-pipeline, testbed.pipelines.registry), scores a flown run's safety (testbed.safety), and writes
+pipeline, testbed.pipelines.registry), scores a flown run's safety (testbed.scoring.safety), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
 `estimates.npz` (every estimate of the plugin estimators, when there are any),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
@@ -25,7 +25,7 @@ from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
 from testbed.interrupt import poll
 from testbed.log import LogWriter, NpzLog, save_npz
-from testbed.metrics import ranging_rate
+from testbed.scoring.metrics import ranging_rate
 from testbed.outdir import Output, write_json
 from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.collect import ESTIMATES_FILE, track_arrays
@@ -33,12 +33,12 @@ from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.failures import mark_incomplete, raise_failed
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
-from testbed.render_overlay import FEEDBACK_FILE, feedback_arrays
+from testbed.outputs.render_overlay import FEEDBACK_FILE, feedback_arrays
 from testbed.plugins.run import run_estimators
-from testbed.safety import flight
+from testbed.scoring.safety import flight
 from testbed.scenario import Scenario
-from testbed.simulate import record
-from testbed.world import build
+from testbed.sim.simulate import record
+from testbed.sim.world import build
 
 SPILL_DIR = ".log-chunks"  # inside the run's temporary directory, deleted once log.npz is written
 
@@ -122,14 +122,14 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             scores, tracks = run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
                                             done)
             estimators.update(scores)
-            if scenario.motion == "flown":  # contacts, separation, crashes, GNSS outages (testbed.safety)
+            if scenario.motion == "flown":  # contacts, separation, crashes, GNSS outages (testbed.scoring.safety)
                 metrics["flight"] = flight(log, physics)
         metrics["estimators"], timing = split_timing(estimators)
         mark_incomplete(metrics)
         poll()
         (tmp / "scenario.toml").write_text(scenario_mod.dumps(scenario))
         (tmp / "scene.xml").write_text(physics.to_xml())
-        if online is not None:  # what the controller flew on (the video draws that estimator: testbed.render_overlay)
+        if online is not None:  # what the controller flew on (the video draws that estimator: testbed.outputs.render_overlay)
             save_npz(tmp / FEEDBACK_FILE, feedback_arrays(done[online.plugin.key][0], scenario.vehicles, online.plugin.key))
         if tracks:  # every estimate of the plugin estimators, for `testbed view` (testbed.viewer)
             save_npz(tmp / ESTIMATES_FILE, {k: v for key, track in tracks.items() for k, v in track_arrays(key, track).items()})
@@ -137,7 +137,7 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
         if timing:
             write_json(tmp / "timing.json", {"scenario": scenario.name, "seed": scenario.seed, "estimators": timing})
         if video:
-            from testbed.render import render_run  # lazy: the renderer loads OpenGL, only for --video
+            from testbed.outputs.render import render_run  # lazy: the renderer loads OpenGL, only for --video
 
             render_run(tmp, progress=progress)
         o.commit()

@@ -4,11 +4,11 @@ Run i uses seed `scenario.seed + i` and writes `OUT/run-XXX/` (a full run direct
 deterministic in its seed, so the results are bit-identical to running the seeds one by one.
 The `metrics.json` files are aggregated into `OUT/summary.csv` and `OUT/summary.json`: mean,
 std (ddof=1), min, max, count and the 95 % confidence interval of the mean (`ci95`: Student t
-interval over the runs, mean +- t(0.975, n - 1) std / sqrt(n), testbed.metrics.mean_ci; the runs
+interval over the runs, mean +- t(0.975, n - 1) std / sqrt(n), testbed.scoring.metrics.mean_ci; the runs
 are independent, one seed each; null with fewer than 2 runs) of every numeric score, keyed by its
 dotted path (`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk;
 an ANEES also gets the interval of a consistent estimator's mean over the runs (`interval`, at the
-runs' own level) and its effective samples (`n_eff`: testbed.metrics.anees_over_runs,
+runs' own level) and its effective samples (`n_eff`: testbed.scoring.metrics.anees_over_runs,
 docs/consistency.md), empty in summary.csv for the other scores.
 `OUT/sweep.toml` is the swept scenario (run i: its seed + i). A plugin estimator that fails in a
 run is that run's result (testbed.plugins.failures): the sweep goes on, summary.json lists
@@ -35,7 +35,7 @@ from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
 from testbed.errors import EstimatorsFailed, RunError
 from testbed.interrupt import Interrupted
-from testbed.metrics import anees_over_runs, mean_ci
+from testbed.scoring.metrics import anees_over_runs, mean_ci
 from testbed.outdir import Output, marker, remove_unheld_locks, write_json, write_text
 from testbed.progress import bar as progress_bar
 from testbed.runner import run

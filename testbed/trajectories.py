@@ -2,7 +2,7 @@
 airframe limits a reference must respect.
 
 Pure numpy (no scipy, no MuJoCo, nothing from testbed), so that a scenario checks its trajectory
-while it loads (testbed.scenario) and testbed.reference evaluates it, from one implementation.
+while it loads (testbed.scenario) and testbed.sim.reference evaluates it, from one implementation.
 Units SI, world frame ENU; arrays are (K, 3) for K instants unless a docstring says otherwise.
 
 Minimum snap (Mellinger & Kumar 2011, "Minimum snap trajectory generation and control for
@@ -77,7 +77,7 @@ class Airframe:
 
 @lru_cache(maxsize=1)
 def airframe() -> Airframe:
-    """The flown airframe's mass and thrust limit from models/quadrotor.xml, the file testbed.world
+    """The flown airframe's mass and thrust limit from models/quadrotor.xml, the file testbed.sim.world
     builds every vehicle from: the <inertial> mass of body "base" and the sum over the <motor>
     actuators of the upper end of their ctrlrange (their own, or their default class's)."""
     root = ET.parse(AIRFRAME_FILE).getroot()

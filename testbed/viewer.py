@@ -24,7 +24,7 @@ vehicle or a site such as `uav3/uwb`):
   plots/error/EST/TARGET/sigma3      Scalars: +3 sigma x, y, z and -3 sigma x, y, z (m) of the estimate
   plots/nees/EST/TARGET              Scalars: position NEES of each estimate with a covariance
   plots/nees/EST/interval_95         Scalars: the interval a consistent estimator's NEES of one
-                                     sample falls in with 95 % (testbed.metrics.anees_interval)
+                                     sample falls in with 95 % (testbed.scoring.metrics.anees_interval)
   plots/gnss/vehicles_with_fix       Scalars: how many vehicles have a GNSS fix
 
 An estimate relative to a vehicle (visnav) is placed in the world with that vehicle's true pose,
@@ -51,13 +51,13 @@ from estimators.core import nees
 from testbed import scenario as scenario_mod
 from testbed.errors import RunError, UsageError
 from testbed.log import NpzLog
-from testbed.metrics import anees_interval
+from testbed.scoring.metrics import anees_interval
 from testbed.outdir import check_new_file, new_file
 from testbed.plugins.collect import ESTIMATES_FILE, Series, Track, load_tracks, natural
 from testbed.plugins.context import make_context
 from testbed.plugins.truth import Truth, errors
-from testbed.render_overlay import LOS_RGBA, NLOS_RGBA
-from testbed.world import build, lever_arms
+from testbed.outputs.render_overlay import LOS_RGBA, NLOS_RGBA
+from testbed.sim.world import build, lever_arms
 
 APP = "testbed"
 TIMELINE = "time"

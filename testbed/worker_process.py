@@ -2,7 +2,7 @@
 jobs (testbed.workers has the module docstring that says how stopping works).
 
 `worker_init(parent, stop)` is a pool's initializer, and what a process delegated to by its
-parent calls first (testbed.render); `run_job(fn, (i, job))` runs one job in a worker. Kept apart
+parent calls first (testbed.outputs.render); `run_job(fn, (i, job))` runs one job in a worker. Kept apart
 from the pools (testbed.workers, which imports the Ray backend) so that a process of the outputs
 layer can be a well-behaved worker without importing a workflow.
 """

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from testbed.reference import GRAVITY, RefState
-from testbed.world import Physics
+from testbed.sim.reference import GRAVITY, RefState
+from testbed.sim.world import Physics
 
 
 def assert_imu_reads_played_state(physics: Physics, ref: RefState, k: int) -> None:

@@ -107,10 +107,10 @@ _layer("foundations", "errors rng log environment outdir provenance interrupt pr
 _layer("configuration", "config scenario scenarios schema network_config pipeline_config estimator_spec trajectories "
        "sensors.config sensors.presets", "foundations")
 _layer("protocol", "plugins.api stream", "foundations, configuration")
-_layer("simulation", "world simulate control thrust disturbance reference network sensors",
+_layer("simulation", "sim sensors",
        "foundations, configuration, protocol")
 _layer("estimation", "plugins pipelines synthetic replay.graph", "foundations, configuration, protocol")
-_layer("scoring and outputs", "metrics safety stats plots report render render_overlay reproduce.document plugins.truth "
+_layer("scoring and outputs", "scoring outputs reproduce.document plugins.truth "
        "plugins.score plugins.hooks plugins.coop_scores plugins.graph_check plugins.phase_scores plugins.relnav_scores "
        "plugins.fusion_bound", "foundations, configuration, protocol, simulation, estimation")
 _layer("workflows", "runner sweep demo workers cluster viewer bench reproduce replay plugins.run plugins.online "
@@ -124,13 +124,14 @@ LAYERS[0] = (LAYERS[0][0], LAYERS[0][1] + ("testbed",), LAYERS[0][2])  # the pac
 # Upward imports not fixed yet, each with why; the test fails when one of them is gone (remove it
 # here) as when a new one appears. Every entry is a debt of issue #28, item 7.
 KNOWN_UPWARD = {
-    ("testbed.plugins.builtin_window", "testbed.network"):
+    ("testbed.plugins.builtin_window", "testbed.sim.network"):
         "coop.window_distributed draws its own channel (Network, RoundTransport) instead of Context.channel",
-    ("testbed.plugins.builtin_coop_ins", "testbed.network"):
+    ("testbed.plugins.builtin_coop_ins", "testbed.sim.network"):
         "coop.ins_distributed draws its own channel (Network) instead of Context.channel",
     **{(f"testbed.pipelines.{p}", f"testbed.{m}"): "what remains of the pipeline runtime, being converted to plugins"
-       for p, m in (("bandwidth", "metrics"), ("bandwidth", "network"), ("bandwidth", "plots"), ("phase", "metrics"),
-                    ("phase", "plots"), ("phase", "reference"), ("visnav", "metrics"), ("visnav", "plots"))},
+       for p, m in (("bandwidth", "scoring.metrics"), ("bandwidth", "sim.network"), ("bandwidth", "outputs.plots"),
+                    ("phase", "scoring.metrics"), ("phase", "outputs.plots"), ("phase", "sim.reference"),
+                    ("visnav", "scoring.metrics"), ("visnav", "outputs.plots"))},
 }
 
 
@@ -157,12 +158,12 @@ def upward_imports(graph: dict[str, set[str]]) -> list[str]:
 
 
 def test_layer_checker_finds_a_planted_upward_import():
-    graph = {"testbed.plugins.lsq": {"testbed.world", "testbed.config", "estimators.core"},
-             "testbed.scenario": {"testbed.plugins.loading"}, "testbed.render": {"testbed.workers"},
-             "testbed.runner": {"testbed.world", "testbed.plots"}}
+    graph = {"testbed.plugins.lsq": {"testbed.sim.world", "testbed.config", "estimators.core"},
+             "testbed.scenario": {"testbed.plugins.loading"}, "testbed.outputs.render": {"testbed.workers"},
+             "testbed.runner": {"testbed.sim.world", "testbed.outputs.plots"}}
     assert upward_imports(graph) == [
-        "testbed.plugins.lsq -> testbed.world (estimation may not import simulation)",
-        "testbed.render -> testbed.workers (scoring and outputs may not import workflows)",
+        "testbed.outputs.render -> testbed.workers (scoring and outputs may not import workflows)",
+        "testbed.plugins.lsq -> testbed.sim.world (estimation may not import simulation)",
         "testbed.scenario -> testbed.plugins.loading (configuration may not import estimation)"]
 
 
@@ -188,7 +189,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 
 def test_no_import_cycles_in_the_project():
     graph = _import_graph()
-    assert len(graph) > 40 and "testbed.scenario" in graph["testbed.reference"]  # the finder sees edges
+    assert len(graph) > 40 and "testbed.scenario" in graph["testbed.sim.reference"]  # the finder sees edges
     assert _cycles(graph) == []
 
 
@@ -242,7 +243,7 @@ def test_scenario_schema_loads_without_compute_modules_scipy_or_mujoco():
 
 def test_import_testbed_leaves_the_environment_alone():
     env = {k: v for k, v in os.environ.items() if k not in DEFAULTS}
-    code = ("import json, os\nbefore = dict(os.environ)\nimport testbed, testbed.scenario, testbed.plots\n"
+    code = ("import json, os\nbefore = dict(os.environ)\nimport testbed, testbed.scenario, testbed.outputs.plots\n"
             "print(json.dumps([before == dict(os.environ), 'matplotlib.pyplot' in __import__('sys').modules]))\n")
     assert _fresh(code, env) == [True, False]
 
@@ -271,7 +272,7 @@ def test_sweep_workers_get_single_threaded_blas(monkeypatch):
 
 
 def test_plots_never_choose_a_backend_or_use_pyplot():
-    tree = ast.parse((ROOT / "testbed/plots.py").read_text())
+    tree = ast.parse((ROOT / "testbed/outputs/plots.py").read_text())
     calls = [ast.unparse(n.func) for n in ast.walk(tree) if isinstance(n, ast.Call)]
     imports = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names] + \
         [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]

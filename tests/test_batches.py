@@ -11,11 +11,11 @@ from testbed.errors import PluginError
 from testbed.plugins.api import Estimate, EstimateBatch, MeasurementBatch
 from testbed.plugins.collect import Collector
 from testbed.plugins.context import make_context
-from testbed.world import lever_arms
+from testbed.sim.world import lever_arms
 from testbed.plugins.feed import batched, measurements, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.estimator_spec import EstimatorSpec
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 
 class _P:

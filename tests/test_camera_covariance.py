@@ -16,7 +16,7 @@ from estimators.core import chi2_interval
 from estimators.visnav import RelNavModel
 from testbed import scenario
 from testbed.pipelines import visnav as pv
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 
 def _whitened(f: float, seed: int) -> np.ndarray:

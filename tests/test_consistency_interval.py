@@ -1,4 +1,4 @@
-"""The ANEES interval of correlated NEES samples (testbed.metrics.effective_samples, docs/consistency.md).
+"""The ANEES interval of correlated NEES samples (testbed.scoring.metrics.effective_samples, docs/consistency.md).
 
 Errors of a filter are autocorrelated; the chi-square interval that counts every output as an
 independent sample is far too narrow for them. Here the error is an AR(1) Gaussian sequence
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from testbed.metrics import (COVERAGE_TOLERANCE_S, anees_interval, anees_keys, coverage, effective_samples,
+from testbed.scoring.metrics import (COVERAGE_TOLERANCE_S, anees_interval, anees_keys, coverage, effective_samples,
                              integrated_time, runs_effective_samples)
-from testbed.stats import clopper_pearson
+from testbed.scoring.stats import clopper_pearson
 
 SEQUENCES, STEPS, DOF, LEVEL = 400, 2000, 3, 0.99
 

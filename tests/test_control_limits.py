@@ -7,9 +7,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from testbed.control import GeometricController, heading
+from testbed.sim.control import GeometricController, heading
 from testbed.scenario import load
-from testbed.world import build
+from testbed.sim.world import build
 
 
 def _commands(max_tilt: float, pos_error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -199,7 +199,7 @@ def test_a_receiver_holds_each_senders_newest_broadcast():
     held one of its sender if it is not older (of equal times the later arrival wins)."""
     from types import SimpleNamespace
 
-    from testbed.network import Message
+    from testbed.sim.network import Message
     from testbed.plugins.builtin_coop_ins import CoopInsDistributed
 
     rs, n = np.random.default_rng(3), 4

@@ -18,7 +18,7 @@ from testbed import scenario
 from testbed.cli import main
 from testbed.errors import ConfigError
 from testbed.log import load_log
-from testbed.metrics import anees_interval
+from testbed.scoring.metrics import anees_interval
 from testbed.plugins.builtin_coop import epoch_problem, gnss_covariances, solve_epoch
 from testbed.plugins.collect import load_tracks
 from testbed.plugins.coop_scores import coop_hook, epochs_from_log
@@ -28,8 +28,8 @@ from testbed.plugins.run import run_estimators
 from testbed.estimator_spec import EstimatorSpec
 from testbed.rng import stream_rng
 from testbed.runner import run
-from testbed.simulate import simulate
-from testbed.world import build
+from testbed.sim.simulate import simulate
+from testbed.sim.world import build
 
 ROOT = Path(__file__).resolve().parents[1]
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")

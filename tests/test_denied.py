@@ -11,16 +11,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed import reference
+from testbed.sim import reference
 from testbed.config import from_dict, to_dict
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.estimator_spec import EstimatorSpec
-from testbed.render_overlay import FEEDBACK_FILE, Overlays
+from testbed.outputs.render_overlay import FEEDBACK_FILE, Overlays
 from testbed.reproduce import denied
 from testbed.runner import run
 from testbed.scenario import load
-from testbed.world import FLOOR, OBSTACLE, build, lever_arms
+from testbed.sim.world import FLOOR, OBSTACLE, build, lever_arms
 
 
 def test_reference_clears_the_block_and_a_path_into_a_building_is_refused():

@@ -9,11 +9,11 @@ from scipy.spatial.transform import Rotation
 
 from estimators.core import chi2_interval
 from testbed import scenario
-from testbed.disturbance import perturb, realize
-from testbed.reference import evaluate
-from testbed.simulate import simulate, schedule
+from testbed.sim.disturbance import perturb, realize
+from testbed.sim.reference import evaluate
+from testbed.sim.simulate import simulate, schedule
 from testbed.sensors.suite import make_sensors
-from testbed.world import build
+from testbed.sim.world import build
 
 from physics_checks import assert_imu_reads_played_state  # tests/ helper
 

@@ -15,14 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import scenario, world
+from testbed import scenario
+from testbed.sim import world
 from testbed.api import load_run
 from testbed.cli import main
 from testbed.config import to_dict
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
 from testbed.plugins.context import make_context, priors
-from testbed.world import lever_arms
+from testbed.sim.world import lever_arms
 from testbed.replay.export import exported_estimators
 from testbed.replay.recording import load_recording
 from testbed.replay.spec import load_spec

@@ -12,10 +12,10 @@ from scipy.spatial.transform import Rotation
 from testbed import scenario
 from testbed.cli import main
 from testbed.log import load_log
-from testbed.reference import GRAVITY, evaluate
+from testbed.sim.reference import GRAVITY, evaluate
 from testbed.runner import run
-from testbed.simulate import simulate
-from testbed.world import build
+from testbed.sim.simulate import simulate
+from testbed.sim.world import build
 
 from physics_checks import assert_imu_reads_played_state  # tests/ helper
 

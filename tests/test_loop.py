@@ -36,8 +36,8 @@ from testbed.plugins.context import make_context
 from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
-from testbed.simulate import simulate
-from testbed.world import build, lever_arms
+from testbed.sim.simulate import simulate
+from testbed.sim.world import build, lever_arms
 from tests import loop_plugins
 
 HERE = Path(__file__).resolve().parent

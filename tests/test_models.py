@@ -1,7 +1,7 @@
 """The MJCF models (models/*.xml) and every scene the package builds from them.
 
 Every scene: each built-in scenario in both motion modes, the physics benchmark's swarms at small
-N (one vehicle, one digit, two digits: the decimal attach blocks of testbed.world), and the
+N (one vehicle, one digit, two digits: the decimal attach blocks of testbed.sim.world), and the
 sensor benchmark's swarm (anchors and obstacles). Each is built and simulated briefly; any MuJoCo
 warning fails: compiler messages (MjSpec.compile reports them with warnings.warn), messages
 through mju_user_warning, and the `data.warning` counters at the end.
@@ -15,9 +15,9 @@ import pytest
 from testbed import scenario
 from testbed.bench.sensors import arena_swarm
 from testbed.bench.swarm import swarm_scenario
-from testbed.reference import GRAVITY
-from testbed.simulate import simulate
-from testbed.world import MODELS, _attach, _attach_vehicles, _vehicle_spec, _vehicle_template, build
+from testbed.sim.reference import GRAVITY
+from testbed.sim.simulate import simulate
+from testbed.sim.world import MODELS, _attach, _attach_vehicles, _vehicle_spec, _vehicle_template, build
 
 SHORT_S = 0.2  # s of simulation per scene: enough for every sensor to sample and the controller to act
 VISUAL, COLLISION, ENVIRONMENT = 2, 3, 0  # geom groups (docs/models.md)
@@ -102,7 +102,7 @@ def test_hover_keyframe_hovers():
 
 @pytest.mark.parametrize("n", [9, 23, 123])
 def test_block_attach_compiles_to_the_one_by_one_scene(n):
-    """testbed.world attaches vehicles in decimal blocks: the compiled model is the one of
+    """testbed.sim.world attaches vehicles in decimal blocks: the compiled model is the one of
     attaching uav1/ .. uav{n}/ one by one, and its saved XML loads back to the same model."""
     sc = swarm_scenario(n, SHORT_S)
     template = _vehicle_template(sc)

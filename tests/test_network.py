@@ -16,13 +16,13 @@ from scipy.stats import norm
 from estimators.factor_graph import MESSAGE_BYTES, solve_distributed
 from testbed.config import from_dict
 from testbed.errors import ConfigError
-from testbed.network import Network, NetworkConfig, stationary_loss
+from testbed.sim.network import Network, NetworkConfig, stationary_loss
 from testbed.pipelines import bandwidth as pb
 from testbed.rng import stream_rng
-from testbed.metrics import ranging_rate
+from testbed.scoring.metrics import ranging_rate
 from testbed.scenario import Scenario, load
-from testbed.simulate import simulate
-from testbed.stats import clopper_pearson
+from testbed.sim.simulate import simulate
+from testbed.scoring.stats import clopper_pearson
 from testbed.synthetic.coop import make_epoch
 
 K_SIGMA = 5.0

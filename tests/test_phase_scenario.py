@@ -16,7 +16,7 @@ from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError
 from testbed.pipelines import phase as P
 from testbed.rng import stream_rng
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 NAME = "phase-cross-h000"
 

@@ -12,14 +12,14 @@ import pytest
 from testbed import scenario
 from testbed.cli import main
 from testbed.errors import PluginError, UsageError
-from testbed.metrics import anees_interval
+from testbed.scoring.metrics import anees_interval
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
-from testbed.world import lever_arms
+from testbed.sim.world import lever_arms
 from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import Plugin, load_class
 from testbed.plugins.truth import Truth
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -31,7 +31,7 @@ def _write_run(scenario, out: Path) -> Path:
         run(scenario, out, plots=False)
         return out
     from testbed.log import save_npz
-    from testbed.simulate import simulate
+    from testbed.sim.simulate import simulate
 
     log, physics = simulate(scenario)
     out.mkdir(parents=True)
@@ -43,7 +43,7 @@ def _write_run(scenario, out: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
-    from testbed.render import RenderError, choose_backend
+    from testbed.outputs.render import RenderError, choose_backend
 
     try:
         choose_backend()
@@ -69,7 +69,7 @@ def _decode(path: Path) -> np.ndarray:
 
 
 def test_video_decodes_with_expected_frames_and_is_not_blank(runs):
-    from testbed.render import render_run
+    from testbed.outputs.render import render_run
 
     # 3 s logged at 2x would last 1.5 s; max_seconds cuts it to 1 s = 10 frames at 10 fps.
     out = render_run(runs["cross"], width=160, height=96, fps=10, speed=2.0, max_seconds=1.0)
@@ -86,7 +86,7 @@ def test_video_decodes_with_expected_frames_and_is_not_blank(runs):
 def test_leader_camera_picture_in_picture_and_save_frame(runs, tmp_path):
     import imageio.v3 as iio
 
-    from testbed.render import render_run, save_frame
+    from testbed.outputs.render import render_run, save_frame
 
     a = iio.imread(save_frame(runs["lf"], 1.0, tmp_path / "pip.png", width=320, height=180))
     b = iio.imread(save_frame(runs["lf"], 1.0, tmp_path / "nopip.png", width=320, height=180, pip_vehicle=0))
@@ -105,14 +105,14 @@ def test_leader_camera_picture_in_picture_and_save_frame(runs, tmp_path):
 
 
 def test_odd_size_is_refused(runs):
-    from testbed.render import render_run
+    from testbed.outputs.render import render_run
 
     with pytest.raises(ValueError, match="even"):
         render_run(runs["lf"], runs["lf"] / "odd.mp4", width=161, height=96, max_seconds=0.2)
 
 
 def test_no_backend_names_the_libraries(monkeypatch):
-    import testbed.render as render
+    import testbed.outputs.render as render
 
     monkeypatch.setattr(render, "_probe_in_process", lambda: (False, "ImportError: no libEGL"))
     monkeypatch.setattr(render, "_probe_subprocess", lambda backend: (False, f"{backend} missing"))
@@ -121,7 +121,7 @@ def test_no_backend_names_the_libraries(monkeypatch):
 
 
 def test_camera_track_keeps_everyone_in_view():
-    from testbed.render import camera_track
+    from testbed.outputs.render import camera_track
 
     # two vehicles drifting apart along x (a pair seen from the side), 20 -> 220 m
     t = np.linspace(0.0, 10.0, 101)
@@ -142,7 +142,7 @@ def test_fallback_renders_in_a_subprocess(runs, tmp_path, monkeypatch):
     """When this process cannot render, another backend that works renders in a subprocess."""
     import imageio.v3 as iio
 
-    import testbed.render as render
+    import testbed.outputs.render as render
 
     monkeypatch.setattr(render, "_probe_in_process", lambda: (False, "pretend this backend failed"))
     monkeypatch.setenv("MUJOCO_GL", "osmesa")  # so the probe tries egl, which works on this machine
@@ -161,7 +161,7 @@ def _camera(run: Path, t: float, width: int, height: int):
     returns project(p (M, 3) m world) -> (M, 2) pixels (u right, v down), and the depth (M,) m."""
     import math
 
-    from testbed import render
+    from testbed.outputs import render
 
     replay = render._Replay(run)
     t0, t1 = float(replay.time[0]), float(replay.time[-1])
@@ -200,7 +200,7 @@ def test_estimate_ellipse_matches_the_covariance(runs, tmp_path):
     import imageio.v3 as iio
 
     from testbed.plugins.collect import ESTIMATES_FILE, Series, track_arrays
-    from testbed.render import ESTIMATE_RGB, save_frame
+    from testbed.outputs.render import ESTIMATE_RGB, save_frame
 
     run = _copy_run(runs["cross"], tmp_path / "run")
     with np.load(run / "log.npz") as z:
@@ -233,7 +233,7 @@ def test_reference_path_is_drawn_where_it_projects(runs, tmp_path):
     the projected reference paths, and cover their length."""
     import imageio.v3 as iio
 
-    from testbed.render import save_frame
+    from testbed.outputs.render import save_frame
 
     W, H, t = 320, 180, 1.9
     bare = {**BARE, "pip_vehicle": 0}
@@ -257,7 +257,7 @@ def test_legend_and_scale_bar_are_in_the_corners(runs, tmp_path):
     right (estimate, UWB LOS, anchor), the scale bar in the bottom left, nothing else changes."""
     import imageio.v3 as iio
 
-    from testbed.render import ANCHOR_RGB, ESTIMATE_RGB, LOS_RGBA, save_frame
+    from testbed.outputs.render import ANCHOR_RGB, ESTIMATE_RGB, LOS_RGBA, save_frame
 
     W, H, t = 640, 360, 1.4
     on = iio.imread(save_frame(runs["denied"], t, tmp_path / "on.png", width=W, height=H)).astype(int)
@@ -278,7 +278,7 @@ def test_legend_and_scale_bar_are_in_the_corners(runs, tmp_path):
 def test_vehicles_and_anchors_in_use_stay_in_the_frame(runs):
     """Every vehicle of the closed loop and every anchor it ranges to projects inside the picture
     at every frame time of the video (the camera of save_frame and render_run)."""
-    from testbed import render
+    from testbed.outputs import render
 
     W, H = 320, 180
     replay = render._Replay(runs["denied"])
@@ -296,7 +296,7 @@ def test_vehicles_and_anchors_in_use_stay_in_the_frame(runs):
 
 
 def test_nearest_links_keeps_each_vehicles_k_shortest():
-    from testbed.render import nearest_links
+    from testbed.outputs.render import nearest_links
 
     # vehicles 0, 1, 2 at x = 0, 1, 3 and an anchor (-1) at x = 10; links: 0-1, 1-2, 0-2, 2-anchor, 0-anchor
     x = {0: 0.0, 1: 1.0, 2: 3.0, -1: 10.0}
@@ -310,7 +310,7 @@ def test_nearest_links_keeps_each_vehicles_k_shortest():
 
 
 def test_bad_link_option_is_refused(runs):
-    from testbed.render import render_run
+    from testbed.outputs.render import render_run
 
     with pytest.raises(ValueError, match="links must be one of nearest, epoch, none"):
         render_run(runs["lf"], runs["lf"] / "x.mp4", links="all")

@@ -12,13 +12,14 @@ import pytest
 from estimators.graph import model as gm
 from estimators.graph.batch import EpochFactors, solve_epochs
 from estimators.so3 import so3_exp
-from testbed import scenario, world
+from testbed import scenario
+from testbed.sim import world
 from testbed.cli import main
 from testbed.config import to_dict
-from testbed.metrics import anees_interval, effective_samples
+from testbed.scoring.metrics import anees_interval, effective_samples
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
-from testbed.world import lever_arms
+from testbed.sim.world import lever_arms
 from testbed.plugins.feed import measurements, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.replay.recording import load_recording

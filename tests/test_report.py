@@ -1,11 +1,11 @@
-"""testbed.report: claims, strict JSON, tables and the one number format."""
+"""testbed.outputs.report: claims, strict JSON, tables and the one number format."""
 import csv
 import json
 
 import numpy as np
 import pytest
 
-from testbed.report import (
+from testbed.outputs.report import (
     NULL_SUFFIX, Claim, Undefined, claims_section, fmt, fmt_ci, fmt_pm, markdown_table, tally, write_claims,
     write_csv, write_json,
 )

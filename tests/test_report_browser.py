@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from testbed.plots import figure, read_axes_map, save
-from testbed.report import Claim, write_claims
+from testbed.outputs.plots import figure, read_axes_map, save
+from testbed.outputs.report import Claim, write_claims
 from testbed.reproduce import document
 
 CHROMIUM = shutil.which("chromium")

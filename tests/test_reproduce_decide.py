@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from testbed.reproduce import phase, visnav
-from testbed.report import NULL_SUFFIX, write_claims
+from testbed.outputs.report import NULL_SUFFIX, write_claims
 
 
 def _ekf_scores(max_abs_pos: float, rmse: float, rng: np.random.Generator) -> dict:

@@ -7,10 +7,10 @@ import re
 import numpy as np
 import pytest
 
-from testbed.plots import figure, save
-from testbed.report import Claim, write_claims, write_markdown
+from testbed.outputs.plots import figure, save
+from testbed.outputs.report import Claim, write_claims, write_markdown
 from testbed.reproduce import document
-from testbed.stats import clopper_pearson
+from testbed.scoring.stats import clopper_pearson
 
 from table_checks import assert_every_anees_has_its_interval  # tests/ helper
 
@@ -81,7 +81,7 @@ def test_phase_reproduction_writes_its_report(tmp_path):
 def test_bars_spanning_decades_are_drawn_on_a_log_axis(tmp_path, monkeypatch):
     """The denied reproduction's RMSE bars: GNSS only 87 m beside 0.27-0.63 m would flatten the
     cooperative bars on a linear axis; within a factor 30 the axis stays linear."""
-    from testbed import plots
+    from testbed.outputs import plots
 
     drawn = []
     monkeypatch.setattr(plots, "save", lambda fig, path: drawn.append(fig) or path)

@@ -1,13 +1,13 @@
-"""The safety of a flown run (testbed.safety): contact events by kind and their first time, the
+"""The safety of a flown run (testbed.scoring.safety): contact events by kind and their first time, the
 minimum separation, the crash rules (tilt past 90 deg, floor impact above 2 m/s), the time
 without a GNSS fix, on logged states made by hand in the coop-denied scene."""
 from __future__ import annotations
 
 import numpy as np
 
-from testbed import safety
+from testbed.scoring import safety
 from testbed.scenario import load
-from testbed.world import build
+from testbed.sim.world import build
 
 
 def _log(physics, states: list[np.ndarray], vel: list[np.ndarray], fix: np.ndarray) -> dict:

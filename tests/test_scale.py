@@ -6,8 +6,8 @@ import numpy as np
 
 from testbed.bench.swarm import swarm_scenario
 from testbed.log import LogWriter, load_log, save_npz
-from testbed.simulate import simulate
-from testbed.world import build
+from testbed.sim.simulate import simulate
+from testbed.sim.world import build
 
 
 def test_flown_imu_reads_the_sensors_of_its_own_tick_and_model_flags_are_restored():

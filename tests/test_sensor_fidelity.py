@@ -13,7 +13,7 @@ from testbed.config import from_dict
 from testbed.errors import FieldError
 from testbed.scenario import Scenario
 from testbed.sensors.presets import DPH, UG
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 K_SIGMA = 5.0
 
@@ -138,7 +138,7 @@ def test_rotor_vibration_sample_by_sample_equals_all_at_once():
     from testbed.rng import stream_rng
     from testbed.sensors.noise import device_rng
     from testbed.sensors.vibration import RotorVibration
-    from testbed.world import build
+    from testbed.sim.world import build
 
     sc = _vibrating({"preset": "mpu9250"})
     physics = build(sc)

@@ -16,7 +16,7 @@ from testbed.errors import ConfigError
 from testbed.scenario import Scenario
 from testbed.sensors.config import InertialErrors
 from testbed.sensors.noise import TriadErrors, allan_deviation
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 K_SIGMA = 5.0  # standard errors allowed in statistical checks
 
@@ -407,7 +407,7 @@ def _edge_lateral() -> float:
     From the MJCF: camera and LED positions in the body frame; the follower sits 6 m behind.
     LED2 (and LED3, deeper) then project inside the image, LED1 (and LED4, shallower) outside.
     """
-    from testbed.world import build
+    from testbed.sim.world import build
 
     physics = build(scenario({}, trajectory=_camera_traj()))
     m = physics.model
@@ -500,7 +500,7 @@ def test_gnss_rtk_per_vehicle():
 
 def test_site_vels_matches_object_velocity():
     sc = scenario({}, trajectory=PHASE_TRAJ, duration=0.1)
-    from testbed.world import build
+    from testbed.sim.world import build
 
     physics = build(sc)
     ids = physics.site_ids(["uav6/ant1", "uav6/ant2", "uav3/uwb", "uav6/led1"])
@@ -513,7 +513,7 @@ def test_no_segment_at_an_instant_is_no_hit():
     import numpy as np
 
     from testbed.scenario import load
-    from testbed.world import build
+    from testbed.sim.world import build
 
     physics = build(load("bandwidth"))
     targets = physics.ray_targets(np.ones(6, int))

@@ -12,9 +12,9 @@ from testbed.rng import stream_rng
 from testbed.scenario import Scenario
 from testbed.sensors.config import SkyConfig
 from testbed.sensors.sky import Constellation, Sky, dop
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 from testbed.stream import make_stream
-from testbed.world import build
+from testbed.sim.world import build
 
 HOVER = {"kind": "waypoints", "points": [[0.0, 0.0, 5.0], [0.0, 0.0, 5.0]], "times": [0.0, 10.0]}
 TALL_BOX = {"type": "box", "pos": [3.0, 0.0, 10.0], "size": [1.0, 1.0, 10.0]}  # east of the vehicle, 20 m high

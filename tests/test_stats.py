@@ -1,11 +1,11 @@
-"""testbed.stats against scipy and closed forms on known cases."""
+"""testbed.scoring.stats against scipy and closed forms on known cases."""
 import math
 
 import numpy as np
 import pytest
 from scipy import stats as ss
 
-from testbed import stats
+from testbed.scoring import stats
 
 
 @pytest.mark.parametrize("alternative", ["less", "greater", "two-sided"])

@@ -7,7 +7,7 @@ import pytest
 
 from testbed import scenario
 from testbed.errors import ConfigError
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 
 def _small_swarm(link_search: str, **uwb: str):

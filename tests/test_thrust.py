@@ -1,4 +1,4 @@
-"""Rotor routes: the joint route (free-joint moment gear + thrust in xfrc_applied, testbed.thrust)
+"""Rotor routes: the joint route (free-joint moment gear + thrust in xfrc_applied, testbed.sim.thrust)
 flies exactly as the site transmission, for the same controls and in closed loop."""
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 
 from testbed.bench.swarm import swarm_scenario
 from testbed.scenario import Disturbance
-from testbed.simulate import simulate
-from testbed.thrust import BodyForces
-from testbed.world import build, rotor_route
+from testbed.sim.simulate import simulate
+from testbed.sim.thrust import BodyForces
+from testbed.sim.world import build, rotor_route
 
 TOL = 1e-9  # m, m/s, rad/s, m/s^2: the two routes differ only in floating-point rounding
 

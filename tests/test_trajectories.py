@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from testbed import trajectories
 from testbed.cli import main
 from testbed.errors import ConfigError
-from testbed.reference import evaluate
+from testbed.sim.reference import evaluate
 from testbed.scenario import Circle, Lemniscate, Spline, Trajectory, builtin_names, load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -250,7 +250,7 @@ def test_every_kind_evaluates_to_finite_values_of_the_right_shapes(name):
 
 @pytest.mark.parametrize("name", [str(p) for p in EXAMPLES], ids=lambda n: Path(n).stem)
 def test_examples_load_and_their_paths_are_clear(name):
-    from testbed.reference import clearance
+    from testbed.sim.reference import clearance
 
     sc = load(name)
     assert clearance(sc) is None
@@ -281,13 +281,13 @@ def test_curve_formations_spread_vehicles_in_phase_and_layers(kind):
 
 def test_a_flown_spline_tracks_its_reference():
     """4 s flown on the figure-eight spline (two vehicles). The Lee controller has no angular-rate
-    feed-forward (testbed/control.py: moment -kr e_R - kw omega), so a thrust axis turning at
+    feed-forward (testbed/sim/control.py: moment -kr e_R - kw omega), so a thrust axis turning at
     omega ~ |jerk| / |a + g| lags it by kw omega / kr in steady state: an acceleration error
     jerk kw / kr, which the position loop turns into a position error jerk kw / (kr kx) (its
     static gain 1 / kx; kv = 3, kx = 4 give damping 0.75, no overshoot to speak of). The RMS
     error must stay below that worst-case lag at the path's largest jerk."""
     from testbed.runner import tracking_rmse
-    from testbed.simulate import simulate
+    from testbed.sim.simulate import simulate
 
     sc = load(str(ROOT / "examples/trajectories/spline.toml"), duration=4.0)
     t = np.linspace(0.0, 4.0, 4001)

@@ -18,7 +18,7 @@ from testbed.errors import ConfigError
 from testbed.pipelines import visnav as pv
 from testbed.pipeline_config import FILTER_NAMES, VisNavPipelineConfig
 from testbed.runner import run
-from testbed.simulate import simulate
+from testbed.sim.simulate import simulate
 
 from table_checks import assert_every_anees_has_its_interval  # tests/ helper
 

@@ -36,8 +36,8 @@ from testbed.plugins.online import in_the_loop
 from testbed.reproduce.denied import COOP, variant
 from testbed.runner import run
 from testbed.scenario import load
-from testbed.simulate import record
-from testbed.world import build, lever_arms
+from testbed.sim.simulate import record
+from testbed.sim.world import build, lever_arms
 
 DURATION_S = 10.0
 REPEAT = 3  # runs per variant: the median is reported (a shared machine's noise), the first too

@@ -27,8 +27,8 @@ from testbed.plugins.loading import Plugin, load_class
 from testbed.plugins.online import OnlineEstimator
 from testbed.estimator_spec import EstimatorSpec
 from testbed.scenario import Scenario
-from testbed.simulate import simulate
-from testbed.world import build, lever_arms
+from testbed.sim.simulate import simulate
+from testbed.sim.world import build, lever_arms
 
 SIZES = (1, 10, 30)
 SENSORS = {

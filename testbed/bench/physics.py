@@ -16,10 +16,10 @@ import mujoco
 import numpy as np
 
 from testbed.bench.swarm import swarm_scenario
-from testbed.reference import GRAVITY
+from testbed.sim.reference import GRAVITY
 from testbed.scenario import Scenario
-from testbed.simulate import simulate
-from testbed.world import Physics, build
+from testbed.sim.simulate import simulate
+from testbed.sim.world import Physics, build
 
 SIZES = (1, 6, 18, 50)
 VEHICLE_SECONDS = 360.0  # simulated vehicle-seconds per timed run (duration = this / N, within 1..20 s)

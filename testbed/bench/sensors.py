@@ -21,8 +21,8 @@ from testbed.bench.swarm import swarm_scenario
 from testbed.config import from_dict
 from testbed.scenario import Scenario
 from testbed.sensors.camera import Camera
-from testbed.simulate import simulate
-from testbed.world import build
+from testbed.sim.simulate import simulate
+from testbed.sim.world import build
 
 
 # seed 001's 200 x 200 x 100 m box: four anchors at the corners, two pillars and a wall

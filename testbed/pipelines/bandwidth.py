@@ -29,7 +29,7 @@ probability per step (stream "links"); `fail_node` (1-based, 0 = none) stops sen
 `fail_time` s. A lost component is compensated by the receiver's own prediction (eq. 6 with that
 T entry 0) and M follows the realised loss pattern.
 
-Network ([network] set; testbed.network, docs/network.md): at every step k each directed
+Network ([network] set; testbed.sim.network, docs/network.md): at every step k each directed
 message j -> i of the delivered design (after the faults above) is sent at t_k through a network
 of N nodes (stream "network") with its size, 8 bytes per selected component; it is used at step
 k only if it arrives by t_k + dt, else its components are compensated as a loss. The channel's
@@ -51,7 +51,7 @@ from estimators.bandwidth import BYTES_PER_COMPONENT, uwb_pseudo_measurement
 from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
 from testbed.interrupt import poll
-from testbed.network import Network
+from testbed.sim.network import Network
 from testbed.pipeline_config import N_NODES, BandwidthPipelineConfig
 from testbed.rng import stream_rng
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
@@ -311,7 +311,7 @@ def scores(est: dict) -> dict:
     if reasons:
         out["null_reasons"] = reasons
     if "network" in est:
-        from testbed.metrics import network_summary  # lazy: scipy.stats, only with a [network]
+        from testbed.scoring.metrics import network_summary  # lazy: scipy.stats, only with a [network]
 
         out["network"] = network_summary(est["network"])
     return out
@@ -323,7 +323,7 @@ def run(scenario, log, plots_dir):
     out = scores(est)
     if plots_dir is not None:
         # lazy: matplotlib, only when plots are written
-        from testbed.plots import error_envelope
+        from testbed.outputs.plots import error_envelope
 
         e = est["xhat"] - est["truth"][:, None, :]
         for i in range(N_NODES):

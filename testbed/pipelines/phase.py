@@ -8,7 +8,7 @@ Inputs the estimator gets (nothing else):
   follower's antenna lever arms for the prior spread) and the sensor's phase period
   T = 1 / sensors.phase.phase_rate_hz (an instrument setting, not truth);
 - the planned initial state of the follower: the scenario's reference trajectory at the first
-  epoch (testbed.reference; the plan, not the MuJoCo state), to which the initial error is added.
+  epoch (testbed.sim.reference; the plan, not the MuJoCo state), to which the initial error is added.
 
 Navigation frame N = body frame (FLU) of master `nav_master` (3, on the symmetry axis). Its pose is
 derived every epoch from ITS OWN antennas in the master_pos/master_vel stream (eq. 29-30 applied
@@ -78,7 +78,7 @@ from estimators.phase_model import antenna_state_from_body, body_from_antennas, 
 from estimators.so3 import euler_from_rotation, rot_zyx, rot_zyx_dot, skew
 from testbed.errors import ConfigError
 from testbed.pipeline_config import PhasePipelineConfig
-from testbed.reference import evaluate
+from testbed.sim.reference import evaluate
 from testbed.rng import stream_rng
 
 
@@ -292,8 +292,8 @@ def window_keys(window_s: float) -> dict[str, str]:
 
 def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true, bound) -> dict:
     """metrics.json `estimators.ekf` (module docstring) and the series the plots need."""
-    # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
-    from testbed.metrics import anees_keys, attitude_error_vector, rmse
+    # lazy: testbed.scoring.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
+    from testbed.scoring.metrics import anees_keys, attitude_error_vector, rmse
 
     t, means, covs = track.t, track.mean, track.cov
     acts = np.stack([b.actual for b in track.beliefs])
@@ -351,7 +351,7 @@ def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true
 def plot(series: dict, plots_dir, name: str) -> None:
     """Figures like the paper's figs. 4-15: position and velocity error per axis, +/-3 sigma."""
     # lazy: matplotlib, only when plots are written
-    from testbed.plots import error_envelope
+    from testbed.outputs.plots import error_envelope
 
     t, e, s = series["t"], series["err"], series["sigma"]
     lab = ("x (fwd)", "y (left)", "z (up)")

@@ -25,7 +25,7 @@ Initial estimate: the relative navigation state at t = 0 is truth + a draw from 
 covariance (stream "init", the same draw for every filter); the biases start at their nominal 0
 with the configured prior std. Scores (per filter, at every camera epoch after the update):
 RMSE of the relative position (m), velocity (m/s) and attitude (deg, on SO(3) by
-testbed.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e;
+testbed.scoring.metrics), ANEES of the 9-dim navigation error (p, v, theta; truth = est (+) e;
 `anees_dof` 9) with its 99 % interval over its effective samples (`anees_interval_99`, `n_eff`:
 docs/consistency.md), and the wall time per camera epoch (one update and its predicts). The wall
 time is the only part of metrics.json that is not bit-identical between two runs of the same seed.
@@ -223,8 +223,8 @@ class Scored:
 
 def score_track(model, track: Track, truth: np.ndarray) -> Scored:
     """Score a Track against the true states truth (E, 22) (see Scored)."""
-    # lazy: testbed.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
-    from testbed.metrics import attitude_error_deg
+    # lazy: testbed.scoring.metrics imports scipy.stats (seconds on a cold cache); only scoring needs it
+    from testbed.scoring.metrics import attitude_error_deg
 
     est = track.mean
     e_true = model.boxminus(truth, est)[:, :9]          # truth = est (+) e
@@ -237,7 +237,7 @@ def score_track(model, track: Track, truth: np.ndarray) -> Scored:
 def metrics_of(track: Track, sc: Scored) -> dict:
     """The metrics.json entry of one filter."""
     # lazy: see score_track
-    from testbed.metrics import anees_keys, rmse
+    from testbed.scoring.metrics import anees_keys, rmse
 
     E = track.t.size
     predict_s, update_s = float(track.predict_s.sum()), float(track.update_s.sum())
@@ -291,7 +291,7 @@ def run_all(scenario, log: dict) -> tuple[dict[str, Track], dict[str, Scored], o
 def plot_track(name: str, track: Track, sc: Scored, plots_dir: Path, prefix: str = "") -> list[Path]:
     """Error curves with +/-3 sigma envelopes (position, velocity, attitude) of filter `name`."""
     # lazy: matplotlib, only when plots are written
-    from testbed.plots import error_envelope
+    from testbed.outputs.plots import error_envelope
 
     n = name.upper()
     return [

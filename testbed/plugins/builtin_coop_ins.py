@@ -77,7 +77,7 @@ from scipy.stats import chi2
 from estimators import coop_ins as ci
 from estimators.sensor_models import imu_noise, range_variances
 from testbed.config import from_dict, key
-from testbed.network import Network
+from testbed.sim.network import Network
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import StartParams, levelled_start

@@ -22,7 +22,7 @@ error in 6 s; least squares 2.2 m on the same log. In the cascade coop.window_in
 on Huber 1.345 by default, the reverse: docs/denied.md),
 max_iter (5, Gauss-Newton steps per epoch, centralized), max_rounds (10, message rounds per
 epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior), network (distributed: a [network] table, docs/network.md,
-through which the broadcasts travel, testbed.network.RoundTransport, drawn from the plugin's
+through which the broadcasts travel, testbed.sim.network.RoundTransport, drawn from the plugin's
 own rng; absent: ideal). The channel's geometry (range limit, NLOS loss) is taken from the
 estimator's own positions and the epoch's ranged links (the estimator cannot see the truth).
 mirrors (true): after each epoch's solve, a vehicle is replaced by its mirror image through the
@@ -41,7 +41,7 @@ import numpy as np
 from estimators import window as sw
 from estimators.sensor_models import range_variances
 from testbed.config import check_fields, from_dict, key
-from testbed.network import Network, RoundTransport
+from testbed.sim.network import Network, RoundTransport
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping

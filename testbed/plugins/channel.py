@@ -1,11 +1,11 @@
 """The network a distributed estimator's messages travel through, handed to it by the runtime
-(Context.channel) when the scenario has a [network] table (testbed.network, docs/network.md).
+(Context.channel) when the scenario has a [network] table (testbed.sim.network, docs/network.md).
 
 The channel is the simulator's, not the estimator's: its geometry is the true one of the run (the
 uwb sites' true positions at the solve's time for the range limit, and the NLOS flags of the pairs
 ranged at that instant, pairs not ranged counting as line of sight), read from the log here. The
 estimator only asks `transport(t)` for the rounds of one solve starting at t s and gets an
-estimators.transport.Transport (testbed.network.RoundTransport: round r starts at t + r round_s;
+estimators.transport.Transport (testbed.sim.network.RoundTransport: round r starts at t + r round_s;
 a message counts in its round only if it arrives within it). Each estimator has a network of its
 own, drawn from the stream "network/NAME" of the seed; its counts (`stats`) go to metrics.json
 under the estimator's `network` when it used it.
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.network import Network, NetworkConfig, RoundTransport
+from testbed.sim.network import Network, NetworkConfig, RoundTransport
 from testbed.plugins.truth import Truth
 from testbed.rng import stream_rng
 

@@ -1,7 +1,7 @@
 """The `Context` of a run: geometry, declared sensor models, the pipeline's settings and priors.
 
 The lever arms are handed in (the simulator reads them from the compiled model,
-testbed.world.lever_arms; a replay from its dataset), so the estimator runtime never imports the
+testbed.sim.world.lever_arms; a replay from its dataset), so the estimator runtime never imports the
 simulator.
 """
 from __future__ import annotations
@@ -44,7 +44,7 @@ def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, t
 def make_context(scenario: Scenario, sites: dict[str, tuple[str, np.ndarray]], key: str, params: dict,
                  prior: dict[str, tuple[np.ndarray, np.ndarray]] | None = None, channel: object | None = None) -> Context:
     """The Context of estimator `key` in this run (its rng: stream "estimator/KEY" of the seed).
-    sites: {site: (vehicle body, lever arm (3,) m in its base frame)} (testbed.world.lever_arms);
+    sites: {site: (vehicle body, lever arm (3,) m in its base frame)} (testbed.sim.world.lever_arms);
     prior: priors(scenario, log), computed once per run (None: none); channel: its network
     (testbed.plugins.channel.Channel) or None."""
     anchors = {f"anchor{k}": np.array(p, float) for k, p in enumerate(scenario.world.anchors, start=1)}

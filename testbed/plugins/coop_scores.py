@@ -11,7 +11,7 @@ Keys (`CoopHook.summary`), over the K epochs x N vehicles (e = estimate - truth,
 estimate's own (3, 3) covariance, 3 dof):
 - `rmse_position_per_vehicle_m` (N,) RMSE per vehicle over epochs; `rmse_position_spp_mean_m`,
   `rmse_position_rtk_mean_m` their mean over the SPP / RTK vehicles;
-- `anees`, `anees_dof`, `anees_interval_99`, `n_eff` (testbed.metrics.anees_keys of the (K, N)
+- `anees`, `anees_dof`, `anees_interval_99`, `n_eff` (testbed.scoring.metrics.anees_keys of the (K, N)
   NEES: the epochs and vehicles of a run are correlated, the interval counts the effective
   samples, docs/consistency.md); `anees_spp`, `anees_rtk`, `n_eff_spp`; `epochs` = K;
 - `anees_joint` (with its _dof = 3N, _interval_99 and `n_eff_joint`): the NEES of all 3N coordinates
@@ -35,7 +35,7 @@ import numpy as np
 
 from estimators.core import nees
 from testbed.errors import ConfigError
-from testbed.metrics import anees_keys, effective_samples, rmse
+from testbed.scoring.metrics import anees_keys, effective_samples, rmse
 from testbed.plugins.collect import Track
 from testbed.plugins.score import Hook
 
@@ -230,7 +230,7 @@ class CoopHook(Hook):
         return out
 
     def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
-        from testbed.plots import compare_bars, error_envelope  # lazy: matplotlib, only when plots are written
+        from testbed.outputs.plots import compare_bars, error_envelope  # lazy: matplotlib, only when plots are written
 
         fits = {name: got for name, (track, _) in shown.items() if (got := self.positions(track)) is not None}
         if not fits:
@@ -254,7 +254,7 @@ class CoopHook(Hook):
 def plot_error_vs_time(epochs: Epochs, pos: dict, uavs: list[int], path: Path, title: str) -> Path:
     """Figure 6: position error norm (m) against time for four UAVs (1-based) of each estimator's
     positions pos {name: (K, N, 3) m}."""
-    from testbed.plots import figure, save  # lazy: matplotlib, only when plots are written
+    from testbed.outputs.plots import figure, save  # lazy: matplotlib, only when plots are written
 
     nb, nr = neighbour_counts(epochs)
     fig = figure(figsize=(8, 2.0 * len(uavs) + 0.6))

@@ -1,6 +1,6 @@
 """The estimator of `[control] feedback = "estimate:NAME"` run online, inside the flown loop.
 
-testbed.simulate hands `measured` the rows each sensor has just recorded (the values the log
+testbed.sim.simulate hands `measured` the rows each sensor has just recorded (the values the log
 will hold, noise included) and calls `advance(t)` at the end of every tick: every measurement
 whose arrival (time + latency) is at or before t is turned into a `Measurement` exactly as the
 offline feed builds it from the log (testbed.plugins.feed.measurement_columns) and processed in
@@ -45,7 +45,7 @@ from testbed.plugins.feed import finish_plugin, measurement_columns, process, pr
 from testbed.plugins.loading import Plugin
 from testbed.plugins.context import make_context
 from testbed.scenario import Scenario
-from testbed.world import Physics, lever_arms
+from testbed.sim.world import Physics, lever_arms
 
 ARRIVAL_TOLERANCE = 1e-9  # s: an arrival this close after a tick time counts as at the tick
 TARGET_CHECK_S = 1.0  # s: by then (or at the first estimates after it) the estimates must name the flown bodies

@@ -16,7 +16,7 @@ import numpy as np
 
 from testbed.errors import ConfigError, PluginError
 from testbed.interrupt import poll
-from testbed.metrics import network_summary
+from testbed.scoring.metrics import network_summary
 from testbed.plugins.channel import Channel
 from testbed.plugins.context import make_context, priors
 from testbed.plugins.failures import failed_entry
@@ -26,7 +26,7 @@ from testbed.plugins.hooks import scenario_hooks
 from testbed.plugins.score import plot_errors, score
 from testbed.plugins.truth import Truth
 from testbed.scenario import Scenario
-from testbed.world import Physics, lever_arms
+from testbed.sim.world import Physics, lever_arms
 
 
 def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],

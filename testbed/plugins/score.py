@@ -4,8 +4,8 @@ Per (target, quantity), at the estimate times against interpolated truth (testbe
 RMSE total (root mean of |e|^2) and per axis; with a covariance, NEES e^T P^-1 e per sample, their
 mean (ANEES, `anees_dof` = 3), `n_eff` the effective number of independent samples behind it and
 `anees_interval_95` the two-sided 95 % interval of a consistent estimator's ANEES over n_eff
-samples (testbed.metrics.effective_samples: a filter's errors are correlated in time,
-docs/consistency.md); coverage (testbed.metrics.coverage): `coverage` the fraction of the
+samples (testbed.scoring.metrics.effective_samples: a filter's errors are correlated in time,
+docs/consistency.md); coverage (testbed.scoring.metrics.coverage): `coverage` the fraction of the
 target's truth instants with an estimate within `coverage_tolerance_s`, `rate_hz` and
 `first_estimate_s`.
 Summaries over targets, per quantity q with unit u (position m, velocity m_s, attitude deg):
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from estimators.core import nees
-from testbed.metrics import anees_keys, coverage, rmse
+from testbed.scoring.metrics import anees_keys, coverage, rmse
 from testbed.plugins.collect import Series, Track, natural
 from testbed.plugins.truth import Truth, errors
 
@@ -180,7 +180,7 @@ def plot_errors(tracks: dict[str, tuple[Track, dict]], plots_dir: Path, max_targ
     first): every estimator's error per axis against time with its own 3-sigma envelope, overlaid,
     and the hooks' overlays (the scenario's +/-3 sqrt(diag PCRB) where it has one); then each
     hook's own figures. tracks: {name: (track, errors)}."""
-    from testbed.plots import figure, save  # lazy: matplotlib, only when plots are written
+    from testbed.outputs.plots import figure, save  # lazy: matplotlib, only when plots are written
 
     keys = sorted({k for track, _ in tracks.values() for k in track}, key=lambda k: (k[1], k[0]))
     paths = []

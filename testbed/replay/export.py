@@ -4,7 +4,7 @@ What goes where (every number written with Python's shortest round-tripping repr
 back exactly the floats the run fed its estimators):
 - spec.toml: what makes each estimator's Context on replay the one it had in the run
   (testbed.plugins.context.make_context): the vehicles and every one of their sites with its lever
-  arm (from the compiled model, testbed.world.lever_arms), the anchors, the declared
+  arm (from the compiled model, testbed.sim.world.lever_arms), the anchors, the declared
   sensor tables (Context.sensors), the motion, the built-ins' prior (Context.prior), the seed (each
   Context.rng is the stream "estimator/KEY" of it, KEY kept) and the window [0, duration]; and the
   run's estimators (`exported_estimators`): the built-ins of its [pipeline] and its [[estimators]],
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from testbed import world
+from testbed.sim import world
 from testbed.api import load_run
 from testbed.config import to_dict
 from testbed.outdir import Output
@@ -38,7 +38,7 @@ from testbed.pipeline_config import (BandwidthPipelineConfig, CoopPipelineConfig
                                       VisNavPipelineConfig)
 from testbed.plugins import builtin_bandwidth, builtin_coop, builtin_phase, builtin_visnav
 from testbed.plugins.context import make_context, priors
-from testbed.world import lever_arms
+from testbed.sim.world import lever_arms
 from testbed.plugins.loading import resolve
 from testbed.plugins.settings import settings
 from testbed.estimator_spec import EstimatorSpec

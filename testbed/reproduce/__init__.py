@@ -1,14 +1,14 @@
 """Paper reproductions (`testbed reproduce PAPER --out DIR`): tables, figures and claims.
 
 Each paper's module `testbed.reproduce.<paper>` has the same shape: `compute` (runs -> numbers),
-`decide` (numbers -> `testbed.report.Claim`s), `write` (files through testbed.report), and
+`decide` (numbers -> `testbed.outputs.report.Claim`s), `write` (files through testbed.outputs.report), and
 `reproduce(out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None) -> dict`
 chaining them. It writes `DIR/table.md` (tables and the verdicts), `DIR/table.csv` (every number at
 full precision), `DIR/claims.json` (strict JSON: the reproduction's context and `claims`, each with
 `id`, the paper's `claim`, the `criterion`, `holds: true/false` (null with `not_decidable`: the runs
-never met the claim's condition, testbed.report.Claim) and the `numbers` it was judged on)
+never met the claim's condition, testbed.outputs.report.Claim) and the `numbers` it was judged on)
 and `DIR/plots/`. Monte Carlo run i uses the scenario's seed + i (testbed.reproduce.runs).
-Every claim carries the test that decided it (testbed.stats; `test` in claims.json). Then
+Every claim carries the test that decided it (testbed.scoring.stats; `test` in claims.json). Then
 testbed.reproduce.document writes `DIR/report.md` and the self-contained `DIR/report.html`: the
 command and seeds, the versions, the verdicts with their tests, the figures and the tables. The runs
 go to a local process pool or, with `backend="ray"`, to Ray tasks (testbed.workers, testbed.cluster).

@@ -17,7 +17,7 @@ no process noise: W (the paper's, read as a rate) is the estimator's model, not 
 DIR/table.md, table.csv, claims.json, plots/ gather both modes (claims carry "mode").
 
 Shape (as every reproduction): `compute` (runs -> numbers), `decide` (numbers -> claims), `write`
-(files through testbed.report), for each mode (`compute_uwb`, `decide_uwb`, `write_uwb`; the paper
+(files through testbed.outputs.report), for each mode (`compute_uwb`, `decide_uwb`, `write_uwb`; the paper
 mode in testbed.reproduce.bandwidth_paper); `reproduce` chains them and gathers both modes.
 """
 from __future__ import annotations
@@ -33,8 +33,8 @@ from estimators import bandwidth as bw
 from testbed import scenario as scenario_mod
 from testbed.log import load_log
 from testbed.pipelines import bandwidth as pb
-from testbed.plots import compare_bars
-from testbed.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, write_json, \
+from testbed.outputs.plots import compare_bars
+from testbed.outputs.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, write_json, \
     write_markdown
 from testbed.reproduce import bandwidth_paper as paper_mode
 from testbed.reproduce import bandwidth_plots as bplots
@@ -42,7 +42,7 @@ from testbed.reproduce.bandwidth_paper import _fmt_T
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
-from testbed.stats import paired_t
+from testbed.scoring.stats import paired_t
 
 UWB_MAX_RUNS = 100
 HORIZON_S = 50.0

@@ -24,7 +24,7 @@ physics-based uwb mode (testbed.reproduce.bandwidth) follows the common conventi
 scenario's seed + i, runs/run-XXX).
 
 Shape (as every reproduction): `compute` (Monte Carlo and exact covariances per reading),
-`decide` (numbers -> claims), `write` (paper/ files through testbed.report).
+`decide` (numbers -> claims), `write` (paper/ files through testbed.outputs.report).
 """
 from __future__ import annotations
 
@@ -37,9 +37,9 @@ from scipy.stats import norm
 from estimators import bandwidth as bw
 from estimators.core import chi2_interval, nees
 from testbed.reproduce import bandwidth_plots as bplots
-from testbed.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, \
+from testbed.outputs.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, \
     write_markdown
-from testbed.stats import paired_t
+from testbed.scoring.stats import paired_t
 from testbed.synthetic.bandwidth import M0_PAPER, P_SETS, T_SETS, V_PAPER, VEL_PAPER, X0_PAPER, N, n, paper_model, simulate
 
 BUDGET = [5, 5, 5, 5]

@@ -1,5 +1,5 @@
 """Figures of the seed 000 reproduction (both measurement modes): the paper's figs. 2-4 analogues and
-the bound against the true error covariance. Every function writes one PNG (testbed.plots.save)."""
+the bound against the true error covariance. Every function writes one PNG (testbed.outputs.plots.save)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from testbed.plots import save
+from testbed.outputs.plots import save
 
 
 def tracking(path: Path, t: np.ndarray, truth: np.ndarray, xhat: np.ndarray, title: str) -> Path:

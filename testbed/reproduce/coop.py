@@ -18,7 +18,7 @@ then writes:
   UAVs chosen like the paper's UAVs 1, 7, 12, 13 (testbed.plugins.coop_scores.choose_four: different
   neighbour counts), every estimator; plots/rmse_mean.png: every estimator's mean per-UAV RMSE
   over the runs (95 % Student t interval);
-- table.md, table.csv, claims.json (each claim with its numbers and `holds`; testbed.report).
+- table.md, table.csv, claims.json (each claim with its numbers and `holds`; testbed.outputs.report).
 Every estimator is read the same way, built-in or not: its per-run scores from each run's
 metrics.json (the seed 001 hook's keys, testbed.plugins.coop_scores, given to any estimator whose
 outputs fit), run 0's estimates from its estimates.npz (testbed.plugins.collect.load_tracks).
@@ -31,16 +31,16 @@ vs Huber (their `robust` setting) and every plugin with its own settings on the 
 re-solves run the estimators as plugins on a log (testbed.plugins.run.run_estimators) with params.
 
 Statistics: per UAV, the per-run RMSEs of two estimators are compared with a one-sided Wilcoxon
-signed-rank test (testbed.stats.wilcoxon_paired: per-run RMSEs are positive and skewed, the
+signed-rank test (testbed.scoring.stats.wilcoxon_paired: per-run RMSEs are positive and skewed, the
 signed-rank test does not assume normal differences) at alpha = 0.01 / 18 (Bonferroni over the
 UAVs; the exact test can reach it from 11 runs on: min p = 2^-n); with a single run the test is
 not available and the claim is decided on the point values only (said so in the claim). Rank
 correlations: scipy.stats.spearmanr, one-sided, alpha = 0.05, over the 15 SPP UAVs. Centralized
 joint ANEES (54 dof): every epoch of a run shares the run's per-device antenna delays and clock
 offsets, so the K epochs are not independent samples; its 99 % interval comes from the spread of
-the per-run joint ANEES over the independent runs (testbed.metrics.anees_run_interval, Student t
+the per-run joint ANEES over the independent runs (testbed.scoring.metrics.anees_run_interval, Student t
 with runs - 1 dof; docs/papers.md, seed 001). The 3-dof interval of the iterated ANEES counts the
-effective samples of each run (testbed.metrics.effective_samples) combined over the independent
+effective samples of each run (testbed.scoring.metrics.effective_samples) combined over the independent
 runs (runs_effective_samples; docs/consistency.md).
 
 Round cap: the paper's scheme needs hundreds of rounds per epoch (seeded run: median ~230, 36 %
@@ -48,7 +48,7 @@ of the epochs reach 300); the scenario caps them at pipeline.max_rounds = 300 wi
 reproduction measures what the cap costs (claims.json `cap_effect`).
 
 Shape (as every reproduction): `compute` (runs -> `CoopResults`), `decide` (numbers -> claims),
-`write` (files through testbed.report); `reproduce` chains them.
+`write` (files through testbed.outputs.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
@@ -62,21 +62,21 @@ from scipy.stats import spearmanr
 
 from testbed.config import from_dict, to_dict
 from testbed.log import load_log
-from testbed.metrics import anees_interval, anees_over_runs, anees_run_interval, mean_ci, runs_effective_samples
+from testbed.scoring.metrics import anees_interval, anees_over_runs, anees_run_interval, mean_ci, runs_effective_samples
 from testbed.plugins import coop_scores
 from testbed.plugins.collect import load_tracks
 from testbed.plugins.graph_check import exposes_graphs, gtsam_check
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.estimator_spec import EstimatorSpec
-from testbed.plots import compare_bars
-from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
+from testbed.outputs.plots import compare_bars
+from testbed.outputs.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
     write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.scenario import Scenario, load
-from testbed.simulate import simulate
-from testbed.stats import wilcoxon_paired
-from testbed.world import build
+from testbed.sim.simulate import simulate
+from testbed.scoring.stats import wilcoxon_paired
+from testbed.sim.world import build
 
 VARIANTS = ("gnss_only", "one_shot", "iterated", "centralized")
 LABELS = {"gnss_only": "GNSS only", "one_shot": "one optimization", "iterated": "message iteration",
@@ -385,7 +385,7 @@ def decide(res: CoopResults) -> list[Claim]:
     joint_runs = np.array([e["centralized"]["anees_joint"] for e in est])
     jn = float(np.mean(joint_runs))
     # the epochs of a run share its radios' antenna delays and clock offsets (constant): the runs,
-    # not the K runs epochs, are the independent samples (testbed.metrics.anees_run_interval);
+    # not the K runs epochs, are the independent samples (testbed.scoring.metrics.anees_run_interval);
     # the runs are independent (each its own seed), so their effective samples add up
     # (runs_effective_samples) and the spread of their values gives an interval of its own
     corr = anees_interval(3 * n, runs_effective_samples([e["centralized"]["n_eff_joint"] for e in est]))

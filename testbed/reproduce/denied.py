@@ -28,7 +28,7 @@ release_sigmas, the scenario file's 1 sigma): each vehicle flies on its referenc
 converged (docs/control.md); the others fly on their estimator's first output.
 Metrics per run, from the log (truth only for scoring): tracking error |p_true - p_ref| (RMS and
 max over vehicles and time); the feedback estimator's position RMSE (metrics.json); and from the
-run's safety (metrics.json `flight`, testbed.safety, as in every flown run): minimum separation
+run's safety (metrics.json `flight`, testbed.scoring.safety, as in every flown run): minimum separation
 between vehicles, contact events by kind (vehicle, obstacle, floor), crashed vehicles, seconds
 without a GNSS fix per vehicle.
 
@@ -37,12 +37,12 @@ estimate, centralized, distributed, distributed without truth, and on the two wi
 (one claim each; the window variants' claims were added before their first run on these seeds);
 cooperation's estimation error below GNSS-only's, the same five (one-sided Wilcoxon
 signed-rank over paired runs at alpha = 0.05 from 2 runs on; 1 run: point values, said so); these
-are about a street that denies GNSS, so they are "not decidable" (testbed.report.Claim) unless a
+are about a street that denies GNSS, so they are "not decidable" (testbed.outputs.report.Claim) unless a
 vehicle of the variant's or the GNSS-only runs spent some time without a fix (a short run that
 never reaches the covered passage).
 
 Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
-claims), `write` (files through testbed.report); `reproduce` chains them.
+claims), `write` (files through testbed.outputs.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
@@ -54,12 +54,12 @@ import numpy as np
 from testbed.config import to_dict
 from testbed.errors import UsageError
 from testbed.log import load_log
-from testbed.plots import compare_bars
+from testbed.outputs.plots import compare_bars
 from testbed.estimator_spec import EstimatorSpec
-from testbed.report import Claim, fmt, markdown_table, write_claims, write_csv, write_markdown
+from testbed.outputs.report import Claim, fmt, markdown_table, write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 from testbed.scenario import Scenario, load
-from testbed.stats import wilcoxon_paired
+from testbed.scoring.stats import wilcoxon_paired
 
 VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard", "window", "window_distributed")
 TITLES = {"truth": "control on truth", "gnss_ekf": "GNSS-only EKF", "coop": "cooperative, centralized",
@@ -98,7 +98,7 @@ def variant(base: Scenario, name: str) -> Scenario:
 
 def flight(run_dir: Path, metrics: dict, estimator: str) -> dict:
     """The flight metrics of one run (module docstring): tracking from its log, safety from its
-    metrics.json's `flight` (testbed.safety); estimator: the key of the estimator whose position
+    metrics.json's `flight` (testbed.scoring.safety); estimator: the key of the estimator whose position
     RMSE is the estimation error."""
     log = load_log(run_dir)
     err = np.linalg.norm(log["truth/pos"] - log["reference/pos"], axis=-1)  # (T, N) m
@@ -189,7 +189,7 @@ def write(out: Path, res: DeniedResults, claims: list[Claim]) -> dict:
     md = [f"# coop-denied: {runs} run(s) of {fmt(sc.duration)} s per variant, seeds {sc.seed}..{sc.seed + runs - 1}", "",
           "Means over the runs. Tracking: |true - reference| position; estimation: position RMSE of the estimator "
           "the controller flies on (truth variant: the cooperative estimator, scored but not fed back); contacts: "
-          "events (a pair coming into contact); crashed: vehicles per run (testbed.safety's rules); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
+          "events (a pair coming into contact); crashed: vehicles per run (testbed.scoring.safety's rules); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
     md += markdown_table(["variant", "tracking RMS m", "tracking max m", "estimation RMSE m", "min separation m",
                           "contacts veh.", "contacts obst.", "contacts floor", "crashed", "no fix mean s", "no fix max s"],
                          [[TITLES[r[0]], *r[1:]] for r in rows])

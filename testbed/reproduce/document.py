@@ -13,7 +13,7 @@ table.md, plots/), from those files only:
 The HTML needs nothing but itself: styles and script inline, figures as data: URIs, no request
 leaves the file. Its figures are interactive: the wheel zooms about the cursor, a drag pans, a
 double click resets, and the data values under the cursor are shown (each PNG's own map from
-pixels to data, testbed.plots.axes_map). Hand-written script, no library: the page opens offline.
+pixels to data, testbed.outputs.plots.axes_map). Hand-written script, no library: the page opens offline.
 """
 from __future__ import annotations
 
@@ -27,8 +27,8 @@ from pathlib import Path
 
 import testbed
 from testbed import provenance
-from testbed.plots import read_axes_map
-from testbed.report import format_test, markdown_table, tally, verdict, write_markdown
+from testbed.outputs.plots import read_axes_map
+from testbed.outputs.report import format_test, markdown_table, tally, verdict, write_markdown
 
 DEPENDENCIES = ("numpy", "scipy", "mujoco", "gtsam", "matplotlib")
 TITLES = {"phase": "Seed 003 (Pan, Yin, Xu 2023): carrier-phase relative navigation of formations",

@@ -37,7 +37,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from testbed import scenario as scenario_mod
-from testbed.report import fmt_anees
+from testbed.outputs.report import fmt_anees
 from testbed.estimator_spec import EstimatorSpec
 
 CALIBRATION_SEEDS = (1000, 1001, 1002)
@@ -52,7 +52,7 @@ def _name(kappa: float) -> str:
 
 def calibrate(seeds=CALIBRATION_SEEDS, kappas=KAPPA_GRID, duration: float = CALIBRATION_HORIZON_S) -> list[dict]:
     """Rows {seed, estimator, kappa (None: centralized), anees_position (with its dof, interval and
-    n_eff: testbed.metrics.anees_keys), rmse_position_mean_m}: each
+    n_eff: testbed.scoring.metrics.anees_keys), rmse_position_mean_m}: each
     seed simulated once (controller on truth) with the centralized filter and the distributed one
     at every kappa scored on it."""
     from testbed import runner  # lazy: MuJoCo only when a calibration runs

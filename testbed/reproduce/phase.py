@@ -12,7 +12,7 @@ Window: the claims speak of the last 100 s (the scenarios' pipeline.last_window)
 than twice that (a quick `--duration`) is scored over its last half instead, and every claim and
 metric name says which window it used (`last_<W>s`; testbed.pipelines.phase.window_keys).
 
-Claim criteria and tests (fixed before any result was looked at; testbed.stats; n = the runs):
+Claim criteria and tests (fixed before any result was looked at; testbed.scoring.stats; n = the runs):
 - "within +/-L m" (cross L = 0.01, V formations L = 0.03): a run violates the bound when its max
   |error| over the window, on any axis named, reaches L; the claim holds when the one-sided 95 %
   Clopper-Pearson upper bound of the violation probability is below VIOLATION_MAX = 0.15;
@@ -35,7 +35,7 @@ duration), writes plots/q_sweep.png (ANEES, RMSE, max error and PCRB against q) 
 claims.json (`q_rule`), the rule's q and q_rotation beside the scenario's.
 
 Shape (as every reproduction): `compute` (runs -> per-run EKF scores per scenario), `decide`
-(numbers -> claims), `write` (files through testbed.report); `reproduce` chains them.
+(numbers -> claims), `write` (files through testbed.outputs.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
@@ -47,15 +47,15 @@ from pathlib import Path
 import numpy as np
 
 from testbed import scenario as scenario_mod
-from testbed.metrics import anees_interval, anees_over_runs, mean_ci
+from testbed.scoring.metrics import anees_interval, anees_over_runs, mean_ci
 from testbed.pipelines.phase import window_keys
-from testbed.plots import compare_bars, figure, save
-from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, \
+from testbed.outputs.plots import compare_bars, figure, save
+from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, \
     write_csv, write_markdown
 from testbed.reproduce import phase_q
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
-from testbed.stats import clopper_pearson, tost_log_ratio, wilcoxon_paired
+from testbed.scoring.stats import clopper_pearson, tost_log_ratio, wilcoxon_paired
 
 SCENARIOS = ("phase-line-h000", "phase-cross-h000", "phase-vobtuse-h000", "phase-vacute-h000",
              "phase-line-h100", "phase-line-h600", "phase-vobtuse-h100", "phase-vobtuse-h600")
@@ -224,7 +224,7 @@ ANEES_COLS = (("anees", "ANEES body (6)"), ("anees_state18", "ANEES (18)"),
 
 def _table_rows(R: dict[str, list[dict]]) -> list[dict]:
     """Per scenario: mean and std (ddof 1) over runs of every table score; each ANEES's mean over
-    runs with its 99 % interval and effective samples (testbed.metrics.anees_over_runs); max abs
+    runs with its 99 % interval and effective samples (testbed.scoring.metrics.anees_over_runs); max abs
     position error over the window per axis, (mean, worst) over runs."""
     rows = []
     for name, runs in R.items():

@@ -61,7 +61,7 @@ import numpy as np
 
 from testbed import scenario as scenario_mod
 from testbed.errors import TestbedError
-from testbed.metrics import anees_interval
+from testbed.scoring.metrics import anees_interval
 
 CALIBRATION_SEEDS = tuple(range(1000, 1010))
 CALIBRATION_HORIZON_S = 20.0
@@ -80,7 +80,7 @@ def simulate_seeds(name: str, seeds=CALIBRATION_SEEDS, *, duration: float | None
     """(scenario, run log) of scenario `name` for every seed (duration s, None = the scenario's),
     simulated lazily one at a time (a generator)."""
     # lazy: mujoco only when a sweep runs
-    from testbed.simulate import simulate
+    from testbed.sim.simulate import simulate
 
     for seed in seeds:
         sc = scenario_mod.load(name, seed=int(seed), duration=duration, motion=motion)
@@ -155,7 +155,7 @@ def plot(sweeps: dict[str, list[dict]], chosen: dict[str, float], path: Path, *,
     marked). Right, with `long` (a sweep of one scenario over its full duration on the calibration
     seeds): its position RMSE and PCRB over the last window and its ANEES over the run against q;
     without (or if its runs are shorter than the window): RMSE and PCRB of the calibration sweeps."""
-    from testbed.plots import figure, save
+    from testbed.outputs.plots import figure, save
 
     fig = figure(figsize=(10.0, 3.6))
     ax1, ax2 = fig.subplots(1, 2)

@@ -7,10 +7,10 @@ runs (a formation, a noise case, ...) and estimator: mean and standard deviation
 the runs of each summary score the estimator has (RMSE of position, velocity, attitude, the
 coverage of position, and the scenario's PCRB of position where it has one); the ANEES of position
 as the mean over the runs with its 95 % interval and effective samples (the runs' own combined:
-testbed.metrics.anees_over_runs, docs/consistency.md).
+testbed.scoring.metrics.anees_over_runs, docs/consistency.md).
 Each plugin is also compared with every other estimator of the same runs that has the same
 score (`paired`): the position RMSE (`rmse_position_m`, a number) of both in each run, paired over
-the same seeds, with a two-sided Wilcoxon signed-rank test (testbed.stats.wilcoxon_paired) and
+the same seeds, with a two-sided Wilcoxon signed-rank test (testbed.scoring.stats.wilcoxon_paired) and
 the improvement factor mean_other / mean_plugin; `table_plugins_paired.csv` has every number.
 A reproduction whose group objects hold only the plugins (not the built-ins) gets no comparison.
 """
@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.metrics import anees_over_runs
-from testbed.report import fmt, fmt_anees, fmt_pm, markdown_table, write_csv
-from testbed.stats import wilcoxon_paired
+from testbed.scoring.metrics import anees_over_runs
+from testbed.outputs.report import fmt, fmt_anees, fmt_pm, markdown_table, write_csv
+from testbed.scoring.stats import wilcoxon_paired
 
 COLUMNS = (("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos [m]"),
            ("rmse_velocity_m_s", "RMSE vel [m/s]"), ("rmse_attitude_deg", "RMSE att [deg]"),

@@ -11,13 +11,13 @@ has 120 s; 60 s keeps `--runs 50` within ~15-25 min on two cores), 10 Hz camera,
 
 Claim (paper figs. 5-7): under glint noise RHCF is most accurate in relative position, velocity
 and attitude, then MCKF, then HCKF, then EKF. Judged on the per-run RMSEs by one-sided Wilcoxon
-signed-rank tests (testbed.stats.wilcoxon_paired; per-run RMSEs are skewed by the glint runs, the
+signed-rank tests (testbed.scoring.stats.wilcoxon_paired; per-run RMSEs are skewed by the glint runs, the
 signed-rank test does not assume normal differences) of rhcf < mckf, mckf < hckf, hckf < ekf for
 each of the three quantities: 9 comparisons, each must have p < 0.05 / 9 (Bonferroni, family level
-0.05). The claim holds only if all 9 do; it is "not decidable" (testbed.report.Claim) when no
+0.05). The claim holds only if all 9 do; it is "not decidable" (testbed.outputs.report.Claim) when no
 run of the glint case drew a glint outlier (camera/glint). Also reported: the Gaussian case, where the robust filters
 "should cost little": a non-inferiority test per comparison (RHCF vs HCKF and MCKF vs EKF, three
-quantities): one-sided paired t test (testbed.stats.paired_t) of the mean per-run relative RMSE
+quantities): one-sided paired t test (testbed.scoring.stats.paired_t) of the mean per-run relative RMSE
 change against the margin GAUSSIAN_COST_LIMIT = +5 % (stated here, before the runs), p < 0.025
 each (the same decision as the upper end of a two-sided 95 % interval below +5 %).
 
@@ -31,7 +31,7 @@ While the reproduction is incomplete (interrupted), each finished run's result i
 (runs-extra/ for the extra runs) for `--resume`; they are removed when it completes.
 
 Shape (as every reproduction): `compute` (runs -> `VisnavResults`), `decide` (numbers -> claims),
-`write` (files through testbed.report); `reproduce` chains them.
+`write` (files through testbed.outputs.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
@@ -47,18 +47,18 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from testbed import scenario as scenario_mod
-from testbed.metrics import anees_over_runs, mean_ci
+from testbed.scoring.metrics import anees_over_runs, mean_ci
 from testbed.pipelines.visnav import metrics_of, run_all
-from testbed.plots import compare_bars, error_envelope, save
-from testbed.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \
+from testbed.outputs.plots import compare_bars, error_envelope, save
+from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \
     write_json, write_markdown
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.progress import bar
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_result, save_result, seeds
-from testbed.simulate import simulate
-from testbed.stats import paired_t, wilcoxon_paired
+from testbed.sim.simulate import simulate
+from testbed.scoring.stats import paired_t, wilcoxon_paired
 from testbed.workers import run_parallel
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
@@ -173,7 +173,7 @@ def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
 
 def summarize(results: list[dict], case: str) -> dict:
     """Per filter: mean and 95 % interval of each RMSE, the mean ANEES over the runs with its 99 %
-    interval and effective samples (testbed.metrics.anees_over_runs), time per step, runs finite."""
+    interval and effective samples (testbed.scoring.metrics.anees_over_runs), time per step, runs finite."""
     table = {}
     for name in FILTERS:
         row = {}

@@ -12,13 +12,13 @@ from typing import Protocol
 import numpy as np
 
 from testbed.log import LogWriter
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 
 class Sensor(Protocol):
     """name: the stream's log prefix; period_ticks: controller ticks between samples;
     mujoco_sensors: whether `sample` reads MuJoCo's own sensordata (the IMU only). In flown mode
-    MuJoCo evaluates its sensors only at the ticks where such a sensor samples (testbed.simulate);
+    MuJoCo evaluates its sensors only at the ticks where such a sensor samples (testbed.sim.simulate);
     a sensor without the attribute is taken not to read them."""
 
     name: str
@@ -64,7 +64,7 @@ class Recorder:
     def new_rows(self) -> dict[str, np.ndarray]:
         """The rows added since the previous call (the sample just taken), keyed without the
         stream prefix, with the dtypes the log holds: what an online consumer reads
-        (testbed.simulate). Empty (0, ...) arrays when nothing was added. Needs `watch()`."""
+        (testbed.sim.simulate). Empty (0, ...) arrays when nothing was added. Needs `watch()`."""
         if self._new is None:
             raise RuntimeError(f"{self.name}: new_rows() needs watch() first")
         out = {}

@@ -47,7 +47,7 @@ import numpy as np
 
 from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import CameraConfig
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 N_LEDS = 4
 CODES = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 0], [0, 1, 1]], dtype=bool)

@@ -28,7 +28,7 @@ from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import GnssConfig
 from testbed.sensors.noise import gauss_markov
 from testbed.sensors.sky import Sky, dop
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 
 class Gnss:

@@ -10,7 +10,7 @@ Gauss-Markov starts, then the white, walk and Gauss-Markov normals of its sample
 child stream `device_rng(stream_rng(seed, "imu"), "uav{i}")`: two vehicles' biases are
 independent draws, and adding a vehicle never changes another vehicle's readings.
 
-Online (`online = True`, set by testbed.simulate when an onboard estimator or attitude filter
+Online (`online = True`, set by testbed.sim.simulate when an onboard estimator or attitude filter
 reads the IMU in the loop): the errors are applied at each sample, all vehicles at once, with
 each vehicle's normals drawn from its own generator in blocks of BLOCK samples (the same
 sequence of draws as above); the log then holds exactly the values read online.
@@ -31,7 +31,7 @@ from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import ImuConfig
 from testbed.sensors.noise import TriadErrors, device_rng
 from testbed.sensors.vibration import RotorVibration
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 
 BLOCK = 256  # samples of normals drawn per vehicle at a time in online mode

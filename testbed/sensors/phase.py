@@ -46,7 +46,7 @@ import numpy as np
 
 from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import PhaseConfig
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 TWO_PI = 2.0 * np.pi
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.sensors.config import SkyConfig
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 # Smallest eigenvalue of G^T G (dimensionless) below which a geometry counts as degenerate.
 DEGENERATE = 1e-9

@@ -14,7 +14,7 @@ from testbed.sensors.gnss import Gnss
 from testbed.sensors.imu import Imu
 from testbed.sensors.phase import Phase
 from testbed.sensors.uwb import Uwb
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 
 def make_sensors(scenario: Scenario, physics: Physics) -> list[Sensor]:

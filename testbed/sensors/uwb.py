@@ -55,7 +55,7 @@ from scipy.spatial import cKDTree
 from testbed.sensors.base import Recorder, common_keys
 from testbed.sensors.config import UwbConfig
 from testbed.sensors.noise import device_rng, twr_range
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 END_TOLERANCE = 1e-3  # m: hits this close to the far end (e.g. the floor under a ground anchor) do not block
 

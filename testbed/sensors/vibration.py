@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.sensors.config import Vibration
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 SPIN = np.array([1.0, -1.0, 1.0, -1.0])  # rotors 1, 3 counter-clockwise, 2, 4 clockwise (docs/models.md)
 

@@ -35,9 +35,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from testbed.log import NpzLog
-from testbed.reference import GRAVITY
-from testbed.report import fmt
-from testbed.world import FLOOR, OBSTACLE, Physics
+from testbed.sim.reference import GRAVITY
+from testbed.outputs.report import fmt
+from testbed.sim.world import FLOOR, OBSTACLE, Physics
 
 CRASH_FORCE_WEIGHTS = 20.0  # a contact force above this many times the vehicle's weight is a crash
 CRASH_TILT_DEG = 90.0  # deg: a tilt past this (body z below the horizontal) is a crash

@@ -1,7 +1,7 @@
 """What a rendered frame shows besides the scene: reference paths, UWB links, the estimate with its
 covariance, GNSS fix state.
 
-Read from the run directory only (testbed.render draws them):
+Read from the run directory only (testbed.outputs.render draws them):
 - reference paths: log.npz `reference/pos` (T, N, 3) m world at the logged instants `time`;
 - UWB links: the rows of log.npz `uwb/*` whose time of validity is in (t - T, t], T the
   shortest interval between two UWB samples: the links ranged at the latest sample, drawn

@@ -144,7 +144,7 @@ def mean_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
 
 
 def network_summary(stats: dict[str, float], **extra: float) -> dict:
-    """The `network` object of metrics.json from testbed.network.Network.stats() (and extra counts
+    """The `network` object of metrics.json from testbed.sim.network.Network.stats() (and extra counts
     such as `late`): counts and bytes as integers, latencies in s; strict JSON: a latency or a
     fraction that cannot exist (nothing was sent or queued) is null with the reason beside it."""
     out: dict = {}

@@ -27,7 +27,7 @@ What a frame shows
   for the leader of seed 004 by default.
 - A text overlay (scenario name, simulated time, playback speed) drawn with OpenCV.
 - Obstacles translucent (OBSTACLE_ALPHA), UWB anchors as yellow diamonds of constant size, and
-  from the run directory (testbed.render_overlay): each vehicle's reference path from 3 s before
+  from the run directory (testbed.outputs.render_overlay): each vehicle's reference path from 3 s before
   to 10 s after the frame's time (white, REFERENCE_SPAN); the UWB links of the latest sample (LOS
   blue, NLOS orange), thinned by the option `links` (default: each vehicle's 2 shortest,
   `nearest_links`); the estimate (of the estimator flown on, else the first
@@ -41,7 +41,7 @@ What a frame shows
 Backend. MuJoCo chooses its OpenGL backend from `MUJOCO_GL` when it is first imported
 (the command line sets `egl` unless the user chose, testbed/environment.py). If the renderer cannot be created in
 this process, the backends egl and osmesa are probed each in a fresh subprocess; the first that
-works renders the job in a subprocess (`python -m testbed.render ...` with that `MUJOCO_GL`).
+works renders the job in a subprocess (`python -m testbed.outputs.render ...` with that `MUJOCO_GL`).
 If none works, `RenderError` says which system libraries to install.
 
 Speed on software OpenGL (llvmpipe): the cost is per pixel, so resolution, multisampling
@@ -74,7 +74,7 @@ from tqdm import tqdm
 from testbed.environment import last_line, stderr_to, written
 from testbed.errors import RunError, TestbedError
 from testbed.outdir import new_file
-from testbed.render_overlay import LOS_RGBA, NLOS_RGBA, Overlays
+from testbed.outputs.render_overlay import LOS_RGBA, NLOS_RGBA, Overlays
 from testbed.worker_process import worker_init
 
 from testbed.errors import UsageError
@@ -166,7 +166,7 @@ def _delegate(backend: str, call: dict) -> Path:
     """Run one render call in a subprocess with MUJOCO_GL=backend; returns the written path."""
     env = {**os.environ, "MUJOCO_GL": backend}
     env.pop("PYOPENGL_PLATFORM", None)
-    p = subprocess.Popen([sys.executable, "-m", "testbed.render", "--call", json.dumps(call)], env=env, stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen([sys.executable, "-m", "testbed.outputs.render", "--call", json.dumps(call)], env=env, stdout=subprocess.PIPE, text=True)
     try:
         stdout, _ = p.communicate()
     finally:  # interrupted: SIGTERM lets the child remove its partial file
@@ -869,8 +869,8 @@ def save_frame(run_dir: Path, t: float, path: Path, *, width: int = 960, height:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m testbed.render RUN_DIR [--out FILE] [...]`; also the subprocess entry (--call JSON)."""
-    ap = argparse.ArgumentParser(prog="python -m testbed.render", description="Render a run directory to MP4 (or one PNG with --frame T).")
+    """`python -m testbed.outputs.render RUN_DIR [--out FILE] [...]`; also the subprocess entry (--call JSON)."""
+    ap = argparse.ArgumentParser(prog="python -m testbed.outputs.render", description="Render a run directory to MP4 (or one PNG with --frame T).")
     ap.add_argument("run_dir", nargs="?", type=Path)
     ap.add_argument("--out", type=Path)
     ap.add_argument("--frame", type=float, metavar="T", help="write one PNG at simulated time T (s) instead of a video")

@@ -9,8 +9,8 @@ reference, and every due sensor samples the physics state of that instant.
 - flown: the controller commands the rotors every tick; `mj_step1` (position and velocity
   stages), controller, `mj_step2` (acceleration stage, then integration) so sensors see the state
   of the tick itself; the remaining physics steps of the tick hold the command. With the joint
-  rotor route (large swarms, testbed.world.rotor_route) every physics step is split the
-  same way to add the thrust along the current body z (testbed.thrust). MuJoCo evaluates its own
+  rotor route (large swarms, testbed.sim.world.rotor_route) every physics step is split the
+  same way to add the thrust along the current body z (testbed.sim.thrust). MuJoCo evaluates its own
   sensors (the IMU's accelerometer and gyro) only in the first physics step of the ticks where a
   sensor reading them samples (mjDSBL_SENSOR otherwise): nothing else reads sensordata, and at
   a thousand vehicles the accelerometers' acceleration pass costs a tenth of every step.
@@ -26,7 +26,7 @@ each vehicle's latest gyro sample.
 The sensors then apply their errors at each sample (Imu.online), so the log holds exactly the
 values read in the loop.
 
-A scenario's [disturbance] (testbed.disturbance) is added to the played-back motion in prescribed
+A scenario's [disturbance] (testbed.sim.disturbance) is added to the played-back motion in prescribed
 mode and applied as an external force and torque, held over each tick, in flown mode.
 """
 from __future__ import annotations
@@ -40,16 +40,16 @@ from tqdm import tqdm
 
 from estimators.mahony import Mahony
 from estimators.so3 import quat_to_rotmat
-from testbed.control import GeometricController, heading
-from testbed.disturbance import Draws, Realization, draw, perturb, realize, wrench
+from testbed.sim.control import GeometricController, heading
+from testbed.sim.disturbance import Draws, Realization, draw, perturb, realize, wrench
 from testbed.interrupt import poll
 from testbed.log import LogWriter
-from testbed.reference import GRAVITY, attitude, evaluate, tracking
+from testbed.sim.reference import GRAVITY, attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors.suite import make_sensors
 from testbed.sensors.base import Sensor
-from testbed.thrust import BodyForces
-from testbed.world import Physics, build
+from testbed.sim.thrust import BodyForces
+from testbed.sim.world import Physics, build
 
 CHUNK = 1000  # reference instants evaluated per vectorized call
 

@@ -1,10 +1,10 @@
 """External wrenches of the vehicles during flight: rotor thrust (joint route) and the disturbance.
 
-With the joint rotor route (testbed.world.rotor_route) the rotor actuators carry only their
+With the joint rotor route (testbed.sim.world.rotor_route) the rotor actuators carry only their
 moments; the thrust force, T = ctrl1 + .. + ctrl4 (N) along body z, is written here to the vehicle
 bodies' xfrc_applied (world frame, at the centre of mass) before every acceleration stage, from
 the attitude of the position stage just computed: the same force the site transmission applies,
-in a cost linear in the vehicle count. The disturbance wrench (testbed.disturbance, held over a
+in a cost linear in the vehicle count. The disturbance wrench (testbed.sim.disturbance, held over a
 tick) is added to it, never overwritten by it.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from testbed.world import Physics
+from testbed.sim.world import Physics
 
 
 class BodyForces:

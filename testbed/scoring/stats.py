@@ -43,7 +43,7 @@ class TestResult:
     interval: tuple[float, float] | None = None
 
     def claim_fields(self) -> dict:
-        """The verdict fields of a testbed.report.Claim (test, statistic, p_value, interval, n, level);
+        """The verdict fields of a testbed.outputs.report.Claim (test, statistic, p_value, interval, n, level);
         an interval-only test has p_value None."""
         return {"test": self.test, "statistic": self.statistic,
                 "p_value": None if math.isnan(self.p_value) else self.p_value, "interval": self.interval,

@@ -61,7 +61,7 @@ def fmt_ci(mean: float, lo: float, hi: float) -> str:
 
 
 def fmt_anees(keys: dict, key: str = "anees") -> str:
-    """"ANEES [lo, hi] (n_eff N)" from the keys testbed.metrics.anees_keys writes ("" without KEY)."""
+    """"ANEES [lo, hi] (n_eff N)" from the keys testbed.scoring.metrics.anees_keys writes ("" without KEY)."""
     if keys.get(key) is None:
         return ""
     interval = next(v for k, v in keys.items() if k.startswith(f"{key}_interval_"))
@@ -116,7 +116,7 @@ class Claim:
     for the verdict table; note: a remark for the reader; context: keys that locate the claim
     (e.g. {"mode": "paper", "reading": "a_dt1"}).
 
-    Verdict fields (every claim decided by a stated test, testbed.stats), shown on the verdict line:
+    Verdict fields (every claim decided by a stated test, testbed.scoring.stats), shown on the verdict line:
     test: the test's name (e.g. "Wilcoxon signed-rank (less)", "Clopper-Pearson (upper)", or
     "deterministic comparison" when nothing is sampled); statistic; p_value (None when the test
     gives an interval only); interval: (lo, hi) at `level`; n: the sample size (Monte Carlo runs);

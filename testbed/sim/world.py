@@ -16,10 +16,10 @@ import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
-from testbed.reference import RefState, evaluate
+from testbed.sim.reference import RefState, evaluate
 from testbed.scenario import Scenario
 
-MODELS = Path(__file__).resolve().parent.parent / "models"
+MODELS = Path(__file__).resolve().parents[2] / "models"
 JOINT_ROUTE_MIN_VEHICLES = 12  # swarms of this size or more use the rotor joint route (measured crossover, docs/models.md)
 SEGMENT_MARGIN = 1e-6  # m: bounding boxes grown by this in Physics.segments_may_hit (rounding)
 OBSTACLE, FLOOR = -1, -2  # "other" of Physics.contacts_at: an obstacle geom, the rest of the world body
@@ -64,7 +64,7 @@ def _rotors_through_joint(q: mujoco.MjSpec) -> None:
     moment about the centre of mass, in the body frame (the free joint's rotational dofs):
     (0, 0, 0, r x e3 + gear[5] e3) with r the site position from the centre of mass (body frame,
     m). The thrust force itself (sum of ctrl along body z, world frame) cannot go through the free
-    joint, whose translational gear acts in the world frame: testbed.thrust adds it to
+    joint, whose translational gear acts in the world frame: testbed.sim.thrust adds it to
     xfrc_applied at every physics step. The rotor sites stay (the mixer and the viewer use them).
     """
     com = np.array(q.body("base").ipos)
@@ -133,7 +133,7 @@ ROUTE_NOTE = (
     "Rotor thrust route 'joint': each actuator uav{i}/rotor{k} (ctrl = thrust, N) acts through the free "
     "joint uav{i}/root with a gear holding only the rotor's moment about the centre of mass (body frame). "
     "The thrust force, the sum of the four ctrl along body z, is added by the testbed to xfrc_applied at "
-    "every step (testbed/thrust.py): in a plain viewer the rotors turn the vehicle but do not lift it. "
+    "every step (testbed/sim/thrust.py): in a plain viewer the rotors turn the vehicle but do not lift it. "
     "Sites uav{i}/rotor{k} mark the rotors. See docs/models.md."
 )
 
