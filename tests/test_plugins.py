@@ -374,20 +374,26 @@ def test_visnav_builtins_equal_the_pipeline_relative_to_the_leader(name):
         np.testing.assert_allclose(scores[got], want[key], rtol=1e-9, err_msg=key)
 
 
-def test_bandwidth_builtin_equals_the_pipeline():
-    from testbed.pipelines import bandwidth
-    from testbed.plugins.builtin_bandwidth import Fusion
+def test_bandwidth_builtin_equals_the_batch_filter():
+    """bandwidth.fusion fed row by row gives the reproduction's batch filter (the former pipeline)."""
+    from testbed.plugins.builtin_bandwidth import Fusion, known_config
+    from testbed.reproduce import bandwidth_batch
 
     sc = scenario.load("bandwidth", duration=2.0)
     log, physics = simulate(sc)
-    est = bandwidth.estimate(sc, log)
-    _, offsets = bandwidth.known_config(sc.pipeline, sc.seed)
-    track, _, _ = _feed(sc, log, physics, Fusion)
+    est = bandwidth_batch.estimate(sc, log)
+    _, offsets = known_config(sc.pipeline, sc.seed)
+    track, scores, health = _feed(sc, log, physics, Fusion)
     for i in range(4):
         s = track[(f"uav{i + 1}/uwb", "position")]
         np.testing.assert_array_equal(s.time, est["t"])
         np.testing.assert_allclose(s.value, est["xhat"][:, i] + offsets[i], rtol=0, atol=1e-12)
         np.testing.assert_allclose(s.cov, est["M"][:, i], rtol=1e-12, atol=1e-15)
+    # the fusion bound hook's numbers are the batch filter's (eqs. 12, 16)
+    e = est["truth"][:, None, :] - est["xhat"]
+    np.testing.assert_allclose(scores["J_empirical"], (e ** 2).sum(), rtol=1e-9)
+    np.testing.assert_allclose(scores["J_bound"], np.trace(est["M"], axis1=-2, axis2=-1).sum(), rtol=1e-9)
+    assert health["measurements_used"] == int(est["available"].sum()) and health["steps"] == est["K"]
 
 
 @pytest.mark.parametrize("paper, group", [("phase", "phase-cross-h000"), ("visnav", "gaussian")])

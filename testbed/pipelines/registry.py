@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from testbed.pipelines import bandwidth, phase, visnav
+from testbed.pipelines import phase, visnav
 from testbed.scenario import Scenario
 
 Pipeline = Callable[[Scenario, dict[str, np.ndarray], Path | None], dict]
@@ -20,7 +20,6 @@ Pipeline = Callable[[Scenario, dict[str, np.ndarray], Path | None], dict]
 PIPELINES: dict[str, Pipeline] = {
     "phase-ekf": phase.run,
     "visnav": visnav.run,
-    "bandwidth": bandwidth.run,
 }
 
 

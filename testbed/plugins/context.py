@@ -9,8 +9,9 @@ import mujoco
 import numpy as np
 
 from testbed.config import to_dict
-from testbed.pipelines import bandwidth, phase, visnav
+from testbed.pipelines import phase, visnav
 from testbed.plugins.api import Context
+from testbed.plugins.builtin_bandwidth import initial_estimate
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
 from testbed.world import Physics
@@ -57,7 +58,7 @@ def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, t
         prior = visnav.prepare(scenario, log)[2]
         return {f"uav{scenario.sensors.camera.follower}": (prior.mean, prior.cov)}
     cfg = scenario.pipeline
-    return {"formation": (bandwidth.initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
+    return {"formation": (initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
 
 
 def make_context(scenario: Scenario, physics: Physics, key: str, params: dict,

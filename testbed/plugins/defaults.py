@@ -16,6 +16,7 @@ from testbed.scenario import Scenario
 DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {
     "coop-fg": (("gnss_only", "coop.gnss_only"), ("one_shot", "coop.one_shot"), ("iterated", "coop.iterated"),
                 ("centralized", "coop.centralized")),
+    "bandwidth": (("bandwidth", "bandwidth.fusion"),),
 }
 
 
