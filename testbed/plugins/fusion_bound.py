@@ -32,7 +32,7 @@ import numpy as np
 
 from estimators.bandwidth import BYTES_PER_COMPONENT
 from testbed.plugins.collect import Track
-from testbed.plugins.score import Hook
+from testbed.plugins.score import Hook, common_times, fitting
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,15 +48,13 @@ class FusionBound(Hook):
         series = [track.get((t, "position")) for t in self.targets]
         if any(s is None or s.frame != "world" or not s.has_cov.any() for s in series):
             return None
-        common = series[0].time
-        for s in series[1:]:
-            common = np.intersect1d(common, s.time)
-        if not common.size:
+        common = common_times(series)
+        if common is None:
             return None
-        idx = [np.searchsorted(s.time, common) for s in series]
+        t, idx = common
         e = np.stack([errs[(t, "position")][j] for t, j in zip(self.targets, idx)], 1)
         M = np.stack([s.cov[j] for s, j in zip(series, idx)], 1)
-        return common, e, M
+        return t, e, M
 
     def summary(self, track: Track, errs: dict, health: dict) -> dict:
         got = self.fit(track, errs)
@@ -106,14 +104,11 @@ class FusionBound(Hook):
         from testbed.plots import error_envelope  # lazy: matplotlib, only when plots are written
 
         paths = []
-        for name, (track, errs) in shown.items():
-            got = self.fit(track, errs)
-            if got is None:
-                continue
-            t, e, M = got
+        for name, (t, e, M) in fitting(self, shown):
             for i in range(len(self.targets)):
-                sig = np.sqrt(np.clip(np.diagonal(M[:, i], axis1=-2, axis2=-1), 0, None))
-                big = float(sig.max()) > 100 * max(float(np.abs(e[:, i]).max()), 1e-9)
+                sig = np.sqrt(np.clip(np.diagonal(M[:, i], axis1=-2, axis2=-1), 0, None))  # NaN: no M given
+                given = sig[np.isfinite(sig)]
+                big = given.size > 0 and float(given.max()) > 100 * max(float(np.abs(e[:, i]).max()), 1e-9)
                 paths.append(error_envelope(
                     t, e[:, i], None if big else sig, plots_dir / f"{name}_error_uav{i + 1}.png",
                     title=f"{name}, UAV {i + 1}: estimate - truth of its tag"

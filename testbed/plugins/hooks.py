@@ -7,7 +7,9 @@ make possible, given to every estimator whose outputs fit.
 - `CoopHook`, the seed 001 scores and figures of every vehicle's uwb site position at the GNSS
   epochs, on a coop-fg scenario (testbed.plugins.coop_scores);
 - `FusionBound`, the seed 000 fusion bound (eqs. 12, 16) of every vehicle's uwb site position, on a
-  bandwidth scenario (testbed.plugins.fusion_bound).
+  bandwidth scenario (testbed.plugins.fusion_bound);
+- `RelNav`, the seed 004 relative-frame scores and figures of the camera's follower relative to
+  its leader, on a visnav scenario (testbed.plugins.relnav_scores).
 A new hook is a Hook subclass (testbed.plugins.score) built here from what the scenario and log
 hold; it must not depend on which estimator is scored, only on the outputs it is given.
 """
@@ -35,4 +37,8 @@ def scenario_hooks(scenario: Scenario, log: dict[str, np.ndarray]) -> list[Hook]
         from testbed.plugins.fusion_bound import fusion_bound
 
         hooks.append(fusion_bound(scenario))
+    if getattr(scenario.pipeline, "kind", None) == "visnav":
+        from testbed.plugins.relnav_scores import relnav_hook
+
+        hooks.append(relnav_hook(scenario))
     return hooks
