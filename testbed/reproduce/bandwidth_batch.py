@@ -9,30 +9,23 @@ offset from it; its UWB tag sits at a known offset o_i (m, world) from it. The f
 (s); epoch k is the instant t_k = k dt, k = 0..K, K = floor(duration / dt). Model (paper eqs. 1-3
 with eq. 22's known input): x(k+1) = x(k) + v dt + w, A = I3, B = v dt.
 
-Measurement modes (`measurements`):
-- "uwb": node i's measurement at epoch k comes from the `uwb` stream only: its four ranges to
-  its anchor group (`groups`, last anchor = reference) at t_k, turned into a position by the
-  subtraction of eqs. 21-23 (estimators.bandwidth.uwb_pseudo_measurement) with the *known*
-  anchor positions, minus the known tag offset o_i: y_i = x + v_i, C = I3. V_i(k) comes from
-  the configured range noise `range_sigma` by linear error propagation at the measured ranges, so
-  it varies with k. An epoch needs all four ranges of a group at t_k: if one is missing (packet
-  loss, out of range, NLOS "drop"), node i has no measurement at k and predicts only
-  (L_i = 0, lambda_i = A xhat_i + B; the bound uses eq. 15 with L_i = 0). No interpolation.
-- "paper": synthetic y_i = x(k) + v_i, v_i ~ N(0, diag(paper_V)) drawn from the stream
-  "paper-noise", with x the physics truth of the formation point (the paper's setup with the
-  testbed's motion; its W is then a model parameter, the prescribed truth has no process noise).
+Measurements: node i's measurement at epoch k comes from the `uwb` stream only: its four ranges
+to its anchor group (`groups`, last anchor = reference) at t_k, turned into a position by the
+subtraction of eqs. 21-23 (estimators.bandwidth.uwb_pseudo_measurement) with the *known* anchor
+positions, minus the known tag offset o_i: y_i = x + v_i, C = I3. V_i(k) comes from the configured
+range noise `range_sigma` by linear error propagation at the measured ranges, so it varies with k.
+An epoch needs all four ranges of a group at t_k: if one is missing (packet loss, out of range,
+NLOS "drop"), node i has no measurement at k and predicts only (L_i = 0, lambda_i = A xhat_i + B;
+the bound uses eq. 15 with L_i = 0). No interpolation. (The paper's synthetic measurements:
+testbed.reproduce.bandwidth_paper.)
 W: diag(process_noise); `w_reading` "rate" reads it in m^2/s (per step W dt), "per-step" as the
 covariance per step as printed by the paper.
 
 Known configuration with error and the initial estimate: testbed.plugins.builtin_bandwidth
 (known_config, initial_estimate: the streams "known-config" and "init").
-Faults (estimators.bandwidth.LinkFaults): `drop_prob` loses each directed message with that
-probability per step (stream "links"); `fail_node` (1-based, 0 = none) stops sending at
-`fail_time` s. A lost component is compensated by the receiver's own prediction (eq. 6 with that
-T entry 0) and M follows the realised loss pattern.
-
-No [network]: the reproduction's runs have none (a run's estimator gets its network from the
-runtime, Context.channel: testbed.plugins.builtin_bandwidth).
+No link faults (drop_prob, fail_node) and no [network]: the reproduction's runs have none (a
+run's bandwidth.fusion draws its faults from its own Context.rng and gets its network from the
+runtime, Context.channel: testbed.plugins.builtin_bandwidth); both are refused here.
 
 Truth (scoring only): x_true(t_k) = mean_i (truth/pos_i(t_k) - d_i), d_i the scenario's vehicle
 offsets; prescribed: exactly start + velocity t.
@@ -48,7 +41,6 @@ from testbed.errors import ConfigError
 from testbed.interrupt import poll
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 from testbed.plugins.builtin_bandwidth import initial_estimate, known_config
-from testbed.rng import stream_rng
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
 
 
@@ -108,28 +100,19 @@ def measurements(scenario, log: dict) -> dict:
     label = f"{scenario.name}.toml"
     K = int(np.floor(scenario.duration / cfg.dt + 1e-9))
     t = np.arange(K + 1) * cfg.dt
-    n = 3
     anchors, offsets = known_config(cfg, scenario.seed)
     truth = truth_formation_point(scenario, log, t)
-
-    if cfg.measurements == "uwb":
-        if "uwb/value" not in log:
-            raise ConfigError(f"{label}: pipeline.measurements: 'uwb' needs the [sensors.uwb] stream")
-        period = 1.0 / scenario.sensors.uwb.rate_hz
-        ratio = cfg.dt / period
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ConfigError(f"{label}: pipeline.dt: {cfg.dt} s is not a multiple of the UWB period {period:g} s")
-        if len(anchors) != len(scenario.world.anchors):
-            raise ConfigError(f"{label}: pipeline.anchors: {len(anchors)} known anchors but the world has "
-                              f"{len(scenario.world.anchors)} (world.anchors)")
-        y, V, avail, _ = uwb_epochs(cfg, log, K, anchors, offsets)
-    else:
-        Vp = np.diag(cfg.paper_V)
-        rng = stream_rng(scenario.seed, "paper-noise")
-        y = truth[:, None, :] + rng.standard_normal((K + 1, N_NODES, n)) @ np.linalg.cholesky(Vp).T
-        V = np.broadcast_to(Vp, (K + 1, N_NODES, n, n)).copy()
-        avail = np.ones((K + 1, N_NODES), bool)
-
+    if cfg.measurements != "uwb" or "uwb/value" not in log:
+        raise ConfigError(f"{label}: pipeline.measurements: the batch filter reads the [sensors.uwb] stream "
+                          f"(measurements = \"uwb\"), got {cfg.measurements!r}")
+    period = 1.0 / scenario.sensors.uwb.rate_hz
+    ratio = cfg.dt / period
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ConfigError(f"{label}: pipeline.dt: {cfg.dt} s is not a multiple of the UWB period {period:g} s")
+    if len(anchors) != len(scenario.world.anchors):
+        raise ConfigError(f"{label}: pipeline.anchors: {len(anchors)} known anchors but the world has "
+                          f"{len(scenario.world.anchors)} (world.anchors)")
+    y, V, avail, _ = uwb_epochs(cfg, log, K, anchors, offsets)
     return dict(t=t, truth=truth, y=y, V=V, available=avail, K=K, x_init=initial_estimate(cfg, scenario.seed))
 
 
@@ -144,11 +127,11 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
     """Run the seed 000 estimator on a run log (or on precomputed :func:`measurements`).
 
     select (4, 4, 3) masks / weights (4, 4) override the configured selection / weights. meas may
-    carry a leading run axis R (:func:`stack_runs`): the runs are filtered together (vectorized;
-    faults need per-run generators and are refused then); every output below gains that axis.
+    carry a leading run axis R (:func:`stack_runs`): the runs are filtered together (vectorized);
+    every output below gains that axis.
     Returns the arrays of :func:`measurements` plus xhat (K+1, N, 3) m; M (K+1, N, 3, 3) m^2;
     comm: estimators.bandwidth.CommLog; S, P: nominal masks and weights; W (3, 3) per step;
-    health: the driver's health counts (core.Track.health), also in metrics.json.
+    health: the driver's health counts (core.Track.health).
     """
     cfg: BandwidthPipelineConfig = scenario.pipeline
     label = f"{scenario.name}.toml"
@@ -177,27 +160,19 @@ def estimate(scenario, log: dict | None = None, *, meas: dict | None = None, sel
             raise ConfigError(f"{label}: pipeline.budget: the paper's {cfg.selection} is for budget 5, got "
                               f"{cfg.budget}; use selection = \"search\"")
     net = bw.FusionNetwork(select=S, weights=P, budget=budget)
-    failed = {cfg.fail_node - 1: int(np.ceil(cfg.fail_time / cfg.dt - 1e-9))} if cfg.fail_node else {}
-    faults = bw.LinkFaults(drop_prob=cfg.drop_prob, failed=failed) if (cfg.drop_prob > 0 or failed) else None
-    rng_links = stream_rng(scenario.seed, "links")
-
-    if batch and faults is not None:
-        raise ValueError("estimate: batched runs cannot use link faults (per-run generators)")
-    if scenario.network is not None:
-        raise ConfigError(f"{label}: network: the reproduction's batch filter has no network model; "
-                          "run the scenario (its bandwidth.fusion estimator gets the network)")
+    if cfg.drop_prob > 0 or cfg.fail_node or scenario.network is not None:
+        raise ConfigError(f"{label}: pipeline.drop_prob / pipeline.fail_node / network: the reproduction's batch "
+                          "filter has no link faults and no network; run the scenario (bandwidth.fusion has both)")
     x_init = meas["x_init"]
     prior = bw.FusionState(xhat=np.broadcast_to(x_init[..., None, :], batch + (N_NODES, n)).copy(),
                            M=np.broadcast_to(M0, batch + (N_NODES, n, n)).copy())
     C = (np.eye(n),) * N_NODES
-    # what actually arrives at each step: the nominal design with this step's dropped messages
+    # what arrives at each step: the nominal design
     delivered = []
     t = meas["t"]
     for k in range(K):
         poll()  # a worker asked to stop does so between epochs (testbed.interrupt)
-        Sn, Pk = net.at(k)
-        Se = faults.effective(Sn, k, rng_links, 1)[0] if faults is not None else Sn
-        delivered.append((Se, Pk))
+        delivered.append(net.at(k))
     # V_i(k) of each run (batched V broadcasts through eqs. 15 and 18)
     epochs = [Epoch(float(t[k]), bw.NodeMeasurements(y=tuple(y[k][..., i, :] for i in range(N_NODES)),
                                                      V=tuple(V[k][..., i, :, :] for i in range(N_NODES)),
