@@ -150,3 +150,14 @@ def test_a_node_without_pseudo_measurements_is_counted_and_json_stays_strict(tmp
     m = json.loads((tmp_path / "run" / "metrics.json").read_text(), parse_constant=pytest.fail)["estimators"]["bandwidth"]
     K = int(2.0 / sc.pipeline.dt)
     assert m["health"]["measurement_epochs_missing"] == K + 1 and m["health"]["measurements_used"] == 3 * (K + 1)
+
+
+def test_a_diverged_fusion_gives_no_estimate_and_says_so(tmp_path):
+    """On this geometry the paper's T1 bound recursion overflows and the fused state with it at
+    151.8 s: bandwidth.fusion then gives no estimate (counted in health), the run still succeeds,
+    and J_empirical, no longer a sum over every epoch, is null with its reason."""
+    sc = scenario_mod.load("bandwidth", duration=155.0)
+    m = run(sc, tmp_path / "run", plots=False)["estimators"]["bandwidth"]
+    K = int(155.0 / sc.pipeline.dt)
+    assert 0 < m["health"]["estimates_not_finite"] < 4 * (K + 1) and m["J_empirical"] is None
+    assert "of the" in m["null_reasons"]["J_empirical"] and np.isfinite(m["rmse_position_m"])

@@ -41,7 +41,9 @@ health(): the driver's counts plus `steps` (K), `measurements_used` and
 `steps_over_budget` (steps in which a node received more than its budget) and
 `estimates_without_cov` (estimates given without M_i: the bound recursion of eq. 15 diverges for
 some designs, and a covariance not finite or numerically singular (testbed.plugins.collect
-.cov_problems) is no usable statement of uncertainty); the fusion bound and
+.cov_problems) is no usable statement of uncertainty) and `estimates_not_finite` (node-epochs
+with no estimate: once M_i overflows the fused state does too, from 151.8 s on the `bandwidth`
+scenario); the fusion bound and
 its scores are the hook testbed.plugins.fusion_bound's.
 
 Estimates at every epoch: node i's estimate of its own UWB tag, `uav{i}/uwb` position =
@@ -104,6 +106,7 @@ class Fusion:
         self.comps = np.zeros((N_NODES, N_NODES), int)  # components delivered j -> i over the run
         self.over = 0  # steps in which a node received more than its budget
         self.unusable = 0  # estimates given without their M (not finite or numerically singular)
+        self.lost = 0  # node-epochs without an estimate (the state itself not finite)
         self.net = None if cfg.selection == "search" else bw.FusionNetwork(select=T_SETS[cfg.selection], weights=self.P,
                                                                             budget=self.budget)
         prior = bw.FusionState(xhat=np.tile(initial_estimate(cfg, context.seed), (N_NODES, 1)),
@@ -141,15 +144,19 @@ class Fusion:
             self.comps += np.rint(comps).astype(int)
             self.over += int(np.any(comps.sum(0) > np.asarray(self.budget) + 1e-12))
             controls = [(dt, (Se, Pk))]
-        b = self.stepper.step(Epoch(k * dt, bw.NodeMeasurements(y=tuple(y), V=tuple(V), available=avail), controls))
+        # a diverging bound overflows (the paper's T1 on this geometry): detected below and counted, not warned
+        with np.errstate(over="ignore", invalid="ignore"):
+            b = self.stepper.step(Epoch(k * dt, bw.NodeMeasurements(y=tuple(y), V=tuple(V), available=avail), controls))
         self.k += 1
         self.ranges[:] = np.nan
         # a bound M_i that diverged (the design's recursion can be unstable) is no usable covariance:
-        # the estimate goes without it, counted in health()
+        # the estimate goes without it; a state that overflowed with it is no estimate (both counted)
         bad = [p is not None for p in cov_problems(b.M)]
-        self.unusable += sum(bad)
+        finite = np.isfinite(b.xhat).all(-1)
+        self.unusable += int(np.sum(bad & finite))
+        self.lost += int(np.sum(~finite))
         return [Estimate(time=k * dt, target=f"uav{i + 1}/uwb", quantity="position", value=b.xhat[i] + self.offsets[i],
-                         cov=None if bad[i] else b.M[i]) for i in range(N_NODES)]
+                         cov=None if bad[i] else b.M[i]) for i in np.flatnonzero(finite)]
 
     def _through_network(self, S: np.ndarray, t: float) -> np.ndarray:
         """Masks (N, N, n) of what arrives within the round of the step's messages sent at t (s):
@@ -187,4 +194,4 @@ class Fusion:
                 "measurement_epochs_missing": int((self.K + 1) * N_NODES - self.used.sum()),
                 **{f"components_received_uav{i + 1}": int(self.comps[:, i].sum()) for i in range(N_NODES)},
                 **{f"components_sent_uav{i + 1}": int(self.comps[i].sum()) for i in range(N_NODES)},
-                "steps_over_budget": self.over, "estimates_without_cov": self.unusable}
+                "steps_over_budget": self.over, "estimates_without_cov": self.unusable, "estimates_not_finite": self.lost}

@@ -19,7 +19,9 @@ covariance, N sites in vehicle order (e = estimate - truth, m; M the estimate's 
 - from the estimator's health() counts, when it reports them (testbed.plugins.builtin_bandwidth):
   `within_budget` (no node ever received more than its budget: `steps_over_budget` = 0) and
   `bytes_received_per_step` (N,) mean bytes each node received per step (8 per component);
-- `null_reasons`: a score a diverged estimate cannot give is null, the reason beside it.
+- `null_reasons`: a score a diverged estimate cannot give is null, the reason beside it
+  (J_empirical too when the estimator reports `steps` and gave every site's estimate at fewer
+  than steps + 1 epochs).
 Figures (`FusionBound.plot`): {name}_error_uav{i}.png, each fitting estimator's error of each
 site with +/-3 sqrt(diag M) (the bound not drawn when it is off-scale).
 """
@@ -88,6 +90,10 @@ class FusionBound(Hook):
             out["J_bound"], reasons["J_bound"] = None, why
             out["final_trace_M_m2"] = [v if ok else None for v, ok in zip(out["final_trace_M_m2"], fin_M)]
             reasons["final_trace_M_m2"] = f"nodes {[i + 1 for i in np.flatnonzero(~fin_M).tolist()]}: {why}"
+        epochs = health.get("steps", t.size - 1) + 1
+        if t.size < epochs:  # the estimator gave no estimate at some epochs: J is not the run's sum
+            out["J_empirical"], reasons["J_empirical"] = None, (
+                f"estimates of every site at {t.size} of the {epochs} epochs (health estimates_not_finite)")
         if not fin_e.all():
             why = "not finite: the fusion diverged"
             out["J_empirical"], reasons["J_empirical"] = None, why
