@@ -1,4 +1,5 @@
-"""Reference trajectories of the four papers and generic minimum-jerk paths.
+"""Reference trajectories of the four papers and the trajectory library (minimum-jerk waypoints,
+minimum-snap splines, circle, lemniscate, hover: the maths in testbed.trajectories).
 
 Every reference is analytic in position, velocity and acceleration and is evaluated for a whole
 time grid at once: `evaluate(traj, t)` with t (K,) seconds returns a `RefState` of arrays
@@ -16,9 +17,10 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from testbed.errors import FieldError
-from testbed.scenario import LeaderFollower, Obstacle, PhaseFormation, Scenario, StraightLine, SwarmBox, SwarmGrid, Trajectory, Waypoints
+from testbed.scenario import (Circle, Hover, Lemniscate, LeaderFollower, Obstacle, PhaseFormation, Scenario, Spline, StraightLine, SwarmBox,
+                              SwarmGrid, Trajectory, Waypoints)
+from testbed.trajectories import GRAVITY  # noqa: F401  (re-exported: m/s^2, models/arena.xml)
 
-GRAVITY = 9.81  # m/s^2, as in models/arena.xml
 # m: circumscribed radius of a vehicle's collision box (models/quadrotor.xml: half extents
 # 0.6 x 0.6 x 0.12 m centred 0.02 m above the body origin): sqrt(0.6^2 + 0.6^2 + 0.14^2).
 AIRFRAME_RADIUS = 0.86
@@ -109,6 +111,15 @@ def _pva(tr: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
         path = P[seg] + s[:, None] * d
         off = np.array(tr.offsets)
         return path[:, None] + off, (ds[:, None] * d)[:, None] + 0 * off, (dds[:, None] * d)[:, None] + 0 * off
+    if isinstance(tr, Spline):
+        p, v, a = tr.path.derivatives(t)
+        off = np.array(tr.offsets)
+        return p[:, None] + off, v[:, None] + 0 * off, a[:, None] + 0 * off
+    if isinstance(tr, (Circle, Lemniscate)):
+        return tr.pva(t)
+    if isinstance(tr, Hover):
+        p = np.broadcast_to(np.array(tr.point) + np.array(tr.offsets), (K, tr.vehicles, 3)).copy()
+        return p, np.zeros_like(p), np.zeros_like(p)
     raise TypeError(f"unknown trajectory {type(tr).__name__}")
 
 
@@ -148,7 +159,7 @@ def _yaw(tr: Trajectory, t: np.ndarray, n: int) -> np.ndarray:
         psi = np.arctan2(tr.leader_velocity[1], tr.leader_velocity[0])
         yaw[:, 0] = psi
         yaw[:, 1] = psi + np.radians(tr.yaw_amp_deg) * np.sin(2 * np.pi * t / tr.yaw_period)
-    elif isinstance(tr, Waypoints):
+    elif isinstance(tr, (Waypoints, Spline, Circle, Lemniscate, Hover)):
         yaw[:] = np.radians(tr.yaw_deg)
     return yaw
 

@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 import tomli_w
 
+from testbed import trajectories
 from testbed.config import from_dict, in_range, key, require, set_dotted, to_dict, whole_ratio
 from testbed.errors import ConfigError
 from testbed.network_config import NetworkConfig
@@ -308,7 +309,177 @@ class Waypoints:
         return len(self.offsets)
 
 
-Trajectory = PhaseFormation | StraightLine | SwarmBox | SwarmGrid | LeaderFollower | Waypoints
+def _check_limits(key: str, value: object, t: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> None:
+    """Refuse a reference beyond the airframe (testbed.trajectories.limit_violation), naming `key`."""
+    problem = trajectories.limit_violation(t, vel, acc)
+    require(problem is None, key, value, f"{_plain(value)}: {problem}")
+
+
+def _plain(value: object) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(list(value) if isinstance(value, tuple) else value)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Spline:
+    """A minimum-snap spline through waypoints, flown without stopping (testbed/trajectories.py).
+
+    points (m, world) are passed in order; between them, per axis, degree-7 polynomials whose
+    integrated squared snap is least, with velocity, acceleration, jerk and snap continuous at
+    every point (the optimum is continuous to the 6th derivative). Open (closed = false): from
+    rest at the first point to rest at the last, then held there. Closed: back to the first point
+    and round again, periodic, with no stop anywhere. times: when each point is reached (s, from
+    0, increasing; closed: one more, the return to the first point); empty: allocated at the
+    cruise `speed` (m/s): segment i lasts max(|P_i+1 - P_i| / speed, 0.5 s), the first and last
+    segments of an open path twice that (they start or end at rest). Refused at load if the
+    reference is faster than the airframe's 23 m/s or needs more than 80 % of its thrust
+    (models/quadrotor.xml: 4 x 40 N for 6.9 kg; |a + g| at most 18.6 m/s^2): the key named is
+    `times`, or `speed` when the times are allocated. Every vehicle flies the path shifted by its
+    offset (m): a formation of len(offsets) vehicles; yaw_deg constant.
+    """
+
+    kind: Literal["spline"]
+    points: tuple[Vec3, ...] = key(unit="m", range="2 to 256 points")
+    times: tuple[float, ...] = key((), unit="s", range="empty, or one per point (closed: one more) from 0, increasing")
+    speed: float = key(5.0, unit="m/s", range="> 0 (used when times is empty)")
+    closed: bool = False
+    offsets: tuple[Vec3, ...] = key(((0.0, 0.0, 0.0),), unit="m")
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        most = trajectories.MAX_POINTS
+        require(2 <= len(self.points) <= most, "points", self.points, f"need 2 to {most} waypoints, got {len(self.points)}")
+        in_range(self, "speed", 0, lo_open=True, unit="m/s")
+        if self.times:
+            need = len(self.points) + self.closed
+            require(len(self.times) == need, "times", self.times,
+                    f"need one time per waypoint{' and one for the return to the first' if self.closed else ''} ({need}), got {len(self.times)}")
+            require(self.times[0] == 0 and all(b >= a + 0.01 for a, b in zip(self.times, self.times[1:])), "times", self.times,
+                    f"must start at 0 and increase by at least 0.01 s, got {list(self.times)}")
+        require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
+        knots = self.path.knots
+        t = np.concatenate([np.linspace(a, b, trajectories.SAMPLES_PER_SEGMENT + 1) for a, b in zip(knots, knots[1:])])
+        d = self.path.derivatives(t)
+        _check_limits("times" if self.times else "speed", self.times or self.speed, t, d[1], d[2])
+
+    @property
+    def durations(self) -> np.ndarray:
+        """(S,) s: segment durations, from `times` or allocated at `speed` (class docstring)."""
+        if self.times:
+            return np.diff(self.times)
+        return trajectories.allocate(np.array(self.points, float), self.speed, self.closed)
+
+    @property
+    def path(self) -> trajectories.PiecewisePolynomial:
+        """The minimum-snap spline of the formation point (cached on points and times)."""
+        return trajectories.min_snap(np.array(self.points, float), self.durations, self.closed)
+
+    @property
+    def vehicles(self) -> int:
+        return len(self.offsets)
+
+
+def _check_curve(tr: "Circle | Lemniscate") -> None:
+    """Checks shared by the closed curves: count, period, the airframe's limits over one period."""
+    require(tr.count >= 1, "count", tr.count, f"at least one vehicle is needed, got {tr.count}")
+    in_range(tr, "period", 0.1, unit="s")
+    t = np.linspace(0.0, tr.period, trajectories.SAMPLES_PER_PERIOD, endpoint=False)
+    _, vel, acc = tr.pva(t, 1)
+    _check_limits("period", tr.period, t, vel, acc)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Circle:
+    """Vehicles round a horizontal circle at constant speed: a ring formation.
+
+    Vehicle i (0-based) at center + radius (cos theta_i, sin theta_i, 0) + i layer e_z (m, world),
+    theta_i = 2 pi t / period + 2 pi i / count (anticlockwise from above; clockwise = true turns
+    it the other way): `count` vehicles evenly spread round the circle, each `layer` m above the
+    previous. Speed 2 pi radius / period, centripetal acceleration radius (2 pi / period)^2:
+    refused (key `period`) beyond the airframe's speed or 80 % of its thrust (see spline).
+    yaw_deg constant.
+    """
+
+    kind: Literal["circle"]
+    center: Vec3 = key(unit="m")
+    radius: float = key(unit="m", range="> 0")
+    period: float = key(unit="s", range=">= 0.1")
+    clockwise: bool = False
+    count: int = key(1, range=">= 1")
+    layer: float = key(0.0, unit="m")
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        in_range(self, "radius", 0, lo_open=True, unit="m")
+        _check_curve(self)
+
+    def pva(self, t: np.ndarray, count: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """pos, vel, acc (K, N, 3) at t (K,) s of the first `count` vehicles (all when None)."""
+        phases, heights = trajectories.spread(self.count, self.layer)
+        n = count or self.count
+        sign = -1.0 if self.clockwise else 1.0
+        return trajectories.circle(t, np.array(self.center), self.radius, sign * self.period, phases[:n], heights[:n])
+
+    @property
+    def vehicles(self) -> int:
+        return self.count
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Lemniscate:
+    """Vehicles round a horizontal figure-eight (lemniscate of Gerono).
+
+    Vehicle i (0-based) at center + i layer e_z + R(heading) (A sin theta_i, B sin theta_i
+    cos theta_i, 0) (m, world), theta_i = 2 pi t / period + 2 pi i / count; size = (A, B) (m): the
+    figure spans +/- A along its axis (heading_deg from world x) and +/- B / 2 across it. The
+    path crosses itself at the centre: with an even count two vehicles meet there unless
+    `layer` separates them (the clearance check refuses the run). Refused (key `period`) beyond
+    the airframe's speed or 80 % of its thrust, checked at 1024 instants of a period (see
+    spline). yaw_deg constant.
+    """
+
+    kind: Literal["lemniscate"]
+    center: Vec3 = key(unit="m")
+    size: tuple[float, float] = key(unit="m", range="> 0")
+    period: float = key(unit="s", range=">= 0.1")
+    heading_deg: float = 0.0
+    count: int = key(1, range=">= 1")
+    layer: float = key(0.0, unit="m")
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        in_range(self, "size", 0, lo_open=True, unit="m")
+        _check_curve(self)
+
+    def pva(self, t: np.ndarray, count: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """pos, vel, acc (K, N, 3) at t (K,) s of the first `count` vehicles (all when None)."""
+        phases, heights = trajectories.spread(self.count, self.layer)
+        n = count or self.count
+        return trajectories.lemniscate(t, np.array(self.center), self.size, self.period, math.radians(self.heading_deg),
+                                       phases[:n], heights[:n])
+
+    @property
+    def vehicles(self) -> int:
+        return self.count
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Hover:
+    """Vehicles holding still: every vehicle at point + its offset (m, world), yaw_deg constant."""
+
+    kind: Literal["hover"]
+    point: Vec3 = key(unit="m")
+    offsets: tuple[Vec3, ...] = key(((0.0, 0.0, 0.0),), unit="m")
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        require(len(self.offsets) > 0, "offsets", self.offsets, "at least one vehicle is needed")
+
+    @property
+    def vehicles(self) -> int:
+        return len(self.offsets)
+
+
+Trajectory = PhaseFormation | StraightLine | SwarmBox | SwarmGrid | LeaderFollower | Waypoints | Spline | Circle | Lemniscate | Hover
 
 # ----------------------------------------------------------------------------------- scenario
 
@@ -439,6 +610,9 @@ class Scenario:
         # pipeline has the sensors it needs (keys dotted from the scenario root)
         self.sensors.cross_check(self.world.control_rate, self.vehicles, "sensors")
         if self.pipeline is not None:
+            # the sensor-model keys the estimators assume, unless given, are the declared ones
+            assumed = self.pipeline.assumed({name: to_dict(cfg) for name, cfg in self.sensors.streams().items()})
+            object.__setattr__(self, "pipeline", assumed)
             self.pipeline.cross_check(self)
         self._check_feedback()
 
@@ -529,6 +703,12 @@ def load(name_or_path: str, overrides: dict[str, object] | None = None, **top: o
         resolved = to_dict(scenario)
         for dotted, raw in overrides.items():
             set_dotted(resolved, dotted, raw, label)
+        # an assumed sensor-model key of the pipeline given neither in the file nor here follows
+        # the (overridden) declared sensor model: derived again, never kept equal by hand
+        given = set(data.get("pipeline", {})) | {str(k).partition(".")[2].partition(".")[0] for k in overrides
+                                                  if str(k).startswith("pipeline.")}
+        for k in scenario.pipeline.derived() - given if scenario.pipeline is not None else ():
+            resolved["pipeline"].pop(k, None)
         scenario = from_dict(Scenario, resolved, label)
     changes = {k: v for k, v in top.items() if v is not None}
     if changes:

@@ -3,8 +3,10 @@
 Run i uses seed `scenario.seed + i` and writes `OUT/run-XXX/` (a full run directory). Each run is
 deterministic in its seed, so the results are bit-identical to running the seeds one by one.
 The `metrics.json` files are aggregated into `OUT/summary.csv` and `OUT/summary.json`: mean,
-std (ddof=1), min, max and count of every numeric score, keyed by its dotted path
-(`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk;
+std (ddof=1), min, max, count and the 95 % confidence interval of the mean (`ci95`: Student t
+interval over the runs, mean +- t(0.975, n - 1) std / sqrt(n), testbed.metrics.mean_ci; the runs
+are independent, one seed each; null with fewer than 2 runs) of every numeric score, keyed by its
+dotted path (`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk;
 an ANEES also gets the interval of a consistent estimator's mean over the runs (`interval`, at the
 runs' own level) and its effective samples (`n_eff`: testbed.metrics.anees_over_runs,
 docs/consistency.md), empty in summary.csv for the other scores.
@@ -33,7 +35,7 @@ from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
 from testbed.errors import EstimatorsFailed, RunError
 from testbed.interrupt import Interrupted
-from testbed.metrics import anees_over_runs
+from testbed.metrics import anees_over_runs, mean_ci
 from testbed.outdir import Output, marker, remove_unheld_locks, write_json, write_text
 from testbed.progress import bar as progress_bar
 from testbed.runner import run
@@ -65,7 +67,8 @@ def flatten(obj: object, prefix: str = "") -> dict[str, float]:
 
 
 def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
-    """Per-score statistics over runs: {key: {mean, std, min, max, n}}; an ANEES (a key with its
+    """Per-score statistics over runs: {key: {mean, std, min, max, n, ci95}} (ci95: [lo, hi] Student t
+    95 % interval of the mean over the runs, None with one run); an ANEES (a key with its
     KEY_dof beside it) also {interval, n_eff} of its mean over the runs (anees_over_runs)."""
     flat = [flatten(m) for m in metrics]
     keys = sorted({k for f in flat for k in f if k != "seed"})
@@ -78,6 +81,7 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
             "min": float(v.min()),
             "max": float(v.max()),
             "n": int(v.size),
+            "ci95": list(mean_ci(v, 0.95)[1:]) if v.size > 1 else None,
         }
     for k in keys:
         if f"{k}_dof" in summary:
@@ -120,10 +124,11 @@ def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> d
     write_json(d / "summary.json", doc)
     buf = io.StringIO(newline="")
     w = csv.writer(buf)
-    w.writerow(["score", "mean", "std", "min", "max", "n", "interval_lo", "interval_hi", "n_eff"])
+    w.writerow(["score", "mean", "std", "min", "max", "n", "ci95_lo", "ci95_hi", "interval_lo", "interval_hi", "n_eff"])
     for k, s in summary.items():
+        ci = [repr(s["ci95"][0]), repr(s["ci95"][1])] if s["ci95"] is not None else ["", ""]
         extra = [repr(s["interval"][0]), repr(s["interval"][1]), repr(s["n_eff"])] if "interval" in s else ["", "", ""]
-        w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"], *extra])
+        w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"], *ci, *extra])
     write_text(d / "summary.csv", buf.getvalue())
     return summary
 

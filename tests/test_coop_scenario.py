@@ -8,6 +8,7 @@ sample sizes; nothing is tuned until green.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,23 +19,35 @@ from testbed.cli import main
 from testbed.errors import ConfigError
 from testbed.log import load_log
 from testbed.metrics import anees_interval
-from testbed.pipelines import coop
-from testbed.plugins.coop_scores import epochs_from_log
+from testbed.plugins.builtin_coop import epoch_problem, gnss_covariances, solve_epoch
+from testbed.plugins.collect import load_tracks
+from testbed.plugins.coop_scores import coop_hook, epochs_from_log
+from testbed.plugins.graph_check import COV_RTOL, POS_TOL_M, gtsam_check
+from testbed.plugins.loading import resolve
+from testbed.plugins.run import run_estimators
+from testbed.plugins.spec import EstimatorSpec
+from testbed.rng import stream_rng
 from testbed.runner import run
+from testbed.simulate import simulate
+from testbed.world import build
 
+ROOT = Path(__file__).resolve().parents[1]
+ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 KEYS = ("rmse_position_per_vehicle_m", "rmse_position_mean_m", "iterations_mean", "messages_per_epoch", "anees")
 
 
-def _as_library(got: dict, want: dict) -> None:
-    """The run's scores of one estimator (plugin + hook) against the batch library's
-    (testbed.pipelines.coop.score, whose per-vehicle RMSE is `rmse_position_m`): every key equal,
-    floats to 1e-12 relative (a mean of counts is summed in another order)."""
-    for k, v in want.items():
-        g = got["rmse_position_per_vehicle_m" if k == "rmse_position_m" else k]
-        if isinstance(v, float) or isinstance(v, list) and v and isinstance(v[0], float):
-            np.testing.assert_allclose(g, v, rtol=1e-12, atol=0, err_msg=k)
-        else:
-            assert g == v, k
+def _rerun(sc, run_dir, which) -> dict:
+    """The scores of the default estimators `which` run again as plugins on the run's log.npz alone
+    (testbed.plugins.run.run_estimators), wall time left out."""
+    got = run_estimators(sc, build(sc), load_log(run_dir), resolve([EstimatorSpec(entry=f"coop.{w}", name=w) for w in which]),
+                         None)[0]
+    return {w: {k: v for k, v in s.items() if k != "wall_ms"} for w, s in got.items()}
+
+
+def _positions(sc, run_dir) -> tuple[dict, object]:
+    """({name: (K, N, 3) m} the run's estimates at the epochs from its estimates.npz, its epochs)."""
+    hook = coop_hook(sc, load_log(run_dir))
+    return {w: hook.positions(t)[0] for w, t in load_tracks(run_dir / "estimates.npz").items()}, hook.epochs
 
 
 def _sign_test_min(k: int, alpha: float = 1e-3) -> int:
@@ -42,15 +55,14 @@ def _sign_test_min(k: int, alpha: float = 1e-3) -> int:
     return int(binom.ppf(1.0 - alpha, k, 0.5)) + 1
 
 
-def _epoch_mse(est: coop.CoopEstimates, name: str, mask: np.ndarray) -> np.ndarray:
-    """Per-epoch mean squared 3-D error over the UAVs in mask: (K,) m^2."""
-    e = est.pos[name] - est.epochs.truth
-    return np.sum(e ** 2, axis=-1)[:, mask].mean(axis=1)
+def _epoch_mse(pos: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per-epoch mean squared 3-D error over the UAVs in mask of positions pos (K, N, 3) m: (K,) m^2."""
+    return np.sum((pos - truth) ** 2, axis=-1)[:, mask].mean(axis=1)
 
 
 def test_coop_fg_end_to_end(tmp_path):
     """20 epochs (19 s, prescribed) through runner.run: every score key present for the four
-    estimators, the metrics are what the pipeline recomputes from log.npz, cooperation (one shot,
+    estimators, the metrics are what the estimators give again on log.npz alone, cooperation (one shot,
     iterated, centralized) beats GNSS only on the SPP UAVs in a significant majority of epochs,
     the centralized joint NEES (54 dof) is inside its 99 % interval and the distributed iteration
     is over-confident (its ANEES above the consistent interval).
@@ -60,8 +72,8 @@ def test_coop_fg_end_to_end(tmp_path):
     sc = scenario.load("coop-fg", duration=19.0)
     m = run(sc, tmp_path / "run")
     est_m = m["estimators"]
-    assert set(coop.ESTIMATORS) <= set(est_m)
-    for name in coop.ESTIMATORS:
+    assert set(ESTIMATORS) <= set(est_m)
+    for name in ESTIMATORS:
         s = est_m[name]
         assert all(k in s for k in KEYS), name
         assert len(s["rmse_position_per_vehicle_m"]) == 18 and np.all(np.isfinite(s["rmse_position_per_vehicle_m"]))
@@ -70,17 +82,16 @@ def test_coop_fg_end_to_end(tmp_path):
     assert est_m["iterated"]["messages_per_epoch"] == 18 * est_m["iterated"]["iterations_mean"]
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["estimators"] == est_m
 
-    # the scores are reproducible from the logged streams alone (the batch library, same code)
-    ep = epochs_from_log(load_log(tmp_path / "run"), sc.vehicles)
+    # the scores are reproducible from the logged streams alone
+    again = _rerun(sc, tmp_path / "run", ESTIMATORS)
+    assert again == {w: {k: v for k, v in est_m[w].items() if k != "wall_ms"} for w in ESTIMATORS}
+    pos, ep = _positions(sc, tmp_path / "run")
     K = ep.time.size
     assert K == 20 and ep.is_rtk.sum() == 3 and list(np.flatnonzero(ep.is_rtk) + 1) == [3, 9, 15]
-    est = coop.estimate(sc.pipeline, ep, sc.seed)
-    for name, want in coop.score(est).items():
-        _as_library(est_m[name], want)
     spp = ~ep.is_rtk
-    g = _epoch_mse(est, "gnss_only", spp)
+    g = _epoch_mse(pos["gnss_only"], ep.truth, spp)
     for name in ("one_shot", "iterated", "centralized"):
-        wins = int(np.sum(_epoch_mse(est, name, spp) < g))
+        wins = int(np.sum(_epoch_mse(pos[name], ep.truth, spp) < g))
         assert wins >= _sign_test_min(K), (name, wins)
     # the epochs of a run are correlated: the intervals count their effective samples (n_eff <= K)
     c, it = est_m["centralized"], est_m["iterated"]
@@ -101,19 +112,25 @@ def test_coop_fg_node_failure_and_message_loss(tmp_path):
     m = run(sc, tmp_path / "run")
     it = m["estimators"]["iterated"]
     assert np.all(np.isfinite(it["rmse_position_per_vehicle_m"])) and np.isfinite(it["anees"])
-    ep = epochs_from_log(load_log(tmp_path / "run"), sc.vehicles)
-    est = coop.estimate(sc.pipeline, ep, sc.seed, which=("gnss_only", "iterated"))
+    pos, ep = _positions(sc, tmp_path / "run")
     after = ep.time >= 10.0
-    r = est.rounds["iterated"]
-    np.testing.assert_array_equal(est.messages["iterated"], np.where(after, 17, 18) * r)
+    # per epoch, the iteration's rounds and messages (its per-epoch solver, the plugin's own code)
+    cfg, rng = sc.pipeline, stream_rng(sc.seed, "estimator/iterated")
+    Sg = gnss_covariances(cfg, ep.is_rtk)
+    solved = [solve_epoch(cfg, "iterated", epoch_problem(cfg, ep.gnss[k], Sg, ep.edges[k], ep.ranges[k]), ep.time[k], rng)
+              for k in range(ep.time.size)]
+    r = np.array([s[1] for s in solved])
+    np.testing.assert_array_equal([s[3] for s in solved], np.where(after, 17, 18) * r)
+    np.testing.assert_allclose(np.stack([s[0].positions for s in solved]), pos["iterated"], rtol=0, atol=1e-12)
+    assert it["iterations_mean"] == r.mean() and it["messages_per_epoch"] == np.mean([s[3] for s in solved])
     survivors = ~ep.is_rtk
     survivors[1] = False
-    g = _epoch_mse(est, "gnss_only", survivors)[after]
-    i = _epoch_mse(est, "iterated", survivors)[after]
+    g = _epoch_mse(pos["gnss_only"], ep.truth, survivors)[after]
+    i = _epoch_mse(pos["iterated"], ep.truth, survivors)[after]
     assert int(after.sum()) == 20
     assert int(np.sum(i < g)) >= _sign_test_min(20)
     # the same seed gives the same losses (stream estimator/iterated): the run's metrics are reproduced
-    _as_library(it, coop.score(coop.estimate(sc.pipeline, ep, sc.seed))["iterated"])
+    assert _rerun(sc, tmp_path / "run", ("iterated",))["iterated"] == {k: v for k, v in it.items() if k != "wall_ms"}
 
 
 def test_coop_fg_flown_runs_end_to_end(tmp_path):
@@ -122,7 +139,7 @@ def test_coop_fg_flown_runs_end_to_end(tmp_path):
     sc = scenario.load("coop-fg", motion="flown", duration=3.0)
     m = run(sc, tmp_path / "run", plots=False)["estimators"]
     assert m["centralized"]["epochs"] == 4
-    for name in coop.ESTIMATORS:
+    for name in ESTIMATORS:
         assert np.all(np.isfinite(m[name]["rmse_position_per_vehicle_m"]))
     assert m["centralized"]["rmse_position_spp_mean_m"] < m["gnss_only"]["rmse_position_spp_mean_m"]
 
@@ -190,18 +207,45 @@ def test_reproduce_coop_writes_tables_figure_and_decided_claims(tmp_path):
 def test_centralized_equals_gtsam_to_1e_8_m_on_every_physics_epoch():
     """Issue #15 item 5 on real epochs (a 30 s coop-fg run, seed 1: MuJoCo -> GNSS + UWB): the
     reproduction's GTSAM check finds our centralized optimum within 1e-8 m of GTSAM's Gauss-Newton
-    on every epoch, and the marginals within GTSAM_COV_RTOL. Before the fix (cost-based stopping
+    on every epoch, and the marginals within COV_RTOL (testbed.plugins.graph_check, on the graphs
+    the coop.centralized plugin exposes). Before the fix (cost-based stopping
     on both sides) epochs of this scenario differed by up to 5.5e-7 m; now both sides stop on the
     step. Measured here: 1.0e-13 m, 1.8e-13 relative (GTSAM's LM, reported only: 6.2e-7 m)."""
     pytest.importorskip("gtsam")
-    from testbed.reproduce import coop as rep
-    from testbed.simulate import simulate
-
     sc = scenario.load("coop-fg", seed=1, duration=30.0)
-    log, _ = simulate(sc)
-    ep = epochs_from_log(log, sc.vehicles)
-    check = rep._gtsam_check(sc.pipeline, ep)
-    assert check["epochs"] == ep.time.size == 31
-    assert rep.GTSAM_POS_TOL_M == 1e-8 and check["max_position_diff_m"] <= 1e-8
-    assert check["max_cov_rel_diff"] <= rep.GTSAM_COV_RTOL
+    log, physics = simulate(sc)
+    kept = {}
+    run_estimators(sc, physics, log, resolve([EstimatorSpec(entry="coop.centralized", name="centralized")]), None, keep=kept)
+    check = gtsam_check(kept)["centralized"]
+    assert check["epochs"] == epochs_from_log(log, sc.vehicles).time.size == 31
+    assert POS_TOL_M == 1e-8 and check["max_position_diff_m"] <= 1e-8
+    assert check["max_cov_rel_diff"] <= COV_RTOL
     assert check["holds"]
+
+
+def test_gtsam_check_takes_every_estimator_that_exposes_its_graphs_and_only_those(monkeypatch):
+    """The check is of the solver on the graphs an estimator exposes (factor_graphs()): the coop.*
+    built-ins expose their epoch graphs, a plugin without factor_graphs() is left out, and a solver
+    off by 1e-7 m (ten times the tolerance) is caught."""
+    pytest.importorskip("gtsam")
+    import estimators.factor_graph as fg
+
+    sc = scenario.load("coop-fg", duration=3.0)
+    log, physics = simulate(sc)
+    kept = {}
+    specs = [EstimatorSpec(entry=f"coop.{w}", name=w) for w in ("gnss_only", "centralized")]
+    run_estimators(sc, physics, log, resolve(specs + [EstimatorSpec(entry=f"{ROOT}/examples/uwb_ekf.py:UwbEkf")]), None,
+                   keep=kept)
+    assert set(kept) == {"gnss_only", "centralized", "UwbEkf"}
+    got = gtsam_check(kept)
+    assert set(got) == {"gnss_only", "centralized"} and all(c["holds"] and c["epochs"] == 4 for c in got.values())
+    real = fg.solve_centralized
+
+    def off(prob, **kw):
+        res = real(prob, **kw)
+        res.positions[0, 0] += 1e-7
+        return res
+
+    monkeypatch.setattr(fg, "solve_centralized", off)
+    bad = gtsam_check({"centralized": kept["centralized"]})["centralized"]
+    assert not bad["holds"] and bad["max_position_diff_m"] == pytest.approx(1e-7, rel=1e-3)

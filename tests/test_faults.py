@@ -172,8 +172,10 @@ def _finished_runs(root: Path) -> list[Path]:
 
 
 def _tree(root: Path) -> dict[str, bytes]:
-    """Every file's bytes but provenance.json's (when and how it was made: never the same twice)."""
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file() and p.name != "provenance.json"}
+    """Every file's bytes but provenance.json's and timing.json's (when and how it was made, the wall
+    times: never the same twice)."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.name not in ("provenance.json", "timing.json")}
 
 
 @pytest.mark.slow  # three short coop reproductions, ~4 min on a loaded 2-core machine

@@ -73,7 +73,7 @@ def test_agrees_with_gtsam_to_1e_8_m():
     """Issue #15 item 5: both sides stop on the step, not on the cost (ours: the defaults, a full
     Gauss-Newton step below 1e-10 m; GTSAM: Gauss-Newton with QR driven to a step below 1e-10 m),
     so both reach the optimum and positions agree to <= 1e-8 m, marginals to 1e-9 of each UAV's
-    largest entry (testbed.reproduce.coop.GTSAM_COV_RTOL). Measured on seeds 1-6: <= 2.8e-13 m and
+    largest entry (testbed.plugins.graph_check.COV_RTOL). Measured on seeds 1-6: <= 2.8e-13 m and
     <= 1.3e-13 relative (GN and LM)."""
     for seed in (1, 2, 3, 4):
         p = make_epoch(18, seed=seed).problem

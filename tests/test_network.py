@@ -17,8 +17,6 @@ from estimators.factor_graph import MESSAGE_BYTES, solve_distributed
 from testbed.config import from_dict
 from testbed.errors import ConfigError
 from testbed.network import Network, NetworkConfig, stationary_loss
-from testbed.pipelines import coop
-from testbed.plugins.coop_scores import epochs_from_log
 from testbed.rng import stream_rng
 from testbed.metrics import ranging_rate
 from testbed.scenario import Scenario, load
@@ -240,43 +238,34 @@ def test_seed000_budget_is_one_instance_of_the_network_budget():
 
 
 def test_seed001_messages_over_the_network():
-    sc = load("coop-fg", duration=2.0)
-    log, _ = simulate(sc)
-    ep = epochs_from_log(log, sc.vehicles)
-    which = ("one_shot", "iterated")
-    ideal = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which))
-    default = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which, network=NetworkConfig()))
-    assert "network" not in ideal["iterated"]
-    for w in which:
-        assert default[w]["rmse_position_m"] == ideal[w]["rmse_position_m"]
-        assert default[w]["network"]["dropped"] == 0 and default[w]["network"]["latency_max_s"] == 0.0
-    lossy = coop.score(coop.estimate(sc.pipeline, ep, sc.seed, which=which,
-                                     network=NetworkConfig(loss_prob=0.5, latency=0.004, jitter=0.002)))
-    s = lossy["iterated"]["network"]
-    assert s["sent"] > 0 and s["dropped"] == s["dropped_loss"] > 0 and s["late"] >= 0
-    assert 0.003 < s["latency_p50_s"] < 0.005 and lossy["iterated"]["rmse_position_m"] != ideal["iterated"]["rmse_position_m"]
-
-
-def test_seed001_plugins_get_the_runtime_network():
-    """The coop.* plugins run on the log with [network] (Context.channel, testbed.plugins.channel)
-    give the pipeline's estimates and network counts over a lossy, late channel."""
+    """The coop.* plugins run on a log with [network] (Context.channel, testbed.plugins.channel): a
+    default (ideal) network gives the estimates of no network with nothing dropped or late; a lossy,
+    late channel drops messages from its own stream, has the configured latency and changes the
+    iterated estimate."""
     from testbed.plugins.loading import resolve
     from testbed.plugins.run import run_estimators
     from testbed.plugins.spec import EstimatorSpec
 
-    cfg = NetworkConfig(loss_prob=0.5, latency=0.004, jitter=0.002)
     sc = load("coop-fg", duration=2.0)
-    sc = replace(sc, network=cfg, estimators=tuple(EstimatorSpec(entry=f"coop.{w}", name=f"p.{w}") for w in ("one_shot", "iterated")))
     log, physics = simulate(sc)
-    plugins = [replace(p, key=p.key[2:]) for p in resolve(sc.estimators)]  # the pipeline's names: its network streams
-    scores, tracks = run_estimators(sc, physics, log, plugins, None)
-    ep = epochs_from_log(log, sc.vehicles)
-    want = coop.estimate(sc.pipeline, ep, sc.seed, which=("one_shot", "iterated"), network=cfg)
-    ref = coop.score(want)
-    for w in ("one_shot", "iterated"):
-        pos = np.stack([tracks[w][(f"uav{i}/uwb", "position")].value for i in range(1, sc.vehicles + 1)], axis=1)
-        np.testing.assert_allclose(pos, want.pos[w], rtol=0, atol=1e-9)
-        assert scores[w]["network"] == ref[w]["network"] and scores[w]["network"]["dropped_loss"] > 0
+    which = ("one_shot", "iterated")
+
+    def scores(network):
+        plugins = resolve([EstimatorSpec(entry=f"coop.{w}", name=w) for w in which])
+        return run_estimators(replace(sc, network=network), physics, log, plugins, None)
+
+    (ideal, ti), (default, td) = scores(None), scores(NetworkConfig())
+    assert "network" not in ideal["iterated"]
+    for w in which:
+        assert default[w]["rmse_position_per_vehicle_m"] == ideal[w]["rmse_position_per_vehicle_m"]
+        for key, s in ti[w].items():
+            np.testing.assert_array_equal(td[w][key].value, s.value)
+        assert default[w]["network"]["dropped"] == 0 and default[w]["network"]["latency_max_s"] == 0.0
+    lossy = scores(NetworkConfig(loss_prob=0.5, latency=0.004, jitter=0.002))[0]
+    s = lossy["iterated"]["network"]
+    assert s["sent"] > 0 and s["dropped"] == s["dropped_loss"] > 0 and s["late"] >= 0
+    assert 0.003 < s["latency_p50_s"] < 0.005
+    assert lossy["iterated"]["rmse_position_per_vehicle_m"] != ideal["iterated"]["rmse_position_per_vehicle_m"]
 
 
 # --------------------------------------------------------------------- scheduled UWB ranging

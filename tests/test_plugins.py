@@ -241,9 +241,10 @@ def test_an_installed_entry_point_is_registered(monkeypatch):
     assert loading.load_class("third.party").__name__ == "GnssOnly"
 
 
-def test_coop_builtins_as_protocol_estimators_equal_the_batch_library(tmp_path):
-    """Fed measurement by measurement, the four seed 001 estimators (under other names than the
-    defaults, beside them) give the batch library's estimates and, through the hook, its scores."""
+def test_coop_builtins_under_other_names_equal_the_defaults_and_both_scorings_agree(tmp_path):
+    """The four seed 001 estimators under other names than the defaults, beside them, give the
+    defaults' scores (no message loss: the name's random stream is not drawn), and the seed 001
+    hook's keys agree with the generic per-target scores (per-vehicle RMSE, ANEES of position)."""
     # a non-default known ranging model: the plugins take the scenario's [pipeline] without params
     sc = scenario.load("coop-fg", duration=4.0, overrides={"pipeline.twr_mode": "ds-twr", "pipeline.antenna_delay_sigma": "0.02"})
     names = ("gnss_only", "one_shot", "iterated", "centralized")
@@ -251,28 +252,16 @@ def test_coop_builtins_as_protocol_estimators_equal_the_batch_library(tmp_path):
                                                   for w, c in zip(names, ("GnssOnly", "OneShot", "Iterated", "Centralized"))))
     from testbed.runner import run
 
-    from testbed.log import load_log
-    from testbed.pipelines import coop
-    from testbed.plugins.coop_scores import epochs_from_log
-
     est = run(sc, tmp_path / "r", plots=False)["estimators"]
-    lib = coop.score(coop.estimate(sc.pipeline, epochs_from_log(load_log(tmp_path / "r"), 18), sc.seed))
     for w in names:
-        p = est[f"coop.{w}"]
+        p, d = est[f"coop.{w}"], est[w]
+        assert {k: v for k, v in p.items() if k not in ("entry", "wall_ms")} == \
+            {k: v for k, v in d.items() if k not in ("entry", "wall_ms")}, w
         per_uav = [p["targets"][f"uav{i}/uwb"]["position"]["rmse_m"] for i in range(1, 19)]
-        np.testing.assert_allclose(per_uav, lib[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(p["anees_position"], lib[w]["anees"], rtol=1e-12)
+        np.testing.assert_allclose(per_uav, p["rmse_position_per_vehicle_m"], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(p["anees_position"], p["anees"], rtol=1e-12)
         assert p["estimates"] == 18 * 5 and p["health"]["nonconverged_epochs"] <= 5
-        # the coop scoring hook gives every fitting estimator the library's own keys
-        want = {k: v for k, v in lib[w].items() if k not in ("rmse_position_m", "network", "nlos_fraction")}
         assert ("anees_joint" in p) == (w == "centralized")  # the one with the joint covariance
-        got = {k: p[k] for k in want}
-        np.testing.assert_allclose(p["rmse_position_per_vehicle_m"], lib[w]["rmse_position_m"], rtol=1e-12, atol=1e-12)
-        for k, v in want.items():
-            if isinstance(v, (dict, type(None))) or isinstance(v, int) and not isinstance(v, bool):
-                assert got[k] == v, k
-            else:
-                np.testing.assert_allclose(got[k], v, rtol=1e-12, err_msg=k)
 
 
 def test_sweep_and_reproduce_take_plugins(tmp_path):
@@ -289,14 +278,65 @@ def test_sweep_and_reproduce_take_plugins(tmp_path):
         assert s["interval"] == pytest.approx(list(anees_interval(runs[0][name][f"{key}_dof"], s["n_eff"],
                                                                   0.95 if name == "UwbEkf" else 0.99)))
     assert "interval" not in scores["estimators.UwbEkf.rmse_position_mean_m"]
+
+
+def test_reproduce_coop_gives_a_plugin_every_table_plot_and_test(tmp_path, monkeypatch):
+    """`reproduce coop --estimator examples/uwb_ekf.py:UwbEkf` (2 runs of 3 s, NLOS experiment on):
+    the plugin is in Table 4 (RMSE and improvement factor columns), the consistency, improvement
+    and pairwise tables (a test against each built-in over the same 2 seeds), figure 6,
+    rmse_mean.png and the NLOS experiment, its numbers read from the runs' metrics.json like the
+    built-ins'."""
     from testbed.reproduce import coop as rep
 
+    drawn = {}  # what the two summary figures draw
+    bars, fig6 = rep.compare_bars, rep.coop_scores.plot_error_vs_time
+
+    def record_bars(names, *a, **k):
+        drawn["bars"] = list(names)
+        return bars(names, *a, **k)
+
+    def record_fig6(ep, pos, *a, **k):
+        drawn["fig6"] = list(pos)
+        return fig6(ep, pos, *a, **k)
+
+    monkeypatch.setattr(rep, "compare_bars", record_bars)
+    monkeypatch.setattr(rep.coop_scores, "plot_error_vs_time", record_fig6)
     out = tmp_path / "rep"
     out.mkdir()
-    rep.reproduce(out, runs=1, duration=3.0, workers=1, nlos=False, estimators=(EstimatorSpec(entry=ekf),))
+    ekf = f"{ROOT}/examples/uwb_ekf.py:UwbEkf"
+    doc = rep.reproduce(out, runs=2, duration=3.0, workers=1, nlos=True, estimators=(EstimatorSpec(entry=ekf),))
+    names = ["gnss_only", "one_shot", "iterated", "centralized", "UwbEkf"]
+    assert doc["estimators"] == names and drawn == {"bars": names, "fig6": names}
+    assert any((out / "plots").glob("run0_UwbEkf_uav*_envelope.png"))
+    # Table 4: its RMSE per UAV pooled over the runs from each run's metrics.json, and its factor
     head, *rows = (out / "table.csv").read_text().strip().splitlines()
-    assert head.endswith(",rmse_UwbEkf_m") and len(rows) == 18 and all(float(r.split(",")[-1]) > 0 for r in rows)
-    assert "UwbEkf" in (out / "table.md").read_text()
+    cols = head.split(",")
+    assert "rmse_UwbEkf_m" in cols and "factor_UwbEkf" in cols and len(rows) == 18
+    runs = [json.loads((out / "runs" / f"run-{i:03d}" / "metrics.json").read_text())["estimators"] for i in range(2)]
+    for r in rows:
+        v = dict(zip(cols, r.split(",")))
+        u = int(v["uav"]) - 1
+        want = np.sqrt(np.mean([m["UwbEkf"]["rmse_position_per_vehicle_m"][u] ** 2 for m in runs]))
+        assert float(v["rmse_UwbEkf_m"]) == pytest.approx(want, rel=1e-12)
+        assert float(v["factor_UwbEkf"]) == pytest.approx(float(v["rmse_gnss_m"]) / want, rel=1e-12)
+    cons = {c["estimator"]: c for c in doc["consistency"]}
+    assert cons["UwbEkf"]["runs_scored"] == 2
+    assert cons["UwbEkf"]["anees"] == pytest.approx(np.mean([m["UwbEkf"]["anees"] for m in runs]), rel=1e-12)
+    assert {r["estimator"] for r in doc["improvement"]} == set(names[1:])
+    pairs = {(p["a"], p["b"]): p for p in doc["pairwise"]}
+    assert len(pairs) == 10
+    for b in names[:4]:  # a paired test against each built-in, both directions, over the same 2 runs
+        p = pairs[b, "UwbEkf"]
+        assert p["runs"] == 2 and p["uavs_a_better"] + p["uavs_b_better"] <= 18
+        assert p["p_max_a_better"] is not None and p["p_max_b_better"] is not None
+    assert set(doc["nlos_experiment"]["plugins"]) == {"UwbEkf"}
+    assert doc["cap_effect"]["plugins"] == rep.CAP_NOT_PLUGINS  # a round cap is a built-in setting
+    md = (out / "table.md").read_text()
+    sections = md.split("\n## ")[2:6]
+    assert [x.split()[0] for x in sections] == ["Table", "Consistency", "Improvement", "Pairwise"]
+    for section in sections:
+        assert "UwbEkf" in section, section[:60]
+    assert md.count("| UwbEkf |") >= 2 and "| centralized | UwbEkf |" in md
 
 
 def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
@@ -416,6 +456,9 @@ def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
     assert "Plugin estimators" in (out / "report.md").read_text()
     head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
     assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)
+    if paper == "phase":  # its runs' metrics hold the built-in too: compared over the same 2 seeds
+        _, *paired = (out / "table_plugins_paired.csv").read_text().strip().splitlines()
+        assert any(r.startswith(f"{group},Origin,") and r.split(",")[3] == "2" for r in paired)
 
 
 def test_the_covariance_check_agrees_with_eigenvalues():
@@ -568,3 +611,28 @@ def test_a_reproduction_scored_in_process_reports_the_failed_estimator_too(tmp_p
     failed = runs["runs"][0]["gaussian"]["plugins"]["Bad"]["failed"]
     assert failed["time_s"] >= 1.0 and "raised ZeroDivisionError: diverged" in failed["reason"]
     assert (out / "report.md").is_file() and (out / "claims.json").is_file()
+
+
+def test_plugin_rows_are_paired_with_every_other_estimator_of_the_same_runs():
+    """testbed.reproduce.plugins.paired: a plugin against each other estimator with a position RMSE
+    in the same runs (a run where either failed is left out of that pair), the factor of the means
+    and scipy's two-sided Wilcoxon signed-rank p of the paired differences; the section and
+    table_plugins_paired.csv carry them."""
+    from scipy.stats import wilcoxon
+
+    from testbed.reproduce import plugins as rows
+
+    rng = np.random.default_rng(5)
+    mine, ekf = rng.uniform(1.0, 2.0, 8), rng.uniform(1.5, 3.0, 8)
+    runs = [{"mine": {"rmse_position_m": float(a)}, "ekf": {"rmse_position_m": float(b)}, "graph": {"rmse_position_m": [1.0]}}
+            for a, b in zip(mine, ekf)]
+    runs[3]["ekf"] = {"failed": "in process()"}
+    got = rows.paired({"case": runs}, ["mine"])
+    assert [(r["estimator"], r["against"], r["runs"]) for r in got] == [("mine", "ekf", 7)]  # graph's RMSE is not a number
+    keep = np.arange(8) != 3
+    r = got[0]
+    assert r["factor"] == pytest.approx(ekf[keep].mean() / mine[keep].mean(), rel=1e-12)
+    assert r["p_two_sided"] == pytest.approx(wilcoxon(mine[keep] - ekf[keep]).pvalue, rel=1e-12)
+    assert rows.paired({"case": [{"mine": {"rmse_position_m": 1.0}}]}, ["mine"]) == []
+    md = rows.markdown({"case": runs}, ["mine"], "case")
+    assert any(line.startswith("| case | mine | ekf | 7 |") for line in md)

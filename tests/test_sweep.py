@@ -1,6 +1,9 @@
 """Monte Carlo runner: parallel runs equal the same seeds run one by one; metrics aggregate."""
 import json
 
+import numpy as np
+from scipy.stats import t as student_t
+
 from testbed import scenario
 from testbed.runner import run
 from testbed.sweep import sweep
@@ -16,4 +19,12 @@ def test_parallel_sweep_is_bit_identical_to_serial_runs(tmp_path):
     saved = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert saved["seeds"] == [3, 4] and saved["scores"] == summary
     assert summary["tracking_rmse_m.0"]["n"] == 2
-    assert (tmp_path / "sweep" / "summary.csv").read_text().startswith("score,mean,std,min,max,n")
+    assert (tmp_path / "sweep" / "summary.csv").read_text().startswith("score,mean,std,min,max,n,ci95_lo,ci95_hi")
+    # ci95: the Student t 95 % interval of the mean over the runs, from the runs' own values
+    from testbed.sweep import flatten
+    flat = [flatten(json.loads((tmp_path / "sweep" / f"run-{i:03d}" / "metrics.json").read_text())) for i in range(2)]
+    key = next(k for k, s in sorted(summary.items()) if s["n"] == 2 and s["std"] > 0)
+    x = np.array([f[key] for f in flat])
+    want = student_t.interval(0.95, 1, loc=x.mean(), scale=x.std(ddof=1) / np.sqrt(2))
+    np.testing.assert_allclose(summary[key]["ci95"], want, rtol=1e-12)
+    assert summary[key]["ci95"][0] < x.mean() < summary[key]["ci95"][1]

@@ -59,7 +59,7 @@ from estimators.core import Epoch, Stepper
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.collect import cov_problems
-from testbed.plugins.settings import check_known, pipeline_keys, settings
+from testbed.plugins.settings import settings
 from testbed.rng import stream_rng
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
 
@@ -82,9 +82,7 @@ def initial_estimate(cfg: BandwidthPipelineConfig, seed: int) -> np.ndarray:
 class Fusion:
     """seed 000: bandwidth-constrained distributed fusion of the formation point, each node's tag."""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(BandwidthPipelineConfig))
+    Params = BandwidthPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         cfg = self.cfg = settings(BandwidthPipelineConfig, "bandwidth", context, params, "bandwidth.fusion")

@@ -7,13 +7,13 @@ epoch when a measurement of a later time arrives (or at finish), with the per-ep
 `uav{i}/uwb` site position with its covariance. Ranges at instants without GNSS fixes are not
 part of an epoch and are ignored, as in the pipeline. Under a [network] table, the broadcasts of
 one_shot and iterated travel through the network the runtime hands them (Context.channel,
-testbed.plugins.channel), as the pipeline's do.
+testbed.plugins.channel). `factor_graphs()` gives the epoch graphs an estimator was given to solve
+(the GTSAM check of the centralized solver, testbed.plugins.graph_check).
 
 params: the coop-fg [pipeline] keys (the known noise model and solver settings); a key not given
 takes the scenario's own [pipeline] value on a coop-fg scenario (testbed.plugins.settings). The fix type (SPP or RTK) is read from the declared sigma of the fix, which the testbed
 sets by the fix type the receiver reports. Message loss (params message_loss > 0) draws from the
-estimator's own Context.rng (stream "estimator/NAME"), as testbed.pipelines.coop.estimate does
-for the same name.
+estimator's own Context.rng (stream "estimator/NAME").
 """
 from __future__ import annotations
 
@@ -22,13 +22,12 @@ from dataclasses import replace
 import numpy as np
 
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
+from estimators.sensor_models import gnss_sigma, twr_range_covariance, twr_range_variance
 from estimators.transport import Transport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, EstimateBatch, Measurement
 from testbed.plugins.epochs import EpochGrouping
-from testbed.plugins.settings import check_known, pipeline_keys, settings
-from testbed.sensors.noise import twr_range_covariance, twr_range_variance
-from testbed.stream import gnss_sigma
+from testbed.plugins.settings import settings
 
 
 def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
@@ -49,7 +48,7 @@ def range_sigmas(cfg: CoopPipelineConfig, d: np.ndarray) -> np.ndarray:
 def range_covariance(cfg: CoopPipelineConfig, edges: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Joint covariance (m, m) m^2 the centralized estimator assumes for one epoch's ranges d (m,)
     m on edges (m, 2): the white noise range_sigma^2 I plus the per-device clock and antenna-delay
-    terms of the known model, shared by the links of one radio (testbed.sensors.noise.
+    terms of the known model, shared by the links of one radio (estimators.sensor_models.
     twr_range_covariance); its diagonal is range_sigmas(cfg, d)^2."""
     twr = twr_range_covariance(cfg.twr_mode, d, edges[:, 0], edges[:, 1], cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma)
     return cfg.range_sigma ** 2 * np.eye(d.size) + twr
@@ -100,9 +99,7 @@ class _CoopEpochs(EpochGrouping):
 
     variant = ""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(CoopPipelineConfig))
+    Params = CoopPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         self.cfg = settings(CoopPipelineConfig, "coop-fg", context, params, f"coop.{self.variant}")
@@ -116,6 +113,7 @@ class _CoopEpochs(EpochGrouping):
         # health(): the per-epoch solver counts the coop scores read (testbed.plugins.coop_scores.SOLVER_COUNTS)
         self.counts = dict.fromkeys(("epochs", "rounds_total", "rounds_max", "messages_total", "bytes_total",
                                      "nonconverged_epochs"), 0)
+        self.solved: list[tuple] = []  # (t, fixes, fix types, edges, ranges) of every epoch: factor_graphs()
         self._reset()
 
     def _reset(self) -> None:
@@ -131,7 +129,9 @@ class _CoopEpochs(EpochGrouping):
         if missing:
             raise ValueError(f"epoch at t = {self.t:g} s has no GNSS fix of {', '.join(missing)}")
         edges = np.array(self.edges, dtype=np.int64).reshape(-1, 2)
-        prob = epoch_problem(self.cfg, self.fix, gnss_covariances(self.cfg, self.is_rtk), edges, np.array(self.ranges, float))
+        ranges = np.array(self.ranges, float)
+        self.solved.append((self.t, self.fix.copy(), self.is_rtk.copy(), edges, ranges))
+        prob = epoch_problem(self.cfg, self.fix, gnss_covariances(self.cfg, self.is_rtk), edges, ranges)
         transport = self.channel.transport(self.t) if self.channel is not None and self.variant in NETWORKED else None
         res, rounds, converged, messages, nbytes = solve_epoch(self.cfg, self.variant, prob, self.t, self.rng, transport)
         c = self.counts
@@ -153,6 +153,11 @@ class _CoopEpochs(EpochGrouping):
         elif m.stream == "uwb" and m.dst in self.index:
             self.edges.append((i, self.index[m.dst]))
             self.ranges.append(float(m.value[0]))
+
+    def factor_graphs(self) -> list[tuple[float, CoopProblem]]:
+        """(t s, the epoch's CoopProblem) of every epoch solved, in time order: the graph this
+        estimator was given (fixes with their known covariances, ranges with the known model)."""
+        return [(t, epoch_problem(self.cfg, fix, gnss_covariances(self.cfg, rtk), e, d)) for t, fix, rtk, e, d in self.solved]
 
     def health(self) -> dict[str, int]:
         """Epochs solved; solver rounds (iterations) in total and at most; messages and bytes sent

@@ -45,7 +45,7 @@ from estimators.so3 import quat_exp, quat_to_rotmat
 from estimators.visnav import CameraFilter, CameraFrame, ImuNoise, RelNavModel, VisNavConfig
 from testbed.pipelines.config import VisNavPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known, pipeline_keys, settings
+from testbed.plugins.settings import settings
 from testbed.rng import stream_rng
 
 _DEG = math.pi / 180.0
@@ -85,9 +85,7 @@ class _VisNav:
 
     filter = ""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(VisNavPipelineConfig))
+    Params = VisNavPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         cfg = settings(VisNavPipelineConfig, "visnav", context, params, f"visnav.{self.filter}")

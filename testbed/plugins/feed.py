@@ -140,11 +140,12 @@ def where(what) -> str:
 
 
 def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | MeasurementBatch],
-               diagnostics: dict | None = None) -> tuple[Track, dict, float]:
+               diagnostics: dict | None = None, keep: list | None = None) -> tuple[Track, dict, float]:
     """Construct the estimator, feed every measurement (a MeasurementBatch whole to an estimator
     with process_batch, else row by row), finish; returns (estimates, health, wall ms). If
     `diagnostics` is a dict, it receives the estimator's optional per-epoch diagnostics()
-    ({name: (K,) finite numbers}, one length), checked.
+    ({name: (K,) finite numbers}, one length), checked. If `keep` is a list, the finished
+    estimator object is appended to it (a check that asks it more, testbed.plugins.graph_check).
 
     Raises PluginError (exit 1) on an exception in the plugin or an invalid estimate, with the
     time of the measurement (or the first of the batch) it was given then.
@@ -161,6 +162,8 @@ def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | Me
             e.time = float(item.time[0] if isinstance(item, MeasurementBatch) else item.time)
             raise
     health = finish_plugin(plugin, est, col)
+    if keep is not None:
+        keep.append(est)
     if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
         diagnostics.update(_diagnostics(plugin, call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))
     return col.track(), health, (wallclock.perf_counter() - t0) * 1e3

@@ -30,12 +30,14 @@ from testbed.world import Physics
 
 
 def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],
-                   plots_dir: Path | None, taken: set[str] = frozenset(), done: dict | None = None) -> tuple[dict, dict]:
+                   plots_dir: Path | None, taken: set[str] = frozenset(), done: dict | None = None,
+                   keep: dict | None = None) -> tuple[dict, dict]:
     """({key: scores}, {key: Track}) of every plugin (wall time under `wall_ms`, which the runner
     moves to timing.json; the Tracks go to the run's estimates.npz). taken: keys the pipeline
     already uses (a clash is a ConfigError). done: {key: (estimates, health, wall ms)}
     of plugins already run (online, in the loop: scored, not rerun). A plugin that fails gets
-    failed_entry (no Track); the caller marks the metrics (testbed.plugins.failures)."""
+    failed_entry (no Track); the caller marks the metrics (testbed.plugins.failures). keep: a dict
+    that receives {key: the finished estimator object} of the plugins run here (not of `done`)."""
     if not plugins:
         return {}, {}
     done = done or {}
@@ -54,7 +56,10 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
             if scenario.network is not None and p.key not in done else None
         ctx = replace(ctx, channel=channel)
         try:
-            track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed)
+            got = [] if keep is not None else None
+            track, health, wall_ms = done[p.key] if p.key in done else run_plugin(p, ctx, feed, keep=got)
+            if got:
+                keep[p.key] = got[0]
         except PluginError as e:  # its own result; the others are still scored (testbed.plugins.failures)
             out[p.key] = failed_entry(p.entry, e)
             continue

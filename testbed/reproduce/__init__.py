@@ -49,8 +49,9 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | N
               estimators: tuple = (), backend: str = "local", address: str | None = None, resume: bool = False) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
 
-    estimators: plugin EstimatorSpecs run beside the paper's in every run (coop: one more column of
-    Table 4; phase, visnav, bandwidth: one more row each in table.md, testbed.reproduce.plugins);
+    estimators: plugin EstimatorSpecs run beside the paper's in every run (coop: every table, plot
+    and test a built-in gets, testbed.reproduce.coop; phase, visnav, bandwidth: one more row each in
+    table.md, testbed.reproduce.plugins);
     backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend);
     resume: continue the interrupted reproduction at `out` (see the module docstring)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs

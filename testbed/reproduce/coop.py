@@ -5,18 +5,32 @@ testbed.sweep (run i: seed 1 + i, the scenario's seed + i, in OUT/runs/run-XXX; 
 then writes:
 - Table 3: mean number of UWB neighbours and RTK neighbours per UAV (over the epochs of run 0; the
   geometry is the same in every run, only the noise changes);
-- Table 4: per-UAV RMSE of GNSS only, one optimization, message iteration and the centralized
-  solution (pooled over runs: sqrt of the mean of the per-run squared RMSEs), and the
-  improvement factors RMSE_gnss / RMSE_variant;
+- Table 4: per-UAV RMSE of every estimator of the runs -- GNSS only, one optimization, message
+  iteration, the centralized solution and each `--estimator` plugin, in that order (pooled over
+  runs: sqrt of the mean of the per-run squared RMSEs) -- and the improvement factor
+  RMSE_gnss / RMSE_estimator of every estimator after GNSS only;
+- the consistency table (every estimator: ANEES over all vehicles and over the SPP ones, mean over
+  the runs with the interval of the runs' combined effective samples; solver counts where the
+  estimator reports them), the improvement table (every estimator: mean factor, the factors of
+  the four figure UAVs, Spearman correlation with the neighbour counts) and the pairwise table
+  (every pair of estimators, each per-UAV Wilcoxon test both ways, paired over the same seeds);
 - figure 6 (plots/fig6_error_vs_time.png): position error against time in run 0 for four SPP
   UAVs chosen like the paper's UAVs 1, 7, 12, 13 (testbed.plugins.coop_scores.choose_four: different
-  neighbour counts);
+  neighbour counts), every estimator; plots/rmse_mean.png: every estimator's mean per-UAV RMSE
+  over the runs (95 % Student t interval);
 - table.md, table.csv, claims.json (each claim with its numbers and `holds`; testbed.report).
-Also: the GTSAM check of the centralized solution (every epoch of run 0), the effect of the round
-cap (the first `CAP_EPOCHS` epochs of run 0 re-solved with CAP_LARGE rounds) and, if obstacles are
-enabled (default), a one-run NLOS experiment: pillars in the box, least squares vs Huber.
+Every estimator is read the same way, built-in or not: its per-run scores from each run's
+metrics.json (the seed 001 hook's keys, testbed.plugins.coop_scores, given to any estimator whose
+outputs fit), run 0's estimates from its estimates.npz (testbed.plugins.collect.load_tracks).
+Also: the GTSAM check of the centralized solver on the epoch graphs of run 0 of every estimator
+that exposes them (testbed.plugins.graph_check), the effect of the round cap (the first
+`CAP_EPOCHS` epochs of run 0 re-solved by the coop.iterated plugin with max_rounds = CAP_LARGE;
+a round cap is a setting of the distributed built-ins, a plugin has none) and, if obstacles are
+enabled (default), a one-run NLOS experiment: pillars in the box, the built-ins with least squares
+vs Huber (their `robust` setting) and every plugin with its own settings on the same log. The
+re-solves run the estimators as plugins on a log (testbed.plugins.run.run_estimators) with params.
 
-Statistics: per UAV, the per-run RMSEs of two variants are compared with a one-sided Wilcoxon
+Statistics: per UAV, the per-run RMSEs of two estimators are compared with a one-sided Wilcoxon
 signed-rank test (testbed.stats.wilcoxon_paired: per-run RMSEs are positive and skewed, the
 signed-rank test does not assume normal differences) at alpha = 0.01 / 18 (Bonferroni over the
 UAVs; the exact test can reach it from 11 runs on: min p = 2^-n); with a single run the test is
@@ -46,12 +60,15 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from estimators.factor_graph import CoopProblem, solve_centralized
 from testbed.config import from_dict, to_dict
 from testbed.log import load_log
-from testbed.metrics import anees_interval, anees_run_interval, mean_ci, runs_effective_samples
-from testbed.pipelines import coop
-from testbed.plugins import builtin_coop, coop_scores
+from testbed.metrics import anees_interval, anees_over_runs, anees_run_interval, mean_ci, runs_effective_samples
+from testbed.plugins import coop_scores
+from testbed.plugins.collect import load_tracks
+from testbed.plugins.graph_check import exposes_graphs, gtsam_check
+from testbed.plugins.loading import resolve
+from testbed.plugins.run import run_estimators
+from testbed.plugins.spec import EstimatorSpec
 from testbed.plots import compare_bars
 from testbed.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
     write_claims, write_csv, write_markdown
@@ -59,8 +76,11 @@ from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.scenario import Scenario, load
 from testbed.simulate import simulate
 from testbed.stats import wilcoxon_paired
+from testbed.world import build
 
 VARIANTS = ("gnss_only", "one_shot", "iterated", "centralized")
+LABELS = {"gnss_only": "GNSS only", "one_shot": "one optimization", "iterated": "message iteration",
+          "centralized": "centralized"}
 PAPER_UAVS = (1, 7, 12, 13)
 PAPER_FACTORS = (3.37, 4.53, 7.38, 6.35)
 ORDER_SLACK = 1.5  # "of the order of 3-7x": every factor within [3.37 / 1.5, 7.38 * 1.5]
@@ -68,12 +88,7 @@ ALPHA_RANK = 0.05
 CAP_EPOCHS = 60
 CAP_LARGE = 5000
 NLOS_DURATION = 60.0
-#: our centralized optimum vs GTSAM's Gauss-Newton on every epoch (both reach ~1e-11 m of it)
-GTSAM_POS_TOL_M = 1e-8
-#: relative to each UAV's largest marginal entry: above the round-off of inverting A^T A
-#: (cond(A^T A) eps <= 1.9e4 * 2.2e-16 = 4e-12; measured <= 2e-13) and above what the 1e-8 m position
-#: tolerance can move the Jacobian (1e-8 m / 22 m, the shortest range of seed 1 in 300 s: 5e-10)
-GTSAM_COV_RTOL = 1e-9
+CAP_NOT_PLUGINS = "not applicable: the round cap is a setting (max_rounds) of the distributed built-ins; a plugin has none"
 # Three pillars (radius 8 m, 0-120 m tall) between the UAVs, >= 20 m from every base point
 # horizontally (>= 3.5 m clear of every UAV's oscillation); they block ~15 of the 70 links.
 NLOS_OBSTACLES = (
@@ -83,19 +98,15 @@ NLOS_OBSTACLES = (
 )
 
 
-def _mean_of_finite(x: np.ndarray) -> float:
-    """Mean of the finite entries of x; NaN when there is none (an estimator that failed in every run)."""
-    finite = x[np.isfinite(x)]
-    return float(finite.mean()) if finite.size else float("nan")
-
-
 def _pooled(x: np.ndarray) -> np.ndarray:
-    """Pooled RMSE over runs from per-run RMSEs x (runs, N): sqrt(mean_runs x^2)."""
+    """Pooled RMSE over runs from per-run RMSEs x (runs, N): sqrt(mean_runs x^2) (NaN for a UAV
+    where some run has none: an estimator that failed or gave no estimate there)."""
     return np.sqrt(np.mean(np.asarray(x) ** 2, axis=0))
 
 
 def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
-    """Is variant a better (smaller RMSE) than b for every UAV? a, b: (runs, N) per-run RMSEs."""
+    """Is estimator a better (smaller RMSE) than b for every UAV? a, b: (runs, N) per-run RMSEs of
+    the same seeds (paired)."""
     runs, n = a.shape
     pa, pb = _pooled(a), _pooled(b)
     per = []
@@ -115,83 +126,108 @@ def _better(a: np.ndarray, b: np.ndarray, alpha: float) -> dict:
     return {"per_uav": per, "uavs_better": int(sum(p["better"] for p in per)), "uavs": n, "fields": fields}
 
 
-def _gtsam_check(cfg, ep: coop_scores.Epochs) -> dict:
-    """Centralized solution and marginals vs GTSAM on every epoch of a run, on the graph with
-    independent ranges (range_sigmas; GTSAM's range factors are independent): the solver check. The
-    scored centralized estimate also whitens the ranges jointly (builtin_coop.range_covariance).
-
-    Both sides stop on the step, not on the cost (ours: solve_centralized's defaults; GTSAM:
-    Gauss-Newton with QR, driven to a step below 1e-10 m, estimators.gtsam_reference.solve_gtsam),
-    so both reach the optimum to ~1e-11 m and GTSAM_POS_TOL_M = 1e-8 m tests it with margin.
-    GTSAM's Levenberg-Marquardt is reported, not judged: it accepts a step only if the evaluated
-    cost decreases, and the cost's round-off (~3e-14 relative) stalls it up to ~8e-7 m short of the
-    optimum on these epochs."""
-    # lazy: GTSAM is a heavy optional dependency, loaded only for this check
-    from estimators.gtsam_reference import solve_gtsam
-
-    Sg = builtin_coop.gnss_covariances(cfg, ep.is_rtk)
-    dpos = np.zeros(ep.time.size)
-    dcov, dlm = 0.0, 0.0
-    for k in range(ep.time.size):
-        d = ep.ranges[k]
-        prob = CoopProblem(gnss_pos=ep.gnss[k], gnss_cov=Sg, edges=ep.edges[k], ranges=d, range_sigma=builtin_coop.range_sigmas(cfg, d))
-        ours = solve_centralized(prob)
-        Xg, Pg = solve_gtsam(prob)
-        Xl, _ = solve_gtsam(prob, optimizer="lm", marginals=False)
-        dpos[k] = np.abs(ours.positions - Xg).max()
-        dlm = max(dlm, float(np.abs(ours.positions - Xl).max()))
-        scale = np.abs(Pg).max(axis=(1, 2))[:, None, None]
-        dcov = max(dcov, float((np.abs(ours.cov - Pg) / scale).max()))
-    return {"epochs": int(ep.time.size), "max_position_diff_m": float(dpos.max(initial=0.0)),
-            "median_position_diff_m": float(np.median(dpos)) if dpos.size else 0.0,
-            "max_cov_rel_diff": dcov, "max_position_diff_vs_gtsam_lm_m": dlm,
-            "holds": bool(dpos.max(initial=0.0) <= GTSAM_POS_TOL_M and dcov <= GTSAM_COV_RTOL),
-            "criterion": f"every epoch: positions within {GTSAM_POS_TOL_M:g} m of GTSAM Gauss-Newton, marginal "
-                         f"covariances within {GTSAM_COV_RTOL:g} of each UAV's largest entry (GTSAM "
-                         "Levenberg-Marquardt reported only: its cost-based acceptance stalls at round-off)"}
+def _per_uav_rmse(m: dict, key: str, n: int) -> list[float]:
+    """(N,) m: one run's RMSE of each UAV's uwb site for estimator `key` (metrics.json): the seed 001
+    hook's rmse_position_per_vehicle_m where its outputs fit the hook, else each target's own RMSE;
+    NaN where it gave none or failed (testbed.plugins.failures)."""
+    e = m["estimators"].get(key, {})
+    if "rmse_position_per_vehicle_m" in e:
+        return [float(x) for x in e["rmse_position_per_vehicle_m"]]
+    return [e.get("targets", {}).get(f"uav{i}/uwb", {}).get("position", {}).get("rmse_m", np.nan) for i in range(1, n + 1)]
 
 
-def _cap_effect(cfg, ep: coop_scores.Epochs, seed: int, est: coop.CoopEstimates) -> dict:
-    """Iterated solution of the first CAP_EPOCHS epochs with the scenario cap vs CAP_LARGE rounds."""
-    K = min(CAP_EPOCHS, ep.time.size)
-    sub = coop_scores.Epochs(ep.time[:K], ep.gnss[:K], ep.is_rtk, ep.truth[:K], ep.edges[:K], ep.ranges[:K], ep.nlos[:K])
-    big = coop.estimate(replace(cfg, max_rounds=CAP_LARGE), sub, seed, which=("iterated", "centralized"))
-    spp = ~ep.is_rtk
+def _run0_positions(run_dir: Path, hook: coop_scores.CoopHook, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """{name: (K, N, 3) m} run 0's estimates at the epochs of every estimator whose outputs fit the
+    seed 001 hook, read from the run's estimates.npz (the others are left out)."""
+    tracks = load_tracks(run_dir / "estimates.npz")
+    out = {}
+    for w in names:
+        got = hook.positions(tracks[w]) if w in tracks else None
+        if got is not None:
+            out[w] = got[0]
+    return out
 
-    def r(pos):
-        return float(np.sqrt(np.mean(np.sum((pos - sub.truth) ** 2, axis=-1)[:, spp])))
 
-    capped = est.pos["iterated"][:K]
+def _gtsam(scenario: Scenario, run_dir: Path, specs: tuple[EstimatorSpec, ...]) -> dict[str, dict]:
+    """{key: the GTSAM check (testbed.plugins.graph_check)} of every estimator of the run that
+    exposes its epoch graphs, run again as a plugin on run 0's log."""
+    plugins = [p for p in resolve(specs) if exposes_graphs(p.cls)]
+    kept: dict[str, object] = {}
+    run_estimators(scenario, build(scenario), load_log(run_dir), plugins, None, keep=kept)
+    return gtsam_check(kept)
+
+
+def _cap_log(scenario: Scenario, run_dir: Path) -> tuple[Scenario, dict]:
+    """(scenario, log) of run 0's first CAP_EPOCHS epochs: run 0's own log when it is that short,
+    else the same seed simulated for CAP_EPOCHS - 1 s (its streams are the prefix of run 0's:
+    checked, a RuntimeError if not)."""
+    log = load_log(run_dir)
+    epochs = np.unique(log["gnss/state_index"]).size
+    if epochs <= CAP_EPOCHS:
+        return scenario, log
+    sc = replace(scenario, duration=float(log["time"][np.unique(log["gnss/state_index"])[CAP_EPOCHS - 1]]))
+    short, _ = simulate(sc)
+    for k in ("gnss/value", "uwb/value"):
+        if not np.array_equal(short[k], log[k][:short[k].shape[0]]):
+            raise RuntimeError(f"coop cap effect: {k} of the {sc.duration:g}-s simulation is not the prefix of run 0's")
+    return sc, short
+
+
+def _cap_effect(scenario: Scenario, run_dir: Path) -> dict:
+    """coop.iterated on the first CAP_EPOCHS epochs of run 0 with the scenario's round cap vs
+    CAP_LARGE rounds (params max_rounds), and coop.centralized: rounds, converged fraction, SPP
+    RMSE pooled over the SPP UAVs' epochs, largest change of a position between the capped and the
+    uncapped iteration (the estimators as plugins on the log; their estimates at the epochs through
+    the seed 001 hook)."""
+    sc, log = _cap_log(scenario, run_dir)
+    physics = build(sc)
+    cfg = scenario.pipeline
+    hook = coop_scores.coop_hook(sc, log)
+    capped, ct = run_estimators(sc, physics, log, resolve([EstimatorSpec(entry="coop.iterated", name="iterated")]), None)
+    big, bt = run_estimators(sc, physics, log, resolve([EstimatorSpec(entry=f"coop.{w}", name=w, params={"max_rounds": CAP_LARGE})
+                                                        for w in ("iterated", "centralized")]), None)
+    c, b = capped["iterated"], big["iterated"]
+    ep = hook.epochs
+    pos = {"capped": hook.positions(ct["iterated"])[0], "large": hook.positions(bt["iterated"])[0],
+           "centralized": hook.positions(bt["centralized"])[0]}
+    # RMSE over the SPP UAVs' epochs pooled (m)
+    r = {k: float(np.sqrt(np.mean(np.sum((x - ep.truth) ** 2, axis=-1)[:, ~ep.is_rtk]))) for k, x in pos.items()}
     return {
-        "epochs": K, "cap": cfg.max_rounds, "large_cap": CAP_LARGE, "tol_m": cfg.tol,
-        "rounds_capped_mean": float(est.rounds["iterated"][:K].mean()),
-        "capped_fraction": float(np.mean(~est.converged["iterated"][:K])),
-        "rounds_large_mean": float(big.rounds["iterated"].mean()),
-        "rounds_large_max": int(big.rounds["iterated"].max()),
-        "converged_large_fraction": float(big.converged["iterated"].mean()),
-        "rmse_spp_capped_m": r(capped), "rmse_spp_large_m": r(big.pos["iterated"]),
-        "rmse_spp_centralized_m": r(big.pos["centralized"]),
-        "max_position_change_m": float(np.linalg.norm(capped - big.pos["iterated"], axis=-1).max()),
+        "epochs": int(c["epochs"]), "cap": cfg.max_rounds, "large_cap": CAP_LARGE, "tol_m": cfg.tol,
+        "rounds_capped_mean": c["iterations_mean"], "capped_fraction": 1.0 - c["converged_fraction"],
+        "rounds_large_mean": b["iterations_mean"], "rounds_large_max": b["iterations_max"],
+        "converged_large_fraction": b["converged_fraction"],
+        "rmse_spp_capped_m": r["capped"], "rmse_spp_large_m": r["large"], "rmse_spp_centralized_m": r["centralized"],
+        "max_position_change_m": float(np.linalg.norm(pos["capped"] - pos["large"], axis=-1).max()),
+        "plugins": CAP_NOT_PLUGINS,
     }
 
 
-def _nlos_experiment(scenario: Scenario, seed: int) -> dict:
-    """One run with pillars in the box: NLOS ranges from mj_ray; least squares vs Huber."""
-    table = to_dict(scenario)
+def _nlos_experiment(scenario: Scenario, seed: int, specs: tuple[EstimatorSpec, ...]) -> dict:
+    """One run with pillars in the box (NLOS ranges from mj_ray): the built-ins with least squares
+    vs Huber (params robust), every plugin of `specs` with its own settings, all on the same log."""
+    table = to_dict(replace(scenario, estimators=()))
     table["world"]["obstacles"] = [dict(o) for o in NLOS_OBSTACLES]
     table["duration"] = min(NLOS_DURATION, scenario.duration)
     table["seed"] = seed
     sc = from_dict(Scenario, table, "coop-fg (NLOS experiment)")
     log, physics = simulate(sc)
+    nl = log["uwb/nlos"]
     ep = coop_scores.epochs_from_log(log, sc.vehicles)
     out = {"duration_s": sc.duration, "obstacles": list(NLOS_OBSTACLES),
            "nlos_fraction": float(np.concatenate(ep.nlos).mean()),
-           "nlos_error_mean_m": float(np.mean((log["uwb/value"][:, 0] - log["uwb/clean"][:, 0])[log["uwb/nlos"]]))
-           if log["uwb/nlos"].any() else 0.0,
+           "nlos_error_mean_m": float(np.mean((log["uwb/value"][:, 0] - log["uwb/clean"][:, 0])[nl])) if nl.any() else 0.0,
            "mujoco_warnings": physics.warnings()}
+
+    def scores(specs_: list[EstimatorSpec]) -> dict:
+        got = run_estimators(sc, physics, log, resolve(specs_), None)[0]
+        return {k: {"rmse_position_spp_mean_m": v.get("rmse_position_spp_mean_m"), "anees": v.get("anees")}
+                for k, v in got.items()}
+
     for robust in ("none", "huber"):
-        s = coop.score(coop.estimate(replace(sc.pipeline, robust=robust), ep, seed, which=("gnss_only", "iterated", "centralized")))
-        out[robust] = {w: {"rmse_position_spp_mean_m": s[w]["rmse_position_spp_mean_m"], "anees": s[w]["anees"]} for w in s}
+        out[robust] = scores([EstimatorSpec(entry=f"coop.{w}", name=w, params={"robust": robust})
+                              for w in ("gnss_only", "iterated", "centralized")])
+    out["plugins"] = scores(list(specs)) if specs else {}
     return out
 
 
@@ -214,37 +250,44 @@ def _rank_claim(claim_id: str, what: str, rho, counts: np.ndarray, factors: np.n
 class CoopResults:
     """What the runs gave (compute's output, decide's and write's input).
 
-    rmse: {variant: (runs, N) m} per-run per-UAV RMSE; metrics: metrics.json of every run; epochs,
-    est0: run 0's epochs and estimates; neighbours, rtk_neighbours: (N,) mean counts over run 0;
-    four: the figure 6 UAVs (1-based); gtsam, cap: the GTSAM check and the round-cap effect (run 0);
+    names: every estimator of the runs (VARIANTS, then the plugins); rmse: {name: (runs, N) m}
+    per-run per-UAV RMSE; metrics: metrics.json of every run; epochs: run 0's epochs; pos0:
+    {name: (K, N, 3) m} run 0's estimates of the estimators that fit the seed 001 hook;
+    neighbours, rtk_neighbours: (N,) mean counts over run 0; four: the figure 6 UAVs (1-based);
+    gtsam: {key: check} on run 0 (testbed.plugins.graph_check); cap: the round-cap effect (run 0);
     nlos: the NLOS experiment or None.
     """
 
     scenario: Scenario
     motion: str
     runs: int
+    names: tuple[str, ...]
     metrics: list[dict]
     rmse: dict[str, np.ndarray]
     epochs: coop_scores.Epochs
-    est0: coop.CoopEstimates
+    pos0: dict[str, np.ndarray]
     neighbours: np.ndarray
     rtk_neighbours: np.ndarray
     four: list[int]
     gtsam: dict
     cap: dict
     nlos: dict | None
-    plugins: dict = None  # {plugin key: (N,) m per-UAV RMSE pooled over runs}; empty without --estimator
+
+    @property
+    def plugins(self) -> tuple[str, ...]:
+        """The `--estimator` plugins' keys (the estimators after the built-ins)."""
+        return self.names[len(VARIANTS):]
 
     @property
     def pooled(self) -> dict[str, np.ndarray]:
-        """{variant: (N,) m} RMSE pooled over runs."""
-        return {w: _pooled(self.rmse[w]) for w in VARIANTS}
+        """{estimator: (N,) m} RMSE pooled over runs."""
+        return {w: _pooled(self.rmse[w]) for w in self.names}
 
     @property
     def factor(self) -> dict[str, np.ndarray]:
-        """{variant: (N,)} improvement factor RMSE_gnss / RMSE_variant (pooled), variants after GNSS."""
+        """{estimator: (N,)} improvement factor RMSE_gnss / RMSE_estimator (pooled), every estimator after GNSS only."""
         p = self.pooled
-        return {w: p["gnss_only"] / p[w] for w in VARIANTS[1:]}
+        return {w: p["gnss_only"] / p[w] for w in self.names[1:]}
 
     @property
     def spp(self) -> np.ndarray:
@@ -254,30 +297,25 @@ class CoopResults:
 def compute(out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None,
             nlos: bool, estimators: tuple = ()) -> CoopResults:
     """The Monte Carlo (OUT/runs/run-XXX) and the run-0 analyses (GTSAM check, cap effect, NLOS).
-    estimators: plugin EstimatorSpecs scored in every run (their uwb-site RMSE becomes a column)."""
+    estimators: plugin EstimatorSpecs run and scored in every run beside the built-ins, and given
+    everything they are (module docstring)."""
     scenario = replace(load("coop-fg", motion=motion, duration=duration), estimators=tuple(estimators))
     cfg = scenario.pipeline
+    names = VARIANTS + tuple(s.key for s in estimators)
     run_dirs = sweep_runs(scenario, runs, out / "runs", workers=workers)
     metrics = load_metrics(run_dirs)
-    # run 0 again, for the geometry (Table 3), figure 6, the GTSAM check and the cap effect
-    ep = coop_scores.epochs_from_log(load_log(run_dirs[0]), scenario.vehicles)
+    n = scenario.vehicles
+    # run 0's geometry (Table 3) and estimates (figure 6), from its log and estimates.npz
+    ep = coop_scores.epochs_from_log(load_log(run_dirs[0]), n)
+    hook = coop_scores.CoopHook(ep, tuple(cfg.plot_uavs) or tuple(coop_scores.choose_four(ep)))
     nb, nr = coop_scores.neighbour_counts(ep)
-    est0 = coop.estimate(cfg, ep, scenario.seed)
+    specs = tuple(EstimatorSpec(entry=f"coop.{w}", name=w) for w in VARIANTS) + tuple(estimators)
     return CoopResults(
-        scenario=scenario, motion=motion, runs=runs, metrics=metrics,
-        rmse={w: np.array([m["estimators"][w]["rmse_position_per_vehicle_m"] for m in metrics]) for w in VARIANTS},
-        epochs=ep, est0=est0, neighbours=nb, rtk_neighbours=nr, four=list(cfg.plot_uavs) or coop_scores.choose_four(ep),
-        gtsam=_gtsam_check(cfg, ep), cap=_cap_effect(cfg, ep, scenario.seed, est0),
-        nlos=_nlos_experiment(replace(scenario, estimators=()), scenario.seed) if nlos else None,
-        plugins={s.key: _plugin_rmse(metrics, s.key, scenario.vehicles) for s in estimators})
-
-
-def _plugin_rmse(metrics: list[dict], key: str, n: int) -> np.ndarray:
-    """(N,) m: a plugin's RMSE of each UAV's uwb site, pooled over runs (NaN where it gave none or
-    failed: testbed.plugins.failures)."""
-    per_run = np.array([[m["estimators"][key].get("targets", {}).get(f"uav{i}/uwb", {}).get("position", {}).get("rmse_m", np.nan)
-                         for i in range(1, n + 1)] for m in metrics])
-    return _pooled(per_run)
+        scenario=scenario, motion=motion, runs=runs, names=names, metrics=metrics,
+        rmse={w: np.array([_per_uav_rmse(m, w, n) for m in metrics], float) for w in names},
+        epochs=ep, pos0=_run0_positions(run_dirs[0], hook, names), neighbours=nb, rtk_neighbours=nr, four=list(hook.uavs),
+        gtsam=_gtsam(scenario, run_dirs[0], specs), cap=_cap_effect(replace(scenario, estimators=()), run_dirs[0]),
+        nlos=_nlos_experiment(scenario, scenario.seed, tuple(estimators)) if nlos else None)
 
 
 def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: str, summary: str, spp: np.ndarray,
@@ -291,6 +329,37 @@ def _better_claim(claim_id: str, text: str, c: dict, numbers: dict, test_note: s
                                                   "per_uav": c["per_uav"]},
                  criterion=test_note, holds=c["uavs_better"] == c["uavs"], summary=summary, note=note,
                  paper_value="better for every UAV", **c["fields"])
+
+
+def _test_note(runs: int, n: int) -> str:
+    """How a per-UAV ordering is decided with `runs` runs and n UAVs (alpha 0.01 / n, Bonferroni)."""
+    alpha = 0.01 / n
+    # the exact signed-rank test's smallest p-value is 2^-runs: below that many runs it cannot reach alpha
+    min_runs = math.ceil(math.log2(1 / alpha))
+    note = (f"one-sided Wilcoxon signed-rank test per UAV over {runs} paired runs, alpha = 0.01/{n}" if runs > 1
+            else "1 run: decided on the point values, no test")
+    if 1 < runs < min_runs:
+        note += f" (not reachable with {runs} runs: the smallest p is 2^-{runs}; {min_runs} runs needed)"
+    return note
+
+
+def _gtsam_claim(gtsam: dict) -> Claim:
+    """(testbed) our centralized Gauss-Newton equals GTSAM's on the epoch graphs of every estimator that exposes them."""
+    text = "(testbed) our centralized Gauss-Newton equals GTSAM's on the same graph"
+    if not gtsam:
+        return Claim(id="centralized_equals_gtsam", text=text, numbers={}, criterion="no estimator exposes its epoch graphs",
+                     holds=None, not_decidable="no estimator of the runs exposes its epoch graphs", summary="n/a",
+                     paper_value="(testbed check)", test="none")
+    dpos = max(g["max_position_diff_m"] for g in gtsam.values())
+    dcov = max(g["max_cov_rel_diff"] for g in gtsam.values())
+    epochs = max(g["epochs"] for g in gtsam.values())
+    return Claim(id="centralized_equals_gtsam", text=text,
+                 numbers={"estimators": gtsam, "max_position_diff_m": dpos, "max_cov_rel_diff": dcov, "epochs": epochs},
+                 criterion=next(iter(gtsam.values()))["criterion"] + "; on the graphs of every estimator that exposes them",
+                 holds=all(g["holds"] for g in gtsam.values()),
+                 summary=f"max |dx| {fmt(dpos)} m, max cov rel diff {fmt(dcov)} ({epochs} epochs; graphs of "
+                         f"{', '.join(gtsam)})", paper_value="(testbed check)",
+                 test="deterministic comparison on every epoch of run 0 (nothing sampled)", statistic=dpos, n=epochs)
 
 
 def decide(res: CoopResults) -> list[Claim]:
@@ -310,7 +379,6 @@ def decide(res: CoopResults) -> list[Claim]:
     four = res.four
     f4 = [float(fac[u - 1]) for u in four]
     lo_o, hi_o = min(PAPER_FACTORS) / ORDER_SLACK, max(PAPER_FACTORS) * ORDER_SLACK
-    gt = res.gtsam
     est = [m["estimators"] for m in res.metrics]
     anees_it = float(np.mean([e["iterated"]["anees_spp"] for e in est]))
     anees_c = float(np.mean([e["centralized"]["anees_spp"] for e in est]))
@@ -325,12 +393,7 @@ def decide(res: CoopResults) -> list[Claim]:
     it3, c3 = (anees_interval(3, runs_effective_samples([e[w]["n_eff_spp"] for e in est]))
                for w in ("iterated", "centralized"))
     hi3 = it3[1]
-    # the exact signed-rank test's smallest p-value is 2^-runs: below that many runs it cannot reach alpha
-    min_runs = math.ceil(math.log2(1 / alpha))
-    test_note = (f"one-sided Wilcoxon signed-rank test per UAV over {runs} paired runs, alpha = 0.01/{n}" if runs > 1
-                 else "1 run: decided on the point values, no test")
-    if 1 < runs < min_runs:
-        test_note += f" (not reachable with {runs} runs: the smallest p is 2^-{runs}; {min_runs} runs needed)"
+    test_note = _test_note(runs, n)
     return [
         _better_claim("cooperation_improves_every_uav", "cooperation improves the positioning of every UAV", c_every,
                       {"spp_uavs_better": c_every_spp, "spp_uavs": int(spp.sum())}, test_note,
@@ -357,13 +420,7 @@ def decide(res: CoopResults) -> list[Claim]:
               summary=f"UAVs {four}: {fmt_list(f4)}x", paper_value=f"{fmt_list(PAPER_FACTORS)}x",
               test="point comparison with the paper's single values (pooled RMSE; the paper gives no spread)",
               interval=(lo_o, hi_o), n=runs),
-        Claim(id="centralized_equals_gtsam",
-              text="(testbed) our centralized Gauss-Newton equals GTSAM's on the same graph",
-              numbers=gt, criterion=gt["criterion"], holds=gt["holds"],
-              summary=f"max |dx| {fmt(gt['max_position_diff_m'])} m, max cov rel diff {fmt(gt['max_cov_rel_diff'])} "
-                      f"({gt['epochs']} epochs)", paper_value="(testbed check)",
-              test="deterministic comparison on every epoch of run 0 (nothing sampled)",
-              statistic=gt["max_position_diff_m"], n=gt["epochs"]),
+        _gtsam_claim(res.gtsam),
         Claim(id="distributed_covariance_overconfident",
               text="(the paper's open question, docs/papers.md) re-using neighbours' estimates makes the distributed covariance "
                    "over-confident",
@@ -391,53 +448,132 @@ def decide(res: CoopResults) -> list[Claim]:
     ]
 
 
-TABLE_COLUMNS = ["uav", "rtk", "neighbours", "rtk_neighbours", "rmse_gnss_m", "rmse_one_shot_m", "rmse_iterated_m",
-                 "rmse_centralized_m", "factor_one_shot", "factor_iterated", "factor_centralized"]
-
-
-def _rows(res: CoopResults) -> list[list]:
-    """Table 3 and 4 per UAV, in TABLE_COLUMNS order."""
-    p, f = res.pooled, res.factor
-    return [[i + 1, bool(res.epochs.is_rtk[i]), res.neighbours[i], res.rtk_neighbours[i]]
-            + [p[w][i] for w in VARIANTS] + [f[w][i] for w in VARIANTS[1:]] + [r[i] for r in (res.plugins or {}).values()]
-            for i in range(res.neighbours.size)]
+def _column(w: str) -> str:
+    """Table 4's RMSE column of estimator w (table.csv)."""
+    return "rmse_gnss_m" if w == "gnss_only" else f"rmse_{w}_m"
 
 
 def _columns(res: CoopResults) -> list[str]:
-    """TABLE_COLUMNS plus one rmse_<plugin>_m column per plugin estimator."""
-    return TABLE_COLUMNS + [f"rmse_{k}_m" for k in (res.plugins or {})]
+    """table.csv's columns: the UAV, Table 3's counts, every estimator's RMSE, then every improvement factor."""
+    return (["uav", "rtk", "neighbours", "rtk_neighbours"] + [_column(w) for w in res.names]
+            + [f"factor_{w}" for w in res.names[1:]])
 
 
-def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
-    sc, runs, rows = res.scenario, res.runs, _rows(res)
+def _rows(res: CoopResults) -> list[list]:
+    """Table 3 and 4 per UAV, in _columns order."""
+    p, f = res.pooled, res.factor
+    return [[i + 1, bool(res.epochs.is_rtk[i]), res.neighbours[i], res.rtk_neighbours[i]]
+            + [p[w][i] for w in res.names] + [f[w][i] for w in res.names[1:]] for i in range(res.neighbours.size)]
+
+
+def _mean(x) -> float | None:
+    """Mean of the finite values of x; None when there is none (an estimator without that score)."""
+    x = np.asarray([v for v in x if v is not None], float)
+    x = x[np.isfinite(x)]
+    return float(x.mean()) if x.size else None
+
+
+def _consistency(res: CoopResults) -> list[dict]:
+    """Per estimator, over the runs where it has the keys: ANEES of all vehicles (anees_over_runs:
+    mean, 99 % interval of a consistent estimator, combined effective samples), ANEES of the SPP
+    vehicles (mean and its 99 % interval, 3 dof), iterations and messages per epoch (solver counts,
+    where the estimator reports them)."""
+    rows = []
+    for w in res.names:
+        runs = [m["estimators"].get(w, {}) for m in res.metrics]
+        spp = [r for r in runs if r.get("anees_spp") is not None and r.get("n_eff_spp")]
+        rows.append({"estimator": w, "runs_scored": sum("failed" not in r and bool(r) for r in runs),
+                     **anees_over_runs(runs, "anees", 0.99),
+                     "anees_spp": _mean(r["anees_spp"] for r in spp),
+                     "anees_spp_interval_99": list(anees_interval(3, runs_effective_samples([r["n_eff_spp"] for r in spp])))
+                     if spp else None,
+                     "iterations_mean": _mean(r.get("iterations_mean") for r in runs),
+                     "messages_per_epoch": _mean(r.get("messages_per_epoch") for r in runs)})
+    return rows
+
+
+def _improvement(res: CoopResults) -> list[dict]:
+    """Per estimator after GNSS only: its improvement factors (pooled RMSE_gnss / RMSE), their mean
+    over all and over the SPP UAVs, the factors of the figure UAVs, and the one-sided Spearman rank
+    correlation of the SPP factors with the neighbour counts (as the paper's claim for iteration)."""
+    spp, nb = res.spp, res.neighbours
+    rows = []
+    for w, f in res.factor.items():
+        ok = spp & np.isfinite(f)
+        rho = spearmanr(nb[ok], f[ok], alternative="greater") if ok.sum() > 2 else None
+        rows.append({"estimator": w, "factor_mean": _mean(f), "factor_spp_mean": _mean(f[spp]),
+                     "factors_four": [float(f[u - 1]) for u in res.four],
+                     "spearman_rho_neighbours": float(rho.statistic) if rho is not None else None,
+                     "p_one_sided": float(rho.pvalue) if rho is not None else None})
+    return rows
+
+
+def _pairwise(res: CoopResults) -> list[dict]:
+    """Every pair (a, b) of estimators (a listed first): the per-UAV one-sided Wilcoxon signed-rank
+    tests of both directions over the same seeds (paired runs) at alpha 0.01 / N, as the claims
+    use (_better); the UAVs each is shown better on, the largest p of each direction, the mean
+    pooled RMSEs."""
+    n = res.neighbours.size
+    alpha = 0.01 / n
+    rows = []
+    for i, a in enumerate(res.names):
+        for b in res.names[i + 1:]:
+            ab, ba = _better(res.rmse[a], res.rmse[b], alpha), _better(res.rmse[b], res.rmse[a], alpha)
+            rows.append({"a": a, "b": b, "mean_rmse_a_m": _mean(res.pooled[a]), "mean_rmse_b_m": _mean(res.pooled[b]),
+                         "uavs_a_better": ab["uavs_better"], "uavs_b_better": ba["uavs_better"], "uavs": n,
+                         "p_max_a_better": ab["fields"].get("p_value"), "p_max_b_better": ba["fields"].get("p_value"),
+                         "test": ab["fields"]["test"], "runs": res.runs, "alpha": alpha})
+    return rows
+
+
+def _label(w: str) -> str:
+    return LABELS.get(w, w)
+
+
+def _markdown(res: CoopResults, claims: list[Claim], cons: list[dict], impr: list[dict], pairs: list[dict]) -> list[str]:
+    sc, runs, rows, names = res.scenario, res.runs, _rows(res), res.names
     md = [f"# Seed 001 reproduction: coop-fg, {res.motion}, {runs} run(s) of {fmt(sc.duration)} s "
-          f"({res.epochs.time.size} epochs each), seeds {sc.seed}..{sc.seed + runs - 1}", "",
-          "## Table 3: neighbours per UAV (mean over the epochs of run 0; UWB/data link within 100 m)", ""]
+          f"({res.epochs.time.size} epochs each), seeds {sc.seed}..{sc.seed + runs - 1}", ""]
+    if res.plugins:
+        md += [f"Estimators: the paper's four and {', '.join(res.plugins)} (--estimator), scored alike in every run.", ""]
+    md += ["## Table 3: neighbours per UAV (mean over the epochs of run 0; UWB/data link within 100 m)", ""]
     md += markdown_table(["UAV", "RTK", "neighbours", "RTK neighbours"],
                          [[r[0], "yes" if r[1] else "", r[2], r[3]] for r in rows])
     md += ["", "## Table 4: position RMSE per UAV (m, pooled over runs) and improvement factor over GNSS only", ""]
-    mean_row = [float(np.mean(res.pooled[w])) for w in VARIANTS]
-    plug = list(res.plugins or {})  # plugin estimators (--estimator): one more column each
-    md += markdown_table(["UAV", "GNSS only", "one optimization", "message iteration", "centralized", "x one",
-                          "x iter", "x central", *plug],
+    md += markdown_table(["UAV", *map(_label, names), *(f"x {_label(w)}" for w in names[1:])],
                          [[f"{r[0]}{' (RTK)' if r[1] else ''}", *r[4:]] for r in rows]
-                         + [["mean", *mean_row, "", "", "", *(_mean_of_finite(res.plugins[k]) for k in plug)]])
-    agg = res.metrics[0]["estimators"]
-    md += ["", "Run 0: " + "; ".join(f"{w}: {fmt(agg[w]['iterations_mean'])} iterations/epoch, "
-                                     f"{fmt(agg[w]['messages_per_epoch'])} messages/epoch, ANEES {fmt_anees(agg[w])}"
-                                     for w in VARIANTS), ""]
-    if plug:  # plugin estimators (--estimator): their own scores, same runs
-        md[-1:-1] = ["Plugin estimators, run 0: " + "; ".join(
-            f"{k}: mean RMSE {fmt(agg[k].get('rmse_position_mean_m'))} m, "
-            f"ANEES {fmt_anees(agg[k], 'anees_position') or 'n/a'}"
-            for k in plug)]
+                         + [["mean", *(_mean(res.pooled[w]) for w in names), *(_mean(res.factor[w]) for w in names[1:])]])
+    md += ["", f"## Consistency and solver effort (every estimator, over the {runs} run(s))", "",
+           "ANEES: mean over the runs [99 % interval of a consistent estimator over the runs' combined effective "
+           "samples] (n_eff; docs/consistency.md); iterations and messages per epoch where the estimator reports "
+           "them (health()).", ""]
+    md += markdown_table(["estimator", "runs", "ANEES (3 dof)", "ANEES SPP (3 dof)", "iterations/epoch", "messages/epoch"],
+                         [[_label(c["estimator"]), c["runs_scored"], fmt_anees(c) or "n/a",
+                           fmt_ci(c["anees_spp"], *c["anees_spp_interval_99"]) if c["anees_spp"] is not None else "n/a",
+                           fmt(c["iterations_mean"]), fmt(c["messages_per_epoch"])] for c in cons])
+    md += ["", "## Improvement over GNSS only (every estimator)", "",
+           f"Factor RMSE_gnss / RMSE per UAV (pooled); UAVs {res.four} are figure 6's; Spearman: one-sided rank "
+           f"correlation of the SPP UAVs' factors with their neighbour counts.", ""]
+    md += markdown_table(["estimator", "mean factor", "mean factor SPP", f"factors UAVs {res.four}", "Spearman rho", "p"],
+                         [[_label(r["estimator"]), fmt(r["factor_mean"]), fmt(r["factor_spp_mean"]),
+                           fmt_list(r["factors_four"]), fmt(r["spearman_rho_neighbours"]), fmt(r["p_one_sided"])]
+                          for r in impr])
+    md += ["", "## Pairwise comparisons (every pair of estimators, paired over the same seeds)", "",
+           f"Per UAV, both directions: {_test_note(runs, res.neighbours.size)}; the largest p of each direction.", ""]
+    md += markdown_table(["A", "B", "mean RMSE A [m]", "mean RMSE B [m]", "UAVs A better", "UAVs B better", "max p (A better)",
+                          "max p (B better)"],
+                         [[_label(p["a"]), _label(p["b"]), fmt(p["mean_rmse_a_m"]), fmt(p["mean_rmse_b_m"]),
+                           f"{p['uavs_a_better']}/{p['uavs']}", f"{p['uavs_b_better']}/{p['uavs']}", fmt(p["p_max_a_better"]),
+                           fmt(p["p_max_b_better"])] for p in pairs])
+    md += [""]
     md += claims_section(claims)
     cap = res.cap
     md += ["", f"Round cap: {cap['cap']} rounds, tol {fmt(cap['tol_m'] * 1e3)} mm: {fmt(100 * cap['capped_fraction'])} % "
            f"of the first {cap['epochs']} epochs hit the cap; with {cap['large_cap']} rounds they need "
            f"{fmt(cap['rounds_large_mean'])} on average (max {cap['rounds_large_max']}); SPP RMSE "
            f"{fmt(cap['rmse_spp_capped_m'])} m (capped) vs {fmt(cap['rmse_spp_large_m'])} m (uncapped) vs centralized "
-           f"{fmt(cap['rmse_spp_centralized_m'])} m; largest position change {fmt(cap['max_position_change_m'])} m."]
+           f"{fmt(cap['rmse_spp_centralized_m'])} m; largest position change {fmt(cap['max_position_change_m'])} m."
+           + (f" Plugins ({', '.join(res.plugins)}): {CAP_NOT_PLUGINS}." if res.plugins else "")]
     if res.nlos is not None:
         nx = res.nlos
         spp_rmse = {(r, w): fmt(nx[r][w]["rmse_position_spp_mean_m"]) for r in ("none", "huber") for w in nx[r]}
@@ -445,40 +581,47 @@ def _markdown(res: CoopResults, claims: list[Claim]) -> list[str]:
                f"ranges, mean NLOS range error {fmt(nx['nlos_error_mean_m'])} m. SPP mean RMSE least squares / Huber: "
                f"iterated {spp_rmse['none', 'iterated']} / {spp_rmse['huber', 'iterated']} m, centralized "
                f"{spp_rmse['none', 'centralized']} / {spp_rmse['huber', 'centralized']} m (GNSS only "
-               f"{spp_rmse['none', 'gnss_only']} m)."]
+               f"{spp_rmse['none', 'gnss_only']} m)."
+               + "".join(f" {k} (its own settings; the robust loss is a built-in setting): SPP mean RMSE "
+                         f"{fmt(v['rmse_position_spp_mean_m'])} m, ANEES {fmt(v['anees'])}."
+                         for k, v in nx["plugins"].items())]
     return md
 
 
 def write(out: Path, res: CoopResults, claims: list[Claim]) -> dict:
     """plots/ (figure 6, mean RMSE bars, run 0's error curves with 3-sigma envelopes), table.md,
-    table.csv, claims.json; returns claims.json's content."""
+    table.csv, pairwise.csv, claims.json; returns claims.json's content. Every estimator alike."""
     sc, runs = res.scenario, res.runs
     (out / "plots").mkdir(parents=True, exist_ok=True)
     for f in sorted((out / "runs" / run_name(0) / "plots").glob("*_envelope.png")):
         shutil.copy(f, out / "plots" / f"run0_{f.name}")
-    coop_scores.plot_error_vs_time(res.est0.epochs, res.est0.pos, res.four, out / "plots" / "fig6_error_vs_time.png",
+    coop_scores.plot_error_vs_time(res.epochs, res.pos0, res.four, out / "plots" / "fig6_error_vs_time.png",
                                    f"Figure 6 (run 0, seed {sc.seed}): position error, UAVs {res.four}")
-    stats = [mean_ci(res.rmse[w].mean(axis=1)) for w in VARIANTS]
-    compare_bars(list(VARIANTS), np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
+    # per run, the mean over UAVs of each estimator's RMSE; its mean and 95 % Student t interval over the runs
+    stats = [mean_ci(x[np.isfinite(x)]) if np.isfinite(x).any() else (np.nan,) * 3
+             for x in (res.rmse[w].mean(axis=1) for w in res.names)]
+    compare_bars(list(res.names), np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
                  np.array([s[2] for s in stats]), out / "plots" / "rmse_mean.png",
                  title=f"Mean per-UAV RMSE over {runs} runs (95 % CI)", ylabel="RMSE [m]")
+    cons, impr, pairs = _consistency(res), _improvement(res), _pairwise(res)
     write_csv(out / "table.csv", _columns(res), _rows(res))
-    write_markdown(out / "table.md", _markdown(res, claims))
+    write_csv(out / "pairwise.csv", list(pairs[0]), [list(p.values()) for p in pairs])
+    write_markdown(out / "table.md", _markdown(res, claims, cons, impr, pairs))
     spp = res.spp
-    extra = {"cap_effect": res.cap}
+    extra = {"estimators": list(res.names), "cap_effect": res.cap}
     if res.nlos is not None:
         extra["nlos_experiment"] = res.nlos
     extra["iterated_over_centralized_rmse_spp_mean_ratio"] = float(
         np.mean(res.pooled["iterated"][spp] / res.pooled["centralized"][spp]))
     return write_claims(out / "claims.json", claims, paper="001", scenario=sc.name, motion=res.motion, runs=runs,
                         seeds=seeds(sc.seed, runs), epochs_per_run=int(res.epochs.time.size),
-                        round_cap=sc.pipeline.max_rounds, **extra)
+                        round_cap=sc.pipeline.max_rounds, consistency=cons, improvement=impr, pairwise=pairs, **extra)
 
 
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
               workers: int | None = None, nlos: bool = True, estimators: tuple = ()) -> dict:
     """Seed 001 reproduction into `out` (see the module docstring); returns claims.json's content.
-    estimators: plugin EstimatorSpecs, one more column of Table 4 each."""
+    estimators: plugin EstimatorSpecs, given every table, plot and test the built-ins get."""
     out = Path(out)
     res = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, nlos=nlos, estimators=estimators)
     return write(out, res, decide(res))

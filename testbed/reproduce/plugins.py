@@ -8,6 +8,11 @@ the runs of each summary score the estimator has (RMSE of position, velocity, at
 coverage of position, and the scenario's PCRB of position where it has one); the ANEES of position
 as the mean over the runs with its 95 % interval and effective samples (the runs' own combined:
 testbed.metrics.anees_over_runs, docs/consistency.md).
+Each plugin is also compared with every other estimator of the same runs that has the same
+score (`paired`): the position RMSE (`rmse_position_m`, a number) of both in each run, paired over
+the same seeds, with a two-sided Wilcoxon signed-rank test (testbed.stats.wilcoxon_paired) and
+the improvement factor mean_other / mean_plugin; `table_plugins_paired.csv` has every number.
+A reproduction whose group objects hold only the plugins (not the built-ins) gets no comparison.
 """
 from __future__ import annotations
 
@@ -16,12 +21,16 @@ from pathlib import Path
 import numpy as np
 
 from testbed.metrics import anees_over_runs
-from testbed.report import fmt_anees, fmt_pm, markdown_table, write_csv
+from testbed.report import fmt, fmt_anees, fmt_pm, markdown_table, write_csv
+from testbed.stats import wilcoxon_paired
 
 COLUMNS = (("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos [m]"),
            ("rmse_velocity_m_s", "RMSE vel [m/s]"), ("rmse_attitude_deg", "RMSE att [deg]"),
            ("coverage_position", "coverage pos"))
 ANEES = "anees_position"  # 3 dof, 95 % (testbed.plugins.score)
+PAIRED = "rmse_position_m"  # the score each plugin is compared on with every other estimator
+PAIRED_COLUMNS = ("group", "estimator", "against", "runs", "mean_estimator_m", "mean_against_m", "factor", "statistic",
+                  "p_two_sided")
 
 
 def _stats(runs: list[dict], key: str) -> tuple[float, float] | None:
@@ -44,6 +53,34 @@ def table(groups: dict[str, list[dict]], keys: list[str]) -> tuple[list[str], li
     return cols, rows
 
 
+def _score(run: dict, key: str) -> float | None:
+    """Estimator key's PAIRED score in one run's `estimators` object (None: absent, failed or not a number)."""
+    v = run.get(key, {}).get(PAIRED) if isinstance(run.get(key), dict) else None
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
+def paired(groups: dict[str, list[dict]], keys: list[str]) -> list[dict]:
+    """Per group, each plugin against every other estimator of the runs (built-in or plugin) with a
+    PAIRED score in the same runs: runs paired, means, factor mean_against / mean_estimator (> 1:
+    the plugin is better), and the two-sided Wilcoxon signed-rank test of the paired differences
+    (statistic and p NaN when it cannot be made: fewer than 2 non-zero differences)."""
+    rows = []
+    for label, runs in groups.items():
+        others = sorted({b for r in runs for b in r if isinstance(r[b], dict)}, key=str)
+        for k in keys:
+            for b in others:
+                if b == k:
+                    continue
+                both = [(a, c) for r in runs if (a := _score(r, k)) is not None and (c := _score(r, b)) is not None]
+                if not both:
+                    continue
+                a, c = np.array(both).T
+                t = wilcoxon_paired(a, c, alternative="two-sided")
+                rows.append(dict(zip(PAIRED_COLUMNS, (label, k, b, len(both), float(a.mean()), float(c.mean()),
+                                                      float(c.mean() / a.mean()), t.statistic, t.p_value))))
+    return rows
+
+
 def markdown(groups: dict[str, list[dict]], keys: list[str], what: str) -> list[str]:
     """The "Plugin estimators" section of table.md; what: the group column's header."""
     if not keys:
@@ -56,14 +93,31 @@ def markdown(groups: dict[str, list[dict]], keys: list[str], what: str) -> list[
             "(effective samples, docs/consistency.md).", ""] \
         + markdown_table([what, "estimator", "runs"] + [head[c] for c in cols] + ["ANEES pos (3)"],
                          [[r["group"], r["estimator"], r["runs"]] + [fmt_pm(*r[c]) if r[c] else "" for c in cols]
-                          + [fmt_anees(r[ANEES], ANEES)] for r in rows]) + [""]
+                          + [fmt_anees(r[ANEES], ANEES)] for r in rows]) + [""] + _paired_markdown(groups, keys, what)
+
+
+def _paired_markdown(groups: dict[str, list[dict]], keys: list[str], what: str) -> list[str]:
+    """The "against the other estimators" part of the section (nothing when no comparison exists)."""
+    rows = paired(groups, keys)
+    if not rows:
+        return []
+    return ["Against every other estimator of the same runs (paired over the same seeds): position RMSE means, "
+            "factor = mean of the other / mean of the plugin (> 1: the plugin is better), two-sided Wilcoxon "
+            "signed-rank test of the per-run differences.", ""] \
+        + markdown_table([what, "estimator", "against", "runs", "mean RMSE [m]", "other's [m]", "factor", "p (two-sided)"],
+                         [[r["group"], r["estimator"], r["against"], r["runs"], fmt(r["mean_estimator_m"]),
+                           fmt(r["mean_against_m"]), fmt(r["factor"]), fmt(r["p_two_sided"])] for r in rows]) + [""]
 
 
 def write(path: Path, groups: dict[str, list[dict]], keys: list[str]) -> None:
     """table_plugins.csv: group, estimator, runs, every score's mean and std, and the ANEES of position's
-    mean, interval and effective samples (nothing without plugins)."""
+    mean, interval and effective samples; table_plugins_paired.csv: `paired`'s rows (nothing without
+    plugins)."""
     if not keys:
         return
+    pairs = paired(groups, keys)
+    if pairs:
+        write_csv(Path(path).with_name("table_plugins_paired.csv"), list(PAIRED_COLUMNS), [list(r.values()) for r in pairs])
     cols, rows = table(groups, keys)
     interval, n_eff = f"{ANEES}_interval_95", ANEES.replace("anees", "n_eff")
     write_csv(path, ["group", "estimator", "runs"] + [f"{c}_{s}" for c in cols for s in ("mean", "std")]
