@@ -9,8 +9,10 @@ import mujoco
 import numpy as np
 
 from testbed.config import to_dict
-from testbed.pipelines import bandwidth, phase, visnav
+from testbed.pipelines import phase
 from testbed.plugins.api import Context
+from testbed.plugins.builtin_bandwidth import initial_estimate
+from testbed.plugins.relnav_scores import start_prior
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
 from testbed.world import Physics
@@ -36,7 +38,8 @@ def lever_arms(physics: Physics) -> dict[str, tuple[str, np.ndarray]]:
 
 def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The prior the scenario's built-in estimators get, by target, in their own state (the
-    pipeline's own code computes it, so a built-in plugin starts where its pipeline starts):
+    runtime's: drawn here from the scenario streams and, where the paper starts from the truth
+    plus a drawn error, the log's truth; the estimators never read it):
 
     coop-fg: none (every epoch is anchored by its GNSS fixes alone);
     phase-ekf: {"uavF": (18,), (18, 18)} the follower's antenna state of estimators.phase_ekf in
@@ -54,10 +57,10 @@ def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, t
         _, inp, _, prior, _, _ = phase.prepare(scenario, log)
         return {f"uav{inp.follower}": (prior.mean, prior.cov)}
     if kind == "visnav":
-        prior = visnav.prepare(scenario, log)[2]
+        prior = start_prior(scenario, log)
         return {f"uav{scenario.sensors.camera.follower}": (prior.mean, prior.cov)}
     cfg = scenario.pipeline
-    return {"formation": (bandwidth.initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
+    return {"formation": (initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
 
 
 def make_context(scenario: Scenario, physics: Physics, key: str, params: dict,

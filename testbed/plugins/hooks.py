@@ -5,7 +5,11 @@ make possible, given to every estimator whose outputs fit.
 - `Bound`, the PCRB of the follower's body position, on a seed 003 phase-ekf scenario
   (testbed.pipelines.phase.position_bound);
 - `CoopHook`, the seed 001 scores and figures of every vehicle's uwb site position at the GNSS
-  epochs, on a coop-fg scenario (testbed.plugins.coop_scores).
+  epochs, on a coop-fg scenario (testbed.plugins.coop_scores);
+- `FusionBound`, the seed 000 fusion bound (eqs. 12, 16) of every vehicle's uwb site position, on a
+  bandwidth scenario (testbed.plugins.fusion_bound);
+- `RelNav`, the seed 004 relative-frame scores and figures of the camera's follower relative to
+  its leader, on a visnav scenario (testbed.plugins.relnav_scores).
 A new hook is a Hook subclass (testbed.plugins.score) built here from what the scenario and log
 hold; it must not depend on which estimator is scored, only on the outputs it is given.
 """
@@ -29,4 +33,12 @@ def scenario_hooks(scenario: Scenario, log: dict[str, np.ndarray]) -> list[Hook]
         from testbed.plugins.coop_scores import coop_hook
 
         hooks.append(coop_hook(scenario, log))
+    if getattr(scenario.pipeline, "kind", None) == "bandwidth":
+        from testbed.plugins.fusion_bound import fusion_bound
+
+        hooks.append(fusion_bound(scenario))
+    if getattr(scenario.pipeline, "kind", None) == "visnav":
+        from testbed.plugins.relnav_scores import relnav_hook
+
+        hooks.append(relnav_hook(scenario))
     return hooks

@@ -70,6 +70,24 @@ class Hook:
         return []
 
 
+def common_times(series: list[Series]) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    """The instants t (E,) s every one of `series` has an estimate at and, per series, the indices
+    (E,) of those estimates; None when there is none."""
+    t = series[0].time
+    for s in series[1:]:
+        t = np.intersect1d(t, s.time)
+    return (t, [np.searchsorted(s.time, t) for s in series]) if t.size else None
+
+
+def fitting(hook, shown: dict):
+    """(name, hook.fit(track, errors)) of each estimator of shown {name: (Track, errors)} whose
+    outputs fit a hook that has a `fit` (None when they do not)."""
+    for name, (track, errs) in shown.items():
+        got = hook.fit(track, errs)
+        if got is not None:
+            yield name, got
+
+
 @dataclass(frozen=True, slots=True)
 class Bound(Hook):
     """A scenario's PCRB of one target's world position: time (K,) s, cov (K, 3, 3) m^2."""
