@@ -69,19 +69,30 @@ def test_the_warm_start_never_predicts_beyond_its_horizon_at_one_hertz():
     assert nees.size == 62 and lo < nees.mean() < hi
 
 
-def test_a_nonconverged_epoch_is_withheld_counted_and_never_a_warm_start():
-    """max_iter 5 at 10 Hz: the epochs that do not converge give no estimate, their count is
-    health's nonconverged_epochs and the diagnostics' converged == 0, and no warm start is built
-    from them (only converged epochs' times are remembered)."""
+def test_a_nonconverged_epoch_is_flagged_or_withheld_counted_and_never_a_warm_start():
+    """max_iter 5 at 10 Hz: an epoch that converges from neither its warm nor its fresh start is
+    published flagged when the two iterates agree (chi-square at AGREE_LEVEL under the covariance),
+    with that covariance inflated by their difference, else withheld. Both are counted (health's
+    flagged_epochs and nonconverged_epochs; the diagnostics' converged == 0, flagged 1 or 0), the
+    withheld give no estimate, and no warm start is built from either (only converged epochs'
+    times are remembered). The flagged positions are consistent with the inflated covariances
+    (NEES mean below its chi-square 99.9 % upper bound)."""
     data = bench.robots(3.0)
     data["rate"] = bench.RATE_HZ
     track, health, g = _run(data, {"batch": 8, "max_iter": 5})
     d = g.diagnostics()
-    bad = d["time"][d["converged"] == 0]
-    assert bad.size == health["nonconverged_epochs"] > 0 and health["nonconverged_epochs"] < health["epochs"]
+    bad = d["converged"] == 0
+    flagged, withheld = d["time"][bad & (d["flagged"] == 1)], d["time"][bad & (d["flagged"] == 0)]
+    assert np.all(d["flagged"][~bad] == 0) and bad.sum() < health["epochs"]
+    assert health["flagged_epochs"] == flagged.size > 0 and health["nonconverged_epochs"] == withheld.size > 0
     published = set(track[("r2", "position")].time.tolist())
-    assert published.isdisjoint(bad.tolist()) and len(published) == health["epochs"] - bad.size
-    assert set(g.remembered).isdisjoint(bad.tolist())
+    assert published.isdisjoint(withheld.tolist()) and set(flagged.tolist()) <= published
+    assert len(published) == health["epochs"] - withheld.size
+    assert set(g.remembered).isdisjoint(d["time"][bad].tolist())
+    nees, _ = _nees(track, data)
+    times = np.concatenate([track[(a, "position")].time for a in ("r2", "r3")])
+    mine = np.isin(times, flagged)
+    assert mine.sum() == 2 * flagged.size and nees[mine].mean() < chi2_interval(3, int(mine.sum()), 0.999)[1]
 
 
 ANCHORS = np.array([[-4.0, -4.0, 0.5], [4.0, -4.0, 2.5], [4.0, 4.0, 0.5], [-4.0, 4.0, 2.5],
