@@ -1,5 +1,6 @@
-"""graph.poses: the warm start stays within its horizon, a non-converged epoch is withheld (never an
-estimate, never a warm start), and a divergence is recovered by a fresh solve from the ranges."""
+"""graph.poses: the warm start stays within its horizon (a gap is bridged by a fresh start), a
+non-converged epoch is flagged with an inflated covariance or withheld (never a warm start), and a
+divergence is recovered by a fresh solve from the ranges."""
 import numpy as np
 
 from estimators.core import chi2_interval
