@@ -55,6 +55,7 @@ import numpy as np
 from scipy import linalg
 
 from estimators.eskf import GRAVITY, ImuNoise
+from estimators.graph.losses import huber_weight
 from estimators.so3 import quat_exp, quat_mul, quat_to_rotmat, skew
 
 N_ERR = 15  # error states per vehicle
@@ -314,7 +315,7 @@ class SwarmIns:
             return status
         if huber is not None:
             nu = np.abs(r) / np.sqrt(S_diag)
-            w = np.where(rows.component == 3, np.minimum(1.0, huber / np.maximum(nu, 1e-300)), 1.0)
+            w = np.where(rows.component == 3, huber_weight(nu, huber), 1.0)
             rows = Rows(z=rows.z, var=rows.var / w, i=rows.i, j=rows.j, component=rows.component, other=rows.other,
                         dev=rows.dev)
         rows = rows.subset(ok)

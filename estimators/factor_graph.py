@@ -41,7 +41,10 @@ Conventions chosen here (see also the report of the seed):
   once it is older than k rounds, and with it the range factor to that neighbour (a range to a
   neighbour of unknown position carries no information about one's own position).
 
-This module never imports mujoco, testbed or gtsam.
+Built from the graph library (estimators.graph): its factors (graph.factors: range and GNSS
+measurement functions, whitening, the inflated range variance), robust losses (graph.losses), the
+Gauss-Newton / Levenberg-Marquardt iteration of the general path (graph.lm) and the linear algebra
+(graph.linear). This module never imports mujoco, testbed or gtsam.
 """
 from __future__ import annotations
 
@@ -50,13 +53,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg, sparse
-from scipy.sparse import linalg as splinalg
 
 from estimators.core import symmetrize
-from estimators.graph.banded import factor_banded, selected_inverse_diag
-from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, factor_spd, narrow_band
+from estimators.graph.factors import (
+    gnss_h, gnss_jacobian, inflated_range_variance, range_h, range_jacobian, range_terms, sqrt_information,
+)
+from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, dense_covariance, factor_spd, marginal_blocks, solve_normal
 from estimators.graph.lm import ROUNDOFF, minimize
-from estimators.graph.losses import Loss, loss_rho, loss_weight
+from estimators.graph.losses import HUBER_DELTA, Loss, huber_rho, huber_weight, loss_rho, loss_weight
 from estimators.transport import Transport
 
 __all__ = [
@@ -81,8 +85,6 @@ __all__ = [
     "neighbours",
 ]
 
-#: Huber threshold, in units of the whitened residual (sigma): 95 % Gaussian efficiency.
-HUBER_DELTA = 1.345
 #: Payload of one broadcast: position (3) + unique covariance entries (6), float64.
 MESSAGE_BYTES = (3 + 6) * 8
 #: Levenberg term (m^-2) of the local step of a node without a prior (distributed solver).
@@ -192,81 +194,12 @@ class CoopProblem:
         return bool(self.prior.all() and not self.fixed.any())
 
 
-# ----------------------------------------------------------------------------------------------
-# Factors: measurement functions with analytic Jacobians
-# ----------------------------------------------------------------------------------------------
-def gnss_h(p: np.ndarray) -> np.ndarray:
-    """GNSS measurement function h(p) = p. p: (..., 3) metres ENU -> (..., 3) metres."""
-    return np.asarray(p, dtype=float)
-
-
-def gnss_jacobian(p: np.ndarray) -> np.ndarray:
-    """dh/dp of the GNSS factor: (..., 3, 3) identity (unitless)."""
-    p = np.asarray(p, dtype=float)
-    return np.broadcast_to(np.eye(3), p.shape[:-1] + (3, 3)).copy()
-
-
-def range_h(p_i: np.ndarray, p_j: np.ndarray) -> np.ndarray:
-    """Range measurement function |p_i - p_j|. p_i, p_j: (..., 3) metres -> (...,) metres."""
-    return np.linalg.norm(np.asarray(p_i, float) - np.asarray(p_j, float), axis=-1)
-
-
-def range_jacobian(p_i: np.ndarray, p_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(dh/dp_i, dh/dp_j) of the range factor: (..., 3) each, unitless.
-
-    dh/dp_i = u = (p_i - p_j) / |p_i - p_j| (unit vector from j to i), dh/dp_j = -u.
-    At coincident points (co-located initial guesses) the range is not differentiable; any unit
-    vector is a valid subgradient direction, and `coincident_directions` gives each factor of the
-    batch its own fixed one, so that co-located nodes separate in different directions.
-    """
-    diff = np.asarray(p_i, float) - np.asarray(p_j, float)
-    r = np.linalg.norm(diff, axis=-1, keepdims=True)
-    if np.any(r == 0.0):
-        zero = r[..., 0] == 0.0
-        diff = np.where(zero[..., None], coincident_directions(diff.shape[:-1]), diff)
-        r = np.where(zero[..., None], 1.0, r)
-    u = diff / r
-    return u, -u
-
-
-def coincident_directions(shape: tuple[int, ...]) -> np.ndarray:
-    """Deterministic unit vectors (*shape, 3), one per element: a golden-angle spiral on the
-    sphere indexed by the element's flat index (directions of co-located range factors)."""
-    k = np.arange(int(np.prod(shape, dtype=np.int64))) + 0.5
-    z = 1.0 - 2.0 * ((k * 0.6180339887498949) % 1.0)
-    phi = k * 2.399963229728653  # golden angle, rad
-    rho = np.sqrt(1.0 - z * z)
-    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1).reshape(tuple(shape) + (3,))
-
-
-def huber_weight(r: np.ndarray, delta: float | None) -> np.ndarray:
-    """IRLS weight of the Huber loss on whitened residuals r (...,): min(1, delta/|r|); 1 if delta None."""
-    r = np.abs(np.asarray(r, dtype=float))
-    if delta is None:
-        return np.ones_like(r)
-    return np.where(r <= delta, 1.0, delta / np.maximum(r, delta))
-
-
-def huber_rho(r: np.ndarray, delta: float | None) -> np.ndarray:
-    """Loss of whitened residuals r (...,): r^2/2 (delta None or |r| <= delta), else delta|r| - delta^2/2."""
-    r = np.abs(np.asarray(r, dtype=float))
-    if delta is None:
-        return 0.5 * r * r
-    return np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)
-
-
-def _gnss_sqrt_info(cov: np.ndarray) -> np.ndarray:
-    """W_i = L_i^{-1} with Sigma_i = L_i L_i^T, so W_i^T W_i = Sigma_i^{-1}. cov: (n,3,3) -> (n,3,3)."""
-    L = np.linalg.cholesky(cov)
-    return np.linalg.inv(L)
-
-
 def _range_residuals(problem: CoopProblem, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whitened range residuals r (m,) and unit vectors u_k (m, 3): r_k = (d_k - |p_i - p_j|)/sigma_k,
     or with range_cov = L L^T, r = L^{-1} (d - |p_i - p_j|) (correlated ranges)."""
     i, j = problem.edges[:, 0], problem.edges[:, 1]
-    u, _ = range_jacobian(X[i], X[j])
-    res = problem.ranges - range_h(X[i], X[j])
+    h, u = range_terms(X[i], X[j])
+    res = problem.ranges - h
     if problem.range_cov is None:
         return res / problem.range_sigma, u
     return linalg.solve_triangular(problem.range_chol, res, lower=True), u
@@ -299,7 +232,7 @@ def _robust_terms(problem: CoopProblem, X: np.ndarray, losses: dict):
         raise ValueError("CoopProblem: range_cov (correlated ranges) needs the plain least-squares path "
                          "(every node with a prior, none fixed, no robust loss, method 'gn')")
     pri = np.flatnonzero(problem.prior & ~problem.fixed)
-    W = _gnss_sqrt_info(problem.gnss_cov[pri])
+    W = sqrt_information(problem.gnss_cov[pri])
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos[pri] - X[pri])
     wg = loss_weight(losses.get("gnss"), np.linalg.norm(bg, axis=1))
     r, u = _range_residuals(problem, X)
@@ -352,7 +285,7 @@ def cost(problem: CoopProblem, X: np.ndarray, huber: float | None = None, *, los
         if huber is not None:
             raise ValueError("cost: give either huber or losses")
         return _general_cost(problem, X, _check_losses(losses))
-    W = _gnss_sqrt_info(problem.gnss_cov)
+    W = sqrt_information(problem.gnss_cov)
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X)
     r, _ = _range_residuals(problem, X)
     return float(0.5 * np.sum(bg * bg) + np.sum(huber_rho(r, huber)))
@@ -369,7 +302,7 @@ def whitened_system(
     range rows are L^{-1} J (J: the unwhitened rows (u, -u)) and b = L^{-1} (d - h) (no huber).
     """
     n, m = problem.n, problem.m
-    W = _gnss_sqrt_info(problem.gnss_cov)
+    W = sqrt_information(problem.gnss_cov)
     # eq. 13-14: whitening, A_k = Sigma_k^{-1/2} H_k, b_k = Sigma_k^{-1/2} (z_k - h_k(x0))
     bg = np.einsum("nab,nb->na", W, problem.gnss_pos - X).reshape(-1)
     rows_g = np.repeat(np.arange(3 * n).reshape(n, 3), 3, axis=1).reshape(-1)
@@ -425,27 +358,6 @@ class CentralizedResult:
 
 
 _DIVERGED_M = 1e5  # a local step this large (metres) means the iteration diverged
-_DENSE_LIMIT = DENSE_LIMIT  # below this many unknowns the dense Cholesky beats the sparse LU
-
-
-def _solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(Delta, g) of eq. 16, A^T C A Delta = g = A^T b, C = diag(curv) (identity if None).
-
-    Dense Cholesky for small systems, a banded Cholesky after a reverse Cuthill-McKee ordering when
-    the band is narrow (estimators.graph.linear.narrow_band), sparse LU otherwise.
-    """
-    Ac = A if curv is None else sparse.diags(curv) @ A
-    N = (A.T @ Ac).tocsc()
-    g = A.T @ b
-    if N.shape[0] <= _DENSE_LIMIT:
-        return linalg.cho_solve(linalg.cho_factor(N.toarray()), g), g
-    order = narrow_band(N)
-    if order is not None:  # banded Cholesky after reverse Cuthill-McKee (estimators.graph.banded)
-        fac = factor_banded(N)
-        if fac is None:
-            raise np.linalg.LinAlgError("_solve_normal: A^T A is not positive definite")
-        return fac.solve(g), g
-    return splinalg.splu(N, permc_spec="MMD_AT_PLUS_A").solve(g), g
 
 
 def _gn_direction(problem: CoopProblem, X: np.ndarray, huber: float | None, newton: bool) -> tuple[np.ndarray, float]:
@@ -459,88 +371,15 @@ def _gn_direction(problem: CoopProblem, X: np.ndarray, huber: float | None, newt
     """
     if huber is None or not newton:
         A, b = whitened_system(problem, X, huber)
-        delta, g = _solve_normal(A, b)
+        delta, g = solve_normal(A, b)
         return delta.reshape(-1, 3), 0.5 * float(g @ delta)
     A, b = whitened_system(problem, X, None)
     ng = 3 * problem.n
     r = b[ng:]
     rhs = np.concatenate([b[:ng], np.clip(r, -huber, huber)])
     curv = np.concatenate([np.ones(ng), (np.abs(r) <= huber).astype(float)])
-    delta, g = _solve_normal(A, rhs, curv)
+    delta, g = solve_normal(A, rhs, curv)
     return delta.reshape(-1, 3), 0.5 * float(g @ delta)
-
-
-def _covariance(A: sparse.csr_matrix) -> np.ndarray:
-    """(A^T A)^-1 (3n, 3n): dense Cholesky factor and its inverse (LAPACK potrf/potri)."""
-    N = (A.T @ A).toarray()
-    c, info = linalg.lapack.dpotrf(N, lower=False)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"_covariance: A^T A not positive definite (potrf info {info})")
-    inv, info = linalg.lapack.dpotri(c, lower=False)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"_covariance: potri failed (info {info})")
-    # eq. 19 on the whole graph: Sigma = (R^T R)^-1 = (A^T A)^-1; potri fills the upper triangle
-    return np.triu(inv) + np.triu(inv, 1).T
-
-
-def _marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
-    """Diagonal 3x3 blocks of N^-1 (n, 3, 3), m^2, for a sparse SPD N (3n, 3n), without the full inverse.
-
-    A narrow band after reverse Cuthill-McKee: the banded Cholesky and its selected inverse
-    (estimators.graph.banded). Otherwise:
-    selected inverse (Takahashi, Fagan, Chen 1973) on a sparse LDL^T factor, supernode by supernode:
-    SuperLU with a symmetric fill-reducing ordering and no pivoting gives P N P^T = L D L^T (L unit
-    lower, U = D L^T). Z = N^-1 satisfies Z L = L^-T D^-1 (upper triangular), so for a supernode of
-    columns J with the rows S below it (struct of L):
-        Z_SJ = -Z_SS L_SJ L_JJ^-1,   Z_JJ = (L_JJ^-T D_J^-1 - Z_SJ^T L_SJ) L_JJ^-1,
-    from the last supernode to the first; only entries on the (chordal) pattern of L are computed,
-    and that pattern holds every 3x3 block of N's diagonal. Work ~ sum over supernodes of |S|^2 |J|.
-    The working array is dense (3n)^2 (72 MB at n = 1000); the flops are the sparse ones.
-    Falls back to the dense inverse if SuperLU permuted rows and columns differently.
-    """
-    nv = N.shape[0]
-    order = narrow_band(N)
-    if order is not None:
-        fac = factor_banded(N)
-        if fac is None:
-            raise np.linalg.LinAlgError("_marginal_blocks: N is not positive definite")
-        return selected_inverse_diag(fac)
-    lu = splinalg.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    if not np.array_equal(lu.perm_r, lu.perm_c):
-        full = linalg.cho_solve(linalg.cho_factor(N.toarray()), np.eye(nv))
-        idx = np.arange(n)
-        return full.reshape(n, 3, n, 3)[idx, :, idx, :]
-    L = lu.L.tocsc()
-    L.sort_indices()
-    d = lu.U.diagonal()
-    ip, ix = L.indptr, L.indices
-    starts = [0]
-    for i in range(nv - 1):  # column i + 1 continues i's supernode if struct(i) \ {i} == struct(i + 1)
-        a, b = ix[ip[i] + 1: ip[i + 1]], ix[ip[i + 1]: ip[i + 2]]
-        if not (a.size == b.size and np.array_equal(a, b)):
-            starts.append(i + 1)
-    starts.append(nv)
-    Z = np.zeros((nv, nv))
-    for k in range(len(starts) - 2, -1, -1):
-        c0, c1 = starts[k], starts[k + 1]
-        rows = ix[ip[c0]: ip[c0 + 1]]
-        S = rows[rows >= c1]
-        blk = L[:, c0:c1]
-        LJJ = blk[c0:c1].toarray()
-        # L_JJ^-T D_J^-1
-        M = linalg.solve_triangular(LJJ, np.diag(1.0 / d[c0:c1]), lower=True, trans="T", unit_diagonal=True)
-        if S.size:
-            LSJ = blk[S].toarray()
-            # Z_SJ = -Z_SS L_SJ L_JJ^-1
-            ZSJ = -linalg.solve_triangular(LJJ, (Z[np.ix_(S, S)] @ LSJ).T, lower=True, trans="T", unit_diagonal=True).T
-            Z[np.ix_(S, np.arange(c0, c1))] = ZSJ
-            Z[np.ix_(np.arange(c0, c1), S)] = ZSJ.T
-            M = M - ZSJ.T @ LSJ
-        # Z_JJ = (L_JJ^-T D_J^-1 - Z_SJ^T L_SJ) L_JJ^-1
-        ZJJ = linalg.solve_triangular(LJJ, M.T, lower=True, trans="T", unit_diagonal=True).T
-        Z[c0:c1, c0:c1] = 0.5 * (ZJJ + ZJJ.T)
-    idx = lu.perm_c.reshape(n, 3)  # position of variable v in the factored order: perm_c[v]
-    return Z[idx[:, :, None], idx[:, None, :]]
 
 
 def solve_centralized(
@@ -581,7 +420,7 @@ def solve_centralized(
     d - |p_i - p_j|), so it cannot order iterates closer than ~5e-7 m along the weakest direction;
     a cost test stopped at up to 5e-7 m from the optimum on coop-fg epochs;
     covariance: "marginal" (n,3,3 blocks; dense inverse up to 3n = 600 unknowns, above that the
-    sparse selected inverse `_marginal_blocks`), "full" (also the (3n,3n) matrix) or "none".
+    sparse selected inverse `marginal_blocks`), "full" (also the (3n,3n) matrix) or "none".
     A step that increases the cost is halved (up to max_halvings); if no halving decreases it the
     solver stops with converged=False unless the step was already below step_tol. A step whose
     predicted decrease (g^T Delta / 2) is below ROUNDOFF of the cost is taken whole whatever the
@@ -651,13 +490,13 @@ def solve_centralized(
     if covariance != "none":
         A, _ = whitened_system(problem, X, huber)
         n = problem.n
-        if covariance == "full" or 3 * n <= _DENSE_LIMIT:
-            full = _covariance(A)
+        if covariance == "full" or 3 * n <= DENSE_LIMIT:
+            full = dense_covariance(A)
             idx = np.arange(n)
             cov = full.reshape(n, 3, n, 3)[idx, :, idx, :]
             cov_full = full if covariance == "full" else None
         else:
-            cov = _marginal_blocks((A.T @ A).tocsc(), n)
+            cov = marginal_blocks((A.T @ A).tocsc(), n)
     return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history))
 
 
@@ -694,13 +533,13 @@ def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_i
         if not observable:
             cov[free] = np.nan
             full_free = np.full((3 * nf, 3 * nf), np.nan)
-        elif covariance == "full" or 3 * nf <= _DENSE_LIMIT:
+        elif covariance == "full" or 3 * nf <= DENSE_LIMIT:
             full_free = fac.solve(np.eye(3 * nf))
             full_free = 0.5 * (full_free + full_free.T)
             idx = np.arange(nf)
             cov[free] = full_free.reshape(nf, 3, nf, 3)[idx, :, idx, :]
         else:
-            cov[free] = _marginal_blocks(N, nf)
+            cov[free] = marginal_blocks(N, nf)
         if covariance == "full":
             sel = np.flatnonzero(np.repeat(free, 3))
             cov_full = np.zeros((3 * n, 3 * n))
@@ -742,15 +581,15 @@ def local_step_qr(
     nv = 3 + 3 * k
     A = np.zeros((3 + 3 * k + k, nv))
     b = np.zeros(3 + 3 * k + k)
-    Wg = np.linalg.inv(np.linalg.cholesky(gnss_cov_i))
+    Wg = sqrt_information(gnss_cov_i)
     A[:3, :3] = Wg
     b[:3] = Wg @ (z_i - x_i)
     if k:
-        Wn = np.linalg.inv(np.linalg.cholesky(nbr_cov))
+        Wn = sqrt_information(nbr_cov)
         for a in range(k):
             A[3 + 3 * a: 6 + 3 * a, 3 + 3 * a: 6 + 3 * a] = Wn[a]  # prior residual is 0 at the broadcast
-        u, _ = range_jacobian(x_i, nbr_pos)
-        r = (ranges - range_h(x_i, nbr_pos)) / range_sigma
+        h, u = range_terms(x_i, nbr_pos)
+        r = (ranges - h) / range_sigma
         rows = 3 + 3 * k + np.arange(k)
         A[rows, 0:3] = u / range_sigma[:, None]
         for a in range(k):
@@ -915,11 +754,11 @@ def solve_distributed(
                 )
         else:
             v = np.flatnonzero(valid)
-            u, _ = range_jacobian(X[dst[v]], tab_pos[v])
-            res = d[v] - range_h(X[dst[v]], tab_pos[v])
+            h, u = range_terms(X[dst[v]], tab_pos[v])
+            res = d[v] - h
             if neighbour_model == "prior":
                 # Schur complement of the neighbour prior: var = sigma_d^2 + u^T Sigma_j u
-                s2 = sig2[v] + np.einsum("ka,kab,kb->k", u, tab_cov[v], u)
+                s2 = inflated_range_variance(sig2[v], u, tab_cov[v])
             else:
                 s2 = sig2[v]
             w = huber_weight(res / np.sqrt(s2), huber) / s2

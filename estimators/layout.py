@@ -38,10 +38,12 @@ from scipy import optimize, sparse
 from scipy.sparse import csgraph
 from scipy.spatial.transform import Rotation
 
+from estimators.graph.losses import HUBER_DELTA
+
 __all__ = ["mirror_plane", "shape_from_ranges", "place_on_fixes", "start_positions"]
 
 IMPUTATIONS = 20  # classical scaling rounds, each unranged pair's distance taken from the last shape
-HUBER = 1.345  # the shape's range loss: Huber at 1.345 sigma (the window's; 1 % of UWB ranges are metres off)
+HUBER = HUBER_DELTA  # the shape's range loss: Huber at 1.345 sigma (the window's; 1 % of UWB ranges are metres off)
 
 
 def mirror_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

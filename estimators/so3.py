@@ -71,25 +71,27 @@ def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
 
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
-    """wxyz quaternion (w >= 0) of a rotation matrix (3, 3) (Shepperd's method, unbatched)."""
+    """wxyz quaternions (..., 4) (w >= 0) of rotation matrices (..., 3, 3) (Shepperd's method: the
+    largest of 4 w^2, 4 x^2, 4 y^2, 4 z^2 found from the trace and the diagonal, the other three
+    components from the off-diagonal sums and differences divided by it)."""
     R = np.asarray(R, dtype=float)
-    tr = np.trace(R)
-    cands = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
-    i = int(np.argmax(cands))
-    if i == 0:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
-    else:
-        j, k = (i % 3) + 1, ((i + 1) % 3) + 1
-        a, b, c = i - 1, j - 1, k - 1
-        s = 2.0 * np.sqrt(1.0 + R[a, a] - R[b, b] - R[c, c])
-        q = np.empty(4)
-        q[0] = (R[c, b] - R[b, c]) / s
-        q[i] = 0.25 * s
-        q[j] = (R[b, a] + R[a, b]) / s
-        q[k] = (R[c, a] + R[a, c]) / s
-    q = q / np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
+    d = np.diagonal(R, axis1=-2, axis2=-1)
+    tr = d[..., 0] + d[..., 1] + d[..., 2]
+    i = np.argmax(np.stack([tr, d[..., 0], d[..., 1], d[..., 2]], axis=-1), axis=-1)
+    # 4 q_i^2 = 1 + tr (i = w), 1 + R_aa - R_bb - R_cc (i = x, y, z with (a, b, c) cyclic from i)
+    big = np.stack([1.0 + tr, 1.0 + d[..., 0] - d[..., 1] - d[..., 2], 1.0 + d[..., 1] - d[..., 2] - d[..., 0],
+                    1.0 + d[..., 2] - d[..., 0] - d[..., 1]], axis=-1)
+    s = 2.0 * np.sqrt(np.take_along_axis(big, i[..., None], axis=-1)[..., 0])
+    # antisymmetric (w row) and symmetric (x, y, z rows) off-diagonal combinations, 4 q_i q_j
+    x = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    y = R[..., 1, 0] + R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 2, 1] + R[..., 1, 2]
+    rows = np.stack([np.stack([0.25 * s, x[0] / s, x[1] / s, x[2] / s], axis=-1),
+                     np.stack([x[0] / s, 0.25 * s, y[0] / s, y[1] / s], axis=-1),
+                     np.stack([x[1] / s, y[0] / s, 0.25 * s, y[2] / s], axis=-1),
+                     np.stack([x[2] / s, y[1] / s, y[2] / s, 0.25 * s], axis=-1)], axis=-2)
+    q = np.take_along_axis(rows, i[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.sqrt(np.vecdot(q, q))[..., None]  # |q| summed as np.linalg.norm sums one quaternion
+    return np.where(q[..., :1] >= 0, q, -q)
 
 
 def quat_exp(phi: np.ndarray) -> np.ndarray:
@@ -116,6 +118,18 @@ def quat_log(q: np.ndarray) -> np.ndarray:
     return factor * v
 
 
+def so3_exp(phi: np.ndarray) -> np.ndarray:
+    """Rotation matrices Exp(phi) = exp([phi]x) (..., 3, 3) of rotation vectors phi (..., 3) rad
+    (through the unit quaternion: one exponential in the tree)."""
+    return quat_to_rotmat(quat_exp(phi))
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors Log(R) (..., 3) rad, |phi| <= pi, of rotation matrices R (..., 3, 3)
+    (through the unit quaternion: one logarithm in the tree)."""
+    return quat_log(rotmat_to_quat(R))
+
+
 def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
     """Right Jacobian J_r(phi) (3, 3): Exp(phi + d) = Exp(phi) Exp(J_r(phi) d) to first order."""
     phi = np.asarray(phi, dtype=float)
@@ -128,6 +142,15 @@ def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
         a = (1.0 - np.cos(th)) / th ** 2
         b = (th - np.sin(th)) / th ** 3
     return np.eye(3) - a * K + b * (K @ K)
+
+
+def so3_right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
+    """J_r^-1(phi) (3, 3): Log(Exp(phi) Exp(d)) = phi + J_r^-1(phi) d to first order, phi (3,) rad."""
+    th = float(np.linalg.norm(phi))
+    K = skew(phi)
+    if th < 1e-8:
+        return np.eye(3) + 0.5 * K
+    return np.eye(3) + 0.5 * K + (1.0 / th ** 2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))) * K @ K
 
 
 # --------------------------------------------------------------------------------------------

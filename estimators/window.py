@@ -27,7 +27,7 @@ velocity), marginalizes the oldest when the window is full, and takes Gauss-Newt
 window until every change is below `tol` (m, m/s) or `max_iter`. No look-ahead: the estimate of
 epoch k uses the epochs up to k only. Cost per epoch: max_iter x (K block solves of 6n x 6n),
 bounded by the window length whatever the run length (the normal matrix is block-tridiagonal in
-time: motion factors link only consecutive epochs; `_solve_chain` eliminates it forward).
+time: motion factors link only consecutive epochs; `solve_block_tridiagonal` eliminates it forward).
 
 Two solvers share this machinery (batched over B "agents", each with s = 6 nv states per epoch):
 - `Centralized`: one agent holding every vehicle (B = 1, nv = n): the whole swarm's window;
@@ -90,20 +90,22 @@ turns the pair into the epoch's new information (information-form difference), w
 fed every epoch should take to count no measurement twice (testbed.plugins.builtin_window_ins,
 decorrelate).
 
-Never imports mujoco or testbed.
+Built on the graph library (estimators.graph): its range and motion factors (graph.factors), the
+Huber loss (graph.losses) and the block-tridiagonal solve (graph.linear). Never imports mujoco or
+testbed.
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, sparse
+from scipy import sparse
 from scipy.sparse import csgraph
 
 from estimators import layout
-from estimators.core import white_acceleration_q
-from estimators.factor_graph import huber_rho, huber_weight
+from estimators.graph.factors import inflated_range_variance, motion_blocks, motion_input_blocks, range_terms
+from estimators.graph.linear import solve_block_tridiagonal
+from estimators.graph.losses import huber_rho, huber_weight
 from estimators.transport import Transport
 
 __all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_BYTES", "equivalent_measurement"]
@@ -186,67 +188,6 @@ def equivalent_measurement(m: np.ndarray, P: np.ndarray, m_pred: np.ndarray, P_p
     R = (V / np.maximum(w, min_info)[:, None, :]) @ np.swapaxes(V, 1, 2)
     z = m + np.einsum("nij,nj->ni", R @ Ipp, m - m_pred)
     return z, 0.5 * (R + np.swapaxes(R, 1, 2)), full
-
-
-@functools.lru_cache(maxsize=64)
-def motion_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Information blocks (M00, M01, M11), each (6, 6) over one vehicle's [p, v] at k and k+1, of
-    the white-noise-acceleration factor (module docstring) over dt (s) with density q (m^2/s^3)."""
-    Q = q * white_acceleration_q(dt)
-    J = _motion_jacobian(dt)
-    M = np.kron(J.T @ np.linalg.solve(Q, J), np.eye(3))  # (12, 12): ordering [p0, v0, p1, v1] x axis
-    return M[:6, :6], M[:6, 6:], M[6:, 6:]
-
-
-def _motion_jacobian(dt: float) -> np.ndarray:
-    """(2, 4) d[e_p, e_v]/d[p0, v0, p1, v1] of the motion residual, per axis."""
-    return np.array([[-1.0, -dt, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0]])
-
-
-@functools.lru_cache(maxsize=64)
-def motion_input_blocks(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(G0, G1, W), each (6, 6), of the motion factor's known input u = [dp, dv] (6,) over dt (s)
-    with density q (m^2/s^3): the factor's cost 1/2 (J x - u)^T Q^-1 (J x - u) adds -(G0 u) . x0
-    - (G1 u) . x1 + 1/2 u^T W u to the input-free one (x0, x1 (6,) one vehicle's [p, v] at k, k+1;
-    G = J^T Q^-1 (x) I3 split by epoch, W = Q^-1 (x) I3)."""
-    Qi = np.linalg.inv(q * white_acceleration_q(dt))
-    G = np.kron(_motion_jacobian(dt).T @ Qi, np.eye(3))  # (12, 6)
-    return G[:6], G[6:], np.kron(Qi, np.eye(3))
-
-
-class _Spd:
-    """A batch of SPD matrices (B, s, s) factored once: Cholesky (scipy) for one large matrix,
-    numpy's batched LU for many small ones (a per-vehicle 6 x 6 block)."""
-
-    def __init__(self, S: np.ndarray):
-        self.one = S.shape[0] == 1
-        self.f = linalg.cho_factor(S[0], check_finite=False) if self.one else S
-
-    def solve(self, Y: np.ndarray) -> np.ndarray:
-        """S^-1 Y for Y (B, s) or (B, s, r)."""
-        if self.one:
-            return linalg.cho_solve(self.f, Y[0], check_finite=False)[None]
-        return np.linalg.solve(self.f, Y[..., None])[..., 0] if Y.ndim == 2 else np.linalg.solve(self.f, Y)
-
-
-def _solve_chain(D: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Solve the block-tridiagonal SPD system H delta = R, batched over agents.
-
-    D (B, K, s, s) diagonal blocks, U (B, K-1, s, s) blocks H[k, k+1], R (B, K, s).
-    Returns delta (B, K, s) and S (B, s, s): the last Schur complement, the information of the
-    newest epoch's marginal (its inverse is that epoch's covariance)."""
-    K = D.shape[1]
-    S, Y = D[:, 0], [R[:, 0]]
-    F = [_Spd(S)]
-    for k in range(1, K):
-        Wk = F[-1].solve(U[:, k - 1])  # S_{k-1}^{-1} U_{k-1}
-        S = D[:, k] - np.swapaxes(U[:, k - 1], 1, 2) @ Wk
-        Y.append(R[:, k] - np.einsum("bij,bi->bj", Wk, Y[-1]))
-        F.append(_Spd(S))
-    delta = [F[-1].solve(Y[-1])]
-    for k in range(K - 2, -1, -1):
-        delta.append(F[k].solve(Y[k] - np.einsum("bij,bj->bi", U[:, k], delta[-1])))
-    return np.stack(delta[::-1], axis=1), S
 
 
 class _Window:
@@ -459,10 +400,8 @@ class _Window:
                 r = ep.fix[has] - P[k, has]
                 self._add_block(sys, k, has, has, w[:, :, None] * np.eye(3), w * r, 0.5 * (w * r * r).sum(1))
             if ep.anchor_vehicle.size:
-                diff = P[k, ep.anchor_vehicle] - ep.anchor_pos
-                dist = np.linalg.norm(diff, axis=1)
-                self._add_point(sys, k, ep.anchor_vehicle, diff / np.maximum(dist, 1e-9)[:, None],
-                                ep.anchor_range - dist, ep.anchor_sigma)
+                dist, u = range_terms(P[k, ep.anchor_vehicle], ep.anchor_pos)
+                self._add_point(sys, k, ep.anchor_vehicle, u, ep.anchor_range - dist, ep.anchor_sigma)
             if ranges and ep.edges.size:
                 self._ranges(k, P, sys)
         Hpp, Rp, C = sys
@@ -508,7 +447,7 @@ class _Window:
         agent until that agent's cost does not rise (at most HALVINGS times). Returns (delta
         (B, K, s) taken, newest information S (B, s, s) at the old estimate, the new system)."""
         D, U, R, C = sys
-        delta, S = _solve_chain(D, U, R)
+        delta, S = solve_block_tridiagonal(D, U, R)
         X0, alpha = self.X, np.ones(self.B)
         for _ in range(HALVINGS):
             self.X = X0 + alpha[:, None, None] * delta
@@ -602,8 +541,8 @@ class _Window:
             return None
         D, U, R, _ = self._system()
         Dn, Rn, _ = self._intra(self._pos(), newest=True)
-        delta, S = _solve_chain(D, U, R)
-        delta_p, S_p = _solve_chain(D - Dn, U, R - Rn)
+        delta, S = solve_block_tridiagonal(D, U, R)
+        delta_p, S_p = solve_block_tridiagonal(D - Dn, U, R - Rn)
         pos, _, pc, _ = self._newest(S, delta[:, -1])
         pred, _, ppc, _ = self._newest(S_p, delta_p[:, -1])
         return pos, pc, pred, ppc
@@ -637,9 +576,7 @@ class Centralized(_Window):
     def _ranges(self, k, P, sys):
         ep = self.epochs[k]
         i, j = ep.edges[:, 0], ep.edges[:, 1]
-        diff = P[k, i] - P[k, j]
-        dist = np.linalg.norm(diff, axis=1)
-        u = diff / np.maximum(dist, 1e-9)[:, None]
+        dist, u = range_terms(P[k, i], P[k, j])
         r = ep.ranges - dist
         w = self._add_point(sys, k, i, u, r, ep.range_sigma)
         self._add_point(sys, k, j, -u, r, ep.range_sigma, count=False)
@@ -707,9 +644,8 @@ class Distributed(_Window):
             me, other = ep.edges[:, a], ep.edges[:, b]
             ok = self.heard[k][me, other]
             me, other, d, sigma = me[ok], other[ok], ep.ranges[ok], self.range_sigma[k][a, ok]
-            diff = P[k, me] - self.heard_pos[k][me, other]
-            dist = np.linalg.norm(diff, axis=1)
-            self._add_point(sys, k, me, diff / np.maximum(dist, 1e-9)[:, None], d - dist, sigma)
+            dist, u = range_terms(P[k, me], self.heard_pos[k][me, other])
+            self._add_point(sys, k, me, u, d - dist, sigma)
 
     def _weigh(self) -> None:
         """Each range's 1-sigma with its neighbour's broadcast covariance, sqrt(sigma_d^2 + u^T
@@ -723,9 +659,8 @@ class Distributed(_Window):
             sig = np.zeros((2, len(ep.ranges)))
             for a, b in ((0, 1), (1, 0)):
                 me, other = ep.edges[:, a], ep.edges[:, b]
-                diff = P[k, me] - self.heard_pos[k][me, other]
-                u = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-9)[:, None]
-                sig[a] = np.sqrt(ep.range_sigma ** 2 + np.einsum("mi,mij,mj->m", u, self.heard_cov[k][me, other], u))
+                u = range_terms(P[k, me], self.heard_pos[k][me, other])[1]
+                sig[a] = np.sqrt(inflated_range_variance(ep.range_sigma ** 2, u, self.heard_cov[k][me, other]))
             self.range_sigma.append(sig)
 
     def _start(self, ep: Epoch, transport: Transport | None) -> tuple[np.ndarray, int, int]:
@@ -782,13 +717,13 @@ class Distributed(_Window):
         # at the first epoch: from the start exchange's layout it would step to the fix)
         self._weigh()
         if first:
-            S = _solve_chain(*self._system()[:3])[1]
+            S = solve_block_tridiagonal(*self._system()[:3])[1]
         else:
             _, S, _ = self._step(self._system())
         # (n, 3, 3): what each vehicle knows from its own measurements (GNSS, anchors, motion),
         # without any range to a neighbour: the covariance it broadcasts (module docstring)
         D, U, R, _ = self._system(ranges=False)
-        self.sent_cov.append(self._newest(_solve_chain(D, U, R)[1])[2])
+        self.sent_cov.append(self._newest(solve_block_tridiagonal(D, U, R)[1])[2])
         # who hears whom: the ranged pairs of every window epoch (both directions)
         edges = np.concatenate([e.edges for e in self.epochs])
         pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)

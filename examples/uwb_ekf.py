@@ -8,23 +8,38 @@ that the testbed scores beside the built-ins:
     testbed run coop-fg --estimator examples/uwb_ekf.py:UwbEkf --duration 30 --out D
 
 State: [p_1, v_1, ..., p_N, v_N] of the vehicles' `uwb` sites (m, m/s, world ENU); params:
-q (m^2/s^3, white-acceleration PSD per axis, default 1) and v0_sigma (m/s, default 2).
+UwbEkfParams (`--param q=2`).
 """
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
+from testbed.config import check_fields, key
 from testbed.plugins import Estimate
+from testbed.plugins.params import read
+
+
+@dataclass(frozen=True, kw_only=True)
+class UwbEkfParams:
+    q: float = key(1.0, lo=0, unit="m^2/s^3", doc="white-acceleration PSD per axis")
+    v0_sigma: float = key(2.0, lo=0, lo_open=True, unit="m/s", doc="initial velocity, 1 sigma per axis")
+
+    def __post_init__(self):
+        check_fields(self)
 
 
 class UwbEkf:
     description = "example: constant-velocity EKF over all vehicles, GNSS + UWB tag-tag ranges"
+    Params = UwbEkfParams
 
     def __init__(self, context, params):
         self.names = list(context.vehicles)
         self.idx = {f"{v}/uwb": i for i, v in enumerate(self.names)}
         n = 6 * len(self.names)
         self.x, self.P = np.zeros(n), np.eye(n) * 1e6
-        self.q, self.v0 = float(params.get("q", 1.0)), float(params.get("v0_sigma", 2.0))
+        p = read(UwbEkfParams, params, "UwbEkf")
+        self.q, self.v0 = p.q, p.v0_sigma
         self.t, self.started = None, set()
 
     def _predict(self, t):

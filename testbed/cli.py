@@ -1,19 +1,20 @@
 """The `testbed` command line (also `python -m testbed`).
 
     testbed list
-    testbed estimators
+    testbed estimators [NAME] [--markdown]
     testbed run SCENARIO --out DIR [--seed N] [--motion prescribed|flown] [--duration S]
-                [--set key=value ...] [--estimator ENTRY ...] [--video] [--fail-on-crash] [--force]
+                [--set key=value ...] [--estimator ENTRY [--param key=value ...] ...] [--video] [--fail-on-crash] [--force]
     testbed render DIR [--out FILE] [--force] [--width W --height H --fps F --speed X --max-seconds S
                        --shadow-size N --samples N --links nearest|epoch|none --nearest K --error-scale X]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [--quiet] [run options]
     testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
-    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force | --resume] [--runs N] [--motion M] [--estimator ENTRY ...]
+    testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force | --resume] [--runs N] [--motion M]
+                [--estimator ENTRY [--param key=value ...] ...]
                 [--backend local|ray [--address ADDR]] [--quiet]
     testbed demo [--out DIR] [--force]
     testbed schema
-    testbed replay SPEC.toml --out DIR [--estimator ENTRY ...] [--force]
+    testbed replay SPEC.toml --out DIR [--estimator ENTRY [--param key=value ...] ...] [--force]
     testbed export RUN_DIR --out DIR [--format csv|mcap] [--force]
     testbed view RUN_OR_REPLAY_DIR [--out FILE.rrd] [--force] [--spawn]
 
@@ -129,9 +130,29 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     _add_estimator_option(p)
 
 
+class _Param(argparse.Action):
+    """--param KEY=VALUE: a parameter of the --estimator before it (args.params, one dict per
+    --estimator), the value parsed like a --set value (a TOML value, else a string)."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        from testbed.config import parse_value
+
+        key, sep, raw = value.partition("=")
+        if not namespace.estimator:
+            raise UsageError(f"--param {value!r}: give it after the --estimator it sets")
+        if not sep or not key.strip():
+            raise UsageError(f"--param {value!r}: expected KEY=VALUE")
+        params = list(namespace.params) + [{}] * (len(namespace.estimator) - len(namespace.params))
+        params[-1] = {**params[-1], key.strip(): parse_value(raw.strip())}
+        namespace.params = params
+
+
 def _add_estimator_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimator", action="append", default=[], metavar="ENTRY",
                    help="also run and score this estimator (a name from `testbed estimators`, package.module:Name or file.py:Name); repeatable")
+    p.add_argument("--param", action=_Param, default=[], dest="params", metavar="KEY=VALUE",
+                   help="a parameter of the --estimator before it (`testbed estimators NAME` lists them), "
+                        "the value as for --set; repeatable")
 
 
 def _overrides(items: list[str]) -> dict[str, str]:
@@ -167,24 +188,25 @@ def _load(args: argparse.Namespace):
     warning = reference.check_clearance(sc, label)
     if warning is not None:
         print(f"testbed: warning: {warning}", file=sys.stderr)
-    return _with_estimators(sc, args.estimator)
+    return _with_estimators(sc, args)
 
 
-def _estimator_specs(entries: list[str]) -> tuple:
-    """One [[estimators]] table (EstimatorSpec) per --estimator ENTRY."""
+def _estimator_specs(args: argparse.Namespace) -> tuple:
+    """One [[estimators]] table (EstimatorSpec) per --estimator ENTRY, with its --param values."""
     from testbed.plugins.spec import EstimatorSpec
 
-    return tuple(EstimatorSpec(entry=e) for e in entries)
+    params = args.params + [{}] * (len(args.estimator) - len(args.params))
+    return tuple(EstimatorSpec(entry=e, params=p) for e, p in zip(args.estimator, params))
 
 
-def _with_estimators(sc, entries: list[str]):
+def _with_estimators(sc, args: argparse.Namespace):
     """The scenario plus one [[estimators]] table per --estimator, every entry loaded (checked) now."""
     import dataclasses
 
     from testbed.plugins.defaults import estimator_specs
     from testbed.plugins.loading import resolve
 
-    sc = dataclasses.replace(sc, estimators=sc.estimators + _estimator_specs(entries))
+    sc = dataclasses.replace(sc, estimators=sc.estimators + _estimator_specs(args))
     resolve(estimator_specs(sc))  # exit 2 on a bad entry (or a name clash) before anything is simulated
     return sc
 
@@ -205,7 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     sub.add_parser("list", help="list the built-in scenarios")
-    sub.add_parser("estimators", help="list the registered estimators with one-line descriptions")
+    p = sub.add_parser("estimators", help="list the registered estimators with one-line descriptions, or one's parameters")
+    p.add_argument("name", nargs="?", help="print this estimator's parameters (name, type, unit, default, range, doc)")
+    p.add_argument("--markdown", action="store_true", help="print every estimator's parameter tables (docs/estimators.md)")
 
     p = sub.add_parser("run", help="simulate a scenario and write its run directory")
     _add_run_options(p)
@@ -299,9 +323,16 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"{name:{width}s}  {scenario.load(name).description}")
         return 0
     if args.command == "estimators":
+        from testbed.plugins import params
         from testbed.plugins.loading import description, load_class, registered
 
         entries = registered()
+        if args.markdown:
+            print(params.markdown({name: load_class(name) for name in entries}), end="")
+            return 0
+        if args.name is not None:
+            print(params.text(args.name, load_class(args.name)))
+            return 0
         width = max(map(len, entries), default=0)
         for name, target in entries.items():
             print(f"{name:{width}s}  {description(load_class(name))}  ({target})")
@@ -366,7 +397,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.reproduce import reproduce
 
         apart(args.out, _inputs(args))
-        specs = _estimator_specs(args.estimator)
+        specs = _estimator_specs(args)
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
         with shown(wanted(args.quiet)):
             reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
@@ -385,7 +416,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.report import fmt, fmt_anees
 
         apart(args.out, _inputs(args, *dataset_files(args.spec)))  # the spec, its tables or bag
-        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args.estimator), force=args.force)
+        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         for name, est in metrics["estimators"].items():
             # every ANEES with its interval and effective samples (docs/consistency.md)

@@ -45,13 +45,13 @@ def _fail(file: str, path: str, msg: str, value: object = None) -> FieldError:
     return FieldError(file, path, value, msg)
 
 
-def _is_union(tp: Any) -> bool:
+def is_union(tp: Any) -> bool:
     return get_origin(tp) in (Union, types.UnionType)
 
 
 def _convert(tp: Any, value: Any, file: str, path: str) -> Any:
     origin = get_origin(tp)
-    if _is_union(tp):
+    if is_union(tp):
         args = [a for a in get_args(tp) if a is not type(None)]
         if value is None and len(args) < len(get_args(tp)):
             return None
@@ -67,42 +67,42 @@ def _convert(tp: Any, value: Any, file: str, path: str) -> Any:
         raise TypeError(f"unsupported union {tp}")
     if origin is Literal:
         if value not in get_args(tp):
-            raise _fail(file, path, f"invalid value {value!r}; expected one of {list(get_args(tp))}")
+            raise _fail(file, path, f"invalid value {value!r}; expected one of {list(get_args(tp))}", value)
         return value
     if origin is tuple:
         args = get_args(tp)
         if not isinstance(value, (list, tuple)):
-            raise _fail(file, path, f"expected a list, got {value!r}")
+            raise _fail(file, path, f"expected a list, got {value!r}", value)
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(args[0], v, file, f"{path}[{i}]") for i, v in enumerate(value))
         if len(value) != len(args):
-            raise _fail(file, path, f"expected {len(args)} values, got {len(value)}: {value!r}")
+            raise _fail(file, path, f"expected {len(args)} values, got {len(value)}: {value!r}", value)
         return tuple(_convert(a, v, file, f"{path}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
     if dataclasses.is_dataclass(tp):
         return from_dict(tp, value, file, path)
     if tp is bool:
         if not isinstance(value, bool):
-            raise _fail(file, path, f"expected true or false, got {value!r}")
+            raise _fail(file, path, f"expected true or false, got {value!r}", value)
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise _fail(file, path, f"expected an integer, got {value!r}")
+            raise _fail(file, path, f"expected an integer, got {value!r}", value)
         if abs(value) > MAX_MAGNITUDE:
             raise _fail(file, path, f"{value} is out of range (at most {MAX_MAGNITUDE:g} in magnitude)", value)
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _fail(file, path, f"expected a number, got {value!r}")
+            raise _fail(file, path, f"expected a number, got {value!r}", value)
         if not (math.isfinite(value) and (value == 0 or MIN_MAGNITUDE <= abs(value) <= MAX_MAGNITUDE)):
             raise _fail(file, path, f"must be a finite number, 0 or of magnitude in [{MIN_MAGNITUDE:g}, {MAX_MAGNITUDE:g}], got {value!r}", value)
         return float(value)
     if tp is str:
         if not isinstance(value, str):
-            raise _fail(file, path, f"expected a string, got {value!r}")
+            raise _fail(file, path, f"expected a string, got {value!r}", value)
         return value
     if tp is dict:  # a free table (e.g. an estimator's params), passed through as parsed
         if not isinstance(value, dict):
-            raise _fail(file, path, f"expected a table, got {value!r}")
+            raise _fail(file, path, f"expected a table, got {value!r}", value)
         return value
     raise TypeError(f"unsupported field type {tp} at {path}")
 
@@ -189,10 +189,7 @@ def set_dotted(data: dict, dotted: str, raw: Any, file: str) -> None:
             break
         node = node[k]
     if isinstance(raw, str):
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw
+        value = parse_value(raw)
     else:
         value = to_dict(raw)
     node[parts[-1]] = value
@@ -201,11 +198,58 @@ def set_dotted(data: dict, dotted: str, raw: Any, file: str) -> None:
 # ------------------------------------------------------------------------------ validation
 
 
-def key(default: Any = dataclasses.MISSING, *, unit: str = "", range: str = "") -> Any:
-    """A configuration field with its unit (and, for a check that is not an interval, its
-    allowed range in words) declared for `testbed schema`; in_range declares the others."""
-    meta = {k: v for k, v in (("unit", unit), ("range", range)) if v}
+def key(default: Any = dataclasses.MISSING, *, unit: str = "", range: str = "", doc: str = "",
+        lo: float | None = None, hi: float | None = None, lo_open: bool = False, hi_open: bool = False,
+        factory: Any = dataclasses.MISSING) -> Any:
+    """A configuration field with its metadata: unit, one-line doc, and allowed range.
+
+    The range is an interval (lo, hi, lo_open, hi_open as in_range), which `check_fields`
+    enforces (call it in the dataclass's `__post_init__`) and `check_key` checks on one value
+    alone, or, for a check that is not an interval, words (`range`) for `testbed schema` and
+    `testbed estimators NAME`; a field checked by its own in_range call declares it there.
+    factory: a default_factory in place of default (a mutable default such as a table).
+    """
+    meta = {k: v for k, v in (("unit", unit), ("range", range), ("doc", doc)) if v}
+    if lo is not None or hi is not None:
+        meta["interval"] = (lo, hi, lo_open, hi_open)
+    if factory is not dataclasses.MISSING:
+        return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
+
+
+def check_fields(obj: object) -> None:
+    """The interval check of every field of dataclass obj declared with `key(lo=..., hi=...)`
+    (a None value, for an optional key, is not checked). Raises FieldError naming the field."""
+    for f in dataclasses.fields(obj):
+        bounds = f.metadata.get("interval")
+        if bounds is not None and getattr(obj, f.name) is not None:
+            in_range(obj, f.name, *bounds[:2], lo_open=bounds[2], hi_open=bounds[3], unit=f.metadata.get("unit", ""))
+
+
+def check_key(cls: type, name: str, value: Any, file: str = "") -> Any:
+    """One key of dataclass `cls` alone, without building cls: it exists, its value has the
+    field's type and lies in the field's declared interval (`key(lo=..., hi=...)`). Returns the
+    converted value. Raises FieldError naming the key and the value. What a field's check
+    compares with other fields is left to `from_dict` of the whole table."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if name not in fields:
+        raise _fail(file, name, f"unknown key (known: {', '.join(sorted(fields))})", value)
+    converted = _convert(get_type_hints(cls)[name], value, file, name)
+    bounds = fields[name].metadata.get("interval")
+    if bounds is not None and converted is not None:
+        try:
+            _check_interval(name, converted, *bounds, unit=fields[name].metadata.get("unit", ""))
+        except FieldError as e:
+            raise FieldError(file, e.key, e.value, e.reason) from None
+    return converted
+
+
+def parse_value(raw: str) -> Any:
+    """A command-line value (`--set`, `--param`): parsed as a TOML value, else the string itself."""
+    try:
+        return tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        return raw
 
 
 def join_key(prefix: str, key: str) -> str:
@@ -241,7 +285,12 @@ def in_range(obj: object, key: str, lo: float | None = None, hi: float | None = 
     """
     if RANGES is not None:
         RANGES.setdefault((type(obj), key), (lo, hi, lo_open, hi_open, unit))
-    value = getattr(obj, key)
+    _check_interval(key, getattr(obj, key), lo, hi, lo_open, hi_open, unit)
+
+
+def _check_interval(key: str, value: Any, lo: float | None, hi: float | None, lo_open: bool = False,
+                    hi_open: bool = False, unit: str = "") -> None:
+    """in_range's check of one value (a number or a tuple of numbers): FieldError unless inside."""
     values = value if isinstance(value, tuple) else (value,)
     ok = all(math.isfinite(v) for v in values) and all((lo is None or (v > lo if lo_open else v >= lo)) and (hi is None or (v < hi if hi_open else v <= hi)) for v in values)
     if ok:
@@ -273,3 +322,35 @@ def whole_ratio(a: float, b: float) -> bool:
     if not (math.isfinite(ratio) and abs(ratio) <= 1e12):
         return False
     return abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1
+
+
+# ------------------------------------------------------------------------------ for people
+
+
+def type_name(tp: Any) -> str:
+    """A field annotation for people: float, "a" | "b", [float, float, float], list of int."""
+    if is_union(tp):
+        return " or ".join(type_name(a) for a in get_args(tp) if a is not type(None))
+    if get_origin(tp) is Literal:
+        return type(get_args(tp)[0]).__name__
+    if get_origin(tp) is tuple:
+        args = get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"list of {type_name(args[0])}"
+        return "[" + ", ".join(type_name(a) for a in args) + "]"
+    if dataclasses.is_dataclass(tp):
+        return "table"
+    return tp.__name__
+
+
+def show_value(v: Any) -> str:
+    """A value for people, as TOML writes it: true, "text", 0.1, [1, 2]."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, tuple):
+        return "[" + ", ".join(show_value(x) for x in v) + "]"
+    return str(v)

@@ -610,6 +610,9 @@ class Scenario:
         # pipeline has the sensors it needs (keys dotted from the scenario root)
         self.sensors.cross_check(self.world.control_rate, self.vehicles, "sensors")
         if self.pipeline is not None:
+            # the sensor-model keys the estimators assume, unless given, are the declared ones
+            assumed = self.pipeline.assumed({name: to_dict(cfg) for name, cfg in self.sensors.streams().items()})
+            object.__setattr__(self, "pipeline", assumed)
             self.pipeline.cross_check(self)
         self._check_feedback()
 
@@ -700,6 +703,12 @@ def load(name_or_path: str, overrides: dict[str, object] | None = None, **top: o
         resolved = to_dict(scenario)
         for dotted, raw in overrides.items():
             set_dotted(resolved, dotted, raw, label)
+        # an assumed sensor-model key of the pipeline given neither in the file nor here follows
+        # the (overridden) declared sensor model: derived again, never kept equal by hand
+        given = set(data.get("pipeline", {})) | {str(k).partition(".")[2].partition(".")[0] for k in overrides
+                                                  if str(k).startswith("pipeline.")}
+        for k in scenario.pipeline.derived() - given if scenario.pipeline is not None else ():
+            resolved["pipeline"].pop(k, None)
         scenario = from_dict(Scenario, resolved, label)
     changes = {k: v for k, v in top.items() if v is not None}
     if changes:

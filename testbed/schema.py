@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import types
-from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from testbed import config
+from testbed.config import is_union, show_value, type_name
 from testbed.network_config import NetworkConfig
 from testbed.scenario import Scenario, builtin_names, load
 
@@ -59,53 +59,21 @@ def declared_ranges() -> dict[tuple[type, str], tuple]:
 _UNIT_SUFFIXES = {"deg": "deg", "hz": "Hz"}
 
 
-def _is_union(tp: Any) -> bool:
-    return get_origin(tp) in (Union, types.UnionType)
-
-
-def type_name(tp: Any) -> str:
-    """A field annotation for people: float, "a" | "b", [float, float, float], list of int."""
-    if _is_union(tp):
-        return " or ".join(type_name(a) for a in get_args(tp) if a is not type(None))
-    if get_origin(tp) is Literal:
-        return type(get_args(tp)[0]).__name__
-    if get_origin(tp) is tuple:
-        args = get_args(tp)
-        if len(args) == 2 and args[1] is Ellipsis:
-            return f"list of {type_name(args[0])}"
-        return "[" + ", ".join(type_name(a) for a in args) + "]"
-    if dataclasses.is_dataclass(tp):
-        return "table"
-    return tp.__name__
-
-
-def _value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return f'"{v}"'
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, tuple):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    return str(v)
-
-
 def _default(cls: type, f: dataclasses.Field) -> str:
     if f.default is not dataclasses.MISSING:
         if f.default is None:
             preset = "preset" in {g.name for g in dataclasses.fields(cls)} or "preset" in (cls.__doc__ or "")
             return "preset" if preset else "none"
-        return _value(f.default)
+        return show_value(f.default)
     if f.default_factory is not dataclasses.MISSING:
         v = f.default_factory()
-        return "table" if dataclasses.is_dataclass(v) else _value(v)
+        return "table" if dataclasses.is_dataclass(v) else show_value(v)
     return "required"
 
 
 def _tables(tp: Any) -> list[type]:
     """The dataclasses a field's type opens as sub-tables (X, X | None, A | B | ..., tuple[X, ...])."""
-    if _is_union(tp):
+    if is_union(tp):
         return [a for a in get_args(tp) if dataclasses.is_dataclass(a)]
     if get_origin(tp) is tuple:
         args = get_args(tp)
@@ -130,7 +98,7 @@ def sections(cls: type = Scenario, path: str = "", title: str = "", optional: bo
         subs = _tables(tp)
         if subs:
             many = get_origin(tp) is tuple
-            opt = _is_union(tp) and type(None) in get_args(tp)
+            opt = is_union(tp) and type(None) in get_args(tp)
             for sub in subs:
                 kind = _kind(sub) if len(subs) > 1 else None
                 sub_path = f"{key}[i]" if many else key
@@ -143,9 +111,9 @@ def sections(cls: type = Scenario, path: str = "", title: str = "", optional: bo
         lo_hi = ranges.get((cls, f.name))
         unit = f.metadata.get("unit") or (lo_hi[4] if lo_hi else "")
         allowed = f.metadata.get("range") or (config.describe_range(*lo_hi[:4]) if lo_hi else "")
-        literal = [a for a in (get_args(tp) if _is_union(tp) else (tp,)) if get_origin(a) is Literal]
+        literal = [a for a in (get_args(tp) if is_union(tp) else (tp,)) if get_origin(a) is Literal]
         if literal:
-            allowed = allowed or "one of " + ", ".join(_value(v) for v in get_args(literal[0]))
+            allowed = allowed or "one of " + ", ".join(show_value(v) for v in get_args(literal[0]))
         unit = unit or _UNIT_SUFFIXES.get(f.name.rpartition("_")[2], "")
         rows.append((key, type_name(tp), unit, _default(cls, f), allowed))
     doc = inspect.cleandoc(cls.__doc__ or "")

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.sensor_models import gnss_sigma
 from testbed.config import to_dict
 from testbed.scenario import Scenario
 
@@ -86,13 +87,6 @@ def make_stream(name: str, log: dict[str, np.ndarray], scenario: Scenario) -> St
         sigma=declared_sigma(name, arrays, scenario), nlos=arrays.get("nlos") if name == "uwb" else None,
         extra={k: v for k, v in arrays.items() if k not in _COMMON},
     )
-
-
-def gnss_sigma(errors: dict) -> np.ndarray:
-    """(3,) m declared (east, north, up) 1-sigma of a GNSS receiver error table (a dict, as
-    `to_dict` or the plugins' Context.sensors give it): white noise and Gauss-Markov bias
-    combined, sqrt(noise^2 + bias^2)."""
-    return np.hypot([errors["noise_h"]] * 2 + [errors["noise_v"]], [errors["bias_h"]] * 2 + [errors["bias_v"]])
 
 
 def declared_sigma(name: str, arrays: dict[str, np.ndarray], scenario: Scenario) -> np.ndarray | None:

@@ -144,7 +144,8 @@ def test_scenario_schema_loads_without_compute_modules_scipy_or_mujoco():
     heavy = [m for m in loaded if m.split(".")[0] in ("scipy", "mujoco", "cv2", "matplotlib", "gtsam", "filterpy")]
     compute = [m for m in loaded if m.startswith(("testbed.pipelines.", "testbed.sensors.", "estimators"))
                and m not in ("testbed.pipelines.config", "testbed.sensors.config", "testbed.sensors.presets",
-                             "estimators", "estimators.visnav_paper")]  # the paper's constants: plain floats
+                             "estimators", "estimators.visnav_paper",  # the paper's constants: plain floats
+                             "estimators.sensor_models")]  # the assumed sensor models: numpy only
     assert "testbed.pipelines.config" in loaded and heavy == [] and compute == []
 
 

@@ -105,14 +105,14 @@ def test_sparse_marginals_equal_dense_inverse_and_gtsam():
     """Above 600 unknowns the marginal 3x3 blocks come from the supernodal selected inverse of a
     sparse LDL^T factor, not from the full inverse: they equal the dense (A^T A)^-1 blocks and
     GTSAM's marginals (250 UAVs, 750 unknowns). Measured: 8e-14 and 1.5e-8 relative."""
-    from estimators.factor_graph import _covariance
+    from estimators.graph.linear import dense_covariance
 
     ep = make_epoch(250, seed=7, scale_box_to_density=True)
     p = ep.problem
     c = solve_centralized(p)
     assert c.converged and 3 * p.n > 600
     A, _ = whitened_system(p, c.positions)
-    full = _covariance(A)
+    full = dense_covariance(A)
     idx = np.arange(p.n)
     dense = full.reshape(p.n, 3, p.n, 3)[idx, :, idx, :]
     scale = np.abs(dense).max(axis=(1, 2))[:, None, None]

@@ -16,10 +16,9 @@ from estimators.graph.model import (
     Range,
     _retract,
     _offsets,
-    so3_exp,
-    so3_log,
     solve_graph,
 )
+from estimators.so3 import so3_exp, so3_log
 
 gtsam_reference = pytest.importorskip("estimators.gtsam_reference")
 

@@ -244,7 +244,7 @@ def test_plugin_tracks_a_follower_from_known_poses_ranges_and_height():
     sites = {f"uav{b}/ant{k + 1}": (f"uav{b}", a) for b, arms in ((1, arms1), (2, arms2)) for k, a in enumerate(arms)}
     ctx = Context(vehicles=("uav1", "uav2"), sites=sites, anchors={}, sensors={}, duration=30.0, seed=0,
                   rng=np.random.default_rng(0))
-    est = RangingEkfEstimator(ctx, {"follower": "uav2", "sigma_range": 0.05, "sigma_height": 0.05, "level_sigma": 0.05,
+    est = RangingEkfEstimator(ctx, {"follower": "uav2", "range_sigma": 0.05, "height_sigma": 0.05, "level_sigma": 0.05,
                                     "q": 1e-6, "q_translation": 1e-3, "q_rotation": 1e-4, "v_sigma": 0.1})
     assert est.antennas == [f"uav2/ant{k}" for k in range(1, 7)]  # by default every site of the follower
     rng = np.random.default_rng(11)
@@ -309,7 +309,7 @@ def test_plugin_height_is_the_up_coordinate_of_its_site_or_body(src):
     sites = {f"uav{b}/ant{k + 1}": (f"uav{b}", a) for b, arms in ((1, arms1), (2, arms2)) for k, a in enumerate(arms)}
     ctx = Context(vehicles=("uav1", "uav2"), sites=sites, anchors={}, sensors={}, duration=10.0, seed=0,
                   rng=np.random.default_rng(0))
-    est = RangingEkfEstimator(ctx, {"follower": "uav2", "sigma_range": 0.05, "level_sigma": 0.05, "q": 1e-6,
+    est = RangingEkfEstimator(ctx, {"follower": "uav2", "range_sigma": 0.05, "level_sigma": 0.05, "q": 1e-6,
                                     "q_translation": 1e-3, "q_rotation": 1e-4, "v_sigma": 0.1})
     rng = np.random.default_rng(5)
     out = []

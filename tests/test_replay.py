@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from estimators.graph import model as gm
-from estimators.graph.batch import EpochFactors, so3_exp_batch, solve_epochs
+from estimators.graph.batch import EpochFactors, solve_epochs
+from estimators.so3 import so3_exp
 from testbed import scenario, world
 from testbed.cli import main
 from testbed.config import to_dict
@@ -183,7 +184,7 @@ def _random_problem(rng, E=3):
     arms = rng.normal(size=(4, 3)) * 0.5
     anchors = np.column_stack([rng.uniform(-10, 10, (5, 2)), rng.uniform(0, 3, 5)])
     pt = rng.normal(size=(E, 2, 3)) * 3 + [0, 0, 5]
-    Rt = so3_exp_batch(rng.normal(size=(E, 3)) * 0.5)
+    Rt = so3_exp(rng.normal(size=(E, 3)) * 0.5)
     r = []  # (epoch, a, b, arm_a, arm_b, d)
     for e in range(E):
         site = lambda i: pt[e, 0] + Rt[e] @ arms[i]  # noqa: E731
@@ -200,7 +201,7 @@ def _random_problem(rng, E=3):
         q_z=pt[:, 0] + rng.normal(size=(E, 3)), q_cov=np.tile(np.diag([1.0, 2.0, 3.0]), (E, 1, 1)))
     p0 = pt + rng.normal(size=pt.shape) * 0.5
     R0 = np.tile(np.eye(3), (E, 2, 1, 1))
-    R0[:, 0] = Rt @ so3_exp_batch(rng.normal(size=(E, 3)) * 0.2)
+    R0[:, 0] = Rt @ so3_exp(rng.normal(size=(E, 3)) * 0.2)
     return f, p0, R0, anchors
 
 

@@ -204,10 +204,11 @@ def test_twr_range_equals_the_timestamp_exchange(mode):
 
 @pytest.mark.parametrize("mode", ["scale", "ss-twr", "ds-twr"])
 def test_twr_range_variance_matches_monte_carlo(mode):
-    """The first-order variance the estimators are told (noise.twr_range_variance) against the
+    """The first-order variance the estimators are told (estimators.sensor_models.twr_range_variance) against the
     sample variance of twr_range + antenna delays over n = 20000 draws of both devices' clocks
     and delays (chi-square: relative standard error sqrt(2/n))."""
-    from testbed.sensors.noise import twr_range, twr_range_variance
+    from estimators.sensor_models import twr_range_variance
+    from testbed.sensors.noise import twr_range
 
     n, ppm, reply, sad = 20000, 20.0, 330e-6, 0.035
     rng = np.random.default_rng(2)

@@ -296,13 +296,13 @@ def test_distributed_beats_gnss_and_does_not_drift():
 def test_bounded_work_per_epoch(monkeypatch):
     """The number of block solves per epoch does not grow with the run length."""
     calls = []
-    real = sw._solve_chain
+    real = sw.solve_block_tridiagonal
 
     def counting(D, U, R):
         calls.append(D.shape[1])
         return real(D, U, R)
 
-    monkeypatch.setattr(sw, "_solve_chain", counting)
+    monkeypatch.setattr(sw, "solve_block_tridiagonal", counting)
     eps, _ = synthetic(40, outage=(100, 100))
     est = sw.Centralized(N, window=4, q=Q, max_iter=3, tol=0.0)
     per_epoch = []

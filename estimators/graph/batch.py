@@ -23,42 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.graph.factors import range_terms
 from estimators.graph.linear import GAUGE_RATIO, factor_spd
-from estimators.graph.lm import ROUNDOFF
+from estimators.graph.lm import ROUNDOFF, damping_update, marquardt_scaling
 from estimators.graph.losses import Loss, loss_rho, loss_weight
+from estimators.so3 import so3_exp
 
-__all__ = ["EpochFactors", "EpochsResult", "solve_epochs", "so3_exp_batch", "so3_log_batch"]
+__all__ = ["EpochFactors", "EpochsResult", "solve_epochs"]
 
 DIMS = {"pose": 6, "point": 3}
-
-
-def so3_exp_batch(w: np.ndarray) -> np.ndarray:
-    """exp([w]x) for rotation vectors w (..., 3) rad -> (..., 3, 3) (Rodrigues, series near 0)."""
-    th = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = _skew(w)
-    small = th < 1e-8
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def so3_log_batch(R: np.ndarray) -> np.ndarray:
-    """Log of rotations R (..., 3, 3) -> rotation vectors (..., 3) rad, |w| < pi (series near 0)."""
-    c = np.clip(0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
-    th = np.arccos(c)[..., None]
-    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
-    small = th < 1e-8
-    return v * np.where(small, 0.5, th / (2.0 * np.sin(np.where(small, 1.0, th))))
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]x for v (..., 3) -> (..., 3, 3)."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,10 +178,7 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R):
         A, B = lay.ends["ra"], lay.ends["rb"]
         ea, Ra = A.points(p, R)
         eb, Rb = B.points(p, R)
-        diff = ea - eb
-        r = np.sqrt(np.einsum("ni,ni->n", diff, diff))
-        safe = r > 0
-        u = np.where(safe[:, None], diff / np.where(safe, r, 1.0)[:, None], [0.0, 0.0, 1.0])
+        r, u = range_terms(ea, eb)
         e = ((f.r_d - r) / f.r_sigma)[:, None]
         out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / f.r_sigma[A.at, None])[:, None]),
                                                                    (B, (-B.row(Rb, u) / f.r_sigma[B.at, None])[:, None])]))
@@ -271,14 +241,13 @@ def _retract(lay: _Layout, p, R, delta):
     cols = lay.colmap  # (V, 6); sink column k reads zero
     d = np.concatenate([delta, np.zeros((delta.shape[0], 1))], axis=1)[:, cols]  # (E, V, 6)
     p_new = p + d[..., :3]
-    R_new = np.where(lay.is_pose[None, :, None, None], R @ so3_exp_batch(d[..., 3:]), R)
+    R_new = np.where(lay.is_pose[None, :, None, None], R @ so3_exp(d[..., 3:]), R)
     return p_new, R_new
 
 
 def _damped_solve(N, g, lam):
     """Solve (N + lam D) delta = g per epoch, D = diag(N) floored; returns delta (E, k) and D."""
-    diag = np.diagonal(N, axis1=1, axis2=2)
-    D = np.maximum(diag, 1e-12 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300))
+    D = marquardt_scaling(np.diagonal(N, axis1=1, axis2=2))
     A = N + (lam[:, None] * D)[:, :, None] * np.eye(N.shape[1])
     try:
         L = np.linalg.cholesky(A)
@@ -366,8 +335,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         accept = active & (q > 0)
         reject = active & ~accept
         step = np.abs(delta).max(axis=1, initial=0.0)
-        lam = np.where(accept, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3), np.where(reject, lam * nu, lam))
-        nu = np.where(accept, 2.0, np.where(reject, nu * 2.0, nu))
+        lam_new, nu_new = damping_update(lam, nu, q, accept)
+        lam, nu = np.where(active, lam_new, lam), np.where(active, nu_new, nu)
         small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
         if step_sigma > 0:
             small |= accept & (np.einsum("ei,eij,ej->e", delta, N, delta) < step_sigma ** 2)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.factor_graph import DistributedResult
+from estimators.graph.factors import range_terms
 
 __all__ = ["GBP_MESSAGE_BYTES", "solve_gbp"]
 
@@ -64,9 +65,7 @@ def solve_gbp(problem, *, max_rounds: int = 100, tol: float = 1e-4, damping: flo
     converged = False
     rounds = 0
     for rnd in range(max_rounds):
-        diff = X[dst] - X[oth]
-        h0 = np.linalg.norm(diff, axis=1)
-        u = diff / np.where(h0 > 0, h0, 1.0)[:, None]
+        h0, u = range_terms(X[dst], X[oth])
         # factor information over [p_dst; p_oth]: w [u; -u][u; -u]^T; eta_f = w J^T (d - h0 + J x0)
         uu = w[:, None, None] * u[:, :, None] * u[:, None, :]
         r = w * (d - h0 + np.einsum("ka,ka->k", u, X[dst] - X[oth]))

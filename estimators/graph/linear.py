@@ -8,6 +8,10 @@ LAPACK Cholesky for small systems; above `DENSE_LIMIT` unknowns a banded Cholesk
 Cuthill-McKee ordering (estimators.graph.banded) when the band is narrow, i.e. half-bandwidth below
 k * BAND_FRACTION, else SuperLU with a symmetric fill-reducing ordering and no pivoting) and reports
 the smallest relative pivot min_i D_i / N_ii; `observable` is that ratio above `GAUGE_RATIO`.
+The seed 001 solvers' linear algebra: `solve_normal` (a Gauss-Newton step from the whitened
+system), `dense_covariance` ((A^T A)^-1 by potrf/potri) and `marginal_blocks` (the 3x3 diagonal
+blocks of N^-1 by a selected inverse, for large swarms). The sliding window's block-tridiagonal
+solve: `solve_block_tridiagonal`.
 """
 from __future__ import annotations
 
@@ -17,9 +21,10 @@ import numpy as np
 from scipy import linalg, sparse
 from scipy.sparse import linalg as splinalg
 
-from estimators.graph.banded import BandOrder, band_order, factor_banded
+from estimators.graph.banded import BandOrder, band_order, factor_banded, selected_inverse_diag
 
-__all__ = ["BAND_FRACTION", "DENSE_LIMIT", "GAUGE_RATIO", "GaugeWarning", "SpdFactor", "factor_spd", "narrow_band"]
+__all__ = ["BAND_FRACTION", "DENSE_LIMIT", "GAUGE_RATIO", "GaugeWarning", "SpdFactor", "factor_spd", "narrow_band",
+           "solve_normal", "dense_covariance", "marginal_blocks", "solve_block_tridiagonal"]
 
 #: below this many unknowns the dense Cholesky beats the sparse factorization
 DENSE_LIMIT = 600
@@ -98,3 +103,137 @@ def narrow_band(N: sparse.spmatrix) -> BandOrder | None:
     BAND_FRACTION k), else None."""
     order = band_order(N)
     return order if order.width < BAND_FRACTION * N.shape[0] else None
+
+
+def solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(Delta (k,), g (k,)) of the normal equations A^T C A Delta = g = A^T b (seed 001 eq. 16),
+    A (rows, k) whitened Jacobian, b (rows,) whitened error, C = diag(curv) (identity if None).
+
+    Dense Cholesky up to DENSE_LIMIT unknowns, a banded Cholesky after a reverse Cuthill-McKee
+    ordering when the band is narrow (`narrow_band`), sparse LU otherwise. Raises LinAlgError when
+    A^T C A is not positive definite.
+    """
+    Ac = A if curv is None else sparse.diags(curv) @ A
+    N = (A.T @ Ac).tocsc()
+    g = A.T @ b
+    if N.shape[0] <= DENSE_LIMIT:
+        return linalg.cho_solve(linalg.cho_factor(N.toarray()), g), g
+    order = narrow_band(N)
+    if order is not None:  # banded Cholesky after reverse Cuthill-McKee (estimators.graph.banded)
+        fac = factor_banded(N)
+        if fac is None:
+            raise np.linalg.LinAlgError("solve_normal: A^T A is not positive definite")
+        return fac.solve(g), g
+    return splinalg.splu(N, permc_spec="MMD_AT_PLUS_A").solve(g), g
+
+
+def dense_covariance(A: sparse.csr_matrix) -> np.ndarray:
+    """(A^T A)^-1 (k, k) of a whitened Jacobian A (rows, k): dense Cholesky factor and its inverse
+    (LAPACK potrf/potri). Raises LinAlgError when A^T A is not positive definite."""
+    N = (A.T @ A).toarray()
+    c, info = linalg.lapack.dpotrf(N, lower=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dense_covariance: A^T A not positive definite (potrf info {info})")
+    inv, info = linalg.lapack.dpotri(c, lower=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dense_covariance: potri failed (info {info})")
+    # seed 001 eq. 19 on the whole graph: Sigma = (R^T R)^-1 = (A^T A)^-1; potri fills the upper triangle
+    return np.triu(inv) + np.triu(inv, 1).T
+
+
+def marginal_blocks(N: sparse.csc_matrix, n: int) -> np.ndarray:
+    """Diagonal 3x3 blocks of N^-1 (n, 3, 3) (m^2 for positions) of a sparse SPD N (3n, 3n), without
+    the full inverse.
+
+    A narrow band after reverse Cuthill-McKee: the banded Cholesky and its selected inverse
+    (estimators.graph.banded). Otherwise:
+    selected inverse (Takahashi, Fagan, Chen 1973) on a sparse LDL^T factor, supernode by supernode:
+    SuperLU with a symmetric fill-reducing ordering and no pivoting gives P N P^T = L D L^T (L unit
+    lower, U = D L^T). Z = N^-1 satisfies Z L = L^-T D^-1 (upper triangular), so for a supernode of
+    columns J with the rows S below it (struct of L):
+        Z_SJ = -Z_SS L_SJ L_JJ^-1,   Z_JJ = (L_JJ^-T D_J^-1 - Z_SJ^T L_SJ) L_JJ^-1,
+    from the last supernode to the first; only entries on the (chordal) pattern of L are computed,
+    and that pattern holds every 3x3 block of N's diagonal. Work ~ sum over supernodes of |S|^2 |J|.
+    The working array is dense (3n)^2 (72 MB at n = 1000); the flops are the sparse ones.
+    Falls back to the dense inverse if SuperLU permuted rows and columns differently.
+    """
+    nv = N.shape[0]
+    order = narrow_band(N)
+    if order is not None:
+        fac = factor_banded(N)
+        if fac is None:
+            raise np.linalg.LinAlgError("marginal_blocks: N is not positive definite")
+        return selected_inverse_diag(fac)
+    lu = splinalg.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        full = linalg.cho_solve(linalg.cho_factor(N.toarray()), np.eye(nv))
+        idx = np.arange(n)
+        return full.reshape(n, 3, n, 3)[idx, :, idx, :]
+    L = lu.L.tocsc()
+    L.sort_indices()
+    d = lu.U.diagonal()
+    ip, ix = L.indptr, L.indices
+    starts = [0]
+    for i in range(nv - 1):  # column i + 1 continues i's supernode if struct(i) \ {i} == struct(i + 1)
+        a, b = ix[ip[i] + 1: ip[i + 1]], ix[ip[i + 1]: ip[i + 2]]
+        if not (a.size == b.size and np.array_equal(a, b)):
+            starts.append(i + 1)
+    starts.append(nv)
+    Z = np.zeros((nv, nv))
+    for k in range(len(starts) - 2, -1, -1):
+        c0, c1 = starts[k], starts[k + 1]
+        rows = ix[ip[c0]: ip[c0 + 1]]
+        S = rows[rows >= c1]
+        blk = L[:, c0:c1]
+        LJJ = blk[c0:c1].toarray()
+        # L_JJ^-T D_J^-1
+        M = linalg.solve_triangular(LJJ, np.diag(1.0 / d[c0:c1]), lower=True, trans="T", unit_diagonal=True)
+        if S.size:
+            LSJ = blk[S].toarray()
+            # Z_SJ = -Z_SS L_SJ L_JJ^-1
+            ZSJ = -linalg.solve_triangular(LJJ, (Z[np.ix_(S, S)] @ LSJ).T, lower=True, trans="T", unit_diagonal=True).T
+            Z[np.ix_(S, np.arange(c0, c1))] = ZSJ
+            Z[np.ix_(np.arange(c0, c1), S)] = ZSJ.T
+            M = M - ZSJ.T @ LSJ
+        # Z_JJ = (L_JJ^-T D_J^-1 - Z_SJ^T L_SJ) L_JJ^-1
+        ZJJ = linalg.solve_triangular(LJJ, M.T, lower=True, trans="T", unit_diagonal=True).T
+        Z[c0:c1, c0:c1] = 0.5 * (ZJJ + ZJJ.T)
+    idx = lu.perm_c.reshape(n, 3)  # position of variable v in the factored order: perm_c[v]
+    return Z[idx[:, :, None], idx[:, None, :]]
+
+
+class _Spd:
+    """A batch of SPD matrices (B, s, s) factored once: Cholesky (scipy) for one large matrix,
+    numpy's batched LU for many small ones (a per-vehicle 6 x 6 block)."""
+
+    def __init__(self, S: np.ndarray):
+        self.one = S.shape[0] == 1
+        self.f = linalg.cho_factor(S[0], check_finite=False) if self.one else S
+
+    def solve(self, Y: np.ndarray) -> np.ndarray:
+        """S^-1 Y for Y (B, s) or (B, s, r)."""
+        if self.one:
+            return linalg.cho_solve(self.f, Y[0], check_finite=False)[None]
+        return np.linalg.solve(self.f, Y[..., None])[..., 0] if Y.ndim == 2 else np.linalg.solve(self.f, Y)
+
+
+def solve_block_tridiagonal(D: np.ndarray, U: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve the block-tridiagonal SPD system H delta = R (a chain of epochs linked by motion
+    factors: the sliding window, estimators.window), batched over B agents, by forward block
+    elimination and back substitution.
+
+    D (B, K, s, s) diagonal blocks, U (B, K-1, s, s) blocks H[k, k+1], R (B, K, s).
+    Returns delta (B, K, s) and S (B, s, s): the last Schur complement, the information of the
+    newest epoch's marginal (its inverse is that epoch's covariance)."""
+    K = D.shape[1]
+    S, Y = D[:, 0], [R[:, 0]]
+    F = [_Spd(S)]
+    for k in range(1, K):
+        Wk = F[-1].solve(U[:, k - 1])  # S_{k-1}^{-1} U_{k-1}
+        S = D[:, k] - np.swapaxes(U[:, k - 1], 1, 2) @ Wk
+        Y.append(R[:, k] - np.einsum("bij,bi->bj", Wk, Y[-1]))
+        F.append(_Spd(S))
+    delta = [F[-1].solve(Y[-1])]
+    for k in range(K - 2, -1, -1):
+        delta.append(F[k].solve(Y[k] - np.einsum("bij,bj->bi", U[:, k], delta[-1])))
+    return np.stack(delta[::-1], axis=1), S

@@ -28,7 +28,7 @@ from scipy import sparse
 
 from estimators.graph.linear import factor_spd
 
-__all__ = ["ROUNDOFF", "Iterate", "minimize"]
+__all__ = ["ROUNDOFF", "Iterate", "minimize", "marquardt_scaling", "damping_update"]
 
 #: relative cost change at the round-off level of the cost sum
 ROUNDOFF = 1e-14
@@ -48,6 +48,23 @@ class Iterate:
     N: sparse.csc_matrix
 
 
+def marquardt_scaling(diag: np.ndarray) -> np.ndarray:
+    """Marquardt's damping scale D (..., k) from the diagonal of the normal matrix diag(N) (..., k):
+    diag(N) floored at 1e-12 of its largest entry (an unknown without information still gets a
+    positive damping)."""
+    return np.maximum(diag, 1e-12 * np.maximum(diag.max(axis=-1, keepdims=True, initial=0.0), 1e-300))
+
+
+def damping_update(lam, nu, q, accept):
+    """Nielsen's update of the damping lam and its growth nu after a step of gain ratio q (Madsen,
+    Nielsen, Tingleff 2004, eq. 2.21): accepted lam max(1/3, 1 - (2q - 1)^3) and nu = 2, rejected
+    lam nu and 2 nu. Scalars or arrays of one shape (one damping per problem); accept (bool, same
+    shape) is the caller's test (q > 0)."""
+    qc = np.clip(q, 0.0, 1.0)  # the factor is 1/3 for every q >= 1: no overflow for a huge |q|
+    return (np.where(accept, lam * np.fmax(1.0 / 3.0, 1.0 - (2.0 * qc - 1.0) ** 3), lam * nu),
+            np.where(accept, 2.0, nu * 2.0))
+
+
 def minimize(x, cost, system, retract, *, method: str = "lm", max_iter: int = 50, step_tol: float = 1e-8,
              cost_tol: float = 1e-12, max_halvings: int = 30, lm_lambda: float = 1e-4) -> Iterate:
     """Minimize cost from x (see the module docstring); method "gn" or "lm"."""
@@ -63,10 +80,10 @@ def minimize(x, cost, system, retract, *, method: str = "lm", max_iter: int = 50
     while it < max_iter:
         it += 1
         if method == "lm":
-            D = np.maximum(N.diagonal(), 1e-12 * max(N.diagonal().max(initial=0.0), 1e-300))
+            D = marquardt_scaling(N.diagonal())
             fac = factor_spd(N + sparse.diags(lam * D))
-            if not fac.ok:
-                lam, nu = lam * nu, nu * 2.0
+            if not fac.ok:  # as a rejected step
+                lam, nu = damping_update(lam, nu, -1.0, False)
                 continue
             delta = fac.solve(g)
             x_new = retract(x, delta)
@@ -75,14 +92,12 @@ def minimize(x, cost, system, retract, *, method: str = "lm", max_iter: int = 50
             q = (f - f_new) / pred if pred > 0 else -1.0
             if pred <= ROUNDOFF * f:
                 q = 1.0  # the cost cannot judge a step this small (its own round-off): take it, the step test decides
+            lam, nu = damping_update(lam, nu, q, not q <= 0)
             if q <= 0:
-                lam, nu = lam * nu, nu * 2.0
                 if lam > 1e16:  # no decrease even for a vanishing step: at a minimum to round-off
                     converged = bool(np.abs(delta).max() < step_tol)
                     break
                 continue
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * q - 1.0) ** 3)
-            nu = 2.0
             step = np.abs(delta).max()
         else:
             fac = factor_spd(N)

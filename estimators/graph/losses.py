@@ -18,7 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Loss", "LEAST_SQUARES", "loss_weight", "loss_rho"]
+__all__ = ["Loss", "LEAST_SQUARES", "HUBER_DELTA", "huber_weight", "huber_rho", "loss_weight", "loss_rho"]
+
+#: Huber threshold, in units of the whitened residual (sigma): 95 % Gaussian efficiency.
+HUBER_DELTA = 1.345
 
 _KINDS = ("none", "huber", "cauchy")
 
@@ -28,7 +31,7 @@ class Loss:
     """A robust loss: kind "none" (least squares), "huber" or "cauchy"; scale c > 0 in sigmas."""
 
     kind: str = "none"
-    scale: float = 1.345
+    scale: float = HUBER_DELTA
 
     def __post_init__(self) -> None:
         if self.kind not in _KINDS:
@@ -40,23 +43,38 @@ class Loss:
 LEAST_SQUARES = Loss()
 
 
+def huber_weight(r: np.ndarray, delta: float | None) -> np.ndarray:
+    """Huber IRLS weight of whitened residuals (or residual norms) r (...,): min(1, delta/|r|);
+    1 (least squares) if delta is None. delta in sigmas."""
+    r = np.abs(np.asarray(r, dtype=float))
+    if delta is None:
+        return np.ones_like(r)
+    return np.where(r <= delta, 1.0, delta / np.maximum(r, delta))
+
+
+def huber_rho(r: np.ndarray, delta: float | None) -> np.ndarray:
+    """Huber loss of whitened residuals r (...,): r^2/2 for |r| <= delta (or delta None, least
+    squares), delta |r| - delta^2/2 above. delta in sigmas."""
+    r = np.abs(np.asarray(r, dtype=float))
+    if delta is None:
+        return 0.5 * r * r
+    return np.where(r <= delta, 0.5 * r * r, delta * r - 0.5 * delta * delta)
+
+
 def loss_weight(loss: Loss | None, s: np.ndarray) -> np.ndarray:
     """IRLS weight w = rho'(s)/s of residual norms s (...,) >= 0, whitened (sigmas)."""
-    s = np.abs(np.asarray(s, dtype=float))
     if loss is None or loss.kind == "none":
-        return np.ones_like(s)
-    c = loss.scale
+        return huber_weight(s, None)
     if loss.kind == "huber":
-        return np.where(s <= c, 1.0, c / np.maximum(s, c))
-    return 1.0 / (1.0 + (s / c) ** 2)
+        return huber_weight(s, loss.scale)
+    return 1.0 / (1.0 + (np.abs(np.asarray(s, dtype=float)) / loss.scale) ** 2)
 
 
 def loss_rho(loss: Loss | None, s: np.ndarray) -> np.ndarray:
     """Loss rho(s) of residual norms s (...,) >= 0, whitened (sigmas); s^2/2 for least squares."""
-    s = np.abs(np.asarray(s, dtype=float))
     if loss is None or loss.kind == "none":
-        return 0.5 * s * s
-    c = loss.scale
+        return huber_rho(s, None)
     if loss.kind == "huber":
-        return np.where(s <= c, 0.5 * s * s, c * s - 0.5 * c * c)
-    return 0.5 * c * c * np.log1p((s / c) ** 2)
+        return huber_rho(s, loss.scale)
+    c = loss.scale
+    return 0.5 * c * c * np.log1p((np.abs(np.asarray(s, dtype=float)) / c) ** 2)

@@ -26,55 +26,25 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, sparse
+from scipy import sparse
 
-from estimators.core import white_acceleration_q
-from estimators.so3 import skew
+from estimators.so3 import skew, so3_exp, so3_log, so3_right_jacobian_inv
+from estimators.graph.factors import motion_covariance, range_terms, sqrt_information
 from estimators.graph.linear import GaugeWarning, factor_spd
 from estimators.graph.lm import minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
 __all__ = [
     "Graph", "GraphResult", "Prior", "PosePositionPrior", "PoseRotationPrior", "Range", "Height",
-    "ConstantVelocity", "so3_exp", "so3_log", "solve_graph", "DIMS",
+    "ConstantVelocity", "solve_graph", "DIMS",
 ]
 
 DIMS = {"point": 3, "pose": 6, "scalar": 1}
 
 
-# ------------------------------------------------------------------------------------ SO(3)
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """exp([w]x): (3,) rad -> (3, 3) rotation (Rodrigues)."""
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(th) / th * K + (1.0 - np.cos(th)) / th ** 2 * K @ K
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Log(R): (3, 3) rotation -> (3,) rad, |w| < pi."""
-    c = np.clip(0.5 * (np.trace(R) - 1.0), -1.0, 1.0)
-    th = np.arccos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if th < 1e-8:
-        return 0.5 * v
-    return th / (2.0 * np.sin(th)) * v
-
-
-def _so3_right_jacobian_inv(w: np.ndarray) -> np.ndarray:
-    """J_r^-1(w): Log(R exp(d)) = w + J_r^-1(w) d + O(d^2), w = Log(R). (3,) -> (3, 3)."""
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * K
-    return np.eye(3) + 0.5 * K + (1.0 / th ** 2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))) * K @ K
-
-
 def _sqrt_info(cov) -> np.ndarray:
-    """W with W^T W = cov^-1: (d, d)."""
-    cov = np.atleast_2d(np.asarray(cov, float))
-    return linalg.solve_triangular(np.linalg.cholesky(cov), np.eye(cov.shape[0]), lower=True)
+    """W with W^T W = cov^-1: (d, d), for a covariance (d, d) or a variance (scalar)."""
+    return sqrt_information(np.atleast_2d(np.asarray(cov, float)))
 
 
 def _endpoint(values: dict, kinds: dict, key, lever) -> tuple[np.ndarray, np.ndarray]:
@@ -118,15 +88,15 @@ class PoseRotationPrior(Prior):
     def linearize(self, values, kinds):
         W = _sqrt_info(self.cov)
         w = so3_log(np.asarray(self.z).T @ values[self.key][1])
-        J = np.hstack([np.zeros((3, 3)), _so3_right_jacobian_inv(w)])
+        J = np.hstack([np.zeros((3, 3)), so3_right_jacobian_inv(w)])
         return -W @ w, {self.key: W @ J}
 
 
 @dataclass(frozen=True, slots=True)
 class Range:
     """Range d (m, sigma m) between point/pose a (lever_a, body m) and b (lever_b), plus an
-    optional scalar bias variable (m): h = |e_a - e_b| + bias. Co-located endpoints get a fixed
-    unit subgradient direction (as estimators.factor_graph.range_jacobian)."""
+    optional scalar bias variable (m): h = |e_a - e_b| + bias (estimators.graph.factors.range_terms:
+    co-located endpoints get a fixed unit subgradient direction)."""
 
     a: object
     b: object
@@ -140,10 +110,8 @@ class Range:
     def linearize(self, values, kinds):
         ea, Ja = _endpoint(values, kinds, self.a, self.lever_a)
         eb, Jb = _endpoint(values, kinds, self.b, self.lever_b)
-        diff = ea - eb
-        r = float(np.linalg.norm(diff))
-        u = diff / r if r > 0 else np.array([0.0, 0.0, 1.0])
-        h = r + (float(values[self.bias][0]) if self.bias is not None else 0.0)
+        r, u = range_terms(ea, eb)
+        h = float(r) + (float(values[self.bias][0]) if self.bias is not None else 0.0)
         jac = {self.a: (u @ Ja)[None] / self.sigma}
         jb = -(u @ Jb)[None] / self.sigma
         jac[self.b] = jac[self.b] + jb if self.b in jac else jb
@@ -181,8 +149,7 @@ class ConstantVelocity:
 
     def linearize(self, values, kinds):
         dt = self.dt
-        Q1 = white_acceleration_q(dt) * self.q
-        W = np.kron(_sqrt_info(Q1), np.eye(3))  # (6, 6)
+        W = np.kron(_sqrt_info(motion_covariance(dt, self.q)), np.eye(3))  # (6, 6)
         e0, J0 = _endpoint(values, kinds, self.p0, None)
         e1, J1 = _endpoint(values, kinds, self.p1, None)
         v0, v1 = np.asarray(values[self.v0], float), np.asarray(values[self.v1], float)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.graph.batch import so3_exp_batch, so3_log_batch
+from estimators.so3 import so3_exp, so3_log
 
 __all__ = ["MotionFit", "fit_motion"]
 
@@ -42,7 +42,7 @@ class MotionFit:
         """Poses at times t (E,) s: positions (E, V, 3) m world, rotations (E, V, 3, 3)."""
         t = np.asarray(t, float)[:, None, None]
         p = self.a + self.b * (t - self.t_mean)
-        R = self.R_last @ so3_exp_batch(self.c + self.d * (t - self.t_last))
+        R = self.R_last @ so3_exp(self.c + self.d * (t - self.t_last))
         return p, R
 
 
@@ -63,7 +63,7 @@ def fit_motion(t: np.ndarray, p: np.ndarray, R: np.ndarray) -> MotionFit:
     t_mean = float(t.mean())
     a, b = _line(t - t_mean, p)
     R_last = R[-1]
-    w = so3_log_batch(np.swapaxes(R_last, -1, -2)[None] @ R)  # (K, V, 3) body frame of the last solution
+    w = so3_log(np.swapaxes(R_last, -1, -2)[None] @ R)  # (K, V, 3) body frame of the last solution
     x = t - t_mean
     w0, d = _line(x, w)
     c = w0 + d * (t[-1] - t_mean)  # the line's value at t_last

@@ -9,22 +9,44 @@ side of each kind lives in testbed.pipelines.{phase,visnav,bandwidth,coop}.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from collections.abc import Callable
+from operator import itemgetter
 from typing import Any, Literal
 
 import numpy as np
 
+from estimators.sensor_models import gnss_sigma
 from estimators.visnav_paper import PAPER_ACCEL_BIAS, PAPER_ACCEL_NOISE, PAPER_GYRO_BIAS, PAPER_GYRO_NOISE, PAPER_VISION_SIGMA
-from testbed.config import in_range, require, whole_ratio
+from testbed.config import check_fields, key, require, whole_ratio
 from testbed.sensors.config import SensorsConfig
 
 Vec3 = tuple[float, float, float]
 
 
 class _PipelineConfig:
-    """What every [pipeline] table offers besides its fields."""
+    """What every [pipeline] table offers besides its fields.
+
+    _assumed: {field: (sensor stream, its value from the stream's declared table)}: the
+    sensor-model keys the estimators assume that default (None) to the scenario's declared model
+    (`assumed`).
+    """
 
     __slots__ = ()
+    _assumed: dict[str, tuple[str, Callable[[dict], Any]]] = {}
+
+    def assumed(self, sensors: dict):
+        """This table with every assumed sensor-model key left unset (None) taken from the
+        declared sensor tables `sensors` ({stream: table as a dict}, as Context.sensors gives them);
+        one without its sensor stays None (the estimator cannot use that stream). Called by
+        Scenario.__post_init__ and testbed.plugins.settings: the one place a default is derived."""
+        fill = {k: value(sensors[s]) for k, (s, value) in self._assumed.items() if getattr(self, k) is None and s in sensors}
+        return dataclasses.replace(self, **fill) if fill else self
+
+    def derived(self) -> set[str]:
+        """The keys `assumed` derives from the declared sensor model when not given."""
+        return set(self._assumed)
 
     def cross_check(self, sc: Any) -> None:
         """Check what the pipeline needs from the rest of scenario `sc` (nothing here).
@@ -71,7 +93,8 @@ class PhasePipelineConfig(_PipelineConfig):
       The built-in phase scenarios' q_rotation is the rule's stage 2 (testbed.reproduce.phase_q:
       with q fixed, the grid value whose final attitude ANEES at 20 s on the same calibration
       seeds is closest to 6); it applies in both motion modes.
-    sigma_range: filter range noise, 1 sigma (m); rate rows, if on, get sqrt(2) sigma_range / W.
+    range_sigma: filter range noise, 1 sigma (m; default: the declared [sensors.phase] phase_noise,
+      in range terms); rate rows, if on, get sqrt(2) range_sigma / W.
     rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already
       used, docs/models.md) | "window" | "instantaneous" (testbed.pipelines.phase).
     init: "drawn" = initial 18-state error drawn from the initial covariance per run (stream
@@ -87,42 +110,31 @@ class PhasePipelineConfig(_PipelineConfig):
     """
 
     kind: Literal["phase-ekf"]
-    nav_master: int = 3
-    q: float = 1e-9
-    q_flown: float = 1e-6
-    q_translation: float = 0.0
-    q_rotation: float = 0.0
-    sigma_range: float = 0.05
-    rate_rows: Literal["window", "instantaneous", "off"] = "off"
-    init: Literal["drawn", "paper"] = "drawn"
-    init_pos_error: Vec3 = PAPER_POS_ERROR
-    init_vel_error: Vec3 = PAPER_VEL_ERROR
-    init_pos_var: Vec3 = PAPER_POS_VAR
-    init_vel_var: Vec3 = PAPER_VEL_VAR
-    antenna_a: float = 1.0
-    antenna_b: float = 1.0
-    antenna_error: float = 0.0
-    gate: bool = True
-    gate_alpha: float = 1e-3
-    iterations: int = 1
-    score_start: float = 10.0
-    last_window: float = 100.0
+    nav_master: int = key(3, lo=1, doc="the master whose body frame is the navigation frame (1-based)")
+    q: float = key(1e-9, lo=0, lo_open=True, unit="m^2/s^3", doc="white-acceleration density per antenna axis, prescribed motion")
+    q_flown: float = key(1e-6, lo=0, lo_open=True, unit="m^2/s^3", doc="white-acceleration density per antenna axis, flown motion")
+    q_translation: float = key(0.0, lo=0, unit="m^2/s^3", doc="rigid-body white acceleration of the follower (0: the paper's Q)")
+    q_rotation: float = key(0.0, lo=0, unit="rad^2/s^3", doc="rigid-body white angular acceleration of the follower")
+    range_sigma: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed range noise, 1 sigma (none: the declared [sensors.phase] phase_noise)")
+    rate_rows: Literal["window", "instantaneous", "off"] = key("off", doc="eq. 7 range-rate rows: off, window or instantaneous")
+    init: Literal["drawn", "paper"] = key("drawn", doc="initial error drawn per run, or the paper's fixed error")
+    init_pos_error: Vec3 = key(PAPER_POS_ERROR, unit="m", doc="the paper's fixed initial position error, frame N")
+    init_vel_error: Vec3 = key(PAPER_VEL_ERROR, unit="m/s", doc="the paper's fixed initial velocity error, frame N")
+    init_pos_var: Vec3 = key(PAPER_POS_VAR, lo=0, lo_open=True, unit="m^2", doc="diagonal initial position covariance per antenna")
+    init_vel_var: Vec3 = key(PAPER_VEL_VAR, lo=0, lo_open=True, unit="m^2/s^2", doc="diagonal initial velocity covariance per antenna")
+    antenna_a: float = key(1.0, lo=0, lo_open=True, unit="m", doc="follower nose lever arm known to the estimator")
+    antenna_b: float = key(1.0, lo=0, lo_open=True, unit="m", doc="follower wing-tip lever arm known to the estimator")
+    antenna_error: float = key(0.0, unit="m", doc="error of the known lever arms")
+    gate: bool = key(True, doc="w-test innovation gate on/off")
+    gate_alpha: float = key(1e-3, lo=0, hi=1, lo_open=True, hi_open=True, doc="family-wise false-alarm rate of the gate")
+    iterations: int = key(1, lo=1, doc="1: the paper's EKF; > 1: iterated EKF")
+    score_start: float = key(10.0, lo=0, unit="s", doc="scores skip t < score_start (initial convergence)")
+    last_window: float = key(100.0, lo=0, lo_open=True, unit="s", doc="the \"last 100 s\" window of the scores")
 
     def __post_init__(self) -> None:
-        in_range(self, "nav_master", 1)
-        in_range(self, "q", 0, lo_open=True, unit="m^2/s^3")
-        in_range(self, "q_flown", 0, lo_open=True, unit="m^2/s^3")
-        in_range(self, "q_translation", 0, unit="m^2/s^3")
-        in_range(self, "q_rotation", 0, unit="rad^2/s^3")
-        in_range(self, "sigma_range", 0, lo_open=True, unit="m")
-        in_range(self, "init_pos_var", 0, lo_open=True, unit="m^2")
-        in_range(self, "init_vel_var", 0, lo_open=True, unit="m^2/s^2")
-        in_range(self, "antenna_a", 0, lo_open=True, unit="m")
-        in_range(self, "antenna_b", 0, lo_open=True, unit="m")
-        in_range(self, "gate_alpha", 0, 1, lo_open=True, hi_open=True)
-        in_range(self, "iterations", 1)
-        in_range(self, "score_start", 0, unit="s")
-        in_range(self, "last_window", 0, lo_open=True, unit="s")
+        check_fields(self)
+
+    _assumed = {"range_sigma": ("phase", itemgetter("phase_noise"))}
 
     def cross_check(self, sc: Any) -> None:
         """phase-ekf needs the carrier-phase stream, and its navigation frame is a master's."""
@@ -157,45 +169,41 @@ class VisNavPipelineConfig(_PipelineConfig):
     """
 
     kind: Literal["visnav"]
-    filters: tuple[str, ...] = FILTER_NAMES
-    measurement: Literal["los", "focal"] = "los"
-    predict_rate_hz: float = 20.0
-    cam_pos: Vec3 = (-0.645, 0.0, 0.0)
-    cam_xyaxes: tuple[float, float, float, float, float, float] = (0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-    cam_pos_sigma: float = 0.0
-    cam_att_sigma_deg: float = 0.0
-    led_pos: tuple[Vec3, ...] = ((0.40, 0.30, 0.06), (0.40, -0.30, 0.06), (0.25, 0.0, 0.28), (0.60, 0.0, -0.12))
-    led_pos_sigma: float = 0.0
-    los_sigma: float = PAPER_VISION_SIGMA
-    focal_d: float = 1.0
-    gyro_noise: float = PAPER_GYRO_NOISE
-    accel_noise: float = PAPER_ACCEL_NOISE
-    gyro_bias_sigma: float = PAPER_GYRO_BIAS
-    accel_bias_sigma: float = PAPER_ACCEL_BIAS
-    gyro_bias_rw: float = 0.0
-    accel_bias_rw: float = 0.0
-    init_sigma_pos: float = 0.5
-    init_sigma_vel: float = 0.1
-    init_sigma_att_deg: float = 2.0
-    kernel_sigma: float = 3.0
-    mc_tol: float = 1e-6
-    mc_max_iter: int = 50
+    filters: tuple[str, ...] = key(FILTER_NAMES, range=f"non-empty subset of {', '.join(FILTER_NAMES)}", doc="the filters to run")
+    measurement: Literal["los", "focal"] = key("los", doc="unit LOS on the tangent plane (eqs. 9-13) or focal alpha, beta (eq. 8)")
+    predict_rate_hz: float = key(20.0, lo=0, lo_open=True, unit="Hz", doc="filter prediction rate")
+    cam_pos: Vec3 = key((-0.645, 0.0, 0.0), unit="m", doc="camera position known to the filter, leader body FLU")
+    cam_xyaxes: tuple[float, float, float, float, float, float] = key(
+        (0.0, 1.0, 0.0, 0.0, 0.0, 1.0), range="x, y non-zero, not parallel", doc="camera x and y axes in the leader body frame (MJCF)")
+    cam_pos_sigma: float = key(0.0, lo=0, unit="m", doc="survey error of cam_pos per axis, drawn once per run")
+    cam_att_sigma_deg: float = key(0.0, lo=0, unit="deg", doc="survey error of the camera attitude per axis")
+    led_pos: tuple[Vec3, ...] = key(((0.40, 0.30, 0.06), (0.40, -0.30, 0.06), (0.25, 0.0, 0.28), (0.60, 0.0, -0.12)),
+                                    unit="m", range="at least one", doc="LED positions in the follower body frame")
+    led_pos_sigma: float = key(0.0, lo=0, unit="m", doc="survey error of each LED coordinate")
+    los_sigma: float = key(PAPER_VISION_SIGMA, lo=0, lo_open=True, unit="rad", doc="nominal LOS noise")
+    focal_d: float = key(1.0, lo=0, doc="eq. 8 constant d")
+    gyro_noise: float = key(PAPER_GYRO_NOISE, lo=0, unit="rad/s/sqrt(Hz)", doc="gyro white noise known to the filter")
+    accel_noise: float = key(PAPER_ACCEL_NOISE, lo=0, unit="m/s^2/sqrt(Hz)", doc="accelerometer white noise known to the filter")
+    gyro_bias_sigma: float = key(PAPER_GYRO_BIAS, lo=0, unit="rad/s", doc="gyro bias prior std")
+    accel_bias_sigma: float = key(PAPER_ACCEL_BIAS, lo=0, unit="m/s^2", doc="accelerometer bias prior std")
+    gyro_bias_rw: float = key(0.0, lo=0, unit="rad/s^2/sqrt(Hz)", doc="gyro bias random walk")
+    accel_bias_rw: float = key(0.0, lo=0, unit="m/s^3/sqrt(Hz)", doc="accelerometer bias random walk")
+    init_sigma_pos: float = key(0.5, lo=0, lo_open=True, unit="m", doc="initial relative position std per axis")
+    init_sigma_vel: float = key(0.1, lo=0, lo_open=True, unit="m/s", doc="initial relative velocity std per axis")
+    init_sigma_att_deg: float = key(2.0, lo=0, lo_open=True, unit="deg", doc="initial relative attitude std per axis")
+    kernel_sigma: float = key(3.0, lo=0, lo_open=True, doc="correntropy kernel width of mckf / rhcf (whitened units)")
+    mc_tol: float = key(1e-6, lo=0, lo_open=True, doc="convergence tolerance of the correntropy update")
+    mc_max_iter: int = key(50, lo=1, hi=10_000, doc="iterations cap of the correntropy update")
 
     def __post_init__(self) -> None:
         require(len(self.filters) > 0 and all(f in FILTER_NAMES for f in self.filters), "filters", self.filters,
                 f"must be a non-empty subset of {list(FILTER_NAMES)}, got {list(self.filters)}")
         require(len(set(self.filters)) == len(self.filters), "filters", self.filters, f"repeated names in {list(self.filters)}")
-        in_range(self, "predict_rate_hz", 0, lo_open=True, unit="Hz")
+        check_fields(self)
         x, y = np.array(self.cam_xyaxes[:3]), np.array(self.cam_xyaxes[3:])
         require(np.linalg.norm(x) > 1e-9 and np.linalg.norm(np.cross(x, y)) > 1e-6 * np.linalg.norm(x) * np.linalg.norm(y),
                 "cam_xyaxes", self.cam_xyaxes, f"x and y axes must be non-zero and not parallel, got {list(self.cam_xyaxes)}")
         require(len(self.led_pos) >= 1, "led_pos", self.led_pos, "at least one LED is needed")
-        for k in ("cam_pos_sigma", "cam_att_sigma_deg", "led_pos_sigma", "gyro_noise", "accel_noise",
-                  "gyro_bias_sigma", "accel_bias_sigma", "gyro_bias_rw", "accel_bias_rw", "focal_d"):
-            in_range(self, k, 0)
-        for k in ("los_sigma", "init_sigma_pos", "init_sigma_vel", "init_sigma_att_deg", "kernel_sigma", "mc_tol"):
-            in_range(self, k, 0, lo_open=True)
-        in_range(self, "mc_max_iter", 1, 10_000)
 
     def cross_check(self, sc: Any) -> None:
         """visnav needs the IMU on both vehicles and the camera; the predict grid must divide the
@@ -219,12 +227,12 @@ N_NODES = 4  # UAVs of the seed 000 formation
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class BandwidthPipelineConfig(_PipelineConfig):
-    """[pipeline] table of a seed 000 scenario (every key written out in bandwidth.toml).
+    """[pipeline] table of a seed 000 scenario.
 
     measurements: "uwb" | "paper" (testbed.pipelines.bandwidth). dt: filter step (s); in uwb mode a multiple
     of the UWB period. process_noise: diag W (m^2/s for w_reading "rate", m^2 for "per-step").
     paper_V: diag V of the paper mode (m^2). range_sigma: UWB range noise 1 sigma assumed by the
-    estimator (m). x0: initial estimate (m); M0: diag M_i(0) (m^2). velocity: known input v (m/s).
+    estimator (m; default: the declared [sensors.uwb] noise). x0: initial estimate (m); M0: diag M_i(0) (m^2). velocity: known input v (m/s).
     selection: "T1" | "T2" | "T3" (the paper's sets) | "search" (bound-optimal set for the run's
     horizon, exhaustive over the 2430 admissible sets; in uwb mode with V from the first epoch).
     weights: "P1" | "P2" | "P3". budget: t_i, components each node receives per step.
@@ -236,33 +244,30 @@ class BandwidthPipelineConfig(_PipelineConfig):
     """
 
     kind: Literal["bandwidth"]
-    measurements: Literal["uwb", "paper"] = "uwb"
-    dt: float = 0.1
-    process_noise: Vec3 = (0.02, 0.05, 0.03)
-    w_reading: Literal["rate", "per-step"] = "rate"
-    paper_V: Vec3 = (0.03, 0.04, 0.02)
-    range_sigma: float = 0.10
-    x0: Vec3 = (10.0, 10.0, 10.0)
-    M0: Vec3 = (0.19, 0.09, 0.08)
-    velocity: Vec3 = (0.5, 0.5, 0.5)
-    selection: Literal["T1", "T2", "T3", "search"] = "T1"
-    weights: Literal["P1", "P2", "P3"] = "P1"
-    budget: int = 5
-    anchors: tuple[Vec3, ...] = ()
-    groups: tuple[tuple[int, int, int, int], ...] = ((1, 2, 3, 4), (5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16))
-    offsets: tuple[Vec3, ...] = ()
-    anchor_error: float = 0.0
-    offset_error: float = 0.0
-    drop_prob: float = 0.0
-    fail_node: int = 0
-    fail_time: float = 0.0
+    measurements: Literal["uwb", "paper"] = key("uwb", doc="UWB pseudo-measurements, or the paper's (drawn from the truth)")
+    dt: float = key(0.1, lo=0, lo_open=True, unit="s", doc="filter step; in uwb mode a multiple of the UWB period")
+    process_noise: Vec3 = key((0.02, 0.05, 0.03), lo=0, unit="m^2/s or m^2", doc="diag W, per w_reading")
+    w_reading: Literal["rate", "per-step"] = key("rate", doc="process_noise as a rate (m^2/s) or per step (m^2)")
+    paper_V: Vec3 = key((0.03, 0.04, 0.02), lo=0, lo_open=True, unit="m^2", doc="diag V of the paper mode")
+    range_sigma: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed UWB range noise, 1 sigma (none: the declared [sensors.uwb] noise)")
+    x0: Vec3 = key((10.0, 10.0, 10.0), unit="m", doc="initial estimate")
+    M0: Vec3 = key((0.19, 0.09, 0.08), lo=0, lo_open=True, unit="m^2", doc="diag M_i(0)")
+    velocity: Vec3 = key((0.5, 0.5, 0.5), unit="m/s", doc="known input v")
+    selection: Literal["T1", "T2", "T3", "search"] = key("T1", doc="the paper's component sets, or the bound-optimal search")
+    weights: Literal["P1", "P2", "P3"] = key("P1", doc="the paper's fusion weights")
+    budget: int = key(5, lo=N_NODES - 1, hi=3 * (N_NODES - 1), doc="t_i, components each node receives per step")
+    anchors: tuple[Vec3, ...] = key((), unit="m", doc="known anchor positions, world, numbered from 1")
+    groups: tuple[tuple[int, int, int, int], ...] = key(((1, 2, 3, 4), (5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16)),
+                                                        range="1..len(anchors), spanning 3-D", doc="the four anchor numbers of each UAV, the last the reference of eq. 21")
+    offsets: tuple[Vec3, ...] = key((), unit="m", range=f"{N_NODES} of them", doc="known tag position of each UAV from the formation point, world")
+    anchor_error: float = key(0.0, lo=0, unit="m", doc="error of the known anchors, 1 sigma per axis")
+    offset_error: float = key(0.0, lo=0, unit="m", doc="error of the known offsets, 1 sigma per axis")
+    drop_prob: float = key(0.0, lo=0, hi=1, hi_open=True, doc="probability per directed message and step that it is lost")
+    fail_node: int = key(0, lo=0, hi=N_NODES, doc="1-based node that stops sending at fail_time (0: none)")
+    fail_time: float = key(0.0, lo=0, unit="s", doc="when fail_node stops sending")
 
     def __post_init__(self) -> None:
-        in_range(self, "dt", 0, lo_open=True, unit="s")
-        in_range(self, "process_noise", 0)
-        in_range(self, "paper_V", 0, lo_open=True, unit="m^2")
-        in_range(self, "range_sigma", 0, lo_open=True, unit="m")
-        in_range(self, "M0", 0, lo_open=True, unit="m^2")
+        check_fields(self)
         require(len(self.groups) == N_NODES, "groups", self.groups, f"need one anchor group per UAV ({N_NODES}), got {len(self.groups)}")
         require(len(self.offsets) == N_NODES, "offsets", self.offsets, f"need one tag offset per UAV ({N_NODES}), got {len(self.offsets)}")
         for i, g in enumerate(self.groups):
@@ -271,15 +276,11 @@ class BandwidthPipelineConfig(_PipelineConfig):
             a = np.array([self.anchors[k - 1] for k in g])
             require(np.linalg.matrix_rank(a[:-1] - a[-1], tol=1e-6) == 3, f"groups[{i}]", g,
                     f"anchors {list(g)} do not span 3-D: eqs. 21-23 cannot be solved")
-        # t_ji >= 1 on every link needs budget >= N - 1; at most every component of every neighbour
-        in_range(self, "budget", N_NODES - 1, 3 * (N_NODES - 1))
-        in_range(self, "anchor_error", 0, unit="m")
-        in_range(self, "offset_error", 0, unit="m")
-        in_range(self, "drop_prob", 0, 1, hi_open=True)
-        in_range(self, "fail_node", 0, N_NODES)
-        in_range(self, "fail_time", 0, unit="s")
+        # budget: t_ji >= 1 on every link needs budget >= N - 1; at most every component of every neighbour
         require(self.selection == "search" or self.budget == 5, "budget", self.budget,
                 f"the paper's {self.selection} is for budget 5, got {self.budget}; use selection = \"search\"")
+
+    _assumed = {"range_sigma": ("uwb", itemgetter("noise"))}
 
     def cross_check(self, sc: Any) -> None:
         """bandwidth estimates the point of a straight-line formation of N_NODES UAVs; its epochs
@@ -308,10 +309,13 @@ class CoopPipelineConfig(_PipelineConfig):
     """[pipeline] table of a seed 001 scenario.
 
     gnss_sigma_h, gnss_sigma_v / rtk_sigma_h, rtk_sigma_v: the GNSS noise the estimators assume,
-    1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`).
+    1 sigma (m), horizontal (east, north) and up, for SPP and RTK fixes (by `gnss/rtk`); default:
+    the declared [sensors.gnss.receiver] / [sensors.gnss.rtk] white noise and bias combined.
     range_sigma: assumed UWB range noise (m, 1 sigma); clock_ppm: assumed clock frequency offset
     (ppm, 1 sigma per device); twr_mode ("scale" | "ss-twr" | "ds-twr"), reply_time (s) and
     antenna_delay_sigma (m of range per device, 1 sigma): the assumed two-way ranging scheme;
+    each of these five defaults to the declared [sensors.uwb] value (noise, clock_ppm, mode,
+    reply_time, antenna_delay_sigma): set one only to study a mismatch;
     clock and antenna-delay errors enter the centralized estimator as the joint covariance of an
     epoch's ranges (shared by the links of one radio, pipelines.coop.range_covariance) and the
     distributed ones as extra white variance (pipelines.coop.range_sigmas).
@@ -328,41 +332,40 @@ class CoopPipelineConfig(_PipelineConfig):
     """
 
     kind: Literal["coop-fg"]
-    gnss_sigma_h: float = 1.5
-    gnss_sigma_v: float = 3.0
-    rtk_sigma_h: float = 0.02
-    rtk_sigma_v: float = 0.03
-    range_sigma: float = 0.10
-    clock_ppm: float = 20.0
-    twr_mode: Literal["scale", "ss-twr", "ds-twr"] = "scale"
-    reply_time: float = 330e-6
-    antenna_delay_sigma: float = 0.0
-    robust: Literal["none", "huber"] = "none"
-    huber_delta: float = 1.345
-    neighbour_model: Literal["prior", "fixed"] = "prior"
-    damping: float = 1.0
-    max_rounds: int = 300
-    tol: float = 1e-3
-    message_loss: float = 0.0
-    max_age: int = -1
-    silent_uav: int = 0
-    silent_from_s: float = 0.0
-    plot_uavs: tuple[int, ...] = ()
+    gnss_sigma_h: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed SPP noise, horizontal, 1 sigma (none: [sensors.gnss.receiver])")
+    gnss_sigma_v: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed SPP noise, up, 1 sigma (none: [sensors.gnss.receiver])")
+    rtk_sigma_h: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed RTK noise, horizontal, 1 sigma (none: [sensors.gnss.rtk])")
+    rtk_sigma_v: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed RTK noise, up, 1 sigma (none: [sensors.gnss.rtk])")
+    range_sigma: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed UWB range noise, 1 sigma (none: [sensors.uwb] noise)")
+    clock_ppm: float | None = key(None, lo=0, unit="ppm", doc="assumed clock frequency offset, 1 sigma per device (none: [sensors.uwb] clock_ppm)")
+    twr_mode: Literal["scale", "ss-twr", "ds-twr"] | None = key(None, doc="assumed two-way ranging scheme (none: [sensors.uwb] mode)")
+    reply_time: float | None = key(None, lo=0, unit="s", doc="assumed two-way ranging reply time (none: [sensors.uwb] reply_time)")
+    antenna_delay_sigma: float | None = key(None, lo=0, unit="m", doc="assumed antenna delay, m of range per device, 1 sigma (none: [sensors.uwb] antenna_delay_sigma)")
+    robust: Literal["none", "huber"] = key("none", doc="range factors: least squares or Huber")
+    huber_delta: float = key(1.345, lo=0, lo_open=True, doc="Huber threshold, in sigmas")
+    neighbour_model: Literal["prior", "fixed"] = key("prior", doc="neighbours' broadcasts as priors (the paper) or fixed (block-Jacobi)")
+    damping: float = key(1.0, lo=0, hi=1, lo_open=True, doc="fraction of the local step applied (1: the paper)")
+    max_rounds: int = key(300, lo=1, doc="cap on message-iteration rounds per epoch")
+    tol: float = key(1e-3, lo=0, lo_open=True, unit="m", doc="stop when every position change of a round is below tol")
+    message_loss: float = key(0.0, lo=0, hi=1, hi_open=True, doc="probability that one directed delivery is lost")
+    max_age: int = key(-1, lo=-1, doc="rounds a receiver keeps a neighbour's last message (-1: the whole epoch)")
+    silent_uav: int = key(0, lo=0, doc="1-based UAV that stops broadcasting (0: none)")
+    silent_from_s: float = key(0.0, lo=0, unit="s", doc="when silent_uav stops broadcasting")
+    plot_uavs: tuple[int, ...] = key((), range="empty or four UAV numbers >= 1", doc="UAVs of the error-vs-time figure (empty: by neighbour count)")
 
     def __post_init__(self) -> None:
-        for k in ("gnss_sigma_h", "gnss_sigma_v", "rtk_sigma_h", "rtk_sigma_v", "range_sigma", "huber_delta", "tol"):
-            in_range(self, k, 0, lo_open=True)
-        in_range(self, "clock_ppm", 0, unit="ppm")
-        in_range(self, "reply_time", 0, unit="s")
-        in_range(self, "antenna_delay_sigma", 0, unit="m")
-        in_range(self, "damping", 0, 1, lo_open=True)
-        in_range(self, "max_rounds", 1)
-        in_range(self, "message_loss", 0, 1, hi_open=True)
-        in_range(self, "max_age", -1)
-        in_range(self, "silent_uav", 0)
-        in_range(self, "silent_from_s", 0, unit="s")
+        check_fields(self)
         require(len(self.plot_uavs) in (0, 4) and all(u >= 1 for u in self.plot_uavs), "plot_uavs", self.plot_uavs,
                 f"must be empty or four 1-based UAV numbers, got {list(self.plot_uavs)}")
+
+    _assumed = {"range_sigma": ("uwb", itemgetter("noise")), "clock_ppm": ("uwb", itemgetter("clock_ppm")),
+                "twr_mode": ("uwb", itemgetter("mode")), "reply_time": ("uwb", itemgetter("reply_time")),
+                "antenna_delay_sigma": ("uwb", itemgetter("antenna_delay_sigma")),
+                # (east, north, up) declared sigmas of the receiver's and the RTK error tables
+                "gnss_sigma_h": ("gnss", lambda g: float(gnss_sigma(g["receiver"])[0])),
+                "gnss_sigma_v": ("gnss", lambda g: float(gnss_sigma(g["receiver"])[2])),
+                "rtk_sigma_h": ("gnss", lambda g: float(gnss_sigma(g["rtk"])[0])),
+                "rtk_sigma_v": ("gnss", lambda g: float(gnss_sigma(g["rtk"])[2]))}
 
     def cross_check(self, sc: Any) -> None:
         """coop-fg needs GNSS at the UWB tag on every UAV, UWB tag-to-tag links sampled at every

@@ -25,7 +25,7 @@ reply_time, antenna_delay_sigma): a mismatch between these and the sensor tables
 configurable error of the known quantities. The two-way ranging clock and antenna-delay errors
 are per device, shared by every link of a radio: the centralized estimator whitens an epoch's
 ranges with their joint covariance range_sigma^2 I + twr_range_covariance (range_covariance;
-testbed.sensors.noise, docs/sensors.md); the distributed ones (the paper's scheme, ranges
+estimators.sensor_models, docs/sensors.md); the distributed ones (the paper's scheme, ranges
 independent) use its diagonal sigma_k^2 = range_sigma^2 + twr_range_variance(d_k) (range_sigmas):
 (clock_ppm 1e-6 d_k)^2 / 2 + 2 antenna_delay_sigma^2 for "scale" and "ds-twr" (<= 1.4 mm of clock
 at 100 m), plus the reply-time term for "ss-twr". With robust = "huber" the centralized estimator

@@ -25,7 +25,7 @@ window W = rate_periods T (0.7 s by default) ending at the epoch, i.e. (r(t) - r
 lags the instantaneous rate by ~W / 2. `rate_rows = "window"` predicts exactly that mean
 from the constant-velocity state (phase_model.measurement_model, rate_window), `"instantaneous"`
 is the paper's eq. 10 (biased by the lag), `"off"` (default) uses ranges only. The rate noise is
-sqrt(2) sigma_range / W per row (W shorter during the first 0.7 s).
+sqrt(2) range_sigma / W per row (W shorter during the first 0.7 s).
 Correlation: because the phase tracker telescopes, the reported rate equals
 (r_hat(t) - r_hat(t - W)) / W to round-off (checked in tests/test_phase_scenario.py): its error is
 the difference of the range errors at t and t - W. So a rate row is correlated with the same
@@ -222,10 +222,10 @@ def measurement_epochs(cfg: PhasePipelineConfig, inp: PhaseInputs) -> list:
     out = []
     for k in range(inp.times.size):
         W = inp.windows[k]
-        sig_rate = np.where(np.isfinite(W), np.sqrt(2.0) * cfg.sigma_range / np.where(np.isfinite(W), W, 1.0), np.inf)
+        sig_rate = np.where(np.isfinite(W), np.sqrt(2.0) * cfg.range_sigma / np.where(np.isfinite(W), W, 1.0), np.inf)
         use_rate = np.isfinite(W) & (cfg.rate_rows != "off")
         out.append(PhaseMeasurement(
-            inp.ranges[k], inp.rates[k], inp.master_pos[k], inp.master_vel[k], cfg.sigma_range, sig_rate,
+            inp.ranges[k], inp.rates[k], inp.master_pos[k], inp.master_vel[k], cfg.range_sigma, sig_rate,
             valid_range_rate=use_rate,
             rate_window=np.where(use_rate, W, 1.0) if cfg.rate_rows == "window" else None,
         ))
@@ -256,7 +256,7 @@ def phase_pcrb(cfg: PhasePipelineConfig, q: float | ProcessNoise, states: np.nda
     sig_rate = np.array([np.broadcast_to(m.sigma_range_rate, (len(inp.masters), 3, 3)) for m in meas])
     sig_rate = np.where(np.isfinite(sig_rate), sig_rate, 1.0)
     W = np.where(np.isfinite(inp.windows), inp.windows, 1.0) if cfg.rate_rows == "window" else None
-    return pcrb(states, inp.times, inp.master_pos, inp.master_vel, P0, cfg.sigma_range, sig_rate, q,
+    return pcrb(states, inp.times, inp.master_pos, inp.master_vel, P0, cfg.range_sigma, sig_rate, q,
                 valid=valid, rate_window=W)
 
 

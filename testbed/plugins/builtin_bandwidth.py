@@ -30,16 +30,14 @@ from estimators.core import Epoch, Stepper
 from testbed.pipelines.bandwidth import initial_estimate, known_config
 from testbed.pipelines.config import N_NODES, BandwidthPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known, pipeline_keys, settings
+from testbed.plugins.settings import settings
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
 
 
 class Fusion:
     """seed 000: bandwidth-constrained distributed fusion of the formation point, each node's tag."""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(BandwidthPipelineConfig))
+    Params = BandwidthPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         cfg = self.cfg = settings(BandwidthPipelineConfig, "bandwidth", context, params, "bandwidth.fusion")

@@ -22,13 +22,12 @@ from dataclasses import replace
 import numpy as np
 
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
+from estimators.sensor_models import gnss_sigma, twr_range_covariance, twr_range_variance
 from estimators.transport import Transport
 from testbed.pipelines.config import CoopPipelineConfig
 from testbed.plugins.api import Context, EstimateBatch, Measurement
 from testbed.plugins.epochs import EpochGrouping
-from testbed.plugins.settings import check_known, pipeline_keys, settings
-from testbed.sensors.noise import twr_range_covariance, twr_range_variance
-from testbed.stream import gnss_sigma
+from testbed.plugins.settings import settings
 
 
 def gnss_covariances(cfg: CoopPipelineConfig, is_rtk: np.ndarray) -> np.ndarray:
@@ -49,7 +48,7 @@ def range_sigmas(cfg: CoopPipelineConfig, d: np.ndarray) -> np.ndarray:
 def range_covariance(cfg: CoopPipelineConfig, edges: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Joint covariance (m, m) m^2 the centralized estimator assumes for one epoch's ranges d (m,)
     m on edges (m, 2): the white noise range_sigma^2 I plus the per-device clock and antenna-delay
-    terms of the known model, shared by the links of one radio (testbed.sensors.noise.
+    terms of the known model, shared by the links of one radio (estimators.sensor_models.
     twr_range_covariance); its diagonal is range_sigmas(cfg, d)^2."""
     twr = twr_range_covariance(cfg.twr_mode, d, edges[:, 0], edges[:, 1], cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma)
     return cfg.range_sigma ** 2 * np.eye(d.size) + twr
@@ -100,9 +99,7 @@ class _CoopEpochs(EpochGrouping):
 
     variant = ""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(CoopPipelineConfig))
+    Params = CoopPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         self.cfg = settings(CoopPipelineConfig, "coop-fg", context, params, f"coop.{self.variant}")

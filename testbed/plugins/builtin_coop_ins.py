@@ -49,7 +49,7 @@ scale-factor and misalignment sigmas times g (the 15 states have no scale factor
 scale or misalignment error of the accelerometer is a constant error of the 1 g it reads, which
 the bias state takes; the gyro's, times rates of a few deg/s, are left out). GNSS: the row's
 declared sigma. UWB: the declared noise plus the two-way-ranging clock term and the link bias
-as white noise (testbed.sensors.noise.range_variances); the antenna delay of every UWB
+as white noise (estimators.sensor_models.range_variances); the antenna delay of every UWB
 device (the vehicles' tags, the anchors) is a state (mean 0, the declared antenna_delay_sigma). Ranges are weighted by Huber's function of their normalized innovation (threshold
 `huber`, estimators.coop_ins.SwarmIns.update); an optional gate (gate_prob > 0) rejects a range
 whose NIS alone exceeds the chi-square quantile 1 - gate_prob of 1 dof. The default, Huber 1.345
@@ -75,19 +75,42 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimators import coop_ins as ci
-from testbed.config import from_dict
+from estimators.sensor_models import imu_noise, range_variances
+from testbed.config import from_dict, key
 from testbed.network import Network
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
-from testbed.plugins.builtin_eskf import imu_noise, levelled_start
-from testbed.plugins.settings import check_known
-from testbed.sensors.noise import range_variances
+from testbed.plugins.builtin_eskf import StartParams, levelled_start
+from testbed.plugins.params import fields_of, read
 
-DEFAULTS = dict(gate_prob=0.0, huber=1.345, iterations=3, yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, output_every=1,
-                network=None, stale_s=1.0, peer_inflation=4.0, broadcast_check=1e-3, linearity=1.0)
+
+@dataclass(frozen=True, kw_only=True)
+class CoopInsParams(StartParams):
+    """Parameters of coop.ins ([[estimators]] params; module docstring)."""
+
+    huber: float = key(1.345, lo=0, unit="sigma", doc="Huber weight threshold of the ranges (0: least squares)")
+    gate_prob: float = key(0.0, lo=0, hi=1, hi_open=True, doc="NIS gate: false-alarm probability (0: no gate)")
+    iterations: int = key(3, lo=1, doc="iterations of the iterated update")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CoopInsDistributedParams(CoopInsParams):
+    """Parameters of coop.ins_distributed ([[estimators]] params; module docstring)."""
+
+    network: dict | None = key(None, range="a [network] table (docs/network.md)", doc="the channel of the broadcasts (none: ideal)")
+    stale_s: float = key(1.0, lo=0, unit="s", doc="a neighbour's broadcast older than this is not used")
+    peer_inflation: float = key(4.0, lo=0, doc="cap on kappa, the factor on a neighbour's broadcast covariance")
+    broadcast_check: float = key(1e-3, lo=0, hi=1, hi_open=True, doc="false-alarm probability of the broadcast consistency check (0: off)")
+    linearity: float = key(1.0, lo=0, doc="range linearity test factor (0: off)")
+
+    def __post_init__(self) -> None:
+        super(CoopInsDistributedParams, self).__post_init__()
+        if self.network is not None:
+            from_dict(NetworkConfig, self.network, "", "network")
+
+
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
 NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
-DISTRIBUTED_ONLY = ("network", "stale_s", "peer_inflation", "broadcast_check", "linearity")
 
 
 class CoopIns:
@@ -95,15 +118,12 @@ class CoopIns:
     joint = True
     copies = 1  # filters per vehicle in self.ins (the distributed one adds its own-measurement filter)
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, set(DEFAULTS) - (set(DISTRIBUTED_ONLY) if cls.joint else set()))
+    Params = CoopInsParams
 
     def __init__(self, context: Context, params: dict):
-        self.check_params(params)
+        self.p = fields_of(read(self.Params, params, type(self).__name__))
         if "imu" not in context.sensors:
             raise ValueError("needs [sensors.imu]")
-        self.p = {**DEFAULTS, **params}
         self.vehicles = list(context.vehicles)
         self.n = n = len(self.vehicles)
         imu = context.sensors["imu"]
@@ -359,6 +379,7 @@ class EpochRows:
 class CoopInsDistributed(CoopIns):
     description = "per-vehicle IMU error-state EKFs, GNSS + UWB anchors + neighbours' broadcasts over [network]; flies in the loop"
     joint = False
+    Params = CoopInsDistributedParams
     # per vehicle i: the flown filter (index i) and the filter of its own measurements (IMU, GNSS,
     # anchors; index n + i) whose state it broadcasts, propagated and updated together
     copies = 2

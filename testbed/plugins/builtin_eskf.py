@@ -18,7 +18,7 @@ accelerometer's and the gyro's scale factors and misalignments (declared scale_s
 misalign_sigma) are states too (estimators.eskf, mean 0, those sigmas): untreated, a gyro
 misalignment of 1 % alone drove the attitude ANEES to 13.6 (95 % interval [1.55, 4.92]).
 GNSS: the row's declared sigma. UWB ranges to anchors: the declared noise plus, as white
-variance, the clock term of the two-way ranging (testbed.sensors.noise.twr_range_variance) and
+variance, the clock term of the two-way ranging (estimators.sensor_models.twr_range_variance) and
 the per-link bias sigma; the antenna delays of the vehicle's tag and of each anchor (constant
 per device, declared `antenna_delay_sigma`) are extra states of the vehicle's filter (mean 0,
 that sigma), because a constant bias treated as white noise would make the filter overconfident
@@ -33,30 +33,40 @@ ranges of one epoch in one update is what matters, see `_ranges`).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.stats import chi2
 
 from estimators import eskf
 from estimators.core import symmetrize
+from estimators.sensor_models import imu_noise, range_variances
 from estimators.so3 import quat_to_rotmat
+from testbed.config import check_fields, key
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known
-from testbed.sensors.noise import range_variances
-
-DEFAULTS = dict(yaw0=0.0, yaw0_sigma=0.1, tilt0_sigma=0.05, vel0_sigma=1.0, gate_prob=1e-4, output_every=1, iterations=1)
+from testbed.plugins.params import fields_of, read
 
 
-def _walk(errors: dict) -> float:
-    """Bias random-walk density (unit/sqrt(s)) standing for the declared walk and Gauss-Markov terms."""
-    gm = errors["gm_sigma"] * np.sqrt(2.0 / errors["gm_tau"]) if errors["gm_tau"] > 0 else 0.0
-    return float(np.hypot(errors["bias_walk"], gm))
+@dataclass(frozen=True, kw_only=True)
+class StartParams:
+    """How an IMU filter of the swarm starts at its vehicle's first GNSS fix, and how often it outputs."""
+
+    yaw0: float = key(0.0, unit="rad", doc="initial heading")
+    yaw0_sigma: float = key(0.1, lo=0, unit="rad", doc="initial heading uncertainty, 1 sigma")
+    tilt0_sigma: float = key(0.05, lo=0, unit="rad", doc="initial tilt uncertainty beyond the levelling error, 1 sigma")
+    vel0_sigma: float = key(1.0, lo=0, unit="m/s", doc="initial velocity uncertainty per axis, 1 sigma")
+    output_every: int = key(1, lo=1, doc="estimates at every n-th IMU sample")
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
-def imu_noise(imu: dict) -> eskf.ImuNoise:
-    """The filter's IMU noise model from the declared [sensors.imu] table (Context.sensors["imu"]):
-    white densities, and bias walks standing for the declared walk and Gauss-Markov terms."""
-    acc, gyr = imu["accel"], imu["gyro"]
-    return eskf.ImuNoise(acc["noise_density"], gyr["noise_density"], _walk(acc), _walk(gyr))
+@dataclass(frozen=True, kw_only=True)
+class NavEskfParams(StartParams):
+    """Parameters of nav.eskf ([[estimators]] params)."""
+
+    gate_prob: float = key(1e-4, lo=0, hi=1, hi_open=True, doc="NIS gate: false-alarm probability (0: no gate)")
+    iterations: int = key(1, lo=1, doc="Gauss-Newton iterations of each update (1: the plain EKF)")
 
 
 def levelled_start(f: np.ndarray, accel_bias_var: np.ndarray, p: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -93,15 +103,12 @@ class _Vehicle:
 class NavEskf:
     description = "per-vehicle loosely coupled IMU + GNSS + UWB error-state EKF (estimators.eskf); flies in the loop"
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, DEFAULTS)
+    Params = NavEskfParams
 
     def __init__(self, context: Context, params: dict):
-        self.check_params(params)
+        self.p = fields_of(read(NavEskfParams, params, "nav.eskf"))
         if "imu" not in context.sensors:
             raise ValueError("needs [sensors.imu]")
-        self.p = {**DEFAULTS, **params}
         imu = context.sensors["imu"]
         acc, gyr = imu["accel"], imu["gyro"]
         self.noise = imu_noise(imu)

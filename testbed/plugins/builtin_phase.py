@@ -28,7 +28,7 @@ from estimators.phase_model import rotation_from_antennas
 from testbed.pipelines.config import PhasePipelineConfig
 from testbed.pipelines.phase import BODY_PV, BODY_POS, measurement_epochs, phase_inputs, process_noise_model
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known, pipeline_keys, settings
+from testbed.plugins.settings import settings
 
 _COLUMNS = ("master_pos", "master_vel", "rate_periods", "slip")
 
@@ -36,9 +36,7 @@ _COLUMNS = ("master_pos", "master_vel", "rate_periods", "slip")
 class PhaseEkf:
     """seed 003: carrier-phase EKF of the follower (18-state, nav frame of a master), body pose in world."""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(PhasePipelineConfig))
+    Params = PhasePipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         self.cfg = settings(PhasePipelineConfig, "phase-ekf", context, params, "phase.ekf")

@@ -29,7 +29,7 @@ from estimators.visnav import CameraFilter, CameraFrame, RelNavModel
 from testbed.pipelines.config import VisNavPipelineConfig
 from testbed.pipelines.visnav import estimator_config
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known, pipeline_keys, settings
+from testbed.plugins.settings import settings
 
 
 class _VisNav:
@@ -37,9 +37,7 @@ class _VisNav:
 
     filter = ""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(VisNavPipelineConfig))
+    Params = VisNavPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         cfg = settings(VisNavPipelineConfig, "visnav", context, params, f"visnav.{self.filter}")

@@ -34,31 +34,48 @@ known motion over the interval an epoch closes, the input of the window's motion
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from estimators import window as sw
-from testbed.config import from_dict
+from estimators.sensor_models import range_variances
+from testbed.config import check_fields, from_dict, key
 from testbed.network import Network, RoundTransport
 from testbed.network_config import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
-from testbed.plugins.settings import check_known
-from testbed.sensors.noise import range_variances
+from testbed.plugins.params import fields_of, read
 
-DEFAULTS = dict(window=5, q=2.0, range_scale=1.0, huber=0.0, max_iter=5, max_rounds=10, tol=1e-3, init_sigma_v=10.0, network=None,
-                mirrors=True)
+
+@dataclass(frozen=True, kw_only=True)
+class WindowParams:
+    """Parameters of coop.window and coop.window_distributed ([[estimators]] params; module docstring)."""
+
+    window: int = key(5, lo=1, doc="epochs in the window")
+    q: float = key(2.0, lo=0, unit="m^2/s^3", doc="white acceleration density of the motion factors")
+    range_scale: float = key(1.0, lo=0, lo_open=True, doc="factor on every range's 1-sigma")
+    huber: float = key(0.0, lo=0, unit="sigma", doc="Huber range loss threshold (0: least squares)")
+    max_iter: int = key(5, lo=1, doc="Gauss-Newton steps per epoch (centralized)")
+    max_rounds: int = key(10, lo=1, doc="message rounds per epoch (distributed)")
+    tol: float = key(1e-3, lo=0, lo_open=True, unit="m", doc="convergence tolerance")
+    init_sigma_v: float = key(10.0, lo=0, lo_open=True, unit="m/s", doc="the first epoch's velocity prior, 1 sigma")
+    network: dict | None = key(None, range="a [network] table (docs/network.md)", doc="distributed: the channel of the broadcasts (none: ideal)")
+    mirrors: bool = key(True, doc="test each vehicle's mirror image through its neighbours' plane after every solve")
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if self.network is not None:
+            from_dict(NetworkConfig, self.network, "", "network")
 
 
 class _WindowPlugin(EpochGrouping):
     """One epoch's fixes and ranges (testbed.plugins.epochs) and the output; subclasses make the solver."""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, DEFAULTS)
+    Params = WindowParams
 
     def __init__(self, context: Context, params: dict):
-        self.check_params(params)
-        self.p = {**DEFAULTS, **params}
+        self.p = fields_of(read(WindowParams, params, type(self).__name__))
         self.vehicles = context.vehicles
         self.n = len(self.vehicles)
         self.index = {f"{v}/uwb": i for i, v in enumerate(self.vehicles)}

@@ -64,14 +64,18 @@ and the estimates drifted to 10-22 m of error.
 """
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+
 import numpy as np
 
 from estimators import eskf
 from estimators.window import equivalent_measurement
+from testbed.config import key
 from testbed.plugins import builtin_eskf, builtin_window
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.collect import cov_problem, cov_problems
-from testbed.plugins.settings import check_known
+from testbed.plugins.params import fields_of, read
 
 
 class _Epoch:
@@ -84,33 +88,52 @@ class _Epoch:
         self.time, self.value, self.sigma = time, value, np.sqrt(np.diag(cov))
 
 
-CASCADE_DEFAULTS = dict(decorrelate=True, imu_motion=False, start_epochs=1)
-# the cascade's window: Huber range loss (docs/denied.md: least squares let the DW1000's 1 % of
-# 3 m outlier ranges throw single vehicles metres off vertically, and the swarm fell on 4 of 10
-# calibration seeds)
-WINDOW_DEFAULTS = dict(huber=1.345)
+@dataclass(frozen=True, kw_only=True)
+class WindowInsParams(builtin_eskf.NavEskfParams, builtin_window.WindowParams):
+    """Parameters of coop.window_ins: the window's, the filter's and the cascade's, in one table."""
+
+    # no innovation gate: the window's position is the filters' only position information (module docstring)
+    gate_prob: float = key(0.0, lo=0, hi=1, hi_open=True, doc="NIS gate: false-alarm probability (0: no gate)")
+    # the cascade's window: Huber range loss (docs/denied.md: least squares let the DW1000's 1 % of
+    # 3 m outlier ranges throw single vehicles metres off vertically, and the swarm fell on 4 of 10
+    # calibration seeds)
+    huber: float = key(1.345, lo=0, unit="sigma", doc="Huber range loss threshold (0: least squares)")
+    decorrelate: bool = key(True, doc="feed each epoch's new information only (equivalent measurement), not the marginal")
+    imu_motion: bool = key(False, doc="the filters' IMU motion between epochs as the known input of the window's motion factor")
+    start_epochs: int = key(1, lo=1, doc="a vehicle's filter starts once the window holds this many epochs")
+
+    def __post_init__(self) -> None:
+        builtin_window.WindowParams.__post_init__(self)  # every field's interval, and the network table
+
+
+@dataclass(frozen=True, kw_only=True)
+class WindowDistributedInsParams(WindowInsParams):
+    """Parameters of coop.window_distributed_ins: as coop.window_ins, other cascade defaults."""
+
+    imu_motion: bool = key(True, doc="the filters' IMU motion between epochs as the known input of the window's motion factor")
+    start_epochs: int = key(5, lo=1, doc="a vehicle's filter starts once the window holds this many epochs")
+
+
+def _part(p: dict, Params: type) -> dict:
+    """The keys of params p that are Params' fields (the filter's, the window's)."""
+    names = {f.name for f in dataclasses.fields(Params)}
+    return {k: v for k, v in p.items() if k in names}
 
 
 class _WindowIns(builtin_eskf.NavEskf):
     """nav.eskf's per-vehicle filters, position-updated by a window estimator (module docstring)."""
 
     window_class: type = builtin_window.Window
-    cascade_defaults: dict = {}  # this cascade's own defaults over CASCADE_DEFAULTS
-
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, set(builtin_eskf.DEFAULTS) | set(builtin_window.DEFAULTS) | set(CASCADE_DEFAULTS))
+    Params = WindowInsParams
 
     def __init__(self, context: Context, params: dict):
-        own = set(builtin_eskf.DEFAULTS)
-        self.check_params(params)
-        cascade = {**CASCADE_DEFAULTS, **self.cascade_defaults, **{k: v for k, v in params.items() if k in CASCADE_DEFAULTS}}
-        self.decorrelate = bool(cascade["decorrelate"])
-        self.start_epochs = int(cascade["start_epochs"])
-        super().__init__(context, {"gate_prob": 0.0, **{k: v for k, v in params.items() if k in own}})
-        self.window = self.window_class(context, {**WINDOW_DEFAULTS, **{k: v for k, v in params.items() if k in builtin_window.DEFAULTS}})
+        p = fields_of(read(self.Params, params, type(self).__name__))
+        self.decorrelate = bool(p["decorrelate"])
+        self.start_epochs = int(p["start_epochs"])
+        super().__init__(context, _part(p, builtin_eskf.NavEskfParams))
+        self.window = self.window_class(context, _part(p, builtin_window.WindowParams))
         self.window.solver.tracklets = self.decorrelate
-        if cascade["imu_motion"]:
+        if p["imu_motion"]:
             self.window.motion = self._motion
         self.delay_var = np.zeros(0)  # no UWB range reaches the filters: no antenna-delay states
         self.lever = {v: context.sites[f"{v}/uwb"][1] for v in context.vehicles}  # (3,) m body
@@ -210,4 +233,4 @@ class WindowIns(_WindowIns):
 class WindowDistributedIns(_WindowIns):
     description = "IMU error-state EKF per vehicle, position-updated by coop.window_distributed (cascade); flies in the loop"
     window_class = builtin_window.WindowDistributed
-    cascade_defaults = {"imu_motion": True, "start_epochs": 5}
+    Params = WindowDistributedInsParams

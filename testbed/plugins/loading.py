@@ -19,6 +19,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from testbed.errors import FieldError, UsageError
+from testbed.plugins import params as typed_params
 from testbed.plugins.spec import EstimatorSpec
 
 GROUP = "testbed.estimators"
@@ -113,17 +114,12 @@ def check_protocol(entry: str, cls: object) -> None:
 
 
 def check_params(plugin: Plugin) -> None:
-    """The class's optional `check_params(params)` (docs/estimators.md): a FieldError or ValueError
-    it raises is the user's mistake, a UsageError naming the estimator, the key and the value."""
-    check = getattr(plugin.cls, "check_params", None)
-    if not callable(check):
-        return
+    """The plugin's params against its class's `Params` (testbed.plugins.params.check): a mistake
+    is a UsageError naming the estimator, the key and the value."""
     try:
-        check(dict(plugin.params))
+        typed_params.check(plugin.cls, dict(plugin.params))
     except FieldError as e:
         raise UsageError(f"estimator {plugin.key!r} ({plugin.entry}) params: {e.key} = {e.value!r}: {e.reason}") from None
-    except ValueError as e:
-        raise UsageError(f"estimator {plugin.key!r} ({plugin.entry}) params: {e}".splitlines()[0]) from None
 
 
 def resolve(specs: tuple[EstimatorSpec, ...] | list[EstimatorSpec]) -> list[Plugin]:

@@ -17,27 +17,26 @@ params: range_sigma (m, 0.1), streams (range streams, ["uwb"]).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from estimators.range_lsq import determines_attitude, fit_ranges, fresh_fit
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat
-from testbed.config import from_dict, in_range, require
+from testbed.config import check_fields, key
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
+from testbed.plugins.params import read
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class LsqParams:
-    """range_sigma: m, the sigma of ranges without a declared one; streams: the range streams."""
+    """Parameters of ranging.lsq ([[estimators]] params)."""
 
-    range_sigma: float = 0.1
-    streams: list = field(default_factory=lambda: ["uwb"])
+    range_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the ranges that declare none")
+    streams: tuple[str, ...] = key(("uwb",), doc="the range streams")
 
     def __post_init__(self) -> None:
-        in_range(self, "range_sigma", 0, lo_open=True, unit="m")
-        require(isinstance(self.streams, list) and all(isinstance(s, str) for s in self.streams), "streams",
-                self.streams, "expected a list of stream names")
+        check_fields(self)
 
 
 class RangeLsq:
@@ -45,12 +44,10 @@ class RangeLsq:
 
     description = "per-epoch least-squares fit (scipy) of each unknown body from its ranges, no motion model"
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        from_dict(LsqParams, params)
+    Params = LsqParams
 
     def __init__(self, context: Context, params: dict):
-        self.p = from_dict(LsqParams, params, "estimator ranging.lsq params")
+        self.p = read(LsqParams, params, "ranging.lsq")
         self.vehicles = context.vehicles
         self.sites = {s: (b, np.asarray(a, float)) for s, (b, a) in context.sites.items()}
         self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}

@@ -22,7 +22,7 @@ Streams (names configurable in params):
   a flat array, the nearest such point, its height offset from the origin taken as for a level
   body). height_weights in params replaces the c_j for heights of the follower.
 The sigma of each row is the measurement's declared sigma at that column when given, else
-sigma_range / sigma_range_rate / sigma_height from params.
+range_sigma / range_rate_sigma / height_sigma from params.
 
 Epochs: measurements of one time of validity form an epoch, processed when a later one arrives
 (or at finish), never looking ahead. The first epoch whose ranges determine the follower builds
@@ -32,14 +32,12 @@ of which ends at a known point), are skipped and counted (health: skipped_epochs
 other end is neither an anchor nor a site of a known body with a pose yet: unknown_end_rows). Estimates: each antenna site's position and velocity, and
 the follower body's position, velocity and attitude when its lever arms determine an attitude.
 
-params: follower (default: the only vehicle that is not known and has ranges; required when
-ambiguous), antennas (the follower's site names, default: every site of the follower),
-known (bodies on the pose stream; default all other vehicles), q, q_translation, q_rotation
-(m^2/s^3, rad^2/s^3), gate_alpha, iterations, sigma_range, sigma_range_rate, sigma_height,
-use_rates, rate_window (s or none), v_sigma (m/s prior per axis), shape_sigma (m), level_sigma
-(rad or none), range_streams, rate_streams, pose_stream, height_stream, height_weights.
+params: RangingParams (`testbed estimators ranging.ekf`); follower is required when more than
+one vehicle could be it.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -47,15 +45,44 @@ from estimators.core import Gate, counting
 from estimators.geometry import DegenerateGeometryError
 from estimators.ranging import RangingEkf, RangingEpoch, RangingNoise, body_pose, initial_belief
 from estimators.so3 import quat_to_rotmat
+from testbed.config import check_fields, key, require
 from testbed.errors import ConfigError
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known
+from testbed.plugins.params import fields_of, read
 
-DEFAULTS = dict(q=1e-3, q_translation=1e-2, q_rotation=1e-2, gate_alpha=1e-3, iterations=1, sigma_range=0.1,
-                sigma_range_rate=0.1, sigma_height=0.1, use_rates=False, rate_window=None, v_sigma=1.0,
-                shape_sigma=0.01, level_sigma=None, range_streams={"uwb": 0, "phase": 1},
-                rate_streams={"range-rate": 0, "phase": 2}, pose_stream="mocap", height_stream="height",
-                height_weights=None, follower=None, antennas=None, known=None)
+
+@dataclass(frozen=True, kw_only=True)
+class RangingParams:
+    """Parameters of ranging.ekf ([[estimators]] params; module docstring)."""
+
+    follower: str | None = key(None, doc="the tracked body (none: the only vehicle not known with ranges)")
+    antennas: tuple[str, ...] | None = key(None, doc="the follower's antenna sites (none: every site of the follower)")
+    known: tuple[str, ...] | None = key(None, doc="bodies on the pose stream (none: every other vehicle)")
+    q: float = key(1e-3, lo=0, unit="m^2/s^3", doc="white-acceleration density per antenna axis")
+    q_translation: float = key(1e-2, lo=0, unit="m^2/s^3", doc="rigid-body white acceleration")
+    q_rotation: float = key(1e-2, lo=0, unit="rad^2/s^3", doc="rigid-body white angular acceleration")
+    gate_alpha: float = key(1e-3, lo=0, hi=1, lo_open=True, hi_open=True, doc="false-alarm rate of the innovation gate")
+    iterations: int = key(1, lo=1, doc="1: EKF; > 1: iterated EKF")
+    range_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the ranges that declare none")
+    range_rate_sigma: float = key(0.1, lo=0, lo_open=True, unit="m/s", doc="sigma of the range rates that declare none")
+    height_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the heights that declare none")
+    use_rates: bool = key(False, doc="use the range rates")
+    rate_window: float | None = key(None, lo=0, lo_open=True, unit="s", doc="window of the range rates (none: instantaneous)")
+    v_sigma: float = key(1.0, lo=0, lo_open=True, unit="m/s", doc="prior velocity per axis, 1 sigma")
+    shape_sigma: float = key(0.01, lo=0, lo_open=True, unit="m", doc="rigidity of the antenna array in the prior, 1 sigma")
+    level_sigma: float | None = key(None, lo=0, lo_open=True, unit="rad", doc="prior levelling, 1 sigma (none: no level prior)")
+    range_streams: dict = key(factory=lambda: {"uwb": 0, "phase": 1}, range="{stream: column >= 0}", doc="range streams and the value column of the range")
+    rate_streams: dict = key(factory=lambda: {"range-rate": 0, "phase": 2}, range="{stream: column >= 0}", doc="range-rate streams and their column")
+    pose_stream: str = key("mocap", doc="stream of the known bodies' poses")
+    height_stream: str = key("height", doc="stream of the follower's heights")
+    height_weights: tuple[float, ...] | None = key(None, doc="weights of the antennas for a height of the follower (none: least norm)")
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        for name in ("range_streams", "rate_streams"):
+            for stream, col in getattr(self, name).items():
+                require(isinstance(col, int) and not isinstance(col, bool) and col >= 0, f"{name}.{stream}", col,
+                        "expected a column number >= 0")
 
 
 def _body(site: str) -> str:
@@ -67,14 +94,10 @@ class RangingEkfEstimator:
 
     description = "ranging EKF, any antennas/lever arms, known poses from a pose stream, optional rates and height"
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, DEFAULTS)
+    Params = RangingParams
 
     def __init__(self, context: Context, params: dict):
-        self.check_params(params)
-        p = {**DEFAULTS, **params}
-        self.p = p
+        p = self.p = fields_of(read(RangingParams, params, "ranging.ekf"))
         vehicles = list(context.vehicles)
         follower = p["follower"] or (vehicles[-1] if len(vehicles) == 1 else None)
         if follower is None and p["known"] is not None:
@@ -159,7 +182,7 @@ class RangingEkfEstimator:
                 c, z = np.asarray(p["height_weights"], float), float(m.value[0])
             else:
                 c, z = self.origin_weights, float(m.value[0]) + self.origin_offset
-            self.height = (z, self._sigma(m, 0, p["sigma_height"]), c)
+            self.height = (z, self._sigma(m, 0, p["height_sigma"]), c)
         else:
             ends = [(m.src, m.dst), (m.dst, m.src)]
             for mine, other in ends:
@@ -167,10 +190,10 @@ class RangingEkfEstimator:
                     j = self.index[mine]
                     if m.stream in p["range_streams"]:
                         col = int(p["range_streams"][m.stream])
-                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["sigma_range"])))
+                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["range_sigma"])))
                     if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
                         col = int(p["rate_streams"][m.stream])
-                        self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["sigma_range_rate"]))
+                        self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["range_rate_sigma"]))
         return out
 
     def finish(self) -> list[Estimate]:

@@ -33,18 +33,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Literal
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
 
-from estimators.graph.batch import EpochFactors, EpochsResult, so3_log_batch, solve_epochs
+from estimators.graph.batch import EpochFactors, EpochsResult, solve_epochs
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.range_lsq import determines_attitude, fresh_fit
-from estimators.so3 import quat_to_rotmat, rotmat_to_quat
-from testbed.config import from_dict, in_range, require
+from estimators.so3 import quat_to_rotmat, rotmat_to_quat, so3_log
+from testbed.config import check_fields, key, require
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
+from testbed.plugins.params import read
 
 # An epoch that converged from neither its warm start nor its fresh start is published (flagged)
 # when the two final iterates x_w, x_f are one solution by a chi-square test at this level:
@@ -57,49 +59,33 @@ AGREE_LEVEL = 0.999
 class GraphParams:
     """Parameters of graph.poses ([[estimators]] params).
 
-    epoch: s, width of the bins that group measurements into one epoch (0: one epoch per time of
-    validity); batch: epochs solved together; range_sigma, height_sigma: m, for rows without a
-    sigma; use_phase: phase links are ranges too; loss: robust loss of the ranges ("none", "huber",
-    "cauchy") with loss_scale (sigmas); max_iter: LM iterations per epoch; step_tol (m, rad), cost_tol (relative): an epoch has
-    converged when a step is below step_tol, or an accepted step lowers the cost by less than cost_tol
-    or is shorter than step_sigma standard deviations of the estimate (sqrt(delta^T N delta); 0: off);
-    motion_window: s, the warm start fits a constant velocity and body rate to the robot's estimates
-    of this span before the batch (0: the last estimate, held); horizon: s, the warm start never
-    predicts further past the robot's last estimate (the rule of the default, 2 s: twice the
-    default motion_window, the line is never extrapolated further than twice the span it was
-    fitted on);
-    initial: {body: [x, y, z] or [x, y, z, qw, qx, qy, qz]} m world, quaternion body-to-world: the
-    starting pose of robots without a fix or an earlier estimate.
+    An epoch has converged when a step is below step_tol, or an accepted step lowers the cost by
+    less than cost_tol or is shorter than step_sigma standard deviations of the estimate
+    (sqrt(delta^T N delta); 0: off). The warm start fits a constant velocity and body rate to the
+    robot's estimates of the last motion_window seconds (0: the last estimate, held) and never
+    predicts further than horizon past the robot's last estimate (the rule of the default, 2 s:
+    twice the default motion_window, a line is never extrapolated further than twice the span it
+    was fitted on).
     """
 
-    epoch: float = 0.0
-    batch: int = 16
-    range_sigma: float = 0.1
-    height_sigma: float = 0.1
-    use_phase: bool = False
-    loss: str = "none"
-    loss_scale: float = 1.345
-    max_iter: int = 50
-    step_tol: float = 1e-6
-    cost_tol: float = 1e-9
-    step_sigma: float = 1e-3
-    motion_window: float = 1.0
-    horizon: float = 2.0
-    initial: dict = field(default_factory=dict)
+    epoch: float = key(0.0, lo=0, unit="s", doc="width of the bins grouping measurements into an epoch (0: one per time of validity)")
+    batch: int = key(16, lo=1, hi=100_000, doc="epochs solved together")
+    range_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the ranges that declare none")
+    height_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the heights that declare none")
+    use_phase: bool = key(False, doc="phase links are ranges too")
+    loss: Literal["none", "huber", "cauchy"] = key("none", doc="robust loss of the ranges")
+    loss_scale: float = key(1.345, lo=0, lo_open=True, unit="sigma", doc="scale of the robust loss")
+    max_iter: int = key(50, lo=1, hi=10_000, doc="Levenberg-Marquardt iterations per epoch")
+    step_tol: float = key(1e-6, lo=0, lo_open=True, unit="m, rad", doc="converged when a step is below it")
+    cost_tol: float = key(1e-9, lo=0, lo_open=True, doc="converged when a step lowers the cost by less, relative")
+    step_sigma: float = key(1e-3, lo=0, unit="sigma", doc="converged when a step is shorter, in standard deviations (0: off)")
+    motion_window: float = key(1.0, lo=0, unit="s", doc="span of estimates the warm start fits (0: the last, held)")
+    horizon: float = key(2.0, lo=0, unit="s", doc="the warm start never predicts further past the last estimate")
+    initial: dict = key(factory=dict, unit="m", range="{body: [x, y, z] or [x, y, z, qw, qx, qy, qz]}",
+                        doc="starting pose of robots without a fix or an estimate, world, quaternion body-to-world")
 
     def __post_init__(self) -> None:
-        in_range(self, "epoch", 0, unit="s")
-        in_range(self, "batch", 1, 100_000)
-        in_range(self, "range_sigma", 0, lo_open=True, unit="m")
-        in_range(self, "height_sigma", 0, lo_open=True, unit="m")
-        require(self.loss in ("none", "huber", "cauchy"), "loss", self.loss, "expected 'none', 'huber' or 'cauchy'")
-        in_range(self, "loss_scale", 0, lo_open=True)
-        in_range(self, "max_iter", 1, 10_000)
-        in_range(self, "step_tol", 0, lo_open=True)
-        in_range(self, "cost_tol", 0, lo_open=True)
-        in_range(self, "step_sigma", 0)
-        in_range(self, "motion_window", 0, unit="s")
-        in_range(self, "horizon", 0, unit="s")
+        check_fields(self)
         for body, p in self.initial.items():
             require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
                     f"initial.{body}", p, "expected [x, y, z] (m, world) or [x, y, z, qw, qx, qy, qz]")
@@ -127,12 +113,10 @@ class PoseGraph:
 
     description = "per-epoch factor graph: multi-antenna robot poses, lever arms, anchors, known robots, GNSS, height"
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        from_dict(GraphParams, params)
+    Params = GraphParams
 
     def __init__(self, context: Context, params: dict):
-        self.p = from_dict(GraphParams, params, "estimator graph.poses params")
+        self.p = read(GraphParams, params, "graph.poses")
         unknown = sorted(set(self.p.initial) - set(context.vehicles))
         if unknown:
             raise ValueError(f"params initial names unknown bodies {unknown}")
@@ -510,7 +494,7 @@ def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, ret
     for e in np.flatnonzero(both):
         lo, hi = (first, second) if first.cost[e] <= second.cost[e] else (second, first)
         d = np.concatenate([lo.p[e, i] - hi.p[e, i] if kind == "point" else
-                            np.concatenate([lo.p[e, i] - hi.p[e, i], so3_log_batch(hi.R[e, i].T @ lo.R[e, i])])
+                            np.concatenate([lo.p[e, i] - hi.p[e, i], so3_log(hi.R[e, i].T @ lo.R[e, i])])
                             for i, kind in enumerate(kinds)])
         if d @ np.linalg.solve(lo.cov[e], d) <= chi2.ppf(AGREE_LEVEL, d.size):
             flagged[e] = True

@@ -61,7 +61,7 @@ class Gnss:
         self.sky = None
         if cfg.sky.enabled:  # sky_rng: the stream "constellation"
             self.sky = Sky(cfg.sky, physics, sky_rng, physics.body_ids[self.vehicles - 1])
-            self.declared = np.hypot(self.noise, self.bsig)  # (V, 3) m: testbed.stream.gnss_sigma of each receiver's table
+            self.declared = np.hypot(self.noise, self.bsig)  # (V, 3) m: estimators.sensor_models.gnss_sigma of each receiver's table
             self.n_vehicles = physics.n
             self.held: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (state_index, fix, sats, pdop) per sample
             keys["sigma"] = ((3,), "f8")

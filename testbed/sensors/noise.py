@@ -16,6 +16,8 @@ import zlib
 
 import numpy as np
 
+from estimators.sensor_models import C_LIGHT
+
 
 def device_rng(stream: np.random.Generator, device: str) -> np.random.Generator:
     """The child generator of one device (e.g. "uav2", "anchor1") inside a sensor stream.
@@ -62,6 +64,8 @@ class TriadErrors:
     random walk (eq. 2/4 eta_u), b_gm a first-order Gauss-Markov bias. `apply(x, normals)` maps
     n consecutive clean samples x (n, V, 3) to measurements, normals (n, 3, V, 3) for white,
     walk and Gauss-Markov increments.
+    What the estimators assume of it: the white density, and the walk and Gauss-Markov terms as
+    one bias walk of density sqrt(K^2 + 2 s^2 / tau) (estimators.sensor_models.imu_noise).
     """
 
     def __init__(self, errors, n_triads: int, dt: float, rng: np.random.Generator):
@@ -104,9 +108,6 @@ class TriadErrors:
         return out
 
 
-C_LIGHT = 299_792_458.0  # m/s
-
-
 def twr_range(mode: str, d: np.ndarray, ppm_a: np.ndarray, ppm_b: np.ndarray, reply_time: float) -> np.ndarray:
     """Range (m) that two-way ranging reports for true distances d (m), without noise or delays.
 
@@ -118,6 +119,9 @@ def twr_range(mode: str, d: np.ndarray, ppm_a: np.ndarray, ppm_b: np.ndarray, re
                 ~ d + e_A d + c T_reply (e_A - e_B) / 2, T_reply = reply_time (s) on B's clock
       "ds-twr": d (1 + e_A)(1 + e_B) / (1 + (e_A + e_B) / 2)  ~ d (1 + (e_A + e_B) / 2)
     d, ppm_a, ppm_b: (L,) per link.
+    The error it injects, to first order g_A k_A + g_B k_B (+ the antenna delays b_A + b_B), is
+    what the estimators assume: its gains, variance and joint covariance over links that share a
+    device are estimators.sensor_models (twr_clock_gains, twr_range_variance, twr_range_covariance).
     """
     if mode == "scale":
         return d * (1.0 + 1e-6 * (ppm_a + ppm_b) / 2)
@@ -129,67 +133,6 @@ def twr_range(mode: str, d: np.ndarray, ppm_a: np.ndarray, ppm_b: np.ndarray, re
         # asymmetric DS-TWR: tof = (R_A R_B - D_A D_B) / (R_A + R_B + D_A + D_B), each interval on its own clock
         return d * (1.0 + ea) * (1.0 + eb) / (1.0 + 0.5 * (ea + eb))
     raise ValueError(f"unknown two-way ranging mode {mode!r}")
-
-
-def twr_clock_gains(mode: str, d: np.ndarray, reply_time: float) -> tuple[np.ndarray, np.ndarray]:
-    """First-order range error (m) per ppm of the initiator's and of the responder's clock offset:
-    (g_A, g_B), each (L,) m/ppm, for true lengths d (L,) m (twr_range linearised in e = 1e-6 ppm):
-      "scale", "ds-twr": g_A = g_B = 1e-6 d / 2
-      "ss-twr":          g_A = 1e-6 (d + h), g_B = -1e-6 h,  h = c T_reply / 2
-    """
-    d = np.asarray(d, dtype=float)
-    if mode == "ss-twr":
-        h = 0.5 * C_LIGHT * reply_time
-        return 1e-6 * (d + h), np.full_like(d, -1e-6 * h)
-    return 0.5e-6 * d, 0.5e-6 * d
-
-
-def twr_range_variance(mode: str, d: np.ndarray, clock_ppm: float, reply_time: float, antenna_delay_sigma: float) -> np.ndarray:
-    """Variance (m^2) of the clock and antenna-delay error of a two-way range of true length d (m),
-    to first order, with independent per-device clock offsets ~ N(0, clock_ppm^2) (ppm) and
-    antenna delays ~ N(0, antenna_delay_sigma^2) (m); the white range noise is not included.
-      "scale", "ds-twr": (s d)^2 / 2 + 2 sigma_ad^2
-      "ss-twr":          s^2 ((d + h)^2 + h^2) + 2 sigma_ad^2,  h = c T_reply / 2
-    with s = 1e-6 clock_ppm (twr_clock_gains: clock_ppm^2 (g_A^2 + g_B^2)). d: (L,) m.
-    """
-    g_a, g_b = twr_clock_gains(mode, d, reply_time)
-    return clock_ppm ** 2 * (g_a ** 2 + g_b ** 2) + 2.0 * antenna_delay_sigma ** 2
-
-
-def range_variances(uwb: dict | None, sigma: np.ndarray, d: np.ndarray, antenna_delays: bool = True) -> np.ndarray:
-    """Variances (m^2) an estimator gives UWB ranges of length d (m,) m and declared noise sigma
-    (m,) m, taken as white noise: sigma^2, plus (with the declared [sensors.uwb] table uwb, as in
-    an estimator's Context) the two-way-ranging clock term, the two antenna-delay terms unless
-    `antenna_delays` is False (an estimator that has the delays as states), and the link bias
-    (twr_range_variance)."""
-    var = np.asarray(sigma, float) ** 2
-    if uwb is not None:
-        delay = uwb["antenna_delay_sigma"] if antenna_delays else 0.0
-        var = var + twr_range_variance(uwb["mode"], np.asarray(d, float), uwb["clock_ppm"], uwb["reply_time"],
-                                       delay) + uwb["link_bias_sigma"] ** 2
-    return var
-
-
-def twr_range_covariance(mode: str, d: np.ndarray, src: np.ndarray, dst: np.ndarray, clock_ppm: float, reply_time: float,
-                         antenna_delay_sigma: float) -> np.ndarray:
-    """Joint covariance (L, L) m^2 of the clock and antenna-delay errors of L two-way ranges
-    measured at the same time: link l from device src[l] to dst[l] (integer ids, (L,)), true length
-    d[l] (m). Its error is g_A k_src + g_B k_dst + b_src + b_dst with the per-device clock offsets k
-    (ppm) and antenna delays b (m) of twr_range_variance: two links that share a device share its
-    terms, cov = G diag(clock_ppm^2) G^T + sigma_ad^2 B B^T (G: gains at the device columns, B:
-    ones). The diagonal is twr_range_variance; the white range noise is not included.
-    """
-    src, dst = np.asarray(src), np.asarray(dst)
-    g_a, g_b = twr_clock_gains(mode, d, reply_time)
-    ids = np.unique(np.concatenate([src, dst]))
-    a, b = np.searchsorted(ids, src), np.searchsorted(ids, dst)
-    rows = np.arange(src.size)
-    G = np.zeros((src.size, ids.size))
-    B = np.zeros((src.size, ids.size))
-    # src == dst never happens (a radio does not range to itself)
-    G[rows, a], G[rows, b] = g_a, g_b
-    B[rows, a], B[rows, b] = 1.0, 1.0
-    return clock_ppm ** 2 * (G @ G.T) + antenna_delay_sigma ** 2 * (B @ B.T)
 
 
 def allan_deviation(y: np.ndarray, dt: float, m: np.ndarray) -> np.ndarray:
