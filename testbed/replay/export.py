@@ -38,6 +38,7 @@ from testbed.pipelines.config import (BandwidthPipelineConfig, CoopPipelineConfi
                                       VisNavPipelineConfig)
 from testbed.plugins import builtin_bandwidth, builtin_coop, builtin_phase, builtin_visnav
 from testbed.plugins.context import lever_arms, make_context, priors
+from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.loading import resolve
 from testbed.plugins.settings import settings
 from testbed.plugins.spec import EstimatorSpec
@@ -102,18 +103,6 @@ BAG_UNREPRODUCIBLE = (
 )
 
 
-def pipeline_estimators(pipeline) -> tuple[str, ...]:
-    """The registered names of the built-in estimators of a scenario's [pipeline] (its default
-    estimators): coop-fg the four seed 001 variants, phase-ekf phase.ekf, bandwidth bandwidth.fusion,
-    visnav its `filters`; none for tracking or without a pipeline."""
-    kind = getattr(pipeline, "kind", None)
-    if kind == "coop-fg":
-        return tuple(f"coop.{v}" for v in ("gnss_only", "one_shot", "iterated", "centralized"))
-    if kind == "visnav":
-        return tuple(f"visnav.{f}" for f in pipeline.filters)
-    return {"phase-ekf": ("phase.ekf",), "bandwidth": ("bandwidth.fusion",)}.get(kind, ())
-
-
 def unreproducible(cls: type, bag: bool = False) -> str:
     """Why a replay of a CSV export (bag: of a bag export) cannot drive the estimator class cls
     ("" when it can: a CSV export carries every stream a built-in reads)."""
@@ -124,15 +113,13 @@ def exported_estimators(scenario, physics, prior: dict, bag: bool = False) -> tu
     """(the estimators a replay of the run drives, one line per estimator it cannot); prior: the
     run's testbed.plugins.context.priors; bag: for a bag export (unreproducible).
 
-    The estimators: the built-ins of the scenario's [pipeline] (pipeline_estimators; one already
-    among its [[estimators]] under its own key is not added twice), then its [[estimators]], in
-    that order, keys kept (a key names its Context.rng stream); params resolved: a built-in whose
+    The estimators: those a run of the scenario scores (testbed.plugins.defaults.estimator_specs:
+    the default ones of its [pipeline] kind, then its [[estimators]]), in that order, keys kept (a
+    key names its Context.rng stream); params resolved: a built-in whose
     params default to the [pipeline] (coop.*, phase.ekf, bandwidth.fusion, visnav.*) gets every
     key of its config with the value it ran with (testbed.plugins.settings); the others (their
     defaults fixed in their code, not read from the scenario) keep the params given."""
-    own = {s.key for s in scenario.estimators}
-    specs = [EstimatorSpec(entry=e) for e in pipeline_estimators(scenario.pipeline) if e not in own]
-    specs += scenario.estimators
+    specs = estimator_specs(scenario)
     out, skipped = [], []
     for spec, p in zip(specs, resolve(specs)):
         why = unreproducible(p.cls, bag)
