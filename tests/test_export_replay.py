@@ -19,6 +19,7 @@ from testbed import scenario, world
 from testbed.api import load_run
 from testbed.cli import main
 from testbed.config import to_dict
+from testbed.network_config import NetworkConfig
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
 from testbed.plugins.context import make_context, priors
@@ -39,6 +40,8 @@ NETWORK = dict(latency=0.005, jitter=0.002, loss_prob=0.01, nlos_loss=0.1, max_r
 # and the keys of those a bag export cannot carry (no phase, no camera topic)
 CASES = {
     "coop-fg": ([EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
+    # with a [network]: one_shot and iterated broadcast through Context.channel, in the run and on replay
+    "coop-fg+network": ([EstimatorSpec(entry=ECHO)], ()),
     "bandwidth": ([EstimatorSpec(entry="bandwidth.fusion"), EstimatorSpec(entry="testbed.replay.graph:PoseGraph"),
                    EstimatorSpec(entry=ECHO)], ()),
     "phase-line-h000": ([EstimatorSpec(entry="phase.ekf"), EstimatorSpec(entry=ECHO)], ("phase.ekf",)),
@@ -55,7 +58,9 @@ def exported(request, tmp_path_factory):
     estimators, exported to DIR/data and replayed with no options to DIR/rep."""
     name = request.param
     d = tmp_path_factory.mktemp(name)
-    sc = dataclasses.replace(scenario.load(name, duration=2.0), estimators=tuple(CASES[name][0]))
+    base, _, network = name.partition("+")
+    sc = dataclasses.replace(scenario.load(base, duration=2.0), estimators=tuple(CASES[name][0]),
+                             **({"network": NetworkConfig(**NETWORK)} if network else {}))
     run(sc, d / "run", plots=False)
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -82,6 +87,11 @@ def test_the_replay_of_an_export_gives_the_estimates_of_the_simulation(exported)
     # the run's scoring hooks (testbed.plugins.hooks: e.g. coop-fg's per-vehicle RMSE) are built
     # from its scenario, which a replay does not have: their keys are the run's only
     ran, replayed = (json.loads((d / k / "metrics.json").read_text())["estimators"] for k in ("run", "rep"))
+    used = {key for key in rep if "network" in ran[key]}
+    networked = {s.key for s in estimator_specs(sc) if s.entry in ("coop.one_shot", "coop.iterated")}
+    assert used == (networked if sc.network is not None else set())
+    for key in used:  # the same network, the same messages
+        assert replayed[key]["network"] == ran[key]["network"], key
     for key in rep:
         scores = {k: v for k, v in ran[key].items() if k.split("_")[0] in ("rmse", "anees", "coverage")
                   and k in replayed[key]}
@@ -187,6 +197,19 @@ def _refused(tmp_path, capsys, files: dict[str, str]) -> tuple[Path, str]:
 def test_a_bad_prior_is_one_line_naming_its_key(tmp_path, capsys, prior, key):
     d, err = _refused(tmp_path, capsys, {"spec.toml": f"{SPEC}[prior.uav1]\n{prior}\n"})
     assert err.startswith(f"testbed: error: {d / 'spec.toml'}: {key}: "), err
+
+
+def test_a_bad_nlos_flag_is_one_line_naming_its_file_row_and_column(tmp_path, capsys):
+    d, err = _refused(tmp_path, capsys, {"spec.toml": SPEC, "links.csv": "time,src,dst,kind,value,nlos\n"
+                                         "0.0,uav1/cam,anchor1,uwb,2.0,0\n0.1,uav1/cam,anchor1,uwb,2.0,0.5\n"})
+    assert err.startswith(f"testbed: error: {d / 'links.csv'}") and "nlos" in err and "0.5" in err, err
+
+
+def test_a_network_without_truth_is_one_line(tmp_path, capsys):
+    d, err = _refused(tmp_path, capsys, {"spec.toml": f"{SPEC}[network]\nlatency = 0.005\n",
+                                         "links.csv": "time,src,dst,kind,value\n0.0,uav1/cam,anchor1,uwb,2.0\n"})
+    assert err == f"testbed: error: {d / 'spec.toml'}: network: the network's geometry is the true one, so it " \
+                  "needs the truth table (truth.csv): add it or remove [network]", err
 
 
 @pytest.mark.parametrize("row, column", [
