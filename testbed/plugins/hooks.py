@@ -3,7 +3,7 @@ make possible, given to every estimator whose outputs fit.
 
 `scenario_hooks(scenario, log)` builds them once per run, before the estimators are scored:
 - `Bound`, the PCRB of the follower's body position, on a seed 003 phase-ekf scenario
-  (testbed.pipelines.phase.position_bound);
+  (testbed.plugins.phase_scores.position_bound);
 - `CoopHook`, the seed 001 scores and figures of every vehicle's uwb site position at the GNSS
   epochs, on a coop-fg scenario (testbed.plugins.coop_scores).
 A new hook is a Hook subclass (testbed.plugins.score) built here from what the scenario and log
@@ -21,7 +21,7 @@ def scenario_hooks(scenario: Scenario, log: dict[str, np.ndarray]) -> list[Hook]
     """The hooks of this run (possibly none). log: the run log (stream name -> array)."""
     hooks: list[Hook] = []
     if getattr(scenario.pipeline, "kind", None) == "phase-ekf":
-        from testbed.pipelines.phase import position_bound  # lazy: the phase model, only for its scenarios
+        from testbed.plugins.phase_scores import position_bound  # lazy: the phase model, only for its scenarios
 
         t, B, follower = position_bound(scenario, log)
         hooks.append(Bound(f"uav{follower}", t, B))

@@ -25,7 +25,7 @@ do not fit), and, once per run, `plot` (figures of its own) and `overlay` (lines
 shared error plots). A hook reads the log's truth; the estimators never do.
 PCRB (`Bound`, seed 003 phase-ekf: the posterior Cramer-Rao bound of the follower's body position,
 with the scenario's measurement and motion model, computed along the true trajectory by
-testbed.pipelines.phase.position_bound): a world-frame position series of that body gets
+testbed.plugins.phase_scores.position_bound): a world-frame position series of that body gets
 `pcrb_rmse_m` = sqrt(mean trace B) over its estimates at the bound's epochs (`pcrb_samples` of
 them; `rmse_at_pcrb_epochs_m` is its RMSE over the same samples), and the summary
 `pcrb_rmse_position_m`; the error plot overlays +/-3 sqrt(diag B).
