@@ -325,12 +325,14 @@ def _feed(sc, log, physics, cls, key="p"):
 
 
 def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
-    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it."""
+    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it,
+    and the pipeline's frame-N scores (phase_scores.PhaseWindow: errors per axis of N, last window)."""
     from testbed.pipelines import phase
     from estimators.phase_frames import BODY_POS, BODY_PV
     from testbed.plugins.builtin_phase import PhaseEkf, prepare
 
-    sc = scenario.load("phase-cross-h000", duration=4.0)  # shorter than score_start: every epoch scored
+    # shorter than score_start: every epoch scored; a last window of 2 s within the 4 s
+    sc = scenario.load("phase-cross-h000", duration=4.0, overrides={"pipeline.last_window": "2.0"})
     log, physics = simulate(sc)
     cfg, inp, q, prior, _, meas = prepare(sc, log)
     ref = phase.run_filter(cfg, q, prior, meas, inp.times)
@@ -347,6 +349,11 @@ def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
     for key, got in (("rmse_position_m", sc_plug["rmse_position_m"]), ("rmse_velocity_mps", sc_plug["rmse_velocity_m_s"]),
                      ("rmse_attitude_deg", sc_plug["rmse_attitude_deg"]), ("pcrb_rmse_position_m", sc_plug["pcrb_rmse_position_m"])):
         np.testing.assert_allclose(got, want[key], rtol=1e-9, err_msg=key)
+    window = [k for k in want if "last_2s" in k]
+    assert len(window) == 4 and sc_plug["last_window_s"] == want["last_window_s"] == 2.0
+    for key in ["position_error_mid_m", "position_error_final_m", "sigma_position_final_m", "pcrb_sigma_position_final_m",
+                *window]:
+        np.testing.assert_allclose(sc_plug[key], want[key], rtol=1e-9, atol=1e-12, err_msg=key)
     assert sc_plug["targets"]["uav6"]["position"]["pcrb_samples"] == inp.times.size
     assert health["rejected_measurements"] == int(ref.rejected_measurements.sum())
 

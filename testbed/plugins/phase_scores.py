@@ -5,11 +5,13 @@
   of the nav master's TRUE pose (truth/pos, truth/vel, truth/quat, truth/omega);
 - `phase_pcrb`: the posterior Cramer-Rao bound (Tichavsky 1998) along that true trajectory with the
   filter's own rows, measurement model, q and P0 (testbed.plugins.builtin_phase.prepare);
-- `position_bound`: its body-position block in world axes, the `Bound` hook of
-  testbed.plugins.hooks;
+- `phase_hooks`: the run's hooks (testbed.plugins.hooks): `Bound`, the PCRB's body-position block
+  in world axes, and `PhaseWindow`, the scores in N of any estimator of the follower's body;
 - `attitude_nees`, `window_keys`: the attitude NEES and the names of the last-window scores.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -20,7 +22,10 @@ from estimators.phase_frames import BODY_POS, to_nav
 from estimators.phase_model import antenna_state_from_body, body_from_antennas
 from estimators.so3 import euler_from_rotation, skew
 from testbed.pipelines.config import PhasePipelineConfig
+from testbed.metrics import rmse
 from testbed.plugins.builtin_phase import PhaseInputs, prepare
+from testbed.plugins.collect import Track
+from testbed.plugins.score import Bound, Hook, at_epochs
 
 
 def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: float, b: float):
@@ -62,14 +67,86 @@ def phase_pcrb(cfg: PhasePipelineConfig, q: float | ProcessNoise, states: np.nda
                 valid=valid, rate_window=W)
 
 
-def position_bound(scenario, log: dict) -> tuple[np.ndarray, np.ndarray, int]:
-    """The PCRB of the follower's body position for plugin scores (scoring only): epoch times
-    (K,) s, bound (K, 3, 3) m^2 in world axes (N rotated by the nav master's true attitude), the
-    follower's number."""
+@dataclass(frozen=True, slots=True)
+class PhaseWindow(Hook):
+    """The seed 003 scores in the navigation frame N for ANY estimator giving the follower's body
+    position (and velocity) in the world at the phase epochs (summary keys; axes of N: x forward,
+    y left, z up):
+    `position_error_mid_m`, `position_error_final_m` (3,) the error at mid-run (the epoch nearest
+    the middle of the span) and at the end; `sigma_position_final_m` (3,) the estimator's own
+    1-sigma at the end; `pcrb_sigma_position_final_m` (3,) the PCRB's; `last_window_s` W and, when
+    the span covers W, over the epochs of the last W seconds (names: window_keys(W)): the position
+    RMSE, the max |error| per axis of position and velocity, the PCRB RMSE; else
+    `last_window_omitted_reason`.
+    An error e_W (world) is moved to N with the nav master's TRUE pose: e_N = R^T e_W and, for the
+    velocity, e_vN = R^T (e_vW - dR/dt e_N) (the derivative of X_N = R^T (X - p)).
+
+    target: the follower; time (K,) s the phase epochs; R, Rd (K, 3, 3) R_world_from_N of the nav
+    master's true attitude and its rate (1/s); bound (K, 3, 3) m^2 the PCRB of the body position
+    in N; last_window s (the [pipeline]'s)."""
+
+    target: str
+    time: np.ndarray
+    R: np.ndarray
+    Rd: np.ndarray
+    bound: np.ndarray
+    last_window: float
+
+    def _in_nav(self, track: Track, errs: dict) -> tuple[np.ndarray, ...] | None:
+        """(epoch indices k, times, e_N (k, 3), e_vN (k, 3) or None, P_N (k, 3, 3) or None) of the
+        follower's world position estimates at the epochs; None when there are none."""
+        s = track.get((self.target, "position"))
+        if s is None or s.frame != "world":
+            return None
+        hit, k = at_epochs(self.time, s.time)
+        if not hit.size:
+            return None
+        R, Rd = self.R[k], self.Rd[k]
+        e = np.einsum("kji,kj->ki", R, errs[(self.target, "position")][hit])
+        P = np.swapaxes(R, 1, 2) @ s.cov[hit] @ R if s.has_cov[hit].all() else None
+        v = track.get((self.target, "velocity"))
+        ev = None
+        if v is not None and v.frame == "world" and np.array_equal(v.time, s.time):
+            ev_w = errs[(self.target, "velocity")][hit]
+            ev = np.einsum("kji,kj->ki", R, ev_w - np.einsum("kij,kj->ki", Rd, e))
+        return k, s.time[hit], e, ev, P
+
+    def summary(self, track: Track, errs: dict, health: dict) -> dict:
+        got = self._in_nav(track, errs)
+        if got is None:
+            return {}
+        k, t, e, ev, P = got
+        B = self.bound[k]
+        mid = int(np.argmin(np.abs(t - (t[0] + 0.5 * (t[-1] - t[0])))))
+        out = {"position_error_mid_m": e[mid].tolist(), "position_error_final_m": e[-1].tolist(),
+               **({"sigma_position_final_m": np.sqrt(np.diag(P[-1])).tolist()} if P is not None else {}),
+               "pcrb_sigma_position_final_m": np.sqrt(np.diag(B[-1])).tolist(), "last_window_s": float(self.last_window)}
+        if t[-1] - t[0] < self.last_window - 1e-9:
+            out["last_window_omitted_reason"] = (f"the run covers {t[-1] - t[0]:g} s, shorter than last_window = "
+                                                 f"{self.last_window:g} s: no window scores")
+            return out
+        last = t >= t[-1] - self.last_window + 1e-9
+        w = window_keys(self.last_window)
+        out[w["rmse"]] = rmse(e[last])
+        out[w["max_abs_position"]] = np.abs(e[last]).max(axis=0).tolist()
+        if ev is not None:
+            out[w["max_abs_velocity"]] = np.abs(ev[last]).max(axis=0).tolist()
+        out[w["pcrb_rmse"]] = float(np.sqrt(np.mean(np.trace(B[last], axis1=1, axis2=2))))
+        return out
+
+
+def phase_hooks(scenario, log: dict) -> list[Hook]:
+    """The scoring hooks of a phase-ekf run (scoring only): the PCRB of the follower's body
+    position in world axes (N rotated by the nav master's true attitude; testbed.plugins.score.Bound)
+    and the frame-N scores (PhaseWindow)."""
     cfg, inp, q, _, P0, meas = prepare(scenario, log)
     bound = BODY_POS @ phase_pcrb(cfg, q, true_states(scenario, log, cfg, inp)[2], inp, meas, P0) @ BODY_POS.T
-    R = Rotation.from_quat(log["truth/quat"][inp.state_index, cfg.nav_master - 1], scalar_first=True).as_matrix()
-    return inp.times, R @ bound @ np.swapaxes(R, 1, 2), inp.follower
+    idx, u = inp.state_index, cfg.nav_master - 1
+    R = Rotation.from_quat(log["truth/quat"][idx, u], scalar_first=True).as_matrix()
+    Rd = R @ np.array([skew(w) for w in log["truth/omega"][idx, u]])
+    target = f"uav{inp.follower}"
+    return [Bound(target, inp.times, R @ bound @ np.swapaxes(R, 1, 2)),
+            PhaseWindow(target, inp.times, R, Rd, bound, float(cfg.last_window))]
 
 
 def attitude_nees(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> float:
