@@ -365,27 +365,35 @@ def _feed(sc, log, physics, cls, key="p"):
 
 
 def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
-    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it."""
+    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it,
+    and the pipeline's frame-N scores (phase_scores.PhaseWindow: errors per axis of N, last window)."""
     from testbed.pipelines import phase
-    from testbed.plugins.builtin_phase import PhaseEkf
+    from estimators.phase_frames import BODY_POS, BODY_PV
+    from testbed.plugins.builtin_phase import PhaseEkf, prepare
 
-    sc = scenario.load("phase-cross-h000", duration=4.0)  # shorter than score_start: every epoch scored
+    # shorter than score_start: every epoch scored; a last window of 2 s within the 4 s
+    sc = scenario.load("phase-cross-h000", duration=4.0, overrides={"pipeline.last_window": "2.0"})
     log, physics = simulate(sc)
-    cfg, inp, q, prior, _, meas = phase.prepare(sc, log)
+    cfg, inp, q, prior, _, meas = prepare(sc, log)
     ref = phase.run_filter(cfg, q, prior, meas, inp.times)
     p, v, R, Rd = inp.nav_pose
     track, sc_plug, health = _feed(sc, log, physics, PhaseEkf)
     pos, vel = track[("uav6", "position")], track[("uav6", "velocity")]
     np.testing.assert_array_equal(pos.time, inp.times)
-    pN, vN = ref.mean @ phase.BODY_POS.T, ref.mean @ phase.BODY_PV[3:].T
+    pN, vN = ref.mean @ BODY_POS.T, ref.mean @ BODY_PV[3:].T
     np.testing.assert_allclose(pos.value, p + np.einsum("kij,kj->ki", R, pN), rtol=0, atol=1e-9)
     np.testing.assert_allclose(vel.value, v + np.einsum("kij,kj->ki", R, vN) + np.einsum("kij,kj->ki", Rd, pN), rtol=0, atol=1e-9)
-    np.testing.assert_allclose(pos.cov, R @ (phase.BODY_POS @ ref.cov @ phase.BODY_POS.T) @ np.swapaxes(R, 1, 2),
+    np.testing.assert_allclose(pos.cov, R @ (BODY_POS @ ref.cov @ BODY_POS.T) @ np.swapaxes(R, 1, 2),
                                rtol=1e-9, atol=1e-15)
     want = phase.run(sc, log, None)["ekf"]
     for key, got in (("rmse_position_m", sc_plug["rmse_position_m"]), ("rmse_velocity_mps", sc_plug["rmse_velocity_m_s"]),
                      ("rmse_attitude_deg", sc_plug["rmse_attitude_deg"]), ("pcrb_rmse_position_m", sc_plug["pcrb_rmse_position_m"])):
         np.testing.assert_allclose(got, want[key], rtol=1e-9, err_msg=key)
+    window = [k for k in want if "last_2s" in k]
+    assert len(window) == 4 and sc_plug["last_window_s"] == want["last_window_s"] == 2.0
+    for key in ["position_error_mid_m", "position_error_final_m", "sigma_position_final_m", "pcrb_sigma_position_final_m",
+                *window]:
+        np.testing.assert_allclose(sc_plug[key], want[key], rtol=1e-9, atol=1e-12, err_msg=key)
     assert sc_plug["targets"]["uav6"]["position"]["pcrb_samples"] == inp.times.size
     assert health["rejected_measurements"] == int(ref.rejected_measurements.sum())
 

@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 
 from testbed.config import to_dict
-from testbed.pipelines import phase
+from testbed.plugins import builtin_phase
 from testbed.plugins.api import Context
 from testbed.plugins.builtin_bandwidth import initial_estimate
 from testbed.plugins.relnav_scores import start_prior
@@ -54,7 +54,7 @@ def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, t
     if log is None or kind not in ("phase-ekf", "visnav", "bandwidth"):
         return {}
     if kind == "phase-ekf":
-        _, inp, _, prior, _, _ = phase.prepare(scenario, log)
+        _, inp, _, prior, _, _ = builtin_phase.prepare(scenario, log)
         return {f"uav{inp.follower}": (prior.mean, prior.cov)}
     if kind == "visnav":
         prior = start_prior(scenario, log)

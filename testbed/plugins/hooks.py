@@ -2,8 +2,8 @@
 make possible, given to every estimator whose outputs fit.
 
 `scenario_hooks(scenario, log)` builds them once per run, before the estimators are scored:
-- `Bound`, the PCRB of the follower's body position, on a seed 003 phase-ekf scenario
-  (testbed.pipelines.phase.position_bound);
+- on a seed 003 phase-ekf scenario (testbed.plugins.phase_scores.phase_hooks): `Bound`, the PCRB
+  of the follower's body position, and `PhaseWindow`, the scores in the navigation frame;
 - `CoopHook`, the seed 001 scores and figures of every vehicle's uwb site position at the GNSS
   epochs, on a coop-fg scenario (testbed.plugins.coop_scores);
 - `FusionBound`, the seed 000 fusion bound (eqs. 12, 16) of every vehicle's uwb site position, on a
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.plugins.score import Bound, Hook
+from testbed.plugins.score import Hook
 from testbed.scenario import Scenario
 
 
@@ -25,10 +25,9 @@ def scenario_hooks(scenario: Scenario, log: dict[str, np.ndarray]) -> list[Hook]
     """The hooks of this run (possibly none). log: the run log (stream name -> array)."""
     hooks: list[Hook] = []
     if getattr(scenario.pipeline, "kind", None) == "phase-ekf":
-        from testbed.pipelines.phase import position_bound  # lazy: the phase model, only for its scenarios
+        from testbed.plugins.phase_scores import phase_hooks  # lazy: the phase model, only for its scenarios
 
-        t, B, follower = position_bound(scenario, log)
-        hooks.append(Bound(f"uav{follower}", t, B))
+        hooks += phase_hooks(scenario, log)
     if getattr(scenario.pipeline, "kind", None) == "coop-fg":
         from testbed.plugins.coop_scores import coop_hook
 

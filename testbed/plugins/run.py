@@ -17,7 +17,7 @@ import numpy as np
 from testbed.errors import ConfigError, PluginError
 from testbed.interrupt import poll
 from testbed.metrics import network_summary
-from testbed.plugins.channel import Channel
+from testbed.plugins.channel import Channel, uwb_rows
 from testbed.plugins.context import make_context, priors
 from testbed.plugins.failures import failed_entry
 from testbed.plugins.feed import batched, run_plugin
@@ -52,7 +52,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, physics, p.key, p.params, prior)
         truth = Truth(log, ctx)
-        channel = Channel(scenario.network, truth, log, ctx.vehicles, scenario.seed, p.key) \
+        channel = Channel(scenario.network, truth, uwb_rows(log), ctx.vehicles, scenario.seed, p.key) \
             if scenario.network is not None and p.key not in done else None
         ctx = replace(ctx, channel=channel)
         try:
