@@ -1,7 +1,7 @@
 """Draw the picture of every trajectory kind in docs/scenario.md: docs/images/trajectory-KIND.png.
 
 Each picture is the reference of one scenario (SOURCES: a built-in scenario, or a file under
-examples/trajectories/), evaluated with testbed.sim.reference.evaluate over its whole duration: the
+examples/trajectories/), evaluated with testbed.reference.evaluate over its whole duration: the
 paths seen from above (x east, y north, m), a dot where each vehicle starts and, for the
 waypoint kinds, the waypoints as crosses. Run from the repository root:
 
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.outputs import plots
-from testbed.sim.reference import evaluate
+from testbed.reference import evaluate
 from testbed.scenario import load
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from testbed import provenance, runner, scenario as scenario_mod
-from testbed.sim import reference
+from testbed import reference
 from testbed.sim import world
 from testbed.errors import RunError
 from testbed.log import load_log
@@ -71,7 +71,7 @@ def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = N
 
 
 def _check_clearance(sc: Scenario, label: str) -> None:
-    """world.clearance (testbed.sim.reference.check_clearance): ConfigError, or a UserWarning."""
+    """world.clearance (testbed.reference.check_clearance): ConfigError, or a UserWarning."""
     warning = reference.check_clearance(sc, label)
     if warning is not None:
         warnings.warn(warning, UserWarning, stacklevel=3)

@@ -177,9 +177,9 @@ def _inputs(args: argparse.Namespace, *paths: Path) -> list[Path]:
 
 def _load(args: argparse.Namespace):
     """The scenario of a run or sweep, checked whole before anything is simulated: its values
-    (testbed.scenario.load) and its reference paths' clearance (testbed.sim.reference.clearance)."""
+    (testbed.scenario.load) and its reference paths' clearance (testbed.reference.clearance)."""
     from testbed import scenario  # lazy: see the module docstring
-    from testbed.sim import reference  # lazy: see the module docstring
+    from testbed import reference  # lazy: see the module docstring
 
     builtin, label = scenario.resolve(args.scenario)
     sc = scenario.load(args.scenario, _overrides(args.set), seed=args.seed, motion=args.motion, duration=args.duration)

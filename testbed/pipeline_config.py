@@ -229,7 +229,7 @@ N_NODES = 4  # UAVs of the seed 000 formation
 class BandwidthPipelineConfig(_PipelineConfig):
     """[pipeline] table of a seed 000 scenario.
 
-    measurements: "uwb" | "paper" (testbed.pipelines.bandwidth). dt: filter step (s); in uwb mode a multiple
+    measurements: "uwb" | "paper" (testbed.plugins.builtin_bandwidth). dt: filter step (s); in uwb mode a multiple
     of the UWB period. process_noise: diag W (m^2/s for w_reading "rate", m^2 for "per-step").
     paper_V: diag V of the paper mode (m^2). range_sigma: UWB range noise 1 sigma assumed by the
     estimator (m; default: the declared [sensors.uwb] noise). x0: initial estimate (m); M0: diag M_i(0) (m^2). velocity: known input v (m/s).

@@ -61,7 +61,7 @@ class World:
     antenna_a, antenna_b: nose and wing-tip antenna lever arms (m, seed 003); anchors: UWB anchor
     positions (m, world); obstacles: static obstacles.
     clearance: what a reference path that comes closer than the airframe radius to the floor, an
-    obstacle or another vehicle does (checked before simulating, testbed.sim.reference.clearance):
+    obstacle or another vehicle does (checked before simulating, testbed.reference.clearance):
     "error" (default: the run is refused), "warn" (one line on stderr, the run goes on), "off".
     """
 

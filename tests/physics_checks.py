@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from testbed.sim.reference import GRAVITY, RefState
+from testbed.reference import GRAVITY, RefState
 from testbed.sim.world import Physics
 
 

@@ -23,7 +23,7 @@ from testbed import scenario
 from testbed.cli import main
 from testbed.config import MAX_MAGNITUDE, set_dotted
 from testbed.errors import ConfigError, FieldError
-from testbed.sim.reference import AIRFRAME_RADIUS, _close_pair, clearance
+from testbed.reference import AIRFRAME_RADIUS, _close_pair, clearance
 from testbed.runner import run
 from testbed.sim.world import MODELS
 

@@ -15,7 +15,7 @@ from scipy.linalg import cholesky, solve_triangular
 from estimators.core import chi2_interval
 from estimators.visnav import RelNavModel
 from testbed import scenario
-from testbed.pipelines import visnav as pv
+from testbed.plugins.builtin_visnav import estimator_config
 from testbed.sim.simulate import simulate
 
 
@@ -24,7 +24,7 @@ def _whitened(f: float, seed: int) -> np.ndarray:
     sc = scenario.load("visnav", duration=6.0, seed=seed, overrides={
         "sensors.camera.focal_length": repr(f), "sensors.camera.glint_prob": "0.0"})
     log, _ = simulate(sc)
-    model = RelNavModel(pv.estimator_config(sc.pipeline, sc.seed, f))
+    model = RelNavModel(estimator_config(sc.pipeline, sc.seed, f))
     clean, value = log["camera/clean"][:, :2], log["camera/value"][:, :2]
     blocks = model.focal_noise(clean)
     return np.array([solve_triangular(cholesky(B, lower=True), e, lower=True)

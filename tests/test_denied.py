@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.sim import reference
+from testbed import reference
 from testbed.config import from_dict, to_dict
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop

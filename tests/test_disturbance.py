@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from estimators.core import chi2_interval
 from testbed import scenario
 from testbed.sim.disturbance import perturb, realize
-from testbed.sim.reference import evaluate
+from testbed.reference import evaluate
 from testbed.sim.simulate import simulate, schedule
 from testbed.sensors.suite import make_sensors
 from testbed.sim.world import build

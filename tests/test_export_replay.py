@@ -20,10 +20,13 @@ from testbed.sim import world
 from testbed.api import load_run
 from testbed.cli import main
 from testbed.config import to_dict
+from testbed.network_config import NetworkConfig
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
-from testbed.plugins.context import make_context, priors
+from testbed.plugins.context import make_context
+from testbed.plugins.priors import priors
 from testbed.sim.world import lever_arms
+from testbed.plugins.defaults import default_specs, estimator_specs
 from testbed.replay.export import exported_estimators
 from testbed.replay.recording import load_recording
 from testbed.replay.spec import load_spec
@@ -35,10 +38,13 @@ ECHO = f"{ROOT / 'tests/export_plugins.py'}:Echo"  # folds its Context and its w
 COOP = ("coop.gnss_only", "coop.one_shot", "coop.iterated", "coop.centralized")
 VISNAV = tuple(f"visnav.{f}" for f in ("ekf", "ckf", "hckf", "mckf", "rhcf"))
 NETWORK = dict(latency=0.005, jitter=0.002, loss_prob=0.01, nlos_loss=0.1, max_range=100.0, round_s=0.01)
-# per scenario: the [[estimators]] of the run (the built-ins with no params: they resolve theirs
-# from the scenario's [pipeline]), and those a bag export cannot carry (no phase, no camera topic)
+# per scenario: the [[estimators]] of the run, after the default estimators of its [pipeline] kind
+# (testbed.plugins.defaults; built-ins with no params resolve theirs from the scenario's [pipeline]),
+# and the keys of those a bag export cannot carry (no phase, no camera topic)
 CASES = {
-    "coop-fg": ([*(EstimatorSpec(entry=e) for e in COOP), EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
+    "coop-fg": ([EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
+    # with a [network]: one_shot and iterated broadcast through Context.channel, in the run and on replay
+    "coop-fg+network": ([EstimatorSpec(entry=ECHO)], ()),
     "bandwidth": ([EstimatorSpec(entry="bandwidth.fusion"), EstimatorSpec(entry="testbed.replay.graph:PoseGraph"),
                    EstimatorSpec(entry=ECHO)], ()),
     "phase-line-h000": ([EstimatorSpec(entry="phase.ekf"), EstimatorSpec(entry=ECHO)], ("phase.ekf",)),
@@ -55,7 +61,9 @@ def exported(request, tmp_path_factory):
     estimators, exported to DIR/data and replayed with no options to DIR/rep."""
     name = request.param
     d = tmp_path_factory.mktemp(name)
-    sc = dataclasses.replace(scenario.load(name, duration=2.0), estimators=tuple(CASES[name][0]))
+    base, _, network = name.partition("+")
+    sc = dataclasses.replace(scenario.load(base, duration=2.0), estimators=tuple(CASES[name][0]),
+                             **({"network": NetworkConfig(**NETWORK)} if network else {}))
     run(sc, d / "run", plots=False)
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -67,7 +75,7 @@ def exported(request, tmp_path_factory):
 def test_the_replay_of_an_export_gives_the_estimates_of_the_simulation(exported):
     name, sc, d, _ = exported
     sim, rep = load_tracks(d / "run" / ESTIMATES_FILE), load_tracks(d / "rep" / ESTIMATES_FILE)
-    assert set(sim) == {s.key for s in sc.estimators}  # each gave estimates in the run
+    assert set(sim) == {s.key for s in estimator_specs(sc)}  # each gave estimates in the run
     assert set(rep) == set(sim)
     for key in rep:
         assert rep[key].keys() == sim[key].keys()
@@ -78,11 +86,19 @@ def test_the_replay_of_an_export_gives_the_estimates_of_the_simulation(exported)
             np.testing.assert_allclose(r.value, s.value, rtol=0, atol=1e-9, err_msg=f"{key} {tq}")
             np.testing.assert_array_equal(r.has_cov, s.has_cov)
             np.testing.assert_allclose(r.cov, s.cov, rtol=1e-9, atol=1e-15, err_msg=f"{key} {tq}")
-    # and the same scores against the exported truth (visnav's relative to the leader among them)
+    # and the same scores against the exported truth (visnav's relative to the leader among them);
+    # the run's scoring hooks (testbed.plugins.hooks: e.g. coop-fg's per-vehicle RMSE) are built
+    # from its scenario, which a replay does not have: their keys are the run's only
     ran, replayed = (json.loads((d / k / "metrics.json").read_text())["estimators"] for k in ("run", "rep"))
+    used = {key for key in rep if "network" in ran[key]}
+    networked = {s.key for s in estimator_specs(sc) if s.entry in ("coop.one_shot", "coop.iterated")}
+    assert used == (networked if sc.network is not None else set())
+    for key in used:  # the same network, the same messages
+        assert replayed[key]["network"] == ran[key]["network"], key
     for key in rep:
-        scores = {k: v for k, v in ran[key].items() if k.split("_")[0] in ("rmse", "anees", "coverage")}
-        assert scores, key
+        scores = {k: v for k, v in ran[key].items() if k.split("_")[0] in ("rmse", "anees", "coverage")
+                  and k in replayed[key]}
+        assert "rmse_position_m" in scores or "rmse_velocity_m_s" in scores, key
         for k, v in scores.items():
             np.testing.assert_allclose(replayed[key][k], v, rtol=1e-9, atol=1e-12, err_msg=f"{key} {k}")
 
@@ -99,7 +115,7 @@ def _left_out(notes: str, spec: Path, keys: set[str]) -> dict[str, str]:
 
 def test_a_csv_export_lists_every_estimator_of_the_run(exported):
     name, sc, d, notes = exported
-    assert _left_out(notes, d / "data" / "spec.toml", {s.key for s in sc.estimators}) == {}
+    assert _left_out(notes, d / "data" / "spec.toml", {s.key for s in estimator_specs(sc)}) == {}
 
 
 def test_a_bag_export_names_each_estimator_its_bag_cannot_drive(exported, tmp_path, capsys):
@@ -108,7 +124,7 @@ def test_a_bag_export_names_each_estimator_its_bag_cannot_drive(exported, tmp_pa
     name, sc, d, _ = exported
     pytest.importorskip("rosbags")
     assert main(["export", str(d / "run"), "--out", str(tmp_path / "bag"), "--format", "mcap"]) == 0
-    said = _left_out(capsys.readouterr().err, tmp_path / "bag" / "spec.toml", {s.key for s in sc.estimators})
+    said = _left_out(capsys.readouterr().err, tmp_path / "bag" / "spec.toml", {s.key for s in estimator_specs(sc)})
     assert set(said) == set(CASES[name][1])
     stream = "phase" if name.startswith("phase") else "camera"
     assert all(f"the {stream} stream" in why and "a bag export does not carry" in why for why in said.values())
@@ -138,20 +154,24 @@ def test_the_replay_gives_each_estimator_the_context_it_had_in_the_simulation(ex
     assert bool(prior) == (sc.pipeline.kind in ("phase-ekf", "visnav", "bandwidth") if sc.pipeline else False)
 
 
-def test_the_export_lists_the_pipelines_builtins_with_the_params_they_ran_with():
-    """A coop-fg run without [[estimators]]: its [pipeline]'s four built-ins, each with every key of
-    the scenario's [pipeline] (the assumed ds-twr ranging and 0.035 m antenna delays among them);
-    a key given in params wins."""
+def test_the_export_lists_the_default_estimators_with_the_params_they_ran_with():
+    """A coop-fg run without [[estimators]]: the four default estimators of its [pipeline] kind
+    (testbed.plugins.defaults) under their metrics names, each with every key of the scenario's
+    [pipeline] (the assumed ds-twr ranging and 0.035 m antenna delays among them); with
+    [[estimators]], those follow, and a key given in params wins."""
     sc = scenario.load("coop-fg", duration=2.0)
     physics = world.build(sc)
     table = {k: v for k, v in to_dict(sc.pipeline).items() if k != "kind"}
+    defaults = [(s.key, s.entry) for s in default_specs(sc)]
+    assert defaults == [(e.partition(".")[2], e) for e in COOP]
     specs, skipped = exported_estimators(dataclasses.replace(sc, estimators=()), physics, priors(sc, None))
-    assert [s.entry for s in specs] == list(COOP) and not skipped
+    assert [(s.key, s.entry) for s in specs] == defaults and not skipped
     assert all(s.params == table for s in specs)
     assert (table["twr_mode"], table["antenna_delay_sigma"]) == ("ds-twr", 0.035)
     own = EstimatorSpec(entry="coop.centralized", name="huber", params={"robust": "huber"})
     specs, _ = exported_estimators(dataclasses.replace(sc, estimators=(own,)), physics, priors(sc, None))
-    assert [s.key for s in specs] == [*COOP, "huber"] and specs[-1].params == {**table, "robust": "huber"}
+    assert [s.key for s in specs] == [k for k, _ in defaults] + ["huber"]
+    assert specs[-1].params == {**table, "robust": "huber"}
 
 
 SPEC = "[window]\nend = 1.0\n[bodies.uav1.sites]\ncam = [0.0, 0.0, 0.0]\nled1 = [0.1, 0.0, 0.0]\n[anchors]\nanchor1 = [0.0, 0.0, 2.0]\n"
@@ -180,6 +200,19 @@ def _refused(tmp_path, capsys, files: dict[str, str]) -> tuple[Path, str]:
 def test_a_bad_prior_is_one_line_naming_its_key(tmp_path, capsys, prior, key):
     d, err = _refused(tmp_path, capsys, {"spec.toml": f"{SPEC}[prior.uav1]\n{prior}\n"})
     assert err.startswith(f"testbed: error: {d / 'spec.toml'}: {key}: "), err
+
+
+def test_a_bad_nlos_flag_is_one_line_naming_its_file_row_and_column(tmp_path, capsys):
+    d, err = _refused(tmp_path, capsys, {"spec.toml": SPEC, "links.csv": "time,src,dst,kind,value,nlos\n"
+                                         "0.0,uav1/cam,anchor1,uwb,2.0,0\n0.1,uav1/cam,anchor1,uwb,2.0,0.5\n"})
+    assert err.startswith(f"testbed: error: {d / 'links.csv'}") and "nlos" in err and "0.5" in err, err
+
+
+def test_a_network_without_truth_is_one_line(tmp_path, capsys):
+    d, err = _refused(tmp_path, capsys, {"spec.toml": f"{SPEC}[network]\nlatency = 0.005\n",
+                                         "links.csv": "time,src,dst,kind,value\n0.0,uav1/cam,anchor1,uwb,2.0\n"})
+    assert err == f"testbed: error: {d / 'spec.toml'}: network: the network's geometry is the true one, so it " \
+                  "needs the truth table (truth.csv): add it or remove [network]", err
 
 
 @pytest.mark.parametrize("row, column", [

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from testbed import scenario
 from testbed.cli import main
 from testbed.log import load_log
-from testbed.sim.reference import GRAVITY, evaluate
+from testbed.reference import GRAVITY, evaluate
 from testbed.runner import run
 from testbed.sim.simulate import simulate
 from testbed.sim.world import build

@@ -7,9 +7,8 @@ import pytest
 
 from estimators.core import Epoch, Gaussian, counting, drive, symmetrize, tally
 from estimators.sigma_filters import SpdRepairWarning, ensure_spd
-from estimators.visnav import RelNavModel
 from testbed import scenario
-from testbed.pipelines import visnav as pv
+from testbed.plugins import builtin_visnav
 
 
 def test_symmetrize_counts_asymmetry_beyond_roundoff_only():
@@ -43,15 +42,27 @@ def test_track_health_totals_reach_metrics():
     assert sum(issubclass(x.category, SpdRepairWarning) for x in w) == 5
 
 
-def test_visnav_run_filter_does_not_silence_repair_warnings(monkeypatch):
-    """The pipeline used to wrap the driver in warnings.simplefilter("ignore", SpdRepairWarning)."""
-    sc = scenario.load("visnav")
-    model = RelNavModel(pv.estimator_config(sc.pipeline, sc.seed, 1.0))
+def test_visnav_filters_do_not_silence_repair_warnings(monkeypatch):
+    """The visnav pipeline used to wrap the driver in warnings.simplefilter("ignore", SpdRepairWarning);
+    the visnav.* estimators step their filter with the warning left to reach the caller."""
+    from testbed.plugins.context import make_context
+    from testbed.plugins.priors import priors
+    from testbed.sim.world import lever_arms
+    from testbed.plugins.feed import measurements
+    from testbed.sim.simulate import simulate
 
-    def fake_drive(filt, prior, epochs):
-        ensure_spd(np.diag([1.0, -1.0]))
-        return "track"
+    class Repairing:  # a stepper whose every epoch repairs a covariance
+        def __init__(self, filt, prior):
+            self.prior = prior
 
-    monkeypatch.setattr(pv, "drive", fake_drive)
+        def step(self, epoch):
+            ensure_spd(np.diag([1.0, -1.0]))
+            return self.prior
+
+    sc = scenario.load("visnav", duration=0.3)
+    log, physics = simulate(sc)
+    monkeypatch.setattr(builtin_visnav, "Stepper", Repairing)
+    est = builtin_visnav.Ekf(make_context(sc, lever_arms(physics), "ekf", {}, priors(sc, log)), {})
     with pytest.warns(SpdRepairWarning):
-        assert pv.run_filter("ekf", sc.pipeline, model, [], None) == "track"
+        out = [e for m in measurements(sc, log) for e in est.process(m)] + est.finish()
+    assert out and {e.quantity for e in out} == {"position", "velocity", "attitude"}

@@ -15,7 +15,7 @@ import pytest
 from testbed import scenario
 from testbed.bench.sensors import arena_swarm
 from testbed.bench.swarm import swarm_scenario
-from testbed.sim.reference import GRAVITY
+from testbed.reference import GRAVITY
 from testbed.sim.simulate import simulate
 from testbed.sim.world import MODELS, _attach, _attach_vehicles, _vehicle_spec, _vehicle_template, build
 

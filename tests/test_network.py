@@ -17,7 +17,6 @@ from estimators.factor_graph import MESSAGE_BYTES, solve_distributed
 from testbed.config import from_dict
 from testbed.errors import ConfigError
 from testbed.sim.network import Network, NetworkConfig, stationary_loss
-from testbed.pipelines import bandwidth as pb
 from testbed.rng import stream_rng
 from testbed.scoring.metrics import ranging_rate
 from testbed.scenario import Scenario, load
@@ -212,15 +211,30 @@ def test_distributed_solver_uses_only_what_the_transport_delivers():
 
 
 def test_seed000_budget_is_one_instance_of_the_network_budget():
+    """bandwidth.fusion sends its messages through the runtime's network (Context.channel): a
+    receive budget of exactly 8 t_i bytes per step passes the design untouched, one component less
+    drops messages and no node then receives more than t_i - 1 components in a step."""
+    from testbed.plugins.defaults import estimator_specs
+    from testbed.plugins.loading import resolve
+    from testbed.plugins.run import run_estimators
+
     sc = load("bandwidth", duration=3.0)
-    log, _ = simulate(sc)
+    log, physics = simulate(sc)
     dt, b = sc.pipeline.dt, sc.pipeline.budget
-    ref = pb.estimate(sc, log)
-    exact = pb.estimate(replace(sc, network=NetworkConfig(budget_on="receive", bandwidth=8 * b / dt, burst_bytes=8 * b)), log)
-    assert np.array_equal(exact["xhat"], ref["xhat"]) and exact["network"]["dropped"] == 0
-    tight = pb.estimate(replace(sc, network=NetworkConfig(budget_on="receive", bandwidth=8 * (b - 1) / dt, burst_bytes=8 * (b - 1))), log)
-    assert tight["network"]["dropped_budget"] > 0 and tight["comm"].received.max() <= b - 1
-    assert pb.scores(tight)["network"]["bytes_delivered"] <= 8 * (b - 1) * 4 * (tight["K"] + 1)
+    plugins = resolve(estimator_specs(sc))
+
+    def fused(network):
+        scores, tracks = run_estimators(replace(sc, network=network), physics, log, plugins, None)
+        pos = np.stack([tracks["bandwidth"][(f"uav{i}/uwb", "position")].value for i in range(1, 5)], 1)
+        return scores["bandwidth"], pos
+
+    _, ref = fused(None)
+    exact, pos = fused(NetworkConfig(budget_on="receive", bandwidth=8 * b / dt, burst_bytes=8 * b))
+    assert np.array_equal(pos, ref) and exact["network"]["dropped"] == 0 and exact["within_budget"]
+    tight, pos = fused(NetworkConfig(budget_on="receive", bandwidth=8 * (b - 1) / dt, burst_bytes=8 * (b - 1)))
+    assert tight["network"]["dropped_budget"] > 0 and not np.array_equal(pos, ref)
+    assert max(tight["bytes_received_per_step"]) <= 8 * (b - 1)
+    assert tight["network"]["bytes_delivered"] <= 8 * (b - 1) * 4 * (round(3.0 / dt) + 1)
 
 
 def test_seed001_messages_over_the_network():

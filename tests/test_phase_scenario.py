@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 
 from estimators.core import chi2_interval, is_spd, nees
+from estimators import phase_frames as PF
 from estimators.phase_model import body_from_antennas
 from testbed import scenario as scenario_mod
 from testbed.errors import ConfigError
 from testbed.pipelines import phase as P
+from testbed.plugins import builtin_phase as PB
+from testbed.plugins import phase_scores as PS
 from testbed.rng import stream_rng
 from testbed.sim.simulate import simulate
 
@@ -24,14 +27,14 @@ NAME = "phase-cross-h000"
 def _filter(sc, log):
     """The pipeline's pieces: inputs, prior, filter, truth in N, PCRB."""
     cfg, ph = sc.pipeline, sc.sensors.phase
-    inp = P.phase_inputs(log, 1.0 / ph.phase_rate_hz, cfg.nav_master)
-    prior, P0, err0 = P.initial_prior(cfg, sc, inp, stream_rng(sc.seed, "init"))
-    meas = P.measurement_epochs(cfg, inp)
-    track = P.run_filter(cfg, P.process_noise_model(cfg, sc.motion), prior, meas, inp.times)
+    inp = PB.phase_inputs(log, 1.0 / ph.phase_rate_hz, cfg.nav_master)
+    prior, P0, err0 = PB.initial_prior(cfg, sc, inp, stream_rng(sc.seed, "init"))
+    meas = PB.measurement_epochs(cfg, inp)
+    track = P.run_filter(cfg, PB.process_noise_model(cfg, sc.motion), prior, meas, inp.times)
     means, covs = track.mean, track.cov
     infos = [b.info for b in track.beliefs]
     acts = np.stack([b.actual for b in track.beliefs])
-    body, RN, states = P.truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
+    body, RN, states = PS.truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower,
                                       sc.world.antenna_a, sc.world.antenna_b)
     return dict(inp=inp, prior=prior, P0=P0, err0=err0, meas=meas, means=means, covs=covs,
                 infos=infos, acts=acts, body=body, states=states, track=track)
@@ -92,7 +95,7 @@ def _monte_carlo(runs: int, horizon: float, overrides: dict | None = None, alt: 
     (runs,), seed 1 first.
     """
     e18, n18, n6, n12, n6a, ns, n6alt, gap, bounds = [], [], [], [], [], [], [], [], []
-    B = P.BODY_PV
+    B = PF.BODY_PV
     for i in range(runs):
         sc = scenario_mod.load(NAME, seed=1 + i, duration=horizon, overrides=overrides)
         log, _ = simulate(sc)
@@ -113,16 +116,16 @@ def _monte_carlo(runs: int, horizon: float, overrides: dict | None = None, alt: 
             ea = ra["means"][-1] - ra["states"][-1]
             n6alt.append(nees(B @ ea, B @ ra["covs"][-1] @ B.T))
         gap.append(np.linalg.eigvalsh(r["covs"][-1] - r["acts"][-1]).min())
-        q = P.process_noise_model(sc.pipeline, sc.motion)
-        bounds.append(P.phase_pcrb(sc.pipeline, q, r["states"], r["inp"], r["meas"], r["P0"])[-1])
+        q = PB.process_noise_model(sc.pipeline, sc.motion)
+        bounds.append(PS.phase_pcrb(sc.pipeline, q, r["states"], r["inp"], r["meas"], r["P0"])[-1])
     E, bound = np.array(e18), np.mean(bounds, axis=0)
     return dict(
         n18=np.mean(n18), n6=np.mean(n6), n12=np.mean(n12), n6_act=np.mean(n6a), n_sides=np.mean(ns), P_minus_P_act_min=min(gap),
         n6_alt=np.mean(n6alt) if n6alt else np.nan, n6_runs=np.array(n6),
         rmse_ant=np.sqrt(np.mean(np.sum(E[:, :9] ** 2, axis=1))),
-        rmse_body=np.sqrt(np.mean(np.sum((E @ P.BODY_POS.T) ** 2, axis=1))),
+        rmse_body=np.sqrt(np.mean(np.sum((E @ PF.BODY_POS.T) ** 2, axis=1))),
         pcrb_ant=np.sqrt(np.trace(bound[:9, :9])),
-        pcrb_body=np.sqrt(np.trace(P.BODY_POS @ bound @ P.BODY_POS.T)),
+        pcrb_body=np.sqrt(np.trace(PF.BODY_POS @ bound @ PF.BODY_POS.T)),
     )
 
 
@@ -206,7 +209,7 @@ def test_monte_carlo_cross_h000_deterministic_truth_18_state_not_overconfident(d
 
 
 def test_attitude_nees_sees_the_attitude_and_not_a_common_shift_of_the_antennas():
-    """P.attitude_nees (the stage-2 quantity of the q rule): a translation of all antennas (and a
+    """PS.attitude_nees (the stage-2 quantity of the q rule): a translation of all antennas (and a
     common velocity error) is no attitude error; a yaw error d gives a NEES growing as d^2 and
     equal to d^2 / var(yaw) when the attitude covariance is diagonal in yaw."""
     from estimators.phase_model import antenna_state_from_body
@@ -216,13 +219,13 @@ def test_attitude_nees_sees_the_attitude_and_not_a_common_shift_of_the_antennas(
     x_true = antenna_state_from_body(p, v, rot_zyx(0.2, -0.1, 0.05), Rd)
     cov = 1e-4 * np.eye(18)
     shifted = x_true + np.concatenate([np.tile([0.3, -0.2, 0.1], 3), np.tile([0.1, 0.0, -0.05], 3)])
-    assert P.attitude_nees(shifted, cov, x_true) < 1e-12
-    n1 = P.attitude_nees(antenna_state_from_body(p, v, rot_zyx(0.2 + 1e-3, -0.1, 0.05), Rd), cov, x_true)
-    n2 = P.attitude_nees(antenna_state_from_body(p, v, rot_zyx(0.2 + 2e-3, -0.1, 0.05), Rd), cov, x_true)
+    assert PS.attitude_nees(shifted, cov, x_true) < 1e-12
+    n1 = PS.attitude_nees(antenna_state_from_body(p, v, rot_zyx(0.2 + 1e-3, -0.1, 0.05), Rd), cov, x_true)
+    n2 = PS.attitude_nees(antenna_state_from_body(p, v, rot_zyx(0.2 + 2e-3, -0.1, 0.05), Rd), cov, x_true)
     assert n1 > 0 and n2 / n1 == pytest.approx(4.0, rel=0.01)
     # the angle error is wrapped: yaw pi - 1e-3 estimated as -pi + 1e-3 is a 2e-3 error, not 2 pi
     x_pi = antenna_state_from_body(p, v, rot_zyx(np.pi - 1e-3, -0.1, 0.05), Rd)
-    n_pi = P.attitude_nees(antenna_state_from_body(p, v, rot_zyx(-np.pi + 1e-3, -0.1, 0.05), Rd), cov, x_pi)
+    n_pi = PS.attitude_nees(antenna_state_from_body(p, v, rot_zyx(-np.pi + 1e-3, -0.1, 0.05), Rd), cov, x_pi)
     assert n_pi == pytest.approx(n2, rel=0.05)
 
 
@@ -259,7 +262,7 @@ def test_default_ekf_is_consistent_on_every_builtin_phase_scenario(name, request
         for seed in range(1, CONSISTENCY_RUNS + 1):
             sc = scenario_mod.load(name, seed=seed, duration=CALIBRATION_HORIZON_S)
             r = _filter(sc, simulate(sc)[0])
-            B = P.BODY_PV
+            B = PF.BODY_PV
             n6.append(nees(B @ (r["means"][-1] - r["states"][-1]), B @ r["covs"][-1] @ B.T))
     sc = scenario_mod.load(name, seed=CONSISTENCY_RUNS, duration=CALIBRATION_HORIZON_S)
     lo, hi = chi2_interval(6, CONSISTENCY_RUNS, level=0.95)
@@ -334,9 +337,9 @@ def test_paper_initial_error_option_applies_the_mapped_fixed_error():
         assert np.allclose(err[9 + 3 * j:12 + 3 * j], [0.8186, -0.7415, 0.6861], atol=1e-9)
     assert is_spd(r["P0"])
     # drawn (default) differs per seed and is reproducible per seed
-    a = P.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(3, "init"))[2]
-    b = P.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(3, "init"))[2]
-    c = P.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(4, "init"))[2]
+    a = PB.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(3, "init"))[2]
+    b = PB.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(3, "init"))[2]
+    c = PB.initial_prior(scenario_mod.load(NAME, seed=3).pipeline, sc, r["inp"], stream_rng(4, "init"))[2]
     assert np.array_equal(a, b) and not np.allclose(a, c)
 
 
@@ -360,7 +363,7 @@ def test_flown_line_h000_keeps_the_tangential_velocity():
     sc = scenario_mod.load("phase-line-h000", duration=20.0, motion="flown")
     log, _ = simulate(sc)
     r = _filter(sc, log)
-    B = P.BODY_PV[3:]
+    B = PF.BODY_PV[3:]
     e = B @ (r["means"][-1] - r["states"][-1])
     n3 = nees(e, B @ r["covs"][-1] @ B.T)
     rejected = sum(i.rejected.size for i in r["infos"])
@@ -383,7 +386,7 @@ def test_window_scores_are_named_by_the_window_they_cover():
     sc = scenario_mod.load(NAME, duration=8.0, overrides={"pipeline.last_window": "5.0"})
     log, _ = simulate(sc)
     metrics, series = P.estimate(sc, log)
-    keys = P.window_keys(5.0)
+    keys = PS.window_keys(5.0)
     assert keys["rmse"] == "rmse_position_last_5s_m" and not any("last_100s" in k for k in metrics)
     t, e = series["t"], series["err"]
     last = t >= t[-1] - 5.0 + 1e-9

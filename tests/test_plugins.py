@@ -355,7 +355,7 @@ def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
 
 def _feed(sc, log, physics, cls, key="p"):
     """Run one plugin class through the testbed's feed on a log: its Track and its scores."""
-    from testbed.plugins.context import priors
+    from testbed.plugins.priors import priors
     from testbed.plugins.hooks import scenario_hooks
     from testbed.plugins.score import score
 
@@ -366,69 +366,85 @@ def _feed(sc, log, physics, cls, key="p"):
 
 
 def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
-    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it."""
+    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it,
+    and the pipeline's frame-N scores (phase_scores.PhaseWindow: errors per axis of N, last window)."""
     from testbed.pipelines import phase
-    from testbed.plugins.builtin_phase import PhaseEkf
+    from estimators.phase_frames import BODY_POS, BODY_PV
+    from testbed.plugins.builtin_phase import PhaseEkf, prepare
 
-    sc = scenario.load("phase-cross-h000", duration=4.0)  # shorter than score_start: every epoch scored
+    # shorter than score_start: every epoch scored; a last window of 2 s within the 4 s
+    sc = scenario.load("phase-cross-h000", duration=4.0, overrides={"pipeline.last_window": "2.0"})
     log, physics = simulate(sc)
-    cfg, inp, q, prior, _, meas = phase.prepare(sc, log)
+    cfg, inp, q, prior, _, meas = prepare(sc, log)
     ref = phase.run_filter(cfg, q, prior, meas, inp.times)
     p, v, R, Rd = inp.nav_pose
     track, sc_plug, health = _feed(sc, log, physics, PhaseEkf)
     pos, vel = track[("uav6", "position")], track[("uav6", "velocity")]
     np.testing.assert_array_equal(pos.time, inp.times)
-    pN, vN = ref.mean @ phase.BODY_POS.T, ref.mean @ phase.BODY_PV[3:].T
+    pN, vN = ref.mean @ BODY_POS.T, ref.mean @ BODY_PV[3:].T
     np.testing.assert_allclose(pos.value, p + np.einsum("kij,kj->ki", R, pN), rtol=0, atol=1e-9)
     np.testing.assert_allclose(vel.value, v + np.einsum("kij,kj->ki", R, vN) + np.einsum("kij,kj->ki", Rd, pN), rtol=0, atol=1e-9)
-    np.testing.assert_allclose(pos.cov, R @ (phase.BODY_POS @ ref.cov @ phase.BODY_POS.T) @ np.swapaxes(R, 1, 2),
+    np.testing.assert_allclose(pos.cov, R @ (BODY_POS @ ref.cov @ BODY_POS.T) @ np.swapaxes(R, 1, 2),
                                rtol=1e-9, atol=1e-15)
     want = phase.run(sc, log, None)["ekf"]
     for key, got in (("rmse_position_m", sc_plug["rmse_position_m"]), ("rmse_velocity_mps", sc_plug["rmse_velocity_m_s"]),
                      ("rmse_attitude_deg", sc_plug["rmse_attitude_deg"]), ("pcrb_rmse_position_m", sc_plug["pcrb_rmse_position_m"])):
         np.testing.assert_allclose(got, want[key], rtol=1e-9, err_msg=key)
+    window = [k for k in want if "last_2s" in k]
+    assert len(window) == 4 and sc_plug["last_window_s"] == want["last_window_s"] == 2.0
+    for key in ["position_error_mid_m", "position_error_final_m", "sigma_position_final_m", "pcrb_sigma_position_final_m",
+                *window]:
+        np.testing.assert_allclose(sc_plug[key], want[key], rtol=1e-9, atol=1e-12, err_msg=key)
     assert sc_plug["targets"]["uav6"]["position"]["pcrb_samples"] == inp.times.size
     assert health["rejected_measurements"] == int(ref.rejected_measurements.sum())
 
 
 @pytest.mark.parametrize("name", ["ekf", "rhcf"])
-def test_visnav_builtins_equal_the_pipeline_relative_to_the_leader(name):
-    from testbed.pipelines import visnav
+def test_visnav_builtins_are_scored_relative_to_the_leader(name):
+    """visnav.* estimate the follower relative to the leader (frame "uav1") at every camera epoch;
+    the generic scores of those series are the errors against the relative truth of
+    testbed.plugins.relnav_scores (position, velocity in the leader frame, attitude q_L^* q_F)."""
+    from estimators.so3 import quat_conj, quat_mul
     from testbed.plugins import builtin_visnav
+    from testbed.plugins.relnav_scores import true_relative_state
 
     sc = scenario.load("visnav", duration=3.0)
     log, physics = simulate(sc)
-    model, inputs, prior = visnav.prepare(sc, log)
-    ref = visnav.run_filter(name, sc.pipeline, model, visnav.camera_epochs(inputs), prior)
     track, scores, _ = _feed(sc, log, physics, getattr(builtin_visnav, name.capitalize()))
-    for q, sl in (("position", slice(0, 3)), ("velocity", slice(3, 6)), ("attitude", slice(6, 10))):
+    epochs, first = np.unique(log["camera/time"], return_index=True)
+    truth = true_relative_state(log, 1, 2, log["camera/state_index"][first])
+    for q, sl in (("position", slice(0, 3)), ("velocity", slice(3, 6))):
         s = track[("uav2", q)]
-        assert s.frame == "uav1"
-        np.testing.assert_array_equal(s.time, ref.t)
-        np.testing.assert_allclose(s.value, ref.mean[:, sl], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(s.cov, ref.cov[:, sl.start:sl.start + 3, sl.start:sl.start + 3], rtol=1e-12, atol=1e-15)
-    # the testbed's truth relative to the leader is the pipeline's: the same RMSEs
-    want = visnav.metrics_of(ref, visnav.score_track(model, ref, visnav.true_relative_state(
-        log, 1, 2, inputs.cam_state)))
-    for key, got in (("rmse_position_m", "rmse_position_m"), ("rmse_velocity_mps", "rmse_velocity_m_s"),
-                     ("rmse_attitude_deg", "rmse_attitude_deg")):
-        np.testing.assert_allclose(scores[got], want[key], rtol=1e-9, err_msg=key)
+        assert s.frame == "uav1" and s.has_cov.all()
+        np.testing.assert_array_equal(s.time, epochs)
+        np.testing.assert_allclose(scores["targets"]["uav2"][q][f"rmse_{'m' if q == 'position' else 'm_s'}"],
+                                   np.sqrt(np.mean(np.sum((s.value - truth[:, sl]) ** 2, 1))), rtol=1e-9)
+    dq = quat_mul(quat_conj(truth[:, 6:10]), track[("uav2", "attitude")].value)
+    angle = np.degrees(2 * np.arctan2(np.linalg.norm(dq[:, 1:], axis=1), np.abs(dq[:, 0])))
+    np.testing.assert_allclose(scores["rmse_attitude_deg"], np.sqrt(np.mean(angle ** 2)), rtol=1e-9)
+    assert scores["epochs"] == epochs.size and scores["finite"]
 
 
-def test_bandwidth_builtin_equals_the_pipeline():
-    from testbed.pipelines import bandwidth
-    from testbed.plugins.builtin_bandwidth import Fusion
+def test_bandwidth_builtin_equals_the_batch_filter():
+    """bandwidth.fusion fed row by row gives the reproduction's batch filter (the former pipeline)."""
+    from testbed.plugins.builtin_bandwidth import Fusion, known_config
+    from testbed.reproduce import bandwidth_batch
 
     sc = scenario.load("bandwidth", duration=2.0)
     log, physics = simulate(sc)
-    est = bandwidth.estimate(sc, log)
-    _, offsets = bandwidth.known_config(sc.pipeline, sc.seed)
-    track, _, _ = _feed(sc, log, physics, Fusion)
+    est = bandwidth_batch.estimate(sc, log)
+    _, offsets = known_config(sc.pipeline, sc.seed)
+    track, scores, health = _feed(sc, log, physics, Fusion)
     for i in range(4):
         s = track[(f"uav{i + 1}/uwb", "position")]
         np.testing.assert_array_equal(s.time, est["t"])
         np.testing.assert_allclose(s.value, est["xhat"][:, i] + offsets[i], rtol=0, atol=1e-12)
         np.testing.assert_allclose(s.cov, est["M"][:, i], rtol=1e-12, atol=1e-15)
+    # the fusion bound hook's numbers are the batch filter's (eqs. 12, 16)
+    e = est["truth"][:, None, :] - est["xhat"]
+    np.testing.assert_allclose(scores["J_empirical"], (e ** 2).sum(), rtol=1e-9)
+    np.testing.assert_allclose(scores["J_bound"], np.trace(est["M"], axis1=-2, axis2=-1).sum(), rtol=1e-9)
+    assert health["measurements_used"] == int(est["available"].sum()) and health["steps"] == est["K"]
 
 
 @pytest.mark.slow  # two short reproductions, ~30 s

@@ -288,7 +288,7 @@ def test_graph_poses_gives_the_same_estimates_fed_in_batches_or_row_by_row():
 
 def test_graph_poses_reports_convergence_iterations_and_cost_per_epoch(tmp_path):
     """The shipped example through graph.poses: estimates.npz holds one row per solved epoch (time,
-    iterations, cost, converged, observable), metrics.json their summary, consistent with health."""
+    iterations, cost, converged, observable, flagged), metrics.json their summary, consistent with health."""
     from testbed.replay.run import replay
 
     out = tmp_path / "rep"
@@ -296,10 +296,11 @@ def test_graph_poses_reports_convergence_iterations_and_cost_per_epoch(tmp_path)
     g = metrics["estimators"]["PoseGraph"]
     with np.load(out / "estimates.npz") as z:
         d = {k.split("/")[-1]: z[k] for k in z.files if k.startswith("PoseGraph/diagnostics/")}
-    assert set(d) == {"time", "iterations", "cost", "converged", "observable"}
+    assert set(d) == {"time", "iterations", "cost", "converged", "observable", "flagged"}
     assert d["time"].size == g["diagnostics"]["epochs"] > 0 and np.all(np.diff(d["time"]) >= 0)
     assert int(d["iterations"].sum()) == g["health"]["lm_iterations"]
-    assert int((d["converged"] == 0).sum()) == g["health"]["nonconverged_epochs"]
+    assert int((d["converged"] == 0).sum()) == g["health"]["nonconverged_epochs"] + g["health"]["flagged_epochs"]
+    assert int(d["flagged"].sum()) == g["health"]["flagged_epochs"]
     assert np.all(d["cost"] >= 0) and np.all(d["iterations"] >= 1)
 
 

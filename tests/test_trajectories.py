@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from testbed import trajectories
 from testbed.cli import main
 from testbed.errors import ConfigError
-from testbed.sim.reference import evaluate
+from testbed.reference import evaluate
 from testbed.scenario import Circle, Lemniscate, Spline, Trajectory, builtin_names, load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -250,7 +250,7 @@ def test_every_kind_evaluates_to_finite_values_of_the_right_shapes(name):
 
 @pytest.mark.parametrize("name", [str(p) for p in EXAMPLES], ids=lambda n: Path(n).stem)
 def test_examples_load_and_their_paths_are_clear(name):
-    from testbed.sim.reference import clearance
+    from testbed.reference import clearance
 
     sc = load(name)
     assert clearance(sc) is None

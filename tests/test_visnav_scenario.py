@@ -1,4 +1,5 @@
-"""Seed 004 end to end through the real testbed: visnav scenario, pipeline, reproduction.
+"""Seed 004 end to end through the real testbed: visnav scenario, its default estimators
+(visnav.ekf ... visnav.rhcf run as plugins), the relative-frame scores, the reproduction.
 
 The filters see only the imu and camera streams and the [pipeline] table; truth scores them.
 """
@@ -15,8 +16,15 @@ from estimators.visnav import RelNavModel
 from testbed import scenario
 from testbed.config import to_dict
 from testbed.errors import ConfigError
-from testbed.pipelines import visnav as pv
 from testbed.pipeline_config import FILTER_NAMES, VisNavPipelineConfig
+from testbed.plugins.builtin_visnav import estimator_config
+from testbed.plugins.context import make_context
+from testbed.sim.world import lever_arms
+from testbed.plugins.defaults import estimator_specs
+from testbed.plugins.loading import resolve
+from testbed.plugins.relnav_scores import true_relative_state
+from testbed.plugins.run import run_estimators
+from testbed.plugins.truth import Truth, errors
 from testbed.runner import run
 from testbed.sim.simulate import simulate
 
@@ -46,9 +54,9 @@ def test_camera_conventions_of_sensor_and_model_agree():
     (MuJoCo camera frame: x right, y up, boresight -z) to round-off, at every epoch and LED."""
     sc = scenario.load("visnav", duration=3.0, motion="flown")
     log, _ = simulate(sc)
-    model = RelNavModel(pv.estimator_config(sc.pipeline, sc.seed, sc.sensors.camera.focal_length))
+    model = RelNavModel(estimator_config(sc.pipeline, sc.seed, sc.sensors.camera.focal_length))
     idx = log["camera/state_index"]
-    truth = pv.true_relative_state(log, 1, 2, idx)
+    truth = true_relative_state(log, 1, 2, idx)
     leds = log["camera/led"] - 1
     b = np.array([model.los(truth[i][None], leds[i:i + 1])[0, 0] for i in range(idx.size)])
     ab = np.array([model.focal(truth[i][None], leds[i:i + 1])[0, 0] for i in range(idx.size)])
@@ -69,8 +77,8 @@ def test_bad_pipeline_values_are_config_errors():
 
 def test_run_directory_scores_every_filter_and_is_reproducible(tmp_path):
     """Flown mode through testbed.runner: one metrics entry per filter with the issue's keys;
-    the same seed gives the same log and bit-identical metrics.json; the wall-clock cost per step
-    goes to timing.json."""
+    the same seed gives the same log and bit-identical metrics.json; the wall-clock cost goes to
+    timing.json."""
     m1 = run(scenario.load("visnav", duration=3.0, motion="flown"), tmp_path / "a", plots=False)
     run(scenario.load("visnav", duration=3.0, motion="flown"), tmp_path / "b", plots=False)
     for f in ("log.npz", "metrics.json"):
@@ -78,9 +86,24 @@ def test_run_directory_scores_every_filter_and_is_reproducible(tmp_path):
     assert list(m1["estimators"]) == list(FILTERS)
     timing = json.loads((tmp_path / "a" / "timing.json").read_text())["estimators"]
     for name, e in m1["estimators"].items():
-        for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg", "anees"):
+        assert e["entry"] == f"visnav.{name}" and e["finite"] and e["epochs"] == 31
+        for key in ("rmse_position_m", "rmse_velocity_m_s", "rmse_attitude_deg", "anees_position", "anees_velocity",
+                    "anees_attitude", "final_position_error_m"):
             assert np.isfinite(e[key]), (name, key)
-        assert np.isfinite(timing[name]["time_per_step_ms"]) and timing[name]["time_per_step_ms"] > 0
+        assert np.isfinite(timing[name]["wall_ms"]) and timing[name]["wall_ms"] > 0
+
+
+def _filtered(sc):
+    """Run the scenario's default filters on a fresh simulation: {name: (scores, {quantity:
+    (errors (E, 3), covariances (E, 3, 3))})}, the follower relative to the leader."""
+    log, physics = simulate(sc)
+    scores, tracks = run_estimators(sc, physics, log, resolve(estimator_specs(sc)), None)
+    truth = Truth(log, make_context(sc, lever_arms(physics), "truth", {}))
+    out = {}
+    for name, track in tracks.items():
+        series = {q: track[("uav2", q)] for q in ("position", "velocity", "attitude")}
+        out[name] = (scores[name], {q: (errors(truth, "uav2", q, s.time, s.value, s.frame), s.cov) for q, s in series.items()})
+    return out
 
 
 def test_pixel_camera_path_runs_through_the_filters():
@@ -88,9 +111,10 @@ def test_pixel_camera_path_runs_through_the_filters():
     sc = scenario.load("visnav", duration=1.0, overrides={"sensors.camera.mode": '"pixels"'})
     log, _ = simulate(sc)
     assert log["camera/value"].shape[0] >= 4 * 10
-    tracks, scores, _ = pv.run_all(sc, log)
-    for name in FILTERS:
-        assert np.all(np.isfinite(scores[name].err)) and np.all(np.isfinite(scores[name].nees))
+    got = _filtered(sc)
+    assert list(got) == list(FILTERS)
+    for name, (scores, errs) in got.items():
+        assert scores["finite"] and all(np.isfinite(scores[f"anees_{q}"]) for q in errs), name
 
 
 # ------------------------------------------------------------------------------------------
@@ -110,34 +134,35 @@ GAUSSIAN_MC = {
 def gaussian_mc():
     out = []
     for i in range(MC_RUNS):
-        sc = scenario.load("visnav", duration=MC_DURATION, seed=100 + i, overrides=GAUSSIAN_MC)
-        log, _ = simulate(sc)
-        tracks, scores, _ = pv.run_all(sc, log)
-        out.append({n: (scores[n], pv.metrics_of(tracks[n], scores[n])) for n in FILTERS})
+        out.append(_filtered(scenario.load("visnav", duration=MC_DURATION, seed=100 + i, overrides=GAUSSIAN_MC)))
     return out
 
 
 @pytest.mark.parametrize("name", FILTERS)
 def test_gaussian_monte_carlo_anees_in_interval(gaussian_mc, name):
-    """4 runs x 15 s x 10 Hz, 9-dim navigation error (p, v, theta). A consistent filter's NEES at
-    an epoch ~ chi2(9); its time average over a run has mean 9 and no more variance than one
-    sample, so the mean over the independent runs lies in core.chi2_interval(9, 4, 0.99) =
-    [4.5, 15.4] with probability >= ~0.99 (a conservative interval: the time averages vary less)."""
-    per_run = np.array([r[name][1]["anees"] for r in gaussian_mc])
-    assert np.all(np.isfinite(per_run))
-    lo, hi = chi2_interval(9, MC_RUNS, 0.99)
-    assert lo < per_run.mean() < hi, f"{name}: ANEES {per_run.mean():.2f} outside [{lo:.2f}, {hi:.2f}]"
+    """4 runs x 15 s x 10 Hz; the relative position, velocity and attitude errors each with the
+    filter's own (3, 3) block. A consistent filter's NEES of one quantity at an epoch ~ chi2(3);
+    its time average over a run has mean 3 and no more variance than one sample, so the mean over
+    the independent runs lies in core.chi2_interval(3, 4, 1 - 0.01 / 3) with probability
+    >= 1 - 0.01 / 3 (a conservative interval: the time averages vary less); Bonferroni over the
+    three quantities: the filter fails at most 1 % of the time when consistent."""
+    lo, hi = chi2_interval(3, MC_RUNS, 1 - 0.01 / 3)
+    for q in ("position", "velocity", "attitude"):
+        per_run = np.array([r[name][0][f"anees_{q}"] for r in gaussian_mc])
+        assert np.all(np.isfinite(per_run))
+        assert lo < per_run.mean() < hi, f"{name} {q}: ANEES {per_run.mean():.2f} outside [{lo:.2f}, {hi:.2f}]"
 
 
 @pytest.mark.parametrize("name", FILTERS)
 def test_gaussian_monte_carlo_no_divergence(gaussian_mc, name):
-    """Diverged = a non-finite error, a final NEES above the chi2(9) 1 - 1e-6 quantile, or a
-    final position error not below the 0.5 m initial std."""
+    """Diverged = a non-finite error, a final position NEES above the chi2(3) 1 - 1e-6 quantile, or
+    a final position error not below the 0.5 m initial std."""
     for r in gaussian_mc:
-        sc_, m = r[name]
-        assert m["finite"]
-        assert sc_.nees[-1] < chi2.ppf(1 - 1e-6, 9)
-        assert m["final_position_error_m"] < 0.5
+        scores, errs = r[name]
+        e, P = errs["position"]
+        assert scores["finite"]
+        assert e[-1] @ np.linalg.solve(P[-1], e[-1]) < chi2.ppf(1 - 1e-6, 3)
+        assert scores["final_position_error_m"] < 0.5
 
 
 @pytest.mark.slow
@@ -157,6 +182,6 @@ def test_reproduce_writes_tables_claims_and_plots(tmp_path):
     assert all(c["test"]["name"] and c["test"]["n"] == 2 for c in claims)
     assert "testbed reproduce visnav" in (tmp_path / "report.md").read_text()
     assert "data:image/png;base64," in (tmp_path / "report.html").read_text()
-    # every ANEES with its interval (glint included): 5 filters x (2 noise cases + the extra runs: the other
-    # motion, 2 runs x 2 cases, and the pixel camera, 1)
-    assert assert_every_anees_has_its_interval((tmp_path / "table.md").read_text()) == 5 * (2 + 4 + 1)
+    # every ANEES with its interval (glint included): 3 quantities x 5 filters x (2 noise cases + the extra
+    # runs: the other motion, 2 runs x 2 cases, and the pixel camera, 1)
+    assert assert_every_anees_has_its_interval((tmp_path / "table.md").read_text()) == 3 * 5 * (2 + 4 + 1)

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from testbed.bench.swarm import swarm_scenario
-from testbed.sim.reference import GRAVITY
+from testbed.reference import GRAVITY
 from testbed.scenario import Scenario
 from testbed.sim.simulate import simulate
 from testbed.sim.world import Physics, build

@@ -1,21 +1,11 @@
 """Seed 003 estimator pipeline (kind "phase-ekf"): run log -> estimates, metrics, plots.
 
-Inputs the estimator gets (nothing else):
-- the `phase` stream: per output epoch and link (master m, slot i, follower antenna j) the
-  ambiguity-resolved range r_hat (m) and the eq. 7 range rate (m/s), `phase/rate_periods`;
-- the masters' own navigation solution `phase/master_pos`, `phase/master_vel` (world, m, m/s);
-- configured knowns from this [pipeline] table (filter noise, q, initial-error model, the
-  follower's antenna lever arms for the prior spread) and the sensor's phase period
-  T = 1 / sensors.phase.phase_rate_hz (an instrument setting, not truth);
-- the planned initial state of the follower: the scenario's reference trajectory at the first
-  epoch (testbed.sim.reference; the plan, not the MuJoCo state), to which the initial error is added.
-
-Navigation frame N = body frame (FLU) of master `nav_master` (3, on the symmetry axis). Its pose is
-derived every epoch from ITS OWN antennas in the master_pos/master_vel stream (eq. 29-30 applied
-to the master: origin = mid wing tips, axes from the antenna triangle, Euler rates from the antenna
-velocities), and every master antenna is expressed in N:
-    X_N = R^T (X_W - p),   V_N = d/dt X_N = R^T (V_W - v) + (dR/dt)^T (X_W - p).
-Ranges are frame-free. The truth for scoring is expressed the same way with master 3's TRUE pose
+The filter's inputs (the phase stream, the masters' own navigation solution, this [pipeline]
+table, the phase period) and its prior (the planned initial state plus the initial error):
+testbed.plugins.builtin_phase (`prepare`); the navigation frame N (the body frame FLU of master
+`nav_master`, its pose from its own antennas): estimators.phase_frames; the truth in N and the
+PCRB: testbed.plugins.phase_scores.
+Ranges are frame-free. The truth for scoring is the follower in N of master 3's TRUE pose
 (truth/pos, truth/vel, truth/quat, truth/omega). In prescribed mode master 3 hovers level with yaw
 0 at trajectory.nav_origin, so N is the world frame shifted; in flown mode it is the frame of the
 hovering quadrotor (its small motion, if any, is carried by R, p and their rates).
@@ -60,181 +50,15 @@ counts (core.Track.health: covariance_repairs, rejected_measurements, nonconverg
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from estimators.core import Epoch, Gate, Gaussian, Track, drive, nees
-from estimators.phase_ekf import (
-    AnalyzedGaussian,
-    PhaseEkfCovarianceAnalysis,
-    PhaseMeasurement,
-    ProcessNoise,
-    initial_belief,
-    pcrb,
-)
-from estimators.phase_model import antenna_state_from_body, body_from_antennas, rotation_from_antennas
-from estimators.so3 import euler_from_rotation, rot_zyx, rot_zyx_dot, skew
-from testbed.errors import ConfigError
+from estimators.phase_ekf import AnalyzedGaussian, PhaseEkfCovarianceAnalysis, ProcessNoise
+from estimators.phase_frames import BODY_POS, BODY_PV
+from estimators.phase_model import rotation_from_antennas
 from testbed.pipeline_config import PhasePipelineConfig
-from testbed.sim.reference import evaluate
-from testbed.rng import stream_rng
-
-
-# ------------------------------------------------------------------------------------------------
-# Frames
-# ------------------------------------------------------------------------------------------------
-def nav_pose_from_antennas(X: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Pose of the navigation master from its own antennas, per epoch.
-
-    X, V: (K, 3, 3) world positions / velocities of its ant1..3 (m, m/s). Returns p, v (K, 3)
-    (origin = mid wing tips, eq. 29), R (K, 3, 3) R_world_from_N, Rd (K, 3, 3) dR/dt (1/s).
-    """
-    K = X.shape[0]
-    p, v = np.empty((K, 3)), np.empty((K, 3))
-    R, Rd = np.empty((K, 3, 3)), np.empty((K, 3, 3))
-    for k in range(K):
-        y, _ = body_from_antennas(np.concatenate([X[k].ravel(), V[k].ravel()]))
-        p[k], v[k] = y[0:3], y[3:6]
-        R[k], Rd[k] = rot_zyx(*y[6:9]), rot_zyx_dot(y[6:9], y[9:12])
-    return p, v, R, Rd
-
-
-def to_nav(X: np.ndarray, V: np.ndarray, p, v, R, Rd) -> tuple[np.ndarray, np.ndarray]:
-    """World points X (K, ..., 3) and their velocities V to N: R^T (X - p), R^T (V - v) + Rd^T (X - p)."""
-    extra = X.ndim - 2
-    sl = (slice(None),) + (None,) * extra
-    dX = X - p[sl]
-    XN = np.einsum("k...i,kij->k...j", dX, R)
-    VN = np.einsum("k...i,kij->k...j", V - v[sl], R) + np.einsum("k...i,kij->k...j", dX, Rd)
-    return XN, VN
-
-
-# ------------------------------------------------------------------------------------------------
-# Streams -> estimator inputs
-# ------------------------------------------------------------------------------------------------
-@dataclass(frozen=True, slots=True)
-class PhaseInputs:
-    """Per-epoch inputs in N. times (K,) s; state_index (K,) into the log; ranges, rates, windows
-    (K, M, 3, 3) m, m/s, s; master_pos, master_vel (K, M, 3, 3) m, m/s; slip (K, M, 3, 3) bool
-    (sensor's repaired-slip flag); nav pose (p, v, R, Rd) from the nav master's own antennas."""
-
-    times: np.ndarray
-    state_index: np.ndarray
-    masters: tuple[int, ...]
-    follower: int
-    ranges: np.ndarray
-    rates: np.ndarray
-    windows: np.ndarray
-    master_pos: np.ndarray
-    master_vel: np.ndarray
-    slip: np.ndarray
-    nav_pose: tuple
-
-
-def phase_inputs(log: dict, phase_period: float, nav_master: int) -> PhaseInputs:
-    """Reshape the `phase` stream (rows: epoch, master, slot i, antenna j) and move it to N.
-
-    phase_period: T = 1 / phase_rate_hz (s). Raises ValueError if the stream's layout is not the
-    documented one or the nav master is not among the masters.
-    """
-    times_all = log["phase/time"]
-    times, first = np.unique(times_all, return_index=True)
-    K = times.size
-    L = times_all.size // K
-    if L * K != times_all.size or L % 9:
-        raise ValueError(f"phase stream has {times_all.size} rows, not a whole number of epochs of 9 M links")
-    M = L // 9
-    src = log["phase/src"].reshape(K, M, 3, 3)[0]
-    dst = log["phase/dst"].reshape(K, M, 3, 3)[0]
-    masters = tuple(int(s.split("/")[0][3:]) for s in src[:, 0, 0])
-    follower = int(dst[0, 0, 0].split("/")[0][3:])
-    for m in range(M):
-        for i in range(3):
-            for j in range(3):
-                if src[m, i, j] != f"uav{masters[m]}/ant{i + 1}" or dst[m, i, j] != f"uav{follower}/ant{j + 1}":
-                    raise ValueError("phase stream rows are not in (master, slot, antenna) order")
-    if nav_master not in masters:
-        raise ValueError(f"nav_master {nav_master} is not one of the phase masters {masters}")
-    val = log["phase/value"].reshape(K, M, 3, 3, 3)
-    periods = log["phase/rate_periods"].reshape(K, M, 3, 3).astype(float)
-    Xw = log["phase/master_pos"].reshape(K, M, 3, 3, 3)[:, :, :, 0]  # (K, M, slot, xyz)
-    Vw = log["phase/master_vel"].reshape(K, M, 3, 3, 3)[:, :, :, 0]
-    n = masters.index(nav_master)
-    pose = nav_pose_from_antennas(Xw[:, n], Vw[:, n])
-    XN, VN = to_nav(Xw, Vw, *pose)
-    windows = np.where(periods > 0, periods * phase_period, np.nan)
-    return PhaseInputs(times, log["phase/state_index"][first], masters, follower, val[..., 1], val[..., 2],
-                       windows, XN, VN, log["phase/slip"].reshape(K, M, 3, 3), pose)
-
-
-def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: float, b: float):
-    """Truth at log rows idx (K,) in N from master nav_master's TRUE pose (scoring only).
-
-    Returns body (K, 12) [p, v, yaw, pitch, roll, their rates], R_N_follower (K, 3, 3) and the
-    18-state (K, 18) with the true lever arms a, b (m).
-    """
-    def pose(u):
-        R = Rotation.from_quat(log["truth/quat"][idx, u - 1], scalar_first=True).as_matrix()
-        om = log["truth/omega"][idx, u - 1]
-        return log["truth/pos"][idx, u - 1], log["truth/vel"][idx, u - 1], R, R @ skew(om)
-
-    p3, v3, R3, R3d = pose(nav_master)
-    p6, v6, R6, R6d = pose(follower)
-    pN, vN = to_nav(p6, v6, p3, v3, R3, R3d)
-    RN = np.einsum("kji,kjl->kil", R3, R6)
-    RNd = np.einsum("kji,kjl->kil", R3d, R6) + np.einsum("kji,kjl->kil", R3, R6d)
-    K = idx.size
-    states = np.array([antenna_state_from_body(pN[k], vN[k], RN[k], RNd[k], a, b) for k in range(K)])
-    eul = np.array([euler_from_rotation(R) for R in RN])
-    # Euler rates are not scored (left 0)
-    body = np.concatenate([pN, vN, eul, np.zeros_like(eul)], axis=1)
-    return body, RN, states
-
-
-# ------------------------------------------------------------------------------------------------
-# Filter
-# ------------------------------------------------------------------------------------------------
-def initial_prior(cfg: PhasePipelineConfig, scenario, inp: PhaseInputs, rng: np.random.Generator):
-    """Prior on the 18-state at the first epoch: the planned (reference) follower state in N plus
-    the initial error (drawn from the prior covariance, or the paper's fixed error).
-    Returns (Gaussian prior, P0 (18, 18), error added (18,))."""
-
-    ref = evaluate(scenario.trajectory, inp.times[0])
-    f = inp.follower - 1
-    p0, v0, R0, Rd0 = (x[:1] for x in inp.nav_pose)
-    pN, vN = to_nav(ref.pos[:, f], ref.vel[:, f], p0, v0, R0, Rd0)
-    Rw = Rotation.from_quat(ref.quat[0, f], scalar_first=True).as_matrix()
-    RN = R0[0].T @ Rw
-    RNd = Rd0[0].T @ Rw + R0[0].T @ Rw @ skew(ref.omega[0, f])
-    a, b = cfg.antenna_a + cfg.antenna_error, cfg.antenna_b + cfg.antenna_error
-    base = initial_belief(pN[0], vN[0], RN, RNd, np.diag(cfg.init_pos_var), np.diag(cfg.init_vel_var), a, b)
-    if cfg.init == "paper":
-        mean = antenna_state_from_body(pN[0] + np.array(cfg.init_pos_error), vN[0] + np.array(cfg.init_vel_error), RN, RNd, a, b)
-    else:
-        mean = base.mean + np.linalg.cholesky(base.cov) @ rng.standard_normal(base.mean.size)
-    return Gaussian(mean, base.cov), base.cov, mean - base.mean
-
-
-def measurement_epochs(cfg: PhasePipelineConfig, inp: PhaseInputs) -> list:
-    """One PhaseMeasurement per epoch with the configured rate-row model and noise."""
-    out = []
-    for k in range(inp.times.size):
-        W = inp.windows[k]
-        sig_rate = np.where(np.isfinite(W), np.sqrt(2.0) * cfg.range_sigma / np.where(np.isfinite(W), W, 1.0), np.inf)
-        use_rate = np.isfinite(W) & (cfg.rate_rows != "off")
-        out.append(PhaseMeasurement(
-            inp.ranges[k], inp.rates[k], inp.master_pos[k], inp.master_vel[k], cfg.range_sigma, sig_rate,
-            valid_range_rate=use_rate,
-            rate_window=np.where(use_rate, W, 1.0) if cfg.rate_rows == "window" else None,
-        ))
-    return out
-
-
-def process_noise_model(cfg: PhasePipelineConfig, motion: str) -> ProcessNoise:
-    """The filter's ProcessNoise: per-antenna q of the motion mode plus the rigid-body terms."""
-    return ProcessNoise(cfg.q_flown if motion == "flown" else cfg.q, cfg.q_translation, cfg.q_rotation)
+from testbed.plugins.builtin_phase import prepare
+from testbed.plugins.phase_scores import attitude_nees, phase_pcrb, true_states, window_keys
 
 
 def run_filter(cfg: PhasePipelineConfig, q: float | ProcessNoise, prior: Gaussian, meas: list,
@@ -248,46 +72,6 @@ def run_filter(cfg: PhasePipelineConfig, q: float | ProcessNoise, prior: Gaussia
     filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=cfg.gate_alpha, enabled=cfg.gate), cfg.iterations)
     epochs = [Epoch(float(t), m) for t, m in zip(times, meas)]
     return drive(filt, AnalyzedGaussian(prior.mean, prior.cov, prior.cov), epochs)
-
-
-def phase_pcrb(cfg: PhasePipelineConfig, q: float | ProcessNoise, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
-    """PCRB (K, 18, 18) along the true 18-state trajectory with the filter's own rows and model."""
-    valid = np.array([m.stacked()[2] for m in meas])
-    sig_rate = np.array([np.broadcast_to(m.sigma_range_rate, (len(inp.masters), 3, 3)) for m in meas])
-    sig_rate = np.where(np.isfinite(sig_rate), sig_rate, 1.0)
-    W = np.where(np.isfinite(inp.windows), inp.windows, 1.0) if cfg.rate_rows == "window" else None
-    return pcrb(states, inp.times, inp.master_pos, inp.master_vel, P0, cfg.range_sigma, sig_rate, q,
-                valid=valid, rate_window=W)
-
-
-# ------------------------------------------------------------------------------------------------
-# Scores
-# ------------------------------------------------------------------------------------------------
-BODY_POS = np.zeros((3, 18))
-BODY_POS[:, 3:6] = BODY_POS[:, 6:9] = 0.5 * np.eye(3)
-BODY_PV = np.zeros((6, 18))
-BODY_PV[:3] = BODY_POS
-BODY_PV[3:, 12:15] = BODY_PV[3:, 15:18] = 0.5 * np.eye(3)
-
-
-def attitude_nees(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> float:
-    """NEES of the follower's attitude and attitude rates (yaw, pitch, roll and their rates, 6 dof)
-    at one epoch: x, x_true (18,) estimated and true antenna states in N, P (18, 18) the filter's
-    covariance. Eq. 30 from the antennas (phase_model.body_from_antennas), covariance J P J^T
-    linearized at the estimate, angle errors wrapped to [-pi, pi)."""
-    (y, J), (y_true, _) = body_from_antennas(x), body_from_antennas(x_true)
-    e = y[6:] - y_true[6:]
-    e[:3] = (e[:3] + np.pi) % (2 * np.pi) - np.pi
-    return float(nees(e, J[6:] @ P @ J[6:].T))
-
-
-def window_keys(window_s: float) -> dict[str, str]:
-    """metrics.json names of the window scores over the last `window_s` seconds:
-    {"rmse", "pcrb_rmse", "max_abs_position", "max_abs_velocity"} -> key (e.g. window 100:
-    "rmse_position_last_100s_m")."""
-    w = f"last_{window_s:g}s"
-    return {"rmse": f"rmse_position_{w}_m", "pcrb_rmse": f"pcrb_rmse_position_{w}_m",
-            "max_abs_position": f"max_abs_position_error_{w}_m", "max_abs_velocity": f"max_abs_velocity_error_{w}_mps"}
 
 
 def score(cfg: PhasePipelineConfig, track: Track, states_true, body_true, R_true, bound) -> dict:
@@ -357,37 +141,6 @@ def plot(series: dict, plots_dir, name: str) -> None:
     lab = ("x (fwd)", "y (left)", "z (up)")
     error_envelope(t, e[:, :3], s[:, :3], plots_dir / "position_error.png", title=f"{name}: body position error (nav frame)", ylabel="m", labels=lab)
     error_envelope(t, e[:, 3:], s[:, 3:], plots_dir / "velocity_error.png", title=f"{name}: body velocity error (nav frame)", ylabel="m/s", labels=lab)
-
-
-def prepare(scenario, log: dict) -> tuple:
-    """What the filter starts from on a run log: (cfg, inputs, q, prior Gaussian, P0 (18, 18),
-    measurements); the prior is also the one the phase.ekf plugin gets (testbed.plugins.context)."""
-    cfg: PhasePipelineConfig = scenario.pipeline
-    ph = scenario.sensors.phase
-    if ph is None or "phase/time" not in log:
-        raise ConfigError(f"{scenario.name}: pipeline phase-ekf needs the [sensors.phase] stream")
-    try:
-        inp = phase_inputs(log, 1.0 / ph.phase_rate_hz, cfg.nav_master)
-    except ValueError as e:
-        raise ConfigError(f"{scenario.name}: pipeline.nav_master: {e}") from None
-    q = process_noise_model(cfg, scenario.motion)
-    prior, P0, _ = initial_prior(cfg, scenario, inp, stream_rng(scenario.seed, "init"))
-    return cfg, inp, q, prior, P0, measurement_epochs(cfg, inp)
-
-
-def true_states(scenario, log: dict, cfg: PhasePipelineConfig, inp: PhaseInputs):
-    """truth_in_nav at the phase epochs (scoring only): body (K, 12), R_N_follower, 18-states."""
-    return truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower, scenario.world.antenna_a, scenario.world.antenna_b)
-
-
-def position_bound(scenario, log: dict) -> tuple[np.ndarray, np.ndarray, int]:
-    """The PCRB of the follower's body position for plugin scores (scoring only): epoch times
-    (K,) s, bound (K, 3, 3) m^2 in world axes (N rotated by the nav master's true attitude), the
-    follower's number."""
-    cfg, inp, q, _, P0, meas = prepare(scenario, log)
-    bound = BODY_POS @ phase_pcrb(cfg, q, true_states(scenario, log, cfg, inp)[2], inp, meas, P0) @ BODY_POS.T
-    R = Rotation.from_quat(log["truth/quat"][inp.state_index, cfg.nav_master - 1], scalar_first=True).as_matrix()
-    return inp.times, R @ bound @ np.swapaxes(R, 1, 2), inp.follower
 
 
 def estimate(scenario, log: dict) -> tuple[dict, dict]:

@@ -12,15 +12,13 @@ from typing import Callable
 
 import numpy as np
 
-from testbed.pipelines import bandwidth, phase, visnav
+from testbed.pipelines import phase
 from testbed.scenario import Scenario
 
 Pipeline = Callable[[Scenario, dict[str, np.ndarray], Path | None], dict]
 
 PIPELINES: dict[str, Pipeline] = {
     "phase-ekf": phase.run,
-    "visnav": visnav.run,
-    "bandwidth": bandwidth.run,
 }
 
 

@@ -159,7 +159,7 @@ class Context:
     vehicle site; anchors: {name: (3,) m world}; sensors: {stream: declared model: rate_hz (Hz),
     latency (s) and the noise parameters of the scenario's [sensors.NAME] table};
     prior: {target: (mean, cov)} the prior the built-in estimators get, in their own state
-    (empty when they get none; testbed.plugins.context.priors lists them per pipeline kind);
+    (empty when they get none; testbed.plugins.priors.priors lists them per pipeline kind);
     pipeline: the scenario's [pipeline] table with every default written out ({} without one):
     the built-in estimators' settings, their defaults when `params` does not override them;
     params: this estimator's params table; duration: run length (s); motion: "prescribed"

@@ -19,13 +19,22 @@ from testbed.plugins.truth import Truth
 from testbed.rng import stream_rng
 
 
+def uwb_rows(log: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The uwb rows of a run log a Channel reads: time, src, dst, nlos (none without a uwb stream)."""
+    if "uwb/time" not in log:
+        return {"time": np.zeros(0), "src": np.zeros(0, str), "dst": np.zeros(0, str), "nlos": np.zeros(0, bool)}
+    return {k: log[f"uwb/{k}"] for k in ("time", "src", "dst", "nlos")}
+
+
 class Channel:
     """One estimator's network in one run. config: the scenario's [network]; truth: the run's
-    (testbed.plugins.truth.Truth); log: the run log (its uwb rows, for NLOS); vehicles: body names
-    in node order (node i is `vehicles[i]`, its radio the site `vehicles[i]/uwb`); seed, key: the
-    scenario seed and the estimator's name (the network's random stream)."""
+    (testbed.plugins.truth.Truth, or a replay's testbed.replay.recording.RecordedTruth: `at` of a
+    site's position); uwb: the run's uwb rows, for NLOS (`uwb_rows`: time (n,) s, src, dst (n,)
+    site names, nlos (n,) bool); vehicles: body names in node order (node i is `vehicles[i]`, its
+    radio the site `vehicles[i]/uwb`); seed, key: the scenario seed and the estimator's name (the
+    network's random stream)."""
 
-    def __init__(self, config: NetworkConfig, truth: Truth, log: dict[str, np.ndarray], vehicles: tuple[str, ...],
+    def __init__(self, config: NetworkConfig, truth: Truth, uwb: dict[str, np.ndarray], vehicles: tuple[str, ...],
                  seed: int, key: str):
         self.config, self.truth, self.vehicles = config, truth, vehicles
         self.network = Network(config, len(vehicles), stream_rng(seed, f"network/{key}"))
@@ -33,11 +42,11 @@ class Channel:
         self.used = False  # a transport was asked for
         self._open: list[RoundTransport] = []
         node = {f"{v}/uwb": i for i, v in enumerate(vehicles)}
-        src, dst = log["uwb/src"].astype(str), log["uwb/dst"].astype(str)
+        src, dst = uwb["src"].astype(str), uwb["dst"].astype(str)
         tag = np.array([s in node and d in node for s, d in zip(src, dst)], bool)
-        self._uwb_time = log["uwb/time"][tag]
+        self._uwb_time = uwb["time"][tag]
         self._pairs = np.array([[node[s], node[d]] for s, d in zip(src[tag], dst[tag])], np.int64).reshape(-1, 2)
-        self._nlos = log["uwb/nlos"][tag].astype(bool)
+        self._nlos = uwb["nlos"][tag].astype(bool)
 
     def transport(self, t: float) -> RoundTransport:
         """The transport of one solve of synchronous rounds starting at t (s), the channel's

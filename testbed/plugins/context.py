@@ -1,6 +1,7 @@
 """The `Context` of a run: geometry, declared sensor models, the pipeline's settings and priors.
 
-The lever arms are handed in (the simulator reads them from the compiled model,
+The lever arms and the priors are handed in (the priors: testbed.plugins.priors, which reads the
+truth where a paper starts from it, in the workflow layer); the lever arms (the simulator reads them from the compiled model,
 testbed.sim.world.lever_arms; a replay from its dataset), so the estimator runtime never imports the
 simulator.
 """
@@ -9,43 +10,16 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.config import to_dict
-from testbed.pipelines import bandwidth, phase, visnav
 from testbed.plugins.api import Context
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
-
-
-def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The prior the scenario's built-in estimators get, by target, in their own state (the
-    pipeline's own code computes it, so a built-in plugin starts where its pipeline starts):
-
-    coop-fg: none (every epoch is anchored by its GNSS fixes alone);
-    phase-ekf: {"uavF": (18,), (18, 18)} the follower's antenna state of estimators.phase_ekf in
-      the navigation frame N at the first phase epoch (planned state + the drawn initial error);
-    visnav: {"uavF": (22,), (21, 21)} the follower's state relative to the leader
-      (estimators.visnav layout) at the first IMU sample (truth + the drawn initial error);
-    bandwidth: {"formation": (3,), (3, 3)} every node's initial estimate of the formation point
-      (m, world) and M(0).
-    Empty without a log or a pipeline.
-    """
-    kind = getattr(scenario.pipeline, "kind", None)
-    if log is None or kind not in ("phase-ekf", "visnav", "bandwidth"):
-        return {}
-    if kind == "phase-ekf":
-        _, inp, _, prior, _, _ = phase.prepare(scenario, log)
-        return {f"uav{inp.follower}": (prior.mean, prior.cov)}
-    if kind == "visnav":
-        prior = visnav.prepare(scenario, log)[2]
-        return {f"uav{scenario.sensors.camera.follower}": (prior.mean, prior.cov)}
-    cfg = scenario.pipeline
-    return {"formation": (bandwidth.initial_estimate(cfg, scenario.seed), np.diag(cfg.M0))}
 
 
 def make_context(scenario: Scenario, sites: dict[str, tuple[str, np.ndarray]], key: str, params: dict,
                  prior: dict[str, tuple[np.ndarray, np.ndarray]] | None = None, channel: object | None = None) -> Context:
     """The Context of estimator `key` in this run (its rng: stream "estimator/KEY" of the seed).
     sites: {site: (vehicle body, lever arm (3,) m in its base frame)} (testbed.sim.world.lever_arms);
-    prior: priors(scenario, log), computed once per run (None: none); channel: its network
+    prior: testbed.plugins.priors.priors(scenario, log), computed once per run (None: none); channel: its network
     (testbed.plugins.channel.Channel) or None."""
     anchors = {f"anchor{k}": np.array(p, float) for k, p in enumerate(scenario.world.anchors, start=1)}
     return Context(

@@ -16,13 +16,19 @@ from testbed.scenario import Scenario
 DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {
     "coop-fg": (("gnss_only", "coop.gnss_only"), ("one_shot", "coop.one_shot"), ("iterated", "coop.iterated"),
                 ("centralized", "coop.centralized")),
+    "bandwidth": (("bandwidth", "bandwidth.fusion"),),
+    "visnav": (("ekf", "visnav.ekf"), ("ckf", "visnav.ckf"), ("hckf", "visnav.hckf"), ("mckf", "visnav.mckf"),
+               ("rhcf", "visnav.rhcf")),
 }
 
 
 def default_specs(scenario: Scenario) -> tuple[EstimatorSpec, ...]:
-    """The default estimators of the scenario's [pipeline] kind (none without one)."""
+    """The default estimators of the scenario's [pipeline] kind (none without one); a table with
+    `filters` (visnav) keeps those it names, in its order."""
     kind = getattr(scenario.pipeline, "kind", None)
-    return tuple(EstimatorSpec(entry=entry, name=name) for name, entry in DEFAULTS.get(kind, ()))
+    entries = dict(DEFAULTS.get(kind, ()))
+    names = getattr(scenario.pipeline, "filters", None) or tuple(entries)
+    return tuple(EstimatorSpec(entry=entries[name], name=name) for name in names if name in entries)
 
 
 def estimator_specs(scenario: Scenario) -> tuple[EstimatorSpec, ...]:

@@ -17,8 +17,9 @@ import numpy as np
 from testbed.errors import ConfigError, PluginError
 from testbed.interrupt import poll
 from testbed.scoring.metrics import network_summary
-from testbed.plugins.channel import Channel
-from testbed.plugins.context import make_context, priors
+from testbed.plugins.channel import Channel, uwb_rows
+from testbed.plugins.context import make_context
+from testbed.plugins.priors import priors
 from testbed.plugins.failures import failed_entry
 from testbed.plugins.feed import batched, run_plugin
 from testbed.plugins.loading import Plugin
@@ -52,7 +53,7 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, lever_arms(physics), p.key, p.params, prior)
         truth = Truth(log, ctx)
-        channel = Channel(scenario.network, truth, log, ctx.vehicles, scenario.seed, p.key) \
+        channel = Channel(scenario.network, truth, uwb_rows(log), ctx.vehicles, scenario.seed, p.key) \
             if scenario.network is not None and p.key not in done else None
         ctx = replace(ctx, channel=channel)
         try:

@@ -25,7 +25,7 @@ do not fit), and, once per run, `plot` (figures of its own) and `overlay` (lines
 shared error plots). A hook reads the log's truth; the estimators never do.
 PCRB (`Bound`, seed 003 phase-ekf: the posterior Cramer-Rao bound of the follower's body position,
 with the scenario's measurement and motion model, computed along the true trajectory by
-testbed.pipelines.phase.position_bound): a world-frame position series of that body gets
+testbed.plugins.phase_scores.phase_hooks): a world-frame position series of that body gets
 `pcrb_rmse_m` = sqrt(mean trace B) over its estimates at the bound's epochs (`pcrb_samples` of
 them; `rmse_at_pcrb_epochs_m` is its RMSE over the same samples), and the summary
 `pcrb_rmse_position_m`; the error plot overlays +/-3 sqrt(diag B).
@@ -70,6 +70,32 @@ class Hook:
         return []
 
 
+def common_times(series: list[Series]) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    """The instants t (E,) s every one of `series` has an estimate at and, per series, the indices
+    (E,) of those estimates; None when there is none."""
+    t = series[0].time
+    for s in series[1:]:
+        t = np.intersect1d(t, s.time)
+    return (t, [np.searchsorted(s.time, t) for s in series]) if t.size else None
+
+
+def fitting(hook, shown: dict):
+    """(name, hook.fit(track, errors)) of each estimator of shown {name: (Track, errors)} whose
+    outputs fit a hook that has a `fit` (None when they do not)."""
+    for name, (track, errs) in shown.items():
+        got = hook.fit(track, errs)
+        if got is not None:
+            yield name, got
+
+
+def at_epochs(epochs: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(indices into times, the matching indices into epochs) of the times within 1e-9 s of one
+    of the sorted epochs (K,) s."""
+    j = np.minimum(np.searchsorted(epochs, times - 1e-9), epochs.size - 1)
+    hit = np.flatnonzero(np.abs(epochs[j] - times) < 1e-9)
+    return hit, j[hit]
+
+
 @dataclass(frozen=True, slots=True)
 class Bound(Hook):
     """A scenario's PCRB of one target's world position: time (K,) s, cov (K, 3, 3) m^2."""
@@ -83,9 +109,8 @@ class Bound(Hook):
         empty unless s is the bound's target's world position."""
         if target != self.target or quantity != "position" or s.frame != "world":
             return np.zeros(0, int), np.zeros((0, 3, 3))
-        j = np.minimum(np.searchsorted(self.time, s.time - 1e-9), self.time.size - 1)
-        hit = np.flatnonzero(np.abs(self.time[j] - s.time) < 1e-9)
-        return hit, self.cov[j[hit]]
+        hit, j = at_epochs(self.time, s.time)
+        return hit, self.cov[j]
 
     def series(self, target: str, quantity: str, s: Series, err: np.ndarray) -> dict:
         hit, B = self.at(s, target, quantity)

@@ -4,12 +4,14 @@ What goes where (every number written with Python's shortest round-tripping repr
 back exactly the floats the run fed its estimators):
 - spec.toml: what makes each estimator's Context on replay the one it had in the run
   (testbed.plugins.context.make_context): the vehicles and every one of their sites with its lever
-  arm (from the compiled model, testbed.sim.world.lever_arms), the anchors, the declared
+  arm (from the compiled model, testbed.plugins.context.lever_arms), the anchors, the declared
   sensor tables (Context.sensors), the motion, the built-ins' prior (Context.prior), the seed (each
   Context.rng is the stream "estimator/KEY" of it, KEY kept) and the window [0, duration]; and the
   run's estimators (`exported_estimators`): the built-ins of its [pipeline] and its [[estimators]],
   each with its resolved params, so Context.pipeline (left empty on replay) is never needed;
-- links.csv: uwb rows (range m, the declared sigma); none without a uwb stream;
+  With a [network], the scenario's [network] too (each estimator's Context.channel on replay);
+- links.csv: uwb rows (range m, the declared sigma; with a [network], the nlos flag its
+  geometry reads); none without a uwb stream;
 - poses.csv: the GNSS fixes (kind gnss, of the antenna site, declared sigma per axis);
 - imu.csv: the IMU samples with the declared sigmas (when the run has an IMU stream);
 - phase.csv: the phase stream whole (when the run has one): carrier phase, range, rate, the
@@ -37,8 +39,10 @@ from testbed.outdir import Output
 from testbed.pipeline_config import (BandwidthPipelineConfig, CoopPipelineConfig, PhasePipelineConfig,
                                       VisNavPipelineConfig)
 from testbed.plugins import builtin_bandwidth, builtin_coop, builtin_phase, builtin_visnav
-from testbed.plugins.context import make_context, priors
+from testbed.plugins.context import make_context
+from testbed.plugins.priors import priors
 from testbed.sim.world import lever_arms
+from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.loading import resolve
 from testbed.plugins.settings import settings
 from testbed.estimator_spec import EstimatorSpec
@@ -71,9 +75,11 @@ def _stack(*parts: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def _links(log: dict, scenario, bag: bool) -> dict[str, np.ndarray]:
     """The links table: uwb rows (bag: and the phase stream as phase and range-rate rows); no row
-    when the run has no such stream (the table is required: an empty one says so)."""
+    when the run has no such stream (the table is required: an empty one says so); the nlos
+    column only with a [network] (the one reader of it)."""
     empty, text = np.zeros(0), np.zeros(0, str)
-    parts = [{"time": empty, "src": text, "dst": text, "kind": text, "value": empty, "sigma": empty, "arrival": empty}]
+    parts = [{"time": empty, "src": text, "dst": text, "kind": text, "value": empty, "sigma": empty, "arrival": empty,
+              "nlos": empty}]
     for name in ("uwb", "phase") if bag else ("uwb",):
         if f"{name}/value" not in log:
             continue
@@ -84,9 +90,12 @@ def _links(log: dict, scenario, bag: bool) -> dict[str, np.ndarray]:
             ok = np.isfinite(a["value"][:, c])
             sig = sigma[:, c] if sigma is not None else np.full(ok.size, np.nan)
             sig = np.where(np.isfinite(sig), sig, np.nan)
+            nlos = a["nlos"].astype(float) if name == "uwb" and "nlos" in a else np.zeros(ok.size)
             parts.append({"time": a["time"][ok], "src": a["src"][ok], "dst": a["dst"][ok],
-                          "kind": np.full(ok.sum(), kind), "value": a["value"][ok, c], "sigma": sig[ok], "arrival": a["arrival"][ok]})
-    return _stack(*parts)
+                          "kind": np.full(ok.sum(), kind), "value": a["value"][ok, c], "sigma": sig[ok], "arrival": a["arrival"][ok],
+                          "nlos": nlos[ok]})
+    out = _stack(*parts)
+    return out if scenario.network is not None else {k: v for k, v in out.items() if k != "nlos"}
 
 
 _COOP = (builtin_coop.GnssOnly, builtin_coop.OneShot, builtin_coop.Iterated, builtin_coop.Centralized)
@@ -103,18 +112,6 @@ BAG_UNREPRODUCIBLE = (
 )
 
 
-def pipeline_estimators(pipeline) -> tuple[str, ...]:
-    """The registered names of the built-in estimators of a scenario's [pipeline] (its default
-    estimators): coop-fg the four seed 001 variants, phase-ekf phase.ekf, bandwidth bandwidth.fusion,
-    visnav its `filters`; none for tracking or without a pipeline."""
-    kind = getattr(pipeline, "kind", None)
-    if kind == "coop-fg":
-        return tuple(f"coop.{v}" for v in ("gnss_only", "one_shot", "iterated", "centralized"))
-    if kind == "visnav":
-        return tuple(f"visnav.{f}" for f in pipeline.filters)
-    return {"phase-ekf": ("phase.ekf",), "bandwidth": ("bandwidth.fusion",)}.get(kind, ())
-
-
 def unreproducible(cls: type, bag: bool = False) -> str:
     """Why a replay of a CSV export (bag: of a bag export) cannot drive the estimator class cls
     ("" when it can: a CSV export carries every stream a built-in reads)."""
@@ -123,17 +120,15 @@ def unreproducible(cls: type, bag: bool = False) -> str:
 
 def exported_estimators(scenario, physics, prior: dict, bag: bool = False) -> tuple[list[EstimatorSpec], list[str]]:
     """(the estimators a replay of the run drives, one line per estimator it cannot); prior: the
-    run's testbed.plugins.context.priors; bag: for a bag export (unreproducible).
+    run's testbed.plugins.priors.priors; bag: for a bag export (unreproducible).
 
-    The estimators: the built-ins of the scenario's [pipeline] (pipeline_estimators; one already
-    among its [[estimators]] under its own key is not added twice), then its [[estimators]], in
-    that order, keys kept (a key names its Context.rng stream); params resolved: a built-in whose
+    The estimators: those a run of the scenario scores (testbed.plugins.defaults.estimator_specs:
+    the default ones of its [pipeline] kind, then its [[estimators]]), in that order, keys kept (a
+    key names its Context.rng stream); params resolved: a built-in whose
     params default to the [pipeline] (coop.*, phase.ekf, bandwidth.fusion, visnav.*) gets every
     key of its config with the value it ran with (testbed.plugins.settings); the others (their
     defaults fixed in their code, not read from the scenario) keep the params given."""
-    own = {s.key for s in scenario.estimators}
-    specs = [EstimatorSpec(entry=e) for e in pipeline_estimators(scenario.pipeline) if e not in own]
-    specs += scenario.estimators
+    specs = estimator_specs(scenario)
     out, skipped = [], []
     for spec, p in zip(specs, resolve(specs)):
         why = unreproducible(p.cls, bag)
@@ -157,7 +152,7 @@ def _vec(p) -> str:
 def spec_toml(scenario, run_dir: Path, arms: dict, n: int, estimators: list[EstimatorSpec] = (),
               prior: dict | None = None, skipped: list[str] = ()) -> str:
     """The spec.toml of an exported run (one line per site, anchor and prior row; the rest by
-    tomli_w). estimators: exported_estimators; prior: testbed.plugins.context.priors of the run;
+    tomli_w). estimators: exported_estimators; prior: testbed.plugins.priors.priors of the run;
     skipped: a comment line each."""
     lines = [f"# {line}" for line in skipped]
     lines += [tomli_w.dumps({
@@ -168,6 +163,7 @@ def spec_toml(scenario, run_dir: Path, arms: dict, n: int, estimators: list[Esti
         "motion": scenario.motion,
         "estimators": [{"entry": s.entry, **({"name": s.name} if s.name else {}), "params": dict(s.params)} for s in estimators],
         "window": {"start": 0.0, "end": scenario.duration},
+        **({"network": to_dict(scenario.network)} if scenario.network is not None else {}),
         "sensors": {name: to_dict(cfg) for name, cfg in scenario.sensors.streams().items()},
     })]
     for i in range(1, n + 1):
@@ -231,10 +227,13 @@ def tables(scenario, log: dict, bag: bool = False) -> dict[str, dict[str, np.nda
     return out
 
 
-def left_out(log: dict, bag: bool = False) -> list[str]:
+def left_out(log: dict, bag: bool = False, network: bool = False) -> list[str]:
     """One line per stream of the run that the export (bag: a bag export) leaves out or carries
-    in part."""
+    in part; network: the scenario has a [network]."""
     out = []
+    if bag and network and "uwb/value" in log:
+        out.append("the uwb rows' nlos flags are not exported: a bag's Link message has none; on replay the network "
+                   "(Context.channel) counts every pair line of sight (export as csv to keep them)")
     undefined = int(np.sum(log["phase/rate_periods"] == 0)) if "phase/value" in log else 0
     if bag and "phase/value" in log:
         out.append("the phase stream is exported as links of its range (kind phase) and range rate (kind range-rate), "
@@ -254,7 +253,7 @@ def run_spec(run_dir: Path, scenario, log: dict, bag: bool = False) -> str:
     each estimator a replay cannot drive)."""
     physics, prior = world.build(scenario), priors(scenario, log)
     estimators, skipped = exported_estimators(scenario, physics, prior, bag)
-    for line in left_out(log, bag) + skipped:
+    for line in left_out(log, bag, scenario.network is not None) + skipped:
         print(f"testbed: note: {run_dir}: {line}", file=sys.stderr)
     return spec_toml(scenario, Path(run_dir), lever_arms(physics), scenario.vehicles, estimators, prior, skipped)
 

@@ -16,14 +16,16 @@ within the horizon of the estimates of the part before --, else from a fresh sta
 least-squares fit of the robot alone to its ranges to fixed points, estimators.range_lsq.fresh_fit,
 from params `initial` or the fixed points' centroid), else from `initial`, else near the epoch's
 fixed points. An epoch that does not converge from its warm start is solved again from a fresh
-start (a recovery, counted when it then converges); one that still does not converge is withheld:
-no estimate, never a warm start, counted. Estimates: a pose robot's position and attitude (body), a point robot's site
+start (a recovery, counted when it then converges); one that still does not converge is flagged
+when its two iterates agree (AGREE_LEVEL: the lower-cost one published, its covariance inflated
+by their difference, never a warm start, counted), else withheld: no estimate, never a warm start,
+counted. Estimates: a pose robot's position and attitude (body), a point robot's site
 position, with the marginal covariances; an epoch that is unobservable (gauge freedom) gives no
-estimate. Counted in health(): epochs, nonconverged_epochs (withheld), recoveries, fresh_starts
+estimate. Counted in health(): epochs, nonconverged_epochs (withheld), flagged_epochs, recoveries, fresh_starts
 (epochs solved from a fresh start at once: no estimate within the horizon), unobservable_epochs,
 late_measurements (older than the epoch being collected), unused_measurements, lm_iterations (linear
 solves, summed over the epochs solved) and lm_iterations_max (of one epoch); per epoch, in
-diagnostics(): time, iterations, final cost, converged, observable.
+diagnostics(): time, iterations, final cost, converged, observable, flagged.
 
 The variable kind of each robot is decided from the sites measured in the first batch of epochs.
 """
@@ -35,15 +37,22 @@ from typing import Literal
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import chi2
 
-from estimators.graph.batch import EpochFactors, solve_epochs
+from estimators.graph.batch import EpochFactors, EpochsResult, solve_epochs
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.range_lsq import determines_attitude, fresh_fit
-from estimators.so3 import quat_to_rotmat, rotmat_to_quat
+from estimators.so3 import quat_to_rotmat, rotmat_to_quat, so3_log
 from testbed.config import check_fields, key, require
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
 from testbed.plugins.params import read
+
+# An epoch that converged from neither its warm start nor its fresh start is published (flagged)
+# when the two final iterates x_w, x_f are one solution by a chi-square test at this level:
+# (x_w - x_f)^T P^-1 (x_w - x_f) <= chi2_k(AGREE_LEVEL), k its unknowns, P the covariance of the
+# lower-cost iterate; what is published is that iterate with covariance P + (x_w - x_f)(x_w - x_f)^T.
+AGREE_LEVEL = 0.999
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -121,10 +130,10 @@ class PoseGraph:
         self.key = None
         self.current: _Epoch | None = None
         self.pending: list[_Epoch] = []
-        self.counts = {"epochs": 0, "nonconverged_epochs": 0, "recoveries": 0, "fresh_starts": 0, "unobservable_epochs": 0,
+        self.counts = {"epochs": 0, "nonconverged_epochs": 0, "flagged_epochs": 0, "recoveries": 0, "fresh_starts": 0, "unobservable_epochs": 0,
                        "late_measurements": 0,
                        "unused_measurements": 0, "lm_iterations": 0, "lm_iterations_max": 0}
-        self.per_epoch: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "iterations", "cost", "converged", "observable")}
+        self.per_epoch: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "iterations", "cost", "converged", "observable", "flagged")}
 
     # ---------------------------------------------------------------- collecting
     def _bin(self, t: float):
@@ -207,7 +216,7 @@ class PoseGraph:
 
     def diagnostics(self) -> dict[str, np.ndarray]:
         """Per solved epoch, in time order: time s, iterations (linear solves), cost (final robust
-        cost, whitened), converged and observable (1 or 0)."""
+        cost, whitened), converged, observable and flagged (published without converging; 1 or 0)."""
         cols = {k: np.concatenate(v) if v else np.zeros(0) for k, v in self.per_epoch.items()}
         order = np.argsort(cols["time"], kind="stable")
         return {k: v[order] for k, v in cols.items()}
@@ -432,6 +441,7 @@ class PoseGraph:
         res = solve(p0, R0)
         iterations = res.iterations.copy()
         retry = ~res.converged & res.observable & (how == "warm").any(axis=1)
+        flagged = np.zeros(len(eps), bool)
         if retry.any():  # a recovery: the epochs that failed from their warm start, again from fresh starts
             p1, R1, _ = self._starts(present, eps, times, warm=False, only=retry)
             p1[~retry], R1[~retry] = res.p[~retry], res.R[~retry]  # the others restart at their solution
@@ -439,25 +449,29 @@ class PoseGraph:
             self.counts["recoveries"] += int((retry & again.converged).sum())
             iterations += np.where(retry, again.iterations, 0)
             pick = lambda a, b: np.where(retry.reshape((-1,) + (1,) * (a.ndim - 1)), b, a)  # noqa: E731
+            first = res
             res = dataclasses.replace(res, **{k: pick(getattr(res, k), getattr(again, k))
                                               for k in ("p", "R", "cov", "cost", "converged", "observable")})
-        ok = res.converged & res.observable
-        self.counts["nonconverged_epochs"] += int((~res.converged & res.observable).sum())
+            flagged, res = _flag(kinds, first, res, retry)
+        ok = (res.converged | flagged) & res.observable
+        self.counts["nonconverged_epochs"] += int((~res.converged & ~flagged & res.observable).sum())
+        self.counts["flagged_epochs"] += int(flagged.sum())
         self.counts["lm_iterations"] += int(iterations.sum())
         self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(iterations.max(initial=0)))
         self.counts["unobservable_epochs"] += int((~res.observable).sum())
         for k, v in (("time", times), ("iterations", iterations), ("cost", res.cost), ("converged", res.converged),
-                     ("observable", res.observable)):
+                     ("observable", res.observable), ("flagged", flagged)):
             self.per_epoch[k].append(np.asarray(v, float))
         out = []
-        for e in np.flatnonzero(ok):  # a non-converged epoch is withheld, and never a warm start
+        for e in np.flatnonzero(ok):  # a non-converged epoch is flagged or withheld, and never a warm start
             t = float(times[e])
             for v, i in free.items():
                 o = res.offsets[i]
                 kind, site = self.kind[v]
                 p, R = res.p[e, i], res.R[e, i]
                 cov = res.cov[e]
-                self._remember(v, t, p, R)
+                if not flagged[e]:
+                    self._remember(v, t, p, R)
                 if kind == "point":
                     out.append(Estimate(time=t, target=site, quantity="position", value=p, cov=_sym(cov[o:o + 3, o:o + 3])))
                 else:
@@ -465,6 +479,27 @@ class PoseGraph:
                     out.append(Estimate(time=t, target=v, quantity="attitude", value=rotmat_to_quat(R),
                                         cov=_sym(cov[o + 3:o + 6, o + 3:o + 6])))
         return out
+
+
+def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, retry: np.ndarray) -> tuple[np.ndarray, EpochsResult]:
+    """The epochs (E,) bool solved from two starts (retry: first from the warm start, second from
+    the fresh one) that converged from neither but whose iterates agree (AGREE_LEVEL), and second
+    with those epochs' lower-cost iterate and its covariance inflated by the iterates' difference
+    d (k,) in the tangent space (per variable dp m world and, of a pose, Log(R_hi^T R_lo) rad body)."""
+    both = retry & ~first.converged & ~second.converged & first.observable & second.observable
+    flagged = np.zeros(both.shape, bool)
+    if not both.any():
+        return flagged, second
+    p, R, cov, cost = second.p.copy(), second.R.copy(), second.cov.copy(), second.cost.copy()
+    for e in np.flatnonzero(both):
+        lo, hi = (first, second) if first.cost[e] <= second.cost[e] else (second, first)
+        d = np.concatenate([lo.p[e, i] - hi.p[e, i] if kind == "point" else
+                            np.concatenate([lo.p[e, i] - hi.p[e, i], so3_log(hi.R[e, i].T @ lo.R[e, i])])
+                            for i, kind in enumerate(kinds)])
+        if d @ np.linalg.solve(lo.cov[e], d) <= chi2.ppf(AGREE_LEVEL, d.size):
+            flagged[e] = True
+            p[e], R[e], cost[e], cov[e] = lo.p[e], lo.R[e], lo.cost[e], lo.cov[e] + np.outer(d, d)
+    return flagged, dataclasses.replace(second, p=p, R=R, cov=cov, cost=cost)
 
 
 def _sym(c: np.ndarray) -> np.ndarray:

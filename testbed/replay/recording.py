@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from testbed.errors import ConfigError
 from testbed.plugins.api import Context, Measurement, MeasurementBatch
+from testbed.plugins.channel import Channel
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.bag_read import bag_tables
 from testbed.replay.spec import ReplaySpec, load_spec
@@ -69,15 +70,29 @@ class Recording:
         return self.spec.window.end - self.spec.window.start
 
     def context(self, key: str, params: dict) -> Context:
-        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed); of an
-        exported run, the Context the estimator had in the simulation (Context.pipeline aside: {},
-        the exported built-ins carry their resolved params; testbed.replay.export)."""
+        """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed; its
+        channel: with a [network], its own network, stream "network/KEY", as in a simulated run);
+        of an exported run, the Context the estimator had in the simulation (Context.pipeline
+        aside: {}, the exported built-ins carry their resolved params; testbed.replay.export)."""
         return Context(
             vehicles=tuple(self.spec.bodies), sites=self.spec.sites, anchors=self.spec.anchor_points,
             sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior=self.spec.priors, params=dict(params),
             duration=self.duration, motion=self.spec.motion, seed=self.spec.seed,
-            rng=stream_rng(self.spec.seed, f"estimator/{key}"),
+            rng=stream_rng(self.spec.seed, f"estimator/{key}"), channel=self._channel(key),
         )
+
+    def _channel(self, key: str) -> Channel | None:
+        """Estimator `key`'s network (testbed.plugins.channel) under the spec's [network]: the
+        truth table's geometry, the NLOS flags of the links rows of kind uwb (empty: line of
+        sight); None without a [network]."""
+        if self.spec.network is None:
+            return None
+        t = self.tables["links"]
+        rows = t["kind"] == "uwb"
+        nlos = t["nlos"][rows] if "nlos" in t.columns else np.zeros(rows.sum())
+        uwb = {"time": t["time"][rows] - self.spec.window.start, "src": t["src"][rows], "dst": t["dst"][rows],
+               "nlos": np.nan_to_num(nlos) > 0}
+        return Channel(self.spec.network, RecordedTruth(self), uwb, tuple(self.spec.bodies), self.spec.seed, key)
 
     def measurements(self) -> list[Measurement]:
         """The feed one Measurement per row."""
@@ -127,6 +142,11 @@ def _check(spec: ReplaySpec, tables: dict[str, Table]) -> None:
         same = t["src"] == t["dst"]
         if same.any():
             raise t.error(int(np.argmax(same)), "dst", "a link from a site to itself")
+        flag = t["nlos"] if "nlos" in t.columns else np.zeros(len(t))
+        bad = ~np.isin(flag, (0.0, 1.0)) & ~np.isnan(flag)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise t.error(i, "nlos", f"a flag is 0 or 1 (or empty: line of sight), got {float(flag[i]):g}")
         rate = t["kind"] == "range-rate"
         bad = np.where(rate, np.abs(t["value"]) > MAX_RANGE_RATE_M_S, (t["value"] < 0) | (t["value"] > MAX_RANGE_M))
         if bad.any():
@@ -295,6 +315,9 @@ def load_recording(spec_path: Path) -> Recording:
                 continue
             tables[name] = read_table(path, name)
     _check(spec, tables)
+    if spec.network is not None and "truth" not in tables:
+        raise ConfigError(f"{spec_path}: network: the network's geometry is the true one, so it needs the truth "
+                          "table (truth.csv): add it or remove [network]")
     w = spec.window
     for name, t in tables.items():
         if name != "truth":  # truth is kept whole: interpolation at the window's edges needs its neighbours

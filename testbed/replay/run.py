@@ -30,6 +30,7 @@ import numpy as np
 
 from testbed.errors import ConfigError, PluginError
 from testbed.log import save_npz
+from testbed.scoring.metrics import network_summary
 from testbed.outdir import Output, write_json
 from testbed.plugins.collect import Series, Track, track_arrays
 from testbed.plugins.failures import failed_entry, mark_incomplete, raise_failed
@@ -99,8 +100,9 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
     arrays, timing, shown = {}, {}, {}
     for p in plugins:
         diagnostics: dict = {}
+        ctx = rec.context(p.key, p.params)
         try:
-            track, health, wall_ms = run_plugin(p, rec.context(p.key, p.params), rec.feed, diagnostics)
+            track, health, wall_ms = run_plugin(p, ctx, rec.feed, diagnostics)
         except PluginError as e:  # its own result; the others are still scored (testbed.plugins.failures)
             metrics["estimators"][p.key] = failed_entry(p.entry, e)
             continue
@@ -120,6 +122,9 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
             print(f"testbed: note: {reason}", file=sys.stderr)
         if health:
             entry["health"] = health
+        network = ctx.channel.stats() if ctx.channel is not None else None
+        if network is not None:
+            entry["network"] = network_summary(network)
         if diagnostics:
             entry["diagnostics"] = _summary(diagnostics)
             arrays.update({f"{p.key}/diagnostics/{k}": v for k, v in diagnostics.items()})

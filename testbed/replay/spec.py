@@ -17,6 +17,7 @@ import numpy as np
 
 from testbed.config import from_dict, in_range, require
 from testbed.errors import ConfigError
+from testbed.network_config import NetworkConfig
 from testbed.estimator_spec import EstimatorSpec
 
 FORMAT = 1
@@ -134,9 +135,12 @@ class ReplaySpec:
     sensor models handed to estimators as Context.sensors (free tables). motion: Context.motion,
     "prescribed" (kinematic) or "flown" (closed loop). prior: {target: {mean: (n,), cov: (k, k)}}
     the prior the built-in estimators start from, in their own state (Context.prior; an exported
-    run's, testbed.plugins.context.priors; k = n, or k < n for the tangent space where the state
+    run's, testbed.plugins.priors.priors; k = n, or k < n for the tangent space where the state
     lives on a manifold, as visnav's (22,) state with a (21, 21) covariance). estimators: [[estimators]]
-    tables as in a scenario (entry, name, params). bag: the measurements and truth are read from
+    tables as in a scenario (entry, name, params). network: the [network] the recorded vehicles'
+    messages travel through, as a scenario's (testbed.network_config; an exported run's): each
+    estimator gets its own (Context.channel, testbed.plugins.channel), its geometry the truth
+    table's and the links rows' nlos flags; None: ideal (no channel). bag: the measurements and truth are read from
     this ROS bag instead of the CSV tables beside the spec (None: from the tables).
     """
 
@@ -150,6 +154,7 @@ class ReplaySpec:
     motion: Literal["prescribed", "flown"] = "prescribed"
     prior: dict = field(default_factory=dict)
     estimators: tuple[EstimatorSpec, ...] = ()
+    network: NetworkConfig | None = None
     bag: BagSource | None = None
 
     def __post_init__(self) -> None:

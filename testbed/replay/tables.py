@@ -26,7 +26,7 @@ PHASE_MASTER_COLUMNS = ("master_x", "master_y", "master_z", "master_vx", "master
 #: (column, is a number, required) per table
 SCHEMAS: dict[str, tuple[tuple[str, bool, bool], ...]] = {
     "links": (("time", True, True), ("src", False, True), ("dst", False, True), ("kind", False, True),
-              ("value", True, True), ("sigma", True, False), ("arrival", True, False)),
+              ("value", True, True), ("sigma", True, False), ("arrival", True, False), ("nlos", True, False)),
     "poses": (("time", True, True), ("body", False, True), ("kind", False, True),
               *((c, True, True) for c in ("x", "y", "z")), *((c, True, False) for c in ("qw", "qx", "qy", "qz")),
               *((c, True, False) for c in ("sigma_x", "sigma_y", "sigma_z")), ("arrival", True, False)),

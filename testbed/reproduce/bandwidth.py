@@ -32,7 +32,7 @@ from scipy.stats import norm
 from estimators import bandwidth as bw
 from testbed import scenario as scenario_mod
 from testbed.log import load_log
-from testbed.pipelines import bandwidth as pb
+from testbed.reproduce import bandwidth_batch as pb
 from testbed.outputs.plots import compare_bars
 from testbed.outputs.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, write_json, \
     write_markdown
@@ -280,7 +280,7 @@ def _metrics(out: Path, c: dict, ctx: dict) -> None:
     node_ok = c["bound_holds_node_step"]  # (K+1, N)
     m = {"scenario": "bandwidth", "seeds": ctx["seeds"], "motion": ctx["motion"], "estimators": {"bandwidth": {
         "J_empirical": c["J_emp"], "J_empirical_ci95": 1.96 * c["J_emp_se"], "J_bound": c["J_bound"],
-        "rmse_position_m": c["rms_node_m"],
+        "rmse_position_per_vehicle_m": c["rms_node_m"],
         "bound_holds": bool(node_ok.all()),
         "bound_holds_per_node": [bool(v) for v in node_ok.all(0)],
         "bound_holds_fraction_of_steps_per_node": [float(v) for v in node_ok.mean(0)],

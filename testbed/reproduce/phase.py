@@ -10,7 +10,7 @@ Axes: the table is in the navigation frame N (x forward, y left, z up). The pape
 
 Window: the claims speak of the last 100 s (the scenarios' pipeline.last_window). A run shorter
 than twice that (a quick `--duration`) is scored over its last half instead, and every claim and
-metric name says which window it used (`last_<W>s`; testbed.pipelines.phase.window_keys).
+metric name says which window it used (`last_<W>s`; testbed.plugins.phase_scores.window_keys).
 
 Claim criteria and tests (fixed before any result was looked at; testbed.scoring.stats; n = the runs):
 - "within +/-L m" (cross L = 0.01, V formations L = 0.03): a run violates the bound when its max
@@ -48,7 +48,7 @@ import numpy as np
 
 from testbed import scenario as scenario_mod
 from testbed.scoring.metrics import anees_interval, anees_over_runs, mean_ci
-from testbed.pipelines.phase import window_keys
+from testbed.plugins.phase_scores import window_keys
 from testbed.outputs.plots import compare_bars, figure, save
 from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, \
     write_csv, write_markdown

@@ -96,7 +96,8 @@ def sweep(name: str, seeds=CALIBRATION_SEEDS, qs=Q_GRID, *, q_rotations=None,
     q_rotation (pipeline.q_rotation; None: the scenario's own). runs: the (scenario, log) pairs to use instead of simulating
     `seeds` (simulate_seeds); progress: optional callable(str) told after each seed."""
     # lazy: the filter only when a sweep runs
-    from testbed.pipelines.phase import estimate, window_keys
+    from testbed.pipelines.phase import estimate
+    from testbed.plugins.phase_scores import window_keys
 
     field = "q_flown" if motion == "flown" else "q"
     rows = []

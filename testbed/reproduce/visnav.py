@@ -24,9 +24,14 @@ each (the same decision as the upper end of a two-sided 95 % interval below +5 %
 Also run (short): the other motion mode (2 runs, both noise cases) and the pixel camera path
 (1 run, 10 s): finite, scored, shown in the table.
 
+The filters are the scenario's default estimators (visnav.ekf ... visnav.rhcf, testbed.plugins
+.defaults) run as plugins and scored like any estimator (testbed.plugins.score, with the
+relative-frame hook testbed.plugins.relnav_scores): per run the RMSE of each quantity and its
+3-dof ANEES (position, velocity, attitude: each with the estimate's own (3, 3) block).
+
 Outputs: table.md, table.csv (per case, filter and score: mean, lo, hi: an RMSE's 95 % confidence
-interval, the ANEES's 99 % interval of a consistent filter over its effective samples n_eff, a row
-of its own), claims.json, runs.json (every run's metrics), plots/.
+interval, each ANEES's 99 % interval of a consistent filter over its effective samples n_eff, a
+row of its own), claims.json, runs.json (every run's metrics), plots/.
 While the reproduction is incomplete (interrupted), each finished run's result is kept in runs/run-XXX.pkl
 (runs-extra/ for the extra runs) for `--resume`; they are removed when it completes.
 
@@ -35,6 +40,7 @@ Shape (as every reproduction): `compute` (runs -> `VisnavResults`), `decide` (nu
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import sys
@@ -48,12 +54,16 @@ from matplotlib.figure import Figure
 
 from testbed import scenario as scenario_mod
 from testbed.scoring.metrics import anees_over_runs, mean_ci
-from testbed.pipelines.visnav import metrics_of, run_all
 from testbed.outputs.plots import compare_bars, error_envelope, save
 from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \
     write_json, write_markdown
+from testbed.plugins.context import make_context
+from testbed.sim.world import lever_arms
+from testbed.plugins.defaults import default_specs, estimator_specs
 from testbed.plugins.loading import resolve
+from testbed.plugins.relnav_scores import relnav_hook
 from testbed.plugins.run import run_estimators
+from testbed.plugins.truth import Truth, errors
 from testbed.progress import bar
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_result, save_result, seeds
@@ -62,7 +72,7 @@ from testbed.scoring.stats import paired_t, wilcoxon_paired
 from testbed.workers import run_parallel
 
 FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
-QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_mps", "velocity", "m/s"),
+QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_m_s", "velocity", "m/s"),
               ("rmse_attitude_deg", "attitude", "deg"))
 CASES = ("glint", "gaussian")
 #: where the runs' results are kept while the reproduction is incomplete (testbed.reproduce.runs)
@@ -86,29 +96,38 @@ def one_run(args: tuple) -> dict:
     """Worker: one seed, the given cases; metrics and error-norm series of every filter.
 
     args = (seed, motion, duration, cases, mode, keep_full[, estimators]). Returns {case: {"metrics":
-    {filter: ...}, "t": (E,), "norms": {filter: (E, 3) [|dp| m, |dv| m/s, attitude deg]}, "full": {...}
-    if keep_full, "plugins": {name: scores} of the plugin EstimatorSpecs `estimators` (testbed.plugins)}}.
+    {filter: scores (testbed.plugins.score, plus time_per_step_ms)}, "t": (E,), "norms": {filter:
+    (E, 3) [|dp| m, |dv| m/s, attitude deg]}, "full": {filter: (errors (E, 9), sigmas (E, 9))} if
+    keep_full, "plugins": {name: scores} of the plugin EstimatorSpecs `estimators` (testbed.plugins)}}.
     """
     seed, motion, duration, cases, mode, keep_full, *rest = args
-    plugins = resolve(rest[0]) if rest else []
+    extra = tuple(rest[0]) if rest else ()
     out = {}
     for case in cases:
         s = _scenario(seed, motion, duration, case, mode)
+        plugins = resolve(estimator_specs(dataclasses.replace(s, estimators=extra)))
         log, physics = simulate(s)
-        tracks, scores, _ = run_all(s, log)
+        scores, tracks = run_estimators(s, physics, log, plugins, None)
+        hook, truth = relnav_hook(s), Truth(log, make_context(s, lever_arms(physics), "truth", {}))
+        fits = {}
+        for spec in default_specs(s):
+            track = tracks[spec.key]
+            errs = {(tg, q): errors(truth, tg, q, se.time, se.value, se.frame) for (tg, q), se in track.items()}
+            fits[spec.key] = hook.fit(track, errs)
+        metrics = {n: {**{k: v for k, v in scores[n].items() if k != "wall_ms"},
+                       "time_per_step_ms": scores[n]["wall_ms"] / max(scores[n]["epochs"], 1)} for n in fits}
         res = {
-            "metrics": {n: metrics_of(tracks[n], scores[n]) for n in tracks},
-            "t": next(iter(tracks.values())).t,
-            "norms": {n: np.column_stack([np.linalg.norm(scores[n].err[:, 0:3], axis=1),
-                                          np.linalg.norm(scores[n].err[:, 3:6], axis=1),
-                                          scores[n].att_deg]) for n in tracks},
+            "metrics": metrics,
+            "t": next(iter(fits.values()))[0],
+            "norms": {n: np.column_stack([np.linalg.norm(e[0], axis=1), np.linalg.norm(e[1], axis=1),
+                                          np.degrees(np.linalg.norm(e[2], axis=1))]) for n, (_, e, _) in fits.items()},
             "glint_fraction": float(np.mean(log["camera/glint"])) if log["camera/glint"].size else 0.0,
             "leds_per_epoch": float(log["camera/time"].size / max(np.unique(log["camera/time"]).size, 1)),
         }
         if keep_full:
-            res["full"] = {n: (scores[n].err, scores[n].sigma) for n in tracks}
-        if plugins:
-            res["plugins"] = run_estimators(s, physics, log, plugins, None)[0]
+            res["full"] = {n: (np.hstack(e), np.hstack(sig)) for n, (_, e, sig) in fits.items()}
+        if extra:
+            res["plugins"] = {k: v for k, v in scores.items() if k not in fits}
         out[case] = res
     return out
 
@@ -172,15 +191,15 @@ def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
 
 
 def summarize(results: list[dict], case: str) -> dict:
-    """Per filter: mean and 95 % interval of each RMSE, the mean ANEES over the runs with its 99 %
-    interval and effective samples (testbed.scoring.metrics.anees_over_runs), time per step, runs finite."""
+    """Per filter: mean and 95 % interval of each RMSE, each quantity's mean ANEES over the runs with
+    its 99 % interval and effective samples (testbed.scoring.metrics.anees_over_runs), time per step, runs finite."""
     table = {}
     for name in FILTERS:
         row = {}
         for key, _, _ in QUANTITIES:
             m, lo, hi = mean_ci(_col(results, case, name, key))
             row[key] = {"mean": m, "lo": lo, "hi": hi}
-        row["anees"] = anees_over_runs([r[case]["metrics"][name] for r in results], "anees")
+        row["anees"] = {q: anees_over_runs([r[case]["metrics"][name] for r in results], f"anees_{q}") for _, q, _ in QUANTITIES}
         row["time_per_step_ms"] = float(np.mean(_col(results, case, name, "time_per_step_ms")))
         row["finite_runs"] = int(np.sum(_col(results, case, name, "finite")))
         table[name] = row
@@ -245,22 +264,26 @@ def decide(res: VisnavResults) -> list[Claim]:
 def _markdown(summaries: dict, meta: dict, extra: dict, claims: list[Claim]) -> list[str]:
     lines = [f"# Seed 004 reproduction: {meta['runs']} runs x {fmt(meta['duration'])} s, motion {meta['motion']}, "
              f"geometric camera, seeds {meta['seeds'][0]}..{meta['seeds'][-1]}",
-             "", "RMSE over the run (mean over runs [95 % interval]); ANEES of the 9 navigation states "
-             "(expected 9) [99 % interval of a consistent filter] (effective samples: the epochs of a run are "
-             "correlated, docs/consistency.md); time per camera epoch (one update + two 20 Hz predicts).", ""]
+             "", "RMSE over the run (mean over runs [95 % interval]); ANEES of the relative position, velocity "
+             "and attitude, each with its own (3, 3) covariance block (expected 3) [99 % interval of a consistent "
+             "filter] (effective samples: the epochs of a run are correlated, docs/consistency.md); wall time "
+             "per camera epoch (the estimator's whole processing: IMU pairing, two 20 Hz predicts, one update).", ""]
     for case, summ in summaries.items():
         lines += [f"## {case}", ""]
-        lines += markdown_table(["filter", "position (m)", "velocity (m/s)", "attitude (deg)", "ANEES", "ms/epoch",
-                                 "finite runs"],
+        lines += markdown_table(["filter", "position (m)", "velocity (m/s)", "attitude (deg)"]
+                                + [f"ANEES {q}" for _, q, _ in QUANTITIES] + ["ms/epoch", "finite runs"],
                                 [[name] + [fmt_ci(**r[key]) for key, _, _ in QUANTITIES]
-                                 + [fmt_anees(r["anees"]), r["time_per_step_ms"], r["finite_runs"]]
+                                 + [fmt_anees(r["anees"][q], f"anees_{q}") for _, q, _ in QUANTITIES]
+                                 + [r["time_per_step_ms"], r["finite_runs"]]
                                  for name, r in summ.items()])
         lines.append("")
     for label, ex in extra.items():
         lines += [f"## {label}", ""]
-        lines += markdown_table(["case", "filter", "position (m)", "velocity (m/s)", "attitude (deg)", "ANEES"],
-                                [[case, name, m["rmse_position_m"], m["rmse_velocity_mps"], m["rmse_attitude_deg"],
-                                  fmt_anees(m)] for case, per in ex.items() for name, m in per.items()])
+        lines += markdown_table(["case", "filter", "position (m)", "velocity (m/s)", "attitude (deg)"]
+                                + [f"ANEES {q}" for _, q, _ in QUANTITIES],
+                                [[case, name] + [m[key] for key, _, _ in QUANTITIES]
+                                 + [fmt_anees(anees_over_runs([m], f"anees_{q}"), f"anees_{q}") for _, q, _ in QUANTITIES]
+                                 for case, per in ex.items() for name, m in per.items()])
         lines.append("")
     lines += [f"Wall time: {fmt(meta['wall_s'])} s with {meta['workers']} worker(s).", ""]
     return lines + claims_section(claims)
@@ -271,16 +294,19 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
     for case, summ in summaries.items():
         for name, r in summ.items():
             rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
-            rows += [[case, name, "anees", r["anees"]["anees"], *r["anees"]["anees_interval_99"]],
-                     [case, name, "n_eff", r["anees"]["n_eff"], None, None],
-                     [case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
+            for _, q, _ in QUANTITIES:
+                a = r["anees"][q]
+                rows += [[case, name, f"anees_{q}", a[f"anees_{q}"], *a[f"anees_{q}_interval_99"]],
+                         [case, name, f"n_eff_{q}", a[f"n_eff_{q}"], None, None]]
+            rows += [[case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
     for label, ex in extra.items():
         for case, per in ex.items():
             for name, m in per.items():
-                rows += [[f"{label}/{case}", name, key, m[key], None, None]
-                         for key in ("rmse_position_m", "rmse_velocity_mps", "rmse_attitude_deg")]
-                rows += [[f"{label}/{case}", name, "anees", m["anees"], *m["anees_interval_99"]],
-                         [f"{label}/{case}", name, "n_eff", m["n_eff"], None, None]]
+                rows += [[f"{label}/{case}", name, key, m[key], None, None] for key, _, _ in QUANTITIES]
+                for _, q, _ in QUANTITIES:
+                    a = anees_over_runs([m], f"anees_{q}")  # one run: its 99 % interval
+                    rows += [[f"{label}/{case}", name, f"anees_{q}", a[f"anees_{q}"], *a[f"anees_{q}_interval_99"]],
+                             [f"{label}/{case}", name, f"n_eff_{q}", a[f"n_eff_{q}"], None, None]]
     return rows
 
 

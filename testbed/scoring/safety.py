@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from testbed.log import NpzLog
-from testbed.sim.reference import GRAVITY
+from testbed.reference import GRAVITY
 from testbed.outputs.report import fmt
 from testbed.sim.world import FLOOR, OBSTACLE, Physics
 

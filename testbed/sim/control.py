@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.sim.reference import GRAVITY
+from testbed.reference import GRAVITY
 from testbed.scenario import Control
 from testbed.sim.world import Physics
 

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimators.so3 import quat_mul
-from testbed.sim.reference import RefState
+from testbed.reference import RefState
 from testbed.rng import stream_rng
 from testbed.scenario import Scenario
 

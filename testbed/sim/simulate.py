@@ -44,7 +44,7 @@ from testbed.sim.control import GeometricController, heading
 from testbed.sim.disturbance import Draws, Realization, draw, perturb, realize, wrench
 from testbed.interrupt import poll
 from testbed.log import LogWriter
-from testbed.sim.reference import GRAVITY, attitude, evaluate, tracking
+from testbed.reference import GRAVITY, attitude, evaluate, tracking
 from testbed.scenario import Scenario
 from testbed.sensors.suite import make_sensors
 from testbed.sensors.base import Sensor

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
-from testbed.sim.reference import RefState, evaluate
+from testbed.reference import RefState, evaluate
 from testbed.scenario import Scenario
 
 MODELS = Path(__file__).resolve().parents[2] / "models"

@@ -1,0 +1,169 @@
+"""Seed 003 scores (kind "phase-ekf") from the run's truth: the navigation-frame truth and the PCRB
+(scoring only; the estimators never see these).
+
+- `truth_in_nav`: the follower's true body state, attitude and 18-state in the navigation frame N
+  of the nav master's TRUE pose (truth/pos, truth/vel, truth/quat, truth/omega);
+- `phase_pcrb`: the posterior Cramer-Rao bound (Tichavsky 1998) along that true trajectory with the
+  filter's own rows, measurement model, q and P0 (testbed.plugins.builtin_phase.prepare);
+- `phase_hooks`: the run's hooks (testbed.plugins.hooks): `Bound`, the PCRB's body-position block
+  in world axes, and `PhaseWindow`, the scores in N of any estimator of the follower's body;
+- `attitude_nees`, `window_keys`: the attitude NEES and the names of the last-window scores.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from estimators.core import nees
+from estimators.phase_ekf import ProcessNoise, pcrb
+from estimators.phase_frames import BODY_POS, to_nav
+from estimators.phase_model import antenna_state_from_body, body_from_antennas
+from estimators.so3 import euler_from_rotation, skew
+from testbed.pipeline_config import PhasePipelineConfig
+from testbed.scoring.metrics import rmse
+from testbed.plugins.builtin_phase import PhaseInputs, prepare
+from testbed.plugins.collect import Track
+from testbed.plugins.score import Bound, Hook, at_epochs
+
+
+def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: float, b: float):
+    """Truth at log rows idx (K,) in N from master nav_master's TRUE pose (scoring only).
+
+    Returns body (K, 12) [p, v, yaw, pitch, roll, their rates], R_N_follower (K, 3, 3) and the
+    18-state (K, 18) with the true lever arms a, b (m).
+    """
+    def pose(u):
+        R = Rotation.from_quat(log["truth/quat"][idx, u - 1], scalar_first=True).as_matrix()
+        om = log["truth/omega"][idx, u - 1]
+        return log["truth/pos"][idx, u - 1], log["truth/vel"][idx, u - 1], R, R @ skew(om)
+
+    p3, v3, R3, R3d = pose(nav_master)
+    p6, v6, R6, R6d = pose(follower)
+    pN, vN = to_nav(p6, v6, p3, v3, R3, R3d)
+    RN = np.einsum("kji,kjl->kil", R3, R6)
+    RNd = np.einsum("kji,kjl->kil", R3d, R6) + np.einsum("kji,kjl->kil", R3, R6d)
+    K = idx.size
+    states = np.array([antenna_state_from_body(pN[k], vN[k], RN[k], RNd[k], a, b) for k in range(K)])
+    eul = np.array([euler_from_rotation(R) for R in RN])
+    # Euler rates are not scored (left 0)
+    body = np.concatenate([pN, vN, eul, np.zeros_like(eul)], axis=1)
+    return body, RN, states
+
+
+def true_states(scenario, log: dict, cfg: PhasePipelineConfig, inp: PhaseInputs):
+    """truth_in_nav at the phase epochs (scoring only): body (K, 12), R_N_follower, 18-states."""
+    return truth_in_nav(log, inp.state_index, cfg.nav_master, inp.follower, scenario.world.antenna_a, scenario.world.antenna_b)
+
+
+def phase_pcrb(cfg: PhasePipelineConfig, q: float | ProcessNoise, states: np.ndarray, inp: PhaseInputs, meas: list, P0: np.ndarray) -> np.ndarray:
+    """PCRB (K, 18, 18) along the true 18-state trajectory with the filter's own rows and model."""
+    valid = np.array([m.stacked()[2] for m in meas])
+    sig_rate = np.array([np.broadcast_to(m.sigma_range_rate, (len(inp.masters), 3, 3)) for m in meas])
+    sig_rate = np.where(np.isfinite(sig_rate), sig_rate, 1.0)
+    W = np.where(np.isfinite(inp.windows), inp.windows, 1.0) if cfg.rate_rows == "window" else None
+    return pcrb(states, inp.times, inp.master_pos, inp.master_vel, P0, cfg.range_sigma, sig_rate, q,
+                valid=valid, rate_window=W)
+
+
+@dataclass(frozen=True, slots=True)
+class PhaseWindow(Hook):
+    """The seed 003 scores in the navigation frame N for ANY estimator giving the follower's body
+    position (and velocity) in the world at the phase epochs (summary keys; axes of N: x forward,
+    y left, z up):
+    `position_error_mid_m`, `position_error_final_m` (3,) the error at mid-run (the epoch nearest
+    the middle of the span) and at the end; `sigma_position_final_m` (3,) the estimator's own
+    1-sigma at the end; `pcrb_sigma_position_final_m` (3,) the PCRB's; `last_window_s` W and, when
+    the span covers W, over the epochs of the last W seconds (names: window_keys(W)): the position
+    RMSE, the max |error| per axis of position and velocity, the PCRB RMSE; else
+    `last_window_omitted_reason`.
+    An error e_W (world) is moved to N with the nav master's TRUE pose: e_N = R^T e_W and, for the
+    velocity, e_vN = R^T (e_vW - dR/dt e_N) (the derivative of X_N = R^T (X - p)).
+
+    target: the follower; time (K,) s the phase epochs; R, Rd (K, 3, 3) R_world_from_N of the nav
+    master's true attitude and its rate (1/s); bound (K, 3, 3) m^2 the PCRB of the body position
+    in N; last_window s (the [pipeline]'s)."""
+
+    target: str
+    time: np.ndarray
+    R: np.ndarray
+    Rd: np.ndarray
+    bound: np.ndarray
+    last_window: float
+
+    def _in_nav(self, track: Track, errs: dict) -> tuple[np.ndarray, ...] | None:
+        """(epoch indices k, times, e_N (k, 3), e_vN (k, 3) or None, P_N (k, 3, 3) or None) of the
+        follower's world position estimates at the epochs; None when there are none."""
+        s = track.get((self.target, "position"))
+        if s is None or s.frame != "world":
+            return None
+        hit, k = at_epochs(self.time, s.time)
+        if not hit.size:
+            return None
+        R, Rd = self.R[k], self.Rd[k]
+        e = np.einsum("kji,kj->ki", R, errs[(self.target, "position")][hit])
+        P = np.swapaxes(R, 1, 2) @ s.cov[hit] @ R if s.has_cov[hit].all() else None
+        v = track.get((self.target, "velocity"))
+        ev = None
+        if v is not None and v.frame == "world" and np.array_equal(v.time, s.time):
+            ev_w = errs[(self.target, "velocity")][hit]
+            ev = np.einsum("kji,kj->ki", R, ev_w - np.einsum("kij,kj->ki", Rd, e))
+        return k, s.time[hit], e, ev, P
+
+    def summary(self, track: Track, errs: dict, health: dict) -> dict:
+        got = self._in_nav(track, errs)
+        if got is None:
+            return {}
+        k, t, e, ev, P = got
+        B = self.bound[k]
+        mid = int(np.argmin(np.abs(t - (t[0] + 0.5 * (t[-1] - t[0])))))
+        out = {"position_error_mid_m": e[mid].tolist(), "position_error_final_m": e[-1].tolist(),
+               **({"sigma_position_final_m": np.sqrt(np.diag(P[-1])).tolist()} if P is not None else {}),
+               "pcrb_sigma_position_final_m": np.sqrt(np.diag(B[-1])).tolist(), "last_window_s": float(self.last_window)}
+        if t[-1] - t[0] < self.last_window - 1e-9:
+            out["last_window_omitted_reason"] = (f"the run covers {t[-1] - t[0]:g} s, shorter than last_window = "
+                                                 f"{self.last_window:g} s: no window scores")
+            return out
+        last = t >= t[-1] - self.last_window + 1e-9
+        w = window_keys(self.last_window)
+        out[w["rmse"]] = rmse(e[last])
+        out[w["max_abs_position"]] = np.abs(e[last]).max(axis=0).tolist()
+        if ev is not None:
+            out[w["max_abs_velocity"]] = np.abs(ev[last]).max(axis=0).tolist()
+        out[w["pcrb_rmse"]] = float(np.sqrt(np.mean(np.trace(B[last], axis1=1, axis2=2))))
+        return out
+
+
+def phase_hooks(scenario, log: dict) -> list[Hook]:
+    """The scoring hooks of a phase-ekf run (scoring only): the PCRB of the follower's body
+    position in world axes (N rotated by the nav master's true attitude; testbed.plugins.score.Bound)
+    and the frame-N scores (PhaseWindow)."""
+    cfg, inp, q, _, P0, meas = prepare(scenario, log)
+    bound = BODY_POS @ phase_pcrb(cfg, q, true_states(scenario, log, cfg, inp)[2], inp, meas, P0) @ BODY_POS.T
+    idx, u = inp.state_index, cfg.nav_master - 1
+    R = Rotation.from_quat(log["truth/quat"][idx, u], scalar_first=True).as_matrix()
+    Rd = R @ np.array([skew(w) for w in log["truth/omega"][idx, u]])
+    target = f"uav{inp.follower}"
+    return [Bound(target, inp.times, R @ bound @ np.swapaxes(R, 1, 2)),
+            PhaseWindow(target, inp.times, R, Rd, bound, float(cfg.last_window))]
+
+
+def attitude_nees(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> float:
+    """NEES of the follower's attitude and attitude rates (yaw, pitch, roll and their rates, 6 dof)
+    at one epoch: x, x_true (18,) estimated and true antenna states in N, P (18, 18) the filter's
+    covariance. Eq. 30 from the antennas (phase_model.body_from_antennas), covariance J P J^T
+    linearized at the estimate, angle errors wrapped to [-pi, pi)."""
+    (y, J), (y_true, _) = body_from_antennas(x), body_from_antennas(x_true)
+    e = y[6:] - y_true[6:]
+    e[:3] = (e[:3] + np.pi) % (2 * np.pi) - np.pi
+    return float(nees(e, J[6:] @ P @ J[6:].T))
+
+
+def window_keys(window_s: float) -> dict[str, str]:
+    """metrics.json names of the window scores over the last `window_s` seconds:
+    {"rmse", "pcrb_rmse", "max_abs_position", "max_abs_velocity"} -> key (e.g. window 100:
+    "rmse_position_last_100s_m")."""
+    w = f"last_{window_s:g}s"
+    return {"rmse": f"rmse_position_{w}_m", "pcrb_rmse": f"pcrb_rmse_position_{w}_m",
+            "max_abs_position": f"max_abs_position_error_{w}_m", "max_abs_velocity": f"max_abs_velocity_error_{w}_mps"}
