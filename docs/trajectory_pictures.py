@@ -15,7 +15,7 @@ import numpy as np
 
 from testbed.outputs import plots
 from testbed.reference import evaluate
-from testbed.scenario import load
+from testbed.config.scenario import load
 
 ROOT = Path(__file__).resolve().parent.parent
 IMAGES = ROOT / "docs" / "images"

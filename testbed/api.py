@@ -27,7 +27,8 @@ from typing import Any, Iterable
 import mujoco
 import numpy as np
 
-from testbed import provenance, runner, scenario as scenario_mod
+from testbed import provenance, runner
+from testbed.config import scenario as scenario_mod
 from testbed import reference
 from testbed.sim import world
 from testbed.errors import RunError
@@ -39,7 +40,7 @@ from testbed.sim.world import lever_arms
 from testbed.plugins.loading import Plugin
 from testbed.plugins.score import score as score_track
 from testbed.plugins.truth import Truth as PluginTruth
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.stream import Stream, make_stream, stream_names
 from testbed.truth import Truth, object_truth
 from testbed.viewer import view

@@ -34,7 +34,7 @@ and scored) unless --fail-on-crash is given, then 1.
 
 Imports: this module loads only the standard library and light testbed modules at the top; each
 command imports what it needs inside `_dispatch` (numpy, mujoco, scipy, matplotlib come with
-testbed.scenario, testbed.runner and the rest), so `testbed --help` answers at once and the
+testbed.config.scenario, testbed.runner and the rest), so `testbed --help` answers at once and the
 environment (testbed.environment) is set before numpy or mujoco load.
 """
 from __future__ import annotations
@@ -167,7 +167,7 @@ def _overrides(items: list[str]) -> dict[str, str]:
 
 def _inputs(args: argparse.Namespace, *paths: Path) -> list[Path]:
     """What the command reads besides `paths`: its scenario file (not a built-in) and its plugin files."""
-    from testbed import scenario  # lazy: see the module docstring
+    from testbed.config import scenario  # lazy: see the module docstring
     from testbed.plugins.loading import entry_file
 
     name = getattr(args, "scenario", None)
@@ -177,8 +177,8 @@ def _inputs(args: argparse.Namespace, *paths: Path) -> list[Path]:
 
 def _load(args: argparse.Namespace):
     """The scenario of a run or sweep, checked whole before anything is simulated: its values
-    (testbed.scenario.load) and its reference paths' clearance (testbed.reference.clearance)."""
-    from testbed import scenario  # lazy: see the module docstring
+    (testbed.config.scenario.load) and its reference paths' clearance (testbed.reference.clearance)."""
+    from testbed.config import scenario  # lazy: see the module docstring
     from testbed import reference  # lazy: see the module docstring
 
     builtin, label = scenario.resolve(args.scenario)
@@ -194,7 +194,7 @@ def _load(args: argparse.Namespace):
 
 def _estimator_specs(args: argparse.Namespace) -> tuple:
     """One [[estimators]] table (EstimatorSpec) per --estimator ENTRY, with its --param values."""
-    from testbed.estimator_spec import EstimatorSpec
+    from testbed.config.estimators import EstimatorSpec
 
     params = args.params + [{}] * (len(args.estimator) - len(args.params))
     return tuple(EstimatorSpec(entry=e, params=p) for e, p in zip(args.estimator, params))
@@ -316,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _dispatch(args: argparse.Namespace) -> int:
     # the imports below are lazy on purpose: see the module docstring
     if args.command == "list":
-        from testbed import scenario
+        from testbed.config import scenario
 
         names = scenario.builtin_names()
         width = max(map(len, names), default=0)
@@ -443,7 +443,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"Rerun recording of {args.run_dir} -> {out}  (open it: rerun {out})")
         return 0
     if args.command == "schema":
-        from testbed.schema import markdown
+        from testbed.config.schema import markdown
 
         print(markdown(), end="")
         return 0

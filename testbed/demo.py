@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.outdir import Output, marker
 from testbed.outputs.report import fmt
 from testbed.outputs.render import render_run

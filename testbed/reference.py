@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from testbed.errors import FieldError
-from testbed.scenario import (Circle, Hover, Lemniscate, LeaderFollower, Obstacle, PhaseFormation, Scenario, Spline, StraightLine, SwarmBox,
+from testbed.config.scenario import (Circle, Hover, Lemniscate, LeaderFollower, Obstacle, PhaseFormation, Scenario, Spline, StraightLine, SwarmBox,
                               SwarmGrid, Trajectory, Waypoints)
 from testbed.trajectories import GRAVITY  # noqa: F401  (re-exported: m/s^2, models/arena.xml)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.errors import ConfigError, RunError
 from testbed.interrupt import poll
 from testbed.log import LogWriter, NpzLog, save_npz
@@ -36,7 +36,7 @@ from testbed.plugins.online import in_the_loop
 from testbed.outputs.render_overlay import FEEDBACK_FILE, feedback_arrays
 from testbed.plugins.run import run_estimators
 from testbed.scoring.safety import flight
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sim.simulate import record
 from testbed.sim.world import build
 

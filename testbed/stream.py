@@ -14,7 +14,7 @@ import numpy as np
 
 from estimators.sensor_models import gnss_sigma
 from testbed.config import to_dict
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 _COMMON = ("time", "arrival", "state_index", "value", "clean", "src", "dst")
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.cluster import TaskLost
 from testbed.config import from_dict, to_dict
 from testbed.errors import EstimatorsFailed, RunError
@@ -39,7 +39,7 @@ from testbed.scoring.metrics import anees_over_runs, mean_ci
 from testbed.outdir import Output, marker, remove_unheld_locks, write_json, write_text
 from testbed.progress import bar as progress_bar
 from testbed.runner import run
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.workers import backend as use_backend, current_backend, run_parallel
 
 

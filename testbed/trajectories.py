@@ -2,7 +2,7 @@
 airframe limits a reference must respect.
 
 Pure numpy (no scipy, no MuJoCo, nothing from testbed), so that a scenario checks its trajectory
-while it loads (testbed.scenario) and testbed.reference evaluates it, from one implementation.
+while it loads (testbed.config.scenario) and testbed.reference evaluates it, from one implementation.
 Units SI, world frame ENU; arrays are (K, 3) for K instants unless a docstring says otherwise.
 
 Minimum snap (Mellinger & Kumar 2011, "Minimum snap trajectory generation and control for

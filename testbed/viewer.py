@@ -48,7 +48,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimators.core import nees
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.errors import RunError, UsageError
 from testbed.log import NpzLog
 from testbed.scoring.metrics import anees_interval

@@ -14,7 +14,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import testbed
-from testbed import scenario, schema
+from testbed.config import schema
+from testbed.config import scenario
 from testbed.cli import build_parser, main
 from testbed.config import parse_key, to_dict
 from testbed.errors import ConfigError, RunError

@@ -104,7 +104,7 @@ def _layer(name: str, modules: str, uses: str = "") -> None:
 
 
 _layer("foundations", "errors rng log environment outdir provenance interrupt progress worker_process")
-_layer("configuration", "config scenario scenarios schema network_config pipeline_config estimator_spec trajectories reference "
+_layer("configuration", "config scenarios trajectories reference "
        "sensors.config sensors.presets", "foundations")
 _layer("protocol", "plugins.api stream", "foundations, configuration")
 _layer("simulation", "sim sensors",
@@ -157,12 +157,12 @@ def upward_imports(graph: dict[str, set[str]]) -> list[str]:
 
 def test_layer_checker_finds_a_planted_upward_import():
     graph = {"testbed.plugins.lsq": {"testbed.sim.world", "testbed.config", "estimators.core"},
-             "testbed.scenario": {"testbed.plugins.loading"}, "testbed.outputs.render": {"testbed.workers"},
+             "testbed.config.scenario": {"testbed.plugins.loading"}, "testbed.outputs.render": {"testbed.workers"},
              "testbed.runner": {"testbed.sim.world", "testbed.outputs.plots"}}
     assert upward_imports(graph) == [
+        "testbed.config.scenario -> testbed.plugins.loading (configuration may not import estimation)",
         "testbed.outputs.render -> testbed.workers (scoring and outputs may not import workflows)",
-        "testbed.plugins.lsq -> testbed.sim.world (estimation may not import simulation)",
-        "testbed.scenario -> testbed.plugins.loading (configuration may not import estimation)"]
+        "testbed.plugins.lsq -> testbed.sim.world (estimation may not import simulation)"]
 
 
 def test_every_module_has_a_layer():
@@ -187,7 +187,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 
 def test_no_import_cycles_in_the_project():
     graph = _import_graph()
-    assert len(graph) > 40 and "testbed.scenario" in graph["testbed.reference"]  # the finder sees edges
+    assert len(graph) > 40 and "testbed.config.scenario" in graph["testbed.reference"]  # the finder sees edges
     assert _cycles(graph) == []
 
 
@@ -227,21 +227,21 @@ def _fresh(code: str, env: dict | None = None) -> dict:
 def test_scenario_schema_loads_without_compute_modules_scipy_or_mujoco():
     loaded = _fresh(
         "import json, sys\n"
-        "import testbed.scenario as s\n"
+        "import testbed.config.scenario as s\n"
         "s.load('coop-fg'); s.load('phase-cross-h000')\n"
         "print(json.dumps(sorted(sys.modules)))\n"
     )
     heavy = [m for m in loaded if m.split(".")[0] in ("scipy", "mujoco", "cv2", "matplotlib", "gtsam", "filterpy")]
     compute = [m for m in loaded if m.startswith(("testbed.pipelines.", "testbed.sensors.", "estimators"))
-               and m not in ("testbed.pipeline_config", "testbed.sensors.config", "testbed.sensors.presets",
+               and m not in ("testbed.config.pipelines", "testbed.sensors.config", "testbed.sensors.presets",
                              "estimators", "estimators.visnav_paper",  # the paper's constants: plain floats
                              "estimators.sensor_models")]  # the assumed sensor models: numpy only
-    assert "testbed.pipeline_config" in loaded and heavy == [] and compute == []
+    assert "testbed.config.pipelines" in loaded and heavy == [] and compute == []
 
 
 def test_import_testbed_leaves_the_environment_alone():
     env = {k: v for k, v in os.environ.items() if k not in DEFAULTS}
-    code = ("import json, os\nbefore = dict(os.environ)\nimport testbed, testbed.scenario, testbed.outputs.plots\n"
+    code = ("import json, os\nbefore = dict(os.environ)\nimport testbed, testbed.config.scenario, testbed.outputs.plots\n"
             "print(json.dumps([before == dict(os.environ), 'matplotlib.pyplot' in __import__('sys').modules]))\n")
     assert _fresh(code, env) == [True, False]
 

@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.config import MAX_MAGNITUDE, set_dotted
 from testbed.errors import ConfigError, FieldError

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import tomli_w
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.collect import read_tracks

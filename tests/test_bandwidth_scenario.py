@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.errors import ConfigError
 from testbed.log import load_log
 from testbed.reproduce import bandwidth_batch as pb

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.errors import PluginError
 from testbed.plugins.api import Estimate, EstimateBatch, MeasurementBatch
 from testbed.plugins.collect import Collector
@@ -14,7 +14,7 @@ from testbed.plugins.context import make_context
 from testbed.sim.world import lever_arms
 from testbed.plugins.feed import batched, measurements, run_plugin
 from testbed.plugins.loading import resolve
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.sim.simulate import simulate
 
 

@@ -14,7 +14,7 @@ from scipy.linalg import cholesky, solve_triangular
 
 from estimators.core import chi2_interval
 from estimators.visnav import RelNavModel
-from testbed import scenario
+from testbed.config import scenario
 from testbed.plugins.builtin_visnav import estimator_config
 from testbed.sim.simulate import simulate
 

@@ -7,7 +7,7 @@ import time
 import pytest
 import ray
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed import sweep as sweep_mod
 from testbed.cluster import TaskLost
 from testbed.errors import RunError, UsageError

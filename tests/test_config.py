@@ -7,7 +7,7 @@ import dataclasses
 
 import pytest
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.errors import FieldError
 

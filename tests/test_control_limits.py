@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from testbed.sim.control import GeometricController, heading
-from testbed.scenario import load
+from testbed.config.scenario import load
 from testbed.sim.world import build
 
 

@@ -20,7 +20,7 @@ from estimators.core import nees
 from estimators.factor_graph import CoopProblem, solve_centralized
 from testbed.scoring.metrics import anees_interval, anees_run_interval
 from testbed.plugins import builtin_coop as coop
-from testbed.scenario import load
+from testbed.config.scenario import load
 from estimators.sensor_models import twr_range_covariance, twr_range_variance
 from testbed.sensors.noise import twr_range
 from testbed.synthetic.coop import make_epoch

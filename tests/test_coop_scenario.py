@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.errors import ConfigError
 from testbed.log import load_log
@@ -25,7 +25,7 @@ from testbed.plugins.coop_scores import coop_hook, epochs_from_log
 from testbed.plugins.graph_check import COV_RTOL, POS_TOL_M, gtsam_check
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.rng import stream_rng
 from testbed.runner import run
 from testbed.sim.simulate import simulate

@@ -179,7 +179,7 @@ def test_stale_temporary_directory_of_a_dead_process_is_removed_and_an_old_outpu
 
 
 def test_metrics_are_strict_json_and_a_missing_score_is_null_with_a_reason(tmp_path):
-    from testbed import scenario
+    from testbed.config import scenario
     from testbed.runner import run
 
     with pytest.raises(ValueError, match=r"a\.b\[1\]"):
@@ -208,7 +208,7 @@ PLUGIN = "class Quiet:\n    def __init__(self, context, params):\n        pass\n
 def inputs(tmp_path_factory) -> Path:
     """A run directory `r` (bandwidth, 0.5 s) and its export `data` (a dataset with the marker)."""
     root = tmp_path_factory.mktemp("inputs")
-    from testbed import scenario
+    from testbed.config import scenario
     from testbed.replay.export import export
     from testbed.runner import run
 
@@ -238,7 +238,7 @@ def _in_marked(cwd: Path, name: str, inner: str) -> Path:
 def test_out_that_is_contains_or_lies_inside_an_input_is_refused(capsys, cwd, inputs, case):
     """`--out` equal to, above or below any input (resolved: relative paths, symbolic links) is one
     line and exit 2, --force or not; every input is left as it was."""
-    from testbed import scenario
+    from testbed.config import scenario
 
     shutil.copytree(inputs / "r", cwd / "r")
     shutil.copytree(inputs / "data", cwd / "data")

@@ -15,11 +15,11 @@ from testbed import reference
 from testbed.config import from_dict, to_dict
 from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.outputs.render_overlay import FEEDBACK_FILE, Overlays
 from testbed.reproduce import denied
 from testbed.runner import run
-from testbed.scenario import load
+from testbed.config.scenario import load
 from testbed.sim.world import FLOOR, OBSTACLE, build, lever_arms
 
 

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimators.core import chi2_interval
-from testbed import scenario
+from testbed.config import scenario
 from testbed.sim.disturbance import perturb, realize
 from testbed.reference import evaluate
 from testbed.sim.simulate import simulate, schedule

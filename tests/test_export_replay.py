@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.sim import world
 from testbed.api import load_run
 from testbed.cli import main
 from testbed.config import to_dict
-from testbed.network_config import NetworkConfig
+from testbed.config.network import NetworkConfig
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
 from testbed.plugins.context import make_context

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.log import load_log
 from testbed.reference import GRAVITY, evaluate

@@ -31,7 +31,7 @@ import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.config import to_dict
 

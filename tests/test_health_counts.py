@@ -7,7 +7,7 @@ import pytest
 
 from estimators.core import Epoch, Gaussian, counting, drive, symmetrize, tally
 from estimators.sigma_filters import SpdRepairWarning, ensure_spd
-from testbed import scenario
+from testbed.config import scenario
 from testbed.plugins import builtin_visnav
 
 

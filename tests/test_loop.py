@@ -30,7 +30,7 @@ from scipy.stats import chi2
 
 from estimators.mahony import Mahony
 from estimators.so3 import quat_conj, quat_exp, quat_log, quat_mul, quat_to_rotmat
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.cli import main
 from testbed.plugins.context import make_context
 from testbed.plugins.feed import measurements, run_plugin

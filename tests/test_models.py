@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.bench.sensors import arena_swarm
 from testbed.bench.swarm import swarm_scenario
 from testbed.reference import GRAVITY

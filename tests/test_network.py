@@ -19,7 +19,7 @@ from testbed.errors import ConfigError
 from testbed.sim.network import Network, NetworkConfig, stationary_loss
 from testbed.rng import stream_rng
 from testbed.scoring.metrics import ranging_rate
-from testbed.scenario import Scenario, load
+from testbed.config.scenario import Scenario, load
 from testbed.sim.simulate import simulate
 from testbed.scoring.stats import clopper_pearson
 from testbed.synthetic.coop import make_epoch
@@ -244,7 +244,7 @@ def test_seed001_messages_over_the_network():
     iterated estimate."""
     from testbed.plugins.loading import resolve
     from testbed.plugins.run import run_estimators
-    from testbed.estimator_spec import EstimatorSpec
+    from testbed.config.estimators import EstimatorSpec
 
     sc = load("coop-fg", duration=2.0)
     log, physics = simulate(sc)

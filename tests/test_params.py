@@ -98,7 +98,7 @@ def test_a_malformed_param_option_exits_2(tmp_path, capsys, argv, shown):
 
 
 def test_the_assumed_range_model_is_the_declared_one_unless_set():
-    from testbed import scenario
+    from testbed.config import scenario
 
     fg = scenario.load("coop-fg")
     u = fg.sensors.uwb
@@ -119,7 +119,7 @@ def test_the_assumed_range_model_is_the_declared_one_unless_set():
 def test_a_paper_builtin_on_another_scenario_assumes_its_declared_sensors():
     from types import SimpleNamespace
 
-    from testbed.pipeline_config import CoopPipelineConfig
+    from testbed.config.pipelines import CoopPipelineConfig
     from testbed.plugins.settings import settings
 
     uwb = {"noise": 0.3, "mode": "ss-twr", "clock_ppm": 5.0, "reply_time": 1e-3, "antenna_delay_sigma": 0.01}

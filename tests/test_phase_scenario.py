@@ -13,7 +13,7 @@ import pytest
 from estimators.core import chi2_interval, is_spd, nees
 from estimators import phase_frames as PF
 from estimators.phase_model import body_from_antennas
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.errors import ConfigError
 from testbed.pipelines import phase as P
 from testbed.plugins import builtin_phase as PB

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.cli import main
 from testbed.errors import PluginError, UsageError
 from testbed.scoring.metrics import anees_interval

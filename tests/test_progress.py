@@ -19,7 +19,7 @@ import pytest
 from testbed import progress
 from testbed.cli import main
 from testbed.reproduce.runs import sweep_runs
-from testbed.scenario import load
+from testbed.config.scenario import load
 
 ROOT = Path(__file__).resolve().parent.parent
 SWEEP = ["sweep", "bandwidth", "--runs", "2", "--duration", "0.5", "--workers", "1"]

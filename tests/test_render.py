@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 
 LEADER_FOLLOWER = """
 name = "render-test"

@@ -12,7 +12,7 @@ import pytest
 from estimators.graph import model as gm
 from estimators.graph.batch import EpochFactors, solve_epochs
 from estimators.so3 import so3_exp
-from testbed import scenario
+from testbed.config import scenario
 from testbed.sim import world
 from testbed.cli import main
 from testbed.config import to_dict

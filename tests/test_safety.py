@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.scoring import safety
-from testbed.scenario import load
+from testbed.config.scenario import load
 from testbed.sim.world import build
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from testbed.config import from_dict
 from testbed.errors import FieldError
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sensors.presets import DPH, UG
 from testbed.sim.simulate import simulate
 

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from testbed.config import from_dict, to_dict
 from testbed.errors import ConfigError
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sensors.config import InertialErrors
 from testbed.sensors.noise import TriadErrors, allan_deviation
 from testbed.sim.simulate import simulate
@@ -512,7 +512,7 @@ def test_no_segment_at_an_instant_is_no_hit():
     the answer is an empty mask, not an error (a 3600 s bandwidth run stopped on it)."""
     import numpy as np
 
-    from testbed.scenario import load
+    from testbed.config.scenario import load
     from testbed.sim.world import build
 
     physics = build(load("bandwidth"))

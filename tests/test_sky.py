@@ -9,7 +9,7 @@ import numpy as np
 
 from testbed.config import from_dict
 from testbed.rng import stream_rng
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sensors.config import SkyConfig
 from testbed.sensors.sky import Constellation, Sky, dop
 from testbed.sim.simulate import simulate

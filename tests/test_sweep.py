@@ -4,7 +4,7 @@ import json
 import numpy as np
 from scipy.stats import t as student_t
 
-from testbed import scenario
+from testbed.config import scenario
 from testbed.runner import run
 from testbed.sweep import sweep
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from testbed.bench.swarm import swarm_scenario
-from testbed.scenario import Disturbance
+from testbed.config.scenario import Disturbance
 from testbed.sim.simulate import simulate
 from testbed.sim.thrust import BodyForces
 from testbed.sim.world import build, rotor_route

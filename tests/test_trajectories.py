@@ -1,4 +1,4 @@
-"""The trajectory library (testbed/trajectories.py, the kinds of testbed/scenario.py): minimum-snap
+"""The trajectory library (testbed/trajectories.py, the kinds of testbed/config/scenario.py): minimum-snap
 splines pass their waypoints, are continuous through them (position to snap imposed, 5th and 6th
 derivatives by optimality) and are the QP's optimum; the airframe's limits refuse a reference at
 load (one line, exit 2); every kind evaluates to finite values of the right shapes; a short
@@ -19,7 +19,7 @@ from testbed import trajectories
 from testbed.cli import main
 from testbed.errors import ConfigError
 from testbed.reference import evaluate
-from testbed.scenario import Circle, Lemniscate, Spline, Trajectory, builtin_names, load
+from testbed.config.scenario import Circle, Lemniscate, Spline, Trajectory, builtin_names, load
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / "examples" / "trajectories").glob("*.toml"))

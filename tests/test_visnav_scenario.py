@@ -13,10 +13,10 @@ from scipy.stats import chi2
 
 from estimators.core import chi2_interval
 from estimators.visnav import RelNavModel
-from testbed import scenario
+from testbed.config import scenario
 from testbed.config import to_dict
 from testbed.errors import ConfigError
-from testbed.pipeline_config import FILTER_NAMES, VisNavPipelineConfig
+from testbed.config.pipelines import FILTER_NAMES, VisNavPipelineConfig
 from testbed.plugins.builtin_visnav import estimator_config
 from testbed.plugins.context import make_context
 from testbed.sim.world import lever_arms

@@ -35,7 +35,7 @@ from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.reproduce.denied import COOP, variant
 from testbed.runner import run
-from testbed.scenario import load
+from testbed.config.scenario import load
 from testbed.sim.simulate import record
 from testbed.sim.world import build, lever_arms
 

@@ -23,7 +23,7 @@ from estimators.gtsam_reference import solve_gtsam as reference
 from estimators.phase_model import antenna_offsets, measurement_model, stack_rows
 from estimators.sigma_filters import ManifoldGaussian, make_filter
 from estimators.visnav import RelNavModel, imu_input, make_state, quat_exp
-from testbed import scenario
+from testbed.config import scenario
 from testbed.plugins.builtin_visnav import estimator_config
 from testbed.synthetic.coop import epoch_factory
 

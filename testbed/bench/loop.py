@@ -25,8 +25,8 @@ from testbed.plugins.api import Estimate
 from testbed.plugins.context import make_context
 from testbed.plugins.loading import Plugin, load_class
 from testbed.plugins.online import OnlineEstimator
-from testbed.estimator_spec import EstimatorSpec
-from testbed.scenario import Scenario
+from testbed.config.estimators import EstimatorSpec
+from testbed.config.scenario import Scenario
 from testbed.sim.simulate import simulate
 from testbed.sim.world import build, lever_arms
 

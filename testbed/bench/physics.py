@@ -17,7 +17,7 @@ import numpy as np
 
 from testbed.bench.swarm import swarm_scenario
 from testbed.reference import GRAVITY
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sim.simulate import simulate
 from testbed.sim.world import Physics, build
 

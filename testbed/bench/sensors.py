@@ -19,7 +19,7 @@ import scipy.signal  # noqa: F401  imported lazily by the IMU noise model: loade
 from testbed.bench.physics import bare_times, duration_for
 from testbed.bench.swarm import swarm_scenario
 from testbed.config import from_dict
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sensors.camera import Camera
 from testbed.sim.simulate import simulate
 from testbed.sim.world import build

@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 from testbed.config import from_dict
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 Vec3 = tuple[float, float, float]
 

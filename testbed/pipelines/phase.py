@@ -56,7 +56,7 @@ from estimators.core import Epoch, Gate, Gaussian, Track, drive, nees
 from estimators.phase_ekf import AnalyzedGaussian, PhaseEkfCovarianceAnalysis, ProcessNoise
 from estimators.phase_frames import BODY_POS, BODY_PV
 from estimators.phase_model import rotation_from_antennas
-from testbed.pipeline_config import PhasePipelineConfig
+from testbed.config.pipelines import PhasePipelineConfig
 from testbed.plugins.builtin_phase import prepare
 from testbed.plugins.phase_scores import attitude_nees, phase_pcrb, true_states, window_keys
 

@@ -3,7 +3,7 @@ and `run_pipeline`, the runner's entry point for them (shrinking as each kind is
 
 A pipeline is a function `run(scenario, log, plots_dir) -> dict` returning the `estimators` object
 of metrics.json (keyed by estimator name). A new kind adds its config dataclass to
-testbed.pipeline_config (and to its `PipelineConfig` union) and its `run` here.
+testbed.config.pipelines (and to its `PipelineConfig` union) and its `run` here.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 
 from testbed.pipelines import phase
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 Pipeline = Callable[[Scenario, dict[str, np.ndarray], Path | None], dict]
 

@@ -56,7 +56,7 @@ import numpy as np
 from estimators import bandwidth as bw
 from estimators.bandwidth import BYTES_PER_COMPONENT, uwb_pseudo_measurement
 from estimators.core import Epoch, Stepper
-from testbed.pipeline_config import N_NODES, BandwidthPipelineConfig
+from testbed.config.pipelines import N_NODES, BandwidthPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.collect import cov_problems
 from testbed.plugins.settings import settings

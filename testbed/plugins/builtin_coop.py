@@ -24,7 +24,7 @@ import numpy as np
 from estimators.factor_graph import CoopProblem, solve_centralized, solve_distributed
 from estimators.sensor_models import gnss_sigma, twr_range_covariance, twr_range_variance
 from estimators.transport import Transport
-from testbed.pipeline_config import CoopPipelineConfig
+from testbed.config.pipelines import CoopPipelineConfig
 from testbed.plugins.api import Context, EstimateBatch, Measurement
 from testbed.plugins.epochs import EpochGrouping
 from testbed.plugins.settings import settings

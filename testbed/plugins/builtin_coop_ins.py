@@ -78,7 +78,7 @@ from estimators import coop_ins as ci
 from estimators.sensor_models import imu_noise, range_variances
 from testbed.config import from_dict, key
 from testbed.sim.network import Network
-from testbed.network_config import NetworkConfig
+from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import StartParams, levelled_start
 from testbed.plugins.params import fields_of, read

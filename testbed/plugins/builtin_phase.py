@@ -38,7 +38,7 @@ from estimators.phase_frames import BODY_POS, BODY_PV, nav_pose_from_antennas, t
 from estimators.phase_model import antenna_state_from_body, rotation_from_antennas
 from estimators.so3 import skew
 from testbed.errors import ConfigError
-from testbed.pipeline_config import PhasePipelineConfig
+from testbed.config.pipelines import PhasePipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.settings import check_known, pipeline_keys, settings
 from testbed.reference import evaluate

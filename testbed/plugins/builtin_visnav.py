@@ -43,7 +43,7 @@ from estimators.core import Epoch, Stepper
 from estimators.sigma_filters import ManifoldGaussian, make_filter
 from estimators.so3 import quat_exp, quat_to_rotmat
 from estimators.visnav import CameraFilter, CameraFrame, ImuNoise, RelNavModel, VisNavConfig
-from testbed.pipeline_config import VisNavPipelineConfig
+from testbed.config.pipelines import VisNavPipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.settings import settings
 from testbed.rng import stream_rng

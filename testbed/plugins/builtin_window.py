@@ -42,7 +42,7 @@ from estimators import window as sw
 from estimators.sensor_models import range_variances
 from testbed.config import check_fields, from_dict, key
 from testbed.sim.network import Network, RoundTransport
-from testbed.network_config import NetworkConfig
+from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
 from testbed.plugins.params import fields_of, read

@@ -12,7 +12,7 @@ import numpy as np
 from testbed.config import to_dict
 from testbed.plugins.api import Context
 from testbed.rng import stream_rng
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 
 def make_context(scenario: Scenario, sites: dict[str, tuple[str, np.ndarray]], key: str, params: dict,

@@ -9,8 +9,8 @@ the kinds converted so far; the others still run through their pipeline
 from __future__ import annotations
 
 from testbed.errors import ConfigError
-from testbed.estimator_spec import EstimatorSpec
-from testbed.scenario import Scenario
+from testbed.config.estimators import EstimatorSpec
+from testbed.config.scenario import Scenario
 
 # [pipeline] kind -> ((metrics.json name, registered estimator), ...), in metrics.json order
 DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {

@@ -18,7 +18,7 @@ from testbed.errors import PluginError
 from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.collect import Collector, Track
 from testbed.plugins.loading import Plugin
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.stream import declared_sigma, stream_arrays, stream_names
 
 # per stream, the other columns a receiver really reports (Measurement.extra); never truth

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.plugins.score import Hook
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 
 def scenario_hooks(scenario: Scenario, log: dict[str, np.ndarray]) -> list[Hook]:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from testbed.errors import FieldError, UsageError
 from testbed.plugins import params as typed_params
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 
 GROUP = "testbed.estimators"
 

@@ -44,7 +44,7 @@ from testbed.plugins.collect import Track
 from testbed.plugins.feed import finish_plugin, measurement_columns, process, process_batch, start_plugin
 from testbed.plugins.loading import Plugin
 from testbed.plugins.context import make_context
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sim.world import Physics, lever_arms
 
 ARRIVAL_TOLERANCE = 1e-9  # s: an arrival this close after a tick time counts as at the tick

@@ -5,7 +5,7 @@ parameters, each with a default and, through `testbed.config.key`, its unit, all
 one-line doc; its `__post_init__` validates (`testbed.config.check_fields` for the declared
 intervals, `require` for the rest). The `params` table of an `[[estimators]]` entry (and the
 command line's `--estimator NAME --param KEY=VALUE`) sets its keys; the paper built-ins' Params
-are their pipeline's config dataclass (testbed.pipeline_config, `kind` excluded, see
+are their pipeline's config dataclass (testbed.config.pipelines, `kind` excluded, see
 testbed.plugins.settings).
 
 - `check`: before anything is simulated, every key given is checked alone (known, typed, in its

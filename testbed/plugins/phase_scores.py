@@ -21,7 +21,7 @@ from estimators.phase_ekf import ProcessNoise, pcrb
 from estimators.phase_frames import BODY_POS, to_nav
 from estimators.phase_model import antenna_state_from_body, body_from_antennas
 from estimators.so3 import euler_from_rotation, skew
-from testbed.pipeline_config import PhasePipelineConfig
+from testbed.config.pipelines import PhasePipelineConfig
 from testbed.scoring.metrics import rmse
 from testbed.plugins.builtin_phase import PhaseInputs, prepare
 from testbed.plugins.collect import Track

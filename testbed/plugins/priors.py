@@ -11,7 +11,7 @@ import numpy as np
 from testbed.plugins import builtin_phase
 from testbed.plugins.builtin_bandwidth import initial_estimate
 from testbed.plugins.relnav_scores import start_prior
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 
 def priors(scenario: Scenario, log: dict[str, np.ndarray] | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:

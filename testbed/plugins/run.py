@@ -26,7 +26,7 @@ from testbed.plugins.loading import Plugin
 from testbed.plugins.hooks import scenario_hooks
 from testbed.plugins.score import plot_errors, score
 from testbed.plugins.truth import Truth
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sim.world import Physics, lever_arms
 
 

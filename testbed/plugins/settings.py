@@ -1,7 +1,7 @@
 """The settings of a paper built-in: its Params are its pipeline's [pipeline] config dataclass.
 
 A paper built-in (coop.*, phase.ekf, bandwidth.*, visnav.*) declares `Params` = its pipeline's
-config dataclass (testbed.pipeline_config; every field but `kind` is a parameter, with the
+config dataclass (testbed.config.pipelines; every field but `kind` is a parameter, with the
 unit, range and doc of testbed.plugins.params). Unless a key is given in its params, it takes the
 scenario's own [pipeline] value (Context.pipeline) when the scenario's pipeline is of the same
 kind, else the dataclass default; an assumed sensor-model key still unset then takes the

@@ -36,7 +36,7 @@ from testbed.sim import world
 from testbed.api import load_run
 from testbed.config import to_dict
 from testbed.outdir import Output
-from testbed.pipeline_config import (BandwidthPipelineConfig, CoopPipelineConfig, PhasePipelineConfig,
+from testbed.config.pipelines import (BandwidthPipelineConfig, CoopPipelineConfig, PhasePipelineConfig,
                                       VisNavPipelineConfig)
 from testbed.plugins import builtin_bandwidth, builtin_coop, builtin_phase, builtin_visnav
 from testbed.plugins.context import make_context
@@ -45,7 +45,7 @@ from testbed.sim.world import lever_arms
 from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.loading import resolve
 from testbed.plugins.settings import settings
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.replay.spec import FORMAT
 from testbed.replay.tables import CAMERA_COLUMNS, PHASE_MASTER_COLUMNS
 from testbed.stream import declared_sigma, stream_arrays

@@ -37,7 +37,7 @@ from testbed.plugins.failures import failed_entry, mark_incomplete, raise_failed
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import resolve
 from testbed.plugins.score import plot_errors, score
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.replay.linkstats import link_statistics
 from testbed.replay.recording import RecordedTruth, Recording, load_recording
 

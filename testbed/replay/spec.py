@@ -17,8 +17,8 @@ import numpy as np
 
 from testbed.config import from_dict, in_range, require
 from testbed.errors import ConfigError
-from testbed.network_config import NetworkConfig
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.network import NetworkConfig
+from testbed.config.estimators import EstimatorSpec
 
 FORMAT = 1
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
@@ -138,7 +138,7 @@ class ReplaySpec:
     run's, testbed.plugins.priors.priors; k = n, or k < n for the tangent space where the state
     lives on a manifold, as visnav's (22,) state with a (21, 21) covariance). estimators: [[estimators]]
     tables as in a scenario (entry, name, params). network: the [network] the recorded vehicles'
-    messages travel through, as a scenario's (testbed.network_config; an exported run's): each
+    messages travel through, as a scenario's (testbed.config.network; an exported run's): each
     estimator gets its own (Context.channel, testbed.plugins.channel), its geometry the truth
     table's and the links rows' nlos flags; None: ideal (no channel). bag: the measurements and truth are read from
     this ROS bag instead of the CSV tables beside the spec (None: from the tables).

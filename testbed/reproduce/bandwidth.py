@@ -30,7 +30,7 @@ import numpy as np
 from scipy.stats import norm
 
 from estimators import bandwidth as bw
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.log import load_log
 from testbed.reproduce import bandwidth_batch as pb
 from testbed.outputs.plots import compare_bars

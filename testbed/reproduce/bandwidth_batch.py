@@ -39,7 +39,7 @@ from estimators.bandwidth import uwb_pseudo_measurement
 from estimators.core import Epoch, drive
 from testbed.errors import ConfigError
 from testbed.interrupt import poll
-from testbed.pipeline_config import N_NODES, BandwidthPipelineConfig
+from testbed.config.pipelines import N_NODES, BandwidthPipelineConfig
 from testbed.plugins.builtin_bandwidth import initial_estimate, known_config
 from testbed.synthetic.bandwidth import P_SETS, T_SETS
 

@@ -68,12 +68,12 @@ from testbed.plugins.collect import load_tracks
 from testbed.plugins.graph_check import exposes_graphs, gtsam_check
 from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.outputs.plots import compare_bars
 from testbed.outputs.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
     write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
-from testbed.scenario import Scenario, load
+from testbed.config.scenario import Scenario, load
 from testbed.sim.simulate import simulate
 from testbed.scoring.stats import wilcoxon_paired
 from testbed.sim.world import build

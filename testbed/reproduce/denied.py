@@ -55,10 +55,10 @@ from testbed.config import to_dict
 from testbed.errors import UsageError
 from testbed.log import load_log
 from testbed.outputs.plots import compare_bars
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 from testbed.outputs.report import Claim, fmt, markdown_table, write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
-from testbed.scenario import Scenario, load
+from testbed.config.scenario import Scenario, load
 from testbed.scoring.stats import wilcoxon_paired
 
 VARIANTS = ("truth", "gnss_ekf", "coop", "coop_distributed", "coop_lossy", "coop_onboard", "window", "window_distributed")

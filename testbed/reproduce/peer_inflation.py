@@ -36,9 +36,9 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.outputs.report import fmt_anees
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.estimators import EstimatorSpec
 
 CALIBRATION_SEEDS = (1000, 1001, 1002)
 CALIBRATION_HORIZON_S = 30.0

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.scoring.metrics import anees_interval, anees_over_runs, mean_ci
 from testbed.plugins.phase_scores import window_keys
 from testbed.outputs.plots import compare_bars, figure, save

@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.errors import TestbedError
 from testbed.scoring.metrics import anees_interval
 

@@ -12,7 +12,7 @@ import pickle
 from pathlib import Path
 
 from testbed.errors import EstimatorsFailed
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.outdir import TMP_TAG
 from testbed.progress import enabled
 from testbed.sweep import run_complete, sweep

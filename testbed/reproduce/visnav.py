@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from testbed import scenario as scenario_mod
+from testbed.config import scenario as scenario_mod
 from testbed.scoring.metrics import anees_over_runs, mean_ci
 from testbed.outputs.plots import compare_bars, error_envelope, save
 from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \

@@ -7,7 +7,7 @@ Rates and vehicle numbers were checked when the scenario was built (SensorsConfi
 from __future__ import annotations
 
 from testbed.rng import stream_rng
-from testbed.scenario import Scenario, SwarmBox, SwarmGrid
+from testbed.config.scenario import Scenario, SwarmBox, SwarmGrid
 from testbed.sensors.base import Sensor
 from testbed.sensors.camera import Camera
 from testbed.sensors.gnss import Gnss

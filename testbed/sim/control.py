@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.reference import GRAVITY
-from testbed.scenario import Control
+from testbed.config.scenario import Control
 from testbed.sim.world import Physics
 
 # a[:, _CROSS_A] * b[:, _CROSS_B] = (a_I1 b_I2, a_I2 b_I1) with I1 = (1, 2, 0), I2 = (2, 0, 1)

@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from estimators.so3 import quat_mul
 from testbed.reference import RefState
 from testbed.rng import stream_rng
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 
 @dataclass(frozen=True, slots=True)

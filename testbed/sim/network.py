@@ -1,7 +1,7 @@
 """The network between vehicles: latency, loss, range and bandwidth, delivered by the simulation clock.
 
 `Network(cfg, n, rng)` carries messages between n vehicles (0-based indices; time in s, the
-simulation clock). The model of every key is in testbed.network_config.NetworkConfig and
+simulation clock). The model of every key is in testbed.config.network.NetworkConfig and
 docs/network.md. Order of the checks of one message on the directed link src -> dst:
 
 1. range: |p_src - p_dst| > max_range (positions of the last set_geometry) -> dropped ("range");
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from testbed.network_config import NetworkConfig
+from testbed.config.network import NetworkConfig
 from testbed.sensors.noise import device_rng
 
 __all__ = ["Message", "Network", "NetworkConfig", "RoundTransport", "stationary_loss"]

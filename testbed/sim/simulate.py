@@ -45,7 +45,7 @@ from testbed.sim.disturbance import Draws, Realization, draw, perturb, realize, 
 from testbed.interrupt import poll
 from testbed.log import LogWriter
 from testbed.reference import GRAVITY, attitude, evaluate, tracking
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 from testbed.sensors.suite import make_sensors
 from testbed.sensors.base import Sensor
 from testbed.sim.thrust import BodyForces

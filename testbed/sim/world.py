@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from testbed.reference import RefState, evaluate
-from testbed.scenario import Scenario
+from testbed.config.scenario import Scenario
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 JOINT_ROUTE_MIN_VEHICLES = 12  # swarms of this size or more use the rotor joint route (measured crossover, docs/models.md)

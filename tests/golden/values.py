@@ -58,14 +58,14 @@ CLOSED_LOOP = ("coop", "coop_distributed")
 
 def keys() -> list[str]:
     """Every golden case: each built-in in both motions, then the closed-loop variants."""
-    from testbed import scenario
+    from testbed.config import scenario
 
     return [f"{n}/{m}" for n in scenario.builtin_names() for m in MOTIONS] + [f"coop-denied/{v}" for v in CLOSED_LOOP]
 
 
 def scenario_of(key: str):
     """The scenario of a golden case "NAME/MOTION" or "coop-denied/VARIANT"."""
-    from testbed import scenario
+    from testbed.config import scenario
     from testbed.reproduce.denied import variant
 
     name, mode = key.split("/")

@@ -21,9 +21,9 @@ import tomli_w
 from testbed import trajectories
 from testbed.config import from_dict, in_range, key, require, set_dotted, to_dict, whole_ratio
 from testbed.errors import ConfigError
-from testbed.network_config import NetworkConfig
-from testbed.pipeline_config import PipelineConfig
-from testbed.estimator_spec import EstimatorSpec
+from testbed.config.network import NetworkConfig
+from testbed.config.pipelines import PipelineConfig
+from testbed.config.estimators import EstimatorSpec
 from testbed.sensors.config import SensorsConfig
 
 Vec3 = tuple[float, float, float]

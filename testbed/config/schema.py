@@ -21,8 +21,8 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from testbed import config
 from testbed.config import is_union, show_value, type_name
-from testbed.network_config import NetworkConfig
-from testbed.scenario import Scenario, builtin_names, load
+from testbed.config.network import NetworkConfig
+from testbed.config.scenario import Scenario, builtin_names, load
 
 HEADER = """# Scenario keys
 
@@ -55,7 +55,7 @@ def declared_ranges() -> dict[tuple[type, str], tuple]:
         config.RANGES = None
 
 
-# The naming convention of testbed.scenario: radians unless a key says `_deg`, Hz for `_hz`.
+# The naming convention of testbed.config.scenario: radians unless a key says `_deg`, Hz for `_hz`.
 _UNIT_SUFFIXES = {"deg": "deg", "hz": "Hz"}
 
 

@@ -51,7 +51,7 @@ class _PipelineConfig:
     def cross_check(self, sc: Any) -> None:
         """Check what the pipeline needs from the rest of scenario `sc` (nothing here).
 
-        sc: the testbed.scenario.Scenario being built (its sensors, world, trajectory and vehicle
+        sc: the testbed.config.scenario.Scenario being built (its sensors, world, trajectory and vehicle
         count; not imported: that module imports this one). Raises FieldError naming the key
         from the scenario root (`pipeline.silent_uav`)."""
 

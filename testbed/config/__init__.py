@@ -269,7 +269,7 @@ def require(cond: bool, key: str, value: object, reason: str) -> None:
         raise FieldError("", key, value, reason)
 
 
-# While testbed.schema.declared_ranges builds configurations, every in_range call records here
+# While testbed.config.schema.declared_ranges builds configurations, every in_range call records here
 # {(dataclass, field): (lo, hi, lo_open, hi_open, unit)}; None (no recording) otherwise.
 RANGES: dict[tuple[type, str], tuple] | None = None
 
