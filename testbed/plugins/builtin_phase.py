@@ -40,7 +40,7 @@ from estimators.so3 import skew
 from testbed.errors import ConfigError
 from testbed.config.pipelines import PhasePipelineConfig
 from testbed.plugins.api import Context, Estimate, Measurement
-from testbed.plugins.settings import check_known, pipeline_keys, settings
+from testbed.plugins.settings import settings
 from testbed.reference import evaluate
 from testbed.rng import stream_rng
 
@@ -164,9 +164,7 @@ def prepare(scenario, log: dict) -> tuple:
 class PhaseEkf:
     """seed 003: carrier-phase EKF of the follower (18-state, nav frame of a master), body pose in world."""
 
-    @classmethod
-    def check_params(cls, params: dict) -> None:
-        check_known(params, pipeline_keys(PhasePipelineConfig))
+    Params = PhasePipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
         self.cfg = settings(PhasePipelineConfig, "phase-ekf", context, params, "phase.ekf")
