@@ -1,9 +1,9 @@
 """The `Context` of a run: geometry, declared sensor models, the pipeline's settings and priors.
 
-The lever arms and the priors are handed in (the priors: testbed.plugins.priors, which reads the
-truth where a paper starts from it, in the workflow layer); the lever arms (the simulator reads them from the compiled model,
-testbed.sim.world.lever_arms; a replay from its dataset), so the estimator runtime never imports the
-simulator.
+The lever arms and the priors are handed in, so the estimator runtime imports neither the
+simulator nor the truth: the lever arms from the compiled model (testbed.sim.world.lever_arms) or
+a replay's dataset, the priors from testbed.plugins.priors (the workflow's: it reads the truth
+where a paper starts from it).
 """
 from __future__ import annotations
 
