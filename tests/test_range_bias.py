@@ -75,11 +75,11 @@ def test_bias_states_recover_the_added_biases_within_their_covariance_and_beat_t
     o = 6 * est.n
     keys = sorted(est.bias_index.items(), key=lambda kv: kv[1])
     assert len(keys) == 16
-    e = np.array([est.belief.mean[o + k] - BIAS.get(other, 0.0) for (_, other), k in keys])
+    e = np.array([est.belief.mean[o + k] - BIAS.get(other, 0.0) for (_, _, other), k in keys])
     nees = float(e @ np.linalg.solve(est.belief.cov[o:, o:], e))
     assert nees < chi2.ppf(0.99, e.size)
     # and the biases were found, not merely covered: each added one is far outside its sigma from 0
-    for (_, other), (b, sigma) in est.bias_estimates().items():
+    for (_, _, other), (b, sigma) in est.bias_estimates().items():
         if other in BIAS:
             assert abs(b) > 3 * sigma and np.sign(b) == np.sign(BIAS[other])
 
@@ -94,9 +94,9 @@ def test_a_calibration_table_removes_the_known_bias_and_gives_its_sigma_as_the_p
         TAG: {a: 0.02 for a in BIAS}, **{a: {TAG: 0.02} for a in BIAS}}
     _, _, _, est = _run(spec, bias_states=True, bias_sigma=0.5)
     # the calibrated links' states start at sigma 0.02 m, the others at bias_sigma: posterior <= prior
-    for (_, other), (_, sigma) in est.bias_estimates().items():
+    for (_, _, other), (_, sigma) in est.bias_estimates().items():
         assert sigma <= (0.02 if other in BIAS else 0.5)
-    assert max(s for (_, o), (_, s) in est.bias_estimates().items() if o in BIAS) <= 0.02
+    assert max(s for (_, _, o), (_, s) in est.bias_estimates().items() if o in BIAS) <= 0.02
 
 
 def test_device_and_link_rows_add_up_and_scale_divides(exported, tmp_path):

@@ -33,10 +33,10 @@ other end is neither an anchor nor a site of a known body with a pose yet: unkno
 the follower body's position, velocity and attitude when its lever arms determine an attitude.
 
 Range bias (bias_states = true; docs/replay.md, "Range bias"): one bias state b per link (a
-follower antenna and a known end), added to its ranges, r = |x_j - X| + b, from the link's first
+range stream, a follower antenna and a known end), added to its ranges, r = |x_j - X| + b, from the link's first
 range on: a random constant (bias_walk = 0) or a random walk of density bias_walk (m^2/s); prior
 mean 0 (what the dataset's calibration table left), sigma the link's bias_sigma of
-Context.sensors["uwb"] (testbed.replay.calibration) when it has one, else params bias_sigma, else
+Context.sensors[stream] (testbed.replay.calibration: "uwb") when it has one, else params bias_sigma, else
 the link's range sigma (its first range's declared sigma, or range_sigma). bias_estimates() gives
 them.
 
@@ -138,8 +138,10 @@ class RangingEkfEstimator:
         self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"],
                                                         rotation=p["q_rotation"]),
                               gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]), bias_walk=p["bias_walk"])
-        self.calibrated = context.sensors.get("uwb", {}).get("bias_sigma", {})
-        self.bias_index: dict[tuple[int, str], int] = {}  # (antenna, known end) -> bias state
+        # {stream: {antenna: {known end: m}}}: a calibration table's sigmas (testbed.replay.calibration)
+        self.calibrated = {k: v["bias_sigma"] for k, v in context.sensors.items()
+                           if isinstance(v, dict) and isinstance(v.get("bias_sigma"), dict)}
+        self.bias_index: dict[tuple[str, int, str], int] = {}  # (stream, antenna, known end) -> bias state
         self.poses: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
         self.belief = None
         self.t_belief = None
@@ -150,7 +152,7 @@ class RangingEkfEstimator:
 
     # -------------------------------------------------------------- bookkeeping
     def _reset(self) -> None:
-        self.links: list[tuple[int, str, float, float]] = []  # (antenna, known end, range, sigma)
+        self.links: list[tuple[int, str, float, float, str]] = []  # (antenna, known end, range, sigma, stream)
         self.rates: dict[tuple[int, str], tuple[float, float]] = {}
         self.height: tuple[float, float] | None = None
 
@@ -205,7 +207,7 @@ class RangingEkfEstimator:
                     j = self.index[mine]
                     if m.stream in p["range_streams"]:
                         col = int(p["range_streams"][m.stream])
-                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["range_sigma"])))
+                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["range_sigma"]), m.stream))
                     if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
                         col = int(p["rate_streams"][m.stream])
                         self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["range_rate_sigma"]))
@@ -220,13 +222,13 @@ class RangingEkfEstimator:
     # -------------------------------------------------------------- one epoch
     def _epoch(self) -> RangingEpoch | None:
         rows = []
-        self.epoch_links = []  # (antenna, known end, sigma) of each row: the bias states' keys
-        for j, other, r, s in self.links:
+        self.epoch_links = []  # (stream, antenna, known end, sigma) of each row: the bias states' keys
+        for j, other, r, s, stream in self.links:
             known = self._known_point(other)
             if known is not None:
                 rate, s_rate = self.rates.get((j, other), (np.nan, 1.0))
                 rows.append((j, known[0], known[1], r, s, rate, s_rate))
-                self.epoch_links.append((j, other, s))
+                self.epoch_links.append((stream, j, other, s))
         self.counts["unknown_end_rows"] += len(self.links) - len(rows)
         if not rows:
             if self.links:  # ranges, none to a known point: this epoch cannot be used
@@ -273,11 +275,11 @@ class RangingEkfEstimator:
         """(L,) the bias state of each link of the epoch, a new one appended to the belief (mean 0,
         variance its prior sigma^2: module docstring) for a link seen the first time."""
         out = []
-        for j, other, s in self.epoch_links:
-            k = self.bias_index.get((j, other))
+        for stream, j, other, s in self.epoch_links:
+            k = self.bias_index.get((stream, j, other))
             if k is None:
-                k = self.bias_index[(j, other)] = len(self.bias_index)
-                sigma = self.calibrated.get(self.antennas[j], {}).get(other, self.p["bias_sigma"] or s)
+                k = self.bias_index[(stream, j, other)] = len(self.bias_index)
+                sigma = self.calibrated.get(stream, {}).get(self.antennas[j], {}).get(other, self.p["bias_sigma"] or s)
                 b = self.belief
                 cov = np.zeros((b.mean.size + 1, b.mean.size + 1))
                 cov[:-1, :-1], cov[-1, -1] = b.cov, sigma ** 2
@@ -285,13 +287,13 @@ class RangingEkfEstimator:
             out.append(k)
         return np.array(out, int)
 
-    def bias_estimates(self) -> dict[tuple[str, str], tuple[float, float]]:
-        """{(antenna site, known end): (bias m, its sigma m)} of the bias states (bias_states)."""
+    def bias_estimates(self) -> dict[tuple[str, str, str], tuple[float, float]]:
+        """{(stream, antenna site, known end): (bias m, its sigma m)} of the bias states (bias_states)."""
         if self.belief is None:
             return {}
         o = 6 * self.n
-        return {(self.antennas[j], other): (float(self.belief.mean[o + k]), float(np.sqrt(self.belief.cov[o + k, o + k])))
-                for (j, other), k in self.bias_index.items()}
+        return {(stream, self.antennas[j], other): (float(self.belief.mean[o + k]), float(np.sqrt(self.belief.cov[o + k, o + k])))
+                for (stream, j, other), k in self.bias_index.items()}
 
     def _estimates(self, t: float) -> list[Estimate]:
         b, n = self.belief, self.n
