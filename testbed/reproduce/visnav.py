@@ -194,7 +194,7 @@ def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
 
 
 def summarize(results: list[dict], case: str) -> dict:
-    """Per filter: mean and 95 % interval of each RMSE, each ANEES's (ANEES) mean over the runs with
+    """Per filter: mean and 95 % interval of each RMSE, mean of each ANEES (ANEES) over the runs with
     its 99 % interval and effective samples (testbed.metrics.anees_over_runs), time per step, runs finite."""
     table = {}
     for name in FILTERS:
@@ -269,7 +269,8 @@ def _markdown(summaries: dict, meta: dict, extra: dict, claims: list[Claim]) -> 
              f"geometric camera, seeds {meta['seeds'][0]}..{meta['seeds'][-1]}",
              "", "RMSE over the run (mean over runs [95 % interval]); ANEES (9) of the 9 navigation states "
              "(expected 9), then the ANEES of the relative position, velocity and attitude, each with its own "
-             "(3, 3) covariance block (expected 3) [99 % interval of a consistent filter] (effective samples: the epochs of a run are correlated, docs/consistency.md); wall time "
+             "(3, 3) covariance block (expected 3) [99 % interval of a consistent filter] (effective samples: the "
+             "epochs of a run are correlated, docs/consistency.md); wall time "
              "per camera epoch (the estimator's whole processing: IMU pairing, two 20 Hz predicts, one update).", ""]
     for case, summ in summaries.items():
         lines += [f"## {case}", ""]
