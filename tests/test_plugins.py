@@ -402,7 +402,8 @@ def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
 def test_visnav_builtins_are_scored_relative_to_the_leader(name):
     """visnav.* estimate the follower relative to the leader (frame "uav1") at every camera epoch;
     the generic scores of those series are the errors against the relative truth of
-    testbed.plugins.relnav_scores (position, velocity in the leader frame, attitude q_L^* q_F)."""
+    testbed.plugins.relnav_scores (position, velocity in the leader frame, attitude q_L^* q_F), and
+    the hook's 9-dof ANEES is their NEES with the filter's (9, 9) covariance (EstimateBatch.cov_joint)."""
     from estimators.so3 import quat_conj, quat_mul
     from testbed.plugins import builtin_visnav
     from testbed.plugins.relnav_scores import true_relative_state
@@ -422,6 +423,15 @@ def test_visnav_builtins_are_scored_relative_to_the_leader(name):
     angle = np.degrees(2 * np.arctan2(np.linalg.norm(dq[:, 1:], axis=1), np.abs(dq[:, 0])))
     np.testing.assert_allclose(scores["rmse_attitude_deg"], np.sqrt(np.mean(angle ** 2)), rtol=1e-9)
     assert scores["epochs"] == epochs.size and scores["finite"]
+    # the 9-dof ANEES: the stacked (p, v, theta) errors against the same truth, with the (9, 9) cov_joint
+    joints = track.joint[("position", "velocity", "attitude")]
+    assert [j.time for j in joints] == epochs.tolist() and all(j.frame == "uav1" for j in joints)
+    theta = 2 * np.arctan2(np.linalg.norm(dq[:, 1:], axis=1), dq[:, 0])[:, None] * dq[:, 1:] \
+        / np.maximum(np.linalg.norm(dq[:, 1:], axis=1), 1e-300)[:, None]
+    e = np.hstack([track[("uav2", "position")].value - truth[:, 0:3], track[("uav2", "velocity")].value - truth[:, 3:6], theta])
+    ne = np.array([x @ np.linalg.solve(j.cov, x) for x, j in zip(e, joints)])
+    np.testing.assert_allclose([scores["anees"], scores["final_nees"]], [ne.mean(), ne[-1]], rtol=1e-9)
+    assert scores["anees_dof"] == 9 and scores["anees_interval_99"][0] < 9 < scores["anees_interval_99"][1]
 
 
 def test_bandwidth_builtin_equals_the_batch_filter():
