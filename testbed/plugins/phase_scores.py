@@ -6,12 +6,15 @@
 - `phase_pcrb`: the posterior Cramer-Rao bound (Tichavsky 1998) along that true trajectory with the
   filter's own rows, measurement model, q and P0 (testbed.plugins.builtin_phase.prepare);
 - `phase_hooks`: the run's hooks (testbed.plugins.hooks): `Bound`, the PCRB's body-position block
-  in world axes, and `PhaseWindow`, the scores in N of any estimator of the follower's body;
+  in world axes, `PhaseWindow`, the scores in N of any estimator of the follower's body, and
+  `PhaseScored`, the scores from score_start on (the 6-dof ANEES from a joint covariance of
+  position and velocity, the 18-state ones from an estimator's navigation states);
 - `attitude_nees`, `window_keys`: the attitude NEES and the names of the last-window scores.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -77,7 +80,7 @@ class PhaseWindow(Hook):
     1-sigma at the end; `pcrb_sigma_position_final_m` (3,) the PCRB's; `last_window_s` W and, when
     the span covers W, over the epochs of the last W seconds (names: window_keys(W)): the position
     RMSE, the max |error| per axis of position and velocity, the PCRB RMSE; else
-    `last_window_omitted_reason`.
+    `last_window_omitted_reason`. Figures: `plot`.
     An error e_W (world) is moved to N with the nav master's TRUE pose: e_N = R^T e_W and, for the
     velocity, e_vN = R^T (e_vW - dR/dt e_N) (the derivative of X_N = R^T (X - p)).
 
@@ -133,6 +136,26 @@ class PhaseWindow(Hook):
             out[w["max_abs_velocity"]] = np.abs(ev[last]).max(axis=0).tolist()
         out[w["pcrb_rmse"]] = float(np.sqrt(np.mean(np.trace(B[last], axis1=1, axis2=2))))
         return out
+
+    def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
+        """Per fitting estimator NAME, like the paper's figs. 4-15, errors per axis of N against
+        time: NAME_position_error.png (+/-3 sigma of its own covariance when it gave one) and
+        NAME_velocity_error.png (with a velocity: no envelope)."""
+        from testbed.plots import error_envelope  # lazy: matplotlib, only when plots are written
+
+        paths, lab = [], ("x (fwd)", "y (left)", "z (up)")
+        for name, (track, errs) in shown.items():
+            got = self._in_nav(track, errs)
+            if got is None:
+                continue
+            _, t, e, ev, P = got
+            sig = None if P is None else np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+            paths.append(error_envelope(t, e, sig, plots_dir / f"{name}_position_error.png",
+                                        title=f"{name}: body position error (nav frame)", ylabel="m", labels=lab))
+            if ev is not None:
+                paths.append(error_envelope(t, ev, None, plots_dir / f"{name}_velocity_error.png",
+                                            title=f"{name}: body velocity error (nav frame)", ylabel="m/s", labels=lab))
+        return paths
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,8 +253,8 @@ class PhaseScored(Hook):
 
 def phase_hooks(scenario, log: dict) -> list[Hook]:
     """The scoring hooks of a phase-ekf run (scoring only): the PCRB of the follower's body
-    position in world axes (N rotated by the nav master's true attitude; testbed.plugins.score.Bound)
-    and the frame-N scores (PhaseWindow)."""
+    position in world axes (N rotated by the nav master's true attitude; testbed.plugins.score.Bound),
+    the frame-N scores (PhaseWindow) and the scores from score_start on (PhaseScored)."""
     cfg, inp, q, _, P0, meas = prepare(scenario, log)
     body, _, states = true_states(scenario, log, cfg, inp)
     bound = BODY_POS @ phase_pcrb(cfg, q, states, inp, meas, P0) @ BODY_POS.T
