@@ -162,8 +162,8 @@ class PhaseWindow(Hook):
 class PhaseScored(Hook):
     """The seed 003 scores over the scored epochs t >= t_0 + score_start (every epoch when the run
     is shorter; t_0 the first phase epoch), for ANY estimator whose outputs fit (summary keys):
-    `epochs` the phase epochs estimated, `score_start_s` the first scored one; with the follower's world position (velocity,
-    attitude) at the epochs: `rmse_position_after_start_m` (`rmse_velocity_after_start_m_s`,
+    with the follower's world position (velocity, attitude) at the phase epochs: `epochs` their
+    number, `score_start_s` the first scored one, `rmse_position_after_start_m` (`rmse_velocity_after_start_m_s`,
     `rmse_attitude_after_start_deg`, the attitude error's angle) and `pcrb_rmse_position_after_start_m`
     = sqrt(mean trace) of the PCRB's body-position block over the same epochs; with the joint
     covariance of the follower's position and velocity at every scored epoch (EstimateBatch.cov_joint
