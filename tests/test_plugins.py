@@ -422,6 +422,31 @@ def test_phase_builtin_is_its_filter_in_the_world_with_its_pcrb_and_nav_scores()
     assert health["gate_epochs_with_rejection"] == int((ref.rejected_measurements > 0).sum())
 
 
+def test_phase_window_velocity_sigma_is_the_filters_in_n():
+    """PhaseWindow's velocity envelope: a world joint covariance C = J P J^T of position and
+    velocity (J: phase.ekf's map from the 18-state in N, any attitude R and rate dR/dt of N) moved
+    back to N gives the filter's own velocity sigma sqrt(diag(BODY_PV P BODY_PV^T))[3:]."""
+    from scipy.spatial.transform import Rotation
+    from estimators.phase_frames import BODY_POS, BODY_PV
+    from estimators.so3 import skew
+    from testbed.plugins.collect import Joint, Track
+    from testbed.plugins.phase_scores import PhaseWindow
+
+    rng = np.random.default_rng(1)
+    K = 5
+    R = Rotation.random(K, random_state=2).as_matrix()
+    Rd = R @ np.array([skew(w) for w in rng.normal(size=(K, 3))])
+    A = rng.normal(size=(K, 18, 18))
+    P = A @ np.swapaxes(A, 1, 2) + np.eye(18)
+    J = np.concatenate([R @ BODY_POS, R @ BODY_PV[3:] + Rd @ BODY_POS], axis=1)
+    C = J @ P @ np.swapaxes(J, 1, 2)
+    t = np.arange(K, dtype=float)
+    track = Track({}, joint={("position", "velocity"): [Joint(t[i], ("uav6", "uav6"), "world", C[i]) for i in range(K)]})
+    got = PhaseWindow("uav6", t, R, Rd, np.zeros((K, 3, 3)), 100.0)._velocity_sigma(track, np.arange(K), t)
+    np.testing.assert_allclose(got, np.sqrt(np.diagonal(BODY_PV @ P @ BODY_PV.T, axis1=1, axis2=2))[:, 3:], rtol=1e-12)
+    assert PhaseWindow("uav6", t, R, Rd, np.zeros((K, 3, 3)), 100.0)._velocity_sigma(Track({}), np.arange(K), t) is None
+
+
 def test_navigation_states_are_checked():
     """A navigation_states() of the wrong shape is one PluginError naming the estimator and the problem."""
     from testbed.plugins.api import NavigationStates

@@ -139,8 +139,10 @@ class PhaseWindow(Hook):
 
     def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
         """Per fitting estimator NAME, like the paper's figs. 4-15, errors per axis of N against
-        time: NAME_position_error.png (+/-3 sigma of its own covariance when it gave one) and
-        NAME_velocity_error.png (with a velocity: no envelope)."""
+        time: NAME_position_error.png (+/-3 sigma of its own covariance when it gave one) and, with a
+        velocity, NAME_velocity_error.png (+/-3 sigma when it gave the joint covariance of position
+        and velocity at every epoch, moved to N as the errors: T C T^T, T = [[R^T, 0],
+        [-R^T dR/dt R^T, R^T]])."""
         from testbed.plots import error_envelope  # lazy: matplotlib, only when plots are written
 
         paths, lab = [], ("x (fwd)", "y (left)", "z (up)")
@@ -148,14 +150,29 @@ class PhaseWindow(Hook):
             got = self._in_nav(track, errs)
             if got is None:
                 continue
-            _, t, e, ev, P = got
+            k, t, e, ev, P = got
             sig = None if P is None else np.sqrt(np.diagonal(P, axis1=1, axis2=2))
             paths.append(error_envelope(t, e, sig, plots_dir / f"{name}_position_error.png",
                                         title=f"{name}: body position error (nav frame)", ylabel="m", labels=lab))
             if ev is not None:
-                paths.append(error_envelope(t, ev, None, plots_dir / f"{name}_velocity_error.png",
+                paths.append(error_envelope(t, ev, self._velocity_sigma(track, k, t), plots_dir / f"{name}_velocity_error.png",
                                             title=f"{name}: body velocity error (nav frame)", ylabel="m/s", labels=lab))
         return paths
+
+    def _velocity_sigma(self, track: Track, k: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """(E, 3) m/s 1-sigma of the velocity in N at the epochs k (E,) (times t) from the joint
+        covariance of the follower's world position and velocity; None unless it has one at each."""
+        at = {round(j.time, 9): j.cov for j in track.joint.get(("position", "velocity"), ())
+              if j.frame == "world" and j.targets == (self.target, self.target)}
+        C = [at.get(round(float(x), 9)) for x in t.tolist()]
+        if not C or any(c is None for c in C):
+            return None
+        Rt = np.swapaxes(self.R[k], 1, 2)
+        T = np.zeros((t.size, 6, 6))
+        T[:, :3, :3] = T[:, 3:, 3:] = Rt
+        T[:, 3:, :3] = -Rt @ self.Rd[k] @ Rt
+        PN = T @ np.stack(C) @ np.swapaxes(T, 1, 2)
+        return np.sqrt(np.diagonal(PN[:, 3:, 3:], axis1=1, axis2=2))
 
 
 @dataclass(frozen=True, slots=True)
