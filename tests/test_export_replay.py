@@ -42,7 +42,7 @@ CASES = {
     # with a [network]: one_shot and iterated broadcast through Context.channel, in the run and on replay
     "coop-fg+network": ([EstimatorSpec(entry=ECHO)], ()),
     "bandwidth": ([EstimatorSpec(entry="testbed.replay.graph:PoseGraph"), EstimatorSpec(entry=ECHO)], ()),
-    "phase-line-h000": ([EstimatorSpec(entry="phase.ekf"), EstimatorSpec(entry=ECHO)], ("phase.ekf",)),
+    "phase-line-h000": ([EstimatorSpec(entry=ECHO)], ("ekf",)),  # its default: phase.ekf
     "visnav": ([EstimatorSpec(entry=ECHO)], ("ekf", "ckf", "hckf", "mckf", "rhcf")),  # its defaults: visnav.*
     "coop-denied": ([EstimatorSpec(entry="coop.ins_distributed", name="coop", params={"network": NETWORK}),
                      EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),

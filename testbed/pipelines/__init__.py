@@ -1,10 +1,6 @@
-"""Estimator pipelines: turn a run log into estimates, metrics and plots, one per paper.
+"""The `[pipeline]` table of each paper's scenarios.
 
 - `config`: the `[pipeline]` table of each kind (dataclasses and validation only; the scenario
-  schema imports it, so it must stay free of compute code, scipy and mujoco);
-- `phase`, `visnav`, `bandwidth`, `coop`: the compute side of each kind, a function
-  `run(scenario, log, plots_dir) -> dict`;
-- `registry`: `run_pipeline`, which runs the scenario's kind.
-
-Pipelines read measurement streams and configured "known" quantities; truth only for scoring.
+  schema imports it, so it must stay free of compute code, scipy and mujoco). Its kind names the
+  paper's default estimators (testbed.plugins.defaults), which take its keys as their settings.
 """

@@ -174,6 +174,28 @@ class EstimateBatch:
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
+class NavigationStates:
+    """An estimator's whole navigation state over a run, returned by its OPTIONAL method
+    `navigation_states()` (called once, after finish()), for the scoring hooks that judge the full
+    state rather than the estimates (the seed 003 18-state ANEES, testbed.plugins.phase_scores).
+
+    time: (K,) s, increasing; mean: (K, n) the state means; cov: (K, n, n) the filter's own
+    covariances; actual: optional (K, n, n), the actual error covariance of a covariance-analysis
+    filter (estimators.phase_ekf.PhaseEkfCovarianceAnalysis); frame: the frame of the state
+    (e.g. "phase-N", the seed 003 navigation frame N, estimators.phase_frames); layout: the name of
+    the state's order (e.g. "phase-18", the antenna state of estimators.phase_model). A hook uses
+    the states only when it knows their frame and layout.
+    """
+
+    time: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    actual: np.ndarray | None = None
+    frame: str
+    layout: str
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class Context:
     """What an estimator may legitimately know about a run, given to its constructor.
 

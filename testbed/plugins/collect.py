@@ -54,11 +54,14 @@ class Joint:
 class Track(dict):
     """{(target, quantity): Series}; `joint` {quantity: [Joint, ...] in arrival order}, the joint
     covariances an estimator gave, keyed by the batch's quantity, or by the tuple of its rows'
-    quantities (n,) for a batch of several (empty for most; not kept in estimates.npz)."""
+    quantities (n,) for a batch of several (empty for most; not kept in estimates.npz);
+    `navigation` the estimator's NavigationStates (testbed.plugins.api) when it exposes them
+    (navigation_states()), else None (not kept in estimates.npz)."""
 
-    def __init__(self, *args, joint: dict | None = None, **kwargs):
+    def __init__(self, *args, joint: dict | None = None, navigation=None, **kwargs):
         super().__init__(*args, **kwargs)
         self.joint = joint or {}
+        self.navigation = navigation
 
 
 class Collector:
