@@ -85,9 +85,18 @@ class Rows:
                     other=self.other[keep], dev=self.dev[keep])
 
 
+def _q_rate(noise: ImuNoise) -> np.ndarray:
+    """(15,) diagonal of the continuous process noise of one IMU (per second): white accel and
+    gyro densities into v and theta, bias walks into b_a and b_g."""
+    q = np.zeros(N_ERR)
+    q[V_], q[TH] = noise.accel_density ** 2, noise.gyro_density ** 2
+    q[BA], q[BG] = noise.accel_walk ** 2, noise.gyro_walk ** 2
+    return q
+
+
 class SwarmIns:
     """The swarm's IMU error-state EKFs (module docstring). n vehicles; lever (n, 3) m the antenna
-    of each (GNSS and UWB on one site); noise: the IMU model; joint: centralized (True) or
+    of each (GNSS and UWB on one site); noise: the IMU model, or one per vehicle (a list of n); joint: centralized (True) or
     distributed (False); devices: UWB devices whose antenna delays are states (constant, mean 0,
     variance delay_var m^2 each): shared by the swarm when joint, one copy per vehicle otherwise.
 
@@ -95,7 +104,7 @@ class SwarmIns:
     c (D,). distributed: P (n, 15 + D, 15 + D), one filter per vehicle (its core, then its copy of
     the delays), delays c (n, D)."""
 
-    def __init__(self, n: int, lever: np.ndarray, noise: ImuNoise, *, joint: bool, devices: int = 0,
+    def __init__(self, n: int, lever: np.ndarray, noise: ImuNoise | list[ImuNoise], *, joint: bool, devices: int = 0,
                  delay_var: float = 0.0, damped: bool = False):
         self.n, self.joint, self.noise, self.D = int(n), bool(joint), noise, int(devices)
         if damped and self.joint:
@@ -120,10 +129,7 @@ class SwarmIns:
         self.t = None  # s, the time every active filter is at
         self.Phi = np.tile(np.eye(N_ERR), (n, 1, 1))  # (n, 15, 15) since the last covariance fold
         self.Qa = np.zeros((n, N_ERR, N_ERR))
-        q = np.zeros(N_ERR)
-        q[V_], q[TH] = noise.accel_density ** 2, noise.gyro_density ** 2
-        q[BA], q[BG] = noise.accel_walk ** 2, noise.gyro_walk ** 2
-        self._q_rate = q  # (15,) per second
+        self._q_rate = _q_rate(noise) if isinstance(noise, ImuNoise) else np.array([_q_rate(k) for k in noise])  # (15,) or (n, 15) per second
         self._dt, self._F0, self._Q = None, None, None  # the constant part of F and Q over the last dt
 
     # ------------------------------------------------------------------ start
@@ -165,7 +171,8 @@ class SwarmIns:
             self._dt, self._F0 = dt, np.tile(np.eye(N_ERR), (self.n, 1, 1))
             self._F0[:, P_, V_] = np.eye(3) * dt
             self._F0[:, TH, BG] = -np.eye(3) * dt
-            self._Q = np.diag(self._q_rate * dt)
+            q = self._q_rate
+            self._Q = np.diag(q * dt) if q.ndim == 1 else q[:, :, None] * np.eye(N_ERR) * dt  # (15, 15) or (n, 15, 15)
         RF = R @ skew(fc)
         F = self._F0.copy()
         F[:, P_, TH] = -0.5 * dt * dt * RF

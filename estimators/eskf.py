@@ -94,6 +94,13 @@ def error_size(x: np.ndarray) -> int:
     return len(x) - 1
 
 
+def _times_kron(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A (I kron v^T) (3, 9) for A (3, 3), v (3,): column 3 k + j is A[:, k] v[j] (the product
+    with the block-diagonal matrix written out: no 3 x 9 matrix built, no multiplication by its
+    zeros; the same numbers)."""
+    return (A[:, :, None] * v).reshape(3, 9)
+
+
 def transition(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Error-state transition F (n, n) of `propagate` at x (module docstring; extras constant)."""
     R = quat_to_rotmat(x[6:10])
@@ -106,13 +113,13 @@ def transition(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.nda
     F[P, V] = np.eye(3) * dt
     F[P, TH] = -0.5 * dt * dt * RF
     F[P, BA] = -0.5 * dt * dt * RM
-    F[P, KA] = -0.5 * dt * dt * RM @ np.kron(np.eye(3), fc)
+    F[P, KA] = _times_kron(-0.5 * dt * dt * RM, fc)
     F[V, TH] = -RF * dt
     F[V, BA] = -RM * dt
-    F[V, KA] = -RM @ np.kron(np.eye(3), fc) * dt
+    F[V, KA] = _times_kron(-RM, fc) * dt
     F[TH, TH] = quat_to_rotmat(quat_exp(phi)).T
     F[TH, BG] = -JM * dt
-    F[TH, KG] = -JM @ np.kron(np.eye(3), wc) * dt
+    F[TH, KG] = _times_kron(-JM, wc) * dt
     return F
 
 

@@ -17,12 +17,17 @@ State (eq. 13 generalized), x: (6 n,)
     velocities (m/s) in N; `x[:3 n].reshape(n, 3)[j]` is antenna j. The antennas are tracked as
     points (as in the paper): rigidity enters through the process noise (`RangingNoise`) and the
     body pose is fitted to them afterwards (`body_pose`), when the lever arms allow it.
+    Optionally followed by m >= 0 range-bias states (m), x: (6 n + m,): `x[6 n + k]` is bias k,
+    added to the ranges of the links that name it (RangingEpoch.bias), a random constant or a
+    random walk (RangingEkf.bias_walk); m is the state's size minus 6 n, so a caller adds a bias
+    state by appending a row and column to its belief (docs/replay.md, "Range bias").
 
 Measurements: one `RangingEpoch` = L links. Link l joins a KNOWN point X_l (an anchor, or an
 antenna of a vehicle whose pose is known from any source: `known_points`) to follower antenna
 j_l. Rows, in this order: the L ranges (NaN = missing), then, if range rates are given, the L
 rates, then, if a height is given, one height row:
     r_l    = |x_{j_l} - X_l|                                              (eq. 5)
+             + b_{k_l}  when link l names bias state k_l (docs/replay.md, "Range bias")
     rdot_l = u_l . (v_{j_l} - V_l),   u_l = (x_{j_l} - X_l) / r_l          (eq. 10, relative velocity)
              or, with a rate window W, the mean rate (r(t) - r(t - W)) / W  (eq. 7 as measured)
     h      = sum_j c_j x_j[2]                                              (height of a point of the array)
@@ -37,8 +42,8 @@ counted; nothing in a filter run raises on a degenerate epoch.
 
 Public API
 ----------
-RangingEpoch, ranging_model(x, n, epoch), transition(dt, n), RangingNoise, process_noise(dt, n, q, x),
-RangingEkf(n, q, gate, iterations) (a core.Filter), multilaterate(known, ranges, sigma, height),
+RangingEpoch, ranging_model(x, n, epoch), transition(dt, n, biases), RangingNoise,
+process_noise(dt, n, q, x, bias_walk), RangingEkf(n, q, gate, iterations, bias_walk) (a core.Filter), multilaterate(known, ranges, sigma, height),
 initial_belief(...) (prior from a multilateration fix per antenna), known_points(p, q, arms, v, w),
 body_pose(belief, lever_arms), from_phase_measurement(PhaseMeasurement).
 """
@@ -76,6 +81,7 @@ class RangingEpoch:
     scalar or (L,) (mean rate over [t - W, t], eq. 7 as measured);
     height: m, height (z in N) of the point sum_j c_j x_j of the array, or None;
     height_weights: (n,) the c_j (None = 1 / n each: the antennas' centroid); sigma_height: m.
+    bias: (L,) int, the bias state k_l added to link l's range (-1: none), or None (no bias).
     """
 
     antenna: np.ndarray
@@ -88,6 +94,7 @@ class RangingEpoch:
     rate_window: float | np.ndarray | None = None
     height: float | None = None
     height_weights: np.ndarray | None = None
+    bias: np.ndarray | None = None
     sigma_height: float = 0.1
 
     @property
@@ -122,13 +129,13 @@ class RangingEpoch:
 
 
 def ranging_model(x: np.ndarray, n: int, epoch: RangingEpoch) -> tuple[np.ndarray, np.ndarray]:
-    """h(x) (m,) and its analytic Jacobian H (m, 6 n) for one epoch (module docstring rows).
+    """h(x) (m,) and its analytic Jacobian H (m, 6 n + b) for one epoch (module docstring rows).
 
-    x: (6 n,) antenna state in N. Vectorized over links. A link whose range is below MIN_RANGE_M
+    x: (6 n + b,) antenna state in N, then b >= 0 bias states (m). Vectorized over links. A link whose range is below MIN_RANGE_M
     gets NaN in h (its direction is undefined; the filter skips such rows).
     """
     x = np.asarray(x, float)
-    P, V = x[:3 * n].reshape(n, 3), x[3 * n:].reshape(n, 3)
+    P, V = x[:3 * n].reshape(n, 3), x[3 * n:6 * n].reshape(n, 3)
     j = np.asarray(epoch.antenna, int)
     L = j.size
     X0 = np.asarray(epoch.known_pos, float).reshape(L, 3)
@@ -140,10 +147,16 @@ def ranging_model(x: np.ndarray, n: int, epoch: RangingEpoch) -> tuple[np.ndarra
     has_rate, has_height = epoch.range_rates is not None, epoch.height is not None
     m = L * (2 if has_rate else 1) + int(has_height)
     h = np.empty(m)
-    H = np.zeros((m, 6 * n))
+    H = np.zeros((m, x.size))
     rows = np.arange(L)
     pos_cols = 3 * j[:, None] + np.arange(3)
     h[:L] = r
+    if epoch.bias is not None:
+        biased = np.flatnonzero(np.asarray(epoch.bias, int) >= 0)
+        col = 6 * n + np.asarray(epoch.bias, int)[biased]
+        # docs/replay.md, "Range bias": r_l = |x_j - X_l| + b_k, d r_l / d b_k = 1
+        h[biased] += x[col]
+        H[biased, col] = 1.0
     # eq. 27: d r / d x_j = u^T
     H[rows[:, None], pos_cols] = u
     if has_rate:
@@ -174,10 +187,11 @@ def ranging_model(x: np.ndarray, n: int, epoch: RangingEpoch) -> tuple[np.ndarra
 # ------------------------------------------------------------------------------------------------
 # Time update
 # ------------------------------------------------------------------------------------------------
-def transition(dt: float, n: int) -> np.ndarray:
-    """Phi (6 n, 6 n) of the constant-velocity model over dt s (eq. 24 for n antennas)."""
-    F = np.eye(6 * n)
-    F[:3 * n, 3 * n:] = dt * np.eye(3 * n)
+def transition(dt: float, n: int, biases: int = 0) -> np.ndarray:
+    """Phi (6 n + b, 6 n + b) of the constant-velocity model over dt s (eq. 24 for n antennas),
+    the b bias states held."""
+    F = np.eye(6 * n + biases)
+    F[:3 * n, 3 * n:6 * n] = dt * np.eye(3 * n)
     return F
 
 
@@ -206,10 +220,13 @@ class RangingNoise:
         return S
 
 
-def process_noise(dt: float, n: int, q: RangingNoise, x: np.ndarray) -> np.ndarray:
-    """Q (6 n, 6 n) = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]] with S = q.density(x, n)."""
+def process_noise(dt: float, n: int, q: RangingNoise, x: np.ndarray, bias_walk: float = 0.0) -> np.ndarray:
+    """Q (6 n + b, 6 n + b) = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]] with S = q.density(x, n),
+    then bias_walk dt I_b for the b = x.size - 6 n bias states (bias_walk m^2/s; 0: constants)."""
     S = q.density(x, n)
-    return np.kron(white_acceleration_q(dt), S)
+    Q = np.kron(white_acceleration_q(dt), S)
+    b = np.size(x) - 6 * n
+    return linalg.block_diag(Q, bias_walk * dt * np.eye(b)) if b else Q
 
 
 # ------------------------------------------------------------------------------------------------
@@ -220,13 +237,15 @@ class RangingEkf:
     """The generalized ranging EKF as a core.Filter: predict(belief, dt) and update(belief, epoch).
 
     n: follower antennas; q: RangingNoise; gate: core.Gate (Baarda w-test over all rows);
-    iterations: 1 = EKF, > 1 iterated EKF (as phase_ekf.measurement_update). No input u.
+    iterations: 1 = EKF, > 1 iterated EKF (as phase_ekf.measurement_update); bias_walk: m^2/s,
+    random-walk density of the bias states (0: random constants). No input u.
     """
 
     n: int
     q: RangingNoise = RangingNoise()
     gate: Gate = Gate()
     iterations: int = 1
+    bias_walk: float = 0.0
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.iterations < 1:
@@ -234,7 +253,8 @@ class RangingEkf:
 
     def predict(self, belief: Gaussian, dt: float, u: None = None) -> Gaussian:
         """Time update over dt s (eq. 18, 22-24)."""
-        return kf_predict(belief, transition(dt, self.n), process_noise(dt, self.n, self.q, belief.mean))
+        b = belief.mean.size - 6 * self.n
+        return kf_predict(belief, transition(dt, self.n, b), process_noise(dt, self.n, self.q, belief.mean, self.bias_walk))
 
     def update(self, belief: Gaussian, epoch: RangingEpoch) -> Gaussian:
         """Measurement update (eq. 16-22); degenerate rows and epochs are skipped and counted."""
@@ -563,7 +583,8 @@ def body_pose(belief: Gaussian, lever_arms: np.ndarray) -> BodyPose | None:
     Pose by `fit_pose`, velocity and body rate by the same least squares on the antenna
     velocities; cov = J P J^T with J = blockdiag(G, G) (`pose_sensitivity`). J neglects the
     velocity fit's dependence on the attitude error (a term |omega| |dtheta| |l|, small at the
-    rates of a vehicle over an array of a metre).
+    rates of a vehicle over an array of a metre). Bias states after the 6 n antenna states are
+    left out.
     """
     arms = np.asarray(lever_arms, float).reshape(-1, 3)
     n = arms.shape[0]
@@ -572,9 +593,9 @@ def body_pose(belief: Gaussian, lever_arms: np.ndarray) -> BodyPose | None:
     x = belief.mean
     p, R = fit_pose(x[:3 * n].reshape(n, 3), arms)
     G = pose_sensitivity(R, arms)
-    vw = G @ x[3 * n:]
+    vw = G @ x[3 * n:6 * n]
     J = linalg.block_diag(G, G)
-    return BodyPose(p, rotmat_to_quat(R), vw[:3], vw[3:], symmetrize(J @ belief.cov @ J.T))
+    return BodyPose(p, rotmat_to_quat(R), vw[:3], vw[3:], symmetrize(J @ belief.cov[:6 * n, :6 * n] @ J.T))
 
 
 # ------------------------------------------------------------------------------------------------

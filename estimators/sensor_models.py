@@ -93,6 +93,14 @@ def _walk(errors: dict) -> float:
     return float(np.hypot(errors["bias_walk"], gm))
 
 
+def vehicle_imu(imu: dict, body: str) -> dict:
+    """Body `body`'s own IMU table from a declared [sensors.imu] (Context.sensors["imu"]): its
+    per-body table when the dataset gives one (`[sensors.imu.BODY]`, testbed.sensors.config.declared_imu),
+    else the shared one."""
+    own = imu.get(body)
+    return own if isinstance(own, dict) and "accel" in own else imu
+
+
 def imu_noise(imu: dict):
     """The filter's IMU noise model (estimators.eskf.ImuNoise) from the declared [sensors.imu]
     table (Context.sensors["imu"]): white densities, and bias walks standing for the declared walk

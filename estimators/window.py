@@ -307,7 +307,7 @@ class _Window:
         return the new cost where the cost falls by more than MIRROR_LOG_RATIO, else undo, None."""
         saved = self.X, self.prior_mean, self.prior_info
         self._reflect(which, c, H)
-        new = self._system()[3]
+        new = self._system(cost_only=True)[3]
         if new[0] < cost[0] - MIRROR_LOG_RATIO:
             return new
         self.X, self.prior_mean, self.prior_info = saved
@@ -325,7 +325,7 @@ class _Window:
         """Replace vehicles by their mirror images where that lowers the window's cost by more
         than MIRROR_LOG_RATIO (module docstring). Returns how many were replaced."""
         kept = 0
-        cost = self._system()[3]
+        cost = self._system(cost_only=True)[3]
         if self.B == 1:  # first each ranged group as a whole, through its own middle plane
             P = self._pos()
             for g in self._groups():
@@ -346,7 +346,7 @@ class _Window:
             return kept
         saved = self.X, self.prior_mean, self.prior_info  # one agent per vehicle: all at once
         self._reflect(np.flatnonzero(ok), c, H)
-        better = self._system()[3] < cost - MIRROR_LOG_RATIO
+        better = self._system(cost_only=True)[3] < cost - MIRROR_LOG_RATIO
         keep = better[:, None]
         self.X = np.where(keep[:, :, None], self.X, saved[0])
         self.prior_mean = np.where(keep, self.prior_mean, saved[1])
@@ -362,12 +362,13 @@ class _Window:
 
     def _add_block(self, sys, k, i, j, H3, g3=None, cost=None):
         """Add H3 (m, 3, 3) to the position block (i, j) of epoch k (i, j (m,) vehicles, the same
-        agent), g3 (m, 3) to vehicle i's right-hand side and cost (m,) to its agent's cost."""
+        agent), g3 (m, 3) to vehicle i's right-hand side and cost (m,) to its agent's cost (sys
+        without blocks, (None, None, C): the cost only)."""
         Hpp, Rp, C = sys
         a, li = self._where(i)
-        lj = self._where(j)[1]
-        np.add.at(Hpp, (a, k, li, lj), H3)
-        if g3 is not None:
+        if Hpp is not None:
+            np.add.at(Hpp, (a, k, li, self._where(j)[1]), H3)
+        if g3 is not None and Rp is not None:
             np.add.at(Rp, (a, k, li), g3)
         if cost is not None:
             np.add.at(C, a, cost)
@@ -384,13 +385,14 @@ class _Window:
                         huber_rho(s, delta) if count else None)
         return w
 
-    def _intra(self, P: np.ndarray, ranges: bool = True, newest: bool = False):
+    def _intra(self, P: np.ndarray, ranges: bool = True, newest: bool = False, cost_only: bool = False):
         """(D, R, C): diagonal blocks (B, K, s, s), right-hand sides (B, K, s) and cost (B,) of
         every factor within an epoch (prior, GNSS, anchor ranges, tag-to-tag ranges unless `ranges` is False),
         linearized at positions P (K, n, 3). Position blocks are gathered first (B, K, nv, nv, 3, 3).
-        newest: the newest epoch's own factors only (no prior, the other epochs' blocks zero)."""
+        newest: the newest epoch's own factors only (no prior, the other epochs' blocks zero).
+        cost_only: (None, None, C), no block assembled (the same C)."""
         K, B, nv = P.shape[0], self.B, self.nv
-        sys = (np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3)), np.zeros(B))
+        sys = (None, None, np.zeros(B)) if cost_only else (np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3)), np.zeros(B))
         for k, ep in enumerate(self.epochs):
             if newest and k < K - 1:
                 continue
@@ -405,6 +407,9 @@ class _Window:
             if ranges and ep.edges.size:
                 self._ranges(k, P, sys)
         Hpp, Rp, C = sys
+        if cost_only:
+            e0 = self.prior_mean - self.X[:, 0]
+            return None, None, C + 0.5 * np.einsum("bi,bij,bj->b", e0, self.prior_info, e0)
         D = np.zeros((B, K, nv, 6, nv, 6))
         D[:, :, :, :3, :, :3] = Hpp.transpose(0, 1, 2, 4, 3, 5)
         R = np.zeros((B, K, nv, 6))
@@ -418,28 +423,32 @@ class _Window:
         C += 0.5 * np.einsum("bi,bij,bj->b", e0, self.prior_info, e0)
         return D, R, C
 
-    def _system(self, ranges: bool = True):
+    def _system(self, ranges: bool = True, cost_only: bool = False):
         """(D, U, R, C) of the whole window at the current estimate: _intra plus the motion
-        factors; U (B, K-1, s, s) the blocks H[k, k+1]."""
-        D, R, C = self._intra(self._pos(), ranges)
+        factors; U (B, K-1, s, s) the blocks H[k, k+1]. cost_only: (None, None, None, C), the same
+        cost (B,) without assembling the system (the mirror test, the line search's checks)."""
+        D, R, C = self._intra(self._pos(), ranges, cost_only=cost_only)
         K = self.X.shape[1]
-        U = np.zeros((self.B, max(K - 1, 0), self.s, self.s))
+        U = None if cost_only else np.zeros((self.B, max(K - 1, 0), self.s, self.s))
         Xv = self.X.reshape(self.B, K, self.nv, 6)
         for k in range(K - 1):
             M00, M01, M11, K00, K01, K11 = self._motion(k)
-            D[:, k] += K00
-            D[:, k + 1] += K11
-            U[:, k] = K01
             x0, x1 = Xv[:, k], Xv[:, k + 1]  # (B, nv, 6); linear factor: rhs = -M [x0; x1]
             g0, g1 = x0 @ M00.T + x1 @ M01.T, x0 @ M01 + x1 @ M11.T
-            R[:, k] -= g0.reshape(self.B, self.s)
-            R[:, k + 1] -= g1.reshape(self.B, self.s)
             C += 0.5 * (np.einsum("bvi,bvi->b", x0, g0) + np.einsum("bvi,bvi->b", x1, g1))
             known = self._input(k, x0, x1)
             if known is not None:
+                C += known[2]
+            if cost_only:
+                continue
+            D[:, k] += K00
+            D[:, k + 1] += K11
+            U[:, k] = K01
+            R[:, k] -= g0.reshape(self.B, self.s)
+            R[:, k + 1] -= g1.reshape(self.B, self.s)
+            if known is not None:
                 R[:, k] += known[0]
                 R[:, k + 1] += known[1]
-                C += known[2]
         return D, U, R, C
 
     def _step(self, sys):

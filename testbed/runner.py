@@ -2,8 +2,7 @@
 
 `run(scenario, out)` simulates (with the estimator of [control] feedback in the loop, if any,
 testbed.plugins.online), runs the scenario's estimators (the defaults of its [pipeline] kind and its
-`[[estimators]]`, testbed.plugins.defaults; a kind not yet converted to plugins still runs its
-pipeline, testbed.pipelines.registry), scores a flown run's safety (testbed.scoring.safety), and writes
+`[[estimators]]`, testbed.plugins.defaults), scores a flown run's safety (testbed.scoring.safety), and writes
 `scenario.toml`, `scene.xml`, `log.npz`, `metrics.json` (bit-identical for the same seed),
 `estimates.npz` (every estimate of the plugin estimators, when there are any),
 `timing.json` (wall-clock costs, when a pipeline reports them), `plots/` and the testbed's marker
@@ -27,7 +26,6 @@ from testbed.interrupt import poll
 from testbed.log import LogWriter, NpzLog, save_npz
 from testbed.scoring.metrics import ranging_rate
 from testbed.outdir import Output, write_json
-from testbed.pipelines.registry import run_pipeline
 from testbed.plugins.collect import ESTIMATES_FILE, track_arrays
 from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.failures import mark_incomplete, raise_failed
@@ -118,10 +116,8 @@ def run(scenario: Scenario, out: Path, *, force: bool = False, progress: bool = 
             if (rate := ranging_rate(log, scenario.duration)) is not None:  # [sensors.uwb.schedule] only
                 metrics["uwb_pairs_served_per_s"] = rate
             poll()  # a worker asked to stop does so between stages (testbed.interrupt)
-            estimators = run_pipeline(scenario, log, tmp / "plots" if plots else None)
-            scores, tracks = run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None, set(estimators),
-                                            done)
-            estimators.update(scores)
+            estimators, tracks = run_estimators(scenario, physics, log, plugins, tmp / "plots" if plots else None,
+                                                done=done)
             if scenario.motion == "flown":  # contacts, separation, crashes, GNSS outages (testbed.scoring.safety)
                 metrics["flight"] = flight(log, physics)
         metrics["estimators"], timing = split_timing(estimators)

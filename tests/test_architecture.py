@@ -109,7 +109,7 @@ _layer("configuration", "config scenarios trajectories reference "
 _layer("protocol", "plugins.api stream", "foundations, configuration")
 _layer("simulation", "sim sensors",
        "foundations, configuration, protocol")
-_layer("estimation", "plugins pipelines synthetic replay.graph", "foundations, configuration, protocol")
+_layer("estimation", "plugins synthetic replay.graph", "foundations, configuration, protocol")
 _layer("scoring and outputs", "scoring outputs reproduce.document plugins.truth "
        "plugins.score plugins.hooks plugins.coop_scores plugins.graph_check plugins.phase_scores plugins.relnav_scores "
        "plugins.fusion_bound", "foundations, configuration, protocol, simulation, estimation")
@@ -128,8 +128,6 @@ KNOWN_UPWARD = {
         "coop.window_distributed draws its own channel (Network, RoundTransport) instead of Context.channel",
     ("testbed.plugins.builtin_coop_ins", "testbed.sim.network"):
         "coop.ins_distributed draws its own channel (Network) instead of Context.channel",
-    **{("testbed.pipelines.phase", f"testbed.{m}"): "the phase-ekf pipeline (run log -> estimates, scores, plots) is not a plugin yet"
-       for m in ("plugins.phase_scores", "scoring.metrics", "outputs.plots")},
 }
 
 
@@ -232,7 +230,7 @@ def test_scenario_schema_loads_without_compute_modules_scipy_or_mujoco():
         "print(json.dumps(sorted(sys.modules)))\n"
     )
     heavy = [m for m in loaded if m.split(".")[0] in ("scipy", "mujoco", "cv2", "matplotlib", "gtsam", "filterpy")]
-    compute = [m for m in loaded if m.startswith(("testbed.pipelines.", "testbed.sensors.", "estimators"))
+    compute = [m for m in loaded if m.startswith(("testbed.plugins.", "testbed.sensors.", "estimators"))
                and m not in ("testbed.config.pipelines", "testbed.sensors.config", "testbed.sensors.presets",
                              "estimators", "estimators.visnav_paper",  # the paper's constants: plain floats
                              "estimators.sensor_models")]  # the assumed sensor models: numpy only

@@ -86,6 +86,32 @@ def test_a_joint_covariance_is_checked_and_kept(change, message):
         Collector(_P(), {"uav1", "uav2", "uav3"}, 10.0).add([dataclasses.replace(good, **change)], "at t = 1 s")
 
 
+def test_a_batch_of_several_quantities_of_one_target_is_scored_as_its_rows_with_its_joint_covariance():
+    """Rows of position, velocity and attitude of one target (quantity one per row): each row lands
+    in its own series exactly as a single Estimate would, the (9, 9) cov_joint under the tuple of
+    quantities; a cov_joint whose blocks are not cov is named."""
+    C = np.eye(9) + 0.1 * (np.ones((9, 9)) - np.kron(np.eye(3), np.ones((3, 3))))
+    q = np.array([0.5, 0.5, 0.5, 0.5])
+    b = EstimateBatch(time=np.full(3, 2.0), target=("uav2",) * 3, quantity=("position", "velocity", "attitude"),
+                      value=[np.ones(3), 2 * np.ones(3), q], cov=np.tile(np.eye(3), (3, 1, 1)), frame="uav1", cov_joint=C)
+    col = Collector(_P(), {"uav1", "uav2"}, 10.0, frames={"world", "uav1"})
+    col.add([b], "at t = 2 s")
+    track = col.track()
+    single = Collector(_P(), {"uav1", "uav2"}, 10.0, frames={"world", "uav1"})
+    single.add(b.rows(), "at t = 2 s")
+    for key, s in single.track().items():
+        assert all(np.array_equal(getattr(s, f), getattr(track[key], f)) for f in ("time", "value", "cov", "has_cov"))
+        assert track[key].frame == "uav1"
+    (j,) = track.joint[("position", "velocity", "attitude")]
+    assert (j.time, j.targets, j.frame) == (2.0, ("uav2",) * 3, "uav1") and np.array_equal(j.cov, C)
+    bad = dataclasses.replace(b, cov=np.tile(2 * np.eye(3), (3, 1, 1)))
+    with pytest.raises(PluginError, match=r"estimates of position/velocity/attitude \(a batch of 3\): cov_joint does not have cov"):
+        Collector(_P(), {"uav1", "uav2"}, 10.0, frames={"world", "uav1"}).add([bad], "at t = 2 s")
+    with pytest.raises(PluginError, match="quantity must be one of"):
+        Collector(_P(), {"uav1", "uav2"}, 10.0, frames={"world", "uav1"}).add(
+            [dataclasses.replace(b, quantity=("position", "speed", "attitude"))], "at t = 2 s")
+
+
 def test_the_first_bad_covariance_of_a_batch_is_named_when_the_track_is_built():
     cov = np.tile(np.eye(3), (3, 1, 1))
     cov[2] = -np.eye(3)

@@ -288,7 +288,7 @@ def test_distributed_cascade_gives_its_window_the_imu_motion():
     default = WindowDistributedIns(ctx, {})
     assert default.window.motion == default._motion and default.start_epochs == 5
     ins = WindowDistributedIns(ctx, {"start_epochs": 1})  # started at the first epoch: here, the one below
-    rest, a = ins.bias0.copy(), 0.5
+    rest, a = ins.v["uav3"].bias0.copy(), 0.5  # uav3's own declared bias
     rest[2] += 9.81  # specific force at rest, level, plus the declared bias the filter removes
     push = rest + [a, 0.0, 0.0, 0.0, 0.0, 0.0]
     ins.process(Measurement(stream="imu", time=0.0, arrival=0.0, value=rest, src="uav3/imu"))

@@ -36,7 +36,6 @@ ROOT = Path(__file__).resolve().parents[1]
 UWB_EKF = f"{ROOT / 'examples/uwb_ekf.py'}:UwbEkf"
 ECHO = f"{ROOT / 'tests/export_plugins.py'}:Echo"  # folds its Context and its whole feed into its estimates
 COOP = ("coop.gnss_only", "coop.one_shot", "coop.iterated", "coop.centralized")
-VISNAV = tuple(f"visnav.{f}" for f in ("ekf", "ckf", "hckf", "mckf", "rhcf"))
 NETWORK = dict(latency=0.005, jitter=0.002, loss_prob=0.01, nlos_loss=0.1, max_range=100.0, round_s=0.01)
 # per scenario: the [[estimators]] of the run, after the default estimators of its [pipeline] kind
 # (testbed.plugins.defaults; built-ins with no params resolve theirs from the scenario's [pipeline]),
@@ -45,10 +44,9 @@ CASES = {
     "coop-fg": ([EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
     # with a [network]: one_shot and iterated broadcast through Context.channel, in the run and on replay
     "coop-fg+network": ([EstimatorSpec(entry=ECHO)], ()),
-    "bandwidth": ([EstimatorSpec(entry="bandwidth.fusion"), EstimatorSpec(entry="testbed.replay.graph:PoseGraph"),
-                   EstimatorSpec(entry=ECHO)], ()),
-    "phase-line-h000": ([EstimatorSpec(entry="phase.ekf"), EstimatorSpec(entry=ECHO)], ("phase.ekf",)),
-    "visnav": ([*(EstimatorSpec(entry=e) for e in VISNAV), EstimatorSpec(entry=ECHO)], VISNAV),
+    "bandwidth": ([EstimatorSpec(entry="testbed.replay.graph:PoseGraph"), EstimatorSpec(entry=ECHO)], ()),
+    "phase-line-h000": ([EstimatorSpec(entry=ECHO)], ("ekf",)),  # its default: phase.ekf
+    "visnav": ([EstimatorSpec(entry=ECHO)], ("ekf", "ckf", "hckf", "mckf", "rhcf")),  # its defaults: visnav.*
     "coop-denied": ([EstimatorSpec(entry="coop.ins_distributed", name="coop", params={"network": NETWORK}),
                      EstimatorSpec(entry=UWB_EKF), EstimatorSpec(entry=ECHO)], ()),
 }

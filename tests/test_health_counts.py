@@ -65,4 +65,4 @@ def test_visnav_filters_do_not_silence_repair_warnings(monkeypatch):
     est = builtin_visnav.Ekf(make_context(sc, lever_arms(physics), "ekf", {}, priors(sc, log)), {})
     with pytest.warns(SpdRepairWarning):
         out = [e for m in measurements(sc, log) for e in est.process(m)] + est.finish()
-    assert out and {e.quantity for e in out} == {"position", "velocity", "attitude"}
+    assert out and {q for e in out for q in e.quantities()} == {"position", "velocity", "attitude"}

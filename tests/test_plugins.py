@@ -365,18 +365,25 @@ def _feed(sc, log, physics, cls, key="p"):
     return track, score(track, Truth(log, ctx), scenario_hooks(sc, log), health)[0], health
 
 
-def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
-    """phase.ekf fed row by row gives the pipeline's filter, mapped to the world; the PCRB beside it,
-    and the pipeline's frame-N scores (phase_scores.PhaseWindow: errors per axis of N, last window)."""
-    from testbed.pipelines import phase
+def test_phase_builtin_is_its_filter_in_the_world_with_its_pcrb_and_nav_scores():
+    """phase.ekf fed row by row gives the seed 003 EKF (the library's driver over the prepared
+    epochs), mapped to the world as one batch of position and velocity with their (6, 6) joint
+    covariance; its navigation_states() are the filter's 18-states, covariances and actual
+    covariances. Its scores: the PCRB beside it, the frame-N scores (phase_scores.PhaseWindow) and
+    the NEES keys of phase_scores.PhaseScored recomputed here from the filter in N."""
+    from estimators.core import Epoch, Gate, drive, nees
+    from estimators.phase_ekf import AnalyzedGaussian, PhaseEkfCovarianceAnalysis
     from estimators.phase_frames import BODY_POS, BODY_PV
+    from testbed.scoring.metrics import rmse
     from testbed.plugins.builtin_phase import PhaseEkf, prepare
+    from testbed.plugins.phase_scores import attitude_nees, true_states, window_keys
 
     # shorter than score_start: every epoch scored; a last window of 2 s within the 4 s
     sc = scenario.load("phase-cross-h000", duration=4.0, overrides={"pipeline.last_window": "2.0"})
     log, physics = simulate(sc)
     cfg, inp, q, prior, _, meas = prepare(sc, log)
-    ref = phase.run_filter(cfg, q, prior, meas, inp.times)
+    filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=cfg.gate_alpha, enabled=cfg.gate), cfg.iterations)
+    ref = drive(filt, AnalyzedGaussian(prior.mean, prior.cov, prior.cov), [Epoch(float(t), m) for t, m in zip(inp.times, meas)])
     p, v, R, Rd = inp.nav_pose
     track, sc_plug, health = _feed(sc, log, physics, PhaseEkf)
     pos, vel = track[("uav6", "position")], track[("uav6", "velocity")]
@@ -386,24 +393,82 @@ def test_phase_builtin_equals_the_pipeline_with_its_pcrb():
     np.testing.assert_allclose(vel.value, v + np.einsum("kij,kj->ki", R, vN) + np.einsum("kij,kj->ki", Rd, pN), rtol=0, atol=1e-9)
     np.testing.assert_allclose(pos.cov, R @ (BODY_POS @ ref.cov @ BODY_POS.T) @ np.swapaxes(R, 1, 2),
                                rtol=1e-9, atol=1e-15)
-    want = phase.run(sc, log, None)["ekf"]
-    for key, got in (("rmse_position_m", sc_plug["rmse_position_m"]), ("rmse_velocity_mps", sc_plug["rmse_velocity_m_s"]),
-                     ("rmse_attitude_deg", sc_plug["rmse_attitude_deg"]), ("pcrb_rmse_position_m", sc_plug["pcrb_rmse_position_m"])):
-        np.testing.assert_allclose(got, want[key], rtol=1e-9, err_msg=key)
-    window = [k for k in want if "last_2s" in k]
-    assert len(window) == 4 and sc_plug["last_window_s"] == want["last_window_s"] == 2.0
-    for key in ["position_error_mid_m", "position_error_final_m", "sigma_position_final_m", "pcrb_sigma_position_final_m",
-                *window]:
-        np.testing.assert_allclose(sc_plug[key], want[key], rtol=1e-9, atol=1e-12, err_msg=key)
+    joints = track.joint[("position", "velocity")]
+    assert [j.time for j in joints] == inp.times.tolist() and joints[0].cov.shape == (6, 6)
+    nav = track.navigation
+    assert (nav.frame, nav.layout) == ("phase-N", "phase-18")
+    np.testing.assert_array_equal(nav.mean, ref.mean)
+    np.testing.assert_array_equal(nav.cov, ref.cov)
+    np.testing.assert_array_equal(nav.actual, np.stack([b.actual for b in ref.beliefs]))
+    # the pipeline's scores, in N from the filter itself
+    body, _, states = true_states(sc, log, cfg, inp)
+    e = ref.mean @ BODY_PV.T - body[:, :6]
+    n6 = nees(e, BODY_PV @ ref.cov @ BODY_PV.T)
+    n18 = nees(ref.mean - states, ref.cov)
+    n6a = nees(e, BODY_PV @ nav.actual @ BODY_PV.T)
+    want = {"rmse_position_after_start_m": rmse(e[:, :3]), "rmse_velocity_after_start_m_s": rmse(e[:, 3:]),
+            "anees": n6.mean(), "nees_body6_final": n6[-1], "anees_state18": n18.mean(), "nees_final": n18[-1],
+            "anees_body6_actual_cov": n6a.mean(), "nees_body6_actual_cov_final": n6a[-1],
+            "nees_attitude6_final": attitude_nees(ref.mean[-1], ref.cov[-1], states[-1]),
+            "position_error_final_m": e[-1, :3], "position_error_mid_m": e[np.argmin(np.abs(inp.times - inp.times[[0, -1]].mean())), :3],
+            "sigma_position_final_m": np.sqrt(np.diag(BODY_POS @ ref.cov[-1] @ BODY_POS.T)),
+            window_keys(2.0)["max_abs_velocity"]: np.abs(e[inp.times >= inp.times[-1] - 2.0 + 1e-9, 3:]).max(axis=0)}
+    for key, value in want.items():  # world and back to N: round-off only
+        np.testing.assert_allclose(sc_plug[key], value, rtol=1e-9, atol=1e-12, err_msg=key)
+    assert sc_plug["anees_dof"] == 6 and sc_plug["anees_state18_dof"] == 18 and sc_plug["epochs"] == inp.times.size
+    assert sc_plug["score_start_s"] == inp.times[0] and sc_plug["last_window_s"] == 2.0
+    assert sc_plug["pcrb_rmse_position_after_start_m"] == pytest.approx(sc_plug["pcrb_rmse_position_m"], rel=1e-12)
     assert sc_plug["targets"]["uav6"]["position"]["pcrb_samples"] == inp.times.size
     assert health["rejected_measurements"] == int(ref.rejected_measurements.sum())
+    assert health["gate_epochs_with_rejection"] == int((ref.rejected_measurements > 0).sum())
+
+
+def test_phase_window_velocity_sigma_is_the_filters_in_n():
+    """PhaseWindow's velocity envelope: a world joint covariance C = J P J^T of position and
+    velocity (J: phase.ekf's map from the 18-state in N, any attitude R and rate dR/dt of N) moved
+    back to N gives the filter's own velocity sigma sqrt(diag(BODY_PV P BODY_PV^T))[3:]."""
+    from scipy.spatial.transform import Rotation
+    from estimators.phase_frames import BODY_POS, BODY_PV
+    from estimators.so3 import skew
+    from testbed.plugins.collect import Joint, Track
+    from testbed.plugins.phase_scores import PhaseWindow
+
+    rng = np.random.default_rng(1)
+    K = 5
+    R = Rotation.random(K, random_state=2).as_matrix()
+    Rd = R @ np.array([skew(w) for w in rng.normal(size=(K, 3))])
+    A = rng.normal(size=(K, 18, 18))
+    P = A @ np.swapaxes(A, 1, 2) + np.eye(18)
+    J = np.concatenate([R @ BODY_POS, R @ BODY_PV[3:] + Rd @ BODY_POS], axis=1)
+    C = J @ P @ np.swapaxes(J, 1, 2)
+    t = np.arange(K, dtype=float)
+    track = Track({}, joint={("position", "velocity"): [Joint(t[i], ("uav6", "uav6"), "world", C[i]) for i in range(K)]})
+    got = PhaseWindow("uav6", t, R, Rd, np.zeros((K, 3, 3)), 100.0)._velocity_sigma(track, np.arange(K), t)
+    np.testing.assert_allclose(got, np.sqrt(np.diagonal(BODY_PV @ P @ BODY_PV.T, axis1=1, axis2=2))[:, 3:], rtol=1e-12)
+    assert PhaseWindow("uav6", t, R, Rd, np.zeros((K, 3, 3)), 100.0)._velocity_sigma(Track({}), np.arange(K), t) is None
+
+
+def test_navigation_states_are_checked():
+    """A navigation_states() of the wrong shape is one PluginError naming the estimator and the problem."""
+    from testbed.plugins.api import NavigationStates
+    from testbed.plugins.feed import _navigation
+
+    plugin = Plugin("p", "p", object, {})
+    ok = NavigationStates(time=np.arange(3.0), mean=np.zeros((3, 2)), cov=np.tile(np.eye(2), (3, 1, 1)), frame="f", layout="l")
+    assert _navigation(plugin, ok) is ok
+    for bad, why in ((dataclasses.replace(ok, cov=np.zeros((3, 2, 3))), "cov has shape"), (dataclasses.replace(ok, time=np.zeros(3)), "increasing"),
+                     (dataclasses.replace(ok, actual=np.zeros((2, 2, 2))), "actual has shape"), ({"time": 0}, "expected NavigationStates"),
+                     (dataclasses.replace(ok, mean=np.full((3, 2), np.nan)), "not finite")):
+        with pytest.raises(PluginError, match=why):
+            _navigation(plugin, bad)
 
 
 @pytest.mark.parametrize("name", ["ekf", "rhcf"])
 def test_visnav_builtins_are_scored_relative_to_the_leader(name):
     """visnav.* estimate the follower relative to the leader (frame "uav1") at every camera epoch;
     the generic scores of those series are the errors against the relative truth of
-    testbed.plugins.relnav_scores (position, velocity in the leader frame, attitude q_L^* q_F)."""
+    testbed.plugins.relnav_scores (position, velocity in the leader frame, attitude q_L^* q_F), and
+    the hook's 9-dof ANEES is their NEES with the filter's (9, 9) covariance (EstimateBatch.cov_joint)."""
     from estimators.so3 import quat_conj, quat_mul
     from testbed.plugins import builtin_visnav
     from testbed.plugins.relnav_scores import true_relative_state
@@ -423,6 +488,15 @@ def test_visnav_builtins_are_scored_relative_to_the_leader(name):
     angle = np.degrees(2 * np.arctan2(np.linalg.norm(dq[:, 1:], axis=1), np.abs(dq[:, 0])))
     np.testing.assert_allclose(scores["rmse_attitude_deg"], np.sqrt(np.mean(angle ** 2)), rtol=1e-9)
     assert scores["epochs"] == epochs.size and scores["finite"]
+    # the 9-dof ANEES: the stacked (p, v, theta) errors against the same truth, with the (9, 9) cov_joint
+    joints = track.joint[("position", "velocity", "attitude")]
+    assert [j.time for j in joints] == epochs.tolist() and all(j.frame == "uav1" for j in joints)
+    theta = 2 * np.arctan2(np.linalg.norm(dq[:, 1:], axis=1), dq[:, 0])[:, None] * dq[:, 1:] \
+        / np.maximum(np.linalg.norm(dq[:, 1:], axis=1), 1e-300)[:, None]
+    e = np.hstack([track[("uav2", "position")].value - truth[:, 0:3], track[("uav2", "velocity")].value - truth[:, 3:6], theta])
+    ne = np.array([x @ np.linalg.solve(j.cov, x) for x, j in zip(e, joints)])
+    np.testing.assert_allclose([scores["anees"], scores["final_nees"]], [ne.mean(), ne[-1]], rtol=1e-9)
+    assert scores["anees_dof"] == 9 and scores["anees_interval_99"][0] < 9 < scores["anees_interval_99"][1]
 
 
 def test_bandwidth_builtin_equals_the_batch_filter():

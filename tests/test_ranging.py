@@ -1,4 +1,6 @@
 """The generalized ranging EKF (estimators.ranging, issue 16): any antennas, lever arms, height aid."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -52,6 +54,34 @@ def test_jacobian_matches_central_differences_for_random_antennas_and_links(seed
         assert h.shape == (ep.n_links * (2 if rates else 1) + int(height),) and H.shape == (h.size, 6 * n)
         Hn = _central(lambda y: ranging_model(y, n, ep)[0], x, 1e-6)
         assert np.allclose(H, Hn, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jacobian_with_bias_states_matches_central_differences(seed):
+    """Bias states after the 6 n antenna states (docs/replay.md, "Range bias"): each link's range
+    gains its bias state (or none), the rates and the height do not."""
+    rng = np.random.default_rng(seed)
+    n, b = int(rng.integers(1, 5)), int(rng.integers(1, 5))
+    ep = _random_epoch(rng, n, True, False, True)
+    ep = dataclasses.replace(ep, bias=rng.integers(-1, b, ep.n_links))
+    x = np.concatenate([rng.uniform(-5, 5, 3 * n), rng.normal(0, 1, 3 * n), rng.normal(0, 0.3, b)])
+    h, H = ranging_model(x, n, ep)
+    h0, _ = ranging_model(x[:6 * n], n, dataclasses.replace(ep, bias=None))
+    k = np.asarray(ep.bias)
+    assert H.shape == (h.size, 6 * n + b)
+    np.testing.assert_allclose(h[:ep.n_links], h0[:ep.n_links] + np.where(k >= 0, x[6 * n + np.maximum(k, 0)], 0.0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(h[ep.n_links:], h0[ep.n_links:], rtol=0, atol=0)
+    assert np.allclose(H, _central(lambda y: ranging_model(y, n, ep)[0], x, 1e-6), rtol=1e-6, atol=1e-7)
+
+
+def test_bias_states_are_held_or_walk_in_the_time_update():
+    """Phi keeps a bias; Q adds bias_walk dt to its variance (0: a random constant)."""
+    n, b, dt = 2, 3, 0.5
+    belief = Gaussian(np.zeros(6 * n + b), np.eye(6 * n + b))
+    for walk in (0.0, 0.02):
+        post = RangingEkf(n=n, bias_walk=walk).predict(belief, dt)
+        np.testing.assert_allclose(np.diag(post.cov)[6 * n:], 1.0 + walk * dt, rtol=1e-12)
+        np.testing.assert_allclose(post.cov[6 * n:, :6 * n], 0.0, atol=0)
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -4,7 +4,8 @@ One run of the built-in `coop-denied` (18 UAVs, IMU, GNSS with sky visibility, U
 vehicles and to anchors, [network]) for `duration` s, the controller flying on
 `coop.ins_distributed` whose broadcasts travel over the scenario's network (the
 `coop_distributed` variant of `testbed reproduce denied`, testbed.reproduce.denied.variant),
-and for comparison on the centralized `coop.ins` (variant `coop`). Measured around the
+and for comparison on the centralized `coop.ins` (variant `coop`) and on the two window cascades
+(variants `window`, `window_distributed`: coop.window_ins, coop.window_distributed_ins). Measured around the
 whole run (build, simulation with the estimator in the loop, scoring, writing; plots off),
 `repeat` runs one after the other in this process: wall and CPU seconds (time.process_time,
 this process: one core) of the median run, the real-time factors simulated seconds / second,

@@ -49,9 +49,9 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
     elif what == "denied":
         from testbed.bench.denied import bench_denied  # lazy: this family runs a whole scenario
 
-        rows = [bench_denied(name=v) for v in ("coop_distributed", "coop")]
+        rows = [bench_denied(name=v) for v in ("coop_distributed", "coop", "window", "window_distributed")]
         result = {"denied": rows}
-        _print_table("denied: coop-denied flown on the cooperative estimate (all sensors, network); one core", rows)
+        _print_table("denied: coop-denied flown on the cooperative estimate (filters and window cascades; all sensors, network); one core", rows)
     elif what == "replay":
         from testbed.bench.replay import bench_replay  # lazy: only this family needs the replay package
 

@@ -79,7 +79,7 @@ PAPER_VEL_VAR = (0.69928, 0.50587, 0.46008)  # m^2/s^2 (paper 0.69928, 0.46008, 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class PhasePipelineConfig(_PipelineConfig):
-    """[pipeline] table of a seed 003 scenario (see testbed.pipelines.phase).
+    """[pipeline] table of a seed 003 scenario (its estimator: phase.ekf, testbed.plugins.builtin_phase).
 
     nav_master: the master whose body frame is the navigation frame (1-based).
     q, q_flown: white-acceleration density per antenna axis (m^2/s^3) in prescribed / flown mode.
@@ -96,7 +96,7 @@ class PhasePipelineConfig(_PipelineConfig):
     range_sigma: filter range noise, 1 sigma (m; default: the declared [sensors.phase] phase_noise,
       in range terms); rate rows, if on, get sqrt(2) range_sigma / W.
     rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already
-      used, docs/models.md) | "window" | "instantaneous" (testbed.pipelines.phase).
+      used, docs/models.md) | "window" | "instantaneous" (testbed.plugins.builtin_phase).
     init: "drawn" = initial 18-state error drawn from the initial covariance per run (stream
       "init"); "paper" = the paper's fixed body error on every antenna.
     init_pos_error, init_vel_error: the paper's fixed error (m, m/s, frame N);

@@ -17,8 +17,8 @@ with every `Measurement` in order of arrival (time of validity + latency), one a
 sensor sample of a whole swarm: the IMUs of every vehicle at one instant) are fed as
 `MeasurementBatch`es, as columns: an estimator with `process_batch` gets each batch whole, and
 must treat it exactly as its rows one at a time; one without gets the rows one by one through
-`process`. Any of these methods may return `EstimateBatch`es (one quantity of many targets, as
-columns) among its `Estimate`s; they are checked and scored exactly as their rows. Nothing else
+`process`. Any of these methods may return `EstimateBatch`es (many estimates of one time or
+frame, as columns) among its `Estimate`s; they are checked and scored exactly as their rows. Nothing else
 is given: never truth, never the simulator's state. The same class therefore runs offline on a
 log, on recorded data, or online inside a simulation.
 
@@ -121,22 +121,26 @@ class Estimate:
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class EstimateBatch:
-    """Estimates of one quantity in one frame for several targets, as columns: what an estimator
-    that outputs a whole swarm at once may return in place of one `Estimate` per row (the testbed
-    checks and scores it exactly as its rows, `rows()`, without a Python object per row).
+    """Estimates in one frame for several targets, as columns: what an estimator that outputs a
+    whole swarm at once may return in place of one `Estimate` per row (the testbed checks and
+    scores it exactly as its rows, `rows()`, without a Python object per row).
 
-    time: (n,) s; target: (n,) str; quantity, frame: as Estimate, the same for every row;
-    value: (n, 3), or (n, 4) for attitude; cov: optional (n, 3, 3), for every row;
-    cov_joint: optional (3n, 3n) joint covariance of all the rows' values (rows in order, the
-    batch's rows of one time of validity, position or velocity, with cov its (3, 3) diagonal
-    blocks), for an estimator that has the cross-covariances (a centralized solver): scored by
-    the hooks that use it (the joint ANEES of testbed.plugins.coop_scores), kept out of estimates.npz.
+    time: (n,) s; target: (n,) str; frame: as Estimate, the same for every row; quantity: as
+    Estimate, the same for every row, or a sequence of n, one per row (rows of several quantities,
+    e.g. the position, velocity and attitude of one target: then value is a sequence of n arrays,
+    each its row's (3,) or (4,)); value: (n, 3), or (n, 4) for attitude; cov: optional (n, 3, 3),
+    for every row; cov_joint: optional (3n, 3n) joint covariance of all the rows' errors (rows in
+    order, of one time of validity, with cov its (3, 3) diagonal blocks; attitude rows in their
+    body tangent space as Estimate.cov), for an estimator that has the cross-covariances (a
+    centralized solver; a filter's full navigation covariance): scored by the hooks that use it
+    (the joint ANEES of testbed.plugins.coop_scores and testbed.plugins.relnav_scores), kept out
+    of estimates.npz.
     """
 
     time: np.ndarray
     target: Sequence[str]
-    quantity: Quantity
-    value: np.ndarray
+    quantity: Quantity | Sequence[Quantity]
+    value: np.ndarray | Sequence[np.ndarray]
     cov: np.ndarray | None = None
     frame: str = "world"
     cov_joint: np.ndarray | None = None
@@ -144,11 +148,51 @@ class EstimateBatch:
     def __len__(self) -> int:
         return len(self.target)
 
+    def quantities(self) -> tuple[str, ...]:
+        """The quantity of each row (n,)."""
+        return (self.quantity,) * len(self) if isinstance(self.quantity, str) else tuple(self.quantity)
+
+    def parts(self) -> list[EstimateBatch]:
+        """The rows as batches of one quantity each (in order of first appearance; no
+        cov_joint): the batch itself when it has one quantity."""
+        if isinstance(self.quantity, str):
+            return [self]
+        qs = self.quantities()
+        out = []
+        for q in dict.fromkeys(qs):
+            i = [r for r, x in enumerate(qs) if x == q]
+            out.append(EstimateBatch(time=np.asarray(self.time)[i], target=[self.target[r] for r in i], quantity=q,
+                                     value=np.stack([np.asarray(self.value[r], float) for r in i]),
+                                     cov=None if self.cov is None else np.asarray(self.cov)[i], frame=self.frame))
+        return out
+
     def rows(self) -> list[Estimate]:
         """One Estimate per row, in order."""
-        return [Estimate(time=float(t), target=str(k), quantity=self.quantity, value=self.value[i],
+        return [Estimate(time=float(t), target=str(k), quantity=q, value=self.value[i],
                          cov=None if self.cov is None else self.cov[i], frame=self.frame)
-                for i, (t, k) in enumerate(zip(np.asarray(self.time).tolist(), self.target))]
+                for i, (t, k, q) in enumerate(zip(np.asarray(self.time).tolist(), self.target, self.quantities()))]
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class NavigationStates:
+    """An estimator's whole navigation state over a run, returned by its OPTIONAL method
+    `navigation_states()` (called once, after finish()), for the scoring hooks that judge the full
+    state rather than the estimates (the seed 003 18-state ANEES, testbed.plugins.phase_scores).
+
+    time: (K,) s, increasing; mean: (K, n) the state means; cov: (K, n, n) the filter's own
+    covariances; actual: optional (K, n, n), the actual error covariance of a covariance-analysis
+    filter (estimators.phase_ekf.PhaseEkfCovarianceAnalysis); frame: the frame of the state
+    (e.g. "phase-N", the seed 003 navigation frame N, estimators.phase_frames); layout: the name of
+    the state's order (e.g. "phase-18", the antenna state of estimators.phase_model). A hook uses
+    the states only when it knows their frame and layout.
+    """
+
+    time: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    actual: np.ndarray | None = None
+    frame: str
+    layout: str
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

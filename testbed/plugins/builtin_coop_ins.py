@@ -40,7 +40,10 @@ positions (the estimator cannot see the truth), all links taken as line of sight
 A vehicle's filter starts at its first GNSS fix (position: the fix minus the rotated lever arm;
 velocity 0; roll and pitch levelled from its accelerometer less the declared constant bias,
 correlated with the bias error as estimators.eskf.level; yaw `yaw0`); until then its rows are
-skipped (counted).
+skipped (counted). Or, given a position in `initial_pose`, at its first IMU sample from that pose
+(testbed.plugins.builtin_eskf.InitialPose); a vehicle that never starts is counted and named
+(health `unstarted_vehicles`, stderr). Each vehicle's IMU noise and bias priors come from its own
+IMU table (estimators.sensor_models.vehicle_imu).
 
 Noise: IMU white noise and bias walks from the declared [sensors.imu] (a Gauss-Markov bias of
 sigma s, time constant tau as a walk of density s sqrt(2 / tau), as nav.eskf); initial bias
@@ -60,7 +63,7 @@ the estimate had drifted).
 
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
-(m/s, 1.0), output_every (1); distributed only: network (a [network] table, docs/network.md;
+(m/s, 1.0), output_every (1), initial_pose ({}); distributed only: network (a [network] table, docs/network.md;
 absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
 (1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges;
 distributed also inconsistent_broadcasts (checked_broadcast), nonlinear_ranges (ranges a flown
@@ -75,12 +78,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimators import coop_ins as ci
-from estimators.sensor_models import imu_noise, range_variances
+from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from testbed.config import from_dict, key
 from testbed.sim.network import Network
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
-from testbed.plugins.builtin_eskf import StartParams, levelled_start
+from testbed.plugins.builtin_eskf import StartParams, heading, initial_poses, levelled_start, note_unstarted
 from testbed.plugins.params import fields_of, read
 
 
@@ -126,13 +129,12 @@ class CoopIns:
             raise ValueError("needs [sensors.imu]")
         self.vehicles = list(context.vehicles)
         self.n = n = len(self.vehicles)
-        imu = context.sensors["imu"]
-        acc, gyr = imu["accel"], imu["gyro"]
-        noise = imu_noise(imu)
-        self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
-        g2 = 9.81 ** 2 * (acc["scale_sigma"] ** 2 + acc["misalign_sigma"] ** 2)
-        self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2 + g2] * 3
-                                 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3)
+        imus = [vehicle_imu(context.sensors["imu"], v) for v in self.vehicles]  # each vehicle's own
+        noise = [imu_noise(imu) for imu in imus]
+        noise = noise[0] if all(k == noise[0] for k in noise) else noise * self.copies
+        self.bias0, self.bias_var = (np.array(a) for a in zip(*(_bias_prior(imu) for imu in imus)))  # (n, 6) each
+        self.poses = initial_poses(self.p, self.vehicles, type(self).__name__)
+        self._posed = [(i, self.poses[v]) for i, v in enumerate(self.vehicles) if v in self.poses and self.poses[v].position is not None]
         self.sites = dict(context.sites)
         self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
         self.uwb = context.sensors.get("uwb")
@@ -213,6 +215,7 @@ class CoopIns:
         out = self._flush() if self.t_imu is not None else []
         if self.epoch_t is not None:
             self._close(self.epoch_t)
+        note_unstarted(type(self).__name__, [v for i, v in enumerate(self.vehicles) if not self.ins.active[i]], self.counts)
         return out
 
     def health(self) -> dict[str, int]:
@@ -238,6 +241,9 @@ class CoopIns:
         self._advance(t)
         self.held[got] = self.new[got]
         self.new[:] = np.nan
+        for i, pose in self._posed:  # started from its initial pose at its first sample
+            if got[i] and not self.ins.active[i]:
+                self._start(i, t, np.array(pose.position, float), np.full(3, pose.position_sigma ** 2), np.zeros(3))
         self.t_imu = None
         self.instants += 1
         if self.instants % int(self.p["output_every"]) or not self.ins.active[:self.n].any():
@@ -272,7 +278,7 @@ class CoopIns:
         if i is None:
             return
         if not self.ins.active[i]:
-            self._start(i, m)
+            self._start(i, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, self.lever[i])
             return
         self.rows.add([float(x) for x in m.value[:3]], [float(x) for x in m.sigma[:3]], [i] * 3, [-1] * 3, [0, 1, 2],
                       [NAN3] * 3, [(-1, -1)] * 3)
@@ -312,20 +318,22 @@ class CoopIns:
             self._links[(src, dst)] = link
         return self._links[(src, dst)]
 
-    def _start(self, i: int, m: Measurement) -> None:
-        """Vehicle i's filter from its first fix (module docstring)."""
+    def _start(self, i: int, t: float, z: np.ndarray, z_var: np.ndarray, lever: np.ndarray) -> None:
+        """Vehicle i's filter at t (s) from position z (3,) m world of its site at lever (3,) m, with
+        variances z_var (3,) m^2: its first fix, or its initial pose (module docstring)."""
         if np.isnan(self.held[i, 0]):
             self.counts["skipped_updates"] += 1
             return
-        self._advance(m.time)
-        p = self.p
-        q, R, P_th, P_thba = levelled_start(self.held[i, :3] - self.bias0[:3], self.bias_var[:3], p)
-        P0 = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3), self.bias_var]))
+        self._advance(t)
+        p = heading(self.p, self.poses.get(self.vehicles[i]))
+        b0, bv = self.bias0[i], self.bias_var[i]
+        q, R, P_th, P_thba = levelled_start(self.held[i, :3] - b0[:3], bv[:3], p)
+        P0 = np.diag(np.concatenate([z_var, [p["vel0_sigma"] ** 2] * 3, np.zeros(3), bv]))
         P0[ci.TH, ci.TH] = P_th
         P0[ci.TH, ci.BA] = P_thba
         P0[ci.BA, ci.TH] = P_thba.T
         for c in range(self.copies):
-            self.ins.start(i + c * self.n, np.asarray(m.value, float) - R @ self.lever[i], q, self.bias0[:3], self.bias0[3:], P0)
+            self.ins.start(i + c * self.n, z - R @ lever, q, b0[:3], b0[3:], P0)
 
     def _close(self, now: float) -> None:
         """Apply the open epoch (module docstring); now (s): the clock when it is applied."""
@@ -347,6 +355,16 @@ class CoopIns:
         mine = rows.i < self.n  # the flown filters' rows (not their own-measurement copies')
         self.counts["rejected_measurements"] += int((status[mine] == 0).sum())
         self.counts["skipped_updates"] += int((status[mine] < 0).sum())
+
+
+def _bias_prior(imu: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(6,) mean and (6,) variances of one vehicle's accel and gyro biases from its declared IMU
+    table: turn-on and Gauss-Markov sigmas, and the accelerometer's scale factor and misalignment
+    errors at 1 g folded into its bias (this filter has no scale-factor states)."""
+    acc, gyr = imu["accel"], imu["gyro"]
+    g2 = 9.81 ** 2 * (acc["scale_sigma"] ** 2 + acc["misalign_sigma"] ** 2)
+    return (np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float),
+            np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2 + g2] * 3 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3))
 
 
 def equal_time_runs(t: np.ndarray) -> list[tuple[int, int]]:

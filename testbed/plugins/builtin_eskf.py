@@ -10,6 +10,10 @@ state: the delay is not compensated). The filter starts at the vehicle's first G
 the fix minus the rotated antenna lever arm, velocity 0, roll and pitch levelled from the last
 accelerometer sample (less the declared constant bias; its tilt error correlated with the
 accelerometer bias error, estimators.eskf.level), yaw `yaw0`; before that its GNSS and UWB rows are skipped (counted).
+A vehicle given a position in `initial_pose` (no GNSS needed) starts instead at its first IMU sample
+from that position of the body origin with its sigma; its `yaw_deg`, `yaw_sigma_deg` replace yaw0,
+yaw0_sigma. One that never starts is counted (health `unstarted_vehicles`) and named on stderr.
+Each vehicle's noise and bias priors come from its own IMU table (estimators.sensor_models.vehicle_imu).
 
 Noise: IMU white noise and bias walks from the declared [sensors.imu] table (a Gauss-Markov
 bias of sigma s, time constant tau enters as a walk of density s sqrt(2 / tau)); turn-on and
@@ -24,15 +28,19 @@ per device, declared `antenna_delay_sigma`) are extra states of the vehicle's fi
 that sigma), because a constant bias treated as white noise would make the filter overconfident
 on long stretches without GNSS. Ranges between tags are not used (a filter per vehicle cannot
 use another's broadcast estimate without counting shared information twice).
+Heights (a recorded dataset's `height` stream: the up coordinate of a site or of a body's origin,
+m world): each updates its vehicle's filter as a position's third row, with the row's sigma.
 Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections counted).
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
+initial_pose ({}: per vehicle, InitialPose), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
 each update, estimators.eskf.update. Measured: no better with four anchors, worse with one; the
 ranges of one epoch in one update is what matters, see `_ranges`).
 """
 from __future__ import annotations
 
+import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,25 +48,73 @@ from scipy.stats import chi2
 
 from estimators import eskf
 from estimators.core import symmetrize
-from estimators.sensor_models import imu_noise, range_variances
+from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from estimators.so3 import quat_to_rotmat
-from testbed.config import check_fields, key
+from testbed.config import check_fields, from_dict, key
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.params import fields_of, read
 
 
 @dataclass(frozen=True, kw_only=True)
+class InitialPose:
+    """One vehicle's own start (StartParams.initial_pose.BODY): position (3,) m world ENU of the body
+    origin with position_sigma (m, 1 sigma per axis), to start at the vehicle's first IMU sample
+    without a GNSS fix (None: at its first fix); yaw_deg, yaw_sigma_deg its own heading and its
+    1 sigma (deg; None: yaw0, yaw0_sigma)."""
+
+    position: tuple[float, float, float] | None = key(None, unit="m")
+    position_sigma: float = key(1.0, lo=0, lo_open=True, unit="m")
+    yaw_deg: float | None = key(None, unit="deg")
+    yaw_sigma_deg: float | None = key(None, lo=0, unit="deg")
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True, kw_only=True)
 class StartParams:
-    """How an IMU filter of the swarm starts at its vehicle's first GNSS fix, and how often it outputs."""
+    """How an IMU filter of the swarm starts (at its vehicle's first GNSS fix, or from an initial pose), and how often it outputs."""
 
     yaw0: float = key(0.0, unit="rad", doc="initial heading")
     yaw0_sigma: float = key(0.1, lo=0, unit="rad", doc="initial heading uncertainty, 1 sigma")
     tilt0_sigma: float = key(0.05, lo=0, unit="rad", doc="initial tilt uncertainty beyond the levelling error, 1 sigma")
     vel0_sigma: float = key(1.0, lo=0, unit="m/s", doc="initial velocity uncertainty per axis, 1 sigma")
     output_every: int = key(1, lo=1, doc="estimates at every n-th IMU sample")
+    initial_pose: dict = key(factory=dict, doc="per vehicle {BODY = {position = [x, y, z] (m, world), position_sigma (m, 1), "
+                             "yaw_deg (deg), yaw_sigma_deg (deg)}}: with a position, the vehicle starts at its first IMU "
+                             "sample without a GNSS fix; its yaw replaces yaw0, yaw0_sigma")
 
     def __post_init__(self) -> None:
         check_fields(self)
+        for body, table in self.initial_pose.items():
+            from_dict(InitialPose, table, "", f"initial_pose.{body}")
+
+
+def initial_poses(p: dict, vehicles, entry: str) -> dict[str, InitialPose]:
+    """{body: InitialPose} of the params p (fields_of a StartParams); a body not among vehicles is a
+    ValueError naming it."""
+    out = {body: from_dict(InitialPose, table, "", f"initial_pose.{body}") for body, table in p["initial_pose"].items()}
+    unknown = [b for b in out if b not in vehicles]
+    if unknown:
+        raise ValueError(f"{entry} params initial_pose: {', '.join(unknown)} not a vehicle (vehicles: {', '.join(vehicles)})")
+    return out
+
+
+def heading(p: dict, pose: InitialPose | None) -> dict:
+    """p with one vehicle's yaw0, yaw0_sigma (rad): its InitialPose's when it gives them."""
+    if pose is None or (pose.yaw_deg is None and pose.yaw_sigma_deg is None):
+        return p
+    return {**p, "yaw0": p["yaw0"] if pose.yaw_deg is None else math.radians(pose.yaw_deg),
+            "yaw0_sigma": p["yaw0_sigma"] if pose.yaw_sigma_deg is None else math.radians(pose.yaw_sigma_deg)}
+
+
+def note_unstarted(entry: str, bodies: list[str], counts: dict) -> None:
+    """Say in health (`unstarted_vehicles`) and in one stderr line which vehicles never started
+    (no GNSS fix and no initial_pose position), so no filter is silent about estimating nothing."""
+    if bodies:
+        counts["unstarted_vehicles"] = len(bodies)
+        print(f"testbed: note: {entry}: {', '.join(bodies)} never started: no position fix (GNSS) and no initial_pose position "
+              "(params initial_pose.BODY.position)", file=sys.stderr)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,10 +149,16 @@ class _Vehicle:
     """One vehicle's filter: nominal x (34 + E,), covariance P (33 + E, 33 + E), time t (s), held
     IMU sample."""
 
-    __slots__ = ("x", "P", "t", "imu", "samples", "ranges")
+    __slots__ = ("x", "P", "t", "imu", "samples", "ranges", "noise", "bias0", "bias_var", "k_var")
 
-    def __init__(self):
+    def __init__(self, imu: dict):
         self.x, self.P, self.t, self.imu, self.samples = None, None, None, None, 0
+        # its own declared IMU (estimators.sensor_models.vehicle_imu): noise, bias mean and variances
+        acc, gyr = imu["accel"], imu["gyro"]
+        self.noise = imu_noise(imu)
+        self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
+        self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2] * 3 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3)
+        self.k_var = np.concatenate([_matrix_var(acc), _matrix_var(gyr)])
         self.ranges = []  # (time, z, lever, anchor, extras, variance) of the UWB epoch not yet applied
 
 
@@ -110,11 +172,7 @@ class NavEskf:
         if "imu" not in context.sensors:
             raise ValueError("needs [sensors.imu]")
         imu = context.sensors["imu"]
-        acc, gyr = imu["accel"], imu["gyro"]
-        self.noise = imu_noise(imu)
-        self.bias0 = np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float)
-        self.bias_var = np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2] * 3 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3)
-        self.k_var = np.concatenate([_matrix_var(acc), _matrix_var(gyr)])
+        self.poses = initial_poses(self.p, list(context.vehicles), type(self).__name__)
         self.uwb = context.sensors.get("uwb")
         self.sites, self.anchors = context.sites, context.anchors
         # extra states: antenna delays of the own tag (0) and of each anchor (1..A), m
@@ -122,7 +180,7 @@ class NavEskf:
         self.delay_var = np.full(1 + len(self.anchors), delay ** 2) if delay > 0 else np.zeros(0)
         self.delay_index = {name: k for k, name in enumerate(self.anchors, start=1)}
         self.gate = {m: float(chi2.isf(self.p["gate_prob"], m)) for m in (1, 3)}
-        self.v = {name: _Vehicle() for name in context.vehicles}
+        self.v = {name: _Vehicle(vehicle_imu(imu, name)) for name in context.vehicles}
         self.counts = {"rejected_measurements": 0, "skipped_updates": 0}
 
     # ------------------------------------------------------------------ the protocol
@@ -137,6 +195,12 @@ class NavEskf:
             self._gnss(m)
         elif m.stream == "uwb":
             self._uwb(m)
+        elif m.stream == "height":
+            self._height(m)
+        return []
+
+    def finish(self) -> list[Estimate]:
+        note_unstarted(type(self).__name__, [b for b, f in self.v.items() if f.x is None], self.counts)
         return []
 
     def health(self) -> dict[str, int]:
@@ -151,7 +215,7 @@ class NavEskf:
         fa, wa = f.imu
         F = eskf.transition(f.x, fa, wa, dt)
         f.x = eskf.propagate(f.x, fa, wa, dt)
-        f.P = symmetrize(F @ f.P @ F.T + eskf.process_noise(self.noise, dt, len(F)))
+        f.P = symmetrize(F @ f.P @ F.T + eskf.process_noise(f.noise, dt, len(F)))
         f.t = t
 
     def _imu(self, m: Measurement) -> list[Estimate]:
@@ -163,7 +227,10 @@ class NavEskf:
         f.imu = (value[:3], value[3:])
         if f.x is None:
             f.t = m.time
-            return []
+            pose = self.poses.get(body)
+            if pose is None or pose.position is None:
+                return []
+            self._start(f, body, m.time, np.array(pose.position, float), np.full(3, pose.position_sigma ** 2), np.zeros(3))
         f.samples += 1
         if f.samples % self.p["output_every"]:
             return []
@@ -174,25 +241,27 @@ class NavEskf:
             Estimate(time=m.time, target=body, quantity="attitude", value=x[6:10].copy(), cov=P[eskf.TH, eskf.TH].copy()),
         ]
 
-    def _start(self, f: _Vehicle, m: Measurement, lever: np.ndarray) -> None:
-        """First fix: the initial state and covariance (module docstring). The levelling error
+    def _start(self, f: _Vehicle, body: str, t: float, z: np.ndarray, z_var: np.ndarray, lever: np.ndarray) -> None:
+        """Start at time t (s) from position z (3,) m world of the site at lever (3,) m body frame
+        with variances z_var (3,) m^2 (the first fix, or the initial pose of the body origin): the
+        initial state and covariance (module docstring). The levelling error
         is the accelerometer bias error seen across the vertical (estimators.eskf.level): the
         initial tilt and accelerometer bias errors are correlated, dtheta = J db_a, plus
         tilt0_sigma across the vertical (the vehicle not at rest: a drag-free quadrotor's
         accelerometer reads its thrust axis, so an acceleration a tilts the levelled vertical
         by a / g, 0.05 rad at 0.5 m/s^2) and yaw0_sigma about it."""
-        p = self.p
-        q, R, P_th, P_thba = levelled_start(f.imu[0] - self.bias0[:3], self.bias_var[:3], p)
+        p = heading(self.p, self.poses.get(body))
+        q, R, P_th, P_thba = levelled_start(f.imu[0] - f.bias0[:3], f.bias_var[:3], p)
         x = np.zeros(eskf.N_ERR + 1 + len(self.delay_var))
-        x[0:3] = np.asarray(m.value, float) - R @ lever
+        x[0:3] = z - R @ lever
         x[6:10] = q
-        x[10:16] = self.bias0
-        P = np.diag(np.concatenate([np.asarray(m.sigma, float) ** 2, [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
-                                    self.bias_var, self.k_var, self.delay_var]))
+        x[10:16] = f.bias0
+        P = np.diag(np.concatenate([z_var, [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
+                                    f.bias_var, f.k_var, self.delay_var]))
         P[eskf.TH, eskf.TH] = P_th
         P[eskf.TH, eskf.BA] = P_thba
         P[eskf.BA, eskf.TH] = P_thba.T
-        f.x, f.P, f.t = x, P, max(f.t, m.time)
+        f.x, f.P, f.t = x, P, max(f.t, t)
 
     def _gnss(self, m: Measurement) -> None:
         body, lever = self._site(m.src)
@@ -201,10 +270,27 @@ class NavEskf:
             self.counts["skipped_updates"] += 1
             return
         if f.x is None:
-            self._start(f, m, lever)
+            self._start(f, body, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, lever)
             return
         self._to(f, m.time)
         self._apply(f, np.asarray(m.value, float), lambda x: eskf.site_position(x, lever), np.diag(np.asarray(m.sigma, float) ** 2))
+
+    def _height(self, m: Measurement) -> None:
+        """A height: the up coordinate (m, world) of a site, or of a body's origin (docs/replay.md),
+        with its row's sigma; a row without a sigma, or before the filter started, is skipped (counted)."""
+        body, lever = self._site(m.src)
+        f = self.v.get(body)
+        if f is None:
+            return
+        if f.x is None or m.sigma is None:
+            self.counts["skipped_updates"] += 1
+            return
+        self._to(f, m.time)
+
+        def up(x):  # z = e_3^T (p + R l), the third row of the site's position and its Jacobian
+            s, H = eskf.site_position(x, lever)
+            return s[2:], H[2:]
+        self._apply(f, np.asarray(m.value, float)[:1], up, np.diag(np.asarray(m.sigma, float)[:1] ** 2))
 
     def _uwb(self, m: Measurement) -> None:
         if m.dst not in self.anchors:

@@ -20,10 +20,14 @@ error, testbed.plugins.priors.priors); the filter settings are the phase-ekf [pi
 (params; the scenario's by default; the init keys act through the prior only). The process
 noise is q or q_flown by Context.motion, as in the pipeline.
 
-Estimates at every epoch, world frame: the follower body's position and velocity with their
-covariances and its attitude (no covariance), mapped from the navigation frame N with the nav
-master's pose measured at that epoch (from its own antennas, as the pipeline does):
-p_W = p + R p_N, v_W = v + R v_N + dR/dt p_N (R, dR/dt: N to world).
+Estimates at every epoch, world frame: the follower body's position and velocity as one
+EstimateBatch with their covariances and their (6, 6) joint covariance (cov_joint, the 6-dof
+ANEES of testbed.plugins.phase_scores), and its attitude (no covariance), mapped from the
+navigation frame N with the nav master's pose measured at that epoch (from its own antennas, as
+the pipeline does): p_W = p + R p_N, v_W = v + R v_N + dR/dt p_N (R, dR/dt: N to world).
+`navigation_states()` (the optional method of testbed.plugins.api.NavigationStates): every
+epoch's 18-state in N (frame "phase-N", layout "phase-18": estimators.phase_model's antenna
+state), the filter's covariance and the actual covariance of the covariance analysis.
 """
 from __future__ import annotations
 
@@ -39,7 +43,7 @@ from estimators.phase_model import antenna_state_from_body, rotation_from_antenn
 from estimators.so3 import skew
 from testbed.errors import ConfigError
 from testbed.config.pipelines import PhasePipelineConfig
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, NavigationStates
 from testbed.plugins.settings import settings
 from testbed.reference import evaluate
 from testbed.rng import stream_rng
@@ -180,6 +184,7 @@ class PhaseEkf:
         filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=self.cfg.gate_alpha, enabled=self.cfg.gate), self.cfg.iterations)
         self.stepper = Stepper(filt, AnalyzedGaussian(mean, cov, cov))
         self.rows: list[Measurement] = []
+        self.states: list[tuple[float, AnalyzedGaussian]] = []  # every epoch's belief: navigation_states()
 
     def _epoch(self) -> list[Estimate]:
         """Filter the buffered epoch; its estimates in the world frame (module docstring)."""
@@ -191,12 +196,14 @@ class PhaseEkf:
                **{f"phase/{c}": np.stack([m.extra[c] for m in rows]) for c in _COLUMNS}}
         inp = phase_inputs(log, self.period, self.cfg.nav_master)
         b = self.stepper.step(Epoch(t, measurement_epochs(self.cfg, inp)[0]))
+        self.states.append((t, b))
         p, v, R, Rd = (a[0] for a in inp.nav_pose)
         pN, vN = BODY_POS @ b.mean, BODY_PV[3:] @ b.mean
-        Jp, Jv = R @ BODY_POS, R @ BODY_PV[3:] + Rd @ BODY_POS  # d(p_W, v_W) / d(18-state)
+        J = np.vstack([R @ BODY_POS, R @ BODY_PV[3:] + Rd @ BODY_POS])  # d(p_W, v_W) / d(18-state), (6, 18)
+        P = J @ b.cov @ J.T
         att = Rotation.from_matrix(R @ rotation_from_antennas(b.mean)).as_quat(scalar_first=True)
-        return [Estimate(time=t, target=self.target, quantity="position", value=p + R @ pN, cov=Jp @ b.cov @ Jp.T),
-                Estimate(time=t, target=self.target, quantity="velocity", value=v + R @ vN + Rd @ pN, cov=Jv @ b.cov @ Jv.T),
+        return [EstimateBatch(time=np.full(2, t), target=(self.target,) * 2, quantity=("position", "velocity"),
+                              value=[p + R @ pN, v + R @ vN + Rd @ pN], cov=np.stack([P[:3, :3], P[3:, 3:]]), cov_joint=P),
                 Estimate(time=t, target=self.target, quantity="attitude", value=att)]
 
     def process(self, m: Measurement) -> list[Estimate]:
@@ -210,4 +217,14 @@ class PhaseEkf:
         return self._epoch() if self.rows else []
 
     def health(self) -> dict[str, int]:
-        return self.stepper.track().health()
+        """The driver's counts (core.Track.health) and `gate_epochs_with_rejection`, the epochs
+        whose gate rejected at least one row."""
+        track = self.stepper.track()
+        return {**track.health(), "gate_epochs_with_rejection": int((np.asarray(track.rejected_measurements) > 0).sum())}
+
+    def navigation_states(self) -> NavigationStates:
+        """Every epoch's 18-state in N, its filter covariance and its actual covariance (module docstring)."""
+        beliefs = [b for _, b in self.states]
+        return NavigationStates(time=np.array([t for t, _ in self.states]), mean=np.stack([b.mean for b in beliefs]),
+                                cov=np.stack([b.cov for b in beliefs]), actual=np.stack([b.actual for b in beliefs]),
+                                frame="phase-N", layout="phase-18")

@@ -31,7 +31,9 @@ visnav [pipeline] keys (params; the scenario's by default); `filters` is ignored
 the filter).
 
 Estimates at every camera epoch: the follower relative to the leader, in the leader's body frame
-(Estimate.frame "uavL"): position, velocity and attitude, each with its covariance block.
+(Estimate.frame "uavL"): position, velocity and attitude, each with its covariance block, as one
+EstimateBatch whose cov_joint is the filter's (9, 9) covariance of the three (p m, v m/s, theta
+rad), cross-covariances included (the relnav hook's 9-dof ANEES).
 """
 from __future__ import annotations
 
@@ -44,7 +46,7 @@ from estimators.sigma_filters import ManifoldGaussian, make_filter
 from estimators.so3 import quat_exp, quat_to_rotmat
 from estimators.visnav import CameraFilter, CameraFrame, ImuNoise, RelNavModel, VisNavConfig
 from testbed.config.pipelines import VisNavPipelineConfig
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, EstimateBatch, Measurement
 from testbed.plugins.settings import settings
 from testbed.rng import stream_rng
 
@@ -133,7 +135,7 @@ class _VisNav:
         frame = CameraFrame(leds, np.stack([m.value[2:5] for m in rows]), np.stack([m.value[0:2] for m in rows]))
         self.ready.append((rows[0].time, frame))
 
-    def _filter(self, final: bool = False) -> list[Estimate]:
+    def _filter(self, final: bool = False) -> list[EstimateBatch]:
         """Filter every complete camera epoch whose predict steps have their readings."""
         out = []
         while self.ready and self.t0 is not None:
@@ -152,12 +154,14 @@ class _VisNav:
             controls = [(self.dt, self.w @ np.stack(self.u[self.n * j:self.n * j + self.n + 1])) for j in range(self.step, s)]
             self.step = max(self.step, s)
             b = self.stepper.step(Epoch(t, frame, controls))
-            out += [Estimate(time=t, target=self.follower, frame=self.leader, quantity=q, value=b.mean[sl],
-                             cov=b.cov[c:c + 3, c:c + 3])
-                    for q, sl, c in (("position", slice(0, 3), 0), ("velocity", slice(3, 6), 3), ("attitude", slice(6, 10), 6))]
+            P = b.cov[:9, :9]  # the navigation error (p, v, theta) block: cov_joint
+            out.append(EstimateBatch(time=np.full(3, t), target=(self.follower,) * 3, frame=self.leader,
+                                     quantity=("position", "velocity", "attitude"),
+                                     value=[b.mean[0:3], b.mean[3:6], b.mean[6:10]],
+                                     cov=np.stack([P[c:c + 3, c:c + 3] for c in (0, 3, 6)]), cov_joint=P))
         return out
 
-    def process(self, m: Measurement) -> list[Estimate]:
+    def process(self, m: Measurement) -> list[EstimateBatch]:
         if m.stream == "imu":
             self._pair(m)
         elif m.stream == "camera":
@@ -166,7 +170,7 @@ class _VisNav:
             self.camera.append(m)
         return self._filter()
 
-    def finish(self) -> list[Estimate]:
+    def finish(self) -> list[EstimateBatch]:
         if self.camera:
             self._close_camera()
         return self._filter(final=True)

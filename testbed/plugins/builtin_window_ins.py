@@ -78,16 +78,6 @@ from testbed.plugins.collect import cov_problem, cov_problems
 from testbed.plugins.params import fields_of, read
 
 
-class _Epoch:
-    """The window's position of one vehicle as the measurement that starts its filter
-    (NavEskf._start reads value and sigma)."""
-
-    __slots__ = ("time", "value", "sigma")
-
-    def __init__(self, time: float, value: np.ndarray, cov: np.ndarray):
-        self.time, self.value, self.sigma = time, value, np.sqrt(np.diag(cov))
-
-
 @dataclass(frozen=True, kw_only=True)
 class WindowInsParams(builtin_eskf.NavEskfParams, builtin_window.WindowParams):
     """Parameters of coop.window_ins: the window's, the filter's and the cascade's, in one table."""
@@ -161,7 +151,7 @@ class _WindowIns(builtin_eskf.NavEskf):
 
     def finish(self) -> list[Estimate]:
         self.window.finish()  # the last epoch: no IMU sample follows to fly on it
-        return []
+        return super().finish()
 
     def health(self) -> dict[str, int]:
         return {**self.window.health(), **self.counts}
@@ -179,7 +169,7 @@ class _WindowIns(builtin_eskf.NavEskf):
         if f.x is None:
             if self.start_epochs > 1 and len(self.window.solver.epochs) < self.start_epochs:
                 return  # the window is not yet what the filter should start from (start_epochs)
-            self._start(f, _Epoch(e.time, z, e.cov), lever)
+            self._start(f, e.target, e.time, z, np.diag(np.asarray(e.cov, float)).copy(), lever)
         else:
             Rn = np.asarray(e.cov, float)
             if self.decorrelate:

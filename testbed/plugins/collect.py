@@ -41,8 +41,9 @@ class Series:
 
 @dataclass(frozen=True, slots=True)
 class Joint:
-    """A joint covariance of several targets' estimates at one time (EstimateBatch.cov_joint):
-    time s, targets (n,) in the order of cov's blocks, frame, cov (3n, 3n)."""
+    """A joint covariance of several estimates at one time (EstimateBatch.cov_joint): time s,
+    targets (n,) in the order of cov's blocks (their quantities: its key in Track.joint), frame,
+    cov (3n, 3n)."""
 
     time: float
     targets: tuple[str, ...]
@@ -52,11 +53,15 @@ class Joint:
 
 class Track(dict):
     """{(target, quantity): Series}; `joint` {quantity: [Joint, ...] in arrival order}, the joint
-    covariances an estimator gave (empty for most; not kept in estimates.npz)."""
+    covariances an estimator gave, keyed by the batch's quantity, or by the tuple of its rows'
+    quantities (n,) for a batch of several (empty for most; not kept in estimates.npz);
+    `navigation` the estimator's NavigationStates (testbed.plugins.api) when it exposes them
+    (navigation_states()), else None (not kept in estimates.npz)."""
 
-    def __init__(self, *args, joint: dict | None = None, **kwargs):
+    def __init__(self, *args, joint: dict | None = None, navigation=None, **kwargs):
         super().__init__(*args, **kwargs)
         self.joint = joint or {}
+        self.navigation = navigation
 
 
 class Collector:
@@ -77,7 +82,7 @@ class Collector:
 
     def _fail(self, where: str, e: object, reason: str, time: float | None = None) -> PluginError:
         what = (f"estimate of {e[0]} {e[1]}" if isinstance(e, tuple) else f"estimate of {e.target} {e.quantity}" if isinstance(e, Estimate)
-                else f"estimates of {e.quantity} (a batch of {len(e)})" if isinstance(e, EstimateBatch) else f"estimate of {type(e).__name__}")
+                else f"estimates of {'/'.join(dict.fromkeys(e.quantities()))} (a batch of {len(e)})" if isinstance(e, EstimateBatch) else f"estimate of {type(e).__name__}")
         return PluginError(f"estimator {self.plugin.key!r} ({self.plugin.entry}) {where}: {what}: {reason}", time)
 
     def add(self, estimates: list, where: str) -> None:
@@ -128,7 +133,20 @@ class Collector:
         self._seq += 1
 
     def _add_batch(self, b: EstimateBatch, where: str) -> None:
-        """The checks of _add on every row of b at once; the first bad row is named."""
+        """The checks of _add on every row of b at once; the first bad row is named. A batch of
+        several quantities: each quantity's rows as one batch, then its cov_joint."""
+        if not isinstance(b.quantity, str):
+            qs = b.quantities()
+            if len(qs) != len(b) or not all(q in VALUE_SIZE for q in qs):
+                raise self._fail(where, b, f"quantity must be one of {list(VALUE_SIZE)} or a sequence of them, one per target")
+            if len(b.value) != len(b):
+                raise self._fail(where, b, f"value has {len(b.value)} rows, expected {len(b)} for {len(b)} targets")
+            for part in b.parts():
+                self._add_batch(part, where)
+            if b.cov_joint is not None:
+                cov = None if b.cov is None else np.asarray(b.cov, dtype=float)
+                self._add_joint(b, where, tuple(b.target), np.asarray(b.time, dtype=float), cov)
+            return
         if b.quantity not in VALUE_SIZE:
             raise self._fail(where, b, f"quantity must be one of {list(VALUE_SIZE)}")
         signature = (tuple(b.target), b.quantity, b.frame)
@@ -165,8 +183,7 @@ class Collector:
         """Check a batch's cov_joint (EstimateBatch) and keep it."""
         k = len(target)
         C = np.asarray(b.cov_joint, dtype=float)
-        reason = ("is given for attitude (position or velocity only)" if b.quantity == "attitude"
-                  else f"has shape {C.shape}, expected {(3 * k, 3 * k)} for {k} targets" if C.shape != (3 * k, 3 * k)
+        reason = (f"has shape {C.shape}, expected {(3 * k, 3 * k)} for {k} targets" if C.shape != (3 * k, 3 * k)
                   else "needs rows of one time of validity" if k and np.ptp(t) > 0
                   else "is not finite" if not np.isfinite(C).all()
                   else "is not symmetric" if not np.allclose(C, C.T, rtol=1e-9, atol=1e-12 * max(1.0, np.abs(C).max(initial=0.0)))
@@ -178,7 +195,8 @@ class Collector:
         if reason is not None:
             raise self._fail(where, b, f"cov_joint {reason}")
         if k:
-            self._joint.setdefault(b.quantity, []).append(Joint(float(t[0]), target, b.frame, C))
+            key = b.quantity if isinstance(b.quantity, str) else b.quantities()
+            self._joint.setdefault(key, []).append(Joint(float(t[0]), target, b.frame, C))
 
     def _series(self) -> dict[tuple[str, str], list[tuple[np.ndarray, ...]]]:
         """Per (target, quantity), its estimates in parts: time (K,), value (K, d), cov (K, 3, 3)

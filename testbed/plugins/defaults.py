@@ -3,8 +3,7 @@
 A `[pipeline]` table is the paper's parameter table; its kind names the paper's estimators, which
 run as plugins like any other (the built-ins take the table's keys as their settings,
 testbed.plugins.settings) under the names metrics.json has always given them. `DEFAULTS` holds
-the kinds converted so far; the others still run through their pipeline
-(testbed.pipelines.registry) until they are converted.
+every kind.
 """
 from __future__ import annotations
 
@@ -19,6 +18,7 @@ DEFAULTS: dict[str, tuple[tuple[str, str], ...]] = {
     "bandwidth": (("bandwidth", "bandwidth.fusion"),),
     "visnav": (("ekf", "visnav.ekf"), ("ckf", "visnav.ckf"), ("hckf", "visnav.hckf"), ("mckf", "visnav.mckf"),
                ("rhcf", "visnav.rhcf")),
+    "phase-ekf": (("ekf", "phase.ekf"),),
 }
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from testbed.errors import PluginError
-from testbed.plugins.api import Context, Measurement, MeasurementBatch
+from testbed.plugins.api import Context, Measurement, MeasurementBatch, NavigationStates
 from testbed.plugins.collect import Collector, Track
 from testbed.plugins.loading import Plugin
 from testbed.config.scenario import Scenario
@@ -166,7 +166,31 @@ def run_plugin(plugin: Plugin, context: Context, feed: Iterable[Measurement | Me
         keep.append(est)
     if diagnostics is not None and callable(getattr(est, "diagnostics", None)):
         diagnostics.update(_diagnostics(plugin, call(plugin, "in diagnostics()", lambda: [est.diagnostics()])[0]))
-    return col.track(), health, (wallclock.perf_counter() - t0) * 1e3
+    track = col.track()
+    if callable(getattr(est, "navigation_states", None)):
+        track.navigation = _navigation(plugin, call(plugin, "in navigation_states()", lambda: [est.navigation_states()])[0])
+    return track, health, (wallclock.perf_counter() - t0) * 1e3
+
+
+def _navigation(plugin: Plugin, got: object) -> NavigationStates:
+    """The estimator's navigation_states(), checked (api.NavigationStates: shapes, finite, times
+    increasing); a PluginError naming the first problem."""
+    if not isinstance(got, NavigationStates):
+        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) navigation_states() returned "
+                          f"{type(got).__name__}, expected NavigationStates")
+    t, x, P = (np.asarray(a, dtype=float) for a in (got.time, got.mean, got.cov))
+    K = t.size
+    n = x.shape[1] if x.ndim == 2 else -1
+    reason = ("time must be (K,) increasing" if t.ndim != 1 or (K > 1 and np.any(np.diff(t) <= 0))
+              else f"mean has shape {x.shape}, expected ({K}, n)" if x.ndim != 2 or x.shape[0] != K
+              else f"cov has shape {P.shape}, expected {(K, n, n)}" if P.shape != (K, n, n)
+              else f"actual has shape {np.shape(got.actual)}, expected {(K, n, n)}"
+              if got.actual is not None and np.shape(got.actual) != (K, n, n)
+              else "is not finite" if not all(np.isfinite(a).all() for a in (t, x, P, 0.0 if got.actual is None else got.actual))
+              else None)
+    if reason is not None:
+        raise PluginError(f"estimator {plugin.key!r} ({plugin.entry}) navigation_states(): {reason}")
+    return got
 
 
 def finish_plugin(plugin: Plugin, est: object, col: Collector) -> dict[str, int]:

@@ -3,7 +3,8 @@ make possible, given to every estimator whose outputs fit.
 
 `scenario_hooks(scenario, log)` builds them once per run, before the estimators are scored:
 - on a seed 003 phase-ekf scenario (testbed.plugins.phase_scores.phase_hooks): `Bound`, the PCRB
-  of the follower's body position, and `PhaseWindow`, the scores in the navigation frame;
+  of the follower's body position, `PhaseWindow`, the scores in the navigation frame, and
+  `PhaseScored`, the scores from score_start on (6-dof and 18-state ANEES);
 - `CoopHook`, the seed 001 scores and figures of every vehicle's uwb site position at the GNSS
   epochs, on a coop-fg scenario (testbed.plugins.coop_scores);
 - `FusionBound`, the seed 000 fusion bound (eqs. 12, 16) of every vehicle's uwb site position, on a

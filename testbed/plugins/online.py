@@ -139,6 +139,9 @@ class OnlineEstimator:
     def _hold(self, estimates: list) -> None:
         """Keep the latest (by time of validity) world position, velocity and attitude of each vehicle."""
         for e in estimates:
+            if isinstance(e, EstimateBatch) and not isinstance(e.quantity, str):  # several quantities
+                self._hold(e.parts())
+                continue
             if self.arrived is not None:  # until the target check (_check_targets)
                 self.arrived.update((tg, e.quantity, e.frame) for tg in ((e.target,) if isinstance(e.target, str) else set(e.target)))
             if isinstance(e, EstimateBatch):

@@ -6,23 +6,26 @@
 - `phase_pcrb`: the posterior Cramer-Rao bound (Tichavsky 1998) along that true trajectory with the
   filter's own rows, measurement model, q and P0 (testbed.plugins.builtin_phase.prepare);
 - `phase_hooks`: the run's hooks (testbed.plugins.hooks): `Bound`, the PCRB's body-position block
-  in world axes, and `PhaseWindow`, the scores in N of any estimator of the follower's body;
+  in world axes, `PhaseWindow`, the scores in N of any estimator of the follower's body, and
+  `PhaseScored`, the scores from score_start on (the 6-dof ANEES from a joint covariance of
+  position and velocity, the 18-state ones from an estimator's navigation states);
 - `attitude_nees`, `window_keys`: the attitude NEES and the names of the last-window scores.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimators.core import nees
 from estimators.phase_ekf import ProcessNoise, pcrb
-from estimators.phase_frames import BODY_POS, to_nav
+from estimators.phase_frames import BODY_POS, BODY_PV, to_nav
 from estimators.phase_model import antenna_state_from_body, body_from_antennas
 from estimators.so3 import euler_from_rotation, skew
 from testbed.config.pipelines import PhasePipelineConfig
-from testbed.scoring.metrics import rmse
+from testbed.scoring.metrics import anees_keys, rmse
 from testbed.plugins.builtin_phase import PhaseInputs, prepare
 from testbed.plugins.collect import Track
 from testbed.plugins.score import Bound, Hook, at_epochs
@@ -77,7 +80,7 @@ class PhaseWindow(Hook):
     1-sigma at the end; `pcrb_sigma_position_final_m` (3,) the PCRB's; `last_window_s` W and, when
     the span covers W, over the epochs of the last W seconds (names: window_keys(W)): the position
     RMSE, the max |error| per axis of position and velocity, the PCRB RMSE; else
-    `last_window_omitted_reason`.
+    `last_window_omitted_reason`. Figures: `plot`.
     An error e_W (world) is moved to N with the nav master's TRUE pose: e_N = R^T e_W and, for the
     velocity, e_vN = R^T (e_vW - dR/dt e_N) (the derivative of X_N = R^T (X - p)).
 
@@ -134,19 +137,151 @@ class PhaseWindow(Hook):
         out[w["pcrb_rmse"]] = float(np.sqrt(np.mean(np.trace(B[last], axis1=1, axis2=2))))
         return out
 
+    def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
+        """Per fitting estimator NAME, like the paper's figs. 4-15, errors per axis of N against
+        time: NAME_position_error.png (+/-3 sigma of its own covariance when it gave one) and, with a
+        velocity, NAME_velocity_error.png (+/-3 sigma when it gave the joint covariance of position
+        and velocity at every epoch, moved to N as the errors: T C T^T, T = [[R^T, 0],
+        [-R^T dR/dt R^T, R^T]])."""
+        from testbed.outputs.plots import error_envelope  # lazy: matplotlib, only when plots are written
+
+        paths, lab = [], ("x (fwd)", "y (left)", "z (up)")
+        for name, (track, errs) in shown.items():
+            got = self._in_nav(track, errs)
+            if got is None:
+                continue
+            k, t, e, ev, P = got
+            sig = None if P is None else np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+            paths.append(error_envelope(t, e, sig, plots_dir / f"{name}_position_error.png",
+                                        title=f"{name}: body position error (nav frame)", ylabel="m", labels=lab))
+            if ev is not None:
+                paths.append(error_envelope(t, ev, self._velocity_sigma(track, k, t), plots_dir / f"{name}_velocity_error.png",
+                                            title=f"{name}: body velocity error (nav frame)", ylabel="m/s", labels=lab))
+        return paths
+
+    def _velocity_sigma(self, track: Track, k: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """(E, 3) m/s 1-sigma of the velocity in N at the epochs k (E,) (times t) from the joint
+        covariance of the follower's world position and velocity; None unless it has one at each."""
+        at = {round(j.time, 9): j.cov for j in track.joint.get(("position", "velocity"), ())
+              if j.frame == "world" and j.targets == (self.target, self.target)}
+        C = [at.get(round(float(x), 9)) for x in t.tolist()]
+        if not C or any(c is None for c in C):
+            return None
+        Rt = np.swapaxes(self.R[k], 1, 2)
+        T = np.zeros((t.size, 6, 6))
+        T[:, :3, :3] = T[:, 3:, 3:] = Rt
+        T[:, 3:, :3] = -Rt @ self.Rd[k] @ Rt
+        PN = T @ np.stack(C) @ np.swapaxes(T, 1, 2)
+        return np.sqrt(np.diagonal(PN[:, 3:, 3:], axis1=1, axis2=2))
+
+
+@dataclass(frozen=True, slots=True)
+class PhaseScored(Hook):
+    """The seed 003 scores over the scored epochs t >= t_0 + score_start (every epoch when the run
+    is shorter; t_0 the first phase epoch), for ANY estimator whose outputs fit (summary keys):
+    with the follower's world position (velocity, attitude) at the phase epochs: `epochs` their
+    number, `score_start_s` the first scored one, `rmse_position_after_start_m` (`rmse_velocity_after_start_m_s`,
+    `rmse_attitude_after_start_deg`, the attitude error's angle) and `pcrb_rmse_position_after_start_m`
+    = sqrt(mean trace) of the PCRB's body-position block over the same epochs; with the joint
+    covariance of the follower's position and velocity at every scored epoch (EstimateBatch.cov_joint
+    of a batch of the two, world): `anees` of the 6-dof body NEES (linear in the state, so the
+    NEES is the same in N and in the world), with its dof, 99 % interval and n_eff
+    (testbed.scoring.metrics.anees_keys), and `nees_body6_final` at the last epoch; with the estimator's
+    navigation states in N in the phase-18 layout (testbed.plugins.api.NavigationStates, frame
+    "phase-N": phase.ekf): `anees_state18` (18 dof, the filter's covariance), `nees_final` and
+    `nees_attitude6_final` (attitude_nees) at the last epoch, and, with the actual covariance,
+    `anees_body6_actual_cov` (the body position and velocity against the covariance analysis'
+    actual covariance) and `nees_body6_actual_cov_final`.
+
+    target: the follower; time (K,) s the phase epochs; score_start s (the [pipeline]'s); body (K, 6)
+    the true body position and velocity in N, states (K, 18) the true 18-state in N (truth_in_nav);
+    bound (K, 3, 3) m^2 the PCRB of the body position in N."""
+
+    target: str
+    time: np.ndarray
+    score_start: float
+    body: np.ndarray
+    states: np.ndarray
+    bound: np.ndarray
+
+    def _scored(self, t: np.ndarray) -> np.ndarray:
+        """(len(t),) bool: the scored ones of times t (all when none is)."""
+        sc = t >= self.time[0] + self.score_start
+        return sc if sc.any() else np.ones_like(sc)
+
+    def summary(self, track: Track, errs: dict, health: dict) -> dict:
+        out = {}
+        s = track.get((self.target, "position"))
+        if s is not None and s.frame == "world":
+            hit, k = at_epochs(self.time, s.time)
+            if hit.size:
+                sc = self._scored(s.time[hit])
+                out["epochs"] = int(hit.size)
+                out["score_start_s"] = float(s.time[hit][sc][0])
+                out["rmse_position_after_start_m"] = rmse(errs[(self.target, "position")][hit][sc])
+                out["pcrb_rmse_position_after_start_m"] = float(np.sqrt(np.mean(np.trace(self.bound[k[sc]], axis1=1, axis2=2))))
+        for q, key, scale in (("velocity", "rmse_velocity_after_start_m_s", 1.0),
+                              ("attitude", "rmse_attitude_after_start_deg", float(np.degrees(1.0)))):
+            v = track.get((self.target, q))
+            if v is not None and v.frame == "world":
+                hit, _ = at_epochs(self.time, v.time)
+                if hit.size:
+                    e = errs[(self.target, q)][hit][self._scored(v.time[hit])]
+                    out[key] = float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))) * scale
+        out.update(self._joint(track, errs))
+        out.update(self._navigation(track))
+        return out
+
+    def _joint(self, track: Track, errs: dict) -> dict:
+        """The 6-dof body NEES from the joint covariance of position and velocity (world)."""
+        joints = [j for j in track.joint.get(("position", "velocity"), ())
+                  if j.frame == "world" and j.targets == (self.target, self.target)]
+        p, v = track.get((self.target, "position")), track.get((self.target, "velocity"))
+        if not joints or p is None or v is None or not np.array_equal(p.time, v.time):
+            return {}
+        tj = np.array([j.time for j in joints])
+        hit, k = at_epochs(p.time, tj)  # joints -> rows of the position (and velocity) series
+        if hit.size != tj.size or np.unique(k).size != p.time.size:
+            return {}
+        C = np.stack([joints[i].cov for i in hit])[np.argsort(k)]
+        e = np.concatenate([errs[(self.target, "position")], errs[(self.target, "velocity")]], axis=1)
+        ne = nees(e, C)
+        return {**anees_keys(ne[self._scored(p.time)], 6), "nees_body6_final": float(ne[-1])}
+
+    def _navigation(self, track: Track) -> dict:
+        """The 18-state scores from the estimator's navigation states (frame phase-N, layout phase-18)."""
+        nav = track.navigation
+        if nav is None or nav.frame != "phase-N" or nav.layout != "phase-18":
+            return {}
+        hit, k = at_epochs(self.time, np.asarray(nav.time, float))
+        if not hit.size:
+            return {}
+        x, P, x_true = np.asarray(nav.mean)[hit], np.asarray(nav.cov)[hit], self.states[k]
+        sc = self._scored(np.asarray(nav.time, float)[hit])
+        n18 = nees(x - x_true, P)
+        out = {**anees_keys(n18[sc], 18, "anees_state18"), "nees_final": float(n18[-1]),
+               "nees_attitude6_final": attitude_nees(x[-1], P[-1], x_true[-1])}
+        if nav.actual is not None:
+            e = x @ BODY_PV.T - self.body[k]
+            n6 = nees(e, BODY_PV @ np.asarray(nav.actual)[hit] @ BODY_PV.T)
+            out.update({**anees_keys(n6[sc], 6, "anees_body6_actual_cov"), "nees_body6_actual_cov_final": float(n6[-1])})
+        return out
+
 
 def phase_hooks(scenario, log: dict) -> list[Hook]:
     """The scoring hooks of a phase-ekf run (scoring only): the PCRB of the follower's body
-    position in world axes (N rotated by the nav master's true attitude; testbed.plugins.score.Bound)
-    and the frame-N scores (PhaseWindow)."""
+    position in world axes (N rotated by the nav master's true attitude; testbed.plugins.score.Bound),
+    the frame-N scores (PhaseWindow) and the scores from score_start on (PhaseScored)."""
     cfg, inp, q, _, P0, meas = prepare(scenario, log)
-    bound = BODY_POS @ phase_pcrb(cfg, q, true_states(scenario, log, cfg, inp)[2], inp, meas, P0) @ BODY_POS.T
+    body, _, states = true_states(scenario, log, cfg, inp)
+    bound = BODY_POS @ phase_pcrb(cfg, q, states, inp, meas, P0) @ BODY_POS.T
     idx, u = inp.state_index, cfg.nav_master - 1
     R = Rotation.from_quat(log["truth/quat"][idx, u], scalar_first=True).as_matrix()
     Rd = R @ np.array([skew(w) for w in log["truth/omega"][idx, u]])
     target = f"uav{inp.follower}"
     return [Bound(target, inp.times, R @ bound @ np.swapaxes(R, 1, 2)),
-            PhaseWindow(target, inp.times, R, Rd, bound, float(cfg.last_window))]
+            PhaseWindow(target, inp.times, R, Rd, bound, float(cfg.last_window)),
+            PhaseScored(target, inp.times, float(cfg.score_start), body[:, :6], states, bound)]
 
 
 def attitude_nees(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> float:

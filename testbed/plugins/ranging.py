@@ -32,16 +32,25 @@ of which ends at a known point), are skipped and counted (health: skipped_epochs
 other end is neither an anchor nor a site of a known body with a pose yet: unknown_end_rows). Estimates: each antenna site's position and velocity, and
 the follower body's position, velocity and attitude when its lever arms determine an attitude.
 
+Range bias (bias_states = true; docs/replay.md, "Range bias"): one bias state b per link (a
+range stream, a follower antenna and a known end), added to its ranges, r = |x_j - X| + b, from the link's first
+range on: a random constant (bias_walk = 0) or a random walk of density bias_walk (m^2/s); prior
+mean 0 (what the dataset's calibration table left), sigma the link's bias_sigma of
+Context.sensors[stream] (testbed.replay.calibration: "uwb") when it has one, else params bias_sigma, else
+the link's range sigma (its first range's declared sigma, or range_sigma). bias_estimates() gives
+them.
+
 params: RangingParams (`testbed estimators ranging.ekf`); follower is required when more than
 one vehicle could be it.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.core import Gate, counting
+from estimators.core import Gate, Gaussian, counting
 from estimators.geometry import DegenerateGeometryError
 from estimators.ranging import RangingEkf, RangingEpoch, RangingNoise, body_pose, initial_belief
 from estimators.so3 import quat_to_rotmat
@@ -76,6 +85,10 @@ class RangingParams:
     pose_stream: str = key("mocap", doc="stream of the known bodies' poses")
     height_stream: str = key("height", doc="stream of the follower's heights")
     height_weights: tuple[float, ...] | None = key(None, doc="weights of the antennas for a height of the follower (none: least norm)")
+    bias_states: bool = key(False, doc="a range-bias state per link (docs/replay.md, Range bias)")
+    bias_sigma: float | None = key(None, lo=0, lo_open=True, unit="m",
+                                   doc="prior sigma of a link's bias without a calibrated one (none: the link's range sigma)")
+    bias_walk: float = key(0.0, lo=0, unit="m^2/s", doc="random-walk density of the bias states (0: random constants)")
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -124,7 +137,11 @@ class RangingEkfEstimator:
         self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
         self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"],
                                                         rotation=p["q_rotation"]),
-                              gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]))
+                              gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]), bias_walk=p["bias_walk"])
+        # {stream: {antenna: {known end: m}}}: a calibration table's sigmas (testbed.replay.calibration)
+        self.calibrated = {k: v["bias_sigma"] for k, v in context.sensors.items()
+                           if isinstance(v, dict) and isinstance(v.get("bias_sigma"), dict)}
+        self.bias_index: dict[tuple[str, int, str], int] = {}  # (stream, antenna, known end) -> bias state
         self.poses: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
         self.belief = None
         self.t_belief = None
@@ -135,7 +152,7 @@ class RangingEkfEstimator:
 
     # -------------------------------------------------------------- bookkeeping
     def _reset(self) -> None:
-        self.links: list[tuple[int, str, float, float]] = []  # (antenna, known end, range, sigma)
+        self.links: list[tuple[int, str, float, float, str]] = []  # (antenna, known end, range, sigma, stream)
         self.rates: dict[tuple[int, str], tuple[float, float]] = {}
         self.height: tuple[float, float] | None = None
 
@@ -190,7 +207,7 @@ class RangingEkfEstimator:
                     j = self.index[mine]
                     if m.stream in p["range_streams"]:
                         col = int(p["range_streams"][m.stream])
-                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["range_sigma"])))
+                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["range_sigma"]), m.stream))
                     if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
                         col = int(p["rate_streams"][m.stream])
                         self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["range_rate_sigma"]))
@@ -205,11 +222,13 @@ class RangingEkfEstimator:
     # -------------------------------------------------------------- one epoch
     def _epoch(self) -> RangingEpoch | None:
         rows = []
-        for j, other, r, s in self.links:
+        self.epoch_links = []  # (stream, antenna, known end, sigma) of each row: the bias states' keys
+        for j, other, r, s, stream in self.links:
             known = self._known_point(other)
             if known is not None:
                 rate, s_rate = self.rates.get((j, other), (np.nan, 1.0))
                 rows.append((j, known[0], known[1], r, s, rate, s_rate))
+                self.epoch_links.append((stream, j, other, s))
         self.counts["unknown_end_rows"] += len(self.links) - len(rows)
         if not rows:
             if self.links:  # ranges, none to a known point: this epoch cannot be used
@@ -240,6 +259,8 @@ class RangingEkfEstimator:
                 self.counts["skipped_epochs"] += 1
                 return []
             self.t_belief = t
+        if epoch is not None and self.p["bias_states"]:
+            epoch = dataclasses.replace(epoch, bias=self._bias_states())
         with counting() as h:
             b = self.belief if t == self.t_belief else self.ekf.predict(self.belief, t - self.t_belief)
             if epoch is not None:
@@ -249,6 +270,30 @@ class RangingEkfEstimator:
         self.counts["rejected_measurements"] += h.rejected_measurements
         self.counts["covariance_repairs"] += h.covariance_repairs
         return self._estimates(t)
+
+    def _bias_states(self) -> np.ndarray:
+        """(L,) the bias state of each link of the epoch, a new one appended to the belief (mean 0,
+        variance its prior sigma^2: module docstring) for a link seen the first time."""
+        out = []
+        for stream, j, other, s in self.epoch_links:
+            k = self.bias_index.get((stream, j, other))
+            if k is None:
+                k = self.bias_index[(stream, j, other)] = len(self.bias_index)
+                sigma = self.calibrated.get(stream, {}).get(self.antennas[j], {}).get(other, self.p["bias_sigma"] or s)
+                b = self.belief
+                cov = np.zeros((b.mean.size + 1, b.mean.size + 1))
+                cov[:-1, :-1], cov[-1, -1] = b.cov, sigma ** 2
+                self.belief = Gaussian(np.append(b.mean, 0.0), cov)
+            out.append(k)
+        return np.array(out, int)
+
+    def bias_estimates(self) -> dict[tuple[str, str, str], tuple[float, float]]:
+        """{(stream, antenna site, known end): (bias m, its sigma m)} of the bias states (bias_states)."""
+        if self.belief is None:
+            return {}
+        o = 6 * self.n
+        return {(stream, self.antennas[j], other): (float(self.belief.mean[o + k]), float(np.sqrt(self.belief.cov[o + k, o + k])))
+                for (stream, j, other), k in self.bias_index.items()}
 
     def _estimates(self, t: float) -> list[Estimate]:
         b, n = self.belief, self.n

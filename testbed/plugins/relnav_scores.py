@@ -15,7 +15,12 @@ state, (21, 21) covariance.
 Keys (`RelNav.summary`), over the E instants where the estimator gave all three quantities of the
 follower relative to the leader (the per-quantity RMSEs and 3-dof ANEES are the generic scores,
 testbed.plugins.score): `epochs` = E, `final_position_error_m` |e_p| at the last one (m),
-`finite` (every error finite).
+`finite` (every error finite); with the joint covariance of the three at every one of them
+(EstimateBatch.cov_joint of a batch of the follower's position, velocity and attitude, the visnav.*
+filters' (9, 9)), the ANEES of the 9-dim navigation error (p, v, theta; the NEES e^T P^-1 e of the
+three errors stacked): `anees` (`anees_dof` 9) with its 99 % interval over its effective samples
+(`anees_interval_99`, `n_eff`: testbed.scoring.metrics.anees_keys, docs/consistency.md) and `final_nees`
+at the last instant.
 Figures (`RelNav.plot`): {name}_position.png, {name}_velocity.png, {name}_attitude.png, each
 fitting estimator's errors against time with its own +/-3 sigma.
 """
@@ -27,9 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
+from estimators.core import nees
 from estimators.sigma_filters import ManifoldGaussian
 from estimators.so3 import quat_conj, quat_mul, quat_to_rotmat
 from estimators.visnav import RelNavModel
+from testbed.scoring.metrics import anees_keys
 from testbed.plugins.builtin_visnav import estimator_config
 from testbed.plugins.collect import Track
 from testbed.plugins.score import Hook, common_times, fitting
@@ -94,8 +101,30 @@ class RelNav(Hook):
         if got is None:
             return {}
         t, e, _ = got
-        return {"epochs": int(t.size), "final_position_error_m": float(np.linalg.norm(e[0][-1])),
-                "finite": bool(all(np.isfinite(x).all() for x in e))}
+        out = {"epochs": int(t.size), "final_position_error_m": float(np.linalg.norm(e[0][-1])),
+               "finite": bool(all(np.isfinite(x).all() for x in e))}
+        ne = self.joint_nees(track, t, e)
+        if ne is not None:
+            out.update({**anees_keys(ne, 9), "final_nees": float(ne[-1])})
+        return out
+
+    def joint_nees(self, track: Track, t: np.ndarray, e: list) -> np.ndarray | None:
+        """(E,) NEES of the 9-dim navigation error at the instants t (E,) s with the estimator's
+        joint covariance (9, 9) of the three quantities, errors e [(E, 3)] in QUANTITIES order;
+        None unless it gave one at every instant (1e-9 s)."""
+        names = [q for q, _, _ in QUANTITIES]
+        at = {}
+        for key, joints in getattr(track, "joint", {}).items():
+            if isinstance(key, str) or sorted(key) != sorted(names):
+                continue
+            for j in joints:
+                if j.frame == self.frame and set(j.targets) == {self.target}:
+                    at[round(j.time, 9)] = (key, j.cov)
+        got = [at.get(round(float(x), 9)) for x in t.tolist()]
+        if not got or any(g is None for g in got):
+            return None
+        err = np.stack([np.concatenate([e[names.index(q)][k] for q in key]) for k, (key, _) in enumerate(got)])
+        return nees(err, np.stack([C for _, C in got]))
 
     def plot(self, shown: dict, plots_dir: Path) -> list[Path]:
         from testbed.outputs.plots import error_envelope  # lazy: matplotlib, only when plots are written

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.errors import ConfigError, PluginError
+from testbed.errors import PluginError
 from testbed.interrupt import poll
 from testbed.scoring.metrics import network_summary
 from testbed.plugins.channel import Channel, uwb_rows
@@ -31,11 +31,10 @@ from testbed.sim.world import Physics, lever_arms
 
 
 def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarray], plugins: list[Plugin],
-                   plots_dir: Path | None, taken: set[str] = frozenset(), done: dict | None = None,
+                   plots_dir: Path | None, done: dict | None = None,
                    keep: dict | None = None) -> tuple[dict, dict]:
     """({key: scores}, {key: Track}) of every plugin (wall time under `wall_ms`, which the runner
-    moves to timing.json; the Tracks go to the run's estimates.npz). taken: keys the pipeline
-    already uses (a clash is a ConfigError). done: {key: (estimates, health, wall ms)}
+    moves to timing.json; the Tracks go to the run's estimates.npz). done: {key: (estimates, health, wall ms)}
     of plugins already run (online, in the loop: scored, not rerun). A plugin that fails gets
     failed_entry (no Track); the caller marks the metrics (testbed.plugins.failures). keep: a dict
     that receives {key: the finished estimator object} of the plugins run here (not of `done`)."""
@@ -47,9 +46,6 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
     hooks = scenario_hooks(scenario, log)
     out, shown = {}, {}
     for p in plugins:
-        if p.key in taken:
-            raise ConfigError(f"estimator {p.entry!r}: the name {p.key!r} is taken by the {scenario.pipeline.kind} pipeline; "
-                              "give it another name ([[estimators]] name)")
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
         ctx = make_context(scenario, lever_arms(physics), p.key, p.params, prior)
         truth = Truth(log, ctx)

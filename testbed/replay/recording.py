@@ -19,11 +19,14 @@ Streams fed (Measurement.stream, value, sigma; src, dst site or body names):
   (camera frame), sigma None (testbed.sensors.camera).
 Times: the files' clock minus window.start; arrival: the row's arrival (default its time).
 Order: as a simulated run's (testbed.plugins.feed): arrival, time, stream name, row of the stream.
+calibration.csv (testbed.replay.calibration), when present: its known bias and scale are removed
+from the uwb ranges at load, and the sigma of each link's remaining bias is
+Context.sensors["uwb"]["bias_sigma"] {src: {dst: m}}.
 """
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -35,6 +38,7 @@ from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.channel import Channel
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.bag_read import bag_tables
+from testbed.replay.calibration import read_calibration
 from testbed.replay.spec import ReplaySpec, load_spec
 from testbed.replay.tables import CAMERA_COLUMNS, PHASE_MASTER_COLUMNS, REQUIRED_TABLES, SCHEMAS, Table, find, read_table
 from testbed.rng import stream_rng
@@ -58,12 +62,14 @@ QUAT = ("qw", "qx", "qy", "qz")
 class Recording:
     """spec; directory; tables {name: Table} (rows within the window, times in the files' clock);
     feed: every measurement in feeding order, runs of one stream as MeasurementBatches (the rows
-    one by one: measurements())."""
+    one by one: measurements()); bias_sigma: {src: {dst: m}} the sigma of each calibrated uwb
+    link's remaining bias (testbed.replay.calibration), {} without calibration.csv."""
 
     spec: ReplaySpec
     directory: Path
     tables: dict[str, Table]
     feed: list[Measurement]
+    bias_sigma: dict = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -74,9 +80,12 @@ class Recording:
         channel: with a [network], its own network, stream "network/KEY", as in a simulated run);
         of an exported run, the Context the estimator had in the simulation (Context.pipeline
         aside: {}, the exported built-ins carry their resolved params; testbed.replay.export)."""
+        sensors = {k: dict(v) for k, v in self.spec.sensors.items()}
+        if self.bias_sigma:
+            sensors.setdefault("uwb", {})["bias_sigma"] = {k: dict(v) for k, v in self.bias_sigma.items()}
         return Context(
             vehicles=tuple(self.spec.bodies), sites=self.spec.sites, anchors=self.spec.anchor_points,
-            sensors={k: dict(v) for k, v in self.spec.sensors.items()}, prior=self.spec.priors, params=dict(params),
+            sensors=sensors, prior=self.spec.priors, params=dict(params),
             duration=self.duration, motion=self.spec.motion, seed=self.spec.seed,
             rng=stream_rng(self.spec.seed, f"estimator/{key}"), channel=self._channel(key),
         )
@@ -290,7 +299,7 @@ def dataset_files(spec_path: Path) -> list[Path]:
     names (what an output must never overlap: testbed.outdir.apart). ConfigError on a bad spec."""
     spec_path = Path(spec_path)
     spec = load_spec(spec_path)
-    files = [spec_path, *filter(None, (find(spec_path.parent, name) for name in SCHEMAS))]
+    files = [spec_path, *filter(None, (find(spec_path.parent, name) for name in (*SCHEMAS, "calibration")))]
     return files + ([spec_path.parent / spec.bag.path] if spec.bag is not None else [])
 
 
@@ -318,6 +327,7 @@ def load_recording(spec_path: Path) -> Recording:
     if spec.network is not None and "truth" not in tables:
         raise ConfigError(f"{spec_path}: network: the network's geometry is the true one, so it needs the truth "
                           "table (truth.csv): add it or remove [network]")
+    bias_sigma = _calibrate(spec, tables, find(directory, "calibration"))
     w = spec.window
     for name, t in tables.items():
         if name != "truth":  # truth is kept whole: interpolation at the window's edges needs its neighbours
@@ -325,7 +335,25 @@ def load_recording(spec_path: Path) -> Recording:
     feed = _measurements(_streams(tables, w.start))
     if not feed:
         raise ConfigError(f"{spec_path}: window [{w.start:g}, {w.end:g}] s holds no measurement of the dataset")
-    return Recording(spec, directory, tables, feed)
+    return Recording(spec, directory, tables, feed, bias_sigma)
+
+
+def _calibrate(spec: ReplaySpec, tables: dict[str, Table], path: Path | None) -> dict:
+    """Remove calibration.csv's known bias and scale from the uwb ranges of tables["links"] (in
+    place); return the remaining bias sigmas {src: {dst: m}} ({} without the file)."""
+    if path is None:
+        return {}
+    if "bias_sigma" in spec.sensors.get("uwb", {}):
+        raise ConfigError(f"{path}: the spec's [sensors.uwb] bias_sigma and this table both give the bias sigmas: keep one")
+    cal = read_calibration(path, set(spec.sites) | set(spec.anchors))
+    if "links" not in tables:
+        return {}
+    t = tables["links"]
+    uwb = t["kind"] == "uwb"
+    value, sigma = t["value"].copy(), t["sigma"].copy()
+    value[uwb], sigma[uwb] = cal.apply(t["src"][uwb], t["dst"][uwb], value[uwb], sigma[uwb])
+    tables["links"] = Table(t.file, {**t.columns, "value": value, "sigma": sigma}, t.lines)
+    return cal.bias_sigma(set(zip(t["src"][uwb].tolist(), t["dst"][uwb].tolist())))
 
 
 class RecordedTruth:

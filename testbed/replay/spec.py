@@ -19,6 +19,7 @@ from testbed.config import from_dict, in_range, require
 from testbed.errors import ConfigError
 from testbed.config.network import NetworkConfig
 from testbed.config.estimators import EstimatorSpec
+from testbed.sensors.config import declared_imu
 
 FORMAT = 1
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
@@ -132,7 +133,8 @@ class ReplaySpec:
     Context.rng (stream "estimator/NAME"). window: the time window. bodies: {body: {sites: {site:
     [x, y, z] m, body frame FLU}}}, in order (the vehicles of the Context); the site's full name is
     "body/site". anchors: {name: [x, y, z] m, world ENU}, fixed. sensors: {stream: table} the declared
-    sensor models handed to estimators as Context.sensors (free tables). motion: Context.motion,
+    sensor models handed to estimators as Context.sensors (free tables, but `imu` resolved as a
+    scenario's, with its per-body tables: testbed.sensors.config.declared_imu). motion: Context.motion,
     "prescribed" (kinematic) or "flown" (closed loop). prior: {target: {mean: (n,), cov: (k, k)}}
     the prior the built-in estimators start from, in their own state (Context.prior; an exported
     run's, testbed.plugins.priors.priors; k = n, or k < n for the tangent space where the state
@@ -168,6 +170,9 @@ class ReplaySpec:
             require(_point(p), f"anchors.{name}", p, "expected a position [x, y, z] of finite numbers (m, world ENU)")
         for name, table in self.sensors.items():
             require(isinstance(table, dict), f"sensors.{name}", table, "expected a table (the declared sensor model)")
+        if "imu" in self.sensors:  # resolved as a scenario's: its preset fills the keys left out
+            resolved = declared_imu(self.sensors["imu"], tuple(self.bodies), "sensors.imu")
+            object.__setattr__(self, "sensors", {**self.sensors, "imu": resolved})
         _check_prior(self.prior)
 
     @property

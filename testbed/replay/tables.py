@@ -44,6 +44,10 @@ SCHEMAS: dict[str, tuple[tuple[str, bool, bool], ...]] = {
               *((c, True, False) for c in ("vx", "vy", "vz", "wx", "wy", "wz"))),
 }
 REQUIRED_TABLES = ("links",)
+#: the calibration table (testbed.replay.calibration): not a stream, no time column; read by
+#: read_table(path, "calibration", CALIBRATION_SCHEMA)
+CALIBRATION_SCHEMA = (("src", False, True), ("dst", False, False), ("bias", True, False), ("scale", True, False),
+                      ("sigma_bias", True, False), ("sigma_scale", True, False))
 #: the largest magnitude of any number in a table (s, m, m/s, ...): Unix times until the year 2286,
 #: any coordinate on Earth; squares and sums of squares of such numbers stay far from overflow
 MAX_MAGNITUDE = 1e10
@@ -183,10 +187,11 @@ def _numbers(table: str, file: str, name: str, raw: np.ndarray, required: bool, 
     return out
 
 
-def read_table(path: Path, table: str) -> Table:
-    """Read and type one table of SCHEMAS[table] from a CSV or Parquet file; ConfigError on a mistake."""
+def read_table(path: Path, table: str, schema: tuple | None = None) -> Table:
+    """Read and type one table of SCHEMAS[table] (or of `schema`) from a CSV or Parquet file;
+    ConfigError on a mistake."""
     path = Path(path)
-    schema = SCHEMAS[table]
+    schema = SCHEMAS[table] if schema is None else schema
     known = [c for c, _, _ in schema]
     if path.suffix == ".parquet":
         header, data = _read_parquet(path)

@@ -210,9 +210,9 @@ def decide(R: dict[str, list[dict]]) -> list[Claim]:
 def _cols(R: dict[str, list[dict]]) -> list[tuple[str, str]]:
     """(metrics key, column header) of the table; the window columns carry the window used."""
     k, w = _keys(next(iter(R.values()))), _window(next(iter(R.values())))
-    return [("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos [m]"),
+    return [("rmse_position_after_start_m", "RMSE pos [m]"), ("pcrb_rmse_position_after_start_m", "PCRB pos [m]"),
             (k["rmse"], f"RMSE pos {w} [m]"), (k["pcrb_rmse"], f"PCRB {w} [m]"),
-            ("rmse_velocity_mps", "RMSE vel [m/s]"), ("rmse_attitude_deg", "RMSE att [deg]"),
+            ("rmse_velocity_after_start_m_s", "RMSE vel [m/s]"), ("rmse_attitude_after_start_deg", "RMSE att [deg]"),
             ("covariance_repairs", "cov. repairs"), ("rejected_measurements", "rejected rows"),
             ("nonconverged_steps", "non-converged steps")]
 
@@ -374,9 +374,9 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None,
                                    overrides={"pipeline.last_window": repr(0.5 * sc.duration)})
         base.add(sc.seed)
         dirs = sweep_runs(replace(sc, estimators=tuple(estimators)), runs, out / "runs" / name, workers=workers)
-        R[name] = [m["estimators"]["ekf"] for m in load_metrics(dirs)]
-        for fig in ("position_error.png", "velocity_error.png"):
-            src = dirs[0] / "plots" / fig
+        R[name] = [{**m["estimators"]["ekf"], **m["estimators"]["ekf"].get("health", {})} for m in load_metrics(dirs)]
+        for fig in ("position_error.png", "velocity_error.png"):  # testbed.plugins.phase_scores.PhaseWindow.plot
+            src = dirs[0] / "plots" / f"ekf_{fig}"
             if src.exists():
                 shutil.copy(src, out / "plots" / f"{name}-{fig}")
     if len(base) != 1:  # the paired comparisons need the same seed index to mean the same draws

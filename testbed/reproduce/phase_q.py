@@ -44,7 +44,7 @@ disturbance; the eq. 31 attitude-rate amplitude squared over one 200 s period is
 
 `choose(rows)` applies the rule to a sweep (`choose(rows, "q_rotation")` stage 2); `calibrate(name)`
 runs both stages on one scenario; `sweep(name, seeds, qs, q_rotations=...)` simulates each seed once and runs the EKF on that log with
-every (q, q_rotation) (the scores of testbed.pipelines.phase.estimate);
+every (q, q_rotation) (`score_ekf`: the phase.ekf estimator and its scores);
 `python -m testbed.reproduce.phase_q` prints the rule's q and q_rotation for every built-in phase
 scenario (the command that produced the scenarios' `pipeline.q` and `pipeline.q_rotation`), and `testbed reproduce phase` writes the sweep
 and the figure plots/q_sweep.png into its report.
@@ -67,12 +67,32 @@ CALIBRATION_SEEDS = tuple(range(1000, 1010))
 CALIBRATION_HORIZON_S = 20.0
 Q_GRID = (1e-12, 1e-11, 1e-9, 1e-8, 1e-7, 1e-6)  # m^2/s^3 (1e-12: the smallest number a scenario file accepts)
 QR_GRID = (0.0, 1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5)  # rad^2/s^3, stage 2
-DOF = 6  # body position and velocity: the `anees` of testbed.pipelines.phase; also the attitude's
+DOF = 6  # body position and velocity: the `anees` of testbed.plugins.phase_scores.PhaseScored; also the attitude's
 #: per stage: the swept parameter -> (the final NEES the rule calibrates, its dof)
 RULE_NEES = {"q": ("nees_body6_final", DOF), "q_rotation": ("nees_attitude6_final", 6)}
-#: the scores of one (seed, q, q_rotation) kept by the sweep (testbed.pipelines.phase.score)
-KEPT = ("nees_body6_final", "nees_attitude6_final", "nees_final", "anees", "rmse_position_m",
-        "pcrb_rmse_position_m", "rmse_attitude_deg", "gate_rejected_rows")
+#: the scores of one (seed, q, q_rotation) kept by the sweep: row key -> key of score_ekf (the RMSEs
+#: and the PCRB over t >= score_start, testbed.plugins.phase_scores.PhaseScored; the gate's
+#: rejected rows, the filter's health())
+KEPT = {"nees_body6_final": "nees_body6_final", "nees_attitude6_final": "nees_attitude6_final",
+        "nees_final": "nees_final", "anees": "anees", "rmse_position_m": "rmse_position_after_start_m",
+        "pcrb_rmse_position_m": "pcrb_rmse_position_after_start_m", "rmse_attitude_deg": "rmse_attitude_after_start_deg",
+        "gate_rejected_rows": "rejected_measurements"}
+
+
+def score_ekf(sc, log: dict) -> dict:
+    """The scores of the scenario's phase.ekf (its default estimator "ekf") on a run log, its
+    health() counts merged in (metrics.json `estimators.ekf` with `health` flattened)."""
+    # lazy: the filter and the scoring only when a sweep runs
+    from testbed.errors import PluginError
+    from testbed.plugins.defaults import default_specs
+    from testbed.plugins.loading import resolve
+    from testbed.plugins.run import run_estimators
+    from testbed.sim.world import build
+
+    m = run_estimators(sc, build(sc), log, resolve(default_specs(sc)), None)[0]["ekf"]
+    if "failed" in m:
+        raise PluginError(m["failed"]["reason"], m["failed"]["time_s"])
+    return {**m, **m.get("health", {})}
 
 
 def simulate_seeds(name: str, seeds=CALIBRATION_SEEDS, *, duration: float | None = CALIBRATION_HORIZON_S,
@@ -95,21 +115,19 @@ def sweep(name: str, seeds=CALIBRATION_SEEDS, qs=Q_GRID, *, q_rotations=None,
     scenario's), the EKF run on its log with each q (pipeline.q, or q_flown in flown mode) and each
     q_rotation (pipeline.q_rotation; None: the scenario's own). runs: the (scenario, log) pairs to use instead of simulating
     `seeds` (simulate_seeds); progress: optional callable(str) told after each seed."""
-    # lazy: the filter only when a sweep runs
-    from testbed.pipelines.phase import estimate
-    from testbed.plugins.phase_scores import window_keys
+    from testbed.plugins.phase_scores import window_keys  # lazy: the phase model only when a sweep runs
 
     field = "q_flown" if motion == "flown" else "q"
     rows = []
     for sc, log in (runs if runs is not None else simulate_seeds(name, seeds, duration=duration, motion=motion)):
         for q in qs:
             for qr in (q_rotations if q_rotations is not None else (sc.pipeline.q_rotation,)):
-                m, _ = estimate(replace(sc, pipeline=replace(sc.pipeline, **{field: float(q), "q_rotation": float(qr)})),
-                                log)
+                m = score_ekf(replace(sc, pipeline=replace(sc.pipeline, **{field: float(q), "q_rotation": float(qr)})),
+                              log)
                 k = window_keys(m["last_window_s"])
                 extra = {key: m[k[key]] for key in ("rmse", "pcrb_rmse", "max_abs_position") if k[key] in m}
                 rows.append({"scenario": name, "seed": sc.seed, "q": float(q), "q_rotation": float(qr),
-                             **{key: m[key] for key in KEPT}, **extra})
+                             **{key: m[src] for key, src in KEPT.items()}, **extra})
         if progress is not None:
             progress(f"{name}: seed {sc.seed} done")
     return rows

@@ -26,8 +26,9 @@ Also run (short): the other motion mode (2 runs, both noise cases) and the pixel
 
 The filters are the scenario's default estimators (visnav.ekf ... visnav.rhcf, testbed.plugins
 .defaults) run as plugins and scored like any estimator (testbed.plugins.score, with the
-relative-frame hook testbed.plugins.relnav_scores): per run the RMSE of each quantity and its
-3-dof ANEES (position, velocity, attitude: each with the estimate's own (3, 3) block).
+relative-frame hook testbed.plugins.relnav_scores): per run the RMSE of each quantity, the ANEES
+of the 9-dim navigation error (p, v, theta with the filter's (9, 9) covariance, `anees`, 9 dof)
+and, as extra rows, each quantity's 3-dof ANEES (with the estimate's own (3, 3) block).
 
 Outputs: table.md, table.csv (per case, filter and score: mean, lo, hi: an RMSE's 95 % confidence
 interval, each ANEES's 99 % interval of a consistent filter over its effective samples n_eff, a
@@ -75,6 +76,9 @@ FILTERS = ("ekf", "ckf", "hckf", "mckf", "rhcf")
 QUANTITIES = (("rmse_position_m", "position", "m"), ("rmse_velocity_m_s", "velocity", "m/s"),
               ("rmse_attitude_deg", "attitude", "deg"))
 CASES = ("glint", "gaussian")
+#: the ANEES reported: the 9-dof navigation one (relnav hook), then each quantity's 3-dof one
+ANEES = ("anees",) + tuple(f"anees_{q}" for _, q, _ in QUANTITIES)
+ANEES_LABEL = {"anees": "ANEES (9)", **{f"anees_{q}": f"ANEES {q}" for _, q, _ in QUANTITIES}}
 #: where the runs' results are kept while the reproduction is incomplete (testbed.reproduce.runs)
 RUNS_DIR, EXTRA_DIR = "runs", "runs-extra"
 CLAIM_PAIRS = (("rhcf", "mckf"), ("mckf", "hckf"), ("hckf", "ekf"))
@@ -191,7 +195,7 @@ def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
 
 
 def summarize(results: list[dict], case: str) -> dict:
-    """Per filter: mean and 95 % interval of each RMSE, each quantity's mean ANEES over the runs with
+    """Per filter: mean and 95 % interval of each RMSE, mean of each ANEES (ANEES) over the runs with
     its 99 % interval and effective samples (testbed.scoring.metrics.anees_over_runs), time per step, runs finite."""
     table = {}
     for name in FILTERS:
@@ -199,7 +203,7 @@ def summarize(results: list[dict], case: str) -> dict:
         for key, _, _ in QUANTITIES:
             m, lo, hi = mean_ci(_col(results, case, name, key))
             row[key] = {"mean": m, "lo": lo, "hi": hi}
-        row["anees"] = {q: anees_over_runs([r[case]["metrics"][name] for r in results], f"anees_{q}") for _, q, _ in QUANTITIES}
+        row["anees"] = {key: anees_over_runs([r[case]["metrics"][name] for r in results], key) for key in ANEES}
         row["time_per_step_ms"] = float(np.mean(_col(results, case, name, "time_per_step_ms")))
         row["finite_runs"] = int(np.sum(_col(results, case, name, "finite")))
         table[name] = row
@@ -264,25 +268,26 @@ def decide(res: VisnavResults) -> list[Claim]:
 def _markdown(summaries: dict, meta: dict, extra: dict, claims: list[Claim]) -> list[str]:
     lines = [f"# Seed 004 reproduction: {meta['runs']} runs x {fmt(meta['duration'])} s, motion {meta['motion']}, "
              f"geometric camera, seeds {meta['seeds'][0]}..{meta['seeds'][-1]}",
-             "", "RMSE over the run (mean over runs [95 % interval]); ANEES of the relative position, velocity "
-             "and attitude, each with its own (3, 3) covariance block (expected 3) [99 % interval of a consistent "
-             "filter] (effective samples: the epochs of a run are correlated, docs/consistency.md); wall time "
+             "", "RMSE over the run (mean over runs [95 % interval]); ANEES (9) of the 9 navigation states "
+             "(expected 9), then the ANEES of the relative position, velocity and attitude, each with its own "
+             "(3, 3) covariance block (expected 3) [99 % interval of a consistent filter] (effective samples: the "
+             "epochs of a run are correlated, docs/consistency.md); wall time "
              "per camera epoch (the estimator's whole processing: IMU pairing, two 20 Hz predicts, one update).", ""]
     for case, summ in summaries.items():
         lines += [f"## {case}", ""]
         lines += markdown_table(["filter", "position (m)", "velocity (m/s)", "attitude (deg)"]
-                                + [f"ANEES {q}" for _, q, _ in QUANTITIES] + ["ms/epoch", "finite runs"],
+                                + [ANEES_LABEL[key] for key in ANEES] + ["ms/epoch", "finite runs"],
                                 [[name] + [fmt_ci(**r[key]) for key, _, _ in QUANTITIES]
-                                 + [fmt_anees(r["anees"][q], f"anees_{q}") for _, q, _ in QUANTITIES]
+                                 + [fmt_anees(r["anees"][key], key) for key in ANEES]
                                  + [r["time_per_step_ms"], r["finite_runs"]]
                                  for name, r in summ.items()])
         lines.append("")
     for label, ex in extra.items():
         lines += [f"## {label}", ""]
         lines += markdown_table(["case", "filter", "position (m)", "velocity (m/s)", "attitude (deg)"]
-                                + [f"ANEES {q}" for _, q, _ in QUANTITIES],
+                                + [ANEES_LABEL[key] for key in ANEES],
                                 [[case, name] + [m[key] for key, _, _ in QUANTITIES]
-                                 + [fmt_anees(anees_over_runs([m], f"anees_{q}"), f"anees_{q}") for _, q, _ in QUANTITIES]
+                                 + [fmt_anees(anees_over_runs([m], key), key) for key in ANEES]
                                  for case, per in ex.items() for name, m in per.items()])
         lines.append("")
     lines += [f"Wall time: {fmt(meta['wall_s'])} s with {meta['workers']} worker(s).", ""]
@@ -294,19 +299,20 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
     for case, summ in summaries.items():
         for name, r in summ.items():
             rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
-            for _, q, _ in QUANTITIES:
-                a = r["anees"][q]
-                rows += [[case, name, f"anees_{q}", a[f"anees_{q}"], *a[f"anees_{q}_interval_99"]],
-                         [case, name, f"n_eff_{q}", a[f"n_eff_{q}"], None, None]]
+            for key in ANEES:
+                a = r["anees"][key]
+                rows += [[case, name, key, a[key], *a[f"{key}_interval_99"]],
+                         [case, name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")], None, None]]
             rows += [[case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
     for label, ex in extra.items():
         for case, per in ex.items():
             for name, m in per.items():
                 rows += [[f"{label}/{case}", name, key, m[key], None, None] for key, _, _ in QUANTITIES]
-                for _, q, _ in QUANTITIES:
-                    a = anees_over_runs([m], f"anees_{q}")  # one run: its 99 % interval
-                    rows += [[f"{label}/{case}", name, f"anees_{q}", a[f"anees_{q}"], *a[f"anees_{q}_interval_99"]],
-                             [f"{label}/{case}", name, f"n_eff_{q}", a[f"n_eff_{q}"], None, None]]
+                for key in ANEES:
+                    a = anees_over_runs([m], key)  # one run: its 99 % interval
+                    rows += [[f"{label}/{case}", name, key, a[key], *a[f"{key}_interval_99"]],
+                             [f"{label}/{case}", name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")],
+                              None, None]]
     return rows
 
 

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Literal
 
-from testbed.config import in_range, join_key, key, require, whole_ratio
+from testbed.config import from_dict, in_range, join_key, key, require, to_dict, whole_ratio
 from testbed.sensors.presets import CAMERA_PRESETS, GNSS_PRESETS, IMU_PRESETS, PHASE_PRESETS, UWB_PRESETS
 
 
@@ -113,6 +113,31 @@ class ImuConfig:
                 f"needs one amplitude per harmonic, as many as vibration.accel_xy ({len(vib.accel_xy)})")
         _check_rate(self)
         in_range(self, "vehicles", 1)
+
+
+def declared_imu(table: dict, bodies: tuple[str, ...], at: str) -> dict:
+    """A recorded dataset's [sensors.imu] resolved as a scenario's is (its preset fills every error
+    key left out, ImuConfig), as Context.sensors["imu"].
+
+    table: the spec's free table; a sub-table named after a body (`[sensors.imu.uav2]`) overrides
+    the shared keys for that body (merged key by key, accel/gyro/vibration one level down, then
+    resolved on its own: its `preset` fills only the keys neither table gives). Returns the shared
+    table resolved, with each overridden body's whole resolved table under its name
+    (estimators.sensor_models.vehicle_imu picks a body's). at: the dotted key of `table` (FieldError
+    names the full key).
+    """
+    names = {f.name for f in fields(ImuConfig)}
+    shared = {k: v for k, v in table.items() if k in names or k not in bodies}
+    out = to_dict(from_dict(ImuConfig, shared, "", at))
+    for body in (k for k in table if k not in names and k in bodies):
+        own = table[body]
+        require(isinstance(own, dict), join_key(at, body), own, f"expected a table of [sensors.imu] keys for body {body!r}")
+        merged = {**shared, **own}
+        for sub in ("accel", "gyro", "vibration"):
+            if isinstance(shared.get(sub), dict) and isinstance(own.get(sub), dict):
+                merged[sub] = {**shared[sub], **own[sub]}
+        out[body] = to_dict(from_dict(ImuConfig, merged, "", join_key(at, body)))
+    return out
 
 
 # --------------------------------------------------------------------------------------- UWB

@@ -1,0 +1,129 @@
+"""Range bias (docs/replay.md, "Range bias"): the calibration table of the recorded-data format and
+the bias states of ranging.ekf, on an exported simulated run with a known bias added to some links."""
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from testbed.config import scenario
+from testbed.cli import main
+from testbed.plugins import EstimatorSpec
+from testbed.plugins.feed import run_plugin
+from testbed.plugins.loading import resolve
+from testbed.replay.recording import RecordedTruth, load_recording
+from testbed.runner import run
+
+#: m: the bias added to uav1's ranges to three of its sixteen anchors (three times the declared
+#: 0.1 m range sigma, of both signs)
+BIAS = {"anchor1": 0.3, "anchor6": -0.3, "anchor11": 0.3}
+TAG = "uav1/uwb"
+PARAMS = {"follower": "uav1", "known": [], "antennas": [TAG]}
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """bandwidth for 10 s (4 UAVs ranging to 16 anchors at 10 Hz, 0.1 m white range noise; NLOS
+    rows dropped, so that the only bias is the one added), exported; its links.csv as rows."""
+    d = tmp_path_factory.mktemp("bias")
+    sc = scenario.load("bandwidth", {"sensors.uwb.nlos": "drop"}, duration=10.0)
+    run(sc, d / "run", plots=False)
+    assert main(["export", str(d / "run"), "--out", str(d / "data")]) == 0
+    return d / "data"
+
+
+def _copy(exported: Path, to: Path, bias: dict[str, float], calibration: str | None = None) -> Path:
+    """The export with `bias` added to uav1's ranges to those anchors, and calibration.csv."""
+    shutil.copytree(exported, to)
+    with open(exported / "links.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        if r["src"] == TAG and r["dst"] in bias:
+            r["value"] = repr(float(r["value"]) + bias[r["dst"]])
+    with open(to / "links.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    if calibration is not None:
+        (to / "calibration.csv").write_text(calibration)
+    return to / "spec.toml"
+
+
+def _run(spec: Path, **params):
+    """(position RMSE m of uav1's tag, its errors (K, 3) and covariances (K, 3, 3), the estimator)."""
+    rec = load_recording(spec)
+    p = {**PARAMS, **params}
+    keep: list = []
+    track, _, _ = run_plugin(resolve([EstimatorSpec(entry="ranging.ekf", params=p)])[0], rec.context("ekf", p),
+                             rec.feed, keep=keep)
+    s = track[(TAG, "position")]
+    err = s.value - RecordedTruth(rec).at(TAG, "position", s.time)
+    return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), err, s.cov, keep[0]
+
+
+def test_bias_states_recover_the_added_biases_within_their_covariance_and_beat_the_bias_free_filter(exported, tmp_path):
+    spec = _copy(exported, tmp_path / "d", BIAS)
+    rmse_plain, _, _, _ = _run(spec)
+    rmse_bias, err, cov, est = _run(spec, bias_states=True)
+    assert rmse_bias < rmse_plain
+    # every link's bias, jointly: the error of the bias vector (true: BIAS, 0 elsewhere) in its own
+    # covariance, chi2 with one dof per link (false alarm 1 %)
+    o = 6 * est.n
+    keys = sorted(est.bias_index.items(), key=lambda kv: kv[1])
+    assert len(keys) == 16
+    e = np.array([est.belief.mean[o + k] - BIAS.get(other, 0.0) for (_, _, other), k in keys])
+    nees = float(e @ np.linalg.solve(est.belief.cov[o:, o:], e))
+    assert nees < chi2.ppf(0.99, e.size)
+    # and the biases were found, not merely covered: each added one is far outside its sigma from 0
+    for (_, _, other), (b, sigma) in est.bias_estimates().items():
+        if other in BIAS:
+            assert abs(b) > 3 * sigma and np.sign(b) == np.sign(BIAS[other])
+
+
+def test_a_calibration_table_removes_the_known_bias_and_gives_its_sigma_as_the_prior(exported, tmp_path):
+    rows = "".join(f"{TAG},{a},{b},,0.02,\n" for a, b in BIAS.items())
+    spec = _copy(exported, tmp_path / "d", BIAS, "src,dst,bias,scale,sigma_bias,sigma_scale\n" + rows)
+    clean = load_recording(exported / "spec.toml").tables["links"]["value"]
+    rec = load_recording(spec)
+    np.testing.assert_allclose(rec.tables["links"]["value"], clean, rtol=0, atol=1e-9)
+    assert rec.context("x", {}).sensors["uwb"]["bias_sigma"] == {
+        TAG: {a: 0.02 for a in BIAS}, **{a: {TAG: 0.02} for a in BIAS}}
+    _, _, _, est = _run(spec, bias_states=True, bias_sigma=0.5)
+    # the calibrated links' states start at sigma 0.02 m, the others at bias_sigma: posterior <= prior
+    for (_, _, other), (_, sigma) in est.bias_estimates().items():
+        assert sigma <= (0.02 if other in BIAS else 0.5)
+    assert max(s for (_, _, o), (_, s) in est.bias_estimates().items() if o in BIAS) <= 0.02
+
+
+def test_device_and_link_rows_add_up_and_scale_divides(exported, tmp_path):
+    """d_meas = (1 + s) d + b_src + b_dst + b_link: a device row of the tag (0.1 m, scale 1e-3) and
+    a link row (0.2 m, scale 2e-3) on anchor1."""
+    spec = _copy(exported, tmp_path / "d", {}, "src,dst,bias,scale\nuav1/uwb,,0.1,0.001\nanchor1,uav1/uwb,0.2,0.002\n")
+    raw = load_recording(exported / "spec.toml").tables["links"]
+    got = load_recording(spec).tables["links"]
+    tag = raw["src"] == TAG
+    link = tag & (raw["dst"] == "anchor1")
+    want = np.where(link, (raw["value"] - 0.3) / 1.003, np.where(tag, (raw["value"] - 0.1) / 1.001, raw["value"]))
+    np.testing.assert_allclose(got["value"], want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("table, says", [
+    ("src,dst,bias\nuav1/nope,,0.1\n", "column src: 'uav1/nope' is not a site"),
+    ("src,dst,bias\nuav1/uwb,anchor1,nan\n", "column bias: must be a finite number"),
+    ("src,dst,bias\nuav1/uwb,anchor1,0.1\nanchor1,uav1/uwb,0.2\n", "is calibrated twice (also row 1)"),
+    ("src,dst,bias\nuav1/uwb,,0.1\nuav1/uwb,,0.2\n", "the device uav1/uwb is calibrated twice"),
+    ("src,dst,scale\nuav1/uwb,,0.5\n", "column scale: must be at most 0.1"),
+    ("src,dst,bias,sigma_bias\nuav1/uwb,,0.1,0\n", "column sigma_bias: must be positive"),
+    ("src,dst,bias,offset\nuav1/uwb,,0.1,1\n", "unknown column 'offset'"),
+])
+def test_a_bad_calibration_table_is_one_line_and_exit_2(exported, tmp_path, capsys, table, says):
+    spec = _copy(exported, tmp_path / "d", {}, table)
+    capsys.readouterr()
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "calibration.csv" in err and says in err, err
+    assert not (tmp_path / "out").exists()
