@@ -238,12 +238,12 @@ def _in_marked(cwd: Path, name: str, inner: str) -> Path:
 def test_out_that_is_contains_or_lies_inside_an_input_is_refused(capsys, cwd, inputs, case):
     """`--out` equal to, above or below any input (resolved: relative paths, symbolic links) is one
     line and exit 2, --force or not; every input is left as it was."""
-    from testbed.config import scenario
+    from importlib import resources
 
     shutil.copytree(inputs / "r", cwd / "r")
     shutil.copytree(inputs / "data", cwd / "data")
     if case.endswith("-scenario"):
-        _in_marked(cwd, "d", "s.toml").write_bytes((Path(scenario.__file__).parent / "scenarios/bandwidth.toml").read_bytes())
+        _in_marked(cwd, "d", "s.toml").write_bytes((resources.files("testbed.scenarios") / "bandwidth.toml").read_bytes())
     if case.endswith("-estimator"):
         _in_marked(cwd, "d", "plug.py").write_text(PLUGIN)
     if case == "export-out-contains-the-run":  # the run inside an earlier output of the testbed
