@@ -1,5 +1,5 @@
 """`testbed export RUN` then `testbed replay EXPORT/spec.toml` with no options: every estimator the
-export lists gives back the estimates it gave inside the simulation, to 1e-9 m (issue 28 item 4,
+export lists gives back the estimates it gave inside the simulation, to 1e-9 m (see
 docs/replay.md), on coop-fg, bandwidth, a phase scenario, visnav and coop-denied (flown, its
 estimator online in the loop, replayed offline); the built-ins the format cannot drive are named.
 

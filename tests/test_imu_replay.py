@@ -1,4 +1,4 @@
-"""The IMU filters (nav.eskf, coop.ins, coop.ins_distributed) on recorded data (issue 30 item 2):
+"""The IMU filters (nav.eskf, coop.ins, coop.ins_distributed) on recorded data:
 a simulated 3 s run of three vehicles with IMUs, exported (testbed export) and replayed.
 
 - `[sensors.imu] preset = "..."` in a replay is resolved as in a scenario (it was a KeyError);
