@@ -11,11 +11,20 @@ fitted by weighted least squares, w_i = 1 / sigma_i^2 (the row's declared sigma,
 variance of n_i unknown (one per link):
 
     [b, s] = (A^T W A)^-1 A^T W e,   A = [1, d],                                   (cal. 2)
-    cov[b, s] = c (A^T W A)^-1,      c = sum_i w_i res_i^2 / (n - p)
+    cov[b, s] = tau c (A^T W A)^-1,  c = sum_i w_i res_i^2 / (n - p)
     sigma_l^2 = sum_i res_i^2 / (n - p)                (the link's range noise, m)  (cal. 3)
 
-p = 2; a link whose segment does not determine its scale (its sigma above MAX_SCALE / 10: the
-true range barely changes) is fitted for b alone (p = 1, scale 0, no sigma_scale). The range noise
+tau >= 1 the integrated autocorrelation time (in rows) of the link's residuals in time order
+(testbed.scoring.metrics.integrated_time, docs/consistency.md): residuals that stay correlated over
+tau rows (multipath changing slowly with position) carry the information of n / tau independent
+ones, so the least-squares covariance, which counts n, is widened by tau (1 for white residuals).
+
+p = 2, or p = 1 (b alone: scale 0, no sigma_scale) for a link whose scale does not predict ranges
+it was not fitted on (cal. 2b: two-fold cross-validation in time within the segment, each half
+fitted with and without s and tested on the other; s is kept when it lowers the summed weighted
+squared error of the held-out halves) or lies beyond the format's bound (MAX_SCALE). A scale
+error of the radios' clocks holds on every part of the segment; a "scale" that fits one half's
+multipath does not carry over to the other half, nor to the replay. The range noise
 default of every estimator, pooled over the links:
 
     range_sigma^2 = sum_l sum_i res_i^2 / sum_l (n_l - p_l)                         (cal. 4)
@@ -50,6 +59,7 @@ from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE
 from testbed.replay.recording import RecordedTruth, Recording, load_recording
 from testbed.replay.spec import Window
 from testbed.replay.tables import find
+from testbed.scoring.metrics import integrated_time
 
 #: the fewest rows a link needs in the segment (two unknowns and one degree of freedom)
 MIN_ROWS = 3
@@ -60,7 +70,8 @@ MIN_SAMPLES = 16
 @dataclass(frozen=True, slots=True)
 class LinkFit:
     """One link's fit (cal. 1-3): ends, rows n, bias m, scale (0 when not fitted), their sigmas
-    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares and dof."""
+    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof
+    and integrated autocorrelation time tau (rows)."""
 
     src: str
     dst: str
@@ -72,26 +83,51 @@ class LinkFit:
     sigma: float
     rss: float
     dof: int
+    tau: float
 
 
-def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float, float, int]:
-    """(b, s, sigma_b, sigma_s, rss, dof) of e = b + s d + n (cal. 2-3) with weights w (n,);
-    s = 0 and sigma_s NaN when the scale is not determined (its sigma above MAX_SCALE / 10)."""
-    for cols in (2, 1):
-        A = np.stack([np.ones_like(d), d], axis=1)[:, :cols]
-        N = A.T @ (w[:, None] * A)
-        if np.linalg.matrix_rank(N) < cols or e.size <= cols:
+def _wls(e: np.ndarray, d: np.ndarray, w: np.ndarray, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(x (cols,), (A^T W A)^-1) of e = A x, A = [1, d][:, :cols] (cal. 2), None if A^T W A is singular."""
+    A = np.stack([np.ones_like(d), d], axis=1)[:, :cols]
+    N = A.T @ (w[:, None] * A)
+    if e.size <= cols or np.linalg.matrix_rank(N) < cols:
+        return None
+    Ninv = np.linalg.inv(N)
+    return Ninv @ (A.T @ (w * e)), Ninv
+
+
+def scale_predicts(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> bool:
+    """Does the scale predict ranges it was not fitted on (cal. 2b)? Two-fold cross-validation in
+    time: each half of the rows (in time order) fitted with and without s, the weighted squared
+    error of the fit on the other half summed; True when the fit with s has the smaller."""
+    h = e.size // 2
+    err = {1: 0.0, 2: 0.0}
+    for fit, test in ((slice(0, h), slice(h, None)), (slice(h, None), slice(0, h))):
+        for cols in (1, 2):
+            sol = _wls(e[fit], d[fit], w[fit], cols)
+            if sol is None:
+                return False
+            res = e[test] - np.stack([np.ones_like(d[test]), d[test]], axis=1)[:, :cols] @ sol[0]
+            err[cols] += float(w[test] @ res ** 2)
+    return err[2] < err[1]
+
+
+def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float, float, int, float]:
+    """(b, s, sigma_b, sigma_s, rss, dof, tau) of e = b + s d + n (cal. 2-3) with weights w (n,), rows
+    in time order; s = 0 and sigma_s NaN when the scale does not predict (scale_predicts, cal. 2b)
+    or lies beyond the format's MAX_SCALE. ValueError when the rows cannot determine b."""
+    for cols in ((2, 1) if scale_predicts(e, d, w) else (1,)):
+        sol = _wls(e, d, w, cols)
+        if sol is None or (cols == 2 and abs(sol[0][1]) > MAX_SCALE):
             continue
-        Ninv = np.linalg.inv(N)
-        x = Ninv @ (A.T @ (w * e))
-        res = e - A @ x
+        x, Ninv = sol
+        res = e - np.stack([np.ones_like(d), d], axis=1)[:, :cols] @ x
         dof = e.size - cols
-        cov = float(w @ res ** 2) / dof * Ninv
-        if cols == 2 and np.sqrt(cov[1, 1]) > MAX_SCALE / 10:
-            continue
-        sig = np.sqrt(np.diag(cov))
+        tau = integrated_time(res)
+        # eq. cal. 2: the covariance of white residuals, widened by their correlation time
+        sig = np.sqrt(np.diag(tau * float(w @ res ** 2) / dof * Ninv))
         return (float(x[0]), float(x[1]) if cols == 2 else 0.0, float(sig[0]),
-                float(sig[1]) if cols == 2 else float("nan"), float(res @ res), dof)
+                float(sig[1]) if cols == 2 else float("nan"), float(res @ res), dof, tau)
     raise ValueError("fewer rows than unknowns")
 
 
@@ -110,7 +146,7 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
             if end not in truth.anchors:
                 lo, hi = truth.span.get(truth.body_of(end), (np.inf, -np.inf))
                 ok &= (time[rows] >= lo) & (time[rows] <= hi)
-        rows = rows[ok]
+        rows = rows[ok][np.argsort(time[rows[ok]], kind="stable")]
         if rows.size < MIN_ROWS:
             continue
         tr = time[rows]
@@ -118,10 +154,10 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
         sigma = t["sigma"][rows]
         w = np.where(np.isfinite(sigma), 1.0 / np.where(np.isfinite(sigma), sigma, 1.0) ** 2, 1.0)
         try:
-            bias, scale, sb, ss, rss, dof = fit_link(t["value"][rows] - d, d, w)
+            bias, scale, sb, ss, rss, dof, tau = fit_link(t["value"][rows] - d, d, w)
         except ValueError:
             continue
-        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof))
+        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau))
     return out
 
 
@@ -201,6 +237,7 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
     noise = {"range_sigma": range_sigma, **{k: v["q"] for k, v in q.items()}}
     fit = {"range_rows": sum(f.samples for f in fits), "range_dof": dof,
+           "range_tau_median": float(np.median([f.tau for f in fits])),
            "range_sigma_interval": [range_sigma * np.sqrt(dof / chi2.ppf(0.975, dof)),
                                     range_sigma * np.sqrt(dof / chi2.ppf(0.025, dof))],
            "epoch_spacing_s": spacing,
@@ -237,5 +274,6 @@ def to_toml(spec_path: Path, c: dict) -> str:
                   f"sigma_bias = {_num(f.sigma_bias)}"]
         if np.isfinite(f.sigma_scale):
             lines += [f"scale = {_num(f.scale)}", f"sigma_scale = {_num(f.sigma_scale)}"]
-        lines += [f"sigma = {_num(f.sigma)}  # m, the link's range noise (eq. cal. 3)", f"samples = {f.samples}"]
+        lines += [f"sigma = {_num(f.sigma)}  # m, the link's range noise (eq. cal. 3)", f"samples = {f.samples}",
+                  f"tau = {_num(f.tau)}  # rows, the residuals' integrated autocorrelation time"]
     return "\n".join(lines) + "\n"

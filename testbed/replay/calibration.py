@@ -17,7 +17,7 @@ The calibration file (`testbed calibrate` writes it, `testbed replay --calibrati
 docs/calibration.md): TOML, `format`, `window` [T0, T1] (s, the files' clock: the segment it was
 fitted on, never scored), `[noise]` (the estimators' defaults by parameter name: NOISE_KEYS),
 `[fit]` (a record, not read), `[[links]]` rows with the columns of calibration.csv (and `sigma`,
-`samples`: a record). read_calibration_file checks every key; a mistake is one line naming the
+`samples`, `tau`: a record). read_calibration_file checks every key; a mistake is one line naming the
 file, the key and the value.
 """
 from __future__ import annotations
@@ -42,7 +42,7 @@ FILE_FORMAT = 1
 #: where the user set none (m; m^2/s^3; rad^2/s^3)
 NOISE_KEYS = ("range_sigma", "q_translation", "q_rotation")
 #: the record keys of a [[links]] row besides calibration.csv's columns
-LINK_RECORD_KEYS = ("sigma", "samples")
+LINK_RECORD_KEYS = ("sigma", "samples", "tau")
 
 
 @dataclass(frozen=True, slots=True)
