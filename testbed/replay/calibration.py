@@ -127,6 +127,7 @@ class CalibrationFile:
 
 
 def _number(path: Path, key: str, v: object, lo: float = -MAX_MAGNITUDE) -> float:
+    """v as a float, if a finite number (not a bool) in [lo, MAX_MAGNITUDE]; else ConfigError naming path and key."""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or not lo <= v <= MAX_MAGNITUDE:
         raise ConfigError(f"{path}: {key}: expected a finite number in [{lo:g}, {MAX_MAGNITUDE:g}], got {v!r}")
     return float(v)
