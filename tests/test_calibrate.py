@@ -5,6 +5,7 @@ gives them back within bounds derived from the sample size; `testbed replay --ca
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -178,6 +179,7 @@ def test_bad_input_is_one_line_and_exit_2_with_nothing_written(dataset, calibrat
     text = good.read_text()
     for bad, needle in ((text.replace("format = 1", "format = 2"), "format: expected 1"),
                         (text.replace("range_sigma = ", "range_sigma = -"), "noise.range_sigma"),
+                        (re.sub(r"\nq_rotation = .*", "\nq_rotation = 1e-20", text), "noise.q_rotation: must be 0 or in"),
                         (text.replace('src = "anchor0"', 'src = "anchor99"', 1), "'anchor99' is not a site"),
                         (text + "\nextra = 1\n", "extra: unknown key"),
                         ("window = [", "not valid TOML")):

@@ -53,6 +53,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from testbed.config import MIN_MAGNITUDE
 from testbed.errors import ConfigError
 from testbed.outdir import new_file
 from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE
@@ -235,7 +236,9 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
     spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
-    noise = {"range_sigma": range_sigma, **{k: v["q"] for k, v in q.items()}}
+    # a density below every physical value (MIN_MAGNITUDE) is the rounding of a motion without any, e.g.
+    # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts
+    noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()}}
     fit = {"range_rows": sum(f.samples for f in fits), "range_dof": dof,
            "range_tau_median": float(np.median([f.tau for f in fits])),
            "range_sigma_interval": [range_sigma * np.sqrt(dof / chi2.ppf(0.975, dof)),

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.config import MAX_MAGNITUDE as MAX_PARAM, MIN_MAGNITUDE
 from testbed.errors import ConfigError
 from testbed.replay.tables import CALIBRATION_SCHEMA, MAX_MAGNITUDE, Table, read_table
 
@@ -168,8 +169,9 @@ def read_calibration_file(path: Path, names: set[str]) -> CalibrationFile:
         if k not in NOISE_KEYS:
             raise ConfigError(f"{path}: noise.{k}: unknown key (known: {', '.join(NOISE_KEYS)})")
         noise[k] = _number(path, f"noise.{k}", v, lo=0.0)
-        if k == "range_sigma" and noise[k] <= 0:
-            raise ConfigError(f"{path}: noise.range_sigma: must be positive, got {v!r}")
+        if (k == "range_sigma" or noise[k] > 0) and not MIN_MAGNITUDE <= noise[k] <= MAX_PARAM:
+            raise ConfigError(f"{path}: noise.{k}: must be {'' if k == 'range_sigma' else '0 or '}in "
+                              f"[{MIN_MAGNITUDE:g}, {MAX_PARAM:g}] (an estimator parameter's bounds), got {v!r}")
     rows = data.get("links", [])
     if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
         raise ConfigError(f"{path}: links: expected [[links]] tables")
