@@ -117,6 +117,7 @@ def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float,
     """(b, s, sigma_b, sigma_s, rss, dof, tau) of e = b + s d + n (cal. 2-3) with weights w (n,), rows
     in time order; s = 0 and sigma_s NaN when the scale does not predict (scale_predicts, cal. 2b)
     or lies beyond the format's MAX_SCALE. ValueError when the rows cannot determine b."""
+    # eq. cal. 2b: the scale only where it predicts held-out ranges
     for cols in ((2, 1) if scale_predicts(e, d, w) else (1,)):
         sol = _wls(e, d, w, cols)
         if sol is None or (cols == 2 and abs(sol[0][1]) > MAX_SCALE):
@@ -151,6 +152,7 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
         if rows.size < MIN_ROWS:
             continue
         tr = time[rows]
+        # eq. cal. 1: e = r - d, d the true distance between the ends (lever arms included)
         d = np.linalg.norm(truth.at(a, "position", tr) - truth.at(b, "position", tr), axis=1)
         sigma = t["sigma"][rows]
         w = np.where(np.isfinite(sigma), 1.0 / np.where(np.isfinite(sigma), sigma, 1.0) ** 2, 1.0)
@@ -158,6 +160,7 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
             bias, scale, sb, ss, rss, dof, tau = fit_link(t["value"][rows] - d, d, w)
         except ValueError:
             continue
+        # eq. cal. 3: the link's range noise
         out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau))
     return out
 
@@ -166,6 +169,7 @@ def _second_differences(inc: np.ndarray) -> np.ndarray:
     """(K, 3) the non-overlapping second differences inc[1] - inc[0], inc[3] - inc[2], ... of the
     increments inc (L, 3) between consecutive samples (x[k+1] - x[k], or a rotation vector)."""
     k = inc.shape[0] // 2
+    # eq. cal. 5: D_k = (x_{k+1} - x_k) - (x_k - x_{k-1}), every second k
     return inc[1::2][:k] - inc[0::2][:k]
 
 
@@ -232,7 +236,8 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
         raise ConfigError(f"--window {t0:g},{t1:g}: no uwb link has {MIN_ROWS} or more rows with truth at both ends "
                           f"in it (the truth table spans {_span(rec)})")
     dof = sum(f.dof for f in fits)
-    range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))  # eq. cal. 4
+    # eq. cal. 4: the pooled range noise
+    range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))
     epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
     spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
