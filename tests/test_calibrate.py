@@ -195,3 +195,6 @@ def test_bad_input_is_one_line_and_exit_2_with_nothing_written(dataset, calibrat
     (both / "calibration.csv").write_text("src,bias\nanchor0,0.1\n")
     _one_line_exit_2(capsys, ["replay", str(both / "spec.toml"), "--out", str(tmp_path / "r"), "--calibration", str(good)],
                      "keep one calibration")
+    _one_line_exit_2(capsys, ["calibrate", str(both / "spec.toml"), "--window", "0,5", "--out", str(out)],
+                     "calibrate estimates what this table holds")
+    assert not out.exists() and not (tmp_path / "r").exists()
