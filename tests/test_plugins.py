@@ -338,6 +338,8 @@ def test_reproduce_coop_gives_a_plugin_every_table_plot_and_test(tmp_path, monke
     for section in sections:
         assert "UwbEkf" in section, section[:60]
     assert md.count("| UwbEkf |") >= 2 and "| centralized | UwbEkf |" in md
+    # the NLOS experiment's plugin ANEES with its interval and effective samples
+    assert re.search(r"UwbEkf \(its own settings.*ANEES \S+ \[\S+, \S+\] \(n_eff \S+\)", md)
 
 
 def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
