@@ -329,10 +329,11 @@ class SwarmIns:
         step = self._joint_step if self.joint else self._local_step
         dx, g = None, None  # the iterate (None: the prior) and P^-1 times it (damped only; P is the prior until the end)
         h, Hi, Hj = h[ok], Hi[ok], Hj[ok]  # the rows' linearization at the prior, computed above
-        for it in range(max(1, int(iterations))):
+        last = max(1, int(iterations)) - 1
+        for it in range(last + 1):
             if it:
                 h, Hi, Hj = self._linearize_at(rows, dx)
-            dx_gn, P, g_gn = step(rows, h, Hi, Hj, dx)
+            dx_gn, P, g_gn = step(rows, h, Hi, Hj, dx, covariance=it == last)  # the covariance of the last linearization only
             if self.damped:
                 dx, g = self._line_search(rows, dx, g, dx_gn, g_gn, h)
             else:
@@ -347,8 +348,9 @@ class SwarmIns:
         self.P = 0.5 * (self.P + np.swapaxes(self.P, -1, -2))
         return status
 
-    def _joint_step(self, rows, h, Hi, Hj, dx):
-        """One Gauss-Newton step of the joint filter: (dx as (core (n, 15), delays (D,)), P after)."""
+    def _joint_step(self, rows, h, Hi, Hj, dx, covariance: bool = True):
+        """One Gauss-Newton step of the joint filter: (dx as (core (n, 15), delays (D,)), P after
+        (None unless covariance), None)."""
         n, e = self.n, N_ERR
         H = self._dense(rows, Hi, Hj)
         x = np.zeros(n * e + self.D) if dx is None else np.concatenate([dx[0].ravel(), dx[1]])
@@ -356,6 +358,8 @@ class SwarmIns:
         S = H @ PHt + np.diag(rows.var)
         cf = linalg.cho_factor(0.5 * (S + S.T), lower=True, check_finite=False)
         x = PHt @ linalg.cho_solve(cf, rows.z - h + H @ x, check_finite=False)
+        if not covariance:
+            return (x[:n * e].reshape(n, e), x[n * e:]), None, None
         L = linalg.solve_triangular(cf[0], PHt.T, lower=True, check_finite=False)  # L^-1 H P
         return (x[:n * e].reshape(n, e), x[n * e:]), self.P - L.T @ L, None
 
@@ -380,9 +384,10 @@ class SwarmIns:
         out[order] = S[vi, sl]
         return out
 
-    def _local_step(self, rows, h, Hi, Hj, dx):
+    def _local_step(self, rows, h, Hi, Hj, dx, covariance: bool = True):
         """One Gauss-Newton step of every vehicle's filter at once (rows grouped by vehicle,
-        padded): (dx as (core (n, 15), delays (n, D)), P after, P^-1 dx (n, E)). The step is
+        padded): (dx as (core (n, 15), delays (n, D)), P after (None unless covariance),
+        P^-1 dx (n, E)). The step is
         dx = P H^T lam, lam = S^-1 (z - h + H dx_prev), so P^-1 dx = H^T lam needs no inverse of P
         (the line search's prior cost)."""
         n, E = self.n, N_ERR + self.D
@@ -397,12 +402,14 @@ class SwarmIns:
         PHt = self.P @ np.swapaxes(Hb, 1, 2)  # (n, E, M)
         S = Hb @ PHt + Rb[:, :, None] * np.eye(M)
         L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
-        # L^-1 [H P, r]: W (n, M, E) and y (n, M)
-        Wy = np.linalg.solve(L, np.concatenate([np.swapaxes(PHt, 1, 2), rb[..., None]], axis=2))  # batched in C
-        W, y = Wy[..., :E], Wy[..., E]
-        x = np.einsum("nme,nm->ne", W, y)
-        lam = np.linalg.solve(np.swapaxes(L, 1, 2), y[..., None])[..., 0]  # (n, M): L^-T y = S^-1 (...)
-        return (x[:, :N_ERR], x[:, N_ERR:]), self.P - np.swapaxes(W, 1, 2) @ W, np.einsum("nme,nm->ne", Hb, lam)
+        y = np.linalg.solve(L, rb[..., None])  # (n, M, 1): L^-1 r, batched in C
+        lam = np.linalg.solve(np.swapaxes(L, 1, 2), y)  # L^-T L^-1 r = S^-1 r
+        x = (PHt @ lam)[..., 0]
+        P = None
+        if covariance:
+            W = np.linalg.solve(L, np.swapaxes(PHt, 1, 2))  # (n, M, E): L^-1 H P
+            P = self.P - np.swapaxes(W, 1, 2) @ W
+        return (x[:, :N_ERR], x[:, N_ERR:]), P, (np.swapaxes(Hb, 1, 2) @ lam)[..., 0]
 
     STEPS = (1.0, 0.5, 0.25, 0.125)  # step lengths tried by the line search, longest first (else 0)
 
