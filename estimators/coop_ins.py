@@ -135,8 +135,10 @@ class SwarmIns:
     # ------------------------------------------------------------------ start
     def start(self, i: int, p: np.ndarray, q: np.ndarray, ba: np.ndarray, bg: np.ndarray, P0: np.ndarray) -> None:
         """Start vehicle i: body position p (3,) m, velocity 0, attitude q (4,), biases, and its
-        core covariance P0 (15, 15) (no correlation with the other vehicles or the delays)."""
-        self.fold()
+        core covariance P0 (15, 15) (no correlation with the other vehicles or the delays). Its
+        accumulated transition and noise are dropped (its rows and columns of P are replaced); the
+        other vehicles' stay pending, as between any two updates."""
+        self.Phi[i], self.Qa[i] = np.eye(N_ERR), 0.0
         self.p[i], self.v[i], self.q[i], self.ba[i], self.bg[i] = p, 0.0, q, ba, bg
         if self.joint:
             b = slice(N_ERR * i, N_ERR * i + N_ERR)
