@@ -401,16 +401,17 @@ class SwarmIns:
         rb[vi, sl] = (rows.z - h)[order] + np.einsum("me,me->m", H[order], x[vi])
         Rb = np.ones((n, M))
         Rb[vi, sl] = rows.var[order]
-        PHt = self.P @ np.swapaxes(Hb, 1, 2)  # (n, E, M)
-        S = Hb @ PHt + Rb[:, :, None] * np.eye(M)
+        HP = Hb @ self.P  # (n, M, E): H P (P symmetric; contiguous operands: a third of P H^T's time)
+        S = HP @ np.swapaxes(Hb, 1, 2) + Rb[:, :, None] * np.eye(M)
         L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
         y = np.linalg.solve(L, rb[..., None])  # (n, M, 1): L^-1 r, batched in C
         lam = np.linalg.solve(np.swapaxes(L, 1, 2), y)  # L^-T L^-1 r = S^-1 r
-        x = (PHt @ lam)[..., 0]
+        x = (np.swapaxes(HP, 1, 2) @ lam)[..., 0]
         P = None
         if covariance:
-            W = np.linalg.solve(L, np.swapaxes(PHt, 1, 2))  # (n, M, E): L^-1 H P
-            P = self.P - np.swapaxes(W, 1, 2) @ W
+            W = np.linalg.solve(L, HP)  # (n, M, E): L^-1 H P
+            P = np.ascontiguousarray(np.swapaxes(W, 1, 2)) @ W  # one new (n, E, E) array, P subtracted in place
+            np.subtract(self.P, P, out=P)
         return (x[:, :N_ERR], x[:, N_ERR:]), P, (np.swapaxes(Hb, 1, 2) @ lam)[..., 0]
 
     STEPS = (1.0, 0.5, 0.25, 0.125)  # step lengths tried by the line search, longest first (else 0)
