@@ -8,7 +8,7 @@
                        --shadow-size N --samples N --links nearest|epoch|none --nearest K --error-scale X]
     testbed sweep SCENARIO --runs N [--workers K] --out DIR [--force | --resume] [--backend local|ray
                 [--address ADDR]] [--quiet] [run options]
-    testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE] [--vehicles N,N,...]
+    testbed bench physics|sensors|estimators|replay|loop|denied|swarm-loop [--json FILE] [--vehicles N,N,...]
     testbed reproduce phase|visnav|bandwidth|coop|denied --out DIR [--force | --resume] [--runs N] [--motion M]
                 [--estimator ENTRY [--param key=value ...] ...]
                 [--backend local|ray [--address ADDR]] [--quiet]
@@ -280,7 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_quiet_option(p)
 
     p = sub.add_parser("bench", help="benchmarks, printed and saved as JSON")
-    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop", "denied"])
+    p.add_argument("what", choices=["physics", "sensors", "estimators", "replay", "loop", "denied", "swarm-loop"])
     p.add_argument("--json", type=_writable_file, help="write the figures to this JSON file (checked before the benchmark runs)")
     p.add_argument("--vehicles", type=_vehicle_counts, metavar="N[,N...]",
                    help="swarm sizes (physics: default 1,6,18,50; sensors: default 18; loop: default 1,10,30)")

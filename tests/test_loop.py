@@ -258,6 +258,8 @@ def test_a_plugin_flown_crash_is_reported(tmp_path, capsys, monkeypatch, fail):
     ('attitude = "estimate"', "", "control.attitude: 'estimate' needs feedback = \"estimate:NAME\""),
     ('feedback = "estimate:nav"\nrelease_sigmas = 1.0', "", "control.release_sigmas: 1: only with max_tilt_deg > 0"),
     ('feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = -1.0', "", "control.release_sigmas"),
+    ('feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_blend_s = 1.0', "", "control.release_blend_s: 1: only with release_sigmas > 0"),
+    ('feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = 1.0\nrelease_blend_s = -1.0', "", "control.release_blend_s"),
 ])
 def test_bad_feedback_keys_are_refused_at_load(tmp_path, capsys, monkeypatch, control, extra, says):
     monkeypatch.chdir(tmp_path)
@@ -411,6 +413,41 @@ def test_the_initialization_phase_holds_a_vehicle_on_its_reference_until_its_est
     first = epochs[sigmas * (c.kx + c.kv) * np.sqrt(3) * loop_plugins.Converging.SIGMA0 / (1 + epochs) <= limit][0]
     tick = int(round(first / 0.005)) + 1
     assert 0 < first < 2.8 and not any(used[:tick]) and all(used[tick:])
+
+
+def test_the_bumpless_release_starts_from_zero_error_and_fades_the_offset_out(tmp_path):
+    """[control] release_blend_s = tau: at the release tick (0.8 s: the epoch at which
+    (kx + kv) sqrt(3) SIGMA0 / (1 + t) <= g tan(35 deg), test above) the controller gets the
+    reference itself although the estimate differs from it (the GNSS fix's error); from then on it
+    gets the estimate less the release's offset (estimate - reference, position and velocity)
+    times exp(-(t - t_release) / tau): the difference from the plain estimate equals the offset at
+    the release tick and shrinks by exp(-dt / tau) over every dt."""
+    tau = 0.25
+    text = _write(tmp_path, duration=1.5, entry="tests.loop_plugins:Converging", outages="[]",
+                  control=f'feedback = "estimate:nav"\nmax_tilt_deg = 35.0\nrelease_sigmas = 1.0\nrelease_blend_s = {tau}').read_text()
+    path = tmp_path / "blend.toml"
+    path.write_text(text)
+    sc = scenario_mod.load(str(path))
+    physics = build(sc)
+    online = in_the_loop(sc, physics, resolve(sc.estimators))
+    rows, state = [], online.state
+
+    def spy(pos, vel, ref_pos, ref_vel):
+        p, v = state(pos, vel, ref_pos, ref_vel)
+        rows.append((online.t, bool(online.released[0]), p[0] - online.pos[0], v[0] - online.vel[0],
+                     online.pos[0] - ref_pos[0], online.vel[0] - ref_vel[0]))
+        return p, v
+
+    online.state = spy
+    simulate(sc, physics, feedback=online)
+    k = [r[1] for r in rows].index(True)  # the release tick
+    t, _, dp, dv, offset_p, offset_v = rows[k]
+    assert 0.75 < t < 0.85 and np.linalg.norm(offset_p) > 1e-3
+    assert np.allclose(dp, -offset_p, rtol=0, atol=1e-12) and np.allclose(dv, -offset_v, rtol=0, atol=1e-12)
+    for t1, _, dp1, dv1, *_ in rows[k + 1:]:
+        w = np.exp(-(t1 - t) / tau)
+        assert np.allclose(dp1, -w * offset_p, rtol=0, atol=1e-12) and np.allclose(dv1, -w * offset_v, rtol=0, atol=1e-12)
+    assert rows[-1][0] - t > 2 * tau
 
 
 @pytest.mark.parametrize("attitude", ["truth", "estimate"])

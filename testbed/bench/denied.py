@@ -36,7 +36,7 @@ from testbed.plugins.loading import resolve
 from testbed.plugins.online import in_the_loop
 from testbed.reproduce.denied import COOP, variant
 from testbed.runner import run
-from testbed.config.scenario import load
+from testbed.config.scenario import Scenario, load
 from testbed.sim.simulate import record
 from testbed.sim.world import build, lever_arms
 
@@ -46,7 +46,14 @@ REPEAT = 3  # runs per variant: the median is reported (a shared machine's noise
 
 def bench_denied(duration: float = DURATION_S, name: str = "coop_distributed", repeat: int = REPEAT) -> dict:
     """The figures of `repeat` runs (module docstring); name: the reproduce variant flown."""
-    sc = variant(load("coop-denied", duration=duration), name)
+    figures = bench_flown(variant(load("coop-denied", duration=duration), name), repeat)
+    return {"scenario": figures["scenario"], "variant": name, **figures}
+
+
+def bench_flown(sc: Scenario, repeat: int = REPEAT) -> dict:
+    """The figures of `repeat` runs of scenario sc (module docstring), flown on its estimator
+    named COOP ([control] feedback = "estimate:coop")."""
+    duration = sc.duration
     runs = []  # (wall s, CPU s, estimator wall ms, metrics) of each run
     with tempfile.TemporaryDirectory(prefix="bench-denied-") as tmp:
         for k in range(repeat):
@@ -69,7 +76,7 @@ def bench_denied(duration: float = DURATION_S, name: str = "coop_distributed", r
     record(sc, LogWriter(), physics, feedback=online)
     online.finish()
     loop_cpu = time.process_time() - c2
-    return {"scenario": sc.name, "variant": name, "vehicles": sc.vehicles, "simulated_s": duration,
+    return {"scenario": sc.name, "vehicles": sc.vehicles, "simulated_s": duration,
             "runs": repeat, "wall_s": wall, "cpu_s": cpu, "realtime_factor_wall": duration / wall, "realtime_factor_cpu": duration / cpu,
             "cpu_s_runs": cpu_runs, "realtime_factor_cpu_first": duration / cpu_runs[0],
             "estimator_wall_s": est_ms / 1e3, "estimator_share_wall": est_ms / 1e3 / wall,

@@ -1,4 +1,4 @@
-"""`testbed bench physics|sensors|estimators|replay|loop|denied [--json FILE]`: run one family, print, save as JSON.
+"""`testbed bench physics|sensors|estimators|replay|loop|denied|swarm-loop [--json FILE]`: run one family, print, save as JSON.
 
 The JSON holds the family's figures, the machine's load average before and after, and under
 "provenance" the record of testbed.provenance (versions, git commit, BLAS kernel, CPU, wall and
@@ -52,6 +52,12 @@ def bench(what: str, json_path: Path | None = None, vehicles: tuple[int, ...] | 
         rows = [bench_denied(name=v) for v in ("coop_distributed", "coop", "window", "window_distributed")]
         result = {"denied": rows}
         _print_table("denied: coop-denied flown on the cooperative estimate (filters and window cascades; all sensors, network); one core", rows)
+    elif what == "swarm-loop":
+        from testbed.bench.swarm_loop import bench_swarm_loop  # lazy, as denied
+
+        rows = [bench_swarm_loop()]
+        result = {"swarm_loop": rows}
+        _print_table("swarm-loop: swarm-100 flown on coop.ins_distributed over the network (IMU, GNSS, UWB); one core", rows)
     elif what == "replay":
         from testbed.bench.replay import bench_replay  # lazy: only this family needs the replay package
 

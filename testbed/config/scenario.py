@@ -541,7 +541,10 @@ class Control:
     sigma_p is no larger than the drift of its open-loop hold; from then on it flies on the
     estimate (needs max_tilt_deg > 0; 0 = off: flown on the first estimate; with feedback =
     "truth" nothing is fed back and it has no effect, so that flying a scenario on truth is the one
-    key feedback).
+    key feedback). release_blend_s: tau > 0 makes the release bumpless: the difference between
+    the estimate and the reference at the release (position and velocity) is subtracted from what
+    the controller gets and faded out as exp(-(t - t_release) / tau), so the error it answers
+    starts at zero (s; 0 = off: the whole difference at once; needs release_sigmas > 0).
     """
 
     kx: float = key(4.0, unit="1/s^2")
@@ -555,6 +558,7 @@ class Control:
     mahony_ki: float = key(0.02, unit="1/s^2")
     max_tilt_deg: float = key(0.0, unit="deg", range="0 (off) or in (0, 90)")
     release_sigmas: float = key(0.0, range="0 (off) or > 0")
+    release_blend_s: float = key(0.0, unit="s", range="0 (off) or > 0")
 
     def __post_init__(self) -> None:
         for gain in ("kx", "kv", "kr", "kw", "mahony_kp"):
@@ -570,6 +574,9 @@ class Control:
         in_range(self, "release_sigmas", 0)
         require(not self.release_sigmas or self.feedback == "truth" or self.max_tilt_deg > 0, "release_sigmas",
                 self.release_sigmas, f'{self.release_sigmas:g}: only with max_tilt_deg > 0')
+        in_range(self, "release_blend_s", 0, unit="s")
+        require(not self.release_blend_s or self.release_sigmas > 0, "release_blend_s", self.release_blend_s,
+                f'{self.release_blend_s:g}: only with release_sigmas > 0')
 
     @property
     def feedback_estimator(self) -> str:

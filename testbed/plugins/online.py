@@ -18,7 +18,11 @@ covariances of its latest position and velocity estimates satisfy
 n (kx sigma_p + kv sigma_v) <= g tan(max_tilt_deg), sigma = sqrt(trace), or, flying on the
 estimated attitude, once sigma_p is no larger than the drift of the open-loop hold dead-reckoned
 from the attitude's declared tilt (docs/control.md, the initialization phase); an estimate without
-a covariance never releases it.
+a covariance never releases it. With [control] release_blend_s = tau > 0 the release is
+bumpless: the estimate's difference from the reference at the first tick a vehicle is flown on
+its estimate (position and velocity) is subtracted from what the controller gets, faded out as
+exp(-(t - t_release) / tau), so the error the controller answers starts at zero and the
+difference is flown out over a few tau instead of at once.
 
 Target check: at the first tick from TARGET_CHECK_S (1 s) on at which the estimator has given any
 estimate, every fed-back vehicle must have a world position estimate of its body "uavI", unless
@@ -77,6 +81,12 @@ class OnlineEstimator:
         # attitude "estimate": a held vehicle flies its reference open-loop on the estimated attitude, and
         # drifts; RMS velocity (m/s) and position (m) of that drift, dead-reckoned from the declared tilt
         self.drift = np.zeros((2, N)) if c.attitude == "estimate" else None
+        # the bumpless release ([control] release_blend_s): per vehicle the (position, velocity) offset
+        # (2, N, 3) m, m/s estimate - reference at its release and the time t_release (s; NaN: not yet)
+        self.blend = c.release_blend_s
+        self.offset = np.zeros((2, N, 3)) if self.blend and c.release_sigmas else None
+        self.t_release = np.full(N, np.nan)
+        self.t = -np.inf  # s: the latest tick advanced to
         self._vehicle_rows: dict[tuple, tuple | None] = {}  # _hold_batch's per target tuple
         self._pending: list = []  # heap of (arrival, time, stream, row, columns, index)
         self._rows: dict[str, int] = {}
@@ -96,6 +106,7 @@ class OnlineEstimator:
 
     def advance(self, t: float) -> None:
         """Process every queued measurement arrived by time t (s), in feeding order."""
+        self.t = t
         pending = self._pending
         if not pending or pending[0][0] > t + ARRIVAL_TOLERANCE:
             return
@@ -214,8 +225,30 @@ class OnlineEstimator:
         fed-back vehicle (its reference before a first estimate and until released), the truth of
         the others."""
         fb = self.vehicles
-        p = np.where((fb & self.has[0] & self.released)[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
+        flown = fb & self.has[0] & self.released
+        p = np.where(flown[:, None], self.pos, np.where(fb[:, None], ref_pos, pos))
         v = np.where((fb & self.has[1] & self.released)[:, None], self.vel, np.where(fb[:, None], ref_vel, vel))
+        if self.offset is not None:
+            p, v = self._blend(flown, p, v, ref_pos, ref_vel)
+        return p, v
+
+    def _blend(self, flown: np.ndarray, p: np.ndarray, v: np.ndarray, ref_pos: np.ndarray,
+               ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bumpless release (module docstring): flown (N,) bool, the vehicles flown on their
+        estimate this tick; p, v (N, 3) world m, m/s what the controller would get; returns them
+        less each released vehicle's offset times exp(-(t - t_release) / tau). Once every fed-back
+        vehicle has been flown on its estimate for 30 tau (the offset then below 1e-13 of itself)
+        the offsets are dropped and this is no longer called."""
+        new = flown & np.isnan(self.t_release)
+        if new.any():
+            self.offset[0, new] = p[new] - ref_pos[new]
+            self.offset[1, new] = v[new] - ref_vel[new]
+            self.t_release[new] = self.t
+        age = self.t - self.t_release  # s; NaN: not released yet
+        w = np.exp(-np.where(np.isnan(age), np.inf, age) / self.blend)[:, None]  # (N, 1)
+        p, v = p - w * self.offset[0], v - w * self.offset[1]
+        if not np.isnan(age[self.vehicles]).any() and age[self.vehicles].min() > 30.0 * self.blend:
+            self.offset = None
         return p, v
 
     def rotation(self, R: np.ndarray, R_start: np.ndarray) -> np.ndarray:

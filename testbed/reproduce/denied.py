@@ -86,14 +86,15 @@ def variant(base: Scenario, name: str) -> Scenario:
     if name == "gnss_ekf":
         return replace(base, sensors=replace(base.sensors, uwb=None), network=net,
                        estimators=(EstimatorSpec(entry="coop.ins", name=EKF),),
-                       control=replace(base.control, feedback=f"estimate:{EKF}", release_sigmas=0.0))
+                       control=replace(base.control, feedback=f"estimate:{EKF}", release_sigmas=0.0, release_blend_s=0.0))
     coop = EstimatorSpec(entry=COOP_ENTRY[name], name=COOP,
                          params={} if name in ("truth", "coop", "window") else {"network": to_dict(net)})
     feedback = "truth" if name == "truth" else f"estimate:{COOP}"
     attitude = "estimate" if name == "coop_onboard" else base.control.attitude
-    release = base.control.release_sigmas if COOP_ENTRY[name] == "coop.ins_distributed" else 0.0
-    return replace(base, network=net, estimators=(coop,),
-                   control=replace(base.control, feedback=feedback, attitude=attitude, release_sigmas=release))
+    distributed = COOP_ENTRY[name] == "coop.ins_distributed"
+    release, blend = (base.control.release_sigmas, base.control.release_blend_s) if distributed else (0.0, 0.0)
+    return replace(base, network=net, estimators=(coop,), control=replace(
+        base.control, feedback=feedback, attitude=attitude, release_sigmas=release, release_blend_s=blend))
 
 
 def flight(run_dir: Path, metrics: dict, estimator: str) -> dict:
