@@ -605,33 +605,35 @@ def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, 
                 assert {name, "Origin", "EKF"} <= drawn[f"compare_{q}_{case}.png"]
 
 
-@pytest.mark.slow  # one short reproduction: paper mode 2 runs, uwb mode 2 runs of 1 s
+@pytest.mark.slow  # the uwb mode of reproduce bandwidth: 2 runs of 1 s (the paper mode has no physics run)
 def test_reproduce_bandwidth_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch):
-    """`reproduce bandwidth --estimator examples/anchor_ekf.py:AnchorEkf`: in the uwb mode the plugin's J
+    """The uwb mode of `reproduce bandwidth --estimator examples/anchor_ekf.py:AnchorEkf`: the plugin's J
     (eq. 12 over the same node-epochs as a case's) is a row of the table, a bar of J_by_case.png and a
-    curve of figs. 3-4, tested against every case (paired t over the same 2 seeds, factor)."""
-    from testbed.reproduce import bandwidth_plots
+    curve of figs. 3-4, tested against every case (paired t over the same 2 seeds, factor), and its
+    runs hold the built-in too (the Plugin estimators section's comparison)."""
+    from testbed.reproduce import bandwidth as rep, bandwidth_plots
+    from testbed.reproduce import plugins as rows
 
     drawn = _record_figures(monkeypatch, bandwidth_plots)
-    out = tmp_path / "rep"
-    assert main(["reproduce", "bandwidth", "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
-                 "--estimator", f"{ROOT}/examples/anchor_ekf.py:AnchorEkf"]) == 0
-    runs = [json.loads((out / "uwb" / "runs" / f"run-{i:03d}" / "metrics.json").read_text())["estimators"] for i in range(2)]
+    out = tmp_path / "uwb"
+    spec = EstimatorSpec(entry=f"{ROOT}/examples/anchor_ekf.py:AnchorEkf")
+    uwb = rep.compute_uwb(out, runs=2, motion="prescribed", duration=1.0, workers=1, estimators=(spec,))
+    rep.write_uwb(out, uwb, rep.decide_uwb(uwb))
+    runs = [json.loads((out / "runs" / f"run-{i:03d}" / "metrics.json").read_text())["estimators"] for i in range(2)]
     J = np.array([r["AnchorEkf"]["J_empirical"] for r in runs])
     assert {"AnchorEkf", "T1+P1", "Tbest_bound+P1"} <= drawn["J_by_case.png"]
     # its J from its estimates and the tags' truth is the fusion bound hook's of its runs
-    row = next(line for line in (out / "uwb" / "table.csv").read_text().splitlines() if line.startswith("AnchorEkf,"))
+    row = next(line for line in (out / "table.csv").read_text().splitlines() if line.startswith("AnchorEkf,"))
     assert float(row.split(",")[1]) == pytest.approx(J.mean(), rel=1e-9) and "| AnchorEkf |" in (out / "table.md").read_text()
     for fig in ("fig3_J_vs_T.png", "fig4_J_vs_P.png"):
         assert "AnchorEkf" in drawn[fig] and "T1+P1" in drawn[fig]
-    head, *tests = (out / "uwb" / "table_plugins_paired_J.csv").read_text().strip().splitlines()
+    head, *tests = (out / "table_plugins_paired_J.csv").read_text().strip().splitlines()
     cases = {t.split(",")[1]: dict(zip(head.split(","), t.split(","))) for t in tests}
     assert set(cases) == {"T1+P1", "T2+P1", "T3+P1", "Tbest_bound+P1", "T1+P2", "T1+P3"}
     for c in cases.values():
         assert c["runs"] == "2" and float(c["factor"]) == pytest.approx(float(c["J_against"]) / J.mean(), rel=1e-9)
         assert 0.0 <= float(c["p_two_sided"]) <= 1.0
-    _, *paired = (out / "table_plugins_paired.csv").read_text().strip().splitlines()
-    assert any(r.startswith("uwb mode,AnchorEkf,bandwidth,2,") for r in paired)
+    assert [(r["against"], r["runs"]) for r in rows.paired({"uwb mode": runs}, ["AnchorEkf"])] == [("bandwidth", 2)]
 
 
 def test_the_covariance_check_agrees_with_eigenvalues():
