@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.text import Text
 
 from testbed import reference
 from testbed.config import from_dict, to_dict
@@ -137,12 +139,25 @@ def test_video_overlays_read_the_run(flown):
 
 
 @pytest.mark.slow  # six flights with their estimators and figures, ~30 s
-def test_reproduce_denied_end_to_end(tmp_path):
+def test_reproduce_denied_end_to_end(tmp_path, monkeypatch):
     from testbed.reproduce import reproduce
 
+    from testbed.outputs import plots
+
+    drawn = {}  # the texts of every figure (testbed.outputs.plots.save)
+    save = plots.save
+
+    def record(fig, path):
+        fig.canvas.draw()
+        drawn[Path(path).name] = {t.get_text() for t in fig.findobj(Text) if t.get_text()}
+        return save(fig, path)
+
+    monkeypatch.setattr(plots, "save", record)
     out = tmp_path / "rep"
-    # 1.2 s: the distributed window cascade's filters start once its window holds 5 epochs (0.8 s)
-    result = reproduce("denied", out, runs=1, duration=1.2, workers=1)
+    # 1.2 s: the distributed window cascade's filters start once its window holds 5 epochs (0.8 s);
+    # the example plugin runs offline on every variant's flown log (it does not fly)
+    plugin = EstimatorSpec(entry=f"{Path(__file__).resolve().parents[1]}/examples/uwb_ekf.py:UwbEkf")
+    result = reproduce("denied", out, runs=1, duration=1.2, workers=1, estimators=(plugin,))
     ids = {c["id"] for c in result["claims"]}
     assert ids == {f"{v}_{c}" for v in ("coop", "coop_distributed", "coop_onboard", "window", "window_distributed")
                    for c in ("flight_without_contact", "beats_gnss_only")}
@@ -163,6 +178,13 @@ def test_reproduce_denied_end_to_end(tmp_path):
     # written for its reader: the scenario and its page, no tracker number
     assert text.startswith("# GNSS-denied cooperative flight (coop-denied") and "issue" not in text.lower()
     assert "(no paper: docs/denied.md)" in text
+    # the plugin: scored on every variant's flights, in the table, the RMSE figure and the paired tests
+    head = (out / "table.csv").read_text().splitlines()[0].split(",")
+    assert head[-1] == "estimation_rmse_UwbEkf_m" and all(doc["plugins"]["UwbEkf"][v] for v in denied.VARIANTS)
+    assert {"flying", "UwbEkf"} <= drawn["estimation_rmse_m.png"] and "UwbEkf" not in drawn["tracking_rms_m.png"]
+    _, *paired = (out / "table_plugins_paired.csv").read_text().strip().splitlines()
+    assert {r.split(",")[0] for r in paired if r.split(",")[1:4] == ["UwbEkf", "coop", "1"]} == set(denied.VARIANTS) - {"gnss_ekf"}
+    assert any(r.startswith("gnss_ekf,UwbEkf,ekf,1,") for r in paired)
 
 
 def _results(no_fix_max_s: float, rmse: dict) -> denied.DeniedResults:

@@ -534,9 +534,39 @@ def test_bandwidth_builtin_equals_the_batch_filter():
     assert health["measurements_used"] == int(est["available"].sum()) and health["steps"] == est["K"]
 
 
+def _record_figures(monkeypatch, *modules) -> dict[str, set[str]]:
+    """{PNG file name: every text drawn in it (legend labels, tick labels, titles)} of the figures
+    the given modules save through their `save` (testbed.outputs.plots.save), filled as they are written."""
+    from matplotlib.text import Text
+
+    from testbed.outputs import plots
+
+    drawn: dict[str, set[str]] = {}
+
+    def recording(save):
+        def record(fig, path, *a, **k):
+            fig.canvas.draw()
+            drawn[Path(path).name] = {t.get_text() for t in fig.findobj(Text) if t.get_text()}
+            return save(fig, path, *a, **k)
+        return record
+
+    for module in (plots, *modules):
+        monkeypatch.setattr(module, "save", recording(plots.save))
+    return drawn
+
+
 @pytest.mark.slow  # two short reproductions, ~30 s
-@pytest.mark.parametrize("paper, group", [("phase", "phase-cross-h000"), ("visnav", "gaussian")])
-def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
+@pytest.mark.parametrize("paper, group, fitting", [
+    ("phase", "phase-cross-h000", ["--estimator", "phase.ekf", "--param", "q=1e-8"]),
+    ("visnav", "gaussian", ["--estimator", "visnav.ekf"])])
+def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, paper, group, fitting):
+    """A plugin whose outputs fit nothing of the paper (Origin) gets its generic row; one whose outputs
+    fit the paper's scores (the built-in filter under another name and setting, entered like any
+    --estimator) is in every table and figure that shows the built-ins' per-estimator results, with
+    the paired tests against each built-in over the same 2 seeds."""
+    from testbed.reproduce import visnav
+
+    drawn = _record_figures(monkeypatch, visnav)
     path = _write(tmp_path, """
         class Origin:
             description = "every measuring site at the world origin"
@@ -546,16 +576,64 @@ def test_reproduce_takes_a_plugin_as_one_more_row(tmp_path, paper, group):
     """)
     out = tmp_path / "rep"
     assert main(["reproduce", paper, "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
-                 "--estimator", f"{path}:Origin"]) == 0
+                 "--estimator", f"{path}:Origin", *fitting]) == 0
+    name = fitting[1]
     md = (out / "table.md").read_text()
-    row = next(line for line in md.splitlines() if line.startswith(f"| {group} | Origin | 2 | "))
+    section = md[md.index("## Plugin estimators"):]
+    row = next(line for line in section.splitlines() if line.startswith(f"| {group} | Origin | 2 | "))
     assert float(row.split("|")[4].split("±")[0]) > 1.0  # metres from the origin
     assert "Plugin estimators" in (out / "report.md").read_text()
     head, *rows = (out / "table_plugins.csv").read_text().strip().splitlines()
     assert head.startswith("group,estimator,runs,rmse_position_m_mean") and any(r.startswith(f"{group},Origin,2,") for r in rows)
-    if paper == "phase":  # its runs' metrics hold the built-in too: compared over the same 2 seeds
-        _, *paired = (out / "table_plugins_paired.csv").read_text().strip().splitlines()
-        assert any(r.startswith(f"{group},Origin,") and r.split(",")[3] == "2" for r in paired)
+    # compared with each built-in of the same runs over the same 2 seeds, with the factor of the means
+    _, *paired = (out / "table_plugins_paired.csv").read_text().strip().splitlines()
+    builtins = ["ekf"] if paper == "phase" else list(visnav.FILTERS)
+    for b in builtins:
+        assert any(r.startswith(f"{group},{name},{b},2,") and float(r.split(",")[6]) > 0 for r in paired), b
+    # the paper's own table and figures
+    table = (out / "table.csv").read_text()
+    if paper == "phase":
+        assert f"\n{group},{name},2," in table and f"| {group} | {name} | 2 |" in md
+        for fig in ("rmse_window.png", "rmse_vs_pcrb.png"):
+            assert {name, "ekf"} <= drawn[fig], fig
+        assert (out / "plots" / f"{group}-{name}_position_error.png").is_file()
+    else:
+        assert f"\ngaussian,{name},rmse_position_m," in table and f"| {name} | " in md
+        for case in visnav.CASES:
+            assert {name, "EKF", "RHCF"} <= drawn[f"rms_error_vs_time_{case}.png"]
+            for q in ("position", "velocity", "attitude"):
+                assert {name, "Origin", "EKF"} <= drawn[f"compare_{q}_{case}.png"]
+
+
+@pytest.mark.slow  # the uwb mode of reproduce bandwidth: 2 runs of 1 s (the paper mode has no physics run)
+def test_reproduce_bandwidth_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch):
+    """The uwb mode of `reproduce bandwidth --estimator examples/anchor_ekf.py:AnchorEkf`: the plugin's J
+    (eq. 12 over the same node-epochs as a case's) is a row of the table, a bar of J_by_case.png and a
+    curve of figs. 3-4, tested against every case (paired t over the same 2 seeds, factor), and its
+    runs hold the built-in too (the Plugin estimators section's comparison)."""
+    from testbed.reproduce import bandwidth as rep, bandwidth_plots
+    from testbed.reproduce import plugins as rows
+
+    drawn = _record_figures(monkeypatch, bandwidth_plots)
+    out = tmp_path / "uwb"
+    spec = EstimatorSpec(entry=f"{ROOT}/examples/anchor_ekf.py:AnchorEkf")
+    uwb = rep.compute_uwb(out, runs=2, motion="prescribed", duration=1.0, workers=1, estimators=(spec,))
+    rep.write_uwb(out, uwb, rep.decide_uwb(uwb))
+    runs = [json.loads((out / "runs" / f"run-{i:03d}" / "metrics.json").read_text())["estimators"] for i in range(2)]
+    J = np.array([r["AnchorEkf"]["J_empirical"] for r in runs])
+    assert {"AnchorEkf", "T1+P1", "Tbest_bound+P1"} <= drawn["J_by_case.png"]
+    # its J from its estimates and the tags' truth is the fusion bound hook's of its runs
+    row = next(line for line in (out / "table.csv").read_text().splitlines() if line.startswith("AnchorEkf,"))
+    assert float(row.split(",")[1]) == pytest.approx(J.mean(), rel=1e-9) and "| AnchorEkf |" in (out / "table.md").read_text()
+    for fig in ("fig3_J_vs_T.png", "fig4_J_vs_P.png"):
+        assert "AnchorEkf" in drawn[fig] and "T1+P1" in drawn[fig]
+    head, *tests = (out / "table_plugins_paired_J.csv").read_text().strip().splitlines()
+    cases = {t.split(",")[1]: dict(zip(head.split(","), t.split(","))) for t in tests}
+    assert set(cases) == {"T1+P1", "T2+P1", "T3+P1", "Tbest_bound+P1", "T1+P2", "T1+P3"}
+    for c in cases.values():
+        assert c["runs"] == "2" and float(c["factor"]) == pytest.approx(float(c["J_against"]) / J.mean(), rel=1e-9)
+        assert 0.0 <= float(c["p_two_sided"]) <= 1.0
+    assert [(r["against"], r["runs"]) for r in rows.paired({"uwb mode": runs}, ["AnchorEkf"])] == [("bandwidth", 2)]
 
 
 def test_the_covariance_check_agrees_with_eigenvalues():
@@ -733,3 +811,46 @@ def test_plugin_rows_are_paired_with_every_other_estimator_of_the_same_runs():
     assert rows.paired({"case": [{"mine": {"rmse_position_m": 1.0}}]}, ["mine"]) == []
     md = rows.markdown({"case": runs}, ["mine"], "case")
     assert any(line.startswith("| case | mine | ekf | 7 |") for line in md)
+
+
+def test_every_estimator_is_drawn_from_the_same_runs(tmp_path, monkeypatch):
+    """testbed.reproduce.plugins.bars: one score of every estimator (built-in or plugin) per group, its
+    mean and 95 % Student t interval over the runs where it has the score (a failed run left out),
+    each estimator in the legend, the groups on the axis."""
+    from testbed.reproduce import plugins as rows
+    from testbed.scoring.metrics import mean_ci
+
+    drawn = _record_figures(monkeypatch)
+    got = {}
+    bars = rows.grouped_bars
+
+    def keep(groups, names, means, lo, hi, path, **k):
+        got.update(groups=groups, names=names, means=means, lo=lo, hi=hi)
+        return bars(groups, names, means, lo, hi, path, **k)
+
+    monkeypatch.setattr(rows, "grouped_bars", keep)
+    runs = [{"ekf": {"rmse_position_m": 1.0 + i}, "mine": {"rmse_position_m": 0.5 * (1 + i)}} for i in range(4)]
+    runs[2]["mine"] = {"failed": {"reason": "in process()"}}
+    assert np.isnan(rows.column(runs, "mine", "rmse_position_m")[2]) and np.isnan(rows.column(runs, "other", "x")).all()
+    rows.bars({"case A": runs, "case B": runs[:2]}, rows.estimator_names(["ekf"], ["mine", "ekf"]), "rmse_position_m",
+              tmp_path / "b.png", title="t", ylabel="m")
+    assert got["groups"] == ["case A", "case B"] and got["names"] == ["ekf", "mine"]
+    want = mean_ci(np.array([0.5, 1.0, 2.0]))
+    assert (got["means"][0, 1], got["lo"][0, 1], got["hi"][0, 1]) == pytest.approx(want, rel=1e-12)
+    assert got["means"][1, 0] == pytest.approx(1.5, rel=1e-12)
+    assert {"ekf", "mine", "case A", "case B"} <= drawn["b.png"]
+
+
+def test_a_reproduction_command_gives_back_its_estimators_and_params():
+    """testbed.reproduce.command: each --estimator with its params as --param KEY=VALUE, read back by
+    the command line into the same EstimatorSpecs (a string, a number, a table, a list)."""
+    import shlex
+
+    from testbed.cli import _estimator_specs, build_parser
+    from testbed.reproduce import command
+
+    specs = (EstimatorSpec(entry="phase.ekf", params={"q": 1e-8, "label": "a b", "network": {"loss_prob": 0.1}}),
+             EstimatorSpec(entry="examples/my dir/f.py:Mine", params={"xs": [1, 2.5]}), EstimatorSpec(entry="visnav.ekf"))
+    line = command("phase", Path("out"), runs=2, motion="prescribed", duration=1.0, workers=1, estimators=specs)
+    args = build_parser().parse_args(shlex.split(line)[1:])
+    assert _estimator_specs(args) == specs

@@ -111,3 +111,27 @@ def compare_bars(names: list[str], means: np.ndarray, lo: np.ndarray, hi: np.nda
     ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)
     return save(fig, path)
+
+
+def grouped_bars(groups: list[str], names: list[str], means: np.ndarray, lo: np.ndarray, hi: np.ndarray, path: Path, *,
+                 title: str, ylabel: str) -> Path:
+    """Bars of a score per group (x axis) and method (one colour each, in the legend) with confidence
+    intervals; means, lo, hi (G, E) for the G groups and E names, NaN where a method has no value
+    (no bar). Logarithmic value axis when the means span decades (`spans_decades`), said so."""
+    means, lo, hi = (np.asarray(a, float).reshape(len(groups), len(names)) for a in (means, lo, hi))
+    fig = figure(figsize=(max(4.0, 0.35 * len(groups) * (len(names) + 1) + 2.5), 3.4))
+    ax = fig.subplots()
+    x, w = np.arange(len(groups)), 0.8 / len(names)
+    for j, name in enumerate(names):
+        m = means[:, j]
+        ax.bar(x + (j - 0.5 * (len(names) - 1)) * w, m, w, yerr=[m - lo[:, j], hi[:, j] - m], capsize=2,
+               color=f"C{j}", label=name)
+    ax.set_xticks(x, groups, rotation=30 if len(groups) > 3 else 0, fontsize=8)
+    if spans_decades(means[np.isfinite(means)]):
+        ax.set_yscale("log")
+        ylabel += " (log scale)"
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(axis="y", alpha=0.3)
+    return save(fig, path)

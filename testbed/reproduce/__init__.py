@@ -28,8 +28,11 @@ from __future__ import annotations
 
 import importlib
 import json
+import shlex
 import signal
 from pathlib import Path
+
+import tomli_w
 
 from testbed.errors import EstimatorsFailed, RunError, UsageError
 from testbed.interrupt import Interrupted
@@ -49,9 +52,10 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | N
               estimators: tuple = (), backend: str = "local", address: str | None = None, resume: bool = False) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
 
-    estimators: plugin EstimatorSpecs run beside the paper's in every run (coop: every table, plot
-    and test a built-in gets, testbed.reproduce.coop; phase, visnav, bandwidth: one more row each in
-    table.md, testbed.reproduce.plugins);
+    estimators: plugin EstimatorSpecs run beside the paper's in every run, each in every table and
+    figure that shows the built-ins' per-estimator results and tested against each built-in over
+    the same seeds (the paper's module; testbed.reproduce.plugins; denied: offline on the flown
+    logs, it does not fly);
     backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend);
     resume: continue the interrupted reproduction at `out` (see the module docstring)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
@@ -106,9 +110,20 @@ def _keep_finished(o: Output, options: dict, signum: int) -> Interrupted:
 
 def command(paper: str, out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None,
             estimators: tuple = ()) -> str:
-    """The command line that reproduces this output (every option explicit)."""
+    """The command line that reproduces this output (every option explicit, each estimator's params
+    as --param KEY=VALUE)."""
     cmd = f"testbed reproduce {paper} --out {out} --runs {runs} --motion {motion}"
     if duration is not None:
         cmd += f" --duration {duration:g}"
-    cmd += "".join(f" --estimator {e.entry}" for e in estimators)
+    cmd += "".join(f" --estimator {shlex.quote(e.entry)}"
+                   + "".join(f" --param {shlex.quote(f'{k}={_toml(v)}')}" for k, v in e.params.items()) for e in estimators)
     return cmd + (f" --workers {workers}" if workers is not None else "")
+
+
+def _toml(value) -> str:
+    """value as `--param` reads it back: a TOML value, a table inline."""
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return tomli_w.dumps({"v": value}).partition("=")[2].strip()

@@ -32,6 +32,9 @@ from scipy.stats import norm
 from estimators import bandwidth as bw
 from testbed.config import scenario as scenario_mod
 from testbed.log import load_log
+from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
+from testbed.plugins.context import make_context
+from testbed.plugins.truth import Truth, errors
 from testbed.reproduce import bandwidth_batch as pb
 from testbed.outputs.plots import compare_bars
 from testbed.outputs.report import Claim, claims_section, fmt, fmt_list, markdown_table, write_claims, write_csv, write_json, \
@@ -43,6 +46,7 @@ from testbed.synthetic.bandwidth import P_SETS, T_SETS
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.scoring.stats import paired_t
+from testbed.sim.world import build, lever_arms
 
 UWB_MAX_RUNS = 100
 HORIZON_S = 50.0
@@ -142,7 +146,8 @@ def _case(scenario, meas: dict, S: np.ndarray, P: np.ndarray) -> dict:
 
 def compute_uwb(out: Path, *, runs: int, motion: str, duration: float, workers: int | None, estimators: tuple = ()) -> dict:
     """Sweep the `bandwidth` scenario (out/runs/run-XXX) and filter every run for each case.
-    Returns {"res": {case: _case(...)}, "context": JSON-able description of the runs}.
+    Returns {"res": {case: _case(...)}, "context": JSON-able description of the runs, "plugins":
+    {name: _plugin_case(...)} of the plugin estimators whose outputs fit}.
     estimators: plugin EstimatorSpecs scored in every run too (in its metrics.json)."""
     scenario = scenario_mod.load("bandwidth", motion=motion, duration=duration)
     cfg = scenario.pipeline
@@ -160,6 +165,8 @@ def compute_uwb(out: Path, *, runs: int, motion: str, duration: float, workers: 
              "T3+P1": (T_SETS["T3"], P_SETS["P1"]), "Tbest_bound+P1": (search.best, P_SETS["P1"]),
              "T1+P2": (T_SETS["T1"], P_SETS["P2"]), "T1+P3": (T_SETS["T1"], P_SETS["P3"])}
     res = {k: _case(scenario, meas, S, P) for k, (S, P) in cases.items()}
+    # each plugin whose outputs fit beside the cases, from its runs' estimates (the others: reproduce's plugin section)
+    plugins = {e.key: p for e in estimators if (p := _plugin_case(scenario, run_dirs, e.key, meas["t"]))}
     avail = meas["available"]
     trV = np.trace(meas["V"], axis1=-2, axis2=-1)
     raw_rms_node = np.sqrt(np.nanmean(np.where(avail, trV, np.nan)[:, :-1], axis=(0, 1)))  # (N,) m
@@ -167,7 +174,51 @@ def compute_uwb(out: Path, *, runs: int, motion: str, duration: float, workers: 
                dt_s=cfg.dt, steps=K, measurement_epochs_missing=int((~avail).sum()),
                raw_pseudo_measurement_rms_m=raw_rms_node.tolist(), search_count=search.count,
                best_T_by_bound=_fmt_T(search.best), best_T_by_bound_Jbound_design=search.best_J)
-    return {"res": res, "context": ctx}
+    return {"res": res, "context": ctx, "plugins": plugins}
+
+
+def _plugin_case(scenario, run_dirs: list[Path], key: str, t: np.ndarray) -> dict:
+    """A plugin's numbers beside the cases', when every run has its estimates of every node's tag
+    position with a covariance at each epoch t (K+1,) s (else {}; its other scores are in the
+    "Plugin estimators" section): per_run_J (runs,) the realised eq. 12, the sum over nodes and
+    epochs of |e_i(k)|^2 (the tags' true positions, testbed.plugins.truth: the fusion bound hook's
+    J_empirical), J_emp and J_emp_se its mean and standard error over the runs, J_bound the mean
+    over runs of the sum of tr M_i(k) of its own covariances (eq. 16's sum), rms_node_m (N,) the
+    RMS over runs and epochs k >= 1 of each node's error, and for figs. 3-4 cum_emp, cum_bound
+    (K+1,) the cumulative mean over runs of both sums per epoch (as _case's)."""
+    physics = build(scenario)
+    targets = [f"uav{i + 1}/uwb" for i in range(scenario.vehicles)]
+    se, tr = [], []
+    for d in run_dirs:
+        track = load_tracks(d / ESTIMATES_FILE).get(key, {}) if (d / ESTIMATES_FILE).is_file() else {}
+        series = [track.get((tg, "position")) for tg in targets]
+        if any(x is None or x.frame != "world" or x.time.shape != t.shape or not np.allclose(x.time, t, rtol=0, atol=1e-9)
+               or not x.has_cov.all() for x in series):
+            return {}
+        truth = Truth(load_log(d / "log.npz"), make_context(scenario, lever_arms(physics), "truth", {}))
+        e = np.stack([errors(truth, tg, "position", x.time, x.value) for tg, x in zip(targets, series)], 1)  # (K+1, N, 3)
+        se.append((e ** 2).sum(-1))
+        tr.append(np.stack([np.trace(x.cov, axis1=-2, axis2=-1) for x in series], 1))
+    d, trM = np.array(se), np.array(tr)  # (R, K+1, N)
+    J = d.sum(axis=(1, 2))
+    return dict(per_run_J=J, J_emp=float(J.mean()), J_emp_se=float(J.std(ddof=1) / np.sqrt(J.size)) if J.size > 1 else np.nan,
+                J_bound=float(trM.sum(axis=(1, 2)).mean()), rms_node_m=np.sqrt(d[:, 1:].mean(axis=(0, 1))).tolist(),
+                cum_emp=np.cumsum(d.mean(0).sum(-1)), cum_bound=np.cumsum(trM.mean(0).sum(-1)))
+
+
+def _plugin_tests(uwb: dict) -> list[dict]:
+    """Each plugin against each case: the paired t test of the per-run J (eq. 12) over the runs
+    where the plugin has it (the claims' test, testbed.scoring.stats.paired_t, two-sided), the
+    means and the improvement factor J_case / J_plugin (> 1: the plugin is better)."""
+    rows = []
+    for k, p in uwb.get("plugins", {}).items():
+        for c, r in uwb["res"].items():
+            a, b = p["per_run_J"], r["per_run_J"]
+            t = paired_t(a, b, alternative="two-sided") if a.size > 1 else None
+            rows.append({"estimator": k, "against": c, "runs": int(a.size), "J_estimator": float(a.mean()),
+                         "J_against": float(b.mean()), "factor": float(b.mean() / a.mean()),
+                         "t": t.statistic if t else None, "p_two_sided": t.p_value if t else None})
+    return rows
 
 
 def decide_uwb(uwb: dict) -> list[Claim]:
@@ -249,10 +300,13 @@ def decide_uwb(uwb: dict) -> list[Claim]:
 
 
 def _uwb_rows(uwb: dict) -> list[dict]:
+    """One row per case, then one per plugin (its bound columns empty: a per-step bound test needs
+    the case's per-step errors)."""
     return [dict(case=k, J_emp=r["J_emp"], J_emp_ci95=1.96 * r["J_emp_se"], J_bound_mean=r["J_bound"],
                  bound_over_emp=r["J_bound"] / r["J_emp"], max_node_rms_m=max(r["rms_node_m"]),
-                 bound_violations=r["bound_violations"], bound_tests=r["bound_tests"],
-                 bytes_recv_per_node_step=r["bytes_per_step_received"][0]) for k, r in uwb["res"].items()]
+                 bound_violations=r.get("bound_violations"), bound_tests=r.get("bound_tests"),
+                 bytes_recv_per_node_step=r["bytes_per_step_received"][0] if "bytes_per_step_received" in r else None)
+            for k, r in {**uwb["res"], **uwb.get("plugins", {})}.items()]
 
 
 def _uwb_markdown(uwb: dict, claims: list[Claim]) -> list[str]:
@@ -265,8 +319,18 @@ def _uwb_markdown(uwb: dict, claims: list[Claim]) -> list[str]:
     lines += markdown_table(["case", "J_emp", "±CI95", "J_bound", "bound/emp", "max node RMS m", "bound viol. / tests",
                              "bytes recv/node/step"],
                             [[r["case"], r["J_emp"], fmt(r["J_emp_ci95"], 2), r["J_bound_mean"], r["bound_over_emp"],
-                              r["max_node_rms_m"], f"{r['bound_violations']} / {r['bound_tests']}",
-                              r["bytes_recv_per_node_step"]] for r in _uwb_rows(uwb)])
+                              r["max_node_rms_m"],
+                              f"{r['bound_violations']} / {r['bound_tests']}" if r["bound_tests"] is not None else "",
+                              r["bytes_recv_per_node_step"] if r["bytes_recv_per_node_step"] is not None else ""]
+                             for r in _uwb_rows(uwb)])
+    if tests := _plugin_tests(uwb):
+        lines += ["", "Plugin estimators (--estimator) with every tag's position and covariance at the K + 1 epochs of "
+                      "every run, against every case, paired over the same seeds: J (eq. 12) of the plugin's estimates, "
+                      "factor = J of the case / J of the plugin (> 1: the plugin is better), two-sided paired t test of "
+                      "the per-run J.", ""]
+        lines += markdown_table(["estimator", "against", "runs", "J estimator", "J case", "factor", "t", "p (two-sided)"],
+                                [[r["estimator"], r["against"], r["runs"], r["J_estimator"], r["J_against"],
+                                  fmt(r["factor"]), fmt(r["t"]), fmt(r["p_two_sided"])] for r in tests])
     lines += ["", f"- raw pseudo-measurement RMS per node (sqrt mean tr V): "
                   f"{fmt_list(ctx['raw_pseudo_measurement_rms_m'])} m; missing node-epochs: "
                   f"{ctx['measurement_epochs_missing']}",
@@ -288,19 +352,24 @@ def _metrics(out: Path, c: dict, ctx: dict) -> None:
     write_json(out / "metrics_mc.json", m)
 
 
-def _plots(pdir: Path, res: dict, ctx: dict) -> None:
+def _plots(pdir: Path, res: dict, ctx: dict, plugins: dict | None = None) -> None:
+    """plots/: fig2 (T1 P1, run 0), figs. 3-4 (cumulative J and bound of the cases and of every
+    plugin with every tag at every epoch), J_by_case (every case and plugin: J with its 95 %
+    interval), bound_vs_cov (T1 P1)."""
+    plugins = plugins or {}
     c = res["T1+P1"]
     t = c["t"]
     bplots.tracking(pdir / "fig2_tracking.png", t, c["truth0"], c["xhat0"],
                     "Fig. 2 analogue, uwb mode, T1 P1 (run 0 of the sweep)")
     for name, keys in (("fig3_J_vs_T", ["T1+P1", "T2+P1", "T3+P1", "Tbest_bound+P1"]),
                        ("fig4_J_vs_P", ["T1+P1", "T1+P2", "T1+P3"])):
-        bplots.cumulative_J(pdir / f"{name}.png", t, res, keys,
+        bplots.cumulative_J(pdir / f"{name}.png", t, {**res, **plugins}, keys + list(plugins),
                             emp_title=f"J(k), eq. 12, Monte Carlo over {ctx['runs']} seeds",
                             bound_title="bound J_bar(k), eq. 16 (mean over seeds)")
-    names = list(res)
-    m = np.array([res[k]["J_emp"] for k in names])
-    h = 1.96 * np.array([res[k]["J_emp_se"] for k in names])
+    every = {**res, **plugins}  # the cases, then each plugin (--estimator)
+    names = list(every)
+    m = np.array([every[k]["J_emp"] for k in names])
+    h = 1.96 * np.array([every[k]["J_emp_se"] for k in names])
     compare_bars(names, m, m - h, m + h, pdir / "J_by_case.png", title="J (eq. 12), uwb mode, 95 % CI",
                  ylabel="J [m^2]")
     bplots.bound_vs_cov(pdir / "bound_vs_cov.png", t, [("mean tr M_i", "-", c["tr_M"]), ("mean |e_i|^2", ":", c["tr_emp"])],
@@ -315,5 +384,7 @@ def write_uwb(out: Path, uwb: dict, claims: list[Claim]) -> dict:
     write_csv(out / "table.csv", list(rows[0]), [list(r.values()) for r in rows])
     write_markdown(out / "table.md", _uwb_markdown(uwb, claims))
     _metrics(out, uwb["res"]["T1+P1"], uwb["context"])
-    _plots(out / "plots", uwb["res"], uwb["context"])
+    _plots(out / "plots", uwb["res"], uwb["context"], uwb.get("plugins"))
+    if tests := _plugin_tests(uwb):
+        write_csv(out / "table_plugins_paired_J.csv", list(tests[0]), [list(r.values()) for r in tests])
     return write_claims(out / "claims.json", claims, paper="000", mode="uwb", **uwb["context"])

@@ -41,12 +41,20 @@ are about a street that denies GNSS, so they are "not decidable" (testbed.output
 vehicle of the variant's or the GNSS-only runs spent some time without a fix (a short run that
 never reaches the covered passage).
 
+Plugin estimators (`--estimator`): each is added to every variant's estimators and runs on that
+variant's flown log after the flight, offline: it does not fly (the controller flies on the
+variant's own estimator; the flights, and so the built-ins' numbers and claims, are the same with
+or without it). Every table and figure that shows an estimator's position RMSE shows it per
+variant beside the variant's own, with the paired tests of testbed.reproduce.plugins against each
+variant's estimator over the same seeds (table_plugins.csv, table_plugins_paired.csv: the factor
+mean RMSE of the variant's estimator / the plugin's, and the two-sided Wilcoxon signed-rank test).
+
 Shape (as every reproduction): `compute` (runs -> `DeniedResults`), `decide` (numbers ->
 claims), `write` (files through testbed.outputs.report); `reproduce` chains them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -54,9 +62,10 @@ import numpy as np
 from testbed.config import to_dict
 from testbed.errors import UsageError
 from testbed.log import load_log
-from testbed.outputs.plots import compare_bars
+from testbed.outputs.plots import grouped_bars
 from testbed.config.estimators import EstimatorSpec
 from testbed.outputs.report import Claim, fmt, markdown_table, write_claims, write_csv, write_markdown
+from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, seeds, sweep_runs
 from testbed.config.scenario import Scenario, load
 from testbed.scoring.stats import wilcoxon_paired
@@ -115,27 +124,36 @@ def flight(run_dir: Path, metrics: dict, estimator: str) -> dict:
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class DeniedResults:
-    """compute's output: base scenario, runs, {variant: [flight metrics of run i]}."""
+    """compute's output: base scenario, runs, {variant: [flight metrics of run i]}, {variant: [the
+    metrics.json `estimators` of run i]} and the plugin estimators' names (--estimator)."""
 
     scenario: Scenario
     runs: int
     flights: dict[str, list[dict]]
+    estimators: dict[str, list[dict]] = field(default_factory=dict)
+    keys: tuple[str, ...] = ()
 
     def column(self, v: str, key: str) -> np.ndarray:
         """(runs,) values of metric `key` in variant v."""
         return np.array([f[key] for f in self.flights[v]], float)
 
 
-def compute(out: Path, *, runs: int, duration: float | None, workers: int | None) -> DeniedResults:
-    """Every variant's sweep into OUT/runs/<variant> and its flight metrics."""
+def compute(out: Path, *, runs: int, duration: float | None, workers: int | None,
+            estimators: tuple = ()) -> DeniedResults:
+    """Every variant's sweep into OUT/runs/<variant> and its flight metrics; estimators: plugin
+    EstimatorSpecs run offline on every variant's flown logs (module docstring)."""
     base = load("coop-denied", duration=duration)
-    flights = {}
+    flights, ests = {}, {}
     for v in VARIANTS:
         sc = variant(base, v)
+        sc = replace(sc, estimators=sc.estimators + tuple(estimators))
         dirs = sweep_runs(sc, runs, out / "runs" / v, workers=workers)
         key = EKF if v == "gnss_ekf" else COOP
-        flights[v] = [flight(d, m, key) for d, m in zip(dirs, load_metrics(dirs))]
-    return DeniedResults(scenario=base, runs=runs, flights=flights)
+        metrics = load_metrics(dirs)
+        flights[v] = [flight(d, m, key) for d, m in zip(dirs, metrics)]
+        ests[v] = [m["estimators"] for m in metrics]
+    return DeniedResults(scenario=base, runs=runs, flights=flights, estimators=ests,
+                         keys=tuple(e.key for e in estimators))
 
 
 def decide(res: DeniedResults) -> list[Claim]:
@@ -173,45 +191,69 @@ def decide(res: DeniedResults) -> list[Claim]:
     return claims
 
 
+FLYING = "flying"  # the figure's and tables' name of each variant's own estimator (the one flown on)
+
+
+def _plugin_rmse(res: DeniedResults, v: str, key: str) -> np.ndarray:
+    """(runs,) plugin key's position RMSE in variant v's runs (the same score as the variant's
+    estimation_rmse_m: rmse_position_mean_m), NaN where it failed or has none."""
+    return plugin_rows.column(res.estimators[v], key, "rmse_position_mean_m")
+
+
 def _rows(res: DeniedResults) -> list[list]:
-    return [[v] + [float(np.mean(res.column(v, k))) for k in METRICS] for v in VARIANTS]
+    return [[v] + [float(np.mean(res.column(v, k))) for k in METRICS]
+            + [float(np.nanmean(x)) if np.isfinite(x := _plugin_rmse(res, v, p)).any() else None for p in res.keys]
+            for v in VARIANTS]
 
 
 def write(out: Path, res: DeniedResults, claims: list[Claim]) -> dict:
-    """table.md, table.csv, plots/, claims.json; returns claims.json's content."""
+    """table.md, table.csv, plots/, claims.json (and table_plugins.csv, table_plugins_paired.csv
+    with plugins); returns claims.json's content."""
     sc, runs = res.scenario, res.runs
     (out / "plots").mkdir(parents=True, exist_ok=True)
     rows = _rows(res)
-    write_csv(out / "table.csv", ["variant", *METRICS], rows)
+    write_csv(out / "table.csv", ["variant", *METRICS, *(f"estimation_rmse_{p}_m" for p in res.keys)], rows)
+    names = [FLYING, *res.keys]
+    est = np.array([[[f["estimation_rmse_m"] for f in res.flights[v]]] + [_plugin_rmse(res, v, p) for p in res.keys]
+                    for v in VARIANTS], float)  # (variants, estimators, runs)
+    with np.errstate(all="ignore"):  # a plugin without a score in a variant: no bar
+        stats = {"estimation_rmse_m": (names, np.nanmean(est, -1), np.nanmin(est, -1), np.nanmax(est, -1))}
+    trk = np.array([[f["tracking_rms_m"] for f in res.flights[v]] for v in VARIANTS])[:, None]  # only the flown estimator flies
+    stats["tracking_rms_m"] = ([FLYING], trk.mean(-1), trk.min(-1), trk.max(-1))
     for key, label in (("estimation_rmse_m", "position RMSE [m]"), ("tracking_rms_m", "tracking RMS [m]")):
-        vals = np.array([[f[key] for f in res.flights[v]] for v in VARIANTS])
-        compare_bars(list(VARIANTS), vals.mean(1), vals.min(1), vals.max(1), out / "plots" / f"{key}.png",
+        shown, mean, lo, hi = stats[key]
+        grouped_bars(list(VARIANTS), shown, mean, lo, hi, out / "plots" / f"{key}.png",
                      title=f"coop-denied: {label}, mean over {runs} run(s) (bars: min-max)", ylabel=label)
     md = [f"# coop-denied: {runs} run(s) of {fmt(sc.duration)} s per variant, seeds {sc.seed}..{sc.seed + runs - 1}", "",
           "Means over the runs. Tracking: |true - reference| position; estimation: position RMSE of the estimator "
           "the controller flies on (truth variant: the cooperative estimator, scored but not fed back); contacts: "
-          "events (a pair coming into contact); crashed: vehicles per run (testbed.scoring.safety's rules); no fix: seconds without a GNSS fix per vehicle (mean, max).", ""]
+          "events (a pair coming into contact); crashed: vehicles per run (testbed.scoring.safety's rules); no fix: seconds without a GNSS fix per vehicle (mean, max)."
+          + (f" {', '.join(res.keys)} (--estimator): the same position RMSE, run offline on each variant's flown logs "
+             "(it does not fly)." if res.keys else ""), ""]
     md += markdown_table(["variant", "tracking RMS m", "tracking max m", "estimation RMSE m", "min separation m",
-                          "contacts veh.", "contacts obst.", "contacts floor", "crashed", "no fix mean s", "no fix max s"],
+                          "contacts veh.", "contacts obst.", "contacts floor", "crashed", "no fix mean s", "no fix max s",
+                          *(f"estimation RMSE m, {p}" for p in res.keys)],
                          [[TITLES[r[0]], *r[1:]] for r in rows])
     md += ["", "Estimator health, run 0: " + "; ".join(
-        f"{v}: " + ", ".join(f"{k} {x}" for k, x in res.flights[v][0]["health"].items()) for v in VARIANTS)]
+        f"{v}: " + ", ".join(f"{k} {x}" for k, x in res.flights[v][0]["health"].items()) for v in VARIANTS), ""]
+    md += plugin_rows.markdown(res.estimators, list(res.keys), "variant")
+    plugin_rows.write(out / "table_plugins.csv", res.estimators, list(res.keys))
     write_markdown(out / "table.md", md)
     return write_claims(out / "claims.json", claims, scenario=sc.name, runs=runs, seeds=seeds(sc.seed, runs),
                         duration_s=sc.duration, lossy_network=LOSSY,
-                        flights={v: res.flights[v] for v in VARIANTS})
+                        flights={v: res.flights[v] for v in VARIANTS},
+                        **({"plugins": {p: {v: [float(x) if np.isfinite(x) else None for x in _plugin_rmse(res, v, p)]
+                                            for v in VARIANTS} for p in res.keys}} if res.keys else {}))
 
 
 def reproduce(out: Path, *, runs: int, motion: str = "flown", duration: float | None = None,
               workers: int | None = None, estimators: tuple = ()) -> dict:
     """The denied-street experiment into `out` (module docstring); returns claims.json's content.
-    motion: flown only (the variants differ in what the controller flies on); estimators: none
-    (the variants name their own)."""
+    motion: flown only (the variants differ in what the controller flies on); estimators: plugin
+    EstimatorSpecs scored offline on every variant's flights (module docstring)."""
     if motion != "flown":
         raise UsageError(f"reproduce denied: the variants differ in what the controller flies on; --motion must be "
                          f"flown, got {motion}")
-    if estimators:
-        raise UsageError("reproduce denied: --estimator is not available (each variant flies on its own estimator)")
     out = Path(out)
-    res = compute(out, runs=runs, duration=duration, workers=workers)
+    res = compute(out, runs=runs, duration=duration, workers=workers, estimators=estimators)
     return write(out, res, decide(res))

@@ -47,9 +47,9 @@ from pathlib import Path
 import numpy as np
 
 from testbed.config import scenario as scenario_mod
-from testbed.scoring.metrics import anees_interval, anees_over_runs, mean_ci
+from testbed.scoring.metrics import anees_interval, anees_over_runs
 from testbed.plugins.phase_scores import window_keys
-from testbed.outputs.plots import compare_bars, figure, save
+from testbed.outputs.plots import grouped_bars
 from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_list, fmt_pm, markdown_table, write_claims, \
     write_csv, write_markdown
 from testbed.reproduce import phase_q
@@ -223,42 +223,40 @@ ANEES_COLS = (("anees", "ANEES body (6)"), ("anees_state18", "ANEES (18)"),
               ("anees_body6_actual_cov", "ANEES body vs P_act (6)"), ("anees_attitude6", "ANEES att (6), observed"))
 
 
-def _table_rows(R: dict[str, list[dict]]) -> list[dict]:
-    """Per scenario: mean and std (ddof 1) over runs of every table score; each ANEES's mean over
-    runs with its 99 % interval and effective samples (testbed.scoring.metrics.anees_over_runs); max abs
-    position error over the window per axis, (mean, worst) over runs."""
+def _table_rows(R: dict[str, list[dict]], ests: dict[str, list[dict]] | None = None, names=("ekf",)) -> list[dict]:
+    """Per scenario and estimator of `names` (the built-in ekf's scores R, the others' from ests:
+    {scenario: every run's metrics.json `estimators`}, each with its health() counts, over the runs
+    where it did not fail): mean and std (ddof 1) over runs of every table score it has (None
+    where it has none); each ANEES's mean over runs with its 99 % interval and effective samples
+    (testbed.scoring.metrics.anees_over_runs); max abs position error over the window per axis,
+    (mean, worst) over runs (None without the window scores)."""
     rows = []
-    for name, runs in R.items():
-        row = {"scenario": name, "runs": len(runs)}
-        for key, _ in _cols(R):
-            x = np.array([r[key] for r in runs], float)
-            row[key] = (float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else 0.0)
-        for key, _ in ANEES_COLS:
-            row[key] = anees_over_runs(runs, key)
-        mx = np.array([r[_keys(runs)["max_abs_position"]] for r in runs])
-        row["max_abs_window"] = (mx.mean(0), mx.max(0))
-        rows.append(row)
+    for name, ekf_runs in R.items():
+        window = _keys(ekf_runs)["max_abs_position"]
+        for est in names:
+            runs = ekf_runs if est == "ekf" else [{**e[est], **e[est].get("health", {})} for e in ests[name]
+                                                  if est in e and "failed" not in e[est]]
+            row = {"scenario": name, "estimator": est, "runs": len(runs)}
+            for key, _ in _cols(R):
+                x = np.array([r[key] for r in runs if isinstance(r.get(key), (int, float))], float)
+                row[key] = (float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else 0.0) if x.size else None
+            for key, _ in ANEES_COLS:
+                row[key] = anees_over_runs(runs, key)
+            mx = np.array([r[window] for r in runs if window in r])
+            row["max_abs_window"] = (mx.mean(0), mx.max(0)) if mx.size else None
+            rows.append(row)
     return rows
 
 
-def _rmse_vs_pcrb(R: dict[str, list[dict]], path: Path, runs: int) -> Path:
-    """Per formation: mean position RMSE over the window (95 % CI) beside the PCRB's RMSE bound."""
+def _rmse_vs_pcrb(R: dict[str, list[dict]], ests: dict[str, list[dict]], names: list[str], path: Path, runs: int) -> Path:
+    """Per formation: every estimator's mean position RMSE over the window (95 % CI) beside the
+    PCRB's RMSE bound (the scenario's, one per formation: no interval)."""
     k, w = _keys(next(iter(R.values()))), _window(next(iter(R.values())))
-    names = [n.removeprefix("phase-") for n in R]
-    ci = np.array([mean_ci(np.array([r[k["rmse"]] for r in R[n]])) for n in R])
-    pc = np.array([np.mean([r[k["pcrb_rmse"]] for r in R[n]]) for n in R])
-    fig = figure(figsize=(1.1 * len(names) + 2.5, 3.4))
-    ax = fig.subplots()
-    x = np.arange(len(names))
-    ax.bar(x - 0.2, ci[:, 0], 0.4, yerr=[ci[:, 0] - ci[:, 1], ci[:, 2] - ci[:, 0]], capsize=3, label="EKF RMSE")
-    ax.bar(x + 0.2, pc, 0.4, label="PCRB")
-    ax.set_xticks(x, names, rotation=30, fontsize=8)
-    ax.set_yscale("log")
-    ax.set_ylabel("m")
-    ax.set_title(f"seed 003: position RMSE vs PCRB, {w} ({runs} runs, 95% CI)")
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3, which="both")
-    return save(fig, path)
+    stats = np.array([[plugin_rows.interval(plugin_rows.column(ests[n], e, k["rmse"])) for e in names]
+                      + [(np.mean([r[k["pcrb_rmse"]] for r in R[n]]),) * 3] for n in R])  # (formations, E + 1, 3)
+    return grouped_bars([n.removeprefix("phase-") for n in R], [*names, "PCRB"], stats[..., 0], stats[..., 1],
+                        stats[..., 2], path, title=f"seed 003: position RMSE vs PCRB, {w} ({runs} runs, 95% CI)",
+                        ylabel="m")
 
 
 LONG_SWEEP = "phase-cross-h000"  # the formation of the paper's tightest claim (+/-0.01 m)
@@ -292,33 +290,46 @@ def _q_rule(cal: dict[str, list[dict]], rot: dict[str, list[dict]], motion: str)
 
 
 def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int, motion: str, base_seed: int,
-          plugins: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = (),
+          ests: dict[str, list[dict]] | None = None, keys: tuple[str, ...] = (),
           calibration: tuple | None = None) -> dict:
     """table.md, table.csv, plots/rmse_window.png, plots/rmse_vs_pcrb.png, claims.json; returns
-    claims.json's content. plugins: {scenario: every run's metrics.json `estimators`} and keys the
-    plugin estimators' names (--estimator): one more row each (testbed.reproduce.plugins).
+    claims.json's content. ests: {scenario: every run's metrics.json `estimators`} (`estimator_metrics`)
+    and keys the plugin estimators' names (--estimator): each gets a row per formation in the table
+    and a bar in both figures like the built-in ekf, and the "Plugin estimators" section with its
+    paired tests against the ekf (testbed.reproduce.plugins).
     calibration: the rule's sweeps and the horizon (`calibrate`): plots/q_sweep.png, the q and
-    q_rotation table, claims.json `q_rule`."""
-    rows, cols = _table_rows(R), _cols(R)
+    q_rotation table, claims.json `q_rule` (the built-in's process noise: a plugin has none)."""
+    names = plugin_rows.estimator_names(["ekf"], keys)
+    ests = ests if ests is not None else {n: [{"ekf": r} for r in runs_] for n, runs_ in R.items()}
+    rows, cols = _table_rows(R, ests, names), _cols(R)
     w = _window(next(iter(R.values())))
     tag = w.replace(" ", "_")
+
+    def pm(v):
+        return list(v) if v is not None else [None, None]
+
+    def anees(a, k):
+        return [a[k], *a[f"{k}_interval_99"], a[k.replace("anees", "n_eff")]] if a else [None] * 4
+
     write_csv(out / "table.csv",
-              ["scenario", "runs"] + [f"{k}_{s}" for k, _ in cols for s in ("mean", "std")]
+              ["scenario", "estimator", "runs"] + [f"{k}_{s}" for k, _ in cols for s in ("mean", "std")]
               + [c for k, _ in ANEES_COLS
                  for c in (f"{k}_mean", f"{k}_interval_99_lo", f"{k}_interval_99_hi", k.replace("anees", "n_eff"))]
               + [f"max_abs_pos_{tag}_{a}_{s}" for s in ("mean", "worst") for a in "xyz"],
-              [[r["scenario"], r["runs"]] + [v for k, _ in cols for v in r[k]]
-               + [v for k, _ in ANEES_COLS
-                  for v in (r[k].get(k), *r[k].get(f"{k}_interval_99", (None, None)), r[k].get(k.replace("anees", "n_eff")))]
-               + np.concatenate(r["max_abs_window"]).tolist() for r in rows])
+              [[r["scenario"], r["estimator"], r["runs"]] + [v for k, _ in cols for v in pm(r[k])]
+               + [v for k, _ in ANEES_COLS for v in anees(r[k], k)]
+               + (np.concatenate(r["max_abs_window"]).tolist() if r["max_abs_window"] else [None] * 6) for r in rows])
     md = [f"# Seed 003 reproduction: eight formations, {motion}, {runs} run(s) each, seeds "
           f"{base_seed}..{base_seed + runs - 1}", ""]
-    md += markdown_table(["scenario", "runs"] + [h for _, h in cols] + [h for _, h in ANEES_COLS]
+    if keys:
+        md += [f"Estimators: the paper's EKF (ekf) and {', '.join(keys)} (--estimator), scored alike in every run; "
+               "blank: a score the estimator's outputs do not give.", ""]
+    md += markdown_table(["scenario", "estimator", "runs"] + [h for _, h in cols] + [h for _, h in ANEES_COLS]
                          + [f"max abs pos {w} x / y / z [m] (mean; worst)"],
-                         [[r["scenario"], r["runs"]] + [fmt_pm(*r[k]) for k, _ in cols]
+                         [[r["scenario"], r["estimator"], r["runs"]] + [fmt_pm(*r[k]) if r[k] else "" for k, _ in cols]
                           + [fmt_anees(r[k], k) for k, _ in ANEES_COLS]
-                          + [fmt_list(r["max_abs_window"][0], " / ") + "; "
-                             + fmt_list(r["max_abs_window"][1], " / ")] for r in rows])
+                          + [fmt_list(r["max_abs_window"][0], " / ") + "; " + fmt_list(r["max_abs_window"][1], " / ")
+                             if r["max_abs_window"] else ""] for r in rows])
     md += ["", "mean ± std over runs; ANEES: mean over runs [99 % interval of a consistent filter] (effective "
                "samples: the epochs of a run are correlated, docs/consistency.md); the attitude's only over the "
                "epochs where the filter observes it, with the share it does not (line H000: most, docs/papers.md); "
@@ -350,14 +361,16 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
         md += [""]
         phase_q.plot(cal, {n: v["q_rule"] for n, v in rule.items()}, out / "plots" / "q_sweep.png", horizon=horizon,
                      long=long)
-    md += plugin_rows.markdown(plugins or {}, list(keys), "scenario")
-    plugin_rows.write(out / "table_plugins.csv", plugins or {}, list(keys))
+        if keys:
+            md += [f"The q rule tunes the built-in EKF's process noise; {', '.join(keys)} (--estimator) have their own "
+                   "settings and are not swept.", ""]
+    md += plugin_rows.markdown(ests, list(keys), "scenario")
+    plugin_rows.write(out / "table_plugins.csv", ests, list(keys))
     write_markdown(out / "table.md", md + claims_section(claims))
-    stats = [mean_ci(_scores(R[n])) for n in R]
-    compare_bars([n.removeprefix("phase-") for n in R], np.array([s[0] for s in stats]),
-                 np.array([s[1] for s in stats]), np.array([s[2] for s in stats]), out / "plots" / "rmse_window.png",
-                 title=f"seed 003: position RMSE over the {w} ({runs} runs, 95% CI)", ylabel="m")
-    _rmse_vs_pcrb(R, out / "plots" / "rmse_vs_pcrb.png", runs)
+    formations = {n.removeprefix("phase-"): ests[n] for n in R}
+    plugin_rows.bars(formations, names, _keys(next(iter(R.values())))["rmse"], out / "plots" / "rmse_window.png",
+                     title=f"seed 003: position RMSE over the {w} ({runs} runs, 95% CI)", ylabel="m")
+    _rmse_vs_pcrb(R, ests, names, out / "plots" / "rmse_vs_pcrb.png", runs)
     return write_claims(out / "claims.json", claims, paper="003", scenarios=list(R), motion=motion, runs=runs,
                         seeds=seeds(base_seed, runs), window_s=next(iter(R.values()))[0]["last_window_s"],
                         **({"calibration_seeds": sorted({r["seed"] for rows_ in calibration[0].values() for r in rows_}),
@@ -367,8 +380,9 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
 def compute(out: Path, *, runs: int, motion: str, duration: float | None,
             workers: int | None, estimators: tuple = ()) -> tuple[dict[str, list[dict]], int]:
     """Sweep every formation (OUT/runs/<scenario>/run-XXX) and copy run 0's error figures to
-    OUT/plots/; returns ({scenario: the EKF scores of every run}, the base seed). estimators:
-    plugin EstimatorSpecs scored in every run too (plugin_metrics reads them back)."""
+    OUT/plots/ (a plugin's as <scenario>-<name>_<figure>); returns ({scenario: the EKF scores of
+    every run}, the base seed). estimators: plugin EstimatorSpecs scored in every run too
+    (estimator_metrics reads them back)."""
     R: dict[str, list[dict]] = {}
     base = set()
     for name in SCENARIOS:
@@ -379,16 +393,17 @@ def compute(out: Path, *, runs: int, motion: str, duration: float | None,
         base.add(sc.seed)
         dirs = sweep_runs(replace(sc, estimators=tuple(estimators)), runs, out / "runs" / name, workers=workers)
         R[name] = [{**m["estimators"]["ekf"], **m["estimators"]["ekf"].get("health", {})} for m in load_metrics(dirs)]
-        for fig in ("position_error.png", "velocity_error.png"):  # testbed.plugins.phase_scores.PhaseWindow.plot
-            src = dirs[0] / "plots" / f"ekf_{fig}"
-            if src.exists():
-                shutil.copy(src, out / "plots" / f"{name}-{fig}")
+        for key in ("ekf", *(e.key for e in estimators)):  # every estimator the PhaseWindow hook plotted
+            for fig in ("position_error.png", "velocity_error.png"):  # testbed.plugins.phase_scores.PhaseWindow.plot
+                src = dirs[0] / "plots" / f"{key}_{fig}"
+                if src.exists():
+                    shutil.copy(src, out / "plots" / (f"{name}-{fig}" if key == "ekf" else f"{name}-{key}_{fig}"))
     if len(base) != 1:  # the paired comparisons need the same seed index to mean the same draws
         raise ValueError(f"phase scenarios must share one seed, got {sorted(base)}")
     return R, base.pop()
 
 
-def plugin_metrics(out: Path, runs: int) -> dict[str, list[dict]]:
+def estimator_metrics(out: Path, runs: int) -> dict[str, list[dict]]:
     """{scenario: the metrics.json `estimators` of every run} read back from OUT/runs."""
     return {name: [m["estimators"] for m in load_metrics([out / "runs" / name / run_name(i) for i in range(runs)])]
             for name in SCENARIOS}
@@ -397,10 +412,9 @@ def plugin_metrics(out: Path, runs: int) -> dict[str, list[dict]]:
 def reproduce(out: Path, *, runs: int, motion: str = "prescribed", duration: float | None = None,
               workers: int | None = None, estimators: tuple = ()) -> dict:
     """Seed 003 reproduction into `out` (see the module docstring); returns claims.json's content.
-    estimators: plugin EstimatorSpecs, one more row each (per formation) in table.md."""
+    estimators: plugin EstimatorSpecs, each in every table and figure the built-in ekf is in (`write`)."""
     out = Path(out)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     R, base_seed = compute(out, runs=runs, motion=motion, duration=duration, workers=workers, estimators=estimators)
-    plugins = plugin_metrics(out, runs) if estimators else None
-    return write(out, R, decide(R), runs=runs, motion=motion, base_seed=base_seed, plugins=plugins,
+    return write(out, R, decide(R), runs=runs, motion=motion, base_seed=base_seed, ests=estimator_metrics(out, runs),
                  keys=tuple(e.key for e in estimators), calibration=calibrate(runs=runs, motion=motion, duration=duration))

@@ -13,6 +13,11 @@ score (`paired`): the position RMSE (`rmse_position_m`, a number) of both in eac
 the same seeds, with a two-sided Wilcoxon signed-rank test (testbed.scoring.stats.wilcoxon_paired) and
 the improvement factor mean_other / mean_plugin; `table_plugins_paired.csv` has every number.
 A reproduction whose group objects hold only the plugins (not the built-ins) gets no comparison.
+
+The figures of a reproduction draw every estimator the same way, built-in or plugin: `estimator_names`
+(the built-ins, then the plugins), `column` (one score of one estimator over the runs, from the
+same `estimators` objects) and `bars` (that score's mean and 95 % Student t interval over the runs,
+per group and estimator, testbed.outputs.plots.grouped_bars).
 """
 from __future__ import annotations
 
@@ -20,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.scoring.metrics import anees_over_runs
+from testbed.scoring.metrics import anees_over_runs, mean_ci
+from testbed.outputs.plots import grouped_bars
 from testbed.outputs.report import fmt, fmt_anees, fmt_pm, markdown_table, write_csv
 from testbed.scoring.stats import wilcoxon_paired
 
@@ -53,10 +59,38 @@ def table(groups: dict[str, list[dict]], keys: list[str]) -> tuple[list[str], li
     return cols, rows
 
 
-def _score(run: dict, key: str) -> float | None:
-    """Estimator key's PAIRED score in one run's `estimators` object (None: absent, failed or not a number)."""
-    v = run.get(key, {}).get(PAIRED) if isinstance(run.get(key), dict) else None
+def _score(run: dict, key: str, score: str = PAIRED) -> float | None:
+    """Estimator key's `score` in one run's `estimators` object (None: absent, failed or not a number)."""
+    v = run.get(key, {}).get(score) if isinstance(run.get(key), dict) else None
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
+def estimator_names(builtins, keys) -> list[str]:
+    """The estimators a reproduction's tables and figures show, in their order: the built-ins, then
+    the plugins (--estimator), each once."""
+    return list(dict.fromkeys([*builtins, *keys]))
+
+
+def column(runs: list[dict], name: str, score: str) -> np.ndarray:
+    """(len(runs),) estimator `name`'s number `score` in each run's `estimators` object, NaN where
+    it has none (absent, failed: testbed.plugins.failures, or not a number)."""
+    return np.array([np.nan if (v := _score(r, name, score)) is None else v for r in runs], float)
+
+
+def interval(x: np.ndarray) -> tuple[float, float, float]:
+    """Mean and 95 % Student t interval (testbed.scoring.metrics.mean_ci) of the finite values of x
+    (independent runs); NaN when there is none."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return mean_ci(x) if x.size else (np.nan,) * 3
+
+
+def bars(groups: dict[str, list[dict]], names: list[str], score: str, path: Path, *, title: str, ylabel: str) -> Path:
+    """The figure of one score of every estimator `names` per group: mean and 95 % Student t interval
+    over the runs (`interval` of `column`); groups: {label: [the `estimators` object of each run]}."""
+    stats = np.array([[interval(column(runs, n, score)) for n in names] for runs in groups.values()])  # (G, E, 3)
+    return grouped_bars(list(groups), list(names), stats[..., 0], stats[..., 1], stats[..., 2], path, title=title,
+                        ylabel=ylabel)
 
 
 def paired(groups: dict[str, list[dict]], keys: list[str]) -> list[dict]:

@@ -101,8 +101,9 @@ def one_run(args: tuple) -> dict:
 
     args = (seed, motion, duration, cases, mode, keep_full[, estimators]). Returns {case: {"metrics":
     {filter: scores (testbed.plugins.score, plus time_per_step_ms)}, "t": (E,), "norms": {filter:
-    (E, 3) [|dp| m, |dv| m/s, attitude deg]}, "full": {filter: (errors (E, 9), sigmas (E, 9))} if
-    keep_full, "plugins": {name: scores} of the plugin EstimatorSpecs `estimators` (testbed.plugins)}}.
+    (E, 3) [|dp| m, |dv| m/s, attitude deg]} of every filter and plugin whose outputs fit the
+    relative-frame hook, "full": {name: (errors (E, 9), sigmas (E, 9))} of the same if keep_full,
+    "plugins": {name: scores} of the plugin EstimatorSpecs `estimators` (testbed.plugins)}}.
     """
     seed, motion, duration, cases, mode, keep_full, *rest = args
     extra = tuple(rest[0]) if rest else ()
@@ -114,15 +115,17 @@ def one_run(args: tuple) -> dict:
         scores, tracks = run_estimators(s, physics, log, plugins, None)
         hook, truth = relnav_hook(s), Truth(log, make_context(s, lever_arms(physics), "truth", {}))
         fits = {}
-        for spec in default_specs(s):
-            track = tracks[spec.key]
+        for key in [spec.key for spec in default_specs(s)] + [e.key for e in extra]:
+            track = tracks.get(key, {})
             errs = {(tg, q): errors(truth, tg, q, se.time, se.value, se.frame) for (tg, q), se in track.items()}
-            fits[spec.key] = hook.fit(track, errs)
+            if (fit := hook.fit(track, errs)) is not None:  # a plugin whose outputs do not fit has no curves
+                fits[key] = fit
         metrics = {n: {**{k: v for k, v in scores[n].items() if k != "wall_ms"},
-                       "time_per_step_ms": scores[n]["wall_ms"] / max(scores[n]["epochs"], 1)} for n in fits}
+                       "time_per_step_ms": scores[n]["wall_ms"] / max(scores[n]["epochs"], 1)} for n in FILTERS}
         res = {
             "metrics": metrics,
-            "t": next(iter(fits.values()))[0],
+            "t": fits[FILTERS[0]][0],
+            "times": {n: t for n, (t, _, _) in fits.items()},
             "norms": {n: np.column_stack([np.linalg.norm(e[0], axis=1), np.linalg.norm(e[1], axis=1),
                                           np.degrees(np.linalg.norm(e[2], axis=1))]) for n, (_, e, _) in fits.items()},
             "glint_fraction": float(np.mean(log["camera/glint"])) if log["camera/glint"].size else 0.0,
@@ -131,7 +134,7 @@ def one_run(args: tuple) -> dict:
         if keep_full:
             res["full"] = {n: (np.hstack(e), np.hstack(sig)) for n, (_, e, sig) in fits.items()}
         if extra:
-            res["plugins"] = {k: v for k, v in scores.items() if k not in fits}
+            res["plugins"] = {k: v for k, v in scores.items() if k not in FILTERS}
         out[case] = res
     return out
 
@@ -178,13 +181,13 @@ def compute(*, runs: int, motion: str, duration: float, workers: int, estimators
     results = _run_many(jobs, workers, keep / RUNS_DIR)
     other = "flown" if motion == "prescribed" else "prescribed"
     print(f"visnav: {other} motion (2 runs) and the pixel camera path (1 run, 10 s)", file=sys.stderr)
-    extra_jobs = [(seed, other, duration, CASES, "geometric", False) for seed in seeds(base, 2)]
-    extra_jobs.append((base, motion, min(10.0, duration), ("glint",), "pixels", False))
+    extra_jobs = [(seed, other, duration, CASES, "geometric", False, tuple(estimators)) for seed in seeds(base, 2)]
+    extra_jobs.append((base, motion, min(10.0, duration), ("glint",), "pixels", False, tuple(estimators)))
     extra_res = _run_many(extra_jobs, workers, keep / EXTRA_DIR)
-    extra = {f"{other} motion, run {i} (seed {base + i})": {c: r[c]["metrics"] for c in CASES}
+    extra = {f"{other} motion, run {i} (seed {base + i})": {c: _estimators(r[c]) for c in CASES}
              for i, r in enumerate(extra_res[:2])}
     extra[f"pixel camera path, {motion}, 10 s (seed {base}; no added noise: rendering + detection error)"] = {
-        "pixels": extra_res[2]["glint"]["metrics"]}
+        "pixels": _estimators(extra_res[2]["glint"])}
     meta = {"runs": runs, "duration": duration, "motion": motion, "workers": workers,
             "wall_s": time.perf_counter() - t0, "seeds": run_seeds}
     return VisnavResults(results=results, extra=extra, meta=meta)
@@ -194,18 +197,27 @@ def _col(results: list[dict], case: str, name: str, key: str) -> np.ndarray:
     return np.array([r[case]["metrics"][name][key] for r in results])
 
 
-def summarize(results: list[dict], case: str) -> dict:
-    """Per filter: mean and 95 % interval of each RMSE, mean of each ANEES (ANEES) over the runs with
-    its 99 % interval and effective samples (testbed.scoring.metrics.anees_over_runs), time per step, runs finite."""
+def _estimators(r: dict) -> dict:
+    """One run-case's `estimators` object: the built-in filters' metrics and the plugins' scores."""
+    return {**r["metrics"], **r.get("plugins", {})}
+
+
+def summarize(results: list[dict], case: str, keys: tuple[str, ...] = ()) -> dict:
+    """Per filter, then per plugin (keys), over the runs where it did not fail: mean and 95 %
+    interval of each RMSE it has, mean of each ANEES (ANEES) over the runs with its 99 % interval
+    and effective samples (testbed.scoring.metrics.anees_over_runs), time per step, runs finite."""
     table = {}
-    for name in FILTERS:
+    for name in plugin_rows.estimator_names(FILTERS, keys):
+        scored = [e[name] for e in (_estimators(r[case]) for r in results)
+                  if isinstance(e.get(name), dict) and "failed" not in e[name]]
         row = {}
         for key, _, _ in QUANTITIES:
-            m, lo, hi = mean_ci(_col(results, case, name, key))
+            m, lo, hi = mean_ci(plugin_rows.column([{name: e} for e in scored], name, key)) if scored else (np.nan,) * 3
             row[key] = {"mean": m, "lo": lo, "hi": hi}
-        row["anees"] = {key: anees_over_runs([r[case]["metrics"][name] for r in results], key) for key in ANEES}
-        row["time_per_step_ms"] = float(np.mean(_col(results, case, name, "time_per_step_ms")))
-        row["finite_runs"] = int(np.sum(_col(results, case, name, "finite")))
+        row["anees"] = {key: anees_over_runs(scored, key) for key in ANEES}
+        steps = [e.get("time_per_step_ms", e.get("wall_ms", np.nan) / max(e.get("epochs", 0), 1)) for e in scored]
+        row["time_per_step_ms"] = float(np.mean(steps)) if scored else float("nan")
+        row["finite_runs"] = int(sum(bool(e.get("finite", False)) for e in scored))
         table[name] = row
     return table
 
@@ -286,7 +298,7 @@ def _markdown(summaries: dict, meta: dict, extra: dict, claims: list[Claim]) -> 
         lines += [f"## {label}", ""]
         lines += markdown_table(["case", "filter", "position (m)", "velocity (m/s)", "attitude (deg)"]
                                 + [ANEES_LABEL[key] for key in ANEES],
-                                [[case, name] + [m[key] for key, _, _ in QUANTITIES]
+                                [[case, name] + [m.get(key, "") for key, _, _ in QUANTITIES]
                                  + [fmt_anees(anees_over_runs([m], key), key) for key in ANEES]
                                  for case, per in ex.items() for name, m in per.items()])
         lines.append("")
@@ -300,31 +312,37 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
         for name, r in summ.items():
             rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
             for key in ANEES:
-                a = r["anees"][key]
-                rows += [[case, name, key, a[key], *a[f"{key}_interval_99"]],
-                         [case, name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")], None, None]]
+                if a := r["anees"][key]:  # {}: an estimator without that ANEES (a plugin's outputs that do not fit)
+                    rows += [[case, name, key, a[key], *a[f"{key}_interval_99"]],
+                             [case, name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")], None, None]]
             rows += [[case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
     for label, ex in extra.items():
         for case, per in ex.items():
             for name, m in per.items():
-                rows += [[f"{label}/{case}", name, key, m[key], None, None] for key, _, _ in QUANTITIES]
+                rows += [[f"{label}/{case}", name, key, m.get(key), None, None] for key, _, _ in QUANTITIES]
                 for key in ANEES:
-                    a = anees_over_runs([m], key)  # one run: its 99 % interval
+                    if not (a := anees_over_runs([m], key)):  # one run: its 99 % interval; {}: none
+                        continue
                     rows += [[f"{label}/{case}", name, key, a[key], *a[f"{key}_interval_99"]],
                              [f"{label}/{case}", name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")],
                               None, None]]
     return rows
 
 
-def _rms_curves(results: list[dict], case: str, path: Path) -> Path:
-    """RMS over runs of the error norms against time, all filters (like the paper's figs. 5-7)."""
-    t = results[0][case]["t"]
+def _rms_curves(results: list[dict], case: str, path: Path, names: list[str]) -> Path:
+    """RMS over runs of the error norms against time, every filter and every plugin whose outputs
+    fit the relative-frame hook in every run, on its own instants (like the paper's figs. 5-7)."""
     fig = Figure(figsize=(7.5, 7.0))
     axes = fig.subplots(3, 1, sharex=True)
+    names = [n for n in names if all(n in r[case]["norms"] for r in results)]
     for i, (_, label, unit) in enumerate(QUANTITIES):
-        for j, name in enumerate(FILTERS):
-            n = np.array([r[case]["norms"][name][:, i] for r in results])
-            axes[i].semilogy(t, np.sqrt(np.mean(n ** 2, axis=0)), lw=1.0, color=f"C{j}", label=name.upper())
+        for j, name in enumerate(names):
+            t = results[0][case].get("times", {}).get(name, results[0][case]["t"])
+            series = [r[case]["norms"][name][:, i] for r in results]
+            if any(x.shape != (t.size,) for x in series):  # instants that differ between runs: no RMS over runs
+                continue
+            axes[i].semilogy(t, np.sqrt(np.mean(np.array(series) ** 2, axis=0)), lw=1.0, color=f"C{j}",
+                             label=name.upper() if name in FILTERS else name)
         axes[i].set_ylabel(f"{label} [{unit}]")
         axes[i].grid(alpha=0.3, which="both")
     axes[0].set_title(f"RMS error over {len(results)} runs ({case})")
@@ -333,7 +351,11 @@ def _rms_curves(results: list[dict], case: str, path: Path) -> Path:
     return save(fig, path)
 
 
-def write_plots(out: Path, results: list[dict], summaries: dict) -> None:
+def write_plots(out: Path, results: list[dict], summaries: dict, keys: tuple[str, ...] = ()) -> None:
+    """plots/: RHCF's run-0 errors with their 3-sigma envelopes, and per noise case the RMS error
+    curves and the RMSE bars of every filter and plugin (keys)."""
+    names = plugin_rows.estimator_names(FILTERS, keys)
+    labels = [n.upper() if n in FILTERS else n for n in names]
     plots = out / "plots"
     t = results[0]["glint"]["t"]
     err, sig = results[0]["glint"]["full"]["rhcf"]
@@ -342,22 +364,25 @@ def write_plots(out: Path, results: list[dict], summaries: dict) -> None:
         error_envelope(t, conv * err[:, sl], conv * sig[:, sl], plots / f"rhcf_{label}_glint_run0.png",
                        title=f"RHCF relative {label} error, glint noise (run 0), ±3σ", ylabel=unit)
     for case in CASES:
-        _rms_curves(results, case, plots / f"rms_error_vs_time_{case}.png")
+        _rms_curves(results, case, plots / f"rms_error_vs_time_{case}.png", names)
         for key, label, unit in QUANTITIES:
             s = summaries[case]
-            compare_bars([n.upper() for n in FILTERS], np.array([s[n][key]["mean"] for n in FILTERS]),
-                         np.array([s[n][key]["lo"] for n in FILTERS]), np.array([s[n][key]["hi"] for n in FILTERS]),
+            compare_bars(labels, np.array([s[n][key]["mean"] for n in names]),
+                         np.array([s[n][key]["lo"] for n in names]), np.array([s[n][key]["hi"] for n in names]),
                          plots / f"compare_{label}_{case}.png",
                          title=f"RMSE of relative {label}, {case} noise, {len(results)} runs (95 % CI)", ylabel=unit)
 
 
 def write(out: Path, res: VisnavResults, claims: list[Claim], keys: tuple[str, ...] = ()) -> dict:
     """table.md, table.csv, plots/, claims.json and runs.json (every run's metrics); returns the
-    summary (per-case tables, claims.json's content, meta). keys: the plugin estimators' names, one
-    more row each per noise case (testbed.reproduce.plugins, table_plugins.csv)."""
+    summary (per-case tables, claims.json's content, meta). keys: the plugin estimators' names: a row
+    each in every noise case's table (after the five filters), a bar in every RMSE figure, a curve
+    in the RMS figures where its outputs fit the relative-frame hook, and the "Plugin estimators"
+    section with its paired tests against each filter (testbed.reproduce.plugins, table_plugins.csv,
+    table_plugins_paired.csv)."""
     meta, results = res.meta, res.results
-    summaries = {case: summarize(results, case) for case in CASES}
-    groups = {case: [r[case].get("plugins", {}) for r in results] for case in CASES}
+    summaries = {case: summarize(results, case, keys) for case in CASES}
+    groups = {case: [_estimators(r[case]) for r in results] for case in CASES}  # built-ins too: the paired tests
     md = _markdown(summaries, meta, res.extra, claims)
     at = next((i for i, line in enumerate(md) if line.startswith("Wall time")), len(md))
     write_markdown(out / "table.md", md[:at] + plugin_rows.markdown(groups, list(keys), "case") + md[at:])
@@ -365,7 +390,7 @@ def write(out: Path, res: VisnavResults, claims: list[Claim], keys: tuple[str, .
     # lo, hi: the 95 % confidence interval of an RMSE's mean; the 99 % interval of a consistent filter's ANEES
     write_csv(out / "table.csv", ["case", "filter", "score", "mean", "lo", "hi"],
               _csv_rows(summaries, res.extra))
-    write_plots(out, results, summaries)
+    write_plots(out, results, summaries, keys)
     doc = write_claims(out / "claims.json", claims, paper="004", scenario="visnav", motion=meta["motion"],
                        runs=meta["runs"], duration_s=meta["duration"], seeds=meta["seeds"])
     runs_out = [{"seed": seed, **{c: {"metrics": r[c]["metrics"], "glint_fraction": r[c]["glint_fraction"],
