@@ -29,6 +29,16 @@ default of every estimator, pooled over the links:
 
     range_sigma^2 = sum_l sum_i res_i^2 / sum_l (n_l - p_l)                         (cal. 4)
 
+The time over which the range errors stay correlated (s), for an estimator that averages ranges
+over time (ranging.ekf's range_correlation): each link's tau in seconds (tau_l rows times the
+median spacing dt_l of its rows), pooled with the weight of the link's share of the error variance,
+
+    range_correlation = sum_l rss_l tau_l dt_l / sum_l rss_l                        (cal. 8)
+
+(the variance of a long average of independent links' errors is sum_l sigma_l^2 tau_l / n: a
+filter that treats each range as independent is right when each range's variance is multiplied
+by the rows its link makes within range_correlation; about dt_l, i.e. factor 1, for white errors).
+
 Process noise (the constant-velocity model's white acceleration, density q per axis, m^2/s^3;
 the same for the attitude, rad^2/s^3): truth sampled at spacing h has second differences
 D_k = x_{k+1} - 2 x_k + x_{k-1} of variance (2/3) q h^3 per axis (cal. 5); taken at every second k
@@ -71,8 +81,8 @@ MIN_SAMPLES = 16
 @dataclass(frozen=True, slots=True)
 class LinkFit:
     """One link's fit (cal. 1-3): ends, rows n, bias m, scale (0 when not fitted), their sigmas
-    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof
-    and integrated autocorrelation time tau (rows)."""
+    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof,
+    integrated autocorrelation time tau (rows) and the median spacing of the link's rows (s)."""
 
     src: str
     dst: str
@@ -85,6 +95,7 @@ class LinkFit:
     rss: float
     dof: int
     tau: float
+    spacing: float
 
 
 def _wls(e: np.ndarray, d: np.ndarray, w: np.ndarray, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -161,7 +172,8 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
         except ValueError:
             continue
         # eq. cal. 3: the link's range noise
-        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau))
+        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau,
+                           float(np.median(np.diff(tr)))))
     return out
 
 
@@ -238,12 +250,15 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     dof = sum(f.dof for f in fits)
     # eq. cal. 4: the pooled range noise
     range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))
+    # eq. cal. 8: the links' correlation times (s), weighted by their share of the error variance
+    range_correlation = float(sum(f.rss * f.tau * f.spacing for f in fits) / sum(f.rss for f in fits))
     epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
     spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
     # a density below every physical value (MIN_MAGNITUDE) is the rounding of a motion without any, e.g.
     # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts
-    noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()}}
+    noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()},
+             "range_correlation": range_correlation}
     fit = {"range_rows": sum(f.samples for f in fits), "range_dof": dof,
            "range_tau_median": float(np.median([f.tau for f in fits])),
            "range_sigma_interval": [range_sigma * np.sqrt(dof / chi2.ppf(0.975, dof)),
