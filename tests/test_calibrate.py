@@ -156,7 +156,7 @@ def test_white_range_noise_gives_a_correlation_time_of_one_row(dataset, calibrat
     their sigma (factor max(1, range_correlation / T) = 1 within the bound)."""
     _, c = calibrated
     rows = int(round(DURATION / T)) + 1
-    assert 1.0 <= c["noise"]["range_correlation"] / T <= 1.0 + _tau_half_width(1.0, rows, len(dataset[1]))
+    assert 1.0 - 1e-9 <= c["noise"]["range_correlation"] / T <= 1.0 + _tau_half_width(1.0, rows, len(dataset[1]))
 
 
 def test_ar1_range_noise_gives_its_integrated_time(tmp_path):
