@@ -266,9 +266,10 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
     # a density below every physical value (MIN_MAGNITUDE) is the rounding of a motion without any, e.g.
-    # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts
+    # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts;
+    # so is a correlation time below it (rows at one time: independent errors)
     noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()},
-             "range_correlation": range_correlation}
+             "range_correlation": range_correlation if range_correlation >= MIN_MAGNITUDE else 0.0}
     fit = {"range_rows": sum(f.samples for f in fits), "range_dof": dof,
            "range_tau_median": float(np.median([f.tau for f in fits])),
            "range_sigma_interval": [range_sigma * np.sqrt(dof / chi2.ppf(0.975, dof)),
