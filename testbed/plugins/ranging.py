@@ -181,6 +181,17 @@ class RangingEkfEstimator:
             return float(m.sigma[col])
         return float(default)
 
+    def _correlated(self, link: tuple, t: float, sigma: float) -> float:
+        """sigma (m) of a range of link (stream, antenna, known end) at time t (s), times
+        sqrt(max(1, range_correlation / dt)), dt the time since the link's previous range (module
+        docstring; 1 for its first)."""
+        last = self.last_range.get(link)
+        self.last_range[link] = t
+        if last is None or t <= last:
+            return sigma
+        # docs/calibration.md, cal. 8: the link's rows within the time its errors stay correlated
+        return sigma * float(np.sqrt(max(1.0, self.p["range_correlation"] / (t - last))))
+
     def _advance(self, t: float | None) -> list[Estimate]:
         """Solve the buffered epoch once time moves past it (t None: at finish); then buffer at t."""
         out = []
@@ -214,12 +225,7 @@ class RangingEkfEstimator:
                     j = self.index[mine]
                     if m.stream in p["range_streams"]:
                         col = int(p["range_streams"][m.stream])
-                        sigma = self._sigma(m, col, p["range_sigma"])
-                        last = self.last_range.get((m.stream, j, other))
-                        self.last_range[(m.stream, j, other)] = m.time
-                        if last is not None and m.time > last:
-                            # docs/calibration.md, cal. 8: the link's rows within the errors' correlation time
-                            sigma *= np.sqrt(max(1.0, p["range_correlation"] / (m.time - last)))
+                        sigma = self._correlated((m.stream, j, other), m.time, self._sigma(m, col, p["range_sigma"]))
                         self.links.append((j, other, float(m.value[col]), sigma, m.stream))
                     if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
                         col = int(p["rate_streams"][m.stream])
