@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import json
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2, t as t_dist
+from scipy.stats import chi2, norm, t as t_dist
 
 from testbed.cli import main
 from testbed.replay.export import write_csv
@@ -40,13 +41,26 @@ def _cv_path(rng, n: int, q: float, v0: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    """A rover (three tags) among six anchors, 10 Hz for 30 s; per link a bias (|b| < 0.3 m), a scale
-    (2 to 4 %, either sign: over each link's span of metres of range, several SIGMA) and white noise SIGMA
-    added to the true range; truth at every epoch. Returns (spec path, {link: (b, s)})."""
-    rng = np.random.default_rng(7)
-    n = int(round(DURATION / T)) + 1
+def _ar1(rng, n: int, phi: float) -> np.ndarray:
+    """(n,) a stationary AR(1) series of variance SIGMA^2 and lag-one correlation phi (white for 0):
+    x_k = phi x_{k-1} + sqrt(1 - phi^2) SIGMA w_k; its integrated time is (1 + phi) / (1 - phi) rows."""
+    w = SIGMA * rng.standard_normal(n)
+    if phi == 0.0:
+        return w
+    x = np.empty(n)
+    x[0] = w[0]
+    for k in range(1, n):
+        x[k] = phi * x[k - 1] + np.sqrt(1 - phi * phi) * w[k]
+    return x
+
+
+def _write_dataset(out: Path, seed: int, duration: float, corr: float) -> dict:
+    """A rover (three tags) among six anchors, spacing T for `duration` s; per link a bias (|b| < 0.3 m), a
+    scale (2 to 4 %, either sign: over each link's span of metres of range, several SIGMA) and noise
+    _ar1(corr) added to the true range; truth at every epoch; written to directory out (spec.toml and
+    the tables). Returns {link: (b, s)}."""
+    rng = np.random.default_rng(seed)
+    n = int(round(duration / T)) + 1
     t = np.round(T * np.arange(n), 9)
     pos = _cv_path(rng, n, Q_T, np.array([0.8, 0.5, 0.0])) + [-8.0, -5.0, 1.0]
     phi = _cv_path(rng, n, Q_R, np.array([0.0, 0.0, 0.3]))  # increments of phi are the body rotation vectors
@@ -65,25 +79,30 @@ def dataset(tmp_path_factory):
             rows["src"] += [f"anchor{i}"] * n
             rows["dst"] += [f"rover/{s}"] * n
             rows["kind"] += ["uwb"] * n
-            rows["value"] += ((1 + sc) * d + b + SIGMA * rng.standard_normal(n)).tolist()
-    d = tmp_path_factory.mktemp("calib") / "data"
-    d.mkdir()
+            rows["value"] += ((1 + sc) * d + b + _ar1(rng, n, corr)).tolist()
+    out.mkdir()
     q = R.as_quat(scalar_first=True)
-    write_csv(d / "links.csv", {k: np.array(v) for k, v in rows.items()})
-    write_csv(d / "truth.csv", {"time": t, "body": np.full(n, "rover"), "x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2],
-                                "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
+    write_csv(out / "links.csv", {k: np.array(v) for k, v in rows.items()})
+    write_csv(out / "truth.csv", {"time": t, "body": np.full(n, "rover"), "x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2],
+                                  "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
     anchors = "\n".join(f"anchor{i} = [{', '.join(map(repr, a.tolist()))}]" for i, a in enumerate(ANCHORS))
     sites = "\n".join(f"{s} = {arm}" for s, arm in ARMS.items())
-    (d / "spec.toml").write_text(f"format = 1\nseed = 0\n\n[[estimators]]\nentry = \"ranging.ekf\"\n"
-                                 f"params = {{ range_sigma = 0.05 }}\n\n[window]\nstart = 0.0\nend = {DURATION}\n\n"
-                                 f"[bodies.rover.sites]\n{sites}\n\n[anchors]\n{anchors}\n")
-    return d / "spec.toml", truth_bias
+    (out / "spec.toml").write_text(f"format = 1\nseed = 0\n\n[[estimators]]\nentry = \"ranging.ekf\"\n"
+                                   f"params = {{ range_sigma = 0.05 }}\n\n[window]\nstart = 0.0\nend = {duration}\n\n"
+                                   f"[bodies.rover.sites]\n{sites}\n\n[anchors]\n{anchors}\n")
+    return truth_bias
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """_write_dataset over DURATION with white range noise. Returns (spec path, {link: (b, s)})."""
+    d = tmp_path_factory.mktemp("calib") / "data"
+    return d / "spec.toml", _write_dataset(d, 7, DURATION, 0.0)
 
 
 @pytest.fixture(scope="module")
 def calibrated(dataset, tmp_path_factory):
     """`testbed calibrate` on the whole 30 s: the file and its TOML."""
-    import tomllib
 
     out = tmp_path_factory.mktemp("cal") / "calib.toml"
     assert main(["calibrate", str(dataset[0]), "--window", f"0,{DURATION}", "--out", str(out)]) == 0
@@ -124,12 +143,45 @@ def test_calibrate_recovers_the_process_noise_of_a_white_acceleration_truth(cali
         assert chi2.ppf(0.0005, n) < stat < chi2.ppf(0.9995, n), name
 
 
+def _tau_half_width(tau: float, rows: int, links: int) -> float:
+    """Half-width (rows) of the central 99.9 % of the pooled integrated time (cal. 8) of `links` links
+    of `rows` rows each with true time tau and equal noise (equal weights): per link, Madras and
+    Sokal's var = 2 (2M + 1) tau^2 / rows for a sum over M lags, M = 6 tau (an exponential
+    autocorrelation summed to e^-6 of its start), averaged over the independent links."""
+    return norm.ppf(0.9995) * tau * np.sqrt(2 * (2 * 6 * tau + 1) / (rows * links))
+
+
+def test_white_range_noise_gives_a_correlation_time_of_one_row(dataset, calibrated):
+    """White noise: range_correlation (cal. 8) is one row's spacing, so ranging.ekf's ranges keep
+    their sigma (factor max(1, range_correlation / T) = 1 within the bound)."""
+    _, c = calibrated
+    rows = int(round(DURATION / T)) + 1
+    assert 1.0 - 1e-9 <= c["noise"]["range_correlation"] / T <= 1.0 + _tau_half_width(1.0, rows, len(dataset[1]))
+
+
+def test_ar1_range_noise_gives_its_integrated_time(tmp_path):
+    """AR(1) range errors of lag-one correlation 0.8 (integrated time 9 rows, 0.9 s) over 100 s: the
+    pooled range_correlation (cal. 8) is 9 T within _tau_half_width, and the range sigma's
+    sigma^2 (dof / tau) / SIGMA^2 lies in the central 99.9 % of chi2(dof / tau) (dof / tau
+    effectively independent residuals): a filter's effective sigma, range_sigma sqrt(9), follows."""
+    corr, duration = 0.8, 100.0
+    tau = (1 + corr) / (1 - corr)
+    truth_bias = _write_dataset(tmp_path / "data", 11, duration, corr)
+    out = tmp_path / "calib.toml"
+    assert main(["calibrate", str(tmp_path / "data" / "spec.toml"), "--window", f"0,{duration}", "--out", str(out)]) == 0
+    c = tomllib.loads(out.read_text())
+    rows = int(round(duration / T)) + 1
+    assert abs(c["noise"]["range_correlation"] / T - tau) <= _tau_half_width(tau, rows, len(truth_bias))
+    dof = c["fit"]["range_dof"] / tau
+    stat = c["noise"]["range_sigma"] ** 2 * dof / SIGMA ** 2
+    assert chi2.ppf(0.0005, dof) < stat < chi2.ppf(0.9995, dof)
+
+
 def test_replay_with_the_calibration_corrects_ranges_sets_noise_defaults_and_skips_its_window(dataset, tmp_path, capsys):
     """calibrate on the first 15 s, replay all 30 s: ranging.ekf gets range_sigma, q_translation and
     q_rotation from the file but its range_sigma set in the spec stays, no estimate inside [0, 15] s is
     scored (counted apart), and every range fed is the recorded one with the file's bias and scale
     of its link removed."""
-    import tomllib
 
     spec, _ = dataset
     cal = tmp_path / "calib.toml"

@@ -22,7 +22,11 @@ Streams (names configurable in params):
   a flat array, the nearest such point, its height offset from the origin taken as for a level
   body). height_weights in params replaces the c_j for heights of the follower.
 The sigma of each row is the measurement's declared sigma at that column when given, else
-range_sigma / range_rate_sigma / height_sigma from params.
+range_sigma / range_rate_sigma / height_sigma from params. Correlated range errors
+(range_correlation tau_c > 0, s: docs/calibration.md, cal. 8): the filter averages ranges over
+time as if independent, so a range's variance is multiplied by max(1, tau_c / dt_l), dt_l the time
+since its link's (stream, antenna, known end) previous range (1 for the link's first): the rows
+the link makes within the time its errors stay correlated, which carry the information of one.
 
 Epochs: measurements of one time of validity form an epoch, processed when a later one arrives
 (or at finish), never looking ahead. The first epoch whose ranges determine the follower builds
@@ -73,6 +77,8 @@ class RangingParams:
     gate_alpha: float = key(1e-3, lo=0, hi=1, lo_open=True, hi_open=True, doc="false-alarm rate of the innovation gate")
     iterations: int = key(1, lo=1, doc="1: EKF; > 1: iterated EKF")
     range_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the ranges that declare none")
+    range_correlation: float = key(0.0, lo=0, unit="s",
+                                   doc="correlation time of the range errors (0: independent; docs/calibration.md)")
     range_rate_sigma: float = key(0.1, lo=0, lo_open=True, unit="m/s", doc="sigma of the range rates that declare none")
     height_sigma: float = key(0.1, lo=0, lo_open=True, unit="m", doc="sigma of the heights that declare none")
     use_rates: bool = key(False, doc="use the range rates")
@@ -146,6 +152,7 @@ class RangingEkfEstimator:
         self.belief = None
         self.t_belief = None
         self.t = None
+        self.last_range: dict[tuple[str, int, str], float] = {}  # (stream, antenna, known end) -> time of its last range
         self.counts = {"skipped_epochs": 0, "skipped_rows": 0, "unknown_end_rows": 0, "rejected_measurements": 0,
                        "covariance_repairs": 0}
         self._reset()
@@ -173,6 +180,17 @@ class RangingEkfEstimator:
         if m.sigma is not None and np.size(m.sigma) > col and np.isfinite(m.sigma[col]) and m.sigma[col] > 0:
             return float(m.sigma[col])
         return float(default)
+
+    def _correlated(self, link: tuple, t: float, sigma: float) -> float:
+        """sigma (m) of a range of link (stream, antenna, known end) at time t (s), times
+        sqrt(max(1, range_correlation / dt)), dt the time since the link's previous range (module
+        docstring; 1 for its first)."""
+        last = self.last_range.get(link)
+        self.last_range[link] = t
+        if last is None or t <= last:
+            return sigma
+        # docs/calibration.md, cal. 8: the link's rows within the time its errors stay correlated
+        return sigma * float(np.sqrt(max(1.0, self.p["range_correlation"] / (t - last))))
 
     def _advance(self, t: float | None) -> list[Estimate]:
         """Solve the buffered epoch once time moves past it (t None: at finish); then buffer at t."""
@@ -207,7 +225,8 @@ class RangingEkfEstimator:
                     j = self.index[mine]
                     if m.stream in p["range_streams"]:
                         col = int(p["range_streams"][m.stream])
-                        self.links.append((j, other, float(m.value[col]), self._sigma(m, col, p["range_sigma"]), m.stream))
+                        sigma = self._correlated((m.stream, j, other), m.time, self._sigma(m, col, p["range_sigma"]))
+                        self.links.append((j, other, float(m.value[col]), sigma, m.stream))
                     if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
                         col = int(p["rate_streams"][m.stream])
                         self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["range_rate_sigma"]))

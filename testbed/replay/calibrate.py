@@ -29,6 +29,20 @@ default of every estimator, pooled over the links:
 
     range_sigma^2 = sum_l sum_i res_i^2 / sum_l (n_l - p_l)                         (cal. 4)
 
+The time over which the range errors stay correlated (s), for an estimator that averages ranges
+over time (ranging.ekf's range_correlation): one integrated time tau_p (rows) of the links'
+residuals pooled, S_l(k) = sum_i d_{l,i} d_{l,i+k} each link's autocovariance sums (its residuals
+d_l in time order, mean removed), rho_k = sum_l S_l(k) / sum_l S_l(0), tau_p = 1 + 2 sum rho_k
+(Geyer's truncation, testbed.scoring.metrics.geyer_time), in seconds by the links' row spacing dt_l
+(median) weighted by their share of the error variance:
+
+    range_correlation = tau_p sum_l rss_l dt_l / sum_l rss_l                        (cal. 8)
+
+A filter that treats each range as independent is right when each range's variance is multiplied
+by the rows its link makes within range_correlation (tau_p at the calibration's rate; 1 for white
+errors). Pooled before truncation, not a mean of per-link taus: each tau_l >= 1 is truncated on
+its own noisy autocorrelation, and their mean over white links of 50 rows is about 1.2.
+
 Process noise (the constant-velocity model's white acceleration, density q per axis, m^2/s^3;
 the same for the attitude, rad^2/s^3): truth sampled at spacing h has second differences
 D_k = x_{k+1} - 2 x_k + x_{k-1} of variance (2/3) q h^3 per axis (cal. 5); taken at every second k
@@ -60,7 +74,7 @@ from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE
 from testbed.replay.recording import RecordedTruth, Recording, load_recording
 from testbed.replay.spec import Window
 from testbed.replay.tables import find
-from testbed.scoring.metrics import integrated_time
+from testbed.scoring.metrics import autocovariance_sums, geyer_time, integrated_time
 
 #: the fewest rows a link needs in the segment (two unknowns and one degree of freedom)
 MIN_ROWS = 3
@@ -71,8 +85,9 @@ MIN_SAMPLES = 16
 @dataclass(frozen=True, slots=True)
 class LinkFit:
     """One link's fit (cal. 1-3): ends, rows n, bias m, scale (0 when not fitted), their sigmas
-    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof
-    and integrated autocorrelation time tau (rows)."""
+    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof,
+    integrated autocorrelation time tau (rows), the median spacing of the link's rows (s) and the
+    autocovariance sums of its residuals (testbed.scoring.metrics.autocovariance_sums, m^2)."""
 
     src: str
     dst: str
@@ -85,6 +100,8 @@ class LinkFit:
     rss: float
     dof: int
     tau: float
+    spacing: float
+    acov: np.ndarray
 
 
 def _wls(e: np.ndarray, d: np.ndarray, w: np.ndarray, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -113,8 +130,9 @@ def scale_predicts(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> bool:
     return err[2] < err[1]
 
 
-def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float, float, int, float]:
-    """(b, s, sigma_b, sigma_s, rss, dof, tau) of e = b + s d + n (cal. 2-3) with weights w (n,), rows
+def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float, float, int, float, np.ndarray]:
+    """(b, s, sigma_b, sigma_s, rss, dof, tau, autocovariance sums of the residuals (n,)) of
+    e = b + s d + n (cal. 2-3) with weights w (n,), rows
     in time order; s = 0 and sigma_s NaN when the scale does not predict (scale_predicts, cal. 2b)
     or lies beyond the format's MAX_SCALE. ValueError when the rows cannot determine b."""
     # eq. cal. 2b: the scale only where it predicts held-out ranges
@@ -129,7 +147,7 @@ def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float,
         # eq. cal. 2: the covariance of white residuals, widened by their correlation time
         sig = np.sqrt(np.diag(tau * float(w @ res ** 2) / dof * Ninv))
         return (float(x[0]), float(x[1]) if cols == 2 else 0.0, float(sig[0]),
-                float(sig[1]) if cols == 2 else float("nan"), float(res @ res), dof, tau)
+                float(sig[1]) if cols == 2 else float("nan"), float(res @ res), dof, tau, autocovariance_sums(res))
     raise ValueError("fewer rows than unknowns")
 
 
@@ -157,11 +175,12 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
         sigma = t["sigma"][rows]
         w = np.where(np.isfinite(sigma), 1.0 / np.where(np.isfinite(sigma), sigma, 1.0) ** 2, 1.0)
         try:
-            bias, scale, sb, ss, rss, dof, tau = fit_link(t["value"][rows] - d, d, w)
+            bias, scale, sb, ss, rss, dof, tau, acov = fit_link(t["value"][rows] - d, d, w)
         except ValueError:
             continue
         # eq. cal. 3: the link's range noise
-        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau))
+        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau,
+                           float(np.median(np.diff(tr))), acov))
     return out
 
 
@@ -238,12 +257,19 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     dof = sum(f.dof for f in fits)
     # eq. cal. 4: the pooled range noise
     range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))
+    # eq. cal. 8: one integrated time of the links' pooled autocovariance, in s by their row spacing
+    pooled = np.zeros(max(f.acov.size for f in fits))
+    for f in fits:
+        pooled[:f.acov.size] += f.acov
+    range_correlation = geyer_time(pooled) * sum(f.rss * f.spacing for f in fits) / sum(f.rss for f in fits)
     epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
     spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
     # a density below every physical value (MIN_MAGNITUDE) is the rounding of a motion without any, e.g.
-    # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts
-    noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()}}
+    # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts;
+    # so is a correlation time below it (rows at one time: independent errors)
+    noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()},
+             "range_correlation": range_correlation if range_correlation >= MIN_MAGNITUDE else 0.0}
     fit = {"range_rows": sum(f.samples for f in fits), "range_dof": dof,
            "range_tau_median": float(np.median([f.tau for f in fits])),
            "range_sigma_interval": [range_sigma * np.sqrt(dof / chi2.ppf(0.975, dof)),

@@ -40,8 +40,8 @@ MAX_BIAS_M = 100.0
 #: the calibration file's format version
 FILE_FORMAT = 1
 #: the calibration file's [noise] keys: estimator parameters of these names take these values
-#: where the user set none (m; m^2/s^3; rad^2/s^3)
-NOISE_KEYS = ("range_sigma", "q_translation", "q_rotation")
+#: where the user set none (m; m^2/s^3; rad^2/s^3; s)
+NOISE_KEYS = ("range_sigma", "q_translation", "q_rotation", "range_correlation")
 #: the record keys of a [[links]] row besides calibration.csv's columns
 LINK_RECORD_KEYS = ("sigma", "samples", "tau")
 

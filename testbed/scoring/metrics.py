@@ -40,23 +40,40 @@ def anees_interval(dof: int, samples: float, level: float = 0.99) -> tuple[float
     return chi2_interval(dof, samples, level)
 
 
-def integrated_time(x: np.ndarray) -> float:
-    """Integrated autocorrelation time tau = 1 + 2 sum_{k>=1} rho_k of a stationary series x (T,)
-    in its index (docs/consistency.md): rho_k its sample autocorrelation at lag k (FFT), the sum
-    truncated by Geyer's initial monotone sequence (pairs G_m = rho_2m + rho_2m+1 summed while
-    positive, each capped by the one before). Returns tau >= 1 (1 for a constant series or T < 4)."""
+def autocovariance_sums(x: np.ndarray) -> np.ndarray:
+    """(T,) the sums S_k = sum_i d_i d_{i+k}, k = 0 .. T - 1, of d = x - mean(x), x (T,) (FFT,
+    zero-padded: the linear, not circular, autocovariance). Series of one process add up."""
     x = np.asarray(x, float)
     n = x.size
     d = x - x.mean()
-    if n < 4 or not np.any(d):
+    f = np.fft.rfft(d, 2 * n)
+    return np.fft.irfft(f * np.conj(f), 2 * n)[:n]
+
+
+def geyer_time(acov: np.ndarray) -> float:
+    """Integrated autocorrelation time tau = 1 + 2 sum_{k>=1} rho_k (in lags) of autocovariance sums
+    acov (K,) (autocovariance_sums, or their sum over series of one process), rho_k = acov_k / acov_0,
+    the sum truncated by Geyer's initial monotone sequence (pairs G_m = rho_2m + rho_2m+1 summed while
+    positive, each capped by the one before). Returns tau >= 1 (1 when K < 4 or acov_0 = 0)."""
+    n = acov.size
+    if n < 4 or not acov[0] > 0:
         return 1.0
-    f = np.fft.rfft(d, 2 * n)  # zero-padded: the linear, not circular, autocovariance
-    acov = np.fft.irfft(f * np.conj(f), 2 * n)[:n]
     rho = acov / acov[0]
     pairs = rho[0 : n - 1 : 2] + rho[1:n:2]  # G_m, m = 0 .. n//2 - 1
     stop = np.flatnonzero(pairs <= 0)
     pairs = np.minimum.accumulate(pairs[: stop[0] if stop.size else pairs.size])
     return max(1.0, float(2 * pairs.sum() - 1))
+
+
+def integrated_time(x: np.ndarray) -> float:
+    """Integrated autocorrelation time tau = 1 + 2 sum_{k>=1} rho_k of a stationary series x (T,)
+    in its index (docs/consistency.md): rho_k its sample autocorrelation at lag k (FFT), the sum
+    truncated by Geyer's initial monotone sequence (geyer_time). Returns tau >= 1 (1 for a constant
+    series or T < 4)."""
+    x = np.asarray(x, float)
+    if x.size < 4 or not np.any(x - x.mean()):
+        return 1.0
+    return geyer_time(autocovariance_sums(x))
 
 
 def effective_samples(ne: np.ndarray, instant: np.ndarray | None = None, target: np.ndarray | None = None) -> float:
