@@ -4,9 +4,10 @@ Each follower body is tracked by its own filter from ranges between its antennas
 points: the world's anchors (Context.anchors) and the antennas of known bodies, whose poses
 arrive on a pose stream (from any source: motion capture, another navigation solution) and whose
 lever arms come from Context.sites. Optional: range rates, a height of the follower (altimeter /
-barometer). Followers: params follower (one body), else every vehicle that is not known (known:
-params known, else every vehicle but the named follower, else none). Antennas: params antennas,
-else each follower's sites that [sensors.uwb] declares as tags (`tags`), else all its sites.
+barometer). Followers: params follower (one body), else every vehicle that is not known and has
+an antenna (known: params known, else every vehicle but the named follower, else none).
+Antennas: params antennas, else each follower's sites that [sensors.uwb] declares as tags
+(`tags`), else all its sites.
 
 Streams (names configurable in params):
 - ranges: the streams of `range_streams` {stream: column of value holding the range, m}
@@ -154,9 +155,12 @@ class RangingEkfEstimator:
             mine = sorted(s for s, (b, _) in context.sites.items() if b == f)
             ants = [a for a in p["antennas"] if _body(a) == f] if p["antennas"] is not None else \
                 [a for a in mine if not tags or a.split("/", 1)[1] in tags]
-            if not ants:
+            if ants:
+                self.followers[f] = _Follower(self, f, ants)
+            elif p["follower"] is not None:  # a vehicle without sites is no follower unless named
                 raise ConfigError(f"estimator ranging.ekf params: the follower {f} has no antenna site (sites {mine})")
-            self.followers[f] = _Follower(self, f, ants)
+        if not self.followers:
+            raise ConfigError(f"estimator ranging.ekf params: none of the followers {followers} has an antenna site")
 
     # -------------------------------------------------------------- one follower (the tests' and scripts' view)
     def _only(self) -> "_Follower":
