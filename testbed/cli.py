@@ -14,7 +14,8 @@
                 [--backend local|ray [--address ADDR]] [--quiet]
     testbed demo [--out DIR] [--force]
     testbed schema
-    testbed replay SPEC.toml --out DIR [--estimator ENTRY [--param key=value ...] ...] [--force]
+    testbed replay SPEC.toml --out DIR [--calibration FILE] [--estimator ENTRY [--param key=value ...] ...] [--force]
+    testbed calibrate SPEC.toml --window T0,T1 --out FILE.toml [--force]
     testbed export RUN_DIR --out DIR [--format csv|mcap] [--force]
     testbed view RUN_OR_REPLAY_DIR [--out FILE.rrd] [--force] [--spawn]
 
@@ -86,6 +87,18 @@ def _int_in(lo: int, hi: int, *, even: bool = False):
 def _float_in(lo: float, hi: float):
     """argparse type: a finite number in (lo, hi]."""
     return _number(float, lambda v: math.isfinite(v) and lo < v <= hi, f"a finite number in ({lo:g}, {hi:g}]", "a number")
+
+
+def _window(text: str) -> tuple[float, float]:
+    """argparse type: "T0,T1", two finite numbers (s), T0 < T1."""
+    parts = text.split(",")
+    try:
+        t0, t1 = (float(x) for x in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected T0,T1 (two numbers, s), got {text!r}") from None
+    if not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1):
+        raise argparse.ArgumentTypeError(f"must be two finite numbers T0 < T1 (s), got {text!r}")
+    return t0, t1
 
 
 def _writable_file(text: str) -> Path:
@@ -296,7 +309,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("spec", type=Path, help="the dataset's spec.toml (its tables lie beside it)")
     p.add_argument("--out", type=out_arg, required=True, help="replay directory to write")
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
+    p.add_argument("--calibration", type=Path, metavar="FILE",
+                   help="a calibration file (testbed calibrate): ranges corrected, its noise the defaults, its window not scored")
     _add_estimator_option(p)
+
+    p = sub.add_parser("calibrate", help="estimate range bias, scale and noise and the process noise on a segment with truth (docs/calibration.md)")
+    p.add_argument("spec", type=Path, help="the dataset's spec.toml (its tables lie beside it)")
+    p.add_argument("--window", type=_window, required=True, metavar="T0,T1",
+                   help="the calibration segment, s in the files' clock (as the spec's window)")
+    p.add_argument("--out", type=out_arg, required=True, help="calibration file to write (TOML)")
+    p.add_argument("--force", action="store_true", help="replace an existing file")
 
     p = sub.add_parser("export", help="write a run directory as a recorded dataset (docs/replay.md)")
     p.add_argument("run_dir", type=Path)
@@ -416,9 +438,14 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.replay.run import replay
         from testbed.outputs.report import fmt, fmt_anees
 
-        apart(args.out, _inputs(args, *dataset_files(args.spec)))  # the spec, its tables or bag
-        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force)
+        apart(args.out, _inputs(args, *dataset_files(args.spec), *filter(None, [args.calibration])))
+        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force,
+                         calibration=args.calibration)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
+        if "calibration" in metrics:
+            c = metrics["calibration"]
+            print(f"  calibration {c['file']}: window {c['window_s'][0]:g}-{c['window_s'][1]:g} s not scored; "
+                  f"noise defaults {', '.join(f'{k} {v:.4g}' for k, v in c['noise'].items())}")
         for name, est in metrics["estimators"].items():
             # every ANEES with its interval and effective samples (docs/consistency.md)
             scores = [f"{k} {fmt_anees(est, k) if k.startswith('anees_') else fmt(est[k])}" for k in est
@@ -427,6 +454,16 @@ def _dispatch(args: argparse.Namespace) -> int:
             if est.get("attitude_unobserved"):
                 print(f"  {name}: attitude not observed (its own covariance) of {', '.join(est['attitude_unobserved'])}")
         print(f"replay directory -> {args.out}")
+        return 0
+    if args.command == "calibrate":
+        from testbed.replay.calibrate import calibrate
+        from testbed.replay.recording import dataset_files
+
+        apart(args.out, dataset_files(args.spec))
+        c = calibrate(args.spec, args.window, args.out, force=args.force)
+        print(f"{args.spec}: {len(c['links'])} links, {c['fit']['range_rows']} ranges on {args.window[0]:g}-{args.window[1]:g} s; "
+              + ", ".join(f"{k} {v:.4g}" for k, v in c["noise"].items()))
+        print(f"calibration -> {args.out}")
         return 0
     if args.command == "export":
         from testbed.replay.bag_export import export_bag

@@ -338,6 +338,8 @@ def test_reproduce_coop_gives_a_plugin_every_table_plot_and_test(tmp_path, monke
     for section in sections:
         assert "UwbEkf" in section, section[:60]
     assert md.count("| UwbEkf |") >= 2 and "| centralized | UwbEkf |" in md
+    # the NLOS experiment's plugin ANEES with its interval and effective samples
+    assert re.search(r"UwbEkf \(its own settings.*ANEES \S+ \[\S+, \S+\] \(n_eff \S+\)", md)
 
 
 def test_builtin_settings_default_to_the_scenario_and_params_override(coop_run):
@@ -421,6 +423,17 @@ def test_phase_builtin_is_its_filter_in_the_world_with_its_pcrb_and_nav_scores()
     assert sc_plug["targets"]["uav6"]["position"]["pcrb_samples"] == inp.times.size
     assert health["rejected_measurements"] == int(ref.rejected_measurements.sum())
     assert health["gate_epochs_with_rejection"] == int((ref.rejected_measurements > 0).sum())
+    # the attitude at one epoch per second, scored where the filter's covariance leaves no axis unobserved
+    from estimators.phase_model import unobserved_rotation_axes
+
+    sec = np.unique(np.floor(inp.times - inp.times[0]), return_index=True)[1]
+    seen = [i for i in sec if not len(unobserved_rotation_axes(ref.mean[i], ref.cov[i]))]
+    assert sc_plug["attitude_unobserved_fraction"] == pytest.approx(1 - len(seen) / sec.size, abs=1e-12)
+    if seen:
+        want_att = np.mean([attitude_nees(ref.mean[i], ref.cov[i], states[i]) for i in seen])
+        np.testing.assert_allclose(sc_plug["anees_attitude6"], want_att, rtol=1e-9)
+    else:
+        assert "anees_attitude6" not in sc_plug
 
 
 def test_phase_window_velocity_sigma_is_the_filters_in_n():

@@ -63,7 +63,11 @@ def test_phase_reproduction_writes_its_report(tmp_path):
     doc = json.loads((out / "claims.json").read_text())
     table = (out / "table.md").read_text()
     assert doc["window_s"] == 2.0 and "uses the last 2 s instead" in table and "RMSE pos last 2 s" in table
-    assert assert_every_anees_has_its_interval(table) == 8 * 3  # eight formations, three ANEES each
+    # eight formations, three ANEES each, and the attitude's where a run observed it (line H000: none)
+    observed = {d.parent.name for d in (out / "runs").glob("phase-*/run-*")
+                if "anees_attitude6" in json.loads((d / "metrics.json").read_text())["estimators"]["ekf"]}
+    assert "phase-line-h000" not in observed
+    assert assert_every_anees_has_its_interval(table) == 8 * 3 + len(observed)
     assert "last_100s" not in (out / "table.csv").read_text()
     assert "testbed reproduce phase --out" in md and "--runs 2" in md and "--duration 4" in md
     for c in doc["claims"]:

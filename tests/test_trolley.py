@@ -35,16 +35,20 @@ def test_the_frame_convention_found_makes_the_ranges_agree_with_the_truth():
 
 
 def test_convert_then_replay_every_ranging_estimator(tmp_path, capsys):
-    """Two seconds after the calibration segment, calibrated: graph.poses, ranging.ekf and the
-    ranging.lsq baseline all give the trolley's position, scored, with health counts; the window
-    starts after the calibration segment (scoring never sees it). ranging.ekf estimates the body
-    and each tag: the headline is the body's, the tags' summary is apart (`sites`)."""
+    """Two seconds after the calibration segment, calibrated by `testbed calibrate` on the first 5 s
+    of the segment: graph.poses, ranging.ekf and the ranging.lsq baseline all give the trolley's
+    position, scored, with health counts; the window starts after the calibration segment (scoring
+    never sees it). ranging.ekf estimates the body and each tag: the headline is the body's, the
+    tags' summary is apart (`sites`)."""
     t = _trolley()
-    spec = t.convert(tmp_path / "data", calibrated=True, seconds=2.0)
-    assert main(["replay", str(spec), "--out", str(tmp_path / "out")]) == 0
+    spec = t.convert(tmp_path / "data", seconds=2.0)
+    assert main(["calibrate", str(spec), "--window", "0,5", "--out", str(tmp_path / "calib.toml")]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--calibration", str(tmp_path / "calib.toml")]) == 0
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
     start, end = m["window_s"]
     assert end - start == 2.0 and start > 0.19 * 134.8
+    assert m["calibration"]["window_s"] == [0.0, 5.0] and set(m["calibration"]["defaults"]) == {
+        "graph.poses", "ranging.ekf", "ranging.lsq"}
     for key in ("graph.poses", "ranging.ekf", "ranging.lsq"):
         e = m["estimators"][key]
         pos = e["targets"]["trolley"]["position"]

@@ -1,6 +1,6 @@
 """Convert the LIAS UWB trolley dataset (examples/replay/trolley/, MIT) into the replay format (docs/replay.md).
 
-    python examples/replay/trolley.py --out DATASET [--calibrated] [--seconds S] [--force]
+    python examples/replay/trolley.py --out DATASET [--seconds S] [--force]
 
 What the raw files are, and what this does with them (examples/replay/trolley/README.md):
 - Time base: both files stamp rows with the same local wall clock ("2022-08-15 9:42:24.766", time
@@ -21,12 +21,11 @@ What the raw files are, and what this does with them (examples/replay/trolley/RE
   145 motion capture rows repeat the previous row's timestamp with a different pose (up to
   1.4 cm): the pair is averaged (quaternion renormalized), so truth times increase; ranges are
   quantized to 0.01 m (noise of 0.003 m, left as it is). Every link is biased (+0.09 to
-  +0.32 m): see --calibrated.
-- Calibration segment (the rule: the first 20 % of the UWB span, CALIBRATION_FRACTION): the
-  window written to spec.toml starts after it, raw or calibrated, so scoring never sees it.
-  --calibrated subtracts from every range its link's bias, the mean of (range - true range) over
-  the segment, and declares as the row's sigma the link's standard deviation of the same
-  residual (ddof 1). Without --calibrated the ranges are written as recorded, without a sigma.
+  +0.32 m): calibrate it (below).
+- Ranges are written as recorded, without a sigma. Calibration segment (the rule: the first 20 %
+  of the UWB span, CALIBRATION_FRACTION): the window written to spec.toml starts after it, so
+  `testbed calibrate DATASET/spec.toml --window 0,START --out calib.toml` fits the segment and
+  `testbed replay DATASET/spec.toml --calibration calib.toml` replays the rest (docs/calibration.md).
 - --seconds S: a window of only the first S seconds after the calibration segment (tests).
 
 The spec runs the ranging estimators with their defaults: graph.poses, ranging.ekf and
@@ -99,17 +98,18 @@ def true_ranges(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> 
 
 
 def calibration(t: np.ndarray, r: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray, end: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per link (8, 3): bias m = mean(range - true range) and sigma m = its standard deviation
-    (ddof 1) over the rows with time < end (the calibration segment)."""
+    """Per link (8, 3): mean m of (range - true range) and its standard deviation m (ddof 1) over
+    the rows with time < end: the measure of the frame search above (the dataset's calibration
+    is `testbed calibrate`'s)."""
     seg = t < end
     e = r[seg] - true_ranges(t[seg], tm, p, q)
     return np.nanmean(e, axis=0), np.nanstd(e, axis=0, ddof=1)
 
 
-def spec_toml(start: float, end: float, calibrated: bool) -> str:
+def spec_toml(start: float, end: float) -> str:
     vec = lambda x: "[" + ", ".join(repr(float(c)) for c in x) + "]"  # noqa: E731
     lines = [f"format = {FORMAT}",
-             f'description = "LIAS UWB trolley, fast run, {"bias-calibrated" if calibrated else "raw"} ranges (examples/replay/trolley.py)"',
+             'description = "LIAS UWB trolley, fast run, ranges as recorded (examples/replay/trolley.py)"',
              "seed = 0", "",
              *[f'[[estimators]]\nentry = "{e}"\n' for e in ("graph.poses", "ranging.ekf")],
              '[[estimators]]  # registered as ranging.lsq; by module path, so it runs before a reinstall too',
@@ -123,7 +123,7 @@ def spec_toml(start: float, end: float, calibrated: bool) -> str:
     return "\n".join(lines)
 
 
-def convert(out: Path, *, calibrated: bool = False, seconds: float | None = None, force: bool = False, raw: Path = RAW) -> Path:
+def convert(out: Path, *, seconds: float | None = None, force: bool = False, raw: Path = RAW) -> Path:
     """Write the dataset at out (testbed.outdir rules); returns the path of its spec.toml."""
     tu, r = read_uwb(raw / UWB_FILE)
     tm, p, q = read_mocap(raw / MOCAP_FILE)
@@ -134,18 +134,14 @@ def convert(out: Path, *, calibrated: bool = False, seconds: float | None = None
     keep = (tm >= -1.0) & (tm <= end + 1.0)  # truth a little beyond the window, for interpolation at its edges
     keep_u = tu <= end
     tu, r = tu[keep_u], r[keep_u]
-    sigma = np.full(r.shape[1:], np.nan)
-    if calibrated:
-        bias, sigma = calibration(tu, r, tm, p, q, start)
-        r = r - bias
     ok = np.isfinite(r)
     n, a, k = np.nonzero(ok)
     links = {"time": tu[n], "src": np.array([f"anchor{i}" for i in a]), "dst": np.array([f"{BODY}/tag{i}" for i in k]),
-             "kind": np.full(n.size, "uwb"), "value": np.round(r[n, a, k], 6), "sigma": sigma[a, k]}
+             "kind": np.full(n.size, "uwb"), "value": np.round(r[n, a, k], 6)}
     truth = {"time": tm[keep], "body": np.full(keep.sum(), BODY), **{c: p[keep, i] for i, c in enumerate("xyz")},
              **{c: q[keep, i] for i, c in enumerate(("qw", "qx", "qy", "qz"))}}
     with Output(Path(out), kind="dataset", force=force) as o:
-        (o.path / "spec.toml").write_text(spec_toml(start, end, calibrated))
+        (o.path / "spec.toml").write_text(spec_toml(start, end))
         write_csv(o.path / "links.csv", links)
         write_csv(o.path / "truth.csv", truth)
         o.commit()
@@ -155,12 +151,11 @@ def convert(out: Path, *, calibrated: bool = False, seconds: float | None = None
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path, help="dataset directory to write")
-    ap.add_argument("--calibrated", action="store_true", help="subtract each link's bias (calibration segment)")
     ap.add_argument("--seconds", type=float, help="only this many seconds after the calibration segment")
     ap.add_argument("--force", action="store_true", help="replace an earlier dataset written by the testbed")
     a = ap.parse_args(argv)
     try:
-        print(convert(a.out, calibrated=a.calibrated, seconds=a.seconds, force=a.force))
+        print(convert(a.out, seconds=a.seconds, force=a.force))
     except TestbedError as e:
         print(f"trolley: error: {e}", file=sys.stderr)
         return 2

@@ -22,13 +22,17 @@ from scipy.spatial.transform import Rotation
 from estimators.core import nees
 from estimators.phase_ekf import ProcessNoise, pcrb
 from estimators.phase_frames import BODY_POS, BODY_PV, to_nav
-from estimators.phase_model import antenna_state_from_body, body_from_antennas
+from estimators.phase_model import antenna_state_from_body, body_from_antennas, unobserved_rotation_axes
 from estimators.so3 import euler_from_rotation, skew
 from testbed.config.pipelines import PhasePipelineConfig
 from testbed.scoring.metrics import anees_keys, rmse
 from testbed.plugins.builtin_phase import PhaseInputs, prepare
 from testbed.plugins.collect import Track
 from testbed.plugins.score import Bound, Hook, at_epochs
+
+
+#: s: the attitude is scored at one epoch per this period (PhaseScored._attitude)
+ATTITUDE_PERIOD_S = 1.0
 
 
 def truth_in_nav(log: dict, idx: np.ndarray, nav_master: int, follower: int, a: float, b: float):
@@ -189,7 +193,8 @@ class PhaseScored(Hook):
     (testbed.scoring.metrics.anees_keys), and `nees_body6_final` at the last epoch; with the estimator's
     navigation states in N in the phase-18 layout (testbed.plugins.api.NavigationStates, frame
     "phase-N": phase.ekf): `anees_state18` (18 dof, the filter's covariance), `nees_final` and
-    `nees_attitude6_final` (attitude_nees) at the last epoch, and, with the actual covariance,
+    `nees_attitude6_final` (attitude_nees) at the last epoch, the attitude where the filter observes
+    it and the share and axes where it does not (`_attitude`), and, with the actual covariance,
     `anees_body6_actual_cov` (the body position and velocity against the covariance analysis'
     actual covariance) and `nees_body6_actual_cov_final`.
 
@@ -261,10 +266,31 @@ class PhaseScored(Hook):
         n18 = nees(x - x_true, P)
         out = {**anees_keys(n18[sc], 18, "anees_state18"), "nees_final": float(n18[-1]),
                "nees_attitude6_final": attitude_nees(x[-1], P[-1], x_true[-1])}
+        out.update(self._attitude(np.asarray(nav.time, float)[hit], x, P, x_true, sc))
         if nav.actual is not None:
             e = x @ BODY_PV.T - self.body[k]
             n6 = nees(e, BODY_PV @ np.asarray(nav.actual)[hit] @ BODY_PV.T)
             out.update({**anees_keys(n6[sc], 6, "anees_body6_actual_cov"), "nees_body6_actual_cov_final": float(n6[-1])})
+        return out
+
+    @staticmethod
+    def _attitude(t: np.ndarray, x: np.ndarray, P: np.ndarray, x_true: np.ndarray, sc: np.ndarray) -> dict:
+        """The attitude's scores where the filter observes it. At the scored epochs, one per
+        ATTITUDE_PERIOD_S (eq. 30 per epoch is the costly part; the NEES stays correlated over many
+        seconds, so its effective samples hardly change, docs/consistency.md), the filter's covariance says
+        which rotation axes it does not observe (estimators.phase_model.unobserved_rotation_axes,
+        the filter's mean and covariance only): `attitude_unobserved_fraction`, the share of those
+        epochs with at least one; `attitude_unobserved_axes_final`, the axes (unit vectors in N) at
+        the last epoch; `anees_attitude6` (yaw, pitch, roll and their rates, 6 dof, attitude_nees)
+        over the epochs whose attitude is observed in every direction (absent when none is).
+        t (K,) s; x, x_true (K, 18); P (K, 18, 18); sc (K,) bool the scored epochs."""
+        k = np.flatnonzero(sc)
+        k = k[np.unique(np.floor((t[k] - t[k[0]]) / ATTITUDE_PERIOD_S), return_index=True)[1]]
+        seen = [i for i in k if not len(unobserved_rotation_axes(x[i], P[i]))]
+        out = {"attitude_unobserved_fraction": 1.0 - len(seen) / k.size,
+               "attitude_unobserved_axes_final": unobserved_rotation_axes(x[-1], P[-1]).tolist()}
+        if seen:
+            out.update(anees_keys(np.array([attitude_nees(x[i], P[i], x_true[i]) for i in seen]), 6, "anees_attitude6"))
         return out
 
 

@@ -12,22 +12,38 @@ d = (d_meas - b) / (1 + s), the row's declared sigma divided by (1 + s) likewise
 link's remaining bias (m) is sqrt(sigma_src^2 + sigma_dst^2 + sigma_link^2) over the rows that
 declare one; it is Context.sensors["uwb"]["bias_sigma"][src][dst] (both orders), absent for a
 link no row with a sigma names.
+
+The calibration file (`testbed calibrate` writes it, `testbed replay --calibration FILE` reads it;
+docs/calibration.md): TOML, `format`, `window` [T0, T1] (s, the files' clock: the segment it was
+fitted on, never scored), `[noise]` (the estimators' defaults by parameter name: NOISE_KEYS),
+`[fit]` (a record, not read), `[[links]]` rows with the columns of calibration.csv (and `sigma`,
+`samples`, `tau`: a record). read_calibration_file checks every key; a mistake is one line naming the
+file, the key and the value.
 """
 from __future__ import annotations
 
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from testbed.config import MAX_MAGNITUDE as MAX_PARAM, MIN_MAGNITUDE
 from testbed.errors import ConfigError
-from testbed.replay.tables import CALIBRATION_SCHEMA, Table, read_table
+from testbed.replay.tables import CALIBRATION_SCHEMA, MAX_MAGNITUDE, Table, read_table
 
 #: the largest scale error a row may declare (dimensionless): a ranging clock off by 10 % is
 #: broken, not miscalibrated, and 1 + s stays far from 0 for any sum of three such rows
 MAX_SCALE = 0.1
 #: the largest bias a row may declare (m): beyond the span of any UWB link's systematic error
 MAX_BIAS_M = 100.0
+#: the calibration file's format version
+FILE_FORMAT = 1
+#: the calibration file's [noise] keys: estimator parameters of these names take these values
+#: where the user set none (m; m^2/s^3; rad^2/s^3)
+NOISE_KEYS = ("range_sigma", "q_translation", "q_rotation")
+#: the record keys of a [[links]] row besides calibration.csv's columns
+LINK_RECORD_KEYS = ("sigma", "samples", "tau")
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,9 +78,13 @@ class Calibration:
 
 
 def read_calibration(path: Path, names: set[str]) -> Calibration:
-    """Read and check calibration.csv: names known (sites or anchors of the spec), no row twice,
-    |bias| <= MAX_BIAS_M, |scale| <= MAX_SCALE, sigmas > 0; ConfigError (one line) on a mistake."""
-    t: Table = read_table(path, "calibration", CALIBRATION_SCHEMA)
+    """Read and check calibration.csv (see _from_table); ConfigError (one line) on a mistake."""
+    return _from_table(read_table(path, "calibration", CALIBRATION_SCHEMA), names)
+
+
+def _from_table(t: Table, names: set[str]) -> Calibration:
+    """Check the rows of a calibration table: names known (sites or anchors of the spec), no row
+    twice, |bias| <= MAX_BIAS_M, |scale| <= MAX_SCALE, sigmas > 0; ConfigError (one line) on a mistake."""
     devices: dict[str, tuple[float, float, float]] = {}
     links: dict[frozenset, tuple[float, float, float]] = {}
     first: dict[object, int] = {}
@@ -92,5 +112,86 @@ def read_calibration(path: Path, names: set[str]) -> Calibration:
         else:
             devices[key] = entry
     if not first:
-        raise ConfigError(f"{path}: no row (delete the file, or calibrate a device or a link)")
+        raise ConfigError(f"{t.file}: no row (delete the file, or calibrate a device or a link)")
     return Calibration(devices, links)
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationFile:
+    """A calibration file (module docstring): path, the bias and scale table, window (T0, T1) s of
+    the files' clock, noise {NOISE_KEYS name: value}."""
+
+    path: Path
+    table: Calibration
+    window: tuple[float, float]
+    noise: dict[str, float]
+
+
+def _number(path: Path, key: str, v: object, lo: float = -MAX_MAGNITUDE) -> float:
+    """v as a float, if a finite number (not a bool) in [lo, MAX_MAGNITUDE]; else ConfigError naming path and key."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or not lo <= v <= MAX_MAGNITUDE:
+        raise ConfigError(f"{path}: {key}: expected a finite number in [{lo:g}, {MAX_MAGNITUDE:g}], got {v!r}")
+    return float(v)
+
+
+def read_calibration_file(path: Path, names: set[str]) -> CalibrationFile:
+    """Read and check a calibration file (module docstring) against the spec's site and anchor
+    names; ConfigError (one line naming the file, key and value) on a mistake."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such calibration file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory; name the calibration file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a UTF-8 text file") from None
+    unknown = sorted(set(data) - {"format", "window", "noise", "fit", "links"})
+    if unknown:
+        raise ConfigError(f"{path}: {unknown[0]}: unknown key (a calibration file has format, window, noise, fit, links)")
+    if data.get("format") != FILE_FORMAT:
+        raise ConfigError(f"{path}: format: expected {FILE_FORMAT}, got {data.get('format')!r}")
+    w = data.get("window")
+    if not isinstance(w, list) or len(w) != 2:
+        raise ConfigError(f"{path}: window: expected [T0, T1] (s), got {w!r}")
+    window = (_number(path, "window[0]", w[0]), _number(path, "window[1]", w[1]))
+    if window[1] <= window[0]:
+        raise ConfigError(f"{path}: window: T1 must be after T0, got {w!r}")
+    noise_t = data.get("noise", {})
+    if not isinstance(noise_t, dict):
+        raise ConfigError(f"{path}: noise: expected a table, got {noise_t!r}")
+    if not isinstance(data.get("fit", {}), dict):
+        raise ConfigError(f"{path}: fit: expected a table, got {data['fit']!r}")
+    noise = {}
+    for k, v in noise_t.items():
+        if k not in NOISE_KEYS:
+            raise ConfigError(f"{path}: noise.{k}: unknown key (known: {', '.join(NOISE_KEYS)})")
+        noise[k] = _number(path, f"noise.{k}", v, lo=0.0)
+        if (k == "range_sigma" or noise[k] > 0) and not MIN_MAGNITUDE <= noise[k] <= MAX_PARAM:
+            raise ConfigError(f"{path}: noise.{k}: must be {'' if k == 'range_sigma' else '0 or '}in "
+                              f"[{MIN_MAGNITUDE:g}, {MAX_PARAM:g}] (an estimator parameter's bounds), got {v!r}")
+    rows = data.get("links", [])
+    if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+        raise ConfigError(f"{path}: links: expected [[links]] tables")
+    cols = {c: [] for c, _, _ in CALIBRATION_SCHEMA}
+    for i, r in enumerate(rows):
+        for k, v in r.items():
+            if k not in cols and k not in LINK_RECORD_KEYS:
+                raise ConfigError(f"{path}: links[{i}].{k}: unknown key (known: {', '.join([*cols, *LINK_RECORD_KEYS])})")
+            if k in LINK_RECORD_KEYS:
+                _number(path, f"links[{i}].{k}", v, lo=0.0)
+        for c, numeric, required in CALIBRATION_SCHEMA:
+            v = r.get(c)
+            if v is None and required:
+                raise ConfigError(f"{path}: links[{i}].{c}: missing")
+            if numeric:
+                cols[c].append(np.nan if v is None else _number(path, f"links[{i}].{c}", v))
+            elif v is not None and not isinstance(v, str):
+                raise ConfigError(f"{path}: links[{i}].{c}: expected a name (string), got {v!r}")
+            else:
+                cols[c].append(v or "")
+    table = Table(f"{path}: [[links]]", {c: np.array(cols[c], float if numeric else str)
+                                         for c, numeric, _ in CALIBRATION_SCHEMA}, None)
+    return CalibrationFile(path, _from_table(table, names) if rows else Calibration({}, {}), window, noise)

@@ -38,8 +38,8 @@ from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.channel import Channel
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.bag_read import bag_tables
-from testbed.replay.calibration import read_calibration
-from testbed.replay.spec import ReplaySpec, load_spec
+from testbed.replay.calibration import Calibration, CalibrationFile, read_calibration, read_calibration_file
+from testbed.replay.spec import ReplaySpec, Window, load_spec
 from testbed.replay.tables import CAMERA_COLUMNS, PHASE_MASTER_COLUMNS, REQUIRED_TABLES, SCHEMAS, Table, find, read_table
 from testbed.rng import stream_rng
 
@@ -63,13 +63,15 @@ class Recording:
     """spec; directory; tables {name: Table} (rows within the window, times in the files' clock);
     feed: every measurement in feeding order, runs of one stream as MeasurementBatches (the rows
     one by one: measurements()); bias_sigma: {src: {dst: m}} the sigma of each calibrated uwb
-    link's remaining bias (testbed.replay.calibration), {} without calibration.csv."""
+    link's remaining bias (testbed.replay.calibration), {} without calibration.csv; calibration:
+    the calibration file applied (`testbed replay --calibration`), else None."""
 
     spec: ReplaySpec
     directory: Path
     tables: dict[str, Table]
     feed: list[Measurement]
     bias_sigma: dict = field(default_factory=dict)
+    calibration: CalibrationFile | None = None
 
     @property
     def duration(self) -> float:
@@ -303,11 +305,16 @@ def dataset_files(spec_path: Path) -> list[Path]:
     return files + ([spec_path.parent / spec.bag.path] if spec.bag is not None else [])
 
 
-def load_recording(spec_path: Path) -> Recording:
+def load_recording(spec_path: Path, *, window: Window | None = None, window_key: str = "window",
+                   calibration: Path | None = None) -> Recording:
     """Read spec.toml and the tables beside it (or the ROS bag its [bag] names:
-    testbed.replay.bag_read), check everything, build the feed; ConfigError on a mistake."""
+    testbed.replay.bag_read), check everything, build the feed; ConfigError on a mistake.
+    window: replaces the spec's (named window_key in messages: `testbed calibrate`'s --window);
+    calibration: a calibration file (testbed.replay.calibration) applied instead of calibration.csv."""
     spec_path = Path(spec_path)
     spec = load_spec(spec_path)
+    if window is not None:
+        spec = dataclasses.replace(spec, window=window)
     directory = spec_path.parent
     if spec.bag is not None:
         beside = [path.name for name in SCHEMAS if (path := find(directory, name)) is not None]
@@ -327,15 +334,28 @@ def load_recording(spec_path: Path) -> Recording:
     if spec.network is not None and "truth" not in tables:
         raise ConfigError(f"{spec_path}: network: the network's geometry is the true one, so it needs the truth "
                           "table (truth.csv): add it or remove [network]")
-    bias_sigma = _calibrate(spec, tables, find(directory, "calibration"))
+    cal_file = None
+    if calibration is not None:
+        if find(directory, "calibration") is not None:
+            raise ConfigError(f"{calibration}: the dataset has its own {find(directory, 'calibration').name} beside "
+                              f"{spec_path.name}: keep one calibration")
+        cal_file = read_calibration_file(calibration, set(spec.sites) | set(spec.anchors))
+        bias_sigma = _apply(spec, cal_file.table, tables, calibration)
+    else:
+        bias_sigma = _calibrate(spec, tables, find(directory, "calibration"))
     w = spec.window
+    if window is not None:  # a window the caller chose must lie within the measurements' span
+        times = np.concatenate([t["time"] for name, t in tables.items() if name != "truth"])
+        if times.size and (w.start < times.min() or w.end > times.max()):
+            raise ConfigError(f"{window_key} {w.start:g},{w.end:g}: outside the data of {spec_path} (its measurements "
+                              f"span {times.min():g} to {times.max():g} s)")
     for name, t in tables.items():
         if name != "truth":  # truth is kept whole: interpolation at the window's edges needs its neighbours
             tables[name] = t.select((t["time"] >= w.start) & (t["time"] <= w.end))
     feed = _measurements(_streams(tables, w.start))
     if not feed:
         raise ConfigError(f"{spec_path}: window [{w.start:g}, {w.end:g}] s holds no measurement of the dataset")
-    return Recording(spec, directory, tables, feed, bias_sigma)
+    return Recording(spec, directory, tables, feed, bias_sigma, cal_file)
 
 
 def _calibrate(spec: ReplaySpec, tables: dict[str, Table], path: Path | None) -> dict:
@@ -343,9 +363,14 @@ def _calibrate(spec: ReplaySpec, tables: dict[str, Table], path: Path | None) ->
     place); return the remaining bias sigmas {src: {dst: m}} ({} without the file)."""
     if path is None:
         return {}
+    return _apply(spec, read_calibration(path, set(spec.sites) | set(spec.anchors)), tables, path)
+
+
+def _apply(spec: ReplaySpec, cal: Calibration, tables: dict[str, Table], path: Path) -> dict:
+    """Remove cal's (read from path) known bias and scale from the uwb ranges of tables["links"] (in
+    place); return the remaining bias sigmas {src: {dst: m}}."""
     if "bias_sigma" in spec.sensors.get("uwb", {}):
-        raise ConfigError(f"{path}: the spec's [sensors.uwb] bias_sigma and this table both give the bias sigmas: keep one")
-    cal = read_calibration(path, set(spec.sites) | set(spec.anchors))
+        raise ConfigError(f"{path}: the spec's [sensors.uwb] bias_sigma and this calibration both give the bias sigmas: keep one")
     if "links" not in tables:
         return {}
     t = tables["links"]

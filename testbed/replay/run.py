@@ -15,6 +15,8 @@ sibling, marker, atomic rename) and holds
   and an estimator's per-epoch diagnostics (e.g. graph.poses: iterations, final cost, converged),
   `KEY/diagnostics/NAME` (summarized in metrics.json under `diagnostics`);
 - timing.json: wall-clock per estimator; plots/: error plots as a simulated run's.
+With a calibration file (`--calibration`, testbed.replay.calibration), metrics.json's
+`calibration` names it, its window (never scored) and the noise defaults it gave each estimator.
 An estimator that fails is its own result (testbed.plugins.failures): the others are scored, the
 directory is written with metrics.json marked incomplete, then EstimatorsFailed (exit 1).
 An estimator that gives no estimate says why in one line (silence_reason): in its health block
@@ -22,6 +24,7 @@ An estimator that gives no estimate says why in one line (silence_reason): in it
 """
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -36,15 +39,18 @@ from testbed.plugins.collect import Series, Track, track_arrays
 from testbed.plugins.failures import failed_entry, mark_incomplete, raise_failed
 from testbed.plugins.feed import run_plugin
 from testbed.plugins.loading import resolve
+from testbed.plugins.params import params_class
 from testbed.plugins.score import plot_errors, score
 from testbed.config.estimators import EstimatorSpec
 from testbed.replay.linkstats import link_statistics
 from testbed.replay.recording import RecordedTruth, Recording, load_recording
 
 
-def _scorable(track: Track, truth: RecordedTruth) -> tuple[Track, dict[str, int]]:
+def _scorable(track: Track, truth: RecordedTruth, exclude: tuple[float, float] | None = None) -> tuple[Track, dict[str, int]]:
     """The estimates truth can score, and the count of the others per "target quantity"; an
-    estimate relative to a body (its frame) needs that body's truth too, at its time."""
+    estimate relative to a body (its frame) needs that body's truth too, at its time. exclude:
+    (t0, t1) window clock s, the calibration window, whose estimates are never scored (counted
+    apart, "target quantity in the calibration window")."""
     keep: Track = {}
     dropped: dict[str, int] = {}
     for (target, q), s in track.items():
@@ -55,6 +61,11 @@ def _scorable(track: Track, truth: RecordedTruth) -> tuple[Track, dict[str, int]
         inside = np.logical_and.reduce([(s.time >= truth.span[b][0]) & (s.time <= truth.span[b][1]) for b in bodies])
         if not inside.all():
             dropped[f"{target} {q}"] = int((~inside).sum())
+        if exclude is not None:
+            fitted = inside & (s.time >= exclude[0]) & (s.time <= exclude[1])
+            if fitted.any():
+                dropped[f"{target} {q} in the calibration window"] = int(fitted.sum())
+            inside &= ~fitted
         if inside.any():
             keep[(target, q)] = Series(s.time[inside], s.value[inside], s.cov[inside], s.has_cov[inside], s.frame)
     return keep, dropped
@@ -97,6 +108,14 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
         "links": link_statistics(rec, truth) if truth is not None else {},
         "estimators": {},
     }
+    cal = rec.calibration
+    exclude = None if cal is None else (cal.window[0] - w.start, cal.window[1] - w.start)
+    if cal is not None:
+        metrics["calibration"] = {
+            "file": str(cal.path), "window_s": list(cal.window),
+            "scoring": "estimates inside the calibration window (its fitted segment) are not scored: "
+                       "each estimator's unscored_estimates counts them",
+            "noise": cal.noise, "defaults": {}}
     arrays, timing, shown = {}, {}, {}
     for p in plugins:
         diagnostics: dict = {}
@@ -108,7 +127,7 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
             continue
         entry: dict = {"entry": p.entry}
         if truth is not None:
-            scored, unscored = _scorable(track, truth)
+            scored, unscored = _scorable(track, truth, exclude)
             scores, errs = score(scored, truth)
             entry.update(scores)
             entry["unscored_estimates"] = unscored
@@ -137,18 +156,40 @@ def replay_recording(rec: Recording, specs: tuple[EstimatorSpec, ...], out_dir: 
     return metrics, arrays, timing
 
 
+def noise_defaults(specs: tuple[EstimatorSpec, ...], noise: dict[str, float]) -> tuple[tuple[EstimatorSpec, ...], dict]:
+    """The specs with a calibration file's noise figures (testbed.replay.calibration.NOISE_KEYS) as
+    their params where the estimator's Params has a key of that name and the user set none; and
+    {key: {param: value}} of what was set."""
+    out, given = [], {}
+    for spec, plugin in zip(specs, resolve(specs)):
+        Params = params_class(plugin.cls)
+        names = {f.name for f in dataclasses.fields(Params)} if Params is not None else set()
+        add = {k: v for k, v in noise.items() if k in names and k not in spec.params}
+        out.append(dataclasses.replace(spec, params={**spec.params, **add}) if add else spec)
+        if add:
+            given[spec.key] = add
+    return tuple(out), given
+
+
 def replay(spec_path: Path, out: Path, *, estimators: tuple[EstimatorSpec, ...] = (), force: bool = False,
-           plots: bool = True) -> dict:
+           plots: bool = True, calibration: Path | None = None) -> dict:
     """Read and check the dataset of spec_path, run its estimators (and `estimators`), write the
-    replay directory at `out` (see the module docstring); returns the metrics."""
-    rec = load_recording(Path(spec_path))
+    replay directory at `out` (see the module docstring); returns the metrics. calibration: a
+    calibration file (`testbed calibrate`): its bias and scale removed from the ranges, its noise
+    figures the estimators' defaults (noise_defaults), its window never scored."""
+    rec = load_recording(Path(spec_path), calibration=calibration)
     specs = rec.spec.estimators + tuple(estimators)
     if not specs:
         raise ConfigError(f"{spec_path}: no estimator to run: add [[estimators]] tables or --estimator ENTRY")
     resolve(specs)  # a bad entry stops here, before anything is written
+    defaults: dict = {}
+    if rec.calibration is not None:
+        specs, defaults = noise_defaults(specs, rec.calibration.noise)
     with Output(Path(out), kind="replay", force=force) as o:
         (o.path / "plots").mkdir()
         metrics, arrays, timing = replay_recording(rec, specs, o.path if plots else None)
+        if defaults:
+            metrics["calibration"]["defaults"] = defaults
         metrics = {"spec": str(spec_path), **metrics}
         shutil.copyfile(spec_path, o.path / "spec.toml")
         write_json(o.path / "metrics.json", metrics)

@@ -221,7 +221,9 @@ def _nlos_experiment(scenario: Scenario, seed: int, specs: tuple[EstimatorSpec, 
 
     def scores(specs_: list[EstimatorSpec]) -> dict:
         got = run_estimators(sc, physics, log, resolve(specs_), None)[0]
-        return {k: {"rmse_position_spp_mean_m": v.get("rmse_position_spp_mean_m"), "anees": v.get("anees")}
+        # the ANEES with its interval and effective samples (anees_keys), for fmt_anees
+        return {k: {"rmse_position_spp_mean_m": v.get("rmse_position_spp_mean_m"),
+                    **{a: x for a, x in v.items() if a in ("anees", "n_eff") or a.startswith("anees_interval_")}}
                 for k, v in got.items()}
 
     for robust in ("none", "huber"):
@@ -583,7 +585,7 @@ def _markdown(res: CoopResults, claims: list[Claim], cons: list[dict], impr: lis
                f"{spp_rmse['none', 'centralized']} / {spp_rmse['huber', 'centralized']} m (GNSS only "
                f"{spp_rmse['none', 'gnss_only']} m)."
                + "".join(f" {k} (its own settings; the robust loss is a built-in setting): SPP mean RMSE "
-                         f"{fmt(v['rmse_position_spp_mean_m'])} m, ANEES {fmt(v['anees'])}."
+                         f"{fmt(v['rmse_position_spp_mean_m'])} m, ANEES {fmt_anees(v) or fmt(None)}."
                          for k, v in nx["plugins"].items())]
     return md
 

@@ -213,13 +213,14 @@ def _cols(R: dict[str, list[dict]]) -> list[tuple[str, str]]:
     return [("rmse_position_after_start_m", "RMSE pos [m]"), ("pcrb_rmse_position_after_start_m", "PCRB pos [m]"),
             (k["rmse"], f"RMSE pos {w} [m]"), (k["pcrb_rmse"], f"PCRB {w} [m]"),
             ("rmse_velocity_after_start_m_s", "RMSE vel [m/s]"), ("rmse_attitude_after_start_deg", "RMSE att [deg]"),
-            ("covariance_repairs", "cov. repairs"), ("rejected_measurements", "rejected rows"),
+            ("attitude_unobserved_fraction", "att. unobserved share"), ("covariance_repairs", "cov. repairs"), ("rejected_measurements", "rejected rows"),
             ("nonconverged_steps", "non-converged steps")]
 
 
-#: (metrics key, column header) of the table's ANEES columns: mean over runs [99 % interval] (n_eff)
+#: (metrics key, column header) of the table's ANEES columns: mean over runs [99 % interval] (n_eff);
+#: the attitude's over the epochs where the filter observes it (empty where it never does)
 ANEES_COLS = (("anees", "ANEES body (6)"), ("anees_state18", "ANEES (18)"),
-              ("anees_body6_actual_cov", "ANEES body vs P_act (6)"))
+              ("anees_body6_actual_cov", "ANEES body vs P_act (6)"), ("anees_attitude6", "ANEES att (6), observed"))
 
 
 def _table_rows(R: dict[str, list[dict]]) -> list[dict]:
@@ -307,7 +308,8 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                  for c in (f"{k}_mean", f"{k}_interval_99_lo", f"{k}_interval_99_hi", k.replace("anees", "n_eff"))]
               + [f"max_abs_pos_{tag}_{a}_{s}" for s in ("mean", "worst") for a in "xyz"],
               [[r["scenario"], r["runs"]] + [v for k, _ in cols for v in r[k]]
-               + [v for k, _ in ANEES_COLS for v in (r[k][k], *r[k][f"{k}_interval_99"], r[k][k.replace("anees", "n_eff")])]
+               + [v for k, _ in ANEES_COLS
+                  for v in (r[k].get(k), *r[k].get(f"{k}_interval_99", (None, None)), r[k].get(k.replace("anees", "n_eff")))]
                + np.concatenate(r["max_abs_window"]).tolist() for r in rows])
     md = [f"# Seed 003 reproduction: eight formations, {motion}, {runs} run(s) each, seeds "
           f"{base_seed}..{base_seed + runs - 1}", ""]
@@ -318,7 +320,9 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                           + [fmt_list(r["max_abs_window"][0], " / ") + "; "
                              + fmt_list(r["max_abs_window"][1], " / ")] for r in rows])
     md += ["", "mean ± std over runs; ANEES: mean over runs [99 % interval of a consistent filter] (effective "
-               "samples: the epochs of a run are correlated, docs/consistency.md); RMSE over t >= 10 s; axes of N: "
+               "samples: the epochs of a run are correlated, docs/consistency.md); the attitude's only over the "
+               "epochs where the filter observes it, with the share it does not (line H000: most, docs/papers.md); "
+               "RMSE over t >= 10 s; axes of N: "
                "x forward, y left, z up (paper X = x, Y = z, Z = -y).", ""]
     if not w.startswith(f"last {PAPER_WINDOW_S:g} s"):
         md += [f"The runs are too short for the paper's last {PAPER_WINDOW_S:g} s: every window score and claim "

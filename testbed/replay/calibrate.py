@@ -1,0 +1,287 @@
+"""`testbed calibrate SPEC --window T0,T1 --out calib.toml`: a dataset's range bias, scale and noise,
+and the estimators' process noise, estimated on a calibration segment with truth (docs/calibration.md).
+
+Per uwb link l (its two ends, either order), over the rows i of the segment with truth at both ends
+(d_i the true distance between the ends, m: a site is its body's true pose plus its lever arm, an
+anchor its surveyed point), the measurement equation of docs/replay.md ("Range bias"):
+
+    e_i = r_i - d_i = b_l + s_l d_i + n_i                                          (cal. 1)
+
+fitted by weighted least squares, w_i = 1 / sigma_i^2 (the row's declared sigma, else 1), with the
+variance of n_i unknown (one per link):
+
+    [b, s] = (A^T W A)^-1 A^T W e,   A = [1, d],                                   (cal. 2)
+    cov[b, s] = tau c (A^T W A)^-1,  c = sum_i w_i res_i^2 / (n - p)
+    sigma_l^2 = sum_i res_i^2 / (n - p)                (the link's range noise, m)  (cal. 3)
+
+tau >= 1 the integrated autocorrelation time (in rows) of the link's residuals in time order
+(testbed.scoring.metrics.integrated_time, docs/consistency.md): residuals that stay correlated over
+tau rows (multipath changing slowly with position) carry the information of n / tau independent
+ones, so the least-squares covariance, which counts n, is widened by tau (1 for white residuals).
+
+p = 2, or p = 1 (b alone: scale 0, no sigma_scale) for a link whose scale does not predict ranges
+it was not fitted on (cal. 2b: two-fold cross-validation in time within the segment, each half
+fitted with and without s and tested on the other; s is kept when it lowers the summed weighted
+squared error of the held-out halves) or lies beyond the format's bound (MAX_SCALE). A scale
+error of the radios' clocks holds on every part of the segment; a "scale" that fits one half's
+multipath does not carry over to the other half, nor to the replay. The range noise
+default of every estimator, pooled over the links:
+
+    range_sigma^2 = sum_l sum_i res_i^2 / sum_l (n_l - p_l)                         (cal. 4)
+
+Process noise (the constant-velocity model's white acceleration, density q per axis, m^2/s^3;
+the same for the attitude, rad^2/s^3): truth sampled at spacing h has second differences
+D_k = x_{k+1} - 2 x_k + x_{k-1} of variance (2/3) q h^3 per axis (cal. 5); taken at every second k
+they are independent, so
+
+    q(h) = sum D_k^2 / ((2/3) h^3 N)                                               (cal. 6)
+
+over the N non-overlapping second differences of every axis of every body with truth (the
+centroid of its sites, or its origin; the attitude's rotation vectors Log(R_k^T R_{k+1})), a
+chi-square estimate with N degrees of freedom. Truth's own noise (motion capture jitter, sigma_t)
+adds 6 sigma_t^2 to each D_k^2: q(h) falls as h^-3 (a factor 8 per doubling) where that noise
+dominates and stays flat where the motion does. The rule: h the smallest of h_j = 2^j T (T the
+median spacing of the segment's range epochs) with q(h_j) <= 2 q(h_{j+1}) (cal. 7), else the largest
+with at least MIN_SAMPLES second differences.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from testbed.config import MIN_MAGNITUDE
+from testbed.errors import ConfigError
+from testbed.outdir import new_file
+from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE
+from testbed.replay.recording import RecordedTruth, Recording, load_recording
+from testbed.replay.spec import Window
+from testbed.replay.tables import find
+from testbed.scoring.metrics import integrated_time
+
+#: the fewest rows a link needs in the segment (two unknowns and one degree of freedom)
+MIN_ROWS = 3
+#: the fewest second differences a spacing needs for its q (cal. 7)
+MIN_SAMPLES = 16
+
+
+@dataclass(frozen=True, slots=True)
+class LinkFit:
+    """One link's fit (cal. 1-3): ends, rows n, bias m, scale (0 when not fitted), their sigmas
+    (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof
+    and integrated autocorrelation time tau (rows)."""
+
+    src: str
+    dst: str
+    samples: int
+    bias: float
+    scale: float
+    sigma_bias: float
+    sigma_scale: float
+    sigma: float
+    rss: float
+    dof: int
+    tau: float
+
+
+def _wls(e: np.ndarray, d: np.ndarray, w: np.ndarray, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(x (cols,), (A^T W A)^-1) of e = A x, A = [1, d][:, :cols] (cal. 2), None if A^T W A is singular."""
+    A = np.stack([np.ones_like(d), d], axis=1)[:, :cols]
+    N = A.T @ (w[:, None] * A)
+    if e.size <= cols or np.linalg.matrix_rank(N) < cols:
+        return None
+    Ninv = np.linalg.inv(N)
+    return Ninv @ (A.T @ (w * e)), Ninv
+
+
+def scale_predicts(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> bool:
+    """Does the scale predict ranges it was not fitted on (cal. 2b)? Two-fold cross-validation in
+    time: each half of the rows (in time order) fitted with and without s, the weighted squared
+    error of the fit on the other half summed; True when the fit with s has the smaller."""
+    h = e.size // 2
+    err = {1: 0.0, 2: 0.0}
+    for fit, test in ((slice(0, h), slice(h, None)), (slice(h, None), slice(0, h))):
+        for cols in (1, 2):
+            sol = _wls(e[fit], d[fit], w[fit], cols)
+            if sol is None:
+                return False
+            res = e[test] - np.stack([np.ones_like(d[test]), d[test]], axis=1)[:, :cols] @ sol[0]
+            err[cols] += float(w[test] @ res ** 2)
+    return err[2] < err[1]
+
+
+def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float, float, int, float]:
+    """(b, s, sigma_b, sigma_s, rss, dof, tau) of e = b + s d + n (cal. 2-3) with weights w (n,), rows
+    in time order; s = 0 and sigma_s NaN when the scale does not predict (scale_predicts, cal. 2b)
+    or lies beyond the format's MAX_SCALE. ValueError when the rows cannot determine b."""
+    # eq. cal. 2b: the scale only where it predicts held-out ranges
+    for cols in ((2, 1) if scale_predicts(e, d, w) else (1,)):
+        sol = _wls(e, d, w, cols)
+        if sol is None or (cols == 2 and abs(sol[0][1]) > MAX_SCALE):
+            continue
+        x, Ninv = sol
+        res = e - np.stack([np.ones_like(d), d], axis=1)[:, :cols] @ x
+        dof = e.size - cols
+        tau = integrated_time(res)
+        # eq. cal. 2: the covariance of white residuals, widened by their correlation time
+        sig = np.sqrt(np.diag(tau * float(w @ res ** 2) / dof * Ninv))
+        return (float(x[0]), float(x[1]) if cols == 2 else 0.0, float(sig[0]),
+                float(sig[1]) if cols == 2 else float("nan"), float(res @ res), dof, tau)
+    raise ValueError("fewer rows than unknowns")
+
+
+def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
+    """Every uwb link of the recording's rows with truth at both ends (cal. 1-3), sorted by ends."""
+    t = rec.tables["links"]
+    time = t["time"] - rec.spec.window.start
+    groups: dict[tuple[str, str], list[int]] = {}
+    for i in np.flatnonzero(t["kind"] == "uwb").tolist():
+        groups.setdefault(tuple(sorted((str(t["src"][i]), str(t["dst"][i])))), []).append(i)
+    out = []
+    for (a, b), rows in sorted(groups.items()):
+        rows = np.array(rows)
+        ok = np.ones(rows.size, bool)
+        for end in (a, b):
+            if end not in truth.anchors:
+                lo, hi = truth.span.get(truth.body_of(end), (np.inf, -np.inf))
+                ok &= (time[rows] >= lo) & (time[rows] <= hi)
+        rows = rows[ok][np.argsort(time[rows[ok]], kind="stable")]
+        if rows.size < MIN_ROWS:
+            continue
+        tr = time[rows]
+        # eq. cal. 1: e = r - d, d the true distance between the ends (lever arms included)
+        d = np.linalg.norm(truth.at(a, "position", tr) - truth.at(b, "position", tr), axis=1)
+        sigma = t["sigma"][rows]
+        w = np.where(np.isfinite(sigma), 1.0 / np.where(np.isfinite(sigma), sigma, 1.0) ** 2, 1.0)
+        try:
+            bias, scale, sb, ss, rss, dof, tau = fit_link(t["value"][rows] - d, d, w)
+        except ValueError:
+            continue
+        # eq. cal. 3: the link's range noise
+        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau))
+    return out
+
+
+def _second_differences(inc: np.ndarray) -> np.ndarray:
+    """(K, 3) the non-overlapping second differences inc[1] - inc[0], inc[3] - inc[2], ... of the
+    increments inc (L, 3) between consecutive samples (x[k+1] - x[k], or a rotation vector)."""
+    k = inc.shape[0] // 2
+    # eq. cal. 5: D_k = (x_{k+1} - x_k) - (x_k - x_{k-1}), every second k
+    return inc[1::2][:k] - inc[0::2][:k]
+
+
+def _tracks(rec: Recording, truth: RecordedTruth, g: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per body with truth over all of g (M,) (window clock s), the increments between consecutive
+    samples: of the centroid of its sites (its origin without sites), (M - 1, 3) m world, and of
+    its attitude, the rotation vectors Log(R_k^T R_{k+1}) (M - 1, 3) rad body."""
+    out = []
+    for body, (lo, hi) in truth.span.items():
+        if g[0] < lo or g[-1] > hi:
+            continue
+        arms = [np.asarray(v[1], float) for v in rec.spec.sites.values() if v[0] == body]
+        R = Rotation.from_quat(truth.at(body, "attitude", g), scalar_first=True)
+        c = truth.at(body, "position", g) + R.apply(np.mean(arms, axis=0) if arms else np.zeros(3))
+        out.append((np.diff(c, axis=0), (R[:-1].inv() * R[1:]).as_rotvec()))
+    return out
+
+
+def process_noise(rec: Recording, truth: RecordedTruth, t0: float, t1: float, spacing: float) -> dict:
+    """{"q_translation" | "q_rotation": {q, spacing_s, samples, interval (95 %), by_spacing [[h, q, N]]}}
+    (cal. 5-7) over the bodies with truth on [t0, t1] (window clock s) at spacings 2^j spacing, while
+    a spacing has MIN_SAMPLES second differences; {} when none has."""
+    table: dict[str, list[tuple[float, float, int]]] = {"q_translation": [], "q_rotation": []}
+    h = spacing
+    while h > 0:
+        g = t0 + h * np.arange(int(np.floor((t1 - t0) / h + 1e-9)) + 1)
+        tracks = _tracks(rec, truth, g) if g.size >= 4 else []
+        D = [np.concatenate([_second_differences(tr[k]) for tr in tracks]) if tracks else np.zeros((0, 3))
+             for k in (0, 1)]
+        if min(d.size for d in D) < MIN_SAMPLES:
+            break
+        for name, d in zip(table, D):
+            # eq. cal. 6: non-overlapping second differences are independent, (2/3) q h^3 per axis
+            table[name].append((float(np.sum(d ** 2) / (2.0 / 3.0 * h ** 3 * d.size)), h, int(d.size)))
+        h *= 2
+    out = {}
+    for name, rows in table.items():
+        if not rows:
+            continue
+        # eq. cal. 7: the first spacing where q stops falling as h^-3 (truth's noise no longer dominant)
+        pick = next((j for j in range(len(rows) - 1) if rows[j][0] <= 2 * rows[j + 1][0]), len(rows) - 1)
+        q, h, n = rows[pick]
+        out[name] = {"q": q, "spacing_s": h, "samples": n,
+                     "interval": [q * n / chi2.ppf(0.975, n), q * n / chi2.ppf(0.025, n)],
+                     "by_spacing": [[hh, qq, nn] for qq, hh, nn in rows]}
+    return out
+
+
+def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force: bool = False) -> dict:
+    """Estimate the calibration of spec_path's dataset on window (T0, T1) (s, the files' clock) and
+    write it to `out` (TOML, docs/calibration.md); returns what was written. ConfigError (exit 2, one
+    line) on a window outside the data, without truth, or without a link to fit."""
+    t0, t1 = window
+    table = find(Path(spec_path).parent, "calibration")
+    if table is not None:
+        raise ConfigError(f"{table}: calibrate estimates what this table holds: calibrate the dataset without it "
+                          "(one calibration per replay)")
+    rec = load_recording(Path(spec_path), window=Window(start=t0, end=t1), window_key="--window")
+    if "truth" not in rec.tables:
+        raise ConfigError(f"{spec_path}: the dataset has no truth table (truth.csv): calibrate needs truth on the segment")
+    truth = RecordedTruth(rec)
+    fits = link_fits(rec, truth)
+    if not fits:
+        raise ConfigError(f"--window {t0:g},{t1:g}: no uwb link has {MIN_ROWS} or more rows with truth at both ends "
+                          f"in it (the truth table spans {_span(rec)})")
+    dof = sum(f.dof for f in fits)
+    # eq. cal. 4: the pooled range noise
+    range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))
+    epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
+    spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
+    q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
+    # a density below every physical value (MIN_MAGNITUDE) is the rounding of a motion without any, e.g.
+    # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts
+    noise = {"range_sigma": range_sigma, **{k: v["q"] if v["q"] >= MIN_MAGNITUDE else 0.0 for k, v in q.items()}}
+    fit = {"range_rows": sum(f.samples for f in fits), "range_dof": dof,
+           "range_tau_median": float(np.median([f.tau for f in fits])),
+           "range_sigma_interval": [range_sigma * np.sqrt(dof / chi2.ppf(0.975, dof)),
+                                    range_sigma * np.sqrt(dof / chi2.ppf(0.025, dof))],
+           "epoch_spacing_s": spacing,
+           **{f"{k}_{c}": v[c] for k, v in q.items() for c in ("spacing_s", "samples", "interval", "by_spacing")}}
+    written = {"window": [t0, t1], "noise": noise, "fit": fit, "links": fits}
+    with new_file(Path(out), force=force) as tmp:
+        tmp.write_text(to_toml(spec_path, written))
+    return written
+
+
+def _span(rec: Recording) -> str:
+    t = rec.tables["truth"]["time"]
+    return f"{t.min():g} to {t.max():g} s" if t.size else "no rows"
+
+
+def _num(x: float) -> str:
+    return repr(float(x))
+
+
+def to_toml(spec_path: Path, c: dict) -> str:
+    """The calibration file's text (docs/calibration.md)."""
+    lines = [f"# testbed calibrate {spec_path} --window {c['window'][0]!r},{c['window'][1]!r} (docs/calibration.md)",
+             f"format = {FILE_FORMAT}",
+             f"window = [{_num(c['window'][0])}, {_num(c['window'][1])}]  # s, the files' clock: never scored on replay",
+             "", "[noise]  # the estimators' defaults: a parameter of this name, where the user set none",
+             *[f"{k} = {_num(v)}" for k, v in c["noise"].items()],
+             "", "[fit]  # how the figures above were found (a record: replay reads none of it)"]
+    for k, v in c["fit"].items():
+        if isinstance(v, list):
+            v = "[" + ", ".join("[" + ", ".join(_num(y) for y in x) + "]" if isinstance(x, list) else _num(x) for x in v) + "]"
+        lines.append(f"{k} = {v}")
+    for f in c["links"]:
+        lines += ["", "[[links]]", f'src = "{f.src}"', f'dst = "{f.dst}"', f"bias = {_num(f.bias)}",
+                  f"sigma_bias = {_num(f.sigma_bias)}"]
+        if np.isfinite(f.sigma_scale):
+            lines += [f"scale = {_num(f.scale)}", f"sigma_scale = {_num(f.sigma_scale)}"]
+        lines += [f"sigma = {_num(f.sigma)}  # m, the link's range noise (eq. cal. 3)", f"samples = {f.samples}",
+                  f"tau = {_num(f.tau)}  # rows, the residuals' integrated autocorrelation time"]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,200 @@
+"""`testbed calibrate` (docs/calibration.md): on a small simulated dataset with a known per-link bias,
+scale and range noise and a truth that is a known white-acceleration motion, the calibration file
+gives them back within bounds derived from the sample size; `testbed replay --calibration` applies it
+(ranges corrected, noise defaults, the window not scored); bad input is one line and exit 2."""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2, t as t_dist
+
+from testbed.cli import main
+from testbed.replay.export import write_csv
+from testbed.replay.recording import load_recording
+
+T = 0.1          # s, epoch spacing
+DURATION = 30.0  # s
+SIGMA = 0.05     # m, range noise injected
+Q_T = 0.02       # m^2/s^3, white acceleration of the body (per axis)
+Q_R = 0.05       # rad^2/s^3, white angular acceleration
+#: m, beside the rover's path (about 25 m from (-8, -5) towards (16, 10)): each range spans metres
+ANCHORS = np.array([[-12.0, 0.0, 0.0], [-6.0, -6.0, 3.0], [0.0, 5.0, 0.5], [3.0, -2.0, 4.0],
+                    [8.0, 12.0, 2.0], [12.0, 4.0, 1.0]])
+ARMS = {"a": [0.15, 0.0, 0.0], "b": [-0.075, 0.13, 0.0], "c": [-0.075, -0.13, 0.0]}  # centroid at the origin
+
+
+def _cv_path(rng, n: int, q: float, v0: np.ndarray) -> np.ndarray:
+    """(n, 3) samples at spacing T of a constant-velocity process with white acceleration q: the
+    exact discretization, [[T^3/3, T^2/2], [T^2/2, T]] q per axis (docs/calibration.md, cal. 5)."""
+    L = np.linalg.cholesky(q * np.array([[T ** 3 / 3, T ** 2 / 2], [T ** 2 / 2, T]]))
+    x, v, out = np.zeros(3), v0.astype(float), []
+    for _ in range(n):
+        out.append(x.copy())
+        w = L @ rng.standard_normal((2, 3))
+        x, v = x + T * v + w[0], v + w[1]
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A rover (three tags) among six anchors, 10 Hz for 30 s; per link a bias (|b| < 0.3 m), a scale
+    (2 to 4 %, either sign: over each link's span of metres of range, several SIGMA) and white noise SIGMA
+    added to the true range; truth at every epoch. Returns (spec path, {link: (b, s)})."""
+    rng = np.random.default_rng(7)
+    n = int(round(DURATION / T)) + 1
+    t = np.round(T * np.arange(n), 9)
+    pos = _cv_path(rng, n, Q_T, np.array([0.8, 0.5, 0.0])) + [-8.0, -5.0, 1.0]
+    phi = _cv_path(rng, n, Q_R, np.array([0.0, 0.0, 0.3]))  # increments of phi are the body rotation vectors
+    R = [Rotation.identity()]
+    for d in np.diff(phi, axis=0):
+        R.append(R[-1] * Rotation.from_rotvec(d))
+    R = Rotation.concatenate(R)
+    truth_bias = {}
+    rows = {k: [] for k in ("time", "src", "dst", "kind", "value")}
+    for i, X in enumerate(ANCHORS):
+        for s, arm in ARMS.items():
+            b, sc = rng.uniform(-0.3, 0.3), rng.choice([-1, 1]) * rng.uniform(0.02, 0.04)
+            truth_bias[(f"anchor{i}", f"rover/{s}")] = (b, sc)
+            d = np.linalg.norm(pos + R.apply(arm) - X, axis=1)
+            rows["time"] += t.tolist()
+            rows["src"] += [f"anchor{i}"] * n
+            rows["dst"] += [f"rover/{s}"] * n
+            rows["kind"] += ["uwb"] * n
+            rows["value"] += ((1 + sc) * d + b + SIGMA * rng.standard_normal(n)).tolist()
+    d = tmp_path_factory.mktemp("calib") / "data"
+    d.mkdir()
+    q = R.as_quat(scalar_first=True)
+    write_csv(d / "links.csv", {k: np.array(v) for k, v in rows.items()})
+    write_csv(d / "truth.csv", {"time": t, "body": np.full(n, "rover"), "x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2],
+                                "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
+    anchors = "\n".join(f"anchor{i} = [{', '.join(map(repr, a.tolist()))}]" for i, a in enumerate(ANCHORS))
+    sites = "\n".join(f"{s} = {arm}" for s, arm in ARMS.items())
+    (d / "spec.toml").write_text(f"format = 1\nseed = 0\n\n[[estimators]]\nentry = \"ranging.ekf\"\n"
+                                 f"params = {{ range_sigma = 0.05 }}\n\n[window]\nstart = 0.0\nend = {DURATION}\n\n"
+                                 f"[bodies.rover.sites]\n{sites}\n\n[anchors]\n{anchors}\n")
+    return d / "spec.toml", truth_bias
+
+
+@pytest.fixture(scope="module")
+def calibrated(dataset, tmp_path_factory):
+    """`testbed calibrate` on the whole 30 s: the file and its TOML."""
+    import tomllib
+
+    out = tmp_path_factory.mktemp("cal") / "calib.toml"
+    assert main(["calibrate", str(dataset[0]), "--window", f"0,{DURATION}", "--out", str(out)]) == 0
+    return out, tomllib.loads(out.read_text())
+
+
+def test_calibrate_recovers_the_injected_bias_scale_and_noise_within_their_sampling_error(dataset, calibrated):
+    """Per link, b and s each alone: (estimate - true) / its sigma is Student's t with n - 2 dof (the
+    noise variance estimated from the residuals), inside its central 99.9 % with Bonferroni over the
+    36 coordinates; the pooled range sigma, sigma^2 dof / SIGMA^2 ~ chi2(dof), inside its central 99.9 %."""
+    _, truth_bias = dataset
+    _, c = calibrated
+    links = {(r["src"], r["dst"]): r for r in c["links"]}
+    assert set(links) == set(truth_bias)
+    for key, (b, s) in truth_bias.items():
+        r = links[key]
+        n = r["samples"]
+        assert n == int(round(DURATION / T)) + 1 and "scale" in r, key  # a real scale predicts (cal. 2b)
+        lim = t_dist.ppf(1 - 0.0005 / (2 * len(truth_bias)), n - 2)
+        assert abs(r["bias"] - b) < lim * r["sigma_bias"], key
+        assert abs(r["scale"] - s) < lim * r["sigma_scale"], key
+    dof = c["fit"]["range_dof"]
+    assert dof == len(truth_bias) * (int(round(DURATION / T)) + 1 - 2)
+    stat = c["noise"]["range_sigma"] ** 2 * dof / SIGMA ** 2
+    assert chi2.ppf(0.0005, dof) < stat < chi2.ppf(0.9995, dof)
+
+
+def test_calibrate_recovers_the_process_noise_of_a_white_acceleration_truth(calibrated):
+    """Truth is exactly the constant-velocity model with white acceleration Q_T (and Q_R for the
+    attitude): the rule picks the epoch spacing (no truth noise to fall off), and q N / q_true is
+    chi-square with the N non-overlapping second differences reported: inside its central 99.9 %."""
+    _, c = calibrated
+    for name, q_true in (("q_translation", Q_T), ("q_rotation", Q_R)):
+        n = c["fit"][f"{name}_samples"]
+        assert abs(c["fit"][f"{name}_spacing_s"] - T) < 1e-9
+        assert n == 3 * (int(round(DURATION / T)) // 2)
+        stat = c["noise"][name] * n / q_true
+        assert chi2.ppf(0.0005, n) < stat < chi2.ppf(0.9995, n), name
+
+
+def test_replay_with_the_calibration_corrects_ranges_sets_noise_defaults_and_skips_its_window(dataset, tmp_path, capsys):
+    """calibrate on the first 15 s, replay all 30 s: ranging.ekf gets range_sigma, q_translation and
+    q_rotation from the file but its range_sigma set in the spec stays, no estimate inside [0, 15] s is
+    scored (counted apart), and every range fed is the recorded one with the file's bias and scale
+    of its link removed."""
+    import tomllib
+
+    spec, _ = dataset
+    cal = tmp_path / "calib.toml"
+    assert main(["calibrate", str(spec), "--window", "0,15", "--out", str(cal)]) == 0
+    c = tomllib.loads(cal.read_text())
+    assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--calibration", str(cal)]) == 0
+    assert "window 0-15 s not scored" in capsys.readouterr().out
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["calibration"]["window_s"] == [0.0, 15.0]
+    assert m["calibration"]["defaults"] == {"ranging.ekf": {k: v for k, v in c["noise"].items() if k != "range_sigma"}}
+    e = m["estimators"]["ranging.ekf"]
+    assert e["unscored_estimates"]["rover position in the calibration window"] == 151
+    assert e["targets"]["rover"]["position"]["samples"] == 150
+    # the ranges fed are the recorded ones with the file's bias and scale removed, row for row
+    raw = load_recording(spec).tables["links"]
+    fed = load_recording(spec, calibration=cal).tables["links"]
+    fits = {frozenset((r["src"], r["dst"])): (r["bias"], r.get("scale", 0.0)) for r in c["links"]}
+    b, s = np.array([fits[frozenset(k)] for k in zip(raw["src"], raw["dst"])]).T
+    np.testing.assert_allclose(fed["value"], (raw["value"] - b) / (1 + s), rtol=1e-12)
+
+
+def _one_line_exit_2(capsys, argv: list[str], needle: str) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("testbed: error: ") and needle in err, err
+
+
+def test_bad_input_is_one_line_and_exit_2_with_nothing_written(dataset, calibrated, tmp_path, capsys):
+    spec, _ = dataset
+    out = tmp_path / "c.toml"
+    _one_line_exit_2(capsys, ["calibrate", str(spec), "--window", "100,200", "--out", str(out)],
+                     "--window 100,200: outside the data")
+    _one_line_exit_2(capsys, ["calibrate", str(spec), "--window", "5", "--out", str(out)], "expected T0,T1")
+    _one_line_exit_2(capsys, ["calibrate", str(spec), "--window", "5,1", "--out", str(out)], "T0 < T1")
+    # truth that stops before the window: no link with truth at both ends in it
+    short = tmp_path / "short"
+    short.mkdir()
+    for name in ("spec.toml", "links.csv"):
+        (short / name).write_text((spec.parent / name).read_text())
+    truth = (spec.parent / "truth.csv").read_text().splitlines()
+    (short / "truth.csv").write_text("\n".join(truth[:52]) + "\n")  # 0 to 5 s
+    _one_line_exit_2(capsys, ["calibrate", str(short / "spec.toml"), "--window", "10,20", "--out", str(out)],
+                     "no uwb link has 3 or more rows with truth")
+    assert not out.exists()
+    # malformed calibration files: the replay writes nothing
+    good, c = calibrated
+    text = good.read_text()
+    for bad, needle in ((text.replace("format = 1", "format = 2"), "format: expected 1"),
+                        (text.replace("range_sigma = ", "range_sigma = -"), "noise.range_sigma"),
+                        (re.sub(r"\nq_rotation = .*", "\nq_rotation = 1e-20", text), "noise.q_rotation: must be 0 or in"),
+                        (text.replace('src = "anchor0"', 'src = "anchor99"', 1), "'anchor99' is not a site"),
+                        (text + "\nextra = 1\n", "extra: unknown key"),
+                        ("window = [", "not valid TOML")):
+        f = tmp_path / "bad.toml"
+        f.write_text(bad)
+        _one_line_exit_2(capsys, ["replay", str(spec), "--out", str(tmp_path / "r"), "--calibration", str(f)], needle)
+        assert not (tmp_path / "r").exists()
+    # one calibration per replay: a calibration.csv beside the spec and a file
+    both = tmp_path / "both"
+    both.mkdir()
+    for name in ("spec.toml", "links.csv", "truth.csv"):
+        (both / name).write_text((spec.parent / name).read_text())
+    (both / "calibration.csv").write_text("src,bias\nanchor0,0.1\n")
+    _one_line_exit_2(capsys, ["replay", str(both / "spec.toml"), "--out", str(tmp_path / "r"), "--calibration", str(good)],
+                     "keep one calibration")
+    _one_line_exit_2(capsys, ["calibrate", str(both / "spec.toml"), "--window", "0,5", "--out", str(out)],
+                     "calibrate estimates what this table holds")
+    assert not out.exists() and not (tmp_path / "r").exists()
