@@ -42,14 +42,16 @@ from pathlib import Path
 import numpy as np
 
 from estimators.core import nees
+from estimators.phase_model import ATTITUDE_SD_LIMIT_RAD
 from testbed.scoring.metrics import anees_keys, coverage, rmse
 from testbed.plugins.collect import Series, Track, natural
 from testbed.plugins.truth import Truth, errors
 
 UNIT = {"position": "m", "velocity": "m_s", "attitude": "deg"}
-#: deg: an attitude whose 1-sigma exceeds this along some axis is not observed: a linearized
-#: attitude covariance describes small errors only (sin x and x differ by 4.5 % at 30 degrees)
-UNOBSERVED_ATTITUDE_DEG = 30.0
+#: deg: an attitude whose 1-sigma exceeds this along some axis is not observed: beyond it a
+#: linearized attitude covariance no longer describes the error (the rule of phase.ekf's
+#: unobserved rotation axes, estimators.phase_model.ATTITUDE_SD_LIMIT_RAD: one limit for both)
+UNOBSERVED_ATTITUDE_DEG = float(np.degrees(ATTITUDE_SD_LIMIT_RAD))
 SCALE = {"position": 1.0, "velocity": 1.0, "attitude": float(np.degrees(1.0))}
 
 
