@@ -451,6 +451,8 @@ def _dispatch(args: argparse.Namespace) -> int:
             scores = [f"{k} {fmt_anees(est, k) if k.startswith('anees_') else fmt(est[k])}" for k in est
                       if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k and not k.endswith("_dof")]
             print(f"  {name}: " + (", ".join(scores) or f"{est.get('estimates', 0)} estimates"))
+            if est.get("attitude_unobserved"):
+                print(f"  {name}: attitude not observed (its own covariance) of {', '.join(est['attitude_unobserved'])}")
         print(f"replay directory -> {args.out}")
         return 0
     if args.command == "calibrate":

@@ -127,6 +127,7 @@ CASES = [
     ("path-through-floor", _set("visnav", "trajectory.leader_start=[0.0, 0.0, -5.0]"), "visnav.toml: trajectory: vehicle 1's reference is at z = -5.00 m"),
     ("path-through-obstacle", _set("./hover.toml", "world.obstacles[0].pos=[0.0, 0.5, 10.0]"), "hover.toml: world.obstacles[0]: vehicle 1"),
     ("uwb-rate-0", _set("bandwidth", "sensors.uwb.rate_hz=0"), "bandwidth.toml: sensors.uwb.rate_hz"),
+    ("uwb-tag-not-an-antenna", _set("bandwidth", 'sensors.uwb.tags=["uwb", "led1"]'), "bandwidth.toml: sensors.uwb.tags"),
     ("vehicles-too-close", _set("visnav", "trajectory.follower_offset=[-0.3, 0.0, 0.0]"), "visnav.toml: trajectory: vehicles 1 and 2 are 0.30 m apart"),
 ]
 

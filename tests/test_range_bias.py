@@ -127,3 +127,57 @@ def test_a_bad_calibration_table_is_one_line_and_exit_2(exported, tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "calibration.csv" in err and says in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_graph_poses_bias_states_recover_the_added_biases_within_their_covariance(exported, tmp_path):
+    """graph.poses with bias_states: every uav1 link's bias (true: BIAS, 0 elsewhere) within the
+    joint covariance of the fused belief (chi2 with one dof per link, 1 % false alarm); each added
+    bias found (beyond 3 sigma, its sign); the tag's RMSE below the bias-free graph's."""
+    spec = _copy(exported, tmp_path / "d", BIAS)
+    rec = load_recording(spec)
+    rmse = {}
+    for states in (False, True):
+        p = {"bias_states": states}
+        keep: list = []
+        track, _, _ = run_plugin(resolve([EstimatorSpec(entry="graph.poses", params=p)])[0], rec.context("g", p), rec.feed, keep=keep)
+        s = track[(TAG, "position")]
+        err = s.value - RecordedTruth(rec).at(TAG, "position", s.time)
+        rmse[states] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    est = keep[0]
+    assert rmse[True] < rmse[False]
+    mine = {k: i for k, i in est.bias_index.items() if TAG in k}
+    assert len(mine) == 16
+    idx = np.array(list(mine.values()))
+    e = est.bias_mean[idx] - np.array([BIAS.get(next(n for n in k[1:] if n != TAG), 0.0) for k in mine])
+    assert float(e @ np.linalg.solve(est.bias_cov[np.ix_(idx, idx)], e)) < chi2.ppf(0.99, e.size)
+    for k, (b, sigma) in est.bias_estimates().items():
+        other = next(n for n in k[1:] if n != TAG) if TAG in k else None
+        if other in BIAS:
+            assert abs(b) > 3 * sigma and np.sign(b) == np.sign(BIAS[other])
+
+
+def test_solve_epochs_biases_fused_over_independent_epochs_find_the_biases():
+    """estimators.graph.batch with bias unknowns: 200 epochs of one point among five anchors, two
+    links biased (+0.3, -0.2 m, prior sigma 0.3 m, range noise 0.05 m); the epochs' likelihoods of
+    the biases, added in information form as graph.poses does, give the biases within their
+    covariance (chi2, 2 dof, 1 % false alarm), each far from 0."""
+    from estimators.graph.batch import EpochFactors, solve_epochs
+
+    rng = np.random.default_rng(0)
+    X = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10], [10, 10, 5.0]])
+    E, bias = 200, np.array([0.3, -0.2])
+    true = rng.uniform(2, 8, (E, 1, 3))
+    ep, k = np.repeat(np.arange(E), 5), np.tile(np.arange(5), E)
+    d = np.linalg.norm(true[ep, 0] - X[k], axis=1) + np.where(k < 2, bias[np.minimum(k, 1)], 0.0) + rng.normal(0, 0.05, ep.size)
+    f = EpochFactors(kinds=("point",), r_epoch=ep, r_a=np.zeros(ep.size, int), r_b=np.full(ep.size, -1),
+                     r_arm_a=np.zeros((ep.size, 3)), r_arm_b=X[k], r_d=d, r_sigma=np.full(ep.size, 0.05),
+                     **EpochFactors.empty_rows(), r_bias=np.where(k < 2, k, -1), b_mean=np.zeros(2), b_cov=0.09 * np.eye(2))
+    res = solve_epochs(f, true + 0.5, np.tile(np.eye(3), (E, 1, 1, 1)))
+    assert res.converged.all() and res.observable.all() and res.b.shape == (E, 2) and res.cov.shape == (E, 5, 5)
+    L0 = np.linalg.inv(f.b_cov)
+    Le = np.linalg.inv(res.cov[:, 3:, 3:])
+    Lam = L0 + (Le - L0).sum(axis=0)
+    b = np.linalg.solve(Lam, (np.einsum("eij,ej->ei", Le, res.b)).sum(axis=0))
+    e = b - bias
+    assert e @ Lam @ e < chi2.ppf(0.99, 2)
+    assert np.all(np.abs(b) > 10 / np.sqrt(np.diag(Lam)))

@@ -341,3 +341,28 @@ def test_link_statistics_are_the_truth_of_each_link_row_by_row(tmp_path):
                 np.testing.assert_allclose(s[f"rmse_{u}"], np.sqrt(np.mean(res ** 2)), rtol=1e-12)
                 np.testing.assert_allclose(s[f"mean_{u}"], res.mean(), rtol=1e-12, atol=1e-15)
     assert any(s["unscored"] for links in stats.values() for s in links.values())
+
+
+def test_an_attitude_its_own_covariance_calls_unobserved_is_flagged():
+    """score: an attitude series whose covariance gives a 1-sigma above UNOBSERVED_ATTITUDE_DEG on
+    more than half of its samples is listed in `attitude_unobserved` (its `unobserved` fraction per
+    target); a well-determined one is not."""
+    from testbed.plugins.collect import Series, Track
+    from testbed.plugins.score import UNOBSERVED_ATTITUDE_DEG, score
+
+    class Level:  # truth: level, at rest, for every target
+        def times(self, target):
+            return np.arange(4.0)
+
+        def at(self, target, quantity, t, frame="world"):
+            return np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+
+    big, small = np.radians(UNOBSERVED_ATTITUDE_DEG) * 1.2, np.radians(UNOBSERVED_ATTITUDE_DEG) * 0.8
+    track = Track()
+    for target, sigmas in (("flat", [big, big, big, small]), ("solid", [small] * 4)):
+        c = np.stack([np.diag([s ** 2, 1e-4, 1e-4]) for s in sigmas])
+        track[(target, "attitude")] = Series(np.arange(4.0), np.tile([1.0, 0.0, 0.0, 0.0], (4, 1)), c, np.ones(4, bool))
+    out, _ = score(track, Level())
+    assert out["targets"]["flat"]["attitude"]["unobserved"] == 0.75
+    assert out["targets"]["solid"]["attitude"]["unobserved"] == 0.0
+    assert out["attitude_unobserved"] == ["flat"]

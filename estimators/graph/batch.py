@@ -8,7 +8,12 @@ free variable is a fixed world point (an anchor, a site of a robot whose pose is
 epoch). Factors (whitened, as in estimators.graph.model):
 - range: h = |e_a - e_b|, e = p + R l for a pose with body lever arm l (m), e = p for a point;
 - height: h = e_z, the up coordinate of the (lever-arm) point;
-- prior: h = e (3,) with a full covariance (a GNSS fix of an antenna, m^2).
+- prior: h = e (3,) with a full covariance (a GNSS fix of an antenna, m^2);
+- range biases (optional): B unknowns b (m), each epoch its own copy (as of the variables: epochs
+  still share nothing); a range row naming bias i measures |e_a - e_b| + b_i, and every epoch has
+  the prior b ~ N(b_mean, b_cov) (B rows, whitened by the Cholesky factor of b_cov), so an epoch
+  without a range of link i still determines b_i (by its prior). Combining the epochs' results
+  is the caller's (testbed/replay/graph.py).
 Epochs share nothing, so their normal matrices are (E, k, k) dense blocks: Levenberg-Marquardt runs
 on all of them at once with one damping factor per epoch (the update rule of estimators.graph.lm:
 Madsen, Nielsen, Tingleff 2004, eq. 2.21 and algorithm 3.16), robust losses by IRLS
@@ -43,6 +48,8 @@ class EpochFactors:
     pose end, ignored for a point end, the world point (m) of a fixed end; r_d (R,) m; r_sigma (R,) m.
     Height rows: h_epoch, h_var (free), h_arm (H, 3), h_z (H,) m up, h_sigma (H,) m.
     Prior rows: q_epoch, q_var (free), q_arm (P, 3), q_z (P, 3) m world, q_cov (P, 3, 3) m^2.
+    Range biases (optional): r_bias (R,) int, the bias unknown a range adds (-1: none; None: -1
+    for every range); b_mean (B,) m and b_cov (B, B) m^2 their prior in every epoch (None: B = 0).
     """
 
     kinds: tuple[str, ...]
@@ -63,6 +70,13 @@ class EpochFactors:
     q_arm: np.ndarray
     q_z: np.ndarray
     q_cov: np.ndarray
+    r_bias: np.ndarray | None = None
+    b_mean: np.ndarray | None = None
+    b_cov: np.ndarray | None = None
+
+    @property
+    def n_bias(self) -> int:
+        return 0 if self.b_mean is None else int(np.size(self.b_mean))
 
     def __post_init__(self) -> None:
         bad = [k for k in self.kinds if k not in DIMS]
@@ -75,6 +89,10 @@ class EpochFactors:
                 raise ValueError(f"EpochFactors: {name} is not finite")
         if np.any(self.r_sigma <= 0) or np.any(self.h_sigma <= 0):
             raise ValueError("EpochFactors: sigmas must be positive")
+        if self.r_bias is None:  # no range has a bias
+            object.__setattr__(self, "r_bias", np.full(np.shape(self.r_epoch), -1, np.int64))
+        if np.any(np.asarray(self.r_bias) >= self.n_bias):
+            raise ValueError(f"EpochFactors: r_bias names a bias beyond the {self.n_bias} of b_mean")
 
     @staticmethod
     def empty_rows(n: int = 0) -> dict:
@@ -88,8 +106,9 @@ class EpochFactors:
 class EpochsResult:
     """p: (E, V, 3) m world; R: (E, V, 3, 3) body-to-world (identity for points); cov: (E, k, k)
     tangent-space covariance (NaN where unobservable), unknowns in variable order, a pose's
-    [dp world, dtheta body]; offsets: (V,) first unknown of each variable; cost: (E,) final robust
-    cost; iterations: (E,) linear solves (rejected LM steps included); converged, observable: (E,) bool."""
+    [dp world, dtheta body], then the B biases; offsets: (V,) first unknown of each variable; cost:
+    (E,) final robust cost; iterations: (E,) linear solves (rejected LM steps included); converged,
+    observable: (E,) bool; b: (E, B) m the biases (None without)."""
 
     p: np.ndarray
     R: np.ndarray
@@ -99,6 +118,7 @@ class EpochsResult:
     iterations: np.ndarray
     converged: np.ndarray
     observable: np.ndarray
+    b: np.ndarray | None = None
 
 
 class _Layout:
@@ -108,13 +128,15 @@ class _Layout:
     def __init__(self, f: EpochFactors, n_epochs: int):
         dims = np.array([DIMS[k] for k in f.kinds], np.int64)
         self.offsets = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
-        self.k = int(dims.sum())
+        self.kv, self.B = int(dims.sum()), f.n_bias  # the variables' unknowns, then the biases'
+        self.k = self.kv + self.B
         self.is_pose = np.array([k == "pose" for k in f.kinds], bool)
         cols = self.offsets[:, None] + np.arange(6)[None, :]
         self.colmap = np.where(self.is_pose[:, None] | (np.arange(6)[None, :] < 3), cols, self.k)
         self.E = n_epochs
-        # slots: ranges, then heights, then 3 rows per prior, in order within each epoch
-        epochs = np.concatenate([f.r_epoch, f.h_epoch, np.repeat(f.q_epoch, 3)]).astype(np.int64)
+        # slots: ranges, then heights, then 3 rows per prior, then the B bias priors, in order within each epoch
+        epochs = np.concatenate([f.r_epoch, f.h_epoch, np.repeat(f.q_epoch, 3),
+                                 np.repeat(np.arange(n_epochs), self.B)]).astype(np.int64)
         order = np.argsort(epochs, kind="stable")
         counts = np.bincount(epochs, minlength=n_epochs)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -123,12 +145,31 @@ class _Layout:
         self.M = int(counts.max(initial=0))
         nr, nh = f.r_epoch.size, f.h_epoch.size
         self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
-        self.q_slot = slot[nr + nh:].reshape(-1, 3)
+        nq = 3 * f.q_epoch.size
+        self.q_slot = slot[nr + nh:nr + nh + nq].reshape(-1, 3)
+        self.b_slot = slot[nr + nh + nq:].reshape(n_epochs, self.B)
+        if self.B:
+            kb = self.kv + np.arange(self.B)
+            biased = np.flatnonzero(f.r_bias >= 0)
+            # a range's bias column, and the B x B block of each epoch's bias prior
+            self.r_bias = _Cols(biased, ((f.r_epoch[biased] * self.M + self.r_slot[biased]) * (self.k + 1)
+                                         + self.kv + f.r_bias[biased])[:, None, None])
+            rows = np.arange(n_epochs)[:, None] * self.M + self.b_slot  # (E, B)
+            self.b_prior = _Cols(np.arange(n_epochs * self.B), (rows.reshape(-1, 1, 1) * (self.k + 1) + kb[None, None, :]))
+            self.b_chol = np.linalg.cholesky(f.b_cov)
         self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a, self.r_slot[:, None]),
                      "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b, self.r_slot[:, None]),
                      "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm, self.h_slot[:, None]),
                      "q": _Ends(self, f.q_epoch, f.q_var, f.q_arm, self.q_slot)}
         self.q_chol = np.linalg.cholesky(f.q_cov) if f.q_epoch.size else None
+
+
+class _Cols:
+    """Factor rows `at` (f,) whose Jacobian entries sit at the flat indices flat (f, d, c) of the
+    layout's (E, M, k + 1) array (the bias columns: _system fills them as an _Ends' free rows)."""
+
+    def __init__(self, at: np.ndarray, flat: np.ndarray):
+        self.at, self.flat = at, flat
 
 
 class _Ends:
@@ -170,18 +211,24 @@ class _Ends:
         return np.concatenate([u, cross], axis=1)
 
 
-def _residuals(f: EpochFactors, lay: _Layout, p, R):
+def _residuals(f: EpochFactors, lay: _Layout, p, R, b=None):
     """Whitened residuals and Jacobian blocks of every factor: list of (kind, epoch, slots, e (n, d),
-    [(ends, J (f, d, 6) of the ends' free rows)])."""
+    [(ends, J (f, d, c) of the ends' free rows)]); b (E, B) the biases (lay.B > 0)."""
     out = []
     if f.r_epoch.size:
         A, B = lay.ends["ra"], lay.ends["rb"]
         ea, Ra = A.points(p, R)
         eb, Rb = B.points(p, R)
         r, u = range_terms(ea, eb)
+        blocks = [(A, (A.row(Ra, u) / f.r_sigma[A.at, None])[:, None]), (B, (-B.row(Rb, u) / f.r_sigma[B.at, None])[:, None])]
+        if lay.B:
+            at = lay.r_bias.at
+            # a biased range measures |e_a - e_b| + b_i: d h / d b_i = 1 (docs/replay.md, "Range bias")
+            r = r.copy()
+            r[at] += b[f.r_epoch[at], f.r_bias[at]]
+            blocks.append((lay.r_bias, (1.0 / f.r_sigma[at])[:, None, None]))
         e = ((f.r_d - r) / f.r_sigma)[:, None]
-        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, [(A, (A.row(Ra, u) / f.r_sigma[A.at, None])[:, None]),
-                                                                   (B, (-B.row(Rb, u) / f.r_sigma[B.at, None])[:, None])]))
+        out.append(("range", f.r_epoch, lay.r_slot[:, None], e, blocks))
     if f.h_epoch.size:
         H = lay.ends["h"]
         eh, Rh = H.points(p, R)
@@ -195,13 +242,20 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R):
         e = np.linalg.solve(lay.q_chol, (f.q_z - eq)[..., None])[..., 0]
         # W = L^-1 (W^T W = cov^-1): whitened e = W (z - h), Jacobian W dh/dx
         out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol[Q.at], J))]))
+    if lay.B:
+        # the bias prior: whitened W (b_mean - b), W = L^-1 (L L^T = b_cov), Jacobian W
+        W = np.linalg.inv(lay.b_chol)
+        e = ((f.b_mean - b) @ W.T).reshape(-1, 1)
+        E = b.shape[0]
+        out.append(("bias", np.repeat(np.arange(E), lay.B), lay.b_slot.reshape(-1, 1), e,
+                    [(lay.b_prior, np.broadcast_to(W, (E, lay.B, lay.B)).reshape(-1, 1, lay.B))]))
     return out
 
 
 def _subset(f: EpochFactors, keep: np.ndarray) -> EpochFactors:
     """The factors of the epochs where keep (E,) bool, epochs renumbered in order."""
     new = np.cumsum(keep) - 1
-    out = {"kinds": f.kinds}
+    out = {"kinds": f.kinds, "b_mean": f.b_mean, "b_cov": f.b_cov}
     for prefix, epoch in (("r_", f.r_epoch), ("h_", f.h_epoch), ("q_", f.q_epoch)):
         rows = keep[epoch]
         for name in EpochFactors.__slots__:
@@ -236,13 +290,13 @@ def _system(res, losses, lay: _Layout):
     return Jt @ J, (Jt @ b[..., None])[..., 0], cost
 
 
-def _retract(lay: _Layout, p, R, delta):
-    """x (+) delta for delta (E, k); a pose: p + dp, R exp(dtheta); a point: p + dp."""
+def _retract(lay: _Layout, p, R, b, delta):
+    """x (+) delta for delta (E, k); a pose: p + dp, R exp(dtheta); a point: p + dp; biases b + db."""
     cols = lay.colmap  # (V, 6); sink column k reads zero
     d = np.concatenate([delta, np.zeros((delta.shape[0], 1))], axis=1)[:, cols]  # (E, V, 6)
     p_new = p + d[..., :3]
     R_new = np.where(lay.is_pose[None, :, None, None], R @ so3_exp(d[..., 3:]), R)
-    return p_new, R_new
+    return p_new, R_new, b + delta[:, lay.kv:]
 
 
 def _damped_solve(N, g, lam):
@@ -291,8 +345,8 @@ def _observability_and_cov(N):
 def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dict | None = None, max_iter: int = 50,
                  step_tol: float = 1e-8, cost_tol: float = 1e-12, step_sigma: float = 0.0,
                  lm_lambda: float = 1e-4) -> EpochsResult:
-    """Levenberg-Marquardt on every epoch at once from p0 (E, V, 3), R0 (E, V, 3, 3) (see the
-    module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: a step
+    """Levenberg-Marquardt on every epoch at once from p0 (E, V, 3), R0 (E, V, 3, 3) and the biases'
+    prior mean (see the module docstring). losses: {"range" | "height" | "prior": Loss}. Convergence per epoch: a step
     (accepted or not) whose largest component is below step_tol, or an accepted step whose
     relative cost decrease is below cost_tol, or (step_sigma > 0) an accepted step delta shorter
     than step_sigma standard deviations of the estimate: sqrt(delta^T N delta) < step_sigma, N the
@@ -304,19 +358,20 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
             raise ValueError(f"solve_epochs: losses[{kind!r}] must be a Loss, got {loss!r}")
     P, RR = np.array(p0, float), np.array(R0, float)
     E0 = P.shape[0]
+    BB = np.tile(np.asarray(f.b_mean, float) if f.n_bias else np.zeros(0), (E0, 1))
     NN = np.zeros((E0,) + (_Layout(f, 0).k,) * 2)
     CC, ITER, CONV = np.zeros(E0), np.zeros(E0, np.int64), np.zeros(E0, bool)
     ids = np.arange(E0)
-    p, R, E = P, RR, E0
+    p, R, b, E = P, RR, BB, E0
     lay = _Layout(f, E)
-    N, g, cost = _system(_residuals(f, lay, p, R), losses, lay)
+    N, g, cost = _system(_residuals(f, lay, p, R, b), losses, lay)
     lam, nu = np.full(E, lm_lambda), np.full(E, 2.0)
     active, converged, iterations = np.ones(E, bool), np.zeros(E, bool), np.zeros(E, np.int64)
     while active.any():
         if active.sum() <= E // 2:  # most epochs done: continue on the others alone
-            P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
+            P[ids], RR[ids], BB[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, b, N, cost, iterations, converged
             ids, f = ids[active], _subset(f, active)
-            p, R, N, g, cost = p[active], R[active], N[active], g[active], cost[active]
+            p, R, b, N, g, cost = p[active], R[active], b[active], N[active], g[active], cost[active]
             lam, nu, iterations, converged = lam[active], nu[active], iterations[active], converged[active]
             E = int(active.sum())
             active = np.ones(E, bool)
@@ -324,8 +379,8 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
         iterations += active
         delta, D = _damped_solve(N, g, lam)
         delta[~active] = 0.0
-        p_new, R_new = _retract(lay, p, R, delta)
-        res = _residuals(f, lay, p_new, R_new)  # at the candidates; the system of the accepted ones
+        p_new, R_new, b_new = _retract(lay, p, R, b, delta)
+        res = _residuals(f, lay, p_new, R_new, b_new)  # at the candidates; the system of the accepted ones
         f_new = _cost(res, losses, E)
         pred = 0.5 * np.einsum("ek,ek->e", delta, lam[:, None] * D * delta + g)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -342,6 +397,7 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
             small |= accept & (np.einsum("ei,eij,ej->e", delta, N, delta) < step_sigma ** 2)
         p = np.where(accept[:, None, None], p_new, p)
         R = np.where(accept[:, None, None, None], R_new, R)
+        b = np.where(accept[:, None], b_new, b)
         # a rejected step below step_tol: the minimum is within step_tol (round-off decides the cost)
         tiny = reject & (step < step_tol)
         # no decrease even for a vanishing step: at a minimum to round-off
@@ -354,6 +410,6 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
             N = np.where(accept[:, None, None], N_new, N)
             g = np.where(accept[:, None], g_new, g)
             cost = np.where(accept, f_new, cost)
-    P[ids], RR[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, N, cost, iterations, converged
+    P[ids], RR[ids], BB[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, b, N, cost, iterations, converged
     observable, cov = _observability_and_cov(NN)
-    return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable)
+    return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable, BB if f.n_bias else None)

@@ -1,9 +1,13 @@
 """The generalized ranging EKF (estimators.ranging) as a protocol estimator, for recorded data.
 
-One follower body is tracked from ranges between its antennas and KNOWN points: the world's
-anchors (Context.anchors) and the antennas of known bodies, whose poses arrive on a pose stream
-(from any source: motion capture, another navigation solution) and whose lever arms come from
-Context.sites. Optional: range rates, a height of the follower (altimeter / barometer).
+Each follower body is tracked by its own filter from ranges between its antennas and KNOWN
+points: the world's anchors (Context.anchors) and the antennas of known bodies, whose poses
+arrive on a pose stream (from any source: motion capture, another navigation solution) and whose
+lever arms come from Context.sites. Optional: range rates, a height of the follower (altimeter /
+barometer). Followers: params follower (one body), else every vehicle that is not known and has
+an antenna (known: params known, else every vehicle but the named follower, else none).
+Antennas: params antennas, else each follower's sites that [sensors.uwb] declares as tags
+(`tags`), else all its sites.
 
 Streams (names configurable in params):
 - ranges: the streams of `range_streams` {stream: column of value holding the range, m}
@@ -29,12 +33,20 @@ since its link's (stream, antenna, known end) previous range (1 for the link's f
 the link makes within the time its errors stay correlated, which carry the information of one.
 
 Epochs: measurements of one time of validity form an epoch, processed when a later one arrives
-(or at finish), never looking ahead. The first epoch whose ranges determine the follower builds
-the prior (estimators.ranging.initial_belief: a rigid pose fix from the lever arms, or a fix per
-antenna); epochs before it, and epochs that cannot be used (degenerate geometry, or ranges none
-of which ends at a known point), are skipped and counted (health: skipped_epochs; ranges whose
-other end is neither an anchor nor a site of a known body with a pose yet: unknown_end_rows). Estimates: each antenna site's position and velocity, and
-the follower body's position, velocity and attitude when its lever arms determine an attitude.
+(or at finish), never looking ahead; an epoch may hold a single range, or a height alone
+(sparse, asynchronous ranging: docs/replay.md, "Sparse ranging"). Between epochs the antennas
+move at constant velocity with white acceleration (estimators.ranging.RangingNoise: q per
+antenna, q_translation common, q_rotation about the centroid). Initialisation: the follower's
+ranges of the last init_window seconds build the prior at the epoch being solved
+(estimators.ranging.initial_belief: a rigid pose fix from the lever arms, or a fix per antenna),
+each range of age a with its sigma grown to hypot(sigma, v_sigma a) (the follower moved by at
+most that, at the velocity prior's 1 sigma), the latest height likewise; epochs before the first
+that determines the follower, and epochs that cannot be used (ranges none of which ends at a
+known point), are counted (health: skipped_epochs; ranges whose other end is neither an anchor
+nor a site of a known body with a pose yet: unknown_end_rows; ranges of a follower site that is
+not one of its antennas: untracked_rows). Estimates: each antenna site's position and velocity,
+and the follower body's position, velocity and attitude when its lever arms determine an
+attitude.
 
 Range bias (bias_states = true; docs/replay.md, "Range bias"): one bias state b per link (a
 range stream, a follower antenna and a known end), added to its ranges, r = |x_j - X| + b, from the link's first
@@ -44,8 +56,7 @@ Context.sensors[stream] (testbed.replay.calibration: "uwb") when it has one, els
 the link's range sigma (its first range's declared sigma, or range_sigma). bias_estimates() gives
 them.
 
-params: RangingParams (`testbed estimators ranging.ekf`); follower is required when more than
-one vehicle could be it.
+params: RangingParams (`testbed estimators ranging.ekf`).
 """
 from __future__ import annotations
 
@@ -68,9 +79,9 @@ from testbed.plugins.params import fields_of, read
 class RangingParams:
     """Parameters of ranging.ekf ([[estimators]] params; module docstring)."""
 
-    follower: str | None = key(None, doc="the tracked body (none: the only vehicle not known with ranges)")
-    antennas: tuple[str, ...] | None = key(None, doc="the follower's antenna sites (none: every site of the follower)")
-    known: tuple[str, ...] | None = key(None, doc="bodies on the pose stream (none: every other vehicle)")
+    follower: str | None = key(None, doc="the one tracked body (none: every vehicle that is not known, each its own filter)")
+    antennas: tuple[str, ...] | None = key(None, doc="the followers' antenna sites (none: each follower's sites named by [sensors.uwb] tags, else all)")
+    known: tuple[str, ...] | None = key(None, doc="bodies on the pose stream (none: every vehicle but the follower; no vehicle when no follower is named)")
     q: float = key(1e-3, lo=0, unit="m^2/s^3", doc="white-acceleration density per antenna axis")
     q_translation: float = key(1e-2, lo=0, unit="m^2/s^3", doc="rigid-body white acceleration")
     q_rotation: float = key(1e-2, lo=0, unit="rad^2/s^3", doc="rigid-body white angular acceleration")
@@ -84,6 +95,7 @@ class RangingParams:
     use_rates: bool = key(False, doc="use the range rates")
     rate_window: float | None = key(None, lo=0, lo_open=True, unit="s", doc="window of the range rates (none: instantaneous)")
     v_sigma: float = key(1.0, lo=0, lo_open=True, unit="m/s", doc="prior velocity per axis, 1 sigma")
+    init_window: float = key(2.0, lo=0, unit="s", doc="span of the first ranges that initialise the filter together (0: one epoch)")
     shape_sigma: float = key(0.01, lo=0, lo_open=True, unit="m", doc="rigidity of the antenna array in the prior, 1 sigma")
     level_sigma: float | None = key(None, lo=0, lo_open=True, unit="rad", doc="prior levelling, 1 sigma (none: no level prior)")
     range_streams: dict = key(factory=lambda: {"uwb": 0, "phase": 1}, range="{stream: column >= 0}", doc="range streams and the value column of the range")
@@ -109,61 +121,73 @@ def _body(site: str) -> str:
 
 
 class RangingEkfEstimator:
-    """Generalized ranging EKF: any antennas and lever arms, known poses from any source, height aid."""
+    """Generalized ranging EKF: any antennas and lever arms, known poses from any source, height aid;
+    one filter per follower body (`followers`)."""
 
-    description = "ranging EKF, any antennas/lever arms, known poses from a pose stream, optional rates and height"
+    description = "ranging EKF per follower, any antennas/lever arms, known poses from a pose stream, optional rates and height"
 
     Params = RangingParams
 
     def __init__(self, context: Context, params: dict):
         p = self.p = fields_of(read(RangingParams, params, "ranging.ekf"))
         vehicles = list(context.vehicles)
-        follower = p["follower"] or (vehicles[-1] if len(vehicles) == 1 else None)
-        if follower is None and p["known"] is not None:
-            rest = [v for v in vehicles if v not in p["known"]]
-            follower = rest[0] if len(rest) == 1 else None
-        if follower not in vehicles:
+        if p["follower"] is not None and p["follower"] not in vehicles:
             raise ConfigError(f"estimator ranging.ekf params: follower {p['follower']!r} must name one of {vehicles}")
-        self.follower = follower
-        ants = p["antennas"] or sorted(s for s, (b, _) in context.sites.items() if b == follower)
-        if not ants or any(a not in context.sites for a in ants):
-            raise ConfigError(f"estimator ranging.ekf params: antennas {ants!r} are not sites of {follower}")
-        self.antennas = list(ants)
-        self.index = {a: k for k, a in enumerate(self.antennas)}
-        self.arms = np.stack([np.asarray(context.sites[a][1], float) for a in self.antennas])
-        self.n = len(self.antennas)
-        # the body origin as an affine combination of the antennas: c = 1/n + N w (sum c = 1, N a basis
-        # of the vectors summing to 0), w the least-norm minimizer of |arms^T c| (the hull's nearest point)
-        N = np.linalg.svd(np.ones((1, self.n)))[2][1:].T
-        c0 = np.full(self.n, 1.0 / self.n)
-        self.origin_weights = c0 + N @ np.linalg.lstsq(self.arms.T @ N, -self.arms.T @ c0, rcond=None)[0]
-        self.origin_offset = float((self.origin_weights @ self.arms)[2])  # m, up, of that point from the origin
-        self.known = set(p["known"] if p["known"] is not None else [v for v in vehicles if v != follower])
+        if p["known"] is not None:
+            known = set(p["known"])
+        else:
+            known = {v for v in vehicles if v != p["follower"]} if p["follower"] is not None else set()
+        followers = [p["follower"]] if p["follower"] is not None else [v for v in vehicles if v not in known]
+        if not followers:
+            raise ConfigError(f"estimator ranging.ekf params: no follower: every vehicle {vehicles} is known")
+        if p["antennas"] is not None:
+            bad = [a for a in p["antennas"] if a not in context.sites or _body(a) not in followers]
+            if bad:
+                raise ConfigError(f"estimator ranging.ekf params: antennas {bad!r} are not sites of a follower {followers}")
+        self.known = known
         self.sites = context.sites
         self.anchors = {k: np.asarray(v, float) for k, v in context.anchors.items()}
-        self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"],
-                                                        rotation=p["q_rotation"]),
-                              gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]), bias_walk=p["bias_walk"])
         # {stream: {antenna: {known end: m}}}: a calibration table's sigmas (testbed.replay.calibration)
         self.calibrated = {k: v["bias_sigma"] for k, v in context.sensors.items()
                            if isinstance(v, dict) and isinstance(v.get("bias_sigma"), dict)}
-        self.bias_index: dict[tuple[str, int, str], int] = {}  # (stream, antenna, known end) -> bias state
         self.poses: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
-        self.belief = None
-        self.t_belief = None
         self.t = None
-        self.last_range: dict[tuple[str, int, str], float] = {}  # (stream, antenna, known end) -> time of its last range
-        self.counts = {"skipped_epochs": 0, "skipped_rows": 0, "unknown_end_rows": 0, "rejected_measurements": 0,
-                       "covariance_repairs": 0}
-        self._reset()
+        self.last_range: dict[tuple[str, str, str], float] = {}  # (stream, antenna, known end) -> time of its last range
+        self.counts = {"skipped_epochs": 0, "skipped_rows": 0, "unknown_end_rows": 0, "untracked_rows": 0,
+                       "rejected_measurements": 0, "covariance_repairs": 0}
+        # a range sensor's declared tags ([sensors.uwb] tags), else every site of the follower
+        tags = {t for stream in p["range_streams"] for t in (context.sensors.get(stream) or {}).get("tags", ())}
+        self.followers = {}
+        for f in followers:
+            mine = sorted(s for s, (b, _) in context.sites.items() if b == f)
+            ants = [a for a in p["antennas"] if _body(a) == f] if p["antennas"] is not None else \
+                [a for a in mine if not tags or a.split("/", 1)[1] in tags]
+            if ants:
+                self.followers[f] = _Follower(self, f, ants)
+            elif p["follower"] is not None:  # a vehicle without sites is no follower unless named
+                raise ConfigError(f"estimator ranging.ekf params: the follower {f} has no antenna site (sites {mine})")
+        if not self.followers:
+            raise ConfigError(f"estimator ranging.ekf params: none of the followers {followers} has an antenna site")
+
+    # -------------------------------------------------------------- one follower (the tests' and scripts' view)
+    def _only(self) -> "_Follower":
+        if len(self.followers) != 1:
+            raise AttributeError(f"ranging.ekf tracks {sorted(self.followers)}: ask .followers[body]")
+        return next(iter(self.followers.values()))
+
+    def __getattr__(self, name: str):
+        """The attributes of the one follower (follower, antennas, n, belief, bias_index) when there is one."""
+        if name in ("follower", "antennas", "n", "belief", "bias_index"):
+            f = self._only()
+            return f.body if name == "follower" else getattr(f, name)
+        raise AttributeError(name)
+
+    def bias_estimates(self) -> dict[tuple[str, str, str], tuple[float, float]]:
+        """{(stream, antenna site, known end): (bias m, its sigma m)} of every follower's bias states."""
+        return {k: v for f in self.followers.values() for k, v in f.bias_estimates().items()}
 
     # -------------------------------------------------------------- bookkeeping
-    def _reset(self) -> None:
-        self.links: list[tuple[int, str, float, float, str]] = []  # (antenna, known end, range, sigma, stream)
-        self.rates: dict[tuple[int, str], tuple[float, float]] = {}
-        self.height: tuple[float, float] | None = None
-
-    def _known_point(self, name: str) -> tuple[np.ndarray, np.ndarray] | None:
+    def known_point(self, name: str) -> tuple[np.ndarray, np.ndarray] | None:
         """Position and velocity (3,) of a known end at the latest pose, or None if unknown yet."""
         if name in self.anchors:
             return self.anchors[name], np.zeros(3)
@@ -176,7 +200,7 @@ class RangingEkfEstimator:
         V = (X[-1] - X[0]) / (hist[-1][0] - hist[0][0]) if len(hist) == 2 and hist[-1][0] > hist[0][0] else np.zeros(3)
         return X[-1], V
 
-    def _sigma(self, m: Measurement, col: int, default: float) -> float:
+    def sigma(self, m: Measurement, col: int, default: float) -> float:
         if m.sigma is not None and np.size(m.sigma) > col and np.isfinite(m.sigma[col]) and m.sigma[col] > 0:
             return float(m.sigma[col])
         return float(default)
@@ -196,8 +220,8 @@ class RangingEkfEstimator:
         """Solve the buffered epoch once time moves past it (t None: at finish); then buffer at t."""
         out = []
         if self.t is not None and (t is None or t > self.t):
-            out = self._solve()
-            self._reset()
+            for f in self.followers.values():
+                out += f.solve(self.t)
         self.t = self.t if t is None else t
         return out
 
@@ -210,26 +234,22 @@ class RangingEkfEstimator:
                 hist = self.poses.setdefault(m.src, [])
                 hist.append((m.time, v[:3].copy(), quat_to_rotmat(v[3:7] / np.linalg.norm(v[3:7]))))
                 del hist[:-2]
-        elif m.stream == p["height_stream"] and (m.src == self.follower or m.src in self.index):
-            if m.src in self.index:
-                c, z = np.eye(self.n)[self.index[m.src]], float(m.value[0])
-            elif p["height_weights"] is not None:
-                c, z = np.asarray(p["height_weights"], float), float(m.value[0])
-            else:
-                c, z = self.origin_weights, float(m.value[0]) + self.origin_offset
-            self.height = (z, self._sigma(m, 0, p["height_sigma"]), c)
+        elif m.stream == p["height_stream"]:
+            f = self.followers.get(_body(m.src))
+            if f is not None:
+                f.height = (m.src, float(m.value[0]), self.sigma(m, 0, p["height_sigma"]))
         else:
-            ends = [(m.src, m.dst), (m.dst, m.src)]
-            for mine, other in ends:
-                if mine in self.index and other not in self.index:
-                    j = self.index[mine]
-                    if m.stream in p["range_streams"]:
-                        col = int(p["range_streams"][m.stream])
-                        sigma = self._correlated((m.stream, j, other), m.time, self._sigma(m, col, p["range_sigma"]))
-                        self.links.append((j, other, float(m.value[col]), sigma, m.stream))
-                    if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
-                        col = int(p["rate_streams"][m.stream])
-                        self.rates[(j, other)] = (float(m.value[col]), self._sigma(m, col, p["range_rate_sigma"]))
+            for mine, other in ((m.src, m.dst), (m.dst, m.src)):
+                f = self.followers.get(_body(mine))
+                if f is None or mine not in self.sites or _body(other) == f.body:
+                    continue
+                if m.stream in p["range_streams"]:
+                    col = int(p["range_streams"][m.stream])
+                    sigma = self._correlated((m.stream, mine, other), m.time, self.sigma(m, col, p["range_sigma"]))
+                    f.links.append((mine, other, float(m.value[col]), sigma, m.stream))
+                if p["use_rates"] and m.stream in p["rate_streams"] and np.size(m.value) > int(p["rate_streams"][m.stream]):
+                    col = int(p["rate_streams"][m.stream])
+                    f.rates[(mine, other)] = (float(m.value[col]), self.sigma(m, col, p["range_rate_sigma"]))
         return out
 
     def finish(self) -> list[Estimate]:
@@ -238,57 +258,145 @@ class RangingEkfEstimator:
     def health(self) -> dict[str, int]:
         return dict(self.counts)
 
-    # -------------------------------------------------------------- one epoch
-    def _epoch(self) -> RangingEpoch | None:
-        rows = []
-        self.epoch_links = []  # (stream, antenna, known end, sigma) of each row: the bias states' keys
-        for j, other, r, s, stream in self.links:
-            known = self._known_point(other)
-            if known is not None:
-                rate, s_rate = self.rates.get((j, other), (np.nan, 1.0))
-                rows.append((j, known[0], known[1], r, s, rate, s_rate))
-                self.epoch_links.append((stream, j, other, s))
-        self.counts["unknown_end_rows"] += len(self.links) - len(rows)
-        if not rows:
-            if self.links:  # ranges, none to a known point: this epoch cannot be used
-                self.counts["skipped_epochs"] += 1
+
+class _Follower:
+    """The filter of one follower body: its antennas, the epoch being collected, the prior's window,
+    the belief and its bias states."""
+
+    def __init__(self, owner: RangingEkfEstimator, body: str, antennas: list[str]):
+        o = self.o = owner
+        self.body = body
+        self.belief = None
+        self.t_belief = None
+        self.init_buffer: list[tuple[float, list, tuple | None]] = []  # (t, [(site, X, r, sigma)], height) before the prior
+        self.bias_index: dict[tuple[str, int, str], int] = {}  # (stream, antenna, known end) -> bias state
+        self.antennas = list(antennas)
+        self.index = {a: k for k, a in enumerate(self.antennas)}
+        self.arms = np.stack([np.asarray(o.sites[a][1], float) for a in self.antennas])
+        self.n = len(self.antennas)
+        # the body origin as an affine combination of the antennas: c = 1/n + N w (sum c = 1, N a basis
+        # of the vectors summing to 0), w the least-norm minimizer of |arms^T c| (the hull's nearest point)
+        N = np.linalg.svd(np.ones((1, self.n)))[2][1:].T
+        c0 = np.full(self.n, 1.0 / self.n)
+        self.origin_weights = c0 + N @ np.linalg.lstsq(self.arms.T @ N, -self.arms.T @ c0, rcond=None)[0]
+        self.origin_offset = float((self.origin_weights @ self.arms)[2])  # m, up, of that point from the origin
+        p = o.p
+        self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"], rotation=p["q_rotation"]),
+                              gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]), bias_walk=p["bias_walk"])
+        self._reset()
+
+    def _reset(self) -> None:
+        self.links: list[tuple[str, str, float, float, str]] = []  # (antenna site, known end, range, sigma, stream)
+        self.rates: dict[tuple[str, str], tuple[float, float]] = {}
+        self.height: tuple[str, float, float] | None = None  # (site or body, z m, sigma m)
+
+    def _height_row(self, h: tuple[str, float, float] | None) -> tuple[float, float, np.ndarray] | None:
+        """(z, sigma, c) of a height as the up coordinate of sum_j c_j x_j (module docstring), None if
+        it is of a site that is not an antenna."""
+        if h is None:
             return None
-        j, X, V, r, s, rd, sd = (np.array(c) for c in zip(*rows))
-        use_rates = bool(self.p["use_rates"]) and np.isfinite(rd).any()
-        h = self.height
-        return RangingEpoch(antenna=j.astype(int), known_pos=X, ranges=r, sigma_range=s,
+        src, z, s = h
+        if src in self.index:
+            return z, s, np.eye(self.n)[self.index[src]]
+        if src != self.body:
+            return None
+        if self.o.p["height_weights"] is not None:
+            return z, s, np.asarray(self.o.p["height_weights"], float)
+        return z + self.origin_offset, s, self.origin_weights
+
+    # -------------------------------------------------------------- one epoch
+    def _rows(self) -> list[tuple[str, np.ndarray, np.ndarray, float, float, str, str]]:
+        """The epoch's ranges to known points: (antenna site, X, V, r, sigma, stream, known end);
+        the others counted."""
+        rows = []
+        for site, other, r, s, stream in self.links:
+            known = self.o.known_point(other)
+            if known is None:
+                self.o.counts["unknown_end_rows"] += 1
+            elif site not in self.index:
+                self.o.counts["untracked_rows"] += 1
+            else:
+                rows.append((site, known[0], known[1], r, s, stream, other))
+        return rows
+
+    def _epoch(self, rows: list) -> RangingEpoch | None:
+        self.epoch_links = [(stream, self.index[site], other, s) for site, _, _, _, s, stream, other in rows]
+        h = self._height_row(self.height)
+        if not rows:
+            return None
+        j = np.array([self.index[r[0]] for r in rows], int)
+        X, V, r, s = (np.array([row[k] for row in rows]) for k in (1, 2, 3, 4))
+        rates = [self.rates.get((row[0], row[6]), (np.nan, 1.0)) for row in rows]
+        rd, sd = np.array([x[0] for x in rates]), np.array([x[1] for x in rates])
+        use_rates = bool(self.o.p["use_rates"]) and np.isfinite(rd).any()
+        return RangingEpoch(antenna=j, known_pos=X, ranges=r, sigma_range=s,
                             range_rates=rd if use_rates else None, known_vel=V if use_rates else None,
-                            sigma_range_rate=sd, rate_window=self.p["rate_window"],
+                            sigma_range_rate=sd, rate_window=self.o.p["rate_window"],
                             height=None if h is None else h[0], sigma_height=1.0 if h is None else h[1],
                             height_weights=None if h is None else h[2])
 
-    def _solve(self) -> list[Estimate]:
-        epoch = self._epoch()
-        if epoch is None and self.height is None:
-            return []
-        t = self.t
-        if self.belief is None:
-            if epoch is None:
+    def solve(self, t: float) -> list[Estimate]:
+        """The estimates of the epoch at t: the prior's window before the follower initialises, else
+        predict and update (a height alone too)."""
+        try:
+            rows = self._rows()
+            if self.belief is None:
+                return self._estimates(t) if self._initialise(t, rows) else []
+            if not rows and self._height_row(self.height) is None:
+                if self.links:  # ranges, none to a known point: this epoch cannot be used
+                    self.o.counts["skipped_epochs"] += 1
                 return []
-            p = self.p
-            try:
-                self.belief = initial_belief(epoch, self.n, self.arms, v_cov=p["v_sigma"] ** 2, shape_sigma=p["shape_sigma"],
-                                             level_sigma=p["level_sigma"])
-            except DegenerateGeometryError:
-                self.counts["skipped_epochs"] += 1
-                return []
-            self.t_belief = t
-        if epoch is not None and self.p["bias_states"]:
-            epoch = dataclasses.replace(epoch, bias=self._bias_states())
-        with counting() as h:
-            b = self.belief if t == self.t_belief else self.ekf.predict(self.belief, t - self.t_belief)
-            if epoch is not None:
+            epoch = self._epoch(rows)
+            if epoch is None:  # a height alone
+                h = self._height_row(self.height)
+                epoch = RangingEpoch(antenna=np.zeros(0, int), known_pos=np.zeros((0, 3)), ranges=np.zeros(0),
+                                     height=h[0], sigma_height=h[1], height_weights=h[2])
+            elif self.o.p["bias_states"]:
+                epoch = dataclasses.replace(epoch, bias=self._bias_states())
+            with counting() as h:
+                b = self.belief if t == self.t_belief else self.ekf.predict(self.belief, t - self.t_belief)
                 b = self.ekf.update(b, epoch)
-        self.belief, self.t_belief = b, t
-        self.counts["skipped_rows"] += h.skipped_updates
-        self.counts["rejected_measurements"] += h.rejected_measurements
-        self.counts["covariance_repairs"] += h.covariance_repairs
-        return self._estimates(t)
+            self.belief, self.t_belief = b, t
+            counts = self.o.counts
+            counts["skipped_rows"] += h.skipped_updates
+            counts["rejected_measurements"] += h.rejected_measurements
+            counts["covariance_repairs"] += h.covariance_repairs
+            return self._estimates(t)
+        finally:
+            self._reset()
+
+    def _initialise(self, t: float, rows: list) -> bool:
+        """Try to build the prior at t from the epochs of the last init_window s (docs/replay.md,
+        "Sparse ranging"); True when built. Each buffered range of age a = t - t_k counts as a range
+        at t of sigma hypot(sigma_k, v_sigma a), the latest height likewise; the velocity prior is
+        v_sigma per axis. An epoch with ranges that leaves the follower undetermined is counted in skipped_epochs."""
+        p = self.o.p
+        self.init_buffer.append((t, [(site, X, r, s) for site, X, _, r, s, _, _ in rows], self.height))
+        self.init_buffer = [b for b in self.init_buffer if b[0] >= t - p["init_window"] - 1e-9]
+        if not rows:
+            if self.links:
+                self.o.counts["skipped_epochs"] += 1
+            return False
+        ranged = [(tk, row) for tk, rs, _ in self.init_buffer for row in rs]
+        heights = [(tk, h) for tk, _, h in self.init_buffer if h is not None and self._height_row(h) is not None]
+        hk, h = heights[-1] if heights else (t, None)
+        h = self._height_row(h)
+        # a range of age a as one at t: the follower moved by v ~ N(0, v_sigma^2 I) a since, which changes
+        # the range by u^T v a ~ N(0, (v_sigma a)^2) (the same for a height)
+        stacked = RangingEpoch(
+            antenna=np.array([self.index[row[0]] for _, row in ranged], int), known_pos=np.array([row[1] for _, row in ranged]),
+            ranges=np.array([row[2] for _, row in ranged]),
+            sigma_range=np.array([np.hypot(row[3], p["v_sigma"] * (t - tk)) for tk, row in ranged]),
+            height=None if h is None else h[0], sigma_height=1.0 if h is None else float(np.hypot(h[1], p["v_sigma"] * (t - hk))),
+            height_weights=None if h is None else h[2])
+        try:
+            self.belief = initial_belief(stacked, self.n, self.arms, v_cov=p["v_sigma"] ** 2, shape_sigma=p["shape_sigma"],
+                                         level_sigma=p["level_sigma"])
+        except DegenerateGeometryError:
+            self.o.counts["skipped_epochs"] += 1
+            return False
+        self.t_belief, self.init_buffer = t, []
+        return True
 
     def _bias_states(self) -> np.ndarray:
         """(L,) the bias state of each link of the epoch, a new one appended to the belief (mean 0,
@@ -298,7 +406,7 @@ class RangingEkfEstimator:
             k = self.bias_index.get((stream, j, other))
             if k is None:
                 k = self.bias_index[(stream, j, other)] = len(self.bias_index)
-                sigma = self.calibrated.get(stream, {}).get(self.antennas[j], {}).get(other, self.p["bias_sigma"] or s)
+                sigma = self.o.calibrated.get(stream, {}).get(self.antennas[j], {}).get(other, self.o.p["bias_sigma"] or s)
                 b = self.belief
                 cov = np.zeros((b.mean.size + 1, b.mean.size + 1))
                 cov[:-1, :-1], cov[-1, -1] = b.cov, sigma ** 2
@@ -323,7 +431,7 @@ class RangingEkfEstimator:
                 out.append(Estimate(time=t, target=a, quantity=qty, value=b.mean[sl], cov=b.cov[sl, sl]))
         pose = body_pose(b, self.arms)
         if pose is not None:
-            f = self.follower
+            f = self.body
             out += [Estimate(time=t, target=f, quantity="position", value=pose.position, cov=pose.cov[:3, :3]),
                     Estimate(time=t, target=f, quantity="attitude", value=pose.quat,
                              cov=pose.cov[3:6, 3:6]),

@@ -7,7 +7,11 @@ mean (ANEES, `anees_dof` = 3), `n_eff` the effective number of independent sampl
 samples (testbed.scoring.metrics.effective_samples: a filter's errors are correlated in time,
 docs/consistency.md); coverage (testbed.scoring.metrics.coverage): `coverage` the fraction of the
 target's truth instants with an estimate within `coverage_tolerance_s`, `rate_hz` and
-`first_estimate_s`.
+`first_estimate_s`. An attitude series with a covariance also gets `unobserved`: the fraction of
+its samples whose covariance gives a 1-sigma above UNOBSERVED_ATTITUDE_DEG along some axis (the
+square root of its largest eigenvalue): the geometry did not determine that attitude, by the
+estimator's own account; the targets with `unobserved` above one half are listed in the
+estimator's `attitude_unobserved` (absent when none).
 Summaries over targets, per quantity q with unit u (position m, velocity m_s, attitude deg):
 `rmse_{q}_mean_{u}` (mean over targets of the per-target RMSE, as the built-in coop scores),
 `rmse_{q}_{u}` (pooled over all samples), `rmse_{q}_axis_{u}`, `anees_{q}` (all samples with a
@@ -38,11 +42,16 @@ from pathlib import Path
 import numpy as np
 
 from estimators.core import nees
+from estimators.phase_model import ATTITUDE_SD_LIMIT_RAD
 from testbed.scoring.metrics import anees_keys, coverage, rmse
 from testbed.plugins.collect import Series, Track, natural
 from testbed.plugins.truth import Truth, errors
 
 UNIT = {"position": "m", "velocity": "m_s", "attitude": "deg"}
+#: deg: an attitude whose 1-sigma exceeds this along some axis is not observed: beyond it a
+#: linearized attitude covariance no longer describes the error (the rule of phase.ekf's
+#: unobserved rotation axes, estimators.phase_model.ATTITUDE_SD_LIMIT_RAD: one limit for both)
+UNOBSERVED_ATTITUDE_DEG = float(np.degrees(ATTITUDE_SD_LIMIT_RAD))
 SCALE = {"position": 1.0, "velocity": 1.0, "attitude": float(np.degrees(1.0))}
 
 
@@ -149,6 +158,9 @@ def score_series(err: np.ndarray, s: Series, quantity: str) -> tuple[dict, np.nd
     ne = nees(err[s.has_cov], s.cov[s.has_cov]) if s.has_cov.any() else np.zeros(0)
     if ne.size:
         out.update({**anees_keys(ne, 3, "anees", 0.95), "nees_samples": int(ne.size)})
+        if quantity == "attitude":
+            worst = np.sqrt(np.linalg.eigvalsh(s.cov[s.has_cov])[:, -1])
+            out["unobserved"] = float(np.mean(worst > np.radians(UNOBSERVED_ATTITUDE_DEG)))
     return out, ne
 
 
@@ -178,6 +190,9 @@ def score(track: Track, truth: Truth, hooks: tuple[Hook, ...] | list[Hook] = (),
             out.setdefault("sites", {}).update(_summary(q, kinds[True]))
     for h in hooks:
         out.update(h.summary(track, errs, health or {}))
+    blind = [t for t, qs in targets.items() if qs.get("attitude", {}).get("unobserved", 0.0) > 0.5]
+    if blind:
+        out["attitude_unobserved"] = blind
     out["targets"] = targets
     return out, errs
 

@@ -28,6 +28,14 @@ solves, summed over the epochs solved) and lm_iterations_max (of one epoch); per
 diagnostics(): time, iterations, final cost, converged, observable, flagged.
 
 The variable kind of each robot is decided from the sites measured in the first batch of epochs.
+
+Range bias (bias_states = true; docs/replay.md, "Range bias"): one bias unknown b per link (a
+range stream and its two ends), r = |e_a - e_b| + b, a random constant, with a Gaussian belief
+over every link seen: a link joins it with mean 0 and sigma its calibrated bias_sigma
+(Context.sensors["uwb"]), else params bias_sigma, else its first range's sigma. Each epoch of a
+solve gets the belief's marginal over its part's links as a prior (estimators.graph.batch); after
+the part, the likelihood each converged, unflagged epoch gave the biases (its posterior over the
+prior, in information form) is added to the belief. bias_estimates() gives it.
 """
 from __future__ import annotations
 
@@ -83,6 +91,9 @@ class GraphParams:
     horizon: float = key(2.0, lo=0, unit="s", doc="the warm start never predicts further past the last estimate")
     initial: dict = key(factory=dict, unit="m", range="{body: [x, y, z] or [x, y, z, qw, qx, qy, qz]}",
                         doc="starting pose of robots without a fix or an estimate, world, quaternion body-to-world")
+    bias_states: bool = key(False, doc="a range-bias unknown per link (docs/replay.md, Range bias)")
+    bias_sigma: float | None = key(None, lo=0, lo_open=True, unit="m",
+                                   doc="prior sigma of a link's bias without a calibrated one (none: the link's range sigma)")
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -103,6 +114,7 @@ class _Epoch:
     r_dst: list = field(default_factory=list)
     r_d: list = field(default_factory=list)
     r_sigma: list = field(default_factory=list)
+    r_stream: list = field(default_factory=list)
     fixes: list = field(default_factory=list)    # (name, z (3,) m, sigma (3,) m)
     heights: list = field(default_factory=list)  # (name, z m, sigma m)
     mocap: dict = field(default_factory=dict)    # body -> (p (3,), R (3, 3))
@@ -134,6 +146,11 @@ class PoseGraph:
                        "late_measurements": 0,
                        "unused_measurements": 0, "lm_iterations": 0, "lm_iterations_max": 0}
         self.per_epoch: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "iterations", "cost", "converged", "observable", "flagged")}
+        # range biases (bias_states): {(stream, end, end) sorted ends: index}, their belief N(mean, cov) m, m^2,
+        # the prior sigma of a calibrated link {src: {dst: m}} (testbed.replay.calibration)
+        self.bias_index: dict[tuple[str, str, str], int] = {}
+        self.bias_mean, self.bias_cov = np.zeros(0), np.zeros((0, 0))
+        self.calibrated = (context.sensors.get("uwb") or {}).get("bias_sigma") or {}
 
     # ---------------------------------------------------------------- collecting
     def _bin(self, t: float):
@@ -177,6 +194,7 @@ class PoseGraph:
             ep.r_dst += b.dst[lo:hi][use].tolist()
             ep.r_d += b.value[lo:hi, 0][use].tolist()
             ep.r_sigma += sigma[lo:hi][use].tolist()
+            ep.r_stream += [b.stream] * int(use.sum())
         return out
 
     def process(self, m: Measurement) -> list[Estimate]:
@@ -191,6 +209,7 @@ class PoseGraph:
             ep.r_dst.append(m.dst)
             ep.r_d.append(float(m.value[0]))
             ep.r_sigma.append(float(m.sigma[0]) if m.sigma is not None else self.p.range_sigma)
+            ep.r_stream.append(m.stream)
         elif m.stream == "gnss":
             sigma = np.asarray(m.sigma, float) if m.sigma is not None else None
             if sigma is None:
@@ -345,6 +364,8 @@ class PoseGraph:
         rows["r_b"].append([index[n] for n in ep.r_dst])
         rows["r_d"].append(ep.r_d)
         rows["r_sigma"].append(ep.r_sigma)
+        if self.p.bias_states:
+            rows["r_key"] += [(stream,) + tuple(sorted((a, b))) for stream, a, b in zip(ep.r_stream, ep.r_src, ep.r_dst)]
         for name, z, sigma in ep.fixes:
             end = self._end(name, ep, free)
             if end is None or end[0] < 0:
@@ -366,6 +387,8 @@ class PoseGraph:
         va, vb = var[ia], var[ib]
         ok = (va != -2) & (vb != -2) & (va != vb)
         self.counts["unused_measurements"] += int((~ok).sum())
+        if self.p.bias_states:
+            rows["r_key"] = [k for k, use in zip(rows["r_key"], ok) if use]
         return {"r_epoch": np.concatenate(rows["r_e"])[ok], "r_a": va[ok], "r_b": vb[ok], "r_arm_a": arm[ia[ok]],
                 "r_arm_b": arm[ib[ok]], "r_d": np.concatenate([np.asarray(x, float) for x in rows["r_d"]])[ok],
                 "r_sigma": np.concatenate([np.asarray(x, float) for x in rows["r_sigma"]])[ok]}
@@ -429,11 +452,14 @@ class PoseGraph:
     def _solve_part(self, present: tuple[str, ...], eps: list[_Epoch], times: np.ndarray) -> list[Estimate]:
         free = {v: i for i, v in enumerate(present)}
         kinds = tuple(self.kind[v][0] for v in present)
-        rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "q": [], "h": []}
+        rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "r_key": [], "q": [], "h": []}
         ends: dict[str, list] = {"var": [], "arm": []}
         for e, ep in enumerate(eps):
             self._factors(ep, free, e, rows, ends)
         f = _factor_arrays(kinds, self._range_rows(rows, ends), rows)
+        sel = None
+        if self.p.bias_states:
+            f, sel = self._with_biases(f, rows["r_key"])
         solve = lambda p0, R0: solve_epochs(f, p0, R0, losses=self.loss, max_iter=self.p.max_iter,  # noqa: E731
                                             step_tol=self.p.step_tol, step_sigma=self.p.step_sigma, cost_tol=self.p.cost_tol)
         p0, R0, how = self._starts(present, eps, times, warm=True)
@@ -451,7 +477,8 @@ class PoseGraph:
             pick = lambda a, b: np.where(retry.reshape((-1,) + (1,) * (a.ndim - 1)), b, a)  # noqa: E731
             first = res
             res = dataclasses.replace(res, **{k: pick(getattr(res, k), getattr(again, k))
-                                              for k in ("p", "R", "cov", "cost", "converged", "observable")})
+                                              for k in ("p", "R", "cov", "cost", "converged", "observable", "b")
+                                              if getattr(res, k) is not None})
             flagged, res = _flag(kinds, first, res, retry)
         ok = (res.converged | flagged) & res.observable
         self.counts["nonconverged_epochs"] += int((~res.converged & ~flagged & res.observable).sum())
@@ -463,6 +490,8 @@ class PoseGraph:
                      ("observable", res.observable), ("flagged", flagged)):
             self.per_epoch[k].append(np.asarray(v, float))
         out = []
+        if sel is not None:
+            self._fuse_biases(sel, res, res.converged & res.observable & ~flagged)
         for e in np.flatnonzero(ok):  # a non-converged epoch is flagged or withheld, and never a warm start
             t = float(times[e])
             for v, i in free.items():
@@ -481,6 +510,52 @@ class PoseGraph:
         return out
 
 
+    # ---------------------------------------------------------------- range biases
+    def _with_biases(self, f: EpochFactors, keys: list[tuple[str, str, str]]) -> tuple[EpochFactors, np.ndarray]:
+        """f with a bias unknown for each link of its ranges (docs/replay.md, "Range bias"): a link seen
+        the first time joins the belief with mean 0 and sigma its calibrated bias_sigma, else params
+        bias_sigma, else its first range's sigma; the prior of every epoch of f is the belief's
+        marginal over f's links. Returns f and those links' indices (B,) in the belief."""
+        for key, sigma in zip(keys, f.r_sigma):
+            if key not in self.bias_index:
+                _, a, b = key
+                s0 = self.calibrated.get(a, {}).get(b) or self.p.bias_sigma or float(sigma)
+                self.bias_index[key] = len(self.bias_index)
+                n = self.bias_mean.size
+                self.bias_mean = np.append(self.bias_mean, 0.0)
+                cov = np.zeros((n + 1, n + 1))
+                cov[:n, :n], cov[n, n] = self.bias_cov, s0 ** 2
+                self.bias_cov = cov
+        glob = np.array([self.bias_index[k] for k in keys], np.int64)
+        sel, local = np.unique(glob, return_inverse=True)
+        return dataclasses.replace(f, r_bias=local.astype(np.int64), b_mean=self.bias_mean[sel],
+                                   b_cov=self.bias_cov[np.ix_(sel, sel)]), sel
+
+    def _fuse_biases(self, sel: np.ndarray, res: EpochsResult, use: np.ndarray) -> None:
+        """The belief over the biases after the epochs `use` (E,) of res, each solved from the same
+        prior N(m0, C0) of the links sel: epochs share nothing but the biases, so each one's
+        likelihood of them is its posterior over the prior, information Lambda_e - Lambda_0 and
+        Lambda_e b_e - Lambda_0 m0 (Lambda = C^-1; exact for a linear model), and they add up."""
+        if not use.any() or sel.size == 0:
+            return
+        kv = res.cov.shape[1] - sel.size
+        L0 = np.linalg.inv(self.bias_cov[np.ix_(sel, sel)])
+        eta0 = L0 @ self.bias_mean[sel]
+        Le = np.linalg.inv(res.cov[use][:, kv:, kv:])
+        info = (Le - L0).sum(axis=0)
+        vec = (np.einsum("eij,ej->ei", Le, res.b[use]) - eta0).sum(axis=0)
+        Lam = np.linalg.inv(self.bias_cov)
+        eta = Lam @ self.bias_mean
+        Lam[np.ix_(sel, sel)] += info
+        eta[sel] += vec
+        self.bias_cov = _sym(np.linalg.inv(Lam))
+        self.bias_mean = self.bias_cov @ eta
+
+    def bias_estimates(self) -> dict[tuple[str, str, str], tuple[float, float]]:
+        """{(stream, end, end): (bias m, its sigma m)} of the bias states (bias_states), ends sorted."""
+        return {k: (float(self.bias_mean[i]), float(np.sqrt(self.bias_cov[i, i]))) for k, i in self.bias_index.items()}
+
+
 def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, retry: np.ndarray) -> tuple[np.ndarray, EpochsResult]:
     """The epochs (E,) bool solved from two starts (retry: first from the warm start, second from
     the fresh one) that converged from neither but whose iterates agree (AGREE_LEVEL), and second
@@ -491,15 +566,18 @@ def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, ret
     if not both.any():
         return flagged, second
     p, R, cov, cost = second.p.copy(), second.R.copy(), second.cov.copy(), second.cost.copy()
+    bias = None if second.b is None else second.b.copy()
     for e in np.flatnonzero(both):
         lo, hi = (first, second) if first.cost[e] <= second.cost[e] else (second, first)
         d = np.concatenate([lo.p[e, i] - hi.p[e, i] if kind == "point" else
                             np.concatenate([lo.p[e, i] - hi.p[e, i], so3_log(hi.R[e, i].T @ lo.R[e, i])])
-                            for i, kind in enumerate(kinds)])
+                            for i, kind in enumerate(kinds)] + ([lo.b[e] - hi.b[e]] if lo.b is not None else []))
         if d @ np.linalg.solve(lo.cov[e], d) <= chi2.ppf(AGREE_LEVEL, d.size):
             flagged[e] = True
             p[e], R[e], cost[e], cov[e] = lo.p[e], lo.R[e], lo.cost[e], lo.cov[e] + np.outer(d, d)
-    return flagged, dataclasses.replace(second, p=p, R=R, cov=cov, cost=cost)
+            if bias is not None:
+                bias[e] = lo.b[e]
+    return flagged, dataclasses.replace(second, p=p, R=R, cov=cov, cost=cost, b=bias)
 
 
 def _sym(c: np.ndarray) -> np.ndarray:

@@ -143,6 +143,11 @@ def declared_imu(table: dict, bodies: tuple[str, ...], at: str) -> dict:
 # --------------------------------------------------------------------------------------- UWB
 
 
+#: the antenna sites of the vehicle model (models/quadrotor.xml) a UWB tag may sit on: the mast's
+#: `uwb`, and the three antenna tips `ant1..3` (world.antenna_a, world.antenna_b)
+TAG_SITES = ("uwb", "ant1", "ant2", "ant3")
+
+
 @dataclass(frozen=True, kw_only=True, slots=True)
 class UwbSchedule:
     """[sensors.uwb.schedule]: which links are ranged at each UWB sample (testbed.sensors.uwb).
@@ -165,7 +170,9 @@ class UwbSchedule:
 class UwbConfig:
     """[sensors.uwb]: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
 
-    anchor_links: tag-to-anchor ranges; tag_links: tag-to-tag (every pair once). max_range (m):
+    tags: the sites of each vehicle that range (default ["uwb"]; any sites of the vehicle model,
+    e.g. ["ant2", "ant3"] for two tags a vehicle). anchor_links: tag-to-anchor ranges;
+    tag_links: tag-to-tag (every pair of tags of different vehicles once). max_range (m):
     true distance beyond which no range is made. link_search: "all-pairs" (every link fixed at
     the start, random draws for all of them at every sample: O(N^2)) or "in-range" (tag pairs
     within max_range found at every sample with a k-d tree, draws only for those: large swarms;
@@ -187,6 +194,7 @@ class UwbConfig:
     preset: Literal["paper001", "dw1000", "ideal"] = "paper001"
     rate_hz: float = 10.0
     latency: float = 0.0
+    tags: tuple[str, ...] = ("uwb",)
     anchor_links: bool = True
     tag_links: bool = True
     max_range: float = 100.0
@@ -213,6 +221,8 @@ class UwbConfig:
         require(self.schedule.policy == "all" or self.schedule.slot_s * self.rate_hz <= 1, "schedule.slot_s", self.schedule.slot_s,
                 f"one slot must fit in the {1 / self.rate_hz:g} s cycle of rate_hz = {self.rate_hz:g} Hz")
         in_range(self, "max_range", 0, lo_open=True, unit="m")
+        require(len(self.tags) > 0 and len(set(self.tags)) == len(self.tags) and all(t in TAG_SITES for t in self.tags),
+                "tags", list(self.tags), f"expected distinct antenna sites of the vehicle model, of {list(TAG_SITES)}")
         require(all(0 <= g <= 5 for g in self.los_groups), "los_groups", self.los_groups, f"geom groups are 0..5, got {list(self.los_groups)}")
         for k in ("noise", "clock_ppm", "reply_time", "antenna_delay_sigma", "link_bias_sigma", "nlos_bias_mean", "nlos_bias_per_m", "outlier_sigma"):
             in_range(self, k, 0)

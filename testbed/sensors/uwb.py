@@ -1,7 +1,9 @@
-"""UWB stream `uwb`: two-way ranging between `uwb` sites (tags) and `anchor{k}` sites.
+"""UWB stream `uwb`: two-way ranging between tag sites of the vehicles and `anchor{k}` sites.
 
-Links, in this order: every tag to every anchor (src = "uav{i}/uwb", dst = "anchor{k}"), then
-tag pairs once (src = "uav{i}/uwb", dst = "uav{j}/uwb", i < j, by i then j). link_search
+Tags: the sites `tags` of every vehicle (default ["uwb"]; e.g. ["ant2", "ant3"]: two tags a
+vehicle), devices in the order uav1's tags, uav2's tags, ... Links, in this order: every tag to
+every anchor (src = "uav{i}/uwb", dst = "anchor{k}"), then tag pairs of different vehicles once
+(src = "uav{i}/uwb", dst = "uav{j}/uwb", by device order; tags of one vehicle never range). link_search
 "all-pairs": every tag pair, fixed at the start; random draws are made for every link at every
 sample (O(N^2) per sample). "in-range": at every sample only the tag pairs within max_range
 (scipy cKDTree.query_pairs, O(N log N + links)), draws only for these, and a pair's constant
@@ -65,13 +67,16 @@ class Uwb:
 
     def __init__(self, cfg: UwbConfig, physics: Physics, rng: np.random.Generator, period_ticks: int, n_anchors: int):
         self.cfg, self.rng, self.period_ticks = cfg, rng, period_ticks
-        N = physics.n
-        names = [f"anchor{k}" for k in range(1, n_anchors + 1)] + [f"uav{i}/uwb" for i in range(1, N + 1)]
+        T = len(cfg.tags)
+        N = physics.n * T  # tag devices, vehicle by vehicle, each vehicle's tags in cfg.tags order
+        names = [f"anchor{k}" for k in range(1, n_anchors + 1)] + [f"uav{i}/{tag}" for i in range(1, physics.n + 1)
+                                                                   for tag in cfg.tags]
         self.devices = np.array(names)
         self.site_ids = physics.site_ids(names)
         A = n_anchors
         # body of each device (-1 for anchors: world body, never excluded)
-        self.dev_body = np.concatenate([np.full(A, -1), physics.body_ids]).astype(int)
+        self.dev_body = np.concatenate([np.full(A, -1), np.repeat(physics.body_ids, T)]).astype(int)
+        self.tag_vehicle = np.repeat(np.arange(physics.n), T)  # (N,) vehicle of each tag device
         src, dst = [], []
         if cfg.anchor_links:
             for i in range(N):
@@ -81,7 +86,8 @@ class Uwb:
         if cfg.tag_links and not self.in_range:
             for i in range(N):
                 for j in range(i + 1, N):
-                    src.append(A + i), dst.append(A + j)
+                    if self.tag_vehicle[i] != self.tag_vehicle[j]:  # tags of one vehicle never range
+                        src.append(A + i), dst.append(A + j)
         self.n_anchors = A
         self.src, self.dst = np.array(src, dtype=int), np.array(dst, dtype=int)  # the fixed links
         D, L = len(names), len(src)
@@ -110,6 +116,8 @@ class Uwb:
         A = self.n_anchors
         # pairs within max_range (a hair more: the exact test on the distance follows in sample)
         pairs = cKDTree(P[A:]).query_pairs(self.cfg.max_range * (1 + 1e-9), output_type="ndarray")
+        if len(pairs):
+            pairs = pairs[self.tag_vehicle[pairs[:, 0]] != self.tag_vehicle[pairs[:, 1]]]
         pairs = A + pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))] if len(pairs) else np.empty((0, 2), dtype=int)
         keys = pairs[:, 0] * len(self.devices) + pairs[:, 1]
         new = np.setdiff1d(keys, self._pair_keys, assume_unique=True)
