@@ -114,6 +114,7 @@ class CoopInsDistributedParams(CoopInsParams):
 
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
 NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
+ZERO3 = np.zeros(3)  # a body's origin (EpochRows.lever)
 
 
 class CoopIns:
@@ -175,7 +176,7 @@ class CoopIns:
             self._close(m.arrival)
         if m.stream == "imu":
             out = self._imu(m)
-        elif m.stream in ("gnss", "uwb"):
+        elif m.stream in ("gnss", "uwb", "height"):
             self._take(m)
         return out
 
@@ -274,14 +275,20 @@ class CoopIns:
             if link is not None:
                 self.rows.add([float(m.value[0])], [float(m.sigma[0])], *([x] for x in link))
             return
-        i = self._vehicle(m.src)
+        i, lever = self._vehicle(m.src)
         if i is None:
             return
+        if m.stream == "height":  # the up coordinate of a site: a fix's third row
+            if not self.ins.active[i] or m.sigma is None:
+                self.counts["skipped_updates"] += 1
+                return
+            self.rows.add([float(m.value[0])], [float(m.sigma[0])], [i], [-1], [2], [NAN3], [(-1, -1)], [lever], [ZERO3])
+            return
         if not self.ins.active[i]:
-            self._start(i, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, self.lever[i])
+            self._start(i, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, lever)
             return
         self.rows.add([float(x) for x in m.value[:3]], [float(x) for x in m.sigma[:3]], [i] * 3, [-1] * 3, [0, 1, 2],
-                      [NAN3] * 3, [(-1, -1)] * 3)
+                      [NAN3] * 3, [(-1, -1)] * 3, [lever] * 3, [ZERO3] * 3)
 
     def _take_ranges(self, b: MeasurementBatch) -> None:
         """_take of every row of a UWB batch, in order, an epoch (rows of one time) at a time."""
@@ -295,26 +302,25 @@ class CoopIns:
             if k:
                 self.rows.add(b.value[lo:hi, 0][k].tolist(), b.sigma[lo:hi, 0][k].tolist(), *zip(*(links[r] for r in k)))
 
-    def _vehicle(self, src: str) -> int | None:
-        """The filter of the vehicle of antenna site src (None: not a vehicle's); its lever arm
-        must be the one of the filter's antenna."""
-        v, lever = self.sites[src] if src in self.sites else (src.partition("/")[0], np.zeros(3))
-        i = self.body.get(v)
-        if i is not None and np.abs(np.asarray(lever) - self.lever[i]).max() > 1e-9:
-            raise ValueError(f"{src}: GNSS and UWB must share the antenna site (set [sensors.gnss] antenna = \"uwb\")")
-        return i
+    def _vehicle(self, src: str) -> tuple[int | None, np.ndarray]:
+        """(the filter of the vehicle of site src (None: not a vehicle's), the site's lever arm (3,)
+        m body frame); "uavI/base" or an unknown site of a vehicle is its body origin."""
+        v, lever = self.sites[src] if src in self.sites else (src.partition("/")[0], ZERO3)
+        return self.body.get(v), np.asarray(lever, float)
 
     def _link(self, src: str, dst: str) -> tuple | None:
         """The row template of a range src -> dst: (i, j (-1: an anchor), component 3, the
-        anchor's position (3,) (NaN between vehicles), the two devices' delay states (-1: none));
-        None for a range the filters do not use. Cached per link."""
+        anchor's position (3,) (NaN between vehicles), the two devices' delay states (-1: none),
+        the lever arms (3,) m of the tags src and dst (zero at an anchor)); None for a range the
+        filters do not use. Cached per link."""
         if (src, dst) not in self._links:
-            i, link = self._vehicle(src), None
+            (i, lever), link = self._vehicle(src), None
             dev = (self.device.get(src, -1), self.device.get(dst, -1))
             if i is not None and dst in self.anchors:
-                link = (i, -1, 3, self.anchors[dst], dev)
+                link = (i, -1, 3, self.anchors[dst], dev, lever, ZERO3)
             elif i is not None and dst.partition("/")[0] in self.body:
-                link = (i, self.body[dst.partition("/")[0]], 3, NAN3, dev)
+                j, lever_j = self._vehicle(dst)
+                link = (i, j, 3, NAN3, dev, lever, lever_j)
             self._links[(src, dst)] = link
         return self._links[(src, dst)]
 
@@ -348,7 +354,8 @@ class CoopIns:
         var = sigma ** 2
         var[rng] = range_variances(self.uwb, sigma[rng], z[rng], antenna_delays=not self.device)
         rows = ci.Rows(z=z, var=var, i=np.array(rows.i, int), j=np.array(rows.j, int), component=comp,
-                       other=np.array(rows.other, float), dev=np.array(rows.dev, int))
+                       other=np.array(rows.other, float), dev=np.array(rows.dev, int), lever=np.array(rows.lever, float),
+                       lever_j=np.array(rows.lever_j, float))
         self.counts["epochs"] += 1
         rows = self._rows(t, now, rows)
         status = self.ins.update(rows, self.gate, int(self.p["iterations"]), float(self.p["huber"]) or None)
@@ -376,8 +383,9 @@ def equal_time_runs(t: np.ndarray) -> list[tuple[int, int]]:
 @dataclass(slots=True)
 class EpochRows:
     """The rows of the open epoch as growing columns: value z and declared sigma (m), filter i,
-    other vehicle j (-1: none), component (0-2: a GNSS axis, 3: a range), other end's position
-    (3,) m world (NaN: none), delay states of the two devices (2,) (-1: none)."""
+    other vehicle j (-1: none), component (0-2: a GNSS axis, 2 also a height, 3: a range), other
+    end's position (3,) m world (NaN: none), delay states of the two devices (2,) (-1: none), lever
+    arms (3,) m body frame of the measured site on i and of the tag on j (zero: none)."""
 
     z: list = field(default_factory=list)
     sigma: list = field(default_factory=list)
@@ -386,11 +394,13 @@ class EpochRows:
     component: list = field(default_factory=list)
     other: list = field(default_factory=list)
     dev: list = field(default_factory=list)
+    lever: list = field(default_factory=list)
+    lever_j: list = field(default_factory=list)
 
-    def add(self, z, sigma, i, j, component, other, dev) -> None:
+    def add(self, z, sigma, i, j, component, other, dev, lever, lever_j) -> None:
         """Append rows: sequences of one length, one per column."""
-        for column, rows in zip((self.z, self.sigma, self.i, self.j, self.component, self.other, self.dev),
-                                (z, sigma, i, j, component, other, dev)):
+        for column, rows in zip((self.z, self.sigma, self.i, self.j, self.component, self.other, self.dev, self.lever,
+                                 self.lever_j), (z, sigma, i, j, component, other, dev, lever, lever_j)):
             column.extend(rows)
 
 
@@ -449,8 +459,7 @@ class CoopInsDistributed(CoopIns):
         mine = rows.subset(~pair)
         linearity = float(self.p["linearity"])
         parts = []
-        for copy in (mine, ci.Rows(z=mine.z, var=mine.var, i=mine.i + n, j=mine.j, component=mine.component,
-                                   other=mine.other, dev=mine.dev)):
+        for copy in (mine, mine.replace(i=mine.i + n)):
             if linearity > 0:  # a fix always; an anchor range where it is linear in the filter's uncertainty
                 rng = np.flatnonzero(copy.component == 3)
                 lin = linear_ranges(s_all[copy.i[rng]], C_all[copy.i[rng]], copy.other[rng], copy.var[rng], linearity)
@@ -460,24 +469,29 @@ class CoopInsDistributed(CoopIns):
                 copy = copy.subset(keep)
             parts.append(copy)
         ranged = rows.subset(pair)
-        for me, you in ((ranged.i, ranged.j), (ranged.j, ranged.i)):
+        for me, you, l_me, l_you in ((ranged.i, ranged.j, ranged.lever, ranged.lever_j),
+                                     (ranged.j, ranged.i, ranged.lever_j, ranged.lever)):
             age = t - self.heard_t[me, you]
             ok = np.flatnonzero(age <= self.p["stale_s"])
             self.counts["stale_ranges"] += me.size - ok.size
-            me, you, age = me[ok], you[ok], age[ok]
+            me, you, age, l_me, l_you = me[ok], you[ok], age[ok], l_me[ok], l_you[ok]
             point = self.heard_s[me, you] + self.heard_v[me, you] * age[:, None]
             if linearity > 0:
                 lin = linear_ranges(s_all[me], C_all[me], point, ranged.var[ok], linearity)
                 self.counts["nonlinear_ranges"] += int((~lin).sum())
-                ok, me, you, age, point = ok[lin], me[lin], you[lin], age[lin], point[lin]
+                ok, me, you, age, point, l_me, l_you = ok[lin], me[lin], you[lin], age[lin], point[lin], l_me[lin], l_you[lin]
             cov = self.heard_cs[me, you] + age[:, None, None] ** 2 * self.heard_cv[me, you]
+            # the neighbour broadcasts its reference antenna; a range from another of its tags is
+            # taken to end there, the tags' offset (rotated by an attitude the receiver does not
+            # know) as variance: |l - l_ref|^2 along the range, its largest projection
+            offset = ((l_you - self.lever[you]) ** 2).sum(axis=1)
             u = s_all[me] - point  # the range's direction from the flown filter's antenna
             u /= np.maximum(np.linalg.norm(u, axis=1), 1e-9)[:, None]
             kappa = peer_kappa(float(self.p["peer_inflation"]), self.uses[me, you])
             np.add.at(self.uses, (me, you), 1)
-            var = ranged.var[ok] + kappa * np.einsum("mi,mij,mj->m", u, cov, u)
+            var = ranged.var[ok] + kappa * np.einsum("mi,mij,mj->m", u, cov, u) + offset
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
-                                 other=point, dev=ranged.dev[ok]))
+                                 other=point, dev=ranged.dev[ok], lever=l_me, lever_j=np.zeros_like(l_me)))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
 
     def _hear(self, messages: list) -> None:
