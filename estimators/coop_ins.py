@@ -161,6 +161,16 @@ class SwarmIns:
             self.P[i, :N_ERR, :N_ERR] = P0
         self.active[i] = True
 
+    def set_white_noise(self, k: np.ndarray, accel_density: np.ndarray, gyro_density: np.ndarray) -> None:
+        """Filters k (m,) assume white densities accel_density (m,) m/s^2/sqrt(Hz) and gyro_density
+        (m,) rad/s/sqrt(Hz) from now on (their bias walks unchanged); folds what was accumulated."""
+        self.fold()
+        if self._q_rate.ndim == 1:
+            self._q_rate = np.tile(self._q_rate, (self.n, 1))
+        self._q_rate[k, V_] = np.asarray(accel_density, float)[:, None] ** 2
+        self._q_rate[k, TH] = np.asarray(gyro_density, float)[:, None] ** 2
+        self._dt = None  # Q is rebuilt at the next step
+
     # ------------------------------------------------------------------ propagation
     def propagate(self, f: np.ndarray, w: np.ndarray, dt: float) -> None:
         """Every active vehicle over dt (s) with its held IMU sample f (n, 3) m/s^2, w (n, 3) rad/s

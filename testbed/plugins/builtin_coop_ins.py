@@ -19,7 +19,8 @@ filter's own uncertainty (linear_ranges: the neglected second-order term of the 
 `linearity` times its noise sd): at a first SPP fix, metres of height sigma straddle the height
 of the anchors and of the neighbours, a range cannot tell above from below, and fused there it
 made the filter sure of the wrong side; such a range is skipped (counted) until the fixes have
-narrowed the prior.
+narrowed the prior; a filter whose anchor ranges were all skipped at UNLOCK_EPOCHS epochs in a row
+takes them all at the last (counted, `forced_ranges`), so none is skipped for good.
 
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
@@ -45,8 +46,15 @@ skipped (counted). Or, given a position in `initial_pose`, at its first IMU samp
 (health `unstarted_vehicles`, stderr). Each vehicle's IMU noise and bias priors come from its own
 IMU table (estimators.sensor_models.vehicle_imu).
 
+Sites: every row is taken at the lever arm of the site it measures (a GNSS antenna, any of a
+vehicle's UWB tags, a height's site; estimators.coop_ins.Rows.lever). Heights (stream `height`,
+the up coordinate of a site or a body's origin, m world) are a fix's third row, with the row's
+sigma (a row without one, or before its vehicle started, skipped and counted). The distributed
+filter broadcasts each vehicle's reference antenna (its `uwb` site, else the body origin).
+
 Noise: IMU white noise and bias walks from the declared [sensors.imu] (a Gauss-Markov bias of
-sigma s, time constant tau as a walk of density s sqrt(2 / tau), as nav.eskf); initial bias
+sigma s, time constant tau as a walk of density s sqrt(2 / tau), as nav.eskf), the white
+densities then measured on the samples (`imu_noise_window`, estimators.imu_adapt); initial bias
 uncertainty: turn-on and Gauss-Markov sigmas, plus, for the accelerometer, the declared
 scale-factor and misalignment sigmas times g (the 15 states have no scale factors: near hover a
 scale or misalignment error of the accelerometer is a constant error of the 1 g it reads, which
@@ -63,11 +71,11 @@ the estimate had drifted).
 
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
-(m/s, 1.0), output_every (1), initial_pose ({}); distributed only: network (a [network] table, docs/network.md;
+(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100); distributed only: network (a [network] table, docs/network.md;
 absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
 (1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges;
 distributed also inconsistent_broadcasts (checked_broadcast), nonlinear_ranges (ranges a flown
-filter skipped, linear_ranges) and the network's sent, delivered, dropped, bytes_sent and
+filter skipped, linear_ranges), forced_ranges (nonlinear ones taken all the same, _unlock) and the network's sent, delivered, dropped, bytes_sent and
 latency_p50_us / latency_p95_us.
 """
 from __future__ import annotations
@@ -83,7 +91,7 @@ from testbed.config import from_dict, key
 from testbed.sim.network import Network
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
-from testbed.plugins.builtin_eskf import StartParams, heading, initial_poses, levelled_start, note_unstarted
+from testbed.plugins.builtin_eskf import StartParams, heading, imu_adapter, initial_poses, levelled_start, note_unstarted
 from testbed.plugins.params import fields_of, read
 
 
@@ -132,6 +140,7 @@ class CoopIns:
         self.n = n = len(self.vehicles)
         imus = [vehicle_imu(context.sensors["imu"], v) for v in self.vehicles]  # each vehicle's own
         noise = [imu_noise(imu) for imu in imus]
+        self.adapt = imu_adapter(self.p, noise)
         noise = noise[0] if all(k == noise[0] for k in noise) else noise * self.copies
         self.bias0, self.bias_var = (np.array(a) for a in zip(*(_bias_prior(imu) for imu in imus)))  # (n, 6) each
         self.poses = initial_poses(self.p, self.vehicles, type(self).__name__)
@@ -241,6 +250,12 @@ class CoopIns:
         t, got = self.t_imu, ~np.isnan(self.new[:, 0])
         self._advance(t)
         self.held[got] = self.new[got]
+        if self.adapt is not None:
+            done = self.adapt.add(np.flatnonzero(got), t, self.new[got])
+            if done.size:  # both filters of each vehicle (the distributed one's copies)
+                k = np.concatenate([done + c * self.n for c in range(self.copies)])
+                density = np.tile(self.adapt.density[done], (self.copies, 1))
+                self.ins.set_white_noise(k, density[:, 0], density[:, 1])
         self.new[:] = np.nan
         for i, pose in self._posed:  # started from its initial pose at its first sample
             if got[i] and not self.ins.active[i]:
@@ -417,6 +432,8 @@ class CoopInsDistributed(CoopIns):
         self.threshold = float(chi2.isf(check, 3)) if check > 0 else np.inf
         self.counts["inconsistent_broadcasts"] = 0
         self.counts["nonlinear_ranges"] = 0
+        self.counts["forced_ranges"] = 0
+        self.locked = np.zeros(2 * self.n, int)  # per filter: epochs in a row with every anchor range nonlinear
         net = self.p["network"]
         self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
                                self.n, context.rng)
@@ -463,6 +480,7 @@ class CoopInsDistributed(CoopIns):
             if linearity > 0:  # a fix always; an anchor range where it is linear in the filter's uncertainty
                 rng = np.flatnonzero(copy.component == 3)
                 lin = linear_ranges(s_all[copy.i[rng]], C_all[copy.i[rng]], copy.other[rng], copy.var[rng], linearity)
+                lin = self._unlock(copy.i[rng], lin)
                 self.counts["nonlinear_ranges"] += int((~lin & (copy.i[rng] < n)).sum())
                 keep = np.ones(copy.z.size, bool)
                 keep[rng[~lin]] = False
@@ -494,6 +512,22 @@ class CoopInsDistributed(CoopIns):
                                  other=point, dev=ranged.dev[ok], lever=l_me, lever_j=np.zeros_like(l_me)))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
 
+    def _unlock(self, i: np.ndarray, lin: np.ndarray) -> np.ndarray:
+        """lin (m,) of anchor ranges of filters i (m,), with every range of a filter taken (counted in
+        `forced_ranges`) at its UNLOCK_EPOCHS-th epoch in a row whose anchor ranges were all nonlinear:
+        a filter whose covariance has grown past what one range can linearly correct would otherwise
+        skip every anchor range for good (its line-searched update keeps the step from overshooting)."""
+        f = np.unique(i)
+        skipped = np.bincount(i, lin, minlength=self.locked.size)[f] == 0  # no linear range this epoch
+        self.locked[f] = np.where(skipped, self.locked[f] + 1, 0)
+        due = f[self.locked[f] >= UNLOCK_EPOCHS]
+        if due.size:
+            force = np.isin(i, due)
+            self.counts["forced_ranges"] += int((force & ~lin & (i < self.n)).sum())
+            lin = lin | force
+            self.locked[due] = 0
+        return lin
+
     def _hear(self, messages: list) -> None:
         """Hold each sender's newest broadcast (by its time; of equal times the last to arrive) at
         each receiver: the messages received, in arrival order per receiver."""
@@ -509,6 +543,11 @@ class CoopInsDistributed(CoopIns):
         self.heard_t[r, k] = tb[last]
         for held, f in ((self.heard_s, 1), (self.heard_v, 2), (self.heard_cs, 3), (self.heard_cv, 4)):
             held[r, k] = np.array([messages[i].payload[f] for i in last.tolist()]).reshape(len(last), *held.shape[2:])
+
+
+# After this many epochs in a row with every anchor range of a filter skipped as nonlinear, its
+# anchor ranges are taken all the same (CoopInsDistributed._unlock): at 5 Hz ranging, 1 s.
+UNLOCK_EPOCHS = 5
 
 
 def linear_ranges(s: np.ndarray, C: np.ndarray, other: np.ndarray, var: np.ndarray, factor: float) -> np.ndarray:
