@@ -31,8 +31,8 @@ use another's broadcast estimate without counting shared information twice).
 Heights (a recorded dataset's `height` stream: the up coordinate of a site or of a body's origin,
 m world): each updates its vehicle's filter as a position's third row, with the row's sigma.
 Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections counted); after
-GATE_LOCK_EPOCHS range epochs in a row with every range rejected, the covariance is inflated until
-the epoch's least surprising range passes (health `gate_inflations`; docs/estimators.md). The white
+GATE_LOCK_EPOCHS range epochs in a row with every range rejected, the position's covariance is
+opened until every range of the epoch passes (health `gate_inflations`; docs/estimators.md). The white
 IMU densities are measured on the samples (`imu_noise_window`, estimators.imu_adapt), floored at the
 declared ones.
 
@@ -99,7 +99,7 @@ class StartParams:
 
 
 # The gate's release (NavEskf._ranges): after this many range epochs in a row with every range
-# rejected, the covariance is inflated until the epoch's least surprising range passes. A
+# rejected, the position's covariance is opened until every range of the epoch passes. A
 # consistent filter rejects a whole epoch with probability at most gate_prob (1e-4) x its ranges:
 # five in a row do not happen to it; a filter that has drifted away from its ranges gets back.
 GATE_LOCK_EPOCHS = 5
@@ -354,11 +354,12 @@ class NavEskf:
         keep = eskf.screen(f.P, z - h, H, Rn, self.gate[1])
         f.locked = 0 if keep.any() else f.locked + 1
         if f.locked >= GATE_LOCK_EPOCHS:
-            # the gate's release: P <- lambda P, lambda = min_k NIS_k / gate (the least surprising
-            # range of the epoch then sits at the gate, and passes it)
-            S = np.einsum("ij,jk,ik->i", H, f.P, H)
-            lam = float(np.min(((z - h) ** 2 - self.gate[1] * np.diag(Rn)) / (self.gate[1] * S)))
-            f.P = f.P * max(lam, 1.0) * (1.0 + 1e-9)
+            # the gate's release: the position re-opened, P[p, p] += delta I, with
+            # delta = max_k (r_k^2 / g - S_k): a range's H has a unit vector on the position, so
+            # S_k grows by delta and every range of the epoch then passes
+            S = np.einsum("ij,jk,ik->i", H, f.P, H) + np.diag(Rn)
+            delta = float(np.max((z - h) ** 2 / self.gate[1] - S)) * (1.0 + 1e-9)
+            f.P[eskf.P, eskf.P] += max(delta, 0.0) * np.eye(3)
             keep = eskf.screen(f.P, z - h, H, Rn, self.gate[1])
             f.locked = 0
             self.counts["gate_inflations"] += 1
