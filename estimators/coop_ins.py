@@ -22,9 +22,11 @@ the last update are accumulated, Phi <- F Phi, Qa <- F Qa F^T + Q, and applied t
 once before an update, P <- Phi P Phi^T + Qa (block-diagonal Phi: the same product as step by
 step); each vehicle's own block is formed at every output.
 
-Measurements (lever arm l (3,) m of the antenna in the body frame, antenna s = p + R l,
+Measurements (lever arm l (3,) m in the body frame of the site a row measures: the GNSS antenna,
+any one of the vehicle's UWB tags, a height's site (Rows.lever); s = p + R l,
 ds/ddx = [I, 0, -R [l]x, 0, 0]; c_d the antenna delay of UWB device d, a constant state):
     GNSS fix (3 rows)       z = s_i + e                        R = diag(sigma^2)
+    height (1 row)          z = e_3^T s_i + e                  (a fix's third row)
     range to an anchor a    z = |s_i - a| + c_i + c_a + e      H_i = u^T ds_i/ddx, u = (s_i - a) / |s_i - a|
     range between i and j   z = |s_i - s_j| + c_i + c_j + e    H_i = u^T ds_i/ddx, H_j = -u^T ds_j/ddx
 (a 1 in the columns of the delays). Centralized (`joint=True`): P is the swarm's joint
@@ -69,7 +71,10 @@ class Rows:
     component (m,) (0..2: a GNSS fix axis; 3: a range), for a range the other end's point other
     (m, 3) m world (an anchor, or the broadcast antenna of j in the distributed filter; NaN where
     j's own state is used: the centralized range between vehicles), and dev (m, 2) the devices
-    whose antenna delays bias the range (-1: none; every row of a fix)."""
+    whose antenna delays bias the range (-1: none; every row of a fix). lever (m, 3) m body frame:
+    the site of vehicle i the row measures (a GNSS antenna, a UWB tag, a height's site), lever_j
+    (m, 3) the tag of vehicle j (a centralized range between vehicles); None: each vehicle's
+    reference antenna (SwarmIns.lever)."""
 
     z: np.ndarray
     var: np.ndarray
@@ -78,11 +83,18 @@ class Rows:
     component: np.ndarray
     other: np.ndarray
     dev: np.ndarray
+    lever: np.ndarray | None = None
+    lever_j: np.ndarray | None = None
 
     def subset(self, keep: np.ndarray) -> "Rows":
         """The rows `keep` (bool or indices)."""
         return Rows(z=self.z[keep], var=self.var[keep], i=self.i[keep], j=self.j[keep], component=self.component[keep],
-                    other=self.other[keep], dev=self.dev[keep])
+                    other=self.other[keep], dev=self.dev[keep], lever=None if self.lever is None else self.lever[keep],
+                    lever_j=None if self.lever_j is None else self.lever_j[keep])
+
+    def replace(self, **changes) -> "Rows":
+        """These rows with the columns `changes` replaced."""
+        return Rows(**{**{f: getattr(self, f) for f in Rows.__dataclass_fields__}, **changes})
 
 
 def _q_rate(noise: ImuNoise) -> np.ndarray:
@@ -150,6 +162,16 @@ class SwarmIns:
             self.P[i, :, :N_ERR] = 0.0
             self.P[i, :N_ERR, :N_ERR] = P0
         self.active[i] = True
+
+    def set_white_noise(self, k: np.ndarray, accel_density: np.ndarray, gyro_density: np.ndarray) -> None:
+        """Filters k (m,) assume white densities accel_density (m,) m/s^2/sqrt(Hz) and gyro_density
+        (m,) rad/s/sqrt(Hz) from now on (their bias walks unchanged); folds what was accumulated."""
+        self.fold()
+        if self._q_rate.ndim == 1:
+            self._q_rate = np.tile(self._q_rate, (self.n, 1))
+        self._q_rate[k, V_] = np.asarray(accel_density, float)[:, None] ** 2
+        self._q_rate[k, TH] = np.asarray(gyro_density, float)[:, None] ** 2
+        self._dt = None  # Q is rebuilt at the next step
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, f: np.ndarray, w: np.ndarray, dt: float) -> None:
@@ -228,30 +250,40 @@ class SwarmIns:
 
     # ------------------------------------------------------------------ update
     def antennas(self) -> tuple[np.ndarray, np.ndarray]:
-        """Antenna positions s (n, 3) m world and ds/ddtheta = -R [l]x (n, 3, 3)."""
+        """Reference antenna positions s (n, 3) m world and ds/ddtheta = -R [l]x (n, 3, 3)."""
         R = quat_to_rotmat(self.q)
         return self.p + np.einsum("nij,nj->ni", R, self.lever), -R @ skew(self.lever)
+
+    def _sites(self, i: np.ndarray, lever: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Positions s (m, 3) m world of sites at lever (m, 3) m body frame on vehicles i (m,), and
+        ds/ddtheta = -R [l]x (m, 3, 3); lever None: the vehicles' reference antennas."""
+        if lever is None:
+            s, dS = self.antennas()
+            return s[i], dS[i]
+        R = quat_to_rotmat(self.q)[i]
+        return self.p[i] + np.einsum("mij,mj->mi", R, lever), -R @ skew(lever)
 
     def _linearize(self, rows: Rows, jacobians: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """h (m,) at the current state, and the Jacobians: Hi (m, 15) on vehicle i's core, Hj (m, 15)
         on vehicle j's (pair rows of the centralized filter; zero otherwise); the delay columns
         are rows.dev (each 1). jacobians False: h only (Hi, Hj None)."""
-        s, dS = self.antennas()
+        si, dSi = self._sites(rows.i, rows.lever)
         m = rows.z.size
         h = np.zeros(m)
         Hi, Hj = (np.zeros((m, N_ERR)), np.zeros((m, N_ERR))) if jacobians else (None, None)
         fix = rows.component < 3
         k = np.flatnonzero(fix)
-        c, i = rows.component[k], rows.i[k]
-        h[k] = s[i, c]
+        c = rows.component[k]
+        h[k] = si[k, c]
         if jacobians:
             Hi[k, c] = 1.0
-            Hi[k, 6:9] = dS[i, c]
+            Hi[k, 6:9] = dSi[k, c]
         k = np.flatnonzero(~fix)
         if k.size:
             i, j = rows.i[k], rows.j[k]
             known = ~np.isnan(rows.other[k, 0])
-            d = s[i] - np.where(known[:, None], rows.other[k], s[np.maximum(j, 0)])
+            sj, dSj = self._sites(np.maximum(j, 0), None if rows.lever_j is None else rows.lever_j[k])
+            d = si[k] - np.where(known[:, None], rows.other[k], sj)
             dist = np.linalg.norm(d, axis=1)
             h[k] = dist
             if self.D:
@@ -261,10 +293,10 @@ class SwarmIns:
             if jacobians:
                 u = d / np.maximum(dist, 1e-9)[:, None]
                 Hi[k, 0:3] = u
-                Hi[k, 6:9] = np.einsum("mk,mkl->ml", u, dS[i])
+                Hi[k, 6:9] = np.einsum("mk,mkl->ml", u, dSi[k])
                 pair = ~known
                 Hj[k[pair], 0:3] = -u[pair]
-                Hj[k[pair], 6:9] = -np.einsum("mk,mkl->ml", u[pair], dS[j[pair]])
+                Hj[k[pair], 6:9] = -np.einsum("mk,mkl->ml", u[pair], dSj[pair])
         return h, Hi, Hj
 
     def _dense(self, rows: Rows, Hi: np.ndarray, Hj: np.ndarray) -> np.ndarray:
@@ -325,8 +357,7 @@ class SwarmIns:
         if huber is not None:
             nu = np.abs(r) / np.sqrt(S_diag)
             w = np.where(rows.component == 3, huber_weight(nu, huber), 1.0)
-            rows = Rows(z=rows.z, var=rows.var / w, i=rows.i, j=rows.j, component=rows.component, other=rows.other,
-                        dev=rows.dev)
+            rows = rows.replace(var=rows.var / w)
         rows = rows.subset(ok)
         step = self._joint_step if self.joint else self._local_step
         dx, g = None, None  # the iterate (None: the prior) and P^-1 times it (damped only; P is the prior until the end)

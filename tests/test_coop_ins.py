@@ -45,15 +45,20 @@ def _rows(s: ci.SwarmIns, pairs: bool, anchors: np.ndarray, rng, devices: bool =
                    other=np.array(other, float), dev=np.array(dev, int))
 
 
+@pytest.mark.parametrize("per_row", [False, True])
 @pytest.mark.parametrize("joint", [True, False])
-def test_jacobians_match_finite_differences(joint):
+def test_jacobians_match_finite_differences(joint, per_row):
     """H of every row (GNSS, anchor range, range between vehicles (centralized), antenna delays)
-    against central differences of h under x (+) dx, each error state in turn."""
+    against central differences of h under x (+) dx, each error state in turn; per_row: each row
+    at its own site's lever arm (several tags per vehicle, Rows.lever and lever_j)."""
     n, A = 3, 2
     rng = np.random.default_rng(1)
     s = _swarm(joint, n, devices=n + A)
     s.c = rng.normal(0, 0.05, s.c.shape)
     rows = _rows(s, joint, rng.normal(0, 20, (A, 3)), rng, devices=True)
+    if per_row:
+        rows = rows.replace(lever=rng.normal(0, 0.3, (rows.z.size, 3)), lever_j=rng.normal(0, 0.3, (rows.z.size, 3)))
+        assert np.abs(s._linearize(rows)[0] - s._linearize(rows.replace(lever=None, lever_j=None))[0]).max() > 1e-3
     h, Hi, Hj = s._linearize(rows)
     H = s._dense(rows, Hi, Hj) if joint else s._local(rows, Hi)
     x0 = (s.p, s.v, s.q, s.ba, s.bg, s.c)

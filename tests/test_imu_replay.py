@@ -176,11 +176,12 @@ def test_without_gnss_a_filter_starts_from_its_initial_pose(dataset, tmp_path, e
     assert len(lines) == 1 and "uav3" in lines[0] and "uav1" not in lines[0] and "initial_pose" in lines[0], err
 
 
-def test_nav_eskf_updates_on_the_height_stream(dataset, tmp_path):
+@pytest.mark.parametrize("entry", FILTERS)
+def test_an_imu_filter_updates_on_the_height_stream(dataset, tmp_path, entry):
     """A height.csv (each body's true up coordinate at 10 Hz from 0.5 s plus N(0, 0.05^2) noise, declared
-    sigma 0.05 m): nav.eskf's vertical variance at the end falls below that of the same replay
+    sigma 0.05 m): the filter's vertical variance at the end falls below that of the same replay
     without it, and every height row is used (nothing skipped). Before: the stream was ignored
-    (the two replays were identical)."""
+    (the two replays were identical; coop.ins and coop.ins_distributed until this stop)."""
     rng = np.random.default_rng(3)
     rows = ["time,site,value,sigma"]
     with open(dataset / "truth.csv") as f:
@@ -192,11 +193,11 @@ def test_nav_eskf_updates_on_the_height_stream(dataset, tmp_path):
     heights = _variant(dataset, tmp_path / "b")
     (heights.parent / "height.csv").write_text("\n".join(rows) + "\n")
     for spec, out in ((plain, "ra"), (heights, "rb")):
-        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", "nav.eskf"]) == 0
+        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry]) == 0
     a, b = (_one(load_tracks(tmp_path / k / ESTIMATES_FILE)) for k in ("ra", "rb"))
     for body in BODIES:
         assert b[(body, "position")].cov[-1][2, 2] < a[(body, "position")].cov[-1][2, 2], body
-    ha, hb = (json.loads((tmp_path / k / "metrics.json").read_text())["estimators"]["nav.eskf"]["health"] for k in ("ra", "rb"))
+    ha, hb = (json.loads((tmp_path / k / "metrics.json").read_text())["estimators"][entry]["health"] for k in ("ra", "rb"))
     assert hb["skipped_updates"] == ha["skipped_updates"]
 
 

@@ -19,7 +19,8 @@ filter's own uncertainty (linear_ranges: the neglected second-order term of the 
 `linearity` times its noise sd): at a first SPP fix, metres of height sigma straddle the height
 of the anchors and of the neighbours, a range cannot tell above from below, and fused there it
 made the filter sure of the wrong side; such a range is skipped (counted) until the fixes have
-narrowed the prior.
+narrowed the prior; a filter whose anchor ranges were all skipped at UNLOCK_EPOCHS epochs in a row
+takes them all at the last (counted, `forced_ranges`), so none is skipped for good.
 
 Feeding. IMU samples of one instant (every vehicle's, 100 Hz in coop-denied) are applied
 together: the filters are propagated from the previous instant with the previous samples held
@@ -45,8 +46,15 @@ skipped (counted). Or, given a position in `initial_pose`, at its first IMU samp
 (health `unstarted_vehicles`, stderr). Each vehicle's IMU noise and bias priors come from its own
 IMU table (estimators.sensor_models.vehicle_imu).
 
+Sites: every row is taken at the lever arm of the site it measures (a GNSS antenna, any of a
+vehicle's UWB tags, a height's site; estimators.coop_ins.Rows.lever). Heights (stream `height`,
+the up coordinate of a site or a body's origin, m world) are a fix's third row, with the row's
+sigma (a row without one, or before its vehicle started, skipped and counted). The distributed
+filter broadcasts each vehicle's reference antenna (its `uwb` site, else the body origin).
+
 Noise: IMU white noise and bias walks from the declared [sensors.imu] (a Gauss-Markov bias of
-sigma s, time constant tau as a walk of density s sqrt(2 / tau), as nav.eskf); initial bias
+sigma s, time constant tau as a walk of density s sqrt(2 / tau), as nav.eskf), the white
+densities then measured on the samples (`imu_noise_window`, estimators.imu_adapt); initial bias
 uncertainty: turn-on and Gauss-Markov sigmas, plus, for the accelerometer, the declared
 scale-factor and misalignment sigmas times g (the 15 states have no scale factors: near hover a
 scale or misalignment error of the accelerometer is a constant error of the 1 g it reads, which
@@ -63,11 +71,11 @@ the estimate had drifted).
 
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
-(m/s, 1.0), output_every (1), initial_pose ({}); distributed only: network (a [network] table, docs/network.md;
+(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100); distributed only: network (a [network] table, docs/network.md;
 absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
 (1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges;
 distributed also inconsistent_broadcasts (checked_broadcast), nonlinear_ranges (ranges a flown
-filter skipped, linear_ranges) and the network's sent, delivered, dropped, bytes_sent and
+filter skipped, linear_ranges), forced_ranges (nonlinear ones taken all the same, _unlock) and the network's sent, delivered, dropped, bytes_sent and
 latency_p50_us / latency_p95_us.
 """
 from __future__ import annotations
@@ -83,7 +91,7 @@ from testbed.config import from_dict, key
 from testbed.sim.network import Network
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
-from testbed.plugins.builtin_eskf import StartParams, heading, initial_poses, levelled_start, note_unstarted
+from testbed.plugins.builtin_eskf import StartParams, heading, imu_adapter, initial_poses, levelled_start, note_unstarted
 from testbed.plugins.params import fields_of, read
 
 
@@ -114,6 +122,7 @@ class CoopInsDistributedParams(CoopInsParams):
 
 BROADCAST_BYTES = 8 * (3 + 3 + 6 + 6 + 1)  # float64: antenna position, velocity, their 6 covariance entries each, time
 NAN3 = np.full(3, np.nan)  # "no other end" in a row (EpochRows.other)
+ZERO3 = np.zeros(3)  # a body's origin (EpochRows.lever)
 
 
 class CoopIns:
@@ -131,6 +140,7 @@ class CoopIns:
         self.n = n = len(self.vehicles)
         imus = [vehicle_imu(context.sensors["imu"], v) for v in self.vehicles]  # each vehicle's own
         noise = [imu_noise(imu) for imu in imus]
+        self.adapt = imu_adapter(self.p, noise)
         noise = noise[0] if all(k == noise[0] for k in noise) else noise * self.copies
         self.bias0, self.bias_var = (np.array(a) for a in zip(*(_bias_prior(imu) for imu in imus)))  # (n, 6) each
         self.poses = initial_poses(self.p, self.vehicles, type(self).__name__)
@@ -175,7 +185,7 @@ class CoopIns:
             self._close(m.arrival)
         if m.stream == "imu":
             out = self._imu(m)
-        elif m.stream in ("gnss", "uwb"):
+        elif m.stream in ("gnss", "uwb", "height"):
             self._take(m)
         return out
 
@@ -240,6 +250,12 @@ class CoopIns:
         t, got = self.t_imu, ~np.isnan(self.new[:, 0])
         self._advance(t)
         self.held[got] = self.new[got]
+        if self.adapt is not None:
+            done = self.adapt.add(np.flatnonzero(got), t, self.new[got])
+            if done.size:  # both filters of each vehicle (the distributed one's copies)
+                k = np.concatenate([done + c * self.n for c in range(self.copies)])
+                density = np.tile(self.adapt.density[done], (self.copies, 1))
+                self.ins.set_white_noise(k, density[:, 0], density[:, 1])
         self.new[:] = np.nan
         for i, pose in self._posed:  # started from its initial pose at its first sample
             if got[i] and not self.ins.active[i]:
@@ -274,14 +290,20 @@ class CoopIns:
             if link is not None:
                 self.rows.add([float(m.value[0])], [float(m.sigma[0])], *([x] for x in link))
             return
-        i = self._vehicle(m.src)
+        i, lever = self._vehicle(m.src)
         if i is None:
             return
+        if m.stream == "height":  # the up coordinate of a site: a fix's third row
+            if not self.ins.active[i] or m.sigma is None:
+                self.counts["skipped_updates"] += 1
+                return
+            self.rows.add([float(m.value[0])], [float(m.sigma[0])], [i], [-1], [2], [NAN3], [(-1, -1)], [lever], [ZERO3])
+            return
         if not self.ins.active[i]:
-            self._start(i, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, self.lever[i])
+            self._start(i, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, lever)
             return
         self.rows.add([float(x) for x in m.value[:3]], [float(x) for x in m.sigma[:3]], [i] * 3, [-1] * 3, [0, 1, 2],
-                      [NAN3] * 3, [(-1, -1)] * 3)
+                      [NAN3] * 3, [(-1, -1)] * 3, [lever] * 3, [ZERO3] * 3)
 
     def _take_ranges(self, b: MeasurementBatch) -> None:
         """_take of every row of a UWB batch, in order, an epoch (rows of one time) at a time."""
@@ -295,26 +317,25 @@ class CoopIns:
             if k:
                 self.rows.add(b.value[lo:hi, 0][k].tolist(), b.sigma[lo:hi, 0][k].tolist(), *zip(*(links[r] for r in k)))
 
-    def _vehicle(self, src: str) -> int | None:
-        """The filter of the vehicle of antenna site src (None: not a vehicle's); its lever arm
-        must be the one of the filter's antenna."""
-        v, lever = self.sites[src] if src in self.sites else (src.partition("/")[0], np.zeros(3))
-        i = self.body.get(v)
-        if i is not None and np.abs(np.asarray(lever) - self.lever[i]).max() > 1e-9:
-            raise ValueError(f"{src}: GNSS and UWB must share the antenna site (set [sensors.gnss] antenna = \"uwb\")")
-        return i
+    def _vehicle(self, src: str) -> tuple[int | None, np.ndarray]:
+        """(the filter of the vehicle of site src (None: not a vehicle's), the site's lever arm (3,)
+        m body frame); "uavI/base" or an unknown site of a vehicle is its body origin."""
+        v, lever = self.sites[src] if src in self.sites else (src.partition("/")[0], ZERO3)
+        return self.body.get(v), np.asarray(lever, float)
 
     def _link(self, src: str, dst: str) -> tuple | None:
         """The row template of a range src -> dst: (i, j (-1: an anchor), component 3, the
-        anchor's position (3,) (NaN between vehicles), the two devices' delay states (-1: none));
-        None for a range the filters do not use. Cached per link."""
+        anchor's position (3,) (NaN between vehicles), the two devices' delay states (-1: none),
+        the lever arms (3,) m of the tags src and dst (zero at an anchor)); None for a range the
+        filters do not use. Cached per link."""
         if (src, dst) not in self._links:
-            i, link = self._vehicle(src), None
+            (i, lever), link = self._vehicle(src), None
             dev = (self.device.get(src, -1), self.device.get(dst, -1))
             if i is not None and dst in self.anchors:
-                link = (i, -1, 3, self.anchors[dst], dev)
+                link = (i, -1, 3, self.anchors[dst], dev, lever, ZERO3)
             elif i is not None and dst.partition("/")[0] in self.body:
-                link = (i, self.body[dst.partition("/")[0]], 3, NAN3, dev)
+                j, lever_j = self._vehicle(dst)
+                link = (i, j, 3, NAN3, dev, lever, lever_j)
             self._links[(src, dst)] = link
         return self._links[(src, dst)]
 
@@ -348,7 +369,8 @@ class CoopIns:
         var = sigma ** 2
         var[rng] = range_variances(self.uwb, sigma[rng], z[rng], antenna_delays=not self.device)
         rows = ci.Rows(z=z, var=var, i=np.array(rows.i, int), j=np.array(rows.j, int), component=comp,
-                       other=np.array(rows.other, float), dev=np.array(rows.dev, int))
+                       other=np.array(rows.other, float), dev=np.array(rows.dev, int), lever=np.array(rows.lever, float),
+                       lever_j=np.array(rows.lever_j, float))
         self.counts["epochs"] += 1
         rows = self._rows(t, now, rows)
         status = self.ins.update(rows, self.gate, int(self.p["iterations"]), float(self.p["huber"]) or None)
@@ -376,8 +398,9 @@ def equal_time_runs(t: np.ndarray) -> list[tuple[int, int]]:
 @dataclass(slots=True)
 class EpochRows:
     """The rows of the open epoch as growing columns: value z and declared sigma (m), filter i,
-    other vehicle j (-1: none), component (0-2: a GNSS axis, 3: a range), other end's position
-    (3,) m world (NaN: none), delay states of the two devices (2,) (-1: none)."""
+    other vehicle j (-1: none), component (0-2: a GNSS axis, 2 also a height, 3: a range), other
+    end's position (3,) m world (NaN: none), delay states of the two devices (2,) (-1: none), lever
+    arms (3,) m body frame of the measured site on i and of the tag on j (zero: none)."""
 
     z: list = field(default_factory=list)
     sigma: list = field(default_factory=list)
@@ -386,11 +409,13 @@ class EpochRows:
     component: list = field(default_factory=list)
     other: list = field(default_factory=list)
     dev: list = field(default_factory=list)
+    lever: list = field(default_factory=list)
+    lever_j: list = field(default_factory=list)
 
-    def add(self, z, sigma, i, j, component, other, dev) -> None:
+    def add(self, z, sigma, i, j, component, other, dev, lever, lever_j) -> None:
         """Append rows: sequences of one length, one per column."""
-        for column, rows in zip((self.z, self.sigma, self.i, self.j, self.component, self.other, self.dev),
-                                (z, sigma, i, j, component, other, dev)):
+        for column, rows in zip((self.z, self.sigma, self.i, self.j, self.component, self.other, self.dev, self.lever,
+                                 self.lever_j), (z, sigma, i, j, component, other, dev, lever, lever_j)):
             column.extend(rows)
 
 
@@ -407,6 +432,8 @@ class CoopInsDistributed(CoopIns):
         self.threshold = float(chi2.isf(check, 3)) if check > 0 else np.inf
         self.counts["inconsistent_broadcasts"] = 0
         self.counts["nonlinear_ranges"] = 0
+        self.counts["forced_ranges"] = 0
+        self.locked = np.zeros(2 * self.n, int)  # per filter: epochs in a row with every anchor range nonlinear
         net = self.p["network"]
         self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
                                self.n, context.rng)
@@ -449,36 +476,57 @@ class CoopInsDistributed(CoopIns):
         mine = rows.subset(~pair)
         linearity = float(self.p["linearity"])
         parts = []
-        for copy in (mine, ci.Rows(z=mine.z, var=mine.var, i=mine.i + n, j=mine.j, component=mine.component,
-                                   other=mine.other, dev=mine.dev)):
+        for copy in (mine, mine.replace(i=mine.i + n)):
             if linearity > 0:  # a fix always; an anchor range where it is linear in the filter's uncertainty
                 rng = np.flatnonzero(copy.component == 3)
                 lin = linear_ranges(s_all[copy.i[rng]], C_all[copy.i[rng]], copy.other[rng], copy.var[rng], linearity)
+                lin = self._unlock(copy.i[rng], lin)
                 self.counts["nonlinear_ranges"] += int((~lin & (copy.i[rng] < n)).sum())
                 keep = np.ones(copy.z.size, bool)
                 keep[rng[~lin]] = False
                 copy = copy.subset(keep)
             parts.append(copy)
         ranged = rows.subset(pair)
-        for me, you in ((ranged.i, ranged.j), (ranged.j, ranged.i)):
+        for me, you, l_me, l_you in ((ranged.i, ranged.j, ranged.lever, ranged.lever_j),
+                                     (ranged.j, ranged.i, ranged.lever_j, ranged.lever)):
             age = t - self.heard_t[me, you]
             ok = np.flatnonzero(age <= self.p["stale_s"])
             self.counts["stale_ranges"] += me.size - ok.size
-            me, you, age = me[ok], you[ok], age[ok]
+            me, you, age, l_me, l_you = me[ok], you[ok], age[ok], l_me[ok], l_you[ok]
             point = self.heard_s[me, you] + self.heard_v[me, you] * age[:, None]
             if linearity > 0:
                 lin = linear_ranges(s_all[me], C_all[me], point, ranged.var[ok], linearity)
                 self.counts["nonlinear_ranges"] += int((~lin).sum())
-                ok, me, you, age, point = ok[lin], me[lin], you[lin], age[lin], point[lin]
+                ok, me, you, age, point, l_me, l_you = ok[lin], me[lin], you[lin], age[lin], point[lin], l_me[lin], l_you[lin]
             cov = self.heard_cs[me, you] + age[:, None, None] ** 2 * self.heard_cv[me, you]
+            # the neighbour broadcasts its reference antenna; a range from another of its tags is
+            # taken to end there, the tags' offset (rotated by an attitude the receiver does not
+            # know) as variance: |l - l_ref|^2 along the range, its largest projection
+            offset = ((l_you - self.lever[you]) ** 2).sum(axis=1)
             u = s_all[me] - point  # the range's direction from the flown filter's antenna
             u /= np.maximum(np.linalg.norm(u, axis=1), 1e-9)[:, None]
             kappa = peer_kappa(float(self.p["peer_inflation"]), self.uses[me, you])
             np.add.at(self.uses, (me, you), 1)
-            var = ranged.var[ok] + kappa * np.einsum("mi,mij,mj->m", u, cov, u)
+            var = ranged.var[ok] + kappa * np.einsum("mi,mij,mj->m", u, cov, u) + offset
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
-                                 other=point, dev=ranged.dev[ok]))
+                                 other=point, dev=ranged.dev[ok], lever=l_me, lever_j=np.zeros_like(l_me)))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
+
+    def _unlock(self, i: np.ndarray, lin: np.ndarray) -> np.ndarray:
+        """lin (m,) of anchor ranges of filters i (m,), with every range of a filter taken (counted in
+        `forced_ranges`) at its UNLOCK_EPOCHS-th epoch in a row whose anchor ranges were all nonlinear:
+        a filter whose covariance has grown past what one range can linearly correct would otherwise
+        skip every anchor range for good (its line-searched update keeps the step from overshooting)."""
+        f = np.unique(i)
+        skipped = np.bincount(i, lin, minlength=self.locked.size)[f] == 0  # no linear range this epoch
+        self.locked[f] = np.where(skipped, self.locked[f] + 1, 0)
+        due = f[self.locked[f] >= UNLOCK_EPOCHS]
+        if due.size:
+            force = np.isin(i, due)
+            self.counts["forced_ranges"] += int((force & ~lin & (i < self.n)).sum())
+            lin = lin | force
+            self.locked[due] = 0
+        return lin
 
     def _hear(self, messages: list) -> None:
         """Hold each sender's newest broadcast (by its time; of equal times the last to arrive) at
@@ -495,6 +543,11 @@ class CoopInsDistributed(CoopIns):
         self.heard_t[r, k] = tb[last]
         for held, f in ((self.heard_s, 1), (self.heard_v, 2), (self.heard_cs, 3), (self.heard_cv, 4)):
             held[r, k] = np.array([messages[i].payload[f] for i in last.tolist()]).reshape(len(last), *held.shape[2:])
+
+
+# After this many epochs in a row with every anchor range of a filter skipped as nonlinear, its
+# anchor ranges are taken all the same (CoopInsDistributed._unlock): at 5 Hz ranging, 1 s.
+UNLOCK_EPOCHS = 5
 
 
 def linear_ranges(s: np.ndarray, C: np.ndarray, other: np.ndarray, var: np.ndarray, factor: float) -> np.ndarray:

@@ -30,15 +30,20 @@ on long stretches without GNSS. Ranges between tags are not used (a filter per v
 use another's broadcast estimate without counting shared information twice).
 Heights (a recorded dataset's `height` stream: the up coordinate of a site or of a body's origin,
 m world): each updates its vehicle's filter as a position's third row, with the row's sigma.
-Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections counted).
+Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections counted); after
+GATE_LOCK_EPOCHS range epochs in a row with every range rejected, the position's covariance is
+opened until every range of the epoch passes (health `gate_inflations`; docs/estimators.md). The white
+IMU densities are measured on the samples (`imu_noise_window`, estimators.imu_adapt), floored at the
+declared ones.
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-initial_pose ({}: per vehicle, InitialPose), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
+initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
 each update, estimators.eskf.update. Measured: no better with four anchors, worse with one; the
 ranges of one epoch in one update is what matters, see `_ranges`).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass
@@ -48,6 +53,7 @@ from scipy.stats import chi2
 
 from estimators import eskf
 from estimators.core import symmetrize
+from estimators.imu_adapt import WINDOW, DifferenceNoise
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from estimators.so3 import quat_to_rotmat
 from testbed.config import check_fields, from_dict, key
@@ -80,6 +86,8 @@ class StartParams:
     tilt0_sigma: float = key(0.05, lo=0, unit="rad", doc="initial tilt uncertainty beyond the levelling error, 1 sigma")
     vel0_sigma: float = key(1.0, lo=0, unit="m/s", doc="initial velocity uncertainty per axis, 1 sigma")
     output_every: int = key(1, lo=1, doc="estimates at every n-th IMU sample")
+    imu_noise_window: int = key(WINDOW, lo=0, doc="IMU white densities measured from the samples' first differences over "
+                                "blocks of this many samples, floored at the declared ones (estimators.imu_adapt; 0: the declared)")
     initial_pose: dict = key(factory=dict, doc="per vehicle {BODY = {position = [x, y, z] (m, world), position_sigma (m, 1), "
                              "yaw_deg (deg), yaw_sigma_deg (deg)}}: with a position, the vehicle starts at its first IMU "
                              "sample without a GNSS fix; its yaw replaces yaw0, yaw0_sigma")
@@ -88,6 +96,21 @@ class StartParams:
         check_fields(self)
         for body, table in self.initial_pose.items():
             from_dict(InitialPose, table, "", f"initial_pose.{body}")
+
+
+# The gate's release (NavEskf._ranges): after this many range epochs in a row with every range
+# rejected, the position's covariance is opened until every range of the epoch passes. A
+# consistent filter rejects a whole epoch with probability at most gate_prob (1e-4) x its ranges:
+# five in a row do not happen to it; a filter that has drifted away from its ranges gets back.
+GATE_LOCK_EPOCHS = 5
+
+
+def imu_adapter(p: dict, noise: list) -> DifferenceNoise | None:
+    """The IMU noise measured from the data (estimators.imu_adapt) of vehicles with declared noise
+    (estimators.eskf.ImuNoise, one each), by params p (StartParams); None when off."""
+    if not p["imu_noise_window"]:
+        return None
+    return DifferenceNoise(np.array([[k.accel_density, k.gyro_density] for k in noise]), int(p["imu_noise_window"]))
 
 
 def initial_poses(p: dict, vehicles, entry: str) -> dict[str, InitialPose]:
@@ -149,10 +172,11 @@ class _Vehicle:
     """One vehicle's filter: nominal x (34 + E,), covariance P (33 + E, 33 + E), time t (s), held
     IMU sample."""
 
-    __slots__ = ("x", "P", "t", "imu", "samples", "ranges", "noise", "bias0", "bias_var", "k_var")
+    __slots__ = ("x", "P", "t", "imu", "samples", "ranges", "noise", "bias0", "bias_var", "k_var", "locked")
 
     def __init__(self, imu: dict):
         self.x, self.P, self.t, self.imu, self.samples = None, None, None, None, 0
+        self.locked = 0  # range epochs in a row whose every range the gate rejected
         # its own declared IMU (estimators.sensor_models.vehicle_imu): noise, bias mean and variances
         acc, gyr = imu["accel"], imu["gyro"]
         self.noise = imu_noise(imu)
@@ -181,7 +205,9 @@ class NavEskf:
         self.delay_index = {name: k for k, name in enumerate(self.anchors, start=1)}
         self.gate = {m: float(chi2.isf(self.p["gate_prob"], m)) for m in (1, 3)}
         self.v = {name: _Vehicle(vehicle_imu(imu, name)) for name in context.vehicles}
-        self.counts = {"rejected_measurements": 0, "skipped_updates": 0}
+        self.adapt = imu_adapter(self.p, [f.noise for f in self.v.values()])
+        self.index = {name: k for k, name in enumerate(self.v)}
+        self.counts = {"rejected_measurements": 0, "skipped_updates": 0, "gate_inflations": 0}
 
     # ------------------------------------------------------------------ the protocol
     def process(self, m: Measurement):
@@ -225,6 +251,9 @@ class NavEskf:
         if f.x is not None:
             self._to(f, m.time)
         f.imu = (value[:3], value[3:])
+        if self.adapt is not None and self.adapt.add([self.index[body]], m.time, value[None]).size:
+            acc, gyr = self.adapt.density[self.index[body]]
+            f.noise = dataclasses.replace(f.noise, accel_density=float(acc), gyro_density=float(gyr))
         if f.x is None:
             f.t = m.time
             pose = self.poses.get(body)
@@ -321,7 +350,19 @@ class NavEskf:
         def model(x, rows=range(len(epoch))):
             hs = [eskf.range_model(x, epoch[k][2], epoch[k][3], epoch[k][4]) for k in rows]
             return np.array([h for h, _ in hs]), np.vstack([H for _, H in hs])
-        keep = eskf.screen(f.P, z - model(f.x)[0], model(f.x)[1], Rn, self.gate[1])
+        h, H = model(f.x)
+        keep = eskf.screen(f.P, z - h, H, Rn, self.gate[1])
+        f.locked = 0 if keep.any() else f.locked + 1
+        if f.locked >= GATE_LOCK_EPOCHS:
+            # the gate's release: the position re-opened, P[p, p] += delta I, with
+            # delta = max_k (r_k^2 / g - S_k): a range's H has a unit vector on the position, so
+            # S_k grows by delta and every range of the epoch then passes
+            S = np.einsum("ij,jk,ik->i", H, f.P, H) + np.diag(Rn)
+            delta = float(np.max((z - h) ** 2 / self.gate[1] - S)) * (1.0 + 1e-9)
+            f.P[eskf.P, eskf.P] += max(delta, 0.0) * np.eye(3)
+            keep = eskf.screen(f.P, z - h, H, Rn, self.gate[1])
+            f.locked = 0
+            self.counts["gate_inflations"] += 1
         self.counts["rejected_measurements"] += int(np.sum(~keep))
         if keep.any():
             rows = np.flatnonzero(keep)
