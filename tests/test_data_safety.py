@@ -14,7 +14,7 @@ import pytest
 from testbed import outdir
 from testbed.cli import main
 
-RUN = ["run", "bandwidth", "--duration", "0.5"]
+RUN = ["run", "bandwidth", "--duration", "0.5", "--no-plots"]  # no test here looks at figures
 
 
 def _refused(capsys, argv: list[str]) -> str:
