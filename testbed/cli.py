@@ -302,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("spec", type=Path, help="the dataset's spec.toml (its tables lie beside it)")
     p.add_argument("--out", type=out_arg, required=True, help="replay directory to write")
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
+    p.add_argument("--no-plots", dest="plots", action="store_false", help="write no figures (plots/ stays empty)")
     _add_estimator_option(p)
 
     p = sub.add_parser("export", help="write a run directory as a recorded dataset (docs/replay.md)")
@@ -424,7 +425,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from testbed.outputs.report import fmt, fmt_anees
 
         apart(args.out, _inputs(args, *dataset_files(args.spec)))  # the spec, its tables or bag
-        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force)
+        metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force, plots=args.plots)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         for name, est in metrics["estimators"].items():
             # every ANEES with its interval and effective samples (docs/consistency.md)
