@@ -219,6 +219,8 @@ def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tm
     assert main(_reproduce_args("rp")) == 0
     resumed, whole = _tree(rp), _tree(tmp_path / "b" / "rp")
     assert sorted(resumed) == sorted(whole)
+    assert not any(f.endswith(".png") and f.startswith("runs/") for f in whole)  # --no-run-plots
+    assert "--no-run-plots" in (rp / "report.md").read_text()  # the command that reproduces it
     assert [f for f in resumed if resumed[f] != whole[f]] == []
     assert _debris(tmp_path) == []
 
