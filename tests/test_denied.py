@@ -136,13 +136,13 @@ def test_video_overlays_read_the_run(flown):
     assert ov.fixed(1.0).shape == (18,)
 
 
-@pytest.mark.slow  # six flights with their estimators and figures, ~30 s
+@pytest.mark.slow  # six flights with their estimators (no run's figures), ~10 s
 def test_reproduce_denied_end_to_end(tmp_path):
     from testbed.reproduce import reproduce
 
     out = tmp_path / "rep"
     # 1.2 s: the distributed window cascade's filters start once its window holds 5 epochs (0.8 s)
-    result = reproduce("denied", out, runs=1, duration=1.2, workers=1)
+    result = reproduce("denied", out, runs=1, duration=1.2, workers=1, run_plots=False)
     ids = {c["id"] for c in result["claims"]}
     assert ids == {f"{v}_{c}" for v in ("coop", "coop_distributed", "coop_onboard", "window", "window_distributed")
                    for c in ("flight_without_contact", "beats_gnss_only")}

@@ -41,7 +41,7 @@ def test_convert_then_replay_every_ranging_estimator(tmp_path, capsys):
     and each tag: the headline is the body's, the tags' summary is apart (`sites`)."""
     t = _trolley()
     spec = t.convert(tmp_path / "data", calibrated=True, seconds=2.0)
-    assert main(["replay", str(spec), "--out", str(tmp_path / "out")]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
     start, end = m["window_s"]
     assert end - start == 2.0 and start > 0.19 * 134.8
@@ -62,7 +62,7 @@ def test_an_estimator_that_gives_nothing_says_why_in_health_and_on_stderr(tmp_pa
     """coop.one_shot on the trolley data (no GNSS, no sites it knows): exit 0, no estimate, and one
     line saying what it was fed and what it counted, in metrics.json's health block and on stderr."""
     spec = _trolley().convert(tmp_path / "data", seconds=0.3)
-    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--estimator", "coop.one_shot"]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--estimator", "coop.one_shot", "--no-plots"]) == 0
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
     reason = m["estimators"]["coop.one_shot"]["health"]["no_estimates"]
     assert reason.startswith("coop.one_shot: no estimates from the rows fed (uwb ") and "health counts" in reason
