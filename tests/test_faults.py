@@ -116,12 +116,12 @@ def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(
 
 
 def _sweep_args(out: str, workers: int = 2) -> list[str]:
-    # without figures (no test here looks at them): a run of 10 s still lasts ~10 polls of _wait_for,
-    # so the SIGINT lands before the last run finishes
+    # without figures (no test here looks at them); a run of 10 s (~0.3 s CPU) still spans several
+    # polls of _wait_for, so the SIGINT lands before the last run finishes
     return ["sweep", "bandwidth", "--runs", "4", "--workers", str(workers), "--duration", "10", "--out", out, "--no-plots"]
 
 
-@pytest.mark.slow  # three sweeps, ~10 s
+@pytest.mark.slow  # three sweeps of four runs without figures
 def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_identical(tmp_path, monkeypatch):
     p = _start(tmp_path, *_sweep_args("sw"))
     _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
