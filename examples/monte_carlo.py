@@ -26,7 +26,7 @@ def main() -> None:
     out = out_dir("monte_carlo")
     shutil.rmtree(out / "sweep", ignore_errors=True)  # a rerun starts afresh (sweep refuses to overwrite)
     sc = testbed.load_scenario("coop-fg", duration=DURATION)
-    sweep(sc, RUNS, out / "sweep", workers=2, progress=False)
+    sweep(sc, RUNS, out / "sweep", workers=2, progress=False, plots=False)  # the runs' own figures: not needed here
     runs = [testbed.load_run(out / "sweep" / f"run-{i:03d}") for i in range(RUNS)]
     names = list(runs[0].metrics["estimators"])
     stats = {n: mean_ci([r.metrics["estimators"][n]["rmse_position_mean_m"] for r in runs]) for n in names}

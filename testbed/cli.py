@@ -249,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--out", type=out_arg, required=True, help="run directory to write")
     p.add_argument("--video", action="store_true", help="also render video.mp4")
+    p.add_argument("--no-plots", dest="plots", action="store_false",
+                   help="write no figures (plots/ stays empty): a short run's figures cost more CPU than its simulation")
     p.add_argument("--fail-on-crash", action="store_true", help="exit with code 1 when a flown vehicle crashed")
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
 
@@ -276,6 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=out_arg, required=True)
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--resume", action="store_true", help="finish an interrupted sweep at --out, skipping its finished runs")
+    p.add_argument("--no-plots", dest="plots", action="store_false",
+                   help="the runs write no figures (run-XXX/plots/ stays empty): they cost more CPU than a short run's simulation")
     _add_backend_options(p)
     _add_quiet_option(p)
 
@@ -295,6 +299,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--motion", choices=["prescribed", "flown"], help="default prescribed (denied: flown, the only choice)")
     p.add_argument("--duration", type=DURATION, help="shorten every run (seconds)")
     p.add_argument("--workers", type=WORKERS, help="worker processes, >= 1")
+    p.add_argument("--no-run-plots", dest="run_plots", action="store_false",
+                   help="the Monte Carlo run directories get no figures (the reproduction's own plots/ are drawn, without run 0's)")
     _add_estimator_option(p)
     _add_backend_options(p)
     _add_quiet_option(p)
@@ -311,6 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an earlier output of the testbed")
     p.add_argument("--calibration", type=Path, metavar="FILE",
                    help="a calibration file (testbed calibrate): ranges corrected, its noise the defaults, its window not scored")
+    p.add_argument("--no-plots", dest="plots", action="store_false", help="write no figures (plots/ stays empty)")
     _add_estimator_option(p)
 
     p = sub.add_parser("calibrate", help="estimate range bias, scale and noise and the process noise on a segment with truth (docs/calibration.md)")
@@ -366,7 +373,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         apart(args.out, _inputs(args))
         sc = _load(args)
-        metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty(), video=args.video)
+        metrics = run(sc, args.out, force=args.force, progress=sys.stderr.isatty(), plots=args.plots, video=args.video)
         rmse = ", ".join(f"{x:.3g}" for x in metrics["tracking_rmse_m"])
         print(f"{sc.name} ({sc.motion}, seed {sc.seed}): tracking RMSE [m]: {rmse}")
         for name, est in metrics["estimators"].items():
@@ -404,7 +411,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         apart(args.out, _inputs(args))
         summary = sweep(_load(args), args.runs, args.out, workers=args.workers, force=args.force, resume=args.resume,
-                        progress=wanted(args.quiet), backend=args.backend, address=args.address)
+                        progress=wanted(args.quiet), backend=args.backend, address=args.address, plots=args.plots)
         print(f"{args.runs} runs -> {args.out}/summary.csv ({len(summary)} scores)")
         return 0
     if args.command == "bench":
@@ -424,7 +431,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         resolve(specs)  # exit 2 on a bad entry before anything is simulated
         with shown(wanted(args.quiet)):
             reproduce(args.paper, args.out, runs=args.runs, motion=args.motion, duration=args.duration, workers=args.workers,
-                      force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume)
+                      force=args.force, estimators=specs, backend=args.backend, address=args.address, resume=args.resume,
+                      run_plots=args.run_plots)
         claims = json.loads((args.out / "claims.json").read_text()).get("claims", [])
         print(f"reproduce {args.paper}: {tally(c.get('holds') for c in claims)} -> {args.out}/report.html")
         return 0
@@ -440,7 +448,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         apart(args.out, _inputs(args, *dataset_files(args.spec), *filter(None, [args.calibration])))
         metrics = replay(args.spec, args.out, estimators=_estimator_specs(args), force=args.force,
-                         calibration=args.calibration)
+                         calibration=args.calibration, plots=args.plots)
         print(f"{args.spec}: {sum(metrics['measurements'].values())} measurements, truth {'yes' if metrics['truth'] else 'no'}")
         if "calibration" in metrics:
             c = metrics["calibration"]

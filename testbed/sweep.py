@@ -43,11 +43,11 @@ from testbed.config.scenario import Scenario
 from testbed.workers import backend as use_backend, current_backend, run_parallel
 
 
-def _one(args: tuple[dict, int, str]) -> None:
-    table, seed, out = args
+def _one(args: tuple[dict, int, str, bool]) -> None:
+    table, seed, out, plots = args
     scenario = from_dict(Scenario, {**table, "seed": seed}, "sweep")
     try:
-        run(scenario, Path(out), progress=False)
+        run(scenario, Path(out), progress=False, plots=plots)
     except EstimatorsFailed:  # the run is written, marked incomplete; the sweep reports it at the end
         pass
 
@@ -134,7 +134,8 @@ def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> d
 
 
 def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = None, force: bool = False,
-          resume: bool = False, progress: bool = True, backend: str | None = None, address: str | None = None) -> dict:
+          resume: bool = False, progress: bool = True, backend: str | None = None, address: str | None = None,
+          plots: bool = True) -> dict:
     """Run `runs` seeds of `scenario` into `out/run-XXX`, aggregate, return the summary.
 
     `out` follows testbed.outdir. Interrupted (Ctrl-C, SIGTERM, SIGHUP): the workers stop, the
@@ -142,7 +143,8 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
     earlier output, which is then left as it was), and the Interrupted exception says so.
     resume: continue the incomplete sweep at `out` (same scenario), skipping finished runs; the
     final summary is byte-identical to an uninterrupted sweep's. progress: a bar over the runs on
-    stderr (testbed.progress).
+    stderr (testbed.progress). plots: each run writes its figures (run-XXX/plots/, testbed.runner.run);
+    False skips them, the bulk of a short run's CPU time.
     backend, address: "local" or "ray" and the Ray address (testbed.workers.backend); None keeps the
     caller's choice (a reproduction's). With Ray, `out` must be on a path every node shares, and
     workers caps the tasks in flight (None: all).
@@ -151,7 +153,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         raise RunError(f"--runs must be at least 1, got {runs}")
     if backend is not None:
         with use_backend(backend, address):
-            return sweep(scenario, runs, out, workers=workers, force=force, resume=resume, progress=progress)
+            return sweep(scenario, runs, out, workers=workers, force=force, resume=resume, progress=progress, plots=plots)
     out = Path(out)
     spec = scenario_mod.dumps(scenario)
     with Output(out, kind="sweep", force=force, resume=resume) as o:
@@ -163,7 +165,7 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
         table = to_dict(scenario)
         done = [i for i in range(runs) if run_complete(d / f"run-{i:03d}")]
         todo = [i for i in range(runs) if i not in done]
-        jobs = [(table, scenario.seed + i, str(d / f"run-{i:03d}")) for i in todo]
+        jobs = [(table, scenario.seed + i, str(d / f"run-{i:03d}"), plots) for i in todo]
         bar = progress_bar(runs, f"sweep {scenario.name}", initial=len(done), on=progress)
         if current_backend() == "local" or workers:
             workers = max(1, min(workers or os.cpu_count() or 1, runs))

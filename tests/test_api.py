@@ -181,7 +181,8 @@ def test_example_runs_on_a_short_horizon(script, tmp_path):
 
 
 def test_six_on_a_circle_toml_runs_from_the_command_line(tmp_path, capsys):
-    assert main(["run", str(ROOT / "examples" / "six_on_a_circle.toml"), "--duration", "1", "--out", str(tmp_path / "c")]) == 0
+    assert main(["run", str(ROOT / "examples" / "six_on_a_circle.toml"), "--duration", "1", "--out", str(tmp_path / "c"),
+                 "--no-plots"]) == 0
     sc = testbed.load_run(tmp_path / "c").scenario
     assert sc.vehicles == 6 and len(sc.world.anchors) == 4 and sc.world.obstacles[0].type == "box"
     r = np.hypot(*np.array(sc.trajectory.offsets)[:, :2].T)

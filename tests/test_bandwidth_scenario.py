@@ -25,7 +25,7 @@ DURATION = 30.0
 def uwb_run(tmp_path_factory):
     sc = scenario_mod.load("bandwidth", duration=DURATION)
     out = tmp_path_factory.mktemp("bw") / "run"
-    metrics = run(sc, out)
+    metrics = run(sc, out, plots=False)  # its figures: test_sweep's serial runs
     return sc, metrics, load_log(out / "log.npz"), out
 
 
@@ -101,12 +101,12 @@ def test_estimator_never_reads_truth(uwb_run):
 
 def test_same_seed_same_metrics_and_faults_option(uwb_run, tmp_path):
     sc, metrics, _, _ = uwb_run
-    again = run(sc, tmp_path / "again")
+    again = run(sc, tmp_path / "again", plots=False)
     assert again["estimators"] == metrics["estimators"]
     # dropped messages and a failed node: fewer bytes delivered, still within budget, still tracking
     faulty = scenario_mod.load("bandwidth", {"pipeline.drop_prob": "0.3", "pipeline.fail_node": "2",
                                              "pipeline.fail_time": "10.0"}, duration=DURATION)
-    m = run(faulty, tmp_path / "faulty")["estimators"]["bandwidth"]
+    m = run(faulty, tmp_path / "faulty", plots=False)["estimators"]["bandwidth"]
     assert m["within_budget"]
     assert sum(m["bytes_received_per_step"]) < 0.7 * sum(metrics["estimators"]["bandwidth"]["bytes_received_per_step"])
     # node 2 is silent after 10 s of 30: at most a third of its nominal components sent

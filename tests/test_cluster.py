@@ -29,15 +29,16 @@ def local_ray():
 @pytest.fixture(scope="module")
 def local_pool(tmp_path_factory):
     """The reference both Ray tests compare with: bandwidth, seed 3, 1 s, 3 runs swept by the local
-    process pool (2 workers), computed once: (its directory, its summary)."""
+    process pool (2 workers), computed once, without figures as every sweep here: (its directory,
+    its summary)."""
     out = tmp_path_factory.mktemp("local") / "sw"
-    summary = sweep(scenario.load("bandwidth", duration=1.0, seed=3), 3, out, workers=2, progress=False)
+    summary = sweep(scenario.load("bandwidth", duration=1.0, seed=3), 3, out, workers=2, progress=False, plots=False)
     return out, summary
 
 
 def test_ray_sweep_is_byte_identical_to_the_local_pool(tmp_path, local_ray, local_pool):
     sc = scenario.load("bandwidth", duration=1.0, seed=3)
-    by_ray = sweep(sc, 3, tmp_path / "ray", backend="ray", progress=False)
+    by_ray = sweep(sc, 3, tmp_path / "ray", backend="ray", progress=False, plots=False)
     local_dir, local = local_pool
     assert by_ray == local and local["tracking_rmse_m.0"]["n"] == 3
     for f in FILES:
@@ -63,7 +64,7 @@ def test_a_task_lost_for_good_keeps_the_finished_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(sweep_mod, "run_parallel", first_then_lost)
     sc = scenario.load("bandwidth", duration=0.5, seed=3)
     with pytest.raises(RunError, match=r"Ray lost job 1: NodeDiedError; 1 of 2 runs kept in .*--resume"):
-        sweep(sc, 2, tmp_path / "sw", progress=False)
+        sweep(sc, 2, tmp_path / "sw", progress=False, plots=False)
     summary = json.loads((tmp_path / "sw" / "summary.json").read_text())
     assert summary["incomplete"] is True and summary["runs_done"] == 1 and summary["seeds"] == [3]
     assert _debris(tmp_path) == []
@@ -71,7 +72,7 @@ def test_a_task_lost_for_good_keeps_the_finished_runs(tmp_path, monkeypatch):
 
 @pytest.mark.slow  # starts Ray twice from the command line, ~1.5 min on a loaded machine
 def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tmp_path, local_pool):
-    args = ["sweep", "bandwidth", "--runs", "3", "--duration", "1.0", "--seed", "3", "--backend", "ray"]
+    args = ["sweep", "bandwidth", "--runs", "3", "--duration", "1.0", "--seed", "3", "--backend", "ray", "--no-plots"]
     # one task at a time: with two, the second finishes with the first, and the signal that follows
     # the first would meet the second's completion (a race inside Ray, not the testbed's to test)
     p = _start(tmp_path, *args, "--workers", "1", "--out", "sw")

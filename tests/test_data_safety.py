@@ -14,7 +14,7 @@ import pytest
 from testbed import outdir
 from testbed.cli import main
 
-RUN = ["run", "bandwidth", "--duration", "0.5"]
+RUN = ["run", "bandwidth", "--duration", "0.5", "--no-plots"]  # no test here looks at figures
 
 
 def _refused(capsys, argv: list[str]) -> str:
@@ -275,7 +275,7 @@ def test_a_replay_may_write_beside_its_dataset_files_and_leaves_them_as_they_wer
     they lie in: replaying from inside a dataset folder into a new folder there is allowed."""
     shutil.copytree(inputs / "data", cwd / "data")
     before = _files(cwd / "data")
-    assert main(["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/replay"]) == 0
+    assert main(["replay", "data/spec.toml", "--estimator", "graph.poses", "--out", "data/replay", "--no-plots"]) == 0
     assert {k: v for k, v in _files(cwd / "data").items() if not k.startswith("replay/")} == before
     assert (cwd / "data" / "replay" / "metrics.json").is_file()
 

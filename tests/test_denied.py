@@ -138,7 +138,7 @@ def test_video_overlays_read_the_run(flown):
     assert ov.fixed(1.0).shape == (18,)
 
 
-@pytest.mark.slow  # six flights with their estimators and figures, ~30 s
+@pytest.mark.slow  # six flights with their estimators and figures, ~15 s (no run's figures)
 def test_reproduce_denied_end_to_end(tmp_path, monkeypatch):
     from testbed.reproduce import reproduce
 
@@ -157,7 +157,7 @@ def test_reproduce_denied_end_to_end(tmp_path, monkeypatch):
     # 1.2 s: the distributed window cascade's filters start once its window holds 5 epochs (0.8 s);
     # the example plugin runs offline on every variant's flown log (it does not fly)
     plugin = EstimatorSpec(entry=f"{Path(__file__).resolve().parents[1]}/examples/uwb_ekf.py:UwbEkf")
-    result = reproduce("denied", out, runs=1, duration=1.2, workers=1, estimators=(plugin,))
+    result = reproduce("denied", out, runs=1, duration=1.2, workers=1, estimators=(plugin,), run_plots=False)
     ids = {c["id"] for c in result["claims"]}
     assert ids == {f"{v}_{c}" for v in ("coop", "coop_distributed", "coop_onboard", "window", "window_distributed")
                    for c in ("flight_without_contact", "beats_gnss_only")}

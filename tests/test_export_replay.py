@@ -66,7 +66,7 @@ def exported(request, tmp_path_factory):
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         assert main(["export", str(d / "run"), "--out", str(d / "data")]) == 0
-    assert main(["replay", str(d / "data" / "spec.toml"), "--out", str(d / "rep")]) == 0
+    assert main(["replay", str(d / "data" / "spec.toml"), "--out", str(d / "rep"), "--no-plots"]) == 0
     return name, sc, d, err.getvalue()
 
 

@@ -110,16 +110,18 @@ def test_sigkill_leaves_only_a_temporary_directory_that_the_next_command_cleans(
     assert stale.name.endswith(str(p.pid))  # recognisable: it names the dead writer
     monkeypatch.chdir(tmp_path)  # the next command, in this process (the killed one was a real one)
     capsys.readouterr()
-    assert main(["run", "bandwidth", "--duration", "0.5", "--out", "r"]) == 0
+    assert main(["run", "bandwidth", "--duration", "0.5", "--out", "r", "--no-plots"]) == 0
     assert capsys.readouterr().err.splitlines() == [f"testbed: removed {stale.name} (left by pid {p.pid}, which died)"]
     assert sorted(os.listdir(tmp_path)) == ["r"] and _debris(tmp_path) == []
 
 
 def _sweep_args(out: str, workers: int = 2) -> list[str]:
-    return ["sweep", "bandwidth", "--runs", "4", "--workers", str(workers), "--duration", "1.5", "--out", out]
+    # without figures (no test here looks at them); a run of 10 s (~0.3 s CPU) still spans several
+    # polls of _wait_for, so the SIGINT lands before the last run finishes
+    return ["sweep", "bandwidth", "--runs", "4", "--workers", str(workers), "--duration", "10", "--out", out, "--no-plots"]
 
 
-@pytest.mark.slow  # three sweeps, ~40 s
+@pytest.mark.slow  # three sweeps of four runs without figures
 def test_interrupted_sweep_stops_workers_keeps_finished_runs_and_resumes_byte_identical(tmp_path, monkeypatch):
     p = _start(tmp_path, *_sweep_args("sw"))
     _wait_for(lambda: any((d / "metrics.json").is_file() for t in _tmp_dirs(tmp_path, "sw") for d in t.glob("run-*")),
@@ -170,7 +172,8 @@ def test_sigterm_mid_reproduce_or_demo_removes_everything_and_stops_workers(tmp_
 
 
 def _reproduce_args(out: str) -> list[str]:
-    return ["reproduce", "coop", "--runs", "3", "--workers", "2", "--duration", "2", "--out", out]
+    # the runs without figures (--no-run-plots): their simulation and scoring, ~0.5 s CPU each
+    return ["reproduce", "coop", "--runs", "3", "--workers", "2", "--duration", "2", "--out", out, "--no-run-plots"]
 
 
 def _finished_runs(root: Path) -> list[Path]:
@@ -216,6 +219,8 @@ def test_interrupted_reproduce_keeps_finished_runs_and_resumes_byte_identical(tm
     assert main(_reproduce_args("rp")) == 0
     resumed, whole = _tree(rp), _tree(tmp_path / "b" / "rp")
     assert sorted(resumed) == sorted(whole)
+    assert not any(f.endswith(".png") and f.startswith("runs/") for f in whole)  # --no-run-plots
+    assert "--no-run-plots" in (rp / "report.md").read_text()  # the command that reproduces it
     assert [f for f in resumed if resumed[f] != whole[f]] == []
     assert _debris(tmp_path) == []
 
@@ -244,7 +249,7 @@ def test_reproduce_resume_refuses_other_options_and_a_complete_reproduction(tmp_
 
 def test_sigint_mid_render_removes_the_partial_video(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert main(["run", "bandwidth", "--duration", "2", "--out", "r"]) == 0  # the run to render
+    assert main(["run", "bandwidth", "--duration", "2", "--out", "r", "--no-plots"]) == 0  # the run to render
     p = _start(tmp_path, "render", "r", "--width", "64", "--height", "48", "--speed", "0.01")
     _wait_for(lambda: list((tmp_path / "r").glob(".video.mp4.testbed-tmp.*")), "the partial video")
     p.send_signal(signal.SIGINT)
@@ -255,7 +260,7 @@ def test_sigint_mid_render_removes_the_partial_video(tmp_path, monkeypatch):
 
 def test_resume_refuses_a_different_scenario(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert main(["sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw"]) == 0
+    assert main(["sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw", "--no-plots"]) == 0
     capsys.readouterr()
     assert main(["sweep", "bandwidth", "--runs", "2", "--duration", "0.6", "--out", "sw", "--resume"]) == 2
     assert capsys.readouterr().err.splitlines() == [
@@ -275,7 +280,7 @@ def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path, monkeypatch
     assert time.monotonic() - t0 < 5.0
     assert not (tmp_path / "sw").exists()
     monkeypatch.chdir(tmp_path)  # the next sweep, in this process
-    assert main(["sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw"]) == 0
+    assert main(["sweep", "bandwidth", "--runs", "1", "--duration", "0.5", "--out", "sw", "--no-plots"]) == 0
     assert _debris(tmp_path) == []
 
 
@@ -283,7 +288,7 @@ def test_two_writers_of_one_output_exactly_one_wins(tmp_path, monkeypatch, capsy
     # the first writer must still be writing when the second one starts (its own start-up takes
     # ~1.5 s): 8 s of bandwidth took ~2 s all told and once finished before it (a CI failure);
     # 600 s keeps it writing for several seconds (the test: 8.4 s)
-    a = _start(tmp_path, "run", "bandwidth", "--duration", "600", "--out", "r")
+    a = _start(tmp_path, "run", "bandwidth", "--duration", "600", "--out", "r", "--no-plots")
     _wait_for(lambda: (tmp_path / ".r.testbed-lock").is_file() and _tmp_dirs(tmp_path, "r"), "the first writer's lock")
     monkeypatch.chdir(tmp_path)  # the second writer, in this process
     capsys.readouterr()

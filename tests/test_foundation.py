@@ -82,7 +82,7 @@ def test_flown_follower_tracks_eq31():
 
 def test_sites_recomputed_from_scene_xml_equal_logged_truth(tmp_path):
     sc = scenario.load("phase-vacute-h000", duration=4.0, motion="flown")
-    run(sc, tmp_path / "run")
+    run(sc, tmp_path / "run", plots=False)
     log = load_log(tmp_path / "run")
     model = mujoco.MjModel.from_xml_path(str(tmp_path / "run" / "scene.xml"))
     data = mujoco.MjData(model)
@@ -106,7 +106,7 @@ def _digest(path):
 def test_same_seed_bit_identical_and_other_seed_differs(tmp_path):
     sc = scenario.load("phase-cross-h000", duration=3.0)
     for name, seed in [("a", 5), ("b", 5), ("c", 6)]:
-        run(scenario.load("phase-cross-h000", duration=3.0, seed=seed), tmp_path / name)
+        run(scenario.load("phase-cross-h000", duration=3.0, seed=seed), tmp_path / name, plots=False)
     assert _digest(tmp_path / "a" / "log.npz") == _digest(tmp_path / "b" / "log.npz")
     assert _digest(tmp_path / "a" / "metrics.json") == _digest(tmp_path / "b" / "metrics.json")
     assert _digest(tmp_path / "a" / "log.npz") != _digest(tmp_path / "c" / "log.npz"), sc.name
@@ -120,11 +120,11 @@ def test_a_run_leaves_the_cycle_collector_as_it_found_it(tmp_path):
 
     sc = scenario.load("phase-cross-h000", duration=0.5)
     assert gc.get_freeze_count() == 0
-    run(sc, tmp_path / "a")
+    run(sc, tmp_path / "a", plots=False)
     assert gc.get_freeze_count() == 0
     gc.freeze()
     try:
-        run(sc, tmp_path / "b")
+        run(sc, tmp_path / "b", plots=False)
         assert gc.get_freeze_count() > 0  # still frozen (fewer: frozen objects freed meanwhile leave it)
     finally:
         gc.unfreeze()

@@ -92,7 +92,7 @@ def test_a_preset_in_a_replays_imu_table_is_resolved_as_in_a_scenario(dataset, t
     spec = _variant(dataset, tmp_path / "d", lambda s: s["sensors"].update(imu={"preset": "mpu9250", "rate_hz": 100.0}))
     assert load_spec(spec).sensors["imu"] == to_dict(ImuConfig(preset="mpu9250", rate_hz=100.0))
     for entry in FILTERS:
-        assert main(["replay", str(spec), "--out", str(tmp_path / entry), "--estimator", entry]) == 0
+        assert main(["replay", str(spec), "--out", str(tmp_path / entry), "--estimator", entry, "--no-plots"]) == 0
         track = _one(load_tracks(tmp_path / entry / ESTIMATES_FILE))
         assert {t for t, q in track if q == "position"} == set(BODIES), entry
 
@@ -120,7 +120,7 @@ def test_each_filter_uses_its_vehicles_own_imu_table(dataset, tmp_path, entry):
     plain = _variant(dataset, tmp_path / "a")
     own = _variant(dataset, tmp_path / "b", _uav2_noisier)
     for spec, out in ((plain, "ra"), (own, "rb")):
-        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry]) == 0
+        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry, "--no-plots"]) == 0
     a, b = (_one(load_tracks(tmp_path / k / ESTIMATES_FILE)) for k in ("ra", "rb"))
     ca, cb = a[("uav2", "position")].cov, b[("uav2", "position")].cov
     # right after the first GNSS fix's update and before the next (0.2 s later): pure propagation
@@ -160,7 +160,7 @@ def test_without_gnss_a_filter_starts_from_its_initial_pose(dataset, tmp_path, e
     poses = ", ".join(f"{b} = {{ position = {truth[b][0]}, position_sigma = 0.5, yaw_deg = {yaws[b]}, yaw_sigma_deg = 5.0 }}"
                       for b in yaws)
     assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--estimator", entry,
-                 "--param", f"initial_pose={{ {poses} }}"]) == 0
+                 "--param", f"initial_pose={{ {poses} }}", "--no-plots"]) == 0
     err = capsys.readouterr().err
     track = _one(load_tracks(tmp_path / "r" / ESTIMATES_FILE))
     assert {t for t, q in track if q == "position"} == {"uav1", "uav2"}
@@ -193,7 +193,7 @@ def test_an_imu_filter_updates_on_the_height_stream(dataset, tmp_path, entry):
     heights = _variant(dataset, tmp_path / "b")
     (heights.parent / "height.csv").write_text("\n".join(rows) + "\n")
     for spec, out in ((plain, "ra"), (heights, "rb")):
-        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry]) == 0
+        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry, "--no-plots"]) == 0
     a, b = (_one(load_tracks(tmp_path / k / ESTIMATES_FILE)) for k in ("ra", "rb"))
     for body in BODIES:
         assert b[(body, "position")].cov[-1][2, 2] < a[(body, "position")].cov[-1][2, 2], body

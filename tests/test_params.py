@@ -59,7 +59,7 @@ def test_param_options_belong_to_the_estimator_before_them():
 def test_param_values_reach_the_run(tmp_path):
     out = tmp_path / "run"
     assert main(["run", "coop-fg", "--duration", "0.5", "--out", str(out), "--estimator", "coop.centralized",
-                 "--param", "robust=huber", "--param", "huber_delta=2"]) == 0
+                 "--param", "robust=huber", "--param", "huber_delta=2", "--no-plots"]) == 0
     written = tomllib.loads((out / "scenario.toml").read_text())["estimators"]
     assert written == [{"entry": "coop.centralized", "name": "", "params": {"robust": "huber", "huber_delta": 2}}]
 

@@ -89,7 +89,7 @@ def test_plugin_written_from_the_docs_example_alone_runs(tmp_path):
     base = (ROOT / "testbed/scenarios/coop-fg.toml").read_text()
     sc_file.write_text(base + "\n" + toml.replace("my_gnss_filter.py", str(tmp_path / "my_gnss_filter.py")))
     out = tmp_path / "run"
-    assert main(["run", str(sc_file), "--duration", "3", "--out", str(out)]) == 0
+    assert main(["run", str(sc_file), "--duration", "3", "--out", str(out), "--no-plots"]) == 0
     est = json.loads((out / "metrics.json").read_text())["estimators"]
     rw = est["rw"]
     assert rw["entry"].endswith("my_gnss_filter.py:GnssRandomWalk") and rw["estimates"] == 18 * 4
@@ -268,7 +268,7 @@ def test_coop_builtins_under_other_names_equal_the_defaults_and_both_scorings_ag
 def test_sweep_and_reproduce_take_plugins(tmp_path):
     ekf = f"{ROOT}/examples/uwb_ekf.py:UwbEkf"
     assert main(["sweep", "coop-fg", "--runs", "2", "--workers", "1", "--duration", "2", "--estimator", ekf,
-                 "--out", str(tmp_path / "s")]) == 0
+                 "--out", str(tmp_path / "s"), "--no-plots"]) == 0
     scores = json.loads((tmp_path / "s" / "summary.json").read_text())["scores"]
     assert scores["estimators.UwbEkf.rmse_position_mean_m"]["n"] == 2
     # an ANEES's mean over the runs with its interval over the runs' combined effective samples
@@ -576,7 +576,7 @@ def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, 
     """)
     out = tmp_path / "rep"
     assert main(["reproduce", paper, "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
-                 "--estimator", f"{path}:Origin", *fitting]) == 0
+                 "--estimator", f"{path}:Origin", *fitting, "--no-run-plots"]) == 0
     name = fitting[1]
     md = (out / "table.md").read_text()
     section = md[md.index("## Plugin estimators"):]
@@ -748,7 +748,7 @@ def test_a_sweep_scores_the_others_and_lists_the_failed_runs(tmp_path):
     sc = scenario.load("coop-fg", duration=2.0, seed=3)
     sc = dataclasses.replace(sc, estimators=(EstimatorSpec(entry=f"{path}:Bad"), EstimatorSpec(entry=f"{path}:Good")))
     with pytest.raises(EstimatorsFailed, match=r"Bad in runs 0, 1") as e:
-        sweep(sc, 2, tmp_path / "sweep", workers=1, progress=False)
+        sweep(sc, 2, tmp_path / "sweep", workers=1, progress=False, plots=False)
     assert e.value.exit_code == 1
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert summary["failed_estimators"] == {"Bad": [0, 1]} and summary["scores"]["estimators.Good.rmse_position_m"]["n"] == 2
@@ -761,7 +761,7 @@ def test_a_reproduction_writes_its_report_without_the_failed_estimator_and_exits
     path = _write(tmp_path, FAILING_AND_GOOD)
     out = tmp_path / "rp"
     assert main(["reproduce", "coop", "--runs", "2", "--duration", "2", "--workers", "1", "--out", str(out), "--quiet",
-                 "--estimator", f"{path}:Bad", "--estimator", f"{path}:Good"]) == 1
+                 "--estimator", f"{path}:Bad", "--estimator", f"{path}:Good", "--no-run-plots"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "estimators failed in 2 runs" in err and "runs/run-000: Bad" in err
     assert (out / "claims.json").is_file() and (out / "report.md").is_file()

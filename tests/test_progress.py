@@ -18,11 +18,11 @@ import pytest
 
 from testbed import progress
 from testbed.cli import main
-from testbed.reproduce.runs import sweep_runs
+from testbed.reproduce.runs import run_plots, sweep_runs
 from testbed.config.scenario import load
 
 ROOT = Path(__file__).resolve().parent.parent
-SWEEP = ["sweep", "bandwidth", "--runs", "2", "--duration", "0.5", "--workers", "1"]
+SWEEP = ["sweep", "bandwidth", "--runs", "2", "--duration", "0.5", "--workers", "1", "--no-plots"]
 
 
 def _sweep(out: Path, *extra: str) -> tuple[str, str]:
@@ -67,10 +67,11 @@ def test_sweep_bar_on_a_terminal_only_and_not_with_quiet(tmp_path, capsys):
 
 def test_a_reproduction_s_runs_show_the_bar_the_command_asked_for(tmp_path, capsys):
     sc = load("bandwidth", duration=0.5)
-    with progress.shown(True):
+    with progress.shown(True), run_plots(False):
         sweep_runs(sc, 2, tmp_path / "on", workers=1)
     assert "2/2" in capsys.readouterr().err
-    sweep_runs(sc, 2, tmp_path / "off", workers=1)  # outside a command that shows progress
+    with run_plots(False):
+        sweep_runs(sc, 2, tmp_path / "off", workers=1)  # outside a command that shows progress
     assert capsys.readouterr().err == ""
 
 
@@ -109,7 +110,7 @@ def test_reproduce_shows_progress_unless_quiet_and_ends_with_its_line(tmp_path, 
 
 def test_run_export_render_end_with_what_they_wrote(tmp_path, capsys):
     run = tmp_path / "run"
-    assert main(["run", "bandwidth", "--duration", "0.5", "--out", str(run)]) == 0
+    assert main(["run", "bandwidth", "--duration", "0.5", "--out", str(run), "--no-plots"]) == 0
     assert capsys.readouterr().out.splitlines()[-1] == f"run directory -> {run}"
     assert main(["export", str(run), "--out", str(tmp_path / "data")]) == 0
     assert capsys.readouterr().out.splitlines()[-1].startswith(f"{run} -> {tmp_path / 'data'}: ")

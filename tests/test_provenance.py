@@ -93,7 +93,7 @@ def test_an_exported_dataset_and_its_replay_record_their_provenance(run_dir, tmp
 
 def test_a_sweep_and_its_runs_in_worker_processes_record_the_command(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    argv = ["sweep", "bandwidth", "--duration", "1", "--runs", "2", "--workers", "2", "--out", "sw"]
+    argv = ["sweep", "bandwidth", "--duration", "1", "--runs", "2", "--workers", "2", "--out", "sw", "--no-plots"]
     assert main(argv) == 0
     top = _strict(tmp_path / "sw" / "provenance.json")
     _check(top, "sweep")

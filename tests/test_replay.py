@@ -78,7 +78,7 @@ def test_export_then_replay_gives_the_estimates_of_the_simulation(tmp_path, name
 
 def test_the_shipped_example_replays(tmp_path, capsys):
     out = tmp_path / "D"
-    assert main(["replay", str(ROOT / "examples/replay/spec.toml"), "--out", str(out)]) == 0
+    assert main(["replay", str(ROOT / "examples/replay/spec.toml"), "--out", str(out), "--no-plots"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["truth"] and m["measurements"] == {"gnss": 90, "uwb": 345}
     assert set(m["estimators"]) == {"coop.gnss_only", "coop.one_shot", "coop.iterated", "coop.centralized", "PoseGraph"}

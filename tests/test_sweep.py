@@ -10,12 +10,16 @@ from testbed.sweep import sweep
 
 
 def test_parallel_sweep_is_bit_identical_to_serial_runs(tmp_path):
+    """Parallel runs equal the same seeds run one by one, byte for byte; the sweep's runs, without
+    figures (plots=False, `--no-plots`), have none and the same log and metrics as the plotted ones."""
     sc = scenario.load("bandwidth", duration=1.0, seed=3)
-    summary = sweep(sc, 2, tmp_path / "sweep", workers=2, progress=False)
+    summary = sweep(sc, 2, tmp_path / "sweep", workers=2, progress=False, plots=False)
     for i in range(2):
         run(scenario.load("bandwidth", duration=1.0, seed=3 + i), tmp_path / f"serial{i}")
         for f in ("log.npz", "metrics.json"):
             assert (tmp_path / "sweep" / f"run-{i:03d}" / f).read_bytes() == (tmp_path / f"serial{i}" / f).read_bytes()
+        assert list((tmp_path / "sweep" / f"run-{i:03d}" / "plots").iterdir()) == []
+        assert any((tmp_path / f"serial{i}" / "plots").glob("*.png"))
     saved = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert saved["seeds"] == [3, 4] and saved["scores"] == summary
     assert summary["tracking_rmse_m.0"]["n"] == 2

@@ -43,7 +43,7 @@ def test_convert_then_replay_every_ranging_estimator(tmp_path, capsys):
     t = _trolley()
     spec = t.convert(tmp_path / "data", seconds=2.0)
     assert main(["calibrate", str(spec), "--window", "0,5", "--out", str(tmp_path / "calib.toml")]) == 0
-    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--calibration", str(tmp_path / "calib.toml")]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--calibration", str(tmp_path / "calib.toml"), "--no-plots"]) == 0
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
     start, end = m["window_s"]
     assert end - start == 2.0 and start > 0.19 * 134.8
@@ -66,7 +66,7 @@ def test_an_estimator_that_gives_nothing_says_why_in_health_and_on_stderr(tmp_pa
     """coop.one_shot on the trolley data (no GNSS, no sites it knows): exit 0, no estimate, and one
     line saying what it was fed and what it counted, in metrics.json's health block and on stderr."""
     spec = _trolley().convert(tmp_path / "data", seconds=0.3)
-    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--estimator", "coop.one_shot"]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "out"), "--estimator", "coop.one_shot", "--no-plots"]) == 0
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
     reason = m["estimators"]["coop.one_shot"]["health"]["no_estimates"]
     assert reason.startswith("coop.one_shot: no estimates from the rows fed (uwb ") and "health counts" in reason

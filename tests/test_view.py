@@ -42,7 +42,8 @@ def denied(tmp_path_factory):
     replaced by a wall between two columns of the swarm, so that UWB links are NLOS from the start."""
     out = tmp_path_factory.mktemp("view") / "denied"
     wall = 'world.obstacles=[{type="box", pos=[-25.0, -3.5, 10.0], size=[25.0, 0.2, 10.0]}]'
-    assert main(["run", "coop-denied", "--duration", "2", "--estimator", "coop.ins", "--set", wall, "--out", str(out)]) == 0
+    assert main(["run", "coop-denied", "--duration", "2", "--estimator", "coop.ins", "--set", wall, "--out", str(out),
+                 "--no-plots"]) == 0
     return out
 
 
@@ -109,7 +110,7 @@ def test_the_ellipsoid_is_the_3_sigma_surface_of_the_covariance(denied, tmp_path
 
 def test_camera_detections_and_an_estimate_relative_to_the_leader(tmp_path):
     out = tmp_path / "vis"
-    assert main(["run", "visnav", "--duration", "2", "--estimator", "visnav.ekf", "--out", str(out)]) == 0
+    assert main(["run", "visnav", "--duration", "2", "--estimator", "visnav.ekf", "--out", str(out), "--no-plots"]) == 0
     rows, cols, _ = _read(testbed.view(out))
     assert (out / "recording.rrd").is_file()
     r = testbed.load_run(out)
@@ -129,7 +130,7 @@ def test_camera_detections_and_an_estimate_relative_to_the_leader(tmp_path):
 
 def test_a_replay_directory_is_viewed_with_its_dataset_truth(tmp_path, capsys):
     rep = tmp_path / "rep"
-    assert main(["replay", str(ROOT / "examples/replay/spec.toml"), "--out", str(rep)]) == 0  # its spec names coop.centralized
+    assert main(["replay", str(ROOT / "examples/replay/spec.toml"), "--out", str(rep), "--no-plots"]) == 0  # coop.centralized
     assert capsys.readouterr().out.splitlines()[-1] == f"replay directory -> {rep}"  # the command's last line
     rows, cols, static = _read(testbed.view(rep))
     assert rows["/world/estimates/coop.centralized/uav1/uwb"] == 5 and rows["/plots/nees/coop.centralized/uav1/uwb"] == 5

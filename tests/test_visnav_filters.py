@@ -301,6 +301,7 @@ def gaussian_mc():
     return {name: [_run_filter(name, run, model) for run in runs] for name in FILTERS}
 
 
+@pytest.mark.slow  # gaussian_mc: 5 runs through every filter, ~20 s
 @pytest.mark.parametrize("name", FILTERS)
 def test_gaussian_monte_carlo_anees_is_consistent(gaussian_mc, name):
     """5 runs x 100 camera frames, 21-dim error state (biases of both IMUs included).

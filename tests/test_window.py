@@ -179,6 +179,7 @@ def _upper(reference: np.ndarray, level: float = 0.99) -> float:
     return float(reference.mean() + student_t.ppf(level, reference.size - 1) * reference.std(ddof=1) / np.sqrt(reference.size))
 
 
+@pytest.mark.slow  # builds formation_runs (4 runs x 30 epochs, three solvers), ~30 s
 def test_distributed_window_keeps_the_swarms_common_position(formation_runs):
     """Ranges between vehicles say nothing of the swarm's common translation: only the vehicles'
     own fixes and anchor ranges do, and cooperation may share that information but not degrade it.
@@ -192,6 +193,7 @@ def test_distributed_window_keeps_the_swarms_common_position(formation_runs):
     assert r["common_d"].mean() < _upper(r["common_alone"])
 
 
+@pytest.mark.slow  # formation_runs
 def test_distributed_window_is_no_more_overconfident_than_the_centralized_one(formation_runs):
     """The distributed window holds less than the centralized one (neighbours as uncertain
     points, their ranges dropped when an epoch leaves the window), so its covariance must not claim

@@ -38,7 +38,7 @@ from testbed.errors import EstimatorsFailed, RunError, UsageError
 from testbed.interrupt import Interrupted
 from testbed.outdir import Output, write_json
 from testbed.reproduce.document import write_report
-from testbed.reproduce.runs import failed_runs, runs_done
+from testbed.reproduce.runs import failed_runs, run_plots as runs_plotted, runs_done
 from testbed.workers import backend as use_backend
 
 DEFAULT_RUNS = {"phase": 20, "visnav": 50, "bandwidth": 500, "coop": 20, "denied": 5}
@@ -49,7 +49,8 @@ SUMMARY = "summary.json"
 
 def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | None = None,
               duration: float | None = None, workers: int | None = None, force: bool = False,
-              estimators: tuple = (), backend: str = "local", address: str | None = None, resume: bool = False) -> dict:
+              estimators: tuple = (), backend: str = "local", address: str | None = None, resume: bool = False,
+              run_plots: bool = True) -> dict:
     """Dispatch to the paper's reproduction; returns its summary (claims included).
 
     estimators: plugin EstimatorSpecs run beside the paper's in every run, each in every table and
@@ -57,7 +58,10 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | N
     the same seeds (the paper's module; testbed.reproduce.plugins; denied: offline on the flown
     logs, it does not fly);
     backend, address: where the runs execute, "local" or "ray" (testbed.workers.backend);
-    resume: continue the interrupted reproduction at `out` (see the module docstring)."""
+    resume: continue the interrupted reproduction at `out` (see the module docstring);
+    run_plots: False writes no figures into the Monte Carlo run directories (`--no-run-plots`;
+    the reproduction's own figures, DIR/plots/, are drawn all the same, but not the copies of run
+    0's figures that coop, phase and bandwidth put there)."""
     runs = DEFAULT_RUNS[paper] if runs is None else runs
     motion = motion or DEFAULT_MOTION.get(paper, "prescribed")
     if runs < 1:
@@ -65,14 +69,16 @@ def reproduce(paper: str, out: Path, *, runs: int | None = None, motion: str | N
     module = importlib.import_module(f"testbed.reproduce.{paper}")
     extra = {"estimators": tuple(estimators)} if estimators else {}
     options = {"paper": paper, "runs": runs, "motion": motion, "duration": duration,
-               "estimators": [e.entry for e in estimators]}
-    with use_backend(backend, address), Output(Path(out), kind=f"reproduce-{paper}", force=force, resume=resume) as o:
+               "estimators": [e.entry for e in estimators], "run_plots": run_plots}
+    with use_backend(backend, address), runs_plotted(run_plots), \
+            Output(Path(out), kind=f"reproduce-{paper}", force=force, resume=resume) as o:
         if o.resume:
             _check_resumable(Path(out), options)
         try:
             result = module.reproduce(o.path, runs=runs, motion=motion, duration=duration, workers=workers, **extra)
             write_report(o.path, paper=paper, command=command(paper, out, runs=runs, motion=motion, duration=duration,
-                                                              workers=workers, estimators=tuple(estimators)))
+                                                              workers=workers, estimators=tuple(estimators),
+                                                              run_plots=run_plots))
         except KeyboardInterrupt as e:
             raise _keep_finished(o, options, getattr(e, "signum", signal.SIGINT)) from None
         (o.path / SUMMARY).unlink(missing_ok=True)
@@ -109,7 +115,7 @@ def _keep_finished(o: Output, options: dict, signum: int) -> Interrupted:
 
 
 def command(paper: str, out: Path, *, runs: int, motion: str, duration: float | None, workers: int | None,
-            estimators: tuple = ()) -> str:
+            estimators: tuple = (), run_plots: bool = True) -> str:
     """The command line that reproduces this output (every option explicit, each estimator's params
     as --param KEY=VALUE)."""
     cmd = f"testbed reproduce {paper} --out {out} --runs {runs} --motion {motion}"
@@ -117,6 +123,8 @@ def command(paper: str, out: Path, *, runs: int, motion: str, duration: float | 
         cmd += f" --duration {duration:g}"
     cmd += "".join(f" --estimator {shlex.quote(e.entry)}"
                    + "".join(f" --param {shlex.quote(f'{k}={_toml(v)}')}" for k, v in e.params.items()) for e in estimators)
+    if not run_plots:
+        cmd += " --no-run-plots"
     return cmd + (f" --workers {workers}" if workers is not None else "")
 
 

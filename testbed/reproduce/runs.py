@@ -3,19 +3,36 @@ seed) and, when it is a full run directory, lives in `ROOT/run-XXX` (testbed.swe
 ROOT = OUT/runs or OUT/runs/<scenario> when a reproduction sweeps several scenarios). A sweep
 resumes what it finds at ROOT (a resumed reproduction's finished runs), so an interrupted
 reproduction continues where it stopped (testbed.reproduce). A reproduction whose runs are not run
-directories keeps each run's result in ROOT/run-XXX.pkl instead (save_result, load_result)."""
+directories keeps each run's result in ROOT/run-XXX.pkl instead (save_result, load_result). Within
+`run_plots(False)` (`testbed reproduce --no-run-plots`) the run directories get no figures."""
 from __future__ import annotations
 
 import json
 import os
 import pickle
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
+from typing import Iterator
 
 from testbed.errors import EstimatorsFailed
 from testbed.config.scenario import Scenario
 from testbed.outdir import TMP_TAG
 from testbed.progress import enabled
 from testbed.sweep import run_complete, sweep
+
+
+_RUN_PLOTS: ContextVar[bool] = ContextVar("testbed_run_plots", default=True)
+
+
+@contextmanager
+def run_plots(on: bool) -> Iterator[None]:
+    """Within the block, sweep_runs' run directories get their figures (on) or none (not on)."""
+    token = _RUN_PLOTS.set(bool(on))
+    try:
+        yield
+    finally:
+        _RUN_PLOTS.reset(token)
 
 
 def run_name(i: int) -> str:
@@ -31,9 +48,10 @@ def seeds(base: int, runs: int) -> list[int]:
 def sweep_runs(scenario: Scenario, runs: int, root: Path, *, workers: int | None) -> list[Path]:
     """Simulate and score runs 0..runs-1 of `scenario` into root/run-XXX (testbed.sweep), skipping
     the runs already finished there, with a bar over them where the command shows progress
-    (testbed.progress); returns the run directories in run order."""
+    (testbed.progress) and their figures unless run_plots(False) says otherwise; returns the run
+    directories in run order."""
     try:
-        sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=enabled())
+        sweep(scenario, runs, root, workers=workers, force=True, resume=True, progress=enabled(), plots=_RUN_PLOTS.get())
     except EstimatorsFailed:  # every run is written; the reproduction reports them at its end (failed_runs)
         pass
     return [Path(root) / run_name(i) for i in range(runs)]
