@@ -268,8 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--links", choices=("nearest", "epoch", "none"), default="nearest",
                    help="UWB links drawn: each vehicle's --nearest shortest of the latest sample (default), all of it, or none")
     p.add_argument("--nearest", type=_int_in(1, 1000), default=2, help="links kept per vehicle with --links nearest, 1..1000 (default 2)")
-    p.add_argument("--error-scale", type=_float_in(0, 1e6), default=1.0,
-                   help="draw the estimate's error segment and 3-sigma ellipse this many times their size (default 1: to scale)")
+    p.add_argument("--error-scale", type=_float_in(0, 1e6),
+                   help="draw the estimate's error segment and 3-sigma ellipse this many times their size (1: to scale; "
+                        "default: 1, or the round factor that makes them visible, which the legend states)")
 
     p = sub.add_parser("sweep", help="Monte Carlo: run N seeds in parallel and aggregate metrics")
     _add_run_options(p)

@@ -124,7 +124,7 @@ def test_a_paper_builtin_on_another_scenario_assumes_its_declared_sensors():
 
     uwb = {"noise": 0.3, "mode": "ss-twr", "clock_ppm": 5.0, "reply_time": 1e-3, "antenna_delay_sigma": 0.01}
     context = SimpleNamespace(pipeline={"kind": "tracking"}, sensors={"uwb": uwb})
-    cfg = settings(CoopPipelineConfig, "coop-fg", context, {"clock_ppm": 7.0}, "coop.centralized")
+    cfg = settings(CoopPipelineConfig, context, {"clock_ppm": 7.0}, "coop.centralized")
     assert (cfg.range_sigma, cfg.twr_mode, cfg.clock_ppm, cfg.reply_time, cfg.antenna_delay_sigma) == (0.3, "ss-twr", 7.0, 1e-3, 0.01)
 
 

@@ -275,6 +275,62 @@ def test_legend_and_scale_bar_are_in_the_corners(runs, tmp_path):
     assert (on[bar] == 255).all(axis=-1).sum() >= 60  # the white bar
 
 
+def test_phase_estimate_is_magnified_to_a_round_factor_and_drawn_to_it(runs, tmp_path):
+    """The phase scenario's own estimate (phase.ekf on vehicle 6, centimetres seen from hundreds of
+    metres): to scale it is below a few pixels, so the default drawing is magnified by a round
+    factor (1, 2 or 5 x 10^k) and spans, in the picture, what the 3-sigma ellipse about the
+    estimate's error, both magnified by that factor, span when projected through the camera."""
+    import imageio.v3 as iio
+
+    from testbed.outputs.render import ESTIMATE_RGB, save_frame
+    from testbed.plugins.collect import ESTIMATES_FILE, load_tracks
+
+    run = runs["cross"]
+    bare = _copy_run(run, tmp_path / "bare")
+    (bare / ESTIMATES_FILE).unlink()
+    W, H, t = 320, 180, 1.5
+    without = iio.imread(save_frame(bare, t, tmp_path / "without.png", width=W, height=H, **BARE)).astype(int)
+
+    def drawn(**options):
+        img = iio.imread(save_frame(run, t, tmp_path / "with.png", width=W, height=H, **BARE, **options)).astype(int)
+        return np.nonzero((np.abs(img - without).sum(axis=2) > 40) & (np.abs(img - ESTIMATE_RGB).sum(axis=2) < 200))
+
+    assert drawn(error_scale=1.0)[0].size <= 12  # to scale: a few pixels at most
+    vs, us = drawn()
+    assert vs.size > 40
+    s = load_tracks(run / ESTIMATES_FILE)["ekf"][("uav6", "position")]
+    with np.load(run / "log.npz") as z:
+        time, truth = z["time"], z["truth/pos"][:, 5]
+    k = int(np.searchsorted(s.time, t + 1e-9)) - 1
+    error = s.value[k] - np.array([np.interp(s.time[k], time, truth[:, j]) for j in range(3)])
+    here = truth[int(np.searchsorted(time, t + 1e-9)) - 1]
+    project, *_ = _camera(run, t, W, H)
+    a = np.linspace(0.0, 2 * np.pi, 2000)
+    L = np.linalg.cholesky(s.cov[k][:2, :2])
+
+    def miss(factor):  # px: how far the drawing's box is from the projected one at this factor
+        centre = here + factor * error
+        xy = factor * 3 * L @ np.stack([np.cos(a), np.sin(a)])
+        uv, _ = project(np.vstack([here, np.column_stack([centre[0] + xy[0], centre[1] + xy[1], np.full(a.size, centre[2])])]))
+        lo, hi = uv.min(axis=0), uv.max(axis=0)
+        return np.abs([us.min() - lo[0], us.max() - hi[0], vs.min() - lo[1], vs.max() - hi[1]]).max()
+
+    factors = [f * 10.0**e for e in range(0, 6) for f in (1, 2, 5)]
+    fits = [f for f in factors if miss(f) <= 2]
+    assert len(fits) == 1 and fits[0] > 1, [(f, miss(f)) for f in factors]
+
+
+def test_auto_error_scale_is_the_smallest_round_factor_that_shows_the_typical_error():
+    from testbed.outputs.render import ERROR_PX, auto_error_scale
+
+    px_per_m = np.full(4, 2.0)
+    # median drawing 0.04 m x 2 px/m = 0.08 px; 3 % of 540 px = 16.2 px: x202.5 needed -> 500
+    sizes = np.array([[0.04, np.nan], [0.03, np.nan], [0.05, np.nan], [0.04, np.nan]])
+    assert ERROR_PX == 0.03 and auto_error_scale(sizes, px_per_m, 540) == 500.0
+    assert auto_error_scale(sizes * 1e3, px_per_m, 540) == 1.0  # 40 m: to scale
+    assert auto_error_scale(np.full((4, 2), np.nan), px_per_m, 540) == 1.0  # no estimate
+
+
 def test_vehicles_and_anchors_in_use_stay_in_the_frame(runs):
     """Every vehicle of the closed loop and every anchor it ranges to projects inside the picture
     at every frame time of the video (the camera of save_frame and render_run)."""

@@ -31,9 +31,12 @@ What a frame shows
   to 10 s after the frame's time (white, REFERENCE_SPAN); the UWB links of the latest sample (LOS
   blue, NLOS orange), thinned by the option `links` (default: each vehicle's 2 shortest,
   `nearest_links`); the estimate (of the estimator flown on, else the first
-  of estimates.npz) as a magenta segment from the true vehicle to the estimated position and the
-  3-sigma ellipse of its horizontal covariance about it, to scale unless `error_scale` says
-  otherwise (`error_drawing`); vehicle numbers green with a GNSS fix and red without.
+  of estimates.npz) as a magenta segment from the true vehicle along the estimate's error (at the
+  estimate's own time, render_overlay) and the 3-sigma ellipse of its horizontal covariance about
+  its end (`error_drawing`), both `error_scale` times their size: to scale (1) unless that would
+  draw them below a few pixels, as at the phase scenario's centimetres seen from hundreds of
+  metres; then magnified by a round factor the legend states (`auto_error_scale`); vehicle
+  numbers green with a GNSS fix and red without.
 - A legend of what the frame shows (bottom right, see-through, under the anchors, estimates and
   numbers) and a scale bar (bottom left: a round length at the depth of the camera's lookat, the
   middle of the swarm).
@@ -54,6 +57,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -89,6 +93,7 @@ FOVY_TRACK = 45.0  # deg, vertical field of view of the tracking camera (MuJoCo'
 LINKS = ("nearest", "epoch", "none")  # which UWB links a frame draws (render_run, `links`)
 REFERENCE_RGB = (235, 235, 235)  # reference paths (drawn on the picture)
 ESTIMATE_RGB = (255, 60, 255)  # error segment and covariance ellipse (RGB, drawn on the picture)
+ERROR_PX = 0.03  # auto_error_scale: the typical error drawing spans at least this fraction of the picture's height
 ANCHOR_RGB = (255, 205, 25)  # UWB anchors (as their sites in models: yellow)
 REFERENCE_SPAN = (3.0, 10.0)  # s of each vehicle's reference path drawn before and after the frame's time
 
@@ -393,7 +398,7 @@ class _Style:
     droplines: bool = True  # vertical line from each far vehicle's marker to the ground (z = 0)
     links: str = "nearest"  # UWB links drawn: "nearest" (each vehicle's `nearest` shortest), "epoch" (all), "none"
     nearest: int = 2
-    error_scale: float = 1.0  # the error segment and ellipse drawn this many times their size
+    error_scale: float | None = None  # the error segment and ellipse drawn this many times their size; None: auto_error_scale
     reference: bool = True  # the reference paths
     legend: bool = True  # the legend and the scale bar
 
@@ -402,7 +407,7 @@ class _Style:
             raise ValueError(f"links must be one of {', '.join(LINKS)}, got {self.links!r}")
         if self.nearest < 1:
             raise ValueError(f"nearest must be >= 1, got {self.nearest}")
-        if not self.error_scale > 0:
+        if self.error_scale is not None and not self.error_scale > 0:
             raise ValueError(f"error_scale must be positive, got {self.error_scale}")
 
 
@@ -512,7 +517,7 @@ class _Painter:
         estimate = ov.estimate(t)
         if estimate is not None:  # the estimate: an error segment from the true vehicle, its 3-sigma ellipse
             for i in np.flatnonzero(np.isfinite(estimate[0][:, 0])):
-                for line in error_drawing(pos[i], estimate[0][i], estimate[1][i], self.style.error_scale):
+                for line in error_drawing(pos[i], pos[i] + estimate[0][i], estimate[1][i], self.style.error_scale):
                     uv, front = proj.pixels(line)
                     if front.all():
                         cv2.polylines(img, [np.round(uv).astype(np.int32)], False, ESTIMATE_RGB, lw, cv2.LINE_AA)
@@ -596,6 +601,31 @@ def error_drawing(truth: np.ndarray, estimate: np.ndarray, cov: np.ndarray, scal
         xy = (V * (scale * sigmas * np.sqrt(np.maximum(w, 0.0)))) @ np.stack([np.cos(a), np.sin(a)])
         out.append(np.column_stack([end[0] + xy[0], end[1] + xy[1], np.full(points + 1, end[2])]))
     return out
+
+
+def auto_error_scale(sizes: np.ndarray, px_per_m: np.ndarray, height: int) -> float:
+    """The factor an estimate's drawing is magnified by when none is given: the smallest round
+    factor (1, 2 or 5 x 10^k, at least 1) at which the median drawing spans ERROR_PX x height
+    pixels. sizes: (F, N) m, each vehicle's drawing size at each frame (Overlays.error_sizes, NaN
+    without an estimate); px_per_m: (F,) px per m at the camera's lookat; height: px."""
+    drawn = sizes * np.asarray(px_per_m, float)[:, None]
+    drawn = drawn[np.isfinite(drawn) & (drawn > 0)]
+    if not drawn.size:
+        return 1.0
+    need = ERROR_PX * height / float(np.median(drawn))
+    if need <= 1.0:
+        return 1.0
+    e = 10.0 ** math.floor(math.log10(need))
+    return next(f * e for f in (1, 2, 5, 10) if f * e >= need)
+
+
+def _with_error_scale(style: _Style, replay: _Replay, track: CameraTrack, height: int) -> _Style:
+    """style with its error_scale resolved (auto_error_scale when None) for the frames of track."""
+    if style.error_scale is not None:
+        return style
+    f_px = height / 2 / math.tan(math.radians(FOVY_TRACK) / 2)
+    sizes = replay.overlays.error_sizes(track.times)
+    return dataclasses.replace(style, error_scale=auto_error_scale(sizes, f_px / track.distance, height))
 
 
 def _scale_bar(img: np.ndarray, px_per_m: float) -> None:
@@ -758,7 +788,7 @@ def _track(replay: _Replay, times: np.ndarray, pos: np.ndarray, aspect: float, f
 def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, height: int = 540, fps: int = 30, speed: float = 1.0,
                max_seconds: float | None = None, shadow_size: int = 1024, samples: int = 0, pip_vehicle: int | None = None,
                progress: bool = False, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True, links: str = "nearest",
-               nearest: int = 2, error_scale: float = 1.0, legend: bool = True, reference: bool = True, force: bool = False) -> Path:
+               nearest: int = 2, error_scale: float | None = None, legend: bool = True, reference: bool = True, force: bool = False) -> Path:
     """Render a run directory to an MP4; returns its path (default `run_dir/video.mp4`).
 
     Video time runs at `speed` x simulated time from the first logged instant; frame k shows
@@ -771,7 +801,8 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     labels: write vehicle numbers. links: the UWB links drawn, "nearest" (default: of the links
     ranged at the latest sample, each vehicle's `nearest` shortest, anchors included), "epoch" (all
     of them) or "none". error_scale: the estimate's error segment and 3-sigma ellipse are drawn this
-    many times their size (1: to scale; the legend says so otherwise). legend: the legend and the
+    many times their size (1: to scale; the legend says so otherwise); None: 1 unless the drawings
+    would be too small to see, then a round factor for the whole video (auto_error_scale). legend: the legend and the
     scale bar; reference: the reference paths. The file is written beside `out` and renamed when
     complete; an existing `out` is refused (RunError) unless force.
     """
@@ -800,6 +831,7 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
     times = t0 + np.arange(n_frames) * speed / fps
     pos = replay.positions(times)
     track = _track(replay, times, pos, width / height, fps)
+    style = _with_error_scale(style, replay, track, height)
     painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle), style=style)
     trail_frames = int(round(trail * fps))
     try:
@@ -835,7 +867,7 @@ def render_run(run_dir: Path, out: Path | None = None, *, width: int = 960, heig
 
 def save_frame(run_dir: Path, t: float, path: Path, *, width: int = 960, height: int = 540, shadow_size: int = 1024, samples: int = 0,
                pip_vehicle: int | None = None, trail: float = 3.0, marker_px: float = 6.0, labels: bool = True, links: str = "nearest",
-               nearest: int = 2, error_scale: float = 1.0, legend: bool = True, reference: bool = True) -> Path:
+               nearest: int = 2, error_scale: float | None = None, legend: bool = True, reference: bool = True) -> Path:
     """Write one PNG of the tracking view at simulated time t (s), as the video (30 fps, 1x) shows it.
 
     Options as for `render_run`. Returns the path.
@@ -855,6 +887,7 @@ def save_frame(run_dir: Path, t: float, path: Path, *, width: int = 960, height:
     times = t0 + np.arange(int(math.floor((t1 - t0) * fps)) + 1) / fps
     pos = replay.positions(times)
     track = _track(replay, times, pos, width / height, fps)
+    style = _with_error_scale(style, replay, track, height)
     painter = _Painter(replay, width, height, shadow_size=shadow_size, samples=samples, pip_vehicle=_default_pip(replay, pip_vehicle), style=style)
     try:
         f = int(np.clip(round((t - t0) * fps), 0, len(times) - 1))

@@ -9,8 +9,10 @@ Read from the run directory only (testbed.outputs.render draws them):
 - the estimate: estimates.npz (testbed.plugins.collect.track_arrays) of one estimator, the one
   the controller flew on when the run did (feedback.npz `estimator`, written by the runner with
   `[control] feedback = "estimate:NAME"`), else the first by name: per vehicle `uavI` its world
-  position estimates (K, 3) m and their covariances (K, 3, 3) m^2; the estimate at t is the latest
-  of time <= t;
+  position estimates (K, 3) m and their covariances (K, 3, 3) m^2, and their errors against
+  log.npz `truth/pos` at the estimates' own times (linear between log rows); the estimate at t is
+  the latest of time <= t, drawn as its error from the vehicle's true position at t (so a vehicle
+  moving between two estimates does not show its motion as an error);
 - GNSS fix state: log.npz `gnss/fix` (T, N) bool at the logged instants `time`, the row at or
   before t.
 Any of them is absent when its arrays are (older runs, scenarios without that sensor, runs without
@@ -77,9 +79,12 @@ class Overlays:
         self.estimator = flown if flown in tracks else min(tracks, key=natural, default="")
         self.flown = bool(flown) and flown == self.estimator
         series = [tracks[self.estimator].get((f"uav{i}", "position")) if self.estimator else None for i in range(1, n + 1)]
-        self.series = [s if s is not None and s.frame == "world" and s.time.size else None for s in series]
+        self.series = [s if s is not None and s.frame == "world" and s.time.size and "truth/pos" in log else None for s in series]
         if not any(s is not None for s in self.series):
             self.series = None
+        else:  # (K, 3) m world: each estimate minus the truth at its time
+            self.errors = [None if s is None else s.value - np.column_stack(
+                [np.interp(s.time, log["time"], log["truth/pos"][:, i, j]) for j in range(3)]) for i, s in enumerate(self.series)]
 
     def links(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(src site ids, dst site ids, nlos) of the links ranged at the latest UWB sample by t."""
@@ -92,18 +97,35 @@ class Overlays:
         return src[lo:hi][keep], dst[lo:hi][keep], nlos[lo:hi][keep]
 
     def estimate(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """(N, 3) m world positions and (N, 3, 3) m^2 covariances: each vehicle's latest estimate
-        by t (NaN before its first, and for the covariance of an estimate without one), or None
-        without estimates."""
+        """(N, 3) m world errors (estimate - truth at the estimate's time) and (N, 3, 3) m^2
+        covariances: each vehicle's latest estimate by t (NaN before its first, and for the
+        covariance of an estimate without one), or None without estimates."""
         if self.series is None:
             return None
-        pos, cov = np.full((self.n, 3), np.nan), np.full((self.n, 3, 3), np.nan)
+        err, cov = np.full((self.n, 3), np.nan), np.full((self.n, 3, 3), np.nan)
         for i, s in enumerate(self.series):
             if s is not None:
                 k = np.searchsorted(s.time, t + 1e-9, side="right") - 1
                 if k >= 0:
-                    pos[i], cov[i] = s.value[k], s.cov[k]
-        return pos, cov
+                    err[i], cov[i] = self.errors[i][k], s.cov[k]
+        return err, cov
+
+    def error_sizes(self, times: np.ndarray) -> np.ndarray:
+        """(F, N) m: the size of each vehicle's estimate drawing at each time, the larger of its
+        error's length and the 3-sigma semi-major axis of its horizontal covariance (NaN without an
+        estimate). times: (F,) s."""
+        out = np.full((len(times), self.n), np.nan)
+        for f, t in enumerate(times):
+            est = self.estimate(float(t))
+            if est is None:
+                break
+            err, cov = est
+            c = cov[:, :2, :2]
+            major = np.full(self.n, 0.0)
+            ok = np.isfinite(c).all(axis=(1, 2))
+            major[ok] = 3.0 * np.sqrt(np.maximum(np.linalg.eigvalsh((c[ok] + np.swapaxes(c[ok], 1, 2)) / 2)[:, -1], 0.0))
+            out[f] = np.maximum(np.linalg.norm(err, axis=1), major)  # NaN where no estimate
+        return out
 
     def fixed(self, t: float) -> np.ndarray | None:
         """(N,) bool: which vehicles have a GNSS fix at t, or None without GNSS."""

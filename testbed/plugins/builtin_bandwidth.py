@@ -85,7 +85,7 @@ class Fusion:
     Params = BandwidthPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
-        cfg = self.cfg = settings(BandwidthPipelineConfig, "bandwidth", context, params, "bandwidth.fusion")
+        cfg = self.cfg = settings(BandwidthPipelineConfig, context, params, "bandwidth.fusion")
         if cfg.measurements != "uwb":
             raise ValueError("measurements = \"paper\" draws its data from the truth; a plugin gets the uwb stream: "
                              "use measurements = \"uwb\"")

@@ -102,7 +102,7 @@ class _CoopEpochs(EpochGrouping):
     Params = CoopPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
-        self.cfg = settings(CoopPipelineConfig, "coop-fg", context, params, f"coop.{self.variant}")
+        self.cfg = settings(CoopPipelineConfig, context, params, f"coop.{self.variant}")
         self.n = len(context.vehicles)
         self.index = {f"{v}/uwb": i for i, v in enumerate(context.vehicles)}
         gnss = context.sensors.get("gnss", {})

@@ -171,7 +171,7 @@ class PhaseEkf:
     Params = PhasePipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
-        self.cfg = settings(PhasePipelineConfig, "phase-ekf", context, params, "phase.ekf")
+        self.cfg = settings(PhasePipelineConfig, context, params, "phase.ekf")
         ph = context.sensors.get("phase")
         if ph is None:
             raise ValueError("phase.ekf needs the carrier-phase stream ([sensors.phase])")

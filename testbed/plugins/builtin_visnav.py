@@ -90,7 +90,7 @@ class _VisNav:
     Params = VisNavPipelineConfig  # its parameters (testbed.plugins.settings)
 
     def __init__(self, context: Context, params: dict):
-        cfg = settings(VisNavPipelineConfig, "visnav", context, params, f"visnav.{self.filter}")
+        cfg = settings(VisNavPipelineConfig, context, params, f"visnav.{self.filter}")
         cam, imu = context.sensors.get("camera"), context.sensors.get("imu")
         if cam is None or imu is None:
             raise ValueError(f"visnav.{self.filter} needs the imu and camera streams ([sensors.imu], [sensors.camera])")

@@ -34,6 +34,13 @@ def params_class(cls: type) -> type | None:
     return p if isinstance(p, type) and dataclasses.is_dataclass(p) else None
 
 
+def pipeline_kind(Params: type) -> str | None:
+    """The `[pipeline]` kind whose config dataclass Params is (its `kind: Literal[...]` field), or
+    None for a Params that is not a pipeline config."""
+    kind = get_type_hints(Params).get("kind")
+    return get_args(kind)[0] if kind is not None and get_origin(kind) is Literal else None
+
+
 def fields(Params: type) -> list[dataclasses.Field]:
     """The parameters of a Params dataclass, in declaration order."""
     return [f for f in dataclasses.fields(Params) if f.name not in NOT_PARAMS]
@@ -102,9 +109,9 @@ def markdown(entries: dict[str, type]) -> str:
     out = []
     for Params, names in by_class.items():
         out.append("### " + ", ".join(f"`{n}`" for n in names) + "\n")
-        kind = get_type_hints(Params).get("kind")
+        kind = pipeline_kind(Params)
         if kind is not None:
-            out.append(f'The `[pipeline]` keys of a `kind = "{get_args(kind)[0]}"` scenario (docs/scenario.md).\n')
+            out.append(f'The `[pipeline]` keys of a `kind = "{kind}"` scenario (docs/scenario.md).\n')
         elif inspect.getdoc(Params):
             out.append(inspect.getdoc(Params).splitlines()[0] + "\n")
         out.append("| key | type | unit | default | allowed | meaning |\n|---|---|---|---|---|---|")

@@ -11,10 +11,12 @@ like a scenario's.
 from __future__ import annotations
 
 from testbed.plugins.api import Context
-from testbed.plugins.params import read
+from testbed.plugins.params import pipeline_kind, read
 
 
-def settings(cls: type, kind: str, context: Context, params: dict, entry: str):
-    """The config `cls` of pipeline `kind` for estimator `entry`: {scenario's, if same kind} | params."""
+def settings(cls: type, context: Context, params: dict, entry: str):
+    """The config `cls` (a pipeline config dataclass, its kind from its `kind` field) for estimator
+    `entry`: {scenario's, if same kind} | params."""
+    kind = pipeline_kind(cls)
     base = {k: v for k, v in context.pipeline.items() if k != "kind"} if context.pipeline.get("kind") == kind else {}
     return read(cls, {**base, **params, "kind": kind}, entry).assumed(context.sensors)

@@ -36,14 +36,13 @@ from testbed.sim import world
 from testbed.api import load_run
 from testbed.config import to_dict
 from testbed.outdir import Output
-from testbed.config.pipelines import (BandwidthPipelineConfig, CoopPipelineConfig, PhasePipelineConfig,
-                                      VisNavPipelineConfig)
-from testbed.plugins import builtin_bandwidth, builtin_coop, builtin_phase, builtin_visnav
+from testbed.plugins import builtin_phase, builtin_visnav
 from testbed.plugins.context import make_context
 from testbed.plugins.priors import priors
 from testbed.sim.world import lever_arms
 from testbed.plugins.defaults import estimator_specs
 from testbed.plugins.loading import resolve
+from testbed.plugins.params import NOT_PARAMS, params_class, pipeline_kind
 from testbed.plugins.settings import settings
 from testbed.config.estimators import EstimatorSpec
 from testbed.replay.spec import FORMAT
@@ -98,12 +97,7 @@ def _links(log: dict, scenario, bag: bool) -> dict[str, np.ndarray]:
     return out if scenario.network is not None else {k: v for k, v in out.items() if k != "nlos"}
 
 
-_COOP = (builtin_coop.GnssOnly, builtin_coop.OneShot, builtin_coop.Iterated, builtin_coop.Centralized)
 _VISNAV = (builtin_visnav.Ekf, builtin_visnav.Ckf, builtin_visnav.Hckf, builtin_visnav.Mckf, builtin_visnav.Rhcf)
-#: the built-ins whose params default to the scenario's [pipeline] (testbed.plugins.settings):
-#: (their classes, the config they resolve to, its kind)
-_SETTINGS = ((_COOP, CoopPipelineConfig, "coop-fg"), ((builtin_phase.PhaseEkf,), PhasePipelineConfig, "phase-ekf"),
-             ((builtin_bandwidth.Fusion,), BandwidthPipelineConfig, "bandwidth"), (_VISNAV, VisNavPipelineConfig, "visnav"))
 #: the built-ins a replay of a bag export cannot drive, and why: what they read has no topic
 BAG_UNREPRODUCIBLE = (
     ((builtin_phase.PhaseEkf,), "it reads the phase stream's carrier phase, master navigation solution, rate windows "
@@ -124,9 +118,10 @@ def exported_estimators(scenario, physics, prior: dict, bag: bool = False) -> tu
 
     The estimators: those a run of the scenario scores (testbed.plugins.defaults.estimator_specs:
     the default ones of its [pipeline] kind, then its [[estimators]]), in that order, keys kept (a
-    key names its Context.rng stream); params resolved: a built-in whose
-    params default to the [pipeline] (coop.*, phase.ekf, bandwidth.fusion, visnav.*) gets every
-    key of its config with the value it ran with (testbed.plugins.settings); the others (their
+    key names its Context.rng stream); params resolved: an estimator whose Params is a pipeline
+    config (testbed.plugins.params.pipeline_kind; today coop.*, phase.ekf, bandwidth.fusion,
+    visnav.*) gets every key of that config with the value it ran with (testbed.plugins.settings,
+    so a new built-in needs no edit here); the others (their
     defaults fixed in their code, not read from the scenario) keep the params given."""
     specs = estimator_specs(scenario)
     out, skipped = [], []
@@ -136,10 +131,10 @@ def exported_estimators(scenario, physics, prior: dict, bag: bool = False) -> tu
             skipped.append(f"{p.key} is not exported: {why}")
             continue
         params = dict(p.params)
-        for classes, cfg_cls, kind in _SETTINGS:
-            if issubclass(p.cls, classes):
-                cfg = settings(cfg_cls, kind, make_context(scenario, lever_arms(physics), p.key, p.params, prior), p.params, p.entry)
-                params = {k: v for k, v in to_dict(cfg).items() if k != "kind"}
+        Params = params_class(p.cls)
+        if Params is not None and pipeline_kind(Params) is not None:  # a paper built-in: its [pipeline] config
+            cfg = settings(Params, make_context(scenario, lever_arms(physics), p.key, p.params, prior), p.params, p.entry)
+            params = {k: v for k, v in to_dict(cfg).items() if k not in NOT_PARAMS}
         out.append(EstimatorSpec(entry=spec.entry, name=spec.name, params=params))
     return out, skipped
 
