@@ -80,7 +80,6 @@ from scipy.stats import chi2
 from estimators import coop_ins as ci
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from testbed.config import from_dict, key
-from testbed.sim.network import Network
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import StartParams, heading, initial_poses, levelled_start, note_unstarted
@@ -408,8 +407,8 @@ class CoopInsDistributed(CoopIns):
         self.counts["inconsistent_broadcasts"] = 0
         self.counts["nonlinear_ranges"] = 0
         net = self.p["network"]
-        self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
-                               self.n, context.rng)
+        self.network = context.links(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
+                                     self.n)
         n = self.n
         self.heard_t = np.full((n, n), -np.inf)  # receiver, sender: time of the broadcast held
         self.heard_s = np.zeros((n, n, 3))

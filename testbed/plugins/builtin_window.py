@@ -21,10 +21,12 @@ early commit): Huber 1.345 with 5 steps per epoch let the estimate run away, 36 
 error in 6 s; least squares 2.2 m on the same log. In the cascade coop.window_ins, which flies
 on Huber 1.345 by default, the reverse: docs/denied.md),
 max_iter (5, Gauss-Newton steps per epoch, centralized), max_rounds (10, message rounds per
-epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior), network (distributed: a [network] table, docs/network.md,
-through which the broadcasts travel, testbed.sim.network.RoundTransport, drawn from the plugin's
-own rng; absent: ideal). The channel's geometry (range limit, NLOS loss) is taken from the
-estimator's own positions and the epoch's ranged links (the estimator cannot see the truth).
+epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior),
+network (distributed: a [network] table, docs/network.md, through which the broadcasts travel:
+links the runtime opens (Context.links) drawn from the plugin's own rng, one
+estimators.transport.Transport of rounds per epoch; absent: ideal). The channel's geometry
+(range limit, NLOS loss) is taken from the estimator's own positions and the epoch's ranged
+links (the estimator cannot see the truth).
 mirrors (true): after each epoch's solve, a vehicle is replaced by its mirror image through the
 plane of what it ranged to when the window's measurements favour it 100 to 1 (estimators.window;
 health `mirrored` counts them).
@@ -41,7 +43,6 @@ import numpy as np
 from estimators import window as sw
 from estimators.sensor_models import range_variances
 from testbed.config import check_fields, from_dict, key
-from testbed.sim.network import Network, RoundTransport
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
@@ -168,9 +169,9 @@ class WindowDistributed(_WindowPlugin):
     def _solver(self, context):
         p = self.p
         net = p["network"]
-        self.network = None if net is None else Network(from_dict(NetworkConfig, dict(net), "estimator params network"),
-                                                         self.n, context.rng)
-        self.round_s = 0.0 if net is None else self.network.cfg.round_s
+        cfg = None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network")
+        self.network = None if cfg is None else context.links(cfg, self.n)
+        self.round_s = 0.0 if cfg is None else cfg.round_s
         return sw.Distributed(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
                               max_rounds=int(p["max_rounds"]), tol=float(p["tol"]), init_sigma_v=float(p["init_sigma_v"]))
 
@@ -179,7 +180,7 @@ class WindowDistributed(_WindowPlugin):
         if self.network is not None:
             pos = self.solver.X[:, -1].reshape(self.n, 6)[:, :3] if self.solver.epochs else np.nan_to_num(ep.fix)
             self.network.set_geometry(ep.t, pos)
-            transport = RoundTransport(self.network, ep.t, self.round_s)
+            transport = self.network.rounds(ep.t, self.round_s)
         return self.solver.add(ep, transport)
 
     def health(self):
