@@ -279,20 +279,39 @@ def test_cascade_decorrelated_feeds_the_epochs_equivalent_measurement():
 
 
 def test_window_range_scale_multiplies_the_range_sigma_and_the_cascade_defaults_to_huber():
-    from testbed.plugins.api import Measurement
     from testbed.plugins.builtin_window import Window
     from testbed.plugins.builtin_window_ins import WindowIns
     from testbed.plugins.context import make_context
 
     sc = load("coop-denied", duration=1.0)
     ctx = make_context(sc, lever_arms(build(sc)), "w", {})
-    m = Measurement(stream="uwb", time=0.0, arrival=0.0, value=np.array([7.0]), src="uav1/uwb", dst="uav2/uwb",
-                    sigma=np.array([0.1]))
+    row = [(0, 1, 7.0, 0.1)]  # uav1 to uav2, 7 m, declared sigma 0.1 m
     one, three = Window(ctx, {}), Window(ctx, {"range_scale": 3.0})
-    assert three._range_sigma(m) == pytest.approx(3.0 * one._range_sigma(m)) and one._range_sigma(m) > 0.1
+    assert three._range_sigmas(row) == pytest.approx(3.0 * one._range_sigmas(row)) and one._range_sigmas(row)[0] > 0.1
     assert one.solver.huber is None  # coop.window: least squares (seed 001)
     assert WindowIns(ctx, {}).window.solver.huber == 1.345
     assert WindowIns(ctx, {"huber": 0.0}).window.solver.huber is None
+
+
+def test_window_range_weights_take_the_device_shared_antenna_delays():
+    """coop.window's range variance (testbed.plugins.builtin_window, "Range weights"): the declared
+    noise plus c times the row sum of the epoch's antenna-delay covariance, c sigma_ad^2 (deg a +
+    deg b) for link (a, b); c = 0: the delays as white noise, 2 sigma_ad^2. Three vehicles ranging
+    to each other and uav1 to one anchor: deg = 3, 2, 2 and the anchor 1."""
+    from testbed.plugins.api import Context
+    from testbed.plugins.builtin_window import Window
+
+    uwb = dict(mode="ds-twr", clock_ppm=0.0, reply_time=0.0, antenna_delay_sigma=0.04, link_bias_sigma=0.0)
+    vehicles = ("uav1", "uav2", "uav3")
+    ctx = Context(vehicles=vehicles, sites={f"{v}/uwb": (v, np.zeros(3)) for v in vehicles},
+                  anchors={"anchor1": np.zeros(3)}, sensors={"uwb": uwb}, duration=1.0, seed=0, rng=np.random.default_rng(0))
+    rows = [(0, 1, 5.0, 0.1), (0, 2, 6.0, 0.1), (1, 2, 7.0, 0.1), (0, 3, 9.0, 0.2)]  # device 3: the anchor
+    degrees = np.array([3 + 2, 3 + 2, 2 + 2, 3 + 1])
+    noise = np.array([0.1, 0.1, 0.1, 0.2]) ** 2
+    for c in (0.0, 0.5, 2.0):
+        got = Window(ctx, {"delay_epochs": c})._range_sigmas(rows) ** 2
+        want = noise + (2 * 0.04 ** 2 if c == 0 else c * 0.04 ** 2 * degrees)
+        assert got == pytest.approx(want, rel=1e-12), c
 
 
 def test_distributed_cascade_gives_its_window_the_imu_motion():

@@ -26,11 +26,13 @@ Frames and units: world frame ENU (m), bodies FLU; quaternions wxyz, body-to-wor
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
+
+from estimators.transport import Links
 
 Quantity = Literal["position", "velocity", "attitude"]
 
@@ -210,7 +212,11 @@ class Context:
     (kinematic) or "flown" (closed loop); seed: the scenario seed; rng: numpy Generator seeded from the scenario seed under the name "estimator/NAME";
     channel: the network of a distributed estimator's messages when the scenario has [network]
     and the estimator runs on a log (testbed.plugins.channel.Channel: `transport(t)` gives an
-    estimators.transport.Transport for the rounds of one solve starting at t s), else None (ideal).
+    estimators.transport.Transport for the rounds of one solve starting at t s), else None (ideal);
+    open_network: the runtime's network model, for an estimator that carries its own broadcasts over
+    a [network] table of its params: open_network(cfg, n, rng) -> estimators.transport.Links, cfg a
+    testbed.config.network.NetworkConfig (None: ideal), n nodes, drawing from rng
+    (testbed.sim.network.Network); None where no runtime made the Context.
     """
 
     vehicles: tuple[str, ...]
@@ -225,6 +231,14 @@ class Context:
     seed: int
     rng: np.random.Generator
     channel: object | None = None
+    open_network: Callable[..., Links] | None = None
+
+    def links(self, cfg: object | None, n: int) -> Links:
+        """The links of n nodes of an estimator's own broadcasts under cfg (a NetworkConfig; None:
+        ideal), drawn from this Context's rng: open_network(cfg, n, rng)."""
+        if self.open_network is None:
+            raise ValueError("needs the runtime's network model (Context.open_network), which this Context lacks")
+        return self.open_network(cfg, n, self.rng)
 
 
 @runtime_checkable

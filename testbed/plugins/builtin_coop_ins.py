@@ -88,7 +88,6 @@ from scipy.stats import chi2
 from estimators import coop_ins as ci
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from testbed.config import from_dict, key
-from testbed.sim.network import Network
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import StartParams, heading, imu_adapter, initial_poses, levelled_start, note_unstarted
@@ -435,8 +434,8 @@ class CoopInsDistributed(CoopIns):
         self.counts["forced_ranges"] = 0
         self.locked = np.zeros(2 * self.n, int)  # per filter: epochs in a row with every anchor range nonlinear
         net = self.p["network"]
-        self.network = Network(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
-                               self.n, context.rng)
+        self.network = context.links(None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network"),
+                                     self.n)
         n = self.n
         self.heard_t = np.full((n, n), -np.inf)  # receiver, sender: time of the broadcast held
         self.heard_s = np.zeros((n, n, 3))

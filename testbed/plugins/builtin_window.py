@@ -7,9 +7,19 @@ next epoch), and is then added to the window and solved: no look-ahead. Each clo
 per vehicle "uavI", the body position (the `uwb` antenna's estimate minus its lever arm, taken
 level: the window has no attitude; at 10 deg of tilt the 0.17 m mast moves 3 cm) and velocity,
 with their marginal covariances. Ranges: tag to tag (the graph's range factors) and tag to
-anchor (known anchor positions from the Context); their variance is the declared noise plus the
-two-way-ranging clock and antenna-delay terms and the link bias (as nav.eskf). GNSS: the fix's
-declared sigma. An epoch before the first with a GNSS fix is skipped (counted).
+anchor (known anchor positions from the Context). GNSS: the fix's declared sigma. An epoch
+before the first with a GNSS fix is skipped (counted).
+
+Range weights. The window takes ranges as independent; their errors are not: every radio's
+antenna delay (constant over the run) enters each range it takes part in, at every epoch. A
+range's variance is the declared noise, the two-way-ranging clock term and the link bias
+(estimators.sensor_models.range_variances without the delays), plus, for the delays, c times the
+row sum of |C| over the epoch's ranges, C the device-shared covariance of the epoch's antenna
+delays (estimators.sensor_models.twr_range_covariance; devices: the vehicles' tags and the
+anchors): for link (a, b), c sigma_ad^2 (deg a + deg b), deg the ranges of the epoch a device
+takes part in. With c = 1 the diagonal bounds C (C - diag(row sums of |C|) is negative
+semidefinite: Gershgorin), a bound for one epoch that the window then repeats over its epochs;
+c = `delay_epochs`. c = 0: the delays as white noise, 2 sigma_ad^2 per range (before).
 
 params (defaults): window (5 epochs), q (2.0 m^2/s^3, the white acceleration density of the
 motion factors), range_scale (1: the factor on every range's 1-sigma; the declared variance
@@ -21,10 +31,12 @@ early commit): Huber 1.345 with 5 steps per epoch let the estimate run away, 36 
 error in 6 s; least squares 2.2 m on the same log. In the cascade coop.window_ins, which flies
 on Huber 1.345 by default, the reverse: docs/denied.md),
 max_iter (5, Gauss-Newton steps per epoch, centralized), max_rounds (10, message rounds per
-epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior), network (distributed: a [network] table, docs/network.md,
-through which the broadcasts travel, testbed.sim.network.RoundTransport, drawn from the plugin's
-own rng; absent: ideal). The channel's geometry (range limit, NLOS loss) is taken from the
-estimator's own positions and the epoch's ranged links (the estimator cannot see the truth).
+epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior),
+network (distributed: a [network] table, docs/network.md, through which the broadcasts travel:
+links the runtime opens (Context.links) drawn from the plugin's own rng, one
+estimators.transport.Transport of rounds per epoch; absent: ideal). The channel's geometry
+(range limit, NLOS loss) is taken from the estimator's own positions and the epoch's ranged
+links (the estimator cannot see the truth).
 mirrors (true): after each epoch's solve, a vehicle is replaced by its mirror image through the
 plane of what it ranged to when the window's measurements favour it 100 to 1 (estimators.window;
 health `mirrored` counts them).
@@ -39,9 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators import window as sw
-from estimators.sensor_models import range_variances
+from estimators.sensor_models import range_variances, twr_range_covariance
 from testbed.config import check_fields, from_dict, key
-from testbed.sim.network import Network, RoundTransport
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
 from testbed.plugins.epochs import EpochGrouping
@@ -55,6 +66,7 @@ class WindowParams:
     window: int = key(5, lo=1, doc="epochs in the window")
     q: float = key(2.0, lo=0, unit="m^2/s^3", doc="white acceleration density of the motion factors")
     range_scale: float = key(1.0, lo=0, lo_open=True, doc="factor on every range's 1-sigma")
+    delay_epochs: float = key(0.0, lo=0, doc="factor on the row sums of the epoch's antenna-delay covariance in a range's variance (0: the delays as white)")
     huber: float = key(0.0, lo=0, unit="sigma", doc="Huber range loss threshold (0: least squares)")
     max_iter: int = key(5, lo=1, doc="Gauss-Newton steps per epoch (centralized)")
     max_rounds: int = key(10, lo=1, doc="message rounds per epoch (distributed)")
@@ -81,6 +93,7 @@ class _WindowPlugin(EpochGrouping):
         self.index = {f"{v}/uwb": i for i, v in enumerate(self.vehicles)}
         self.lever = np.array([context.sites[f"{v}/uwb"][1] for v in self.vehicles])  # (n, 3) m body
         self.anchors = dict(context.anchors)
+        self.anchor_id = {a: k for k, a in enumerate(self.anchors)}  # an anchor's device: n + k
         self.uwb = context.sensors.get("uwb")
         self.solver = self._solver(context)
         self.solver.mirrors = bool(self.p["mirrors"])
@@ -101,15 +114,28 @@ class _WindowPlugin(EpochGrouping):
     def _reset(self) -> None:
         self.fix = np.full((self.n, 3), np.nan)
         self.fix_sigma = np.ones((self.n, 3))
-        self.tag: list[tuple[int, int, float, float]] = []
-        self.anchor: list[tuple[int, np.ndarray, float, float]] = []
+        self.tag: list[tuple[int, int, float, float]] = []  # vehicle, vehicle, range m, declared sigma m
+        self.anchor: list[tuple[int, int, np.ndarray, float, float]] = []  # vehicle, anchor k, its position, range, sigma
 
-    def _range_sigma(self, m: Measurement) -> float:
-        return self.p["range_scale"] * float(np.sqrt(range_variances(self.uwb, np.asarray(m.sigma, float)[:1], np.asarray(m.value, float)[:1])[0]))
+    def _range_sigmas(self, rows: list[tuple[int, int, float, float]]) -> np.ndarray:
+        """(L,) m: the 1-sigma the window gives each range of one epoch, rows (vehicle, other
+        device, range m, declared sigma m) (devices: vehicles 0 .. n-1, anchors n + k), by the rule
+        of the module docstring ("Range weights")."""
+        if not rows:
+            return np.zeros(0)
+        i, j, d, sigma = (np.array(c) for c in zip(*rows))
+        var = range_variances(self.uwb, sigma, d, antenna_delays=not self.p["delay_epochs"])
+        if self.uwb is not None and self.p["delay_epochs"] > 0:
+            # the device-shared covariance of the epoch's antenna delays (clock terms in var)
+            C = twr_range_covariance(self.uwb["mode"], d, i, j, 0.0, self.uwb["reply_time"], self.uwb["antenna_delay_sigma"])
+            var = var + self.p["delay_epochs"] * np.abs(C).sum(axis=1)
+        return self.p["range_scale"] * np.sqrt(var)
 
     def _epoch(self) -> sw.Epoch:
+        sig = self._range_sigmas(self.tag + [(i, self.n + k, d, s) for i, k, _, d, s in self.anchor])
         tag = np.array(self.tag, float).reshape(-1, 4)
-        anc = self.anchor
+        tag[:, 3] = sig[:len(tag)]
+        anc = [(i, pos, d, s) for (i, _, pos, d, _), s in zip(self.anchor, sig[len(tag):])]
         return sw.Epoch(t=self.t, fix=self.fix, fix_sigma=self.fix_sigma, edges=tag[:, :2].astype(np.int64),
                         ranges=tag[:, 2], range_sigma=tag[:, 3],
                         anchor_vehicle=np.array([a[0] for a in anc], np.int64),
@@ -141,10 +167,11 @@ class _WindowPlugin(EpochGrouping):
             self.fix[i] = m.value
             self.fix_sigma[i] = m.sigma
         elif m.stream == "uwb":
+            sigma = float(np.asarray(m.sigma, float)[0])
             if m.dst in self.index:
-                self.tag.append((i, self.index[m.dst], float(m.value[0]), self._range_sigma(m)))
+                self.tag.append((i, self.index[m.dst], float(m.value[0]), sigma))
             elif m.dst in self.anchors:
-                self.anchor.append((i, self.anchors[m.dst], float(m.value[0]), self._range_sigma(m)))
+                self.anchor.append((i, self.anchor_id[m.dst], self.anchors[m.dst], float(m.value[0]), sigma))
 
     def health(self) -> dict[str, int]:
         return dict(self.counts)
@@ -168,9 +195,9 @@ class WindowDistributed(_WindowPlugin):
     def _solver(self, context):
         p = self.p
         net = p["network"]
-        self.network = None if net is None else Network(from_dict(NetworkConfig, dict(net), "estimator params network"),
-                                                         self.n, context.rng)
-        self.round_s = 0.0 if net is None else self.network.cfg.round_s
+        cfg = None if net is None else from_dict(NetworkConfig, dict(net), "estimator params network")
+        self.network = None if cfg is None else context.links(cfg, self.n)
+        self.round_s = 0.0 if cfg is None else cfg.round_s
         return sw.Distributed(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
                               max_rounds=int(p["max_rounds"]), tol=float(p["tol"]), init_sigma_v=float(p["init_sigma_v"]))
 
@@ -179,7 +206,7 @@ class WindowDistributed(_WindowPlugin):
         if self.network is not None:
             pos = self.solver.X[:, -1].reshape(self.n, 6)[:, :3] if self.solver.epochs else np.nan_to_num(ep.fix)
             self.network.set_geometry(ep.t, pos)
-            transport = RoundTransport(self.network, ep.t, self.round_s)
+            transport = self.network.rounds(ep.t, self.round_s)
         return self.solver.add(ep, transport)
 
     def health(self):

@@ -59,7 +59,7 @@ class Channel:
         self.network.set_geometry(t, pos, los)
         self._collect()
         self.used = True
-        self._open.append(RoundTransport(self.network, t, self.config.round_s))
+        self._open.append(self.network.rounds(t, self.config.round_s))
         return self._open[-1]
 
     def _collect(self) -> None:

@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 from testbed.errors import ConfigError
 from testbed.plugins.api import Context, Measurement, MeasurementBatch
 from testbed.plugins.channel import Channel
+from testbed.sim.network import Network
 from testbed.plugins.truth import Truth, relative
 from testbed.replay.bag_read import bag_tables
 from testbed.replay.calibration import Calibration, CalibrationFile, read_calibration, read_calibration_file
@@ -79,7 +80,8 @@ class Recording:
 
     def context(self, key: str, params: dict) -> Context:
         """The Context of estimator `key` (its rng: stream "estimator/KEY" of the spec's seed; its
-        channel: with a [network], its own network, stream "network/KEY", as in a simulated run);
+        channel: with a [network], its own network, stream "network/KEY", as in a simulated run;
+        open_network: testbed.sim.network.Network, as in a simulated run);
         of an exported run, the Context the estimator had in the simulation (Context.pipeline
         aside: {}, the exported built-ins carry their resolved params; testbed.replay.export)."""
         sensors = {k: dict(v) for k, v in self.spec.sensors.items()}
@@ -90,6 +92,7 @@ class Recording:
             sensors=sensors, prior=self.spec.priors, params=dict(params),
             duration=self.duration, motion=self.spec.motion, seed=self.spec.seed,
             rng=stream_rng(self.spec.seed, f"estimator/{key}"), channel=self._channel(key),
+            open_network=Network,
         )
 
     def _channel(self, key: str) -> Channel | None:

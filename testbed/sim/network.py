@@ -101,6 +101,8 @@ class _Links:
 
 class Network:
     """Messages between n vehicles over the links of `cfg` (module docstring); cfg None: ideal.
+    An estimators.transport.Links; the runtime hands the class to the estimators as
+    Context.open_network.
 
     rng: the network's generator (testbed.rng.stream_rng(seed, "network") or a name of the
     caller's choosing); every link spawns its own child from it.
@@ -239,6 +241,10 @@ class Network:
         self._count["delivered"] += len(out)
         self._bytes["bytes_delivered"] += sum(m.nbytes for m in out)
         return out
+
+    def rounds(self, t0: float, round_s: float) -> RoundTransport:
+        """The transport of one solve of synchronous rounds over these links (RoundTransport)."""
+        return RoundTransport(self, t0, round_s)
 
     def stats(self) -> dict[str, float]:
         """Counts and latencies so far: sent, dropped (and by cause: dropped_range, dropped_budget,
