@@ -153,10 +153,11 @@ def _drifted(entry: str, params: dict, preset: str) -> tuple[object, np.ndarray]
     from testbed.plugins.api import Context
     from testbed.plugins.loading import load_class
     from testbed.sensors.config import ImuConfig, UwbConfig
+    from testbed.sim.network import Network
 
     true = np.array([0.0, 0.0, 5.0])
     ctx = Context(vehicles=("uav1",), sites={"uav1/imu": ("uav1", np.zeros(3)), "uav1/uwb": ("uav1", np.zeros(3))},
-                  anchors=ANCHORS, duration=20.0, seed=0, rng=np.random.default_rng(0),
+                  anchors=ANCHORS, duration=20.0, seed=0, rng=np.random.default_rng(0), open_network=Network,
                   sensors={"imu": to_dict(ImuConfig(preset=preset, rate_hz=100.0)), "uwb": to_dict(UwbConfig(preset="ideal"))})
     start = {"uav1": {"position": list(true + [4.0, 0.0, 0.0]), "position_sigma": 0.1, "yaw_deg": 0.0, "yaw_sigma_deg": 1.0}}
     return load_class(entry)(ctx, {"initial_pose": start, **params}), true
