@@ -15,16 +15,19 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy import linalg, optimize
+from scipy.stats import chi2
 
 from estimators.geometry import numerical_rank, spanned_dimension
-from estimators.so3 import quat_exp, quat_to_rotmat, so3_right_jacobian
+from estimators.so3 import quat_exp, quat_to_rotmat, so3_log, so3_right_jacobian
 
 # Gauss-Newton from a start within the basin takes a handful of evaluations; a fit still moving
 # after this many is reported not converged (scipy's own limit, 100 (n + 1), spends seconds on
 # the ill-posed fits of small arrays far from their known points)
 MAX_EVALUATIONS = 50
+#: probability of the chi-square gate within which a fit's cost matches its ranges (mirror_fit)
+GATE_PROBABILITY = 0.99
 
-__all__ = ["RangeFit", "determines_attitude", "fit_ranges", "fresh_fit"]
+__all__ = ["RangeFit", "determines_attitude", "fit_ranges", "fresh_fit", "mirror_fit"]
 
 
 class RangeFit(NamedTuple):
@@ -95,3 +98,29 @@ def fresh_fit(arms: np.ndarray, known: np.ndarray, ranges: np.ndarray, sigma: np
         if best is None or (fit.converged, -fit.cost) > (best.converged, -best.cost):
             best = fit
     return best
+
+
+def mirror_fit(fit: RangeFit, arms: np.ndarray, known: np.ndarray, ranges: np.ndarray,
+               sigma: np.ndarray) -> tuple[RangeFit, bool]:
+    """The mirror check of a converged, observable fit (docs/replay.md, "The mirror check"): solve
+    again from its start reflected through the least-squares plane of the known points (K, 3) m
+    world; arms (K, 3) m body frame, ranges (K,) m, sigma (K,) m as fit_ranges (fit.R None: a
+    point fit). Returns (the lower-cost of the two converged, observable minima, flagged): flagged
+    when they differ (d^T P^-1 d > 1) and both costs lie within the chi-square gate of K - n dof;
+    then the returned covariance is P + d d^T, d (n,) their difference in [p m, theta rad body]."""
+    arms, known = np.asarray(arms, float).reshape(-1, 3), np.asarray(known, float).reshape(-1, 3)
+    n = 3 if fit.R is None else 6
+    X0 = known.mean(axis=0)
+    normal = np.linalg.svd(known - X0)[2][-1]  # the least-squares plane's normal
+    c = fit.p + (arms.mean(axis=0) @ fit.R.T if fit.R is not None else 0.0)
+    other = fit_ranges(arms, known, ranges, sigma, fit.p - 2.0 * normal * (normal @ (c - X0)), fit.R)
+    if not (other.converged and other.observable):
+        return fit, False
+    best, second = (fit, other) if fit.cost <= other.cost else (other, fit)
+    d = second.p - best.p
+    if n == 6:
+        d = np.concatenate([d, so3_log(best.R.T @ second.R)])
+    gate = chi2.ppf(GATE_PROBABILITY, ranges.size - n) if ranges.size > n else 0.0
+    if d @ np.linalg.solve(best.cov, d) <= 1.0 or second.cost > gate:
+        return best, False
+    return best._replace(cov=best.cov + np.outer(d, d)), True

@@ -143,6 +143,18 @@ def test_calibrate_recovers_the_process_noise_of_a_white_acceleration_truth(cali
         assert chi2.ppf(0.0005, n) < stat < chi2.ppf(0.9995, n), name
 
 
+def test_a_window_ending_at_the_last_row_keeps_the_process_noise(tmp_path):
+    """A 6 s dataset calibrated on 0,6: the epoch spacing (a median of rounded time differences) times
+    the rows overshoots 6 s by rounding; the grid still lies within the truth, and both densities are written."""
+    spacing = float(np.median(np.diff(np.round(T * np.arange(61), 9))))
+    assert spacing * 60 > 6.0  # the case: a grid of spacing * k would end past the truth's last row
+    _write_dataset(tmp_path / "d", 3, 6.0, 0.0)
+    out = tmp_path / "c.toml"
+    assert main(["calibrate", str(tmp_path / "d" / "spec.toml"), "--window", "0,6", "--out", str(out)]) == 0
+    noise = tomllib.loads(out.read_text())["noise"]
+    assert {"q_translation", "q_rotation"} <= set(noise), sorted(noise)
+
+
 def _tau_half_width(tau: float, rows: int, links: int) -> float:
     """Half-width (rows) of the central 99.9 % of the pooled integrated time (cal. 8) of `links` links
     of `rows` rows each with true time tau and equal noise (equal weights): per link, Madras and

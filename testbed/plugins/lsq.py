@@ -9,10 +9,13 @@ the body's previous fit, else (estimators.range_lsq.fresh_fit) from the centroid
 known points, at four headings.
 Covariance: the Gauss-Newton (J^T J)^-1 with the rows' declared sigmas (range_sigma where none).
 A fit with fewer ranges than unknowns, or whose information matrix is singular, is withheld and
-counted; so is one that did not converge (it is never a start either).
+counted; so is one that did not converge (it is never a start either). Every converged fit is
+solved again from its start mirrored through the known points' plane (estimators.range_lsq.mirror_fit):
+the lower-cost minimum is published, flagged with the covariance P + d d^T when the ranges fit both.
 
 health(): epochs, fitted (bodies fitted, summed over epochs), underdetermined, unobservable,
-nonconverged (withheld fits), unknown_end_rows (ranges whose other end is not known).
+nonconverged (withheld fits), mirror_flagged (fits published with both mirror minima in their
+covariance), unknown_end_rows (ranges whose other end is not known).
 params: range_sigma (m, 0.1), streams (range streams, ["uwb"]).
 """
 from __future__ import annotations
@@ -21,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.range_lsq import determines_attitude, fit_ranges, fresh_fit
+from estimators.range_lsq import determines_attitude, fit_ranges, fresh_fit, mirror_fit
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat
 from testbed.config import check_fields, key
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
@@ -56,7 +59,7 @@ class RangeLsq:
         self.t: float | None = None
         self.rows: list[tuple[str, str, float, float]] = []  # (src, dst, range m, sigma m)
         self.counts = {"epochs": 0, "fitted": 0, "underdetermined": 0, "unobservable": 0, "nonconverged": 0,
-                       "unknown_end_rows": 0}
+                       "mirror_flagged": 0, "unknown_end_rows": 0}
 
     def process_batch(self, b: MeasurementBatch) -> list[Estimate]:
         if b.stream not in self.p.streams:
@@ -145,7 +148,9 @@ class RangeLsq:
         if not fit.converged:
             self.counts["nonconverged"] += 1
             return []
+        fit, flagged = mirror_fit(fit, arms, X, d, s)
         self.counts["fitted"] += 1
+        self.counts["mirror_flagged"] += int(flagged)
         self.last[key] = (fit.p, fit.R)
         out = [Estimate(time=t, target=target, quantity="position", value=fit.p, cov=fit.cov[:3, :3])]
         if pose:

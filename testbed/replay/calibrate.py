@@ -214,7 +214,9 @@ def process_noise(rec: Recording, truth: RecordedTruth, t0: float, t1: float, sp
     table: dict[str, list[tuple[float, float, int]]] = {"q_translation": [], "q_rotation": []}
     h = spacing
     while h > 0:
-        g = t0 + h * np.arange(int(np.floor((t1 - t0) / h + 1e-9)) + 1)
+        # the tolerance that keeps a last sample at t1 lets h k exceed t1 by rounding (h is a median of
+        # rounded time differences): that sample is t1, inside the truth that ends there
+        g = np.minimum(t0 + h * np.arange(int(np.floor((t1 - t0) / h + 1e-9)) + 1), t1)
         tracks = _tracks(rec, truth, g) if g.size >= 4 else []
         D = [np.concatenate([_second_differences(tr[k]) for tr in tracks]) if tracks else np.zeros((0, 3))
              for k in (0, 1)]
