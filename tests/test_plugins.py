@@ -21,6 +21,8 @@ from testbed.plugins.loading import Plugin, load_class
 from testbed.plugins.truth import Truth
 from testbed.sim.simulate import simulate
 
+from table_checks import assert_every_anees_has_its_interval  # tests/ helper
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -555,30 +557,81 @@ def _record_figures(monkeypatch, *modules) -> dict[str, set[str]]:
     return drawn
 
 
-@pytest.mark.slow  # two short reproductions, ~30 s
-@pytest.mark.parametrize("paper, group, fitting", [
-    ("phase", "phase-cross-h000", ["--estimator", "phase.ekf", "--param", "q=1e-8"]),
-    ("visnav", "gaussian", ["--estimator", "visnav.ekf"])])
-def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, paper, group, fitting):
+ORIGIN = """
+    class Origin:
+        description = "every measuring site at the world origin"
+        def __init__(self, context, params): pass
+        def process(self, m):
+            return [Estimate(time=m.time, target=m.src, quantity="position", value=np.zeros(3))]
+"""
+PHASE_FITTING = EstimatorSpec(entry="phase.ekf", params={"q": 1e-8})  # the built-in under another setting
+
+
+@pytest.fixture(scope="module")
+def phase_reproduction(tmp_path_factory):
+    """One short `testbed reproduce phase` (2 runs of 1 s, run figures drawn) with two plugins, Origin
+    and phase.ekf at q = 1e-8, shared by the report test and the plugin test: (its directory, {PNG
+    file name: the texts drawn in it})."""
+    from testbed.reproduce import reproduce, visnav
+
+    tmp = tmp_path_factory.mktemp("phase")
+    origin = EstimatorSpec(entry=f"{_write(tmp, ORIGIN)}:Origin")
+    with pytest.MonkeyPatch.context() as mp:
+        drawn = _record_figures(mp, visnav)
+        reproduce("phase", tmp / "rep", runs=2, duration=1.0, workers=1, estimators=(origin, PHASE_FITTING))
+    return tmp / "rep", drawn
+
+
+@pytest.mark.slow  # builds the module's phase reproduction, ~45 s
+def test_phase_reproduction_writes_its_report(phase_reproduction):
+    """A short `testbed reproduce phase` (the module's, 2 runs of 1 s): report.md and report.html exist,
+    the window is the run's last half and says so, every claim shows its test and n, RMSE vs PCRB is
+    a figure."""
+    out, _ = phase_reproduction
+    md = (out / "report.md").read_text()
+    doc = json.loads((out / "claims.json").read_text())
+    table = (out / "table.md").read_text()
+    assert doc["window_s"] == 0.5 and "uses the last 0.5 s instead" in table and "RMSE pos last 0.5 s" in table
+    # eight formations, three ANEES each, and the attitude's where a run observed it (line H000: none),
+    # for the ekf and the plugin phase.ekf; and phase.ekf's position ANEES in the plugin section
+    # (Origin has no covariance)
+    observed = {k: {d.parent.name for d in (out / "runs").glob("phase-*/run-*")
+                    if "anees_attitude6" in json.loads((d / "metrics.json").read_text())["estimators"][k]}
+                for k in ("ekf", PHASE_FITTING.entry)}
+    assert "phase-line-h000" not in observed["ekf"]
+    assert assert_every_anees_has_its_interval(table) == sum(8 * 3 + len(o) for o in observed.values()) + 8
+    assert "last_100s" not in (out / "table.csv").read_text()
+    assert "testbed reproduce phase --out" in md and "--runs 2" in md and "--duration 1" in md
+    for c in doc["claims"]:
+        assert c["test"]["name"] and c["test"]["n"] == 2, c["id"]
+    assert (out / "plots" / "rmse_vs_pcrb.png").is_file()
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == len(list((out / "plots").glob("*.png")))
+    m = json.loads((out / "runs" / "phase-cross-h000" / "run-000" / "metrics.json").read_text())["estimators"]["ekf"]
+    assert m["last_window_s"] == 0.5 and np.isfinite(m["rmse_position_last_0.5s_m"])
+    made = json.loads((out / "provenance.json").read_text())  # and each of its runs (testbed.provenance)
+    assert made["output"] == "reproduce-phase" and made["command"]["function"] == "testbed.reproduce.reproduce"
+    assert json.loads((out / "runs" / "phase-cross-h000" / "run-000" / "provenance.json").read_text())["output"] == "run"
+
+
+@pytest.mark.slow  # a short visnav reproduction, ~10 s; phase's is the module's shared one
+@pytest.mark.parametrize("paper, group", [("phase", "phase-cross-h000"), ("visnav", "gaussian")])
+def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, request, paper, group):
     """A plugin whose outputs fit nothing of the paper (Origin) gets its generic row; one whose outputs
     fit the paper's scores (the built-in filter under another name and setting, entered like any
     --estimator) is in every table and figure that shows the built-ins' per-estimator results, with
     the paired tests against each built-in over the same 2 seeds."""
     from testbed.reproduce import visnav
 
-    drawn = _record_figures(monkeypatch, visnav)
-    path = _write(tmp_path, """
-        class Origin:
-            description = "every measuring site at the world origin"
-            def __init__(self, context, params): pass
-            def process(self, m):
-                return [Estimate(time=m.time, target=m.src, quantity="position", value=np.zeros(3))]
-    """)
-    out = tmp_path / "rep"
-    assert main(["reproduce", paper, "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
-                 "--estimator", f"{path}:Origin", *fitting,
-                 *(["--no-run-plots"] if paper == "visnav" else [])]) == 0  # phase: run 0's figures are copied
-    name = fitting[1]
+    if paper == "phase":
+        out, drawn = request.getfixturevalue("phase_reproduction")
+        name = PHASE_FITTING.entry
+    else:
+        drawn = _record_figures(monkeypatch, visnav)
+        path = _write(tmp_path, ORIGIN)
+        out, name = tmp_path / "rep", "visnav.ekf"
+        assert main(["reproduce", paper, "--runs", "2", "--duration", "1", "--workers", "1", "--out", str(out),
+                     "--estimator", f"{path}:Origin", "--estimator", name, "--no-run-plots"]) == 0
     md = (out / "table.md").read_text()
     section = md[md.index("## Plugin estimators"):]
     row = next(line for line in section.splitlines() if line.startswith(f"| {group} | Origin | 2 | "))
