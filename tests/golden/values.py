@@ -52,6 +52,14 @@ LOG_SUFFIXES = ("/value", "/clean", "/time", "/sigma", "/bias")
 RTOL = 1e-9
 ATOL = 1e-12  # a metric that is zero up to rounding (an RMSE of a vehicle on its reference)
 
+# A metric that counts the samples past a limit (the attitude samples whose own sd exceeds 0.1 rad:
+# testbed.plugins.score's "unobserved", phase's "attitude_unobserved_fraction") moves by whole
+# samples when a sample lies within rounding of the limit. Measured under Haswell against the
+# SkylakeX values: one sample of 381 (0.0026) on coop-denied's closed loop and prescribed runs.
+# Such a fraction passes within FRACTION_ATOL, four samples of the 4-s horizon's 381.
+THRESHOLD_FRACTIONS = ("unobserved", "attitude_unobserved_fraction")
+FRACTION_ATOL = 0.01
+
 # closed-loop cases: reproduce denied's variants flown on an estimate ("coop-denied/VARIANT")
 CLOSED_LOOP = ("coop", "coop_distributed")
 
@@ -142,11 +150,12 @@ def compute(names: list[str] | None = None) -> dict[str, dict]:
     return out
 
 
-def _close(a: object, b: object) -> bool:
-    """Numbers within the tolerance; anything else (strings, flags, null) equal."""
+def _close(a: object, b: object, fraction: bool = False) -> bool:
+    """Numbers within the tolerance (fraction: a count of samples past a limit, FRACTION_ATOL);
+    anything else (strings, flags, null) equal."""
     if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, (int, float)) or not isinstance(b, (int, float)):
         return a == b
-    return abs(a - b) <= RTOL * max(abs(a), abs(b)) + ATOL
+    return abs(a - b) <= (FRACTION_ATOL if fraction else RTOL * max(abs(a), abs(b)) + ATOL)
 
 
 def _scale(values: list) -> float:
@@ -172,7 +181,7 @@ def differences(stored: dict, now: dict) -> list[str]:
         for path in sorted(set(sm) | set(nm)):
             if path not in sm or path not in nm:
                 out.append(f"{key} metrics.json {path}: {'missing now' if path in sm else 'new'}")
-            elif not _close(sm[path], nm[path]):
+            elif not _close(sm[path], nm[path], path.rsplit(".", 1)[-1] in THRESHOLD_FRACTIONS):
                 out.append(f"{key} metrics.json {path}: stored {sm[path]!r}, now {nm[path]!r}")
         sl, nl = stored[key]["log"], now[key]["log"]
         for arr in sorted(set(sl) | set(nl)):
