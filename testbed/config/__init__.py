@@ -244,6 +244,22 @@ def check_key(cls: type, name: str, value: Any, file: str = "") -> Any:
     return converted
 
 
+def read_toml_file(path, what: str, directory_hint: str) -> dict:
+    """The table of the TOML file at path (a `what` file: "spec", "calibration"); ConfigError, one
+    line naming the file, when it is missing, a directory (directory_hint: what to name instead),
+    not UTF-8 or not valid TOML."""
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such {what} file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory; {directory_hint}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a UTF-8 text file") from None
+
+
 def parse_value(raw: str) -> Any:
     """A command-line value (`--set`, `--param`): parsed as a TOML value, else the string itself."""
     try:

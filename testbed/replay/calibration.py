@@ -22,13 +22,12 @@ file, the key and the value.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from testbed.config import MAX_MAGNITUDE as MAX_PARAM, MIN_MAGNITUDE
+from testbed.config import MAX_MAGNITUDE as MAX_PARAM, MIN_MAGNITUDE, read_toml_file
 from testbed.errors import ConfigError
 from testbed.replay.tables import CALIBRATION_SCHEMA, MAX_MAGNITUDE, Table, read_table
 
@@ -138,16 +137,7 @@ def read_calibration_file(path: Path, names: set[str]) -> CalibrationFile:
     """Read and check a calibration file (module docstring) against the spec's site and anchor
     names; ConfigError (one line naming the file, key and value) on a mistake."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such calibration file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory; name the calibration file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a UTF-8 text file") from None
+    data = read_toml_file(path, "calibration", "name the calibration file")
     unknown = sorted(set(data) - {"format", "window", "noise", "fit", "links"})
     if unknown:
         raise ConfigError(f"{path}: {unknown[0]}: unknown key (a calibration file has format, window, noise, fit, links)")

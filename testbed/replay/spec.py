@@ -8,15 +8,13 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from testbed.config import from_dict, in_range, require
-from testbed.errors import ConfigError
+from testbed.config import from_dict, in_range, read_toml_file, require
 from testbed.config.network import NetworkConfig
 from testbed.config.estimators import EstimatorSpec
 from testbed.sensors.config import declared_imu
@@ -200,14 +198,4 @@ class ReplaySpec:
 def load_spec(path: Path) -> ReplaySpec:
     """Read and check a spec.toml; ConfigError (exit 2) naming the file and key on any mistake."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such spec file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory; name its spec.toml") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a UTF-8 text file") from None
-    return from_dict(ReplaySpec, data, str(path))
+    return from_dict(ReplaySpec, read_toml_file(path, "spec", "name its spec.toml"), str(path))
