@@ -42,9 +42,10 @@ Conventions chosen here (see also the report of the seed):
   neighbour of unknown position carries no information about one's own position).
 
 Built from the graph library (estimators.graph): its factors (graph.factors: range and GNSS
-measurement functions, whitening, the inflated range variance), robust losses (graph.losses), the
-Gauss-Newton / Levenberg-Marquardt iteration of the general path (graph.lm) and the linear algebra
-(graph.linear). This module never imports mujoco, testbed or gtsam.
+measurement functions, whitening, the inflated range variance), robust losses (graph.losses), its
+iterations (graph.lm: the Gauss-Newton / Levenberg-Marquardt iteration of every centralized solve,
+least squares, Newton-Huber or the general graph, and the round iteration of the distributed
+scheme) and the linear algebra (graph.linear). This module never imports mujoco, testbed or gtsam.
 """
 from __future__ import annotations
 
@@ -58,8 +59,9 @@ from estimators.core import symmetrize
 from estimators.graph.factors import (
     gnss_h, gnss_jacobian, inflated_range_variance, range_h, range_jacobian, range_terms, sqrt_information,
 )
-from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, dense_covariance, factor_spd, marginal_blocks, solve_normal
-from estimators.graph.lm import ROUNDOFF, minimize
+from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, SparseNormal, dense_covariance, factor_spd, marginal_blocks
+from estimators.graph import lm
+from estimators.graph.lm import Report, minimize
 from estimators.graph.losses import HUBER_DELTA, Loss, huber_rho, huber_weight, loss_rho, loss_weight
 from estimators.transport import Transport
 
@@ -342,7 +344,8 @@ class CentralizedResult:
     converged: stopped on the step/cost tolerances (never on a cost increase, never on the
     iteration cap); history: objective after each accepted iteration (first entry: initial cost);
     observable: the normal matrix at the solution has no zero pivot (no gauge freedom; when False
-    a GaugeWarning was issued and cov, cov_full are NaN); method: "gn" or "lm".
+    a GaugeWarning was issued and cov, cov_full are NaN); method: "gn" or "lm"; report: the
+    estimators.graph.lm Report of the iteration (with huber: of its Huber-cost phase).
     Fixed nodes keep their given position and a zero covariance.
     """
 
@@ -355,31 +358,21 @@ class CentralizedResult:
     history: tuple[float, ...]
     observable: bool = True
     method: str = "gn"
+    report: Report | None = None
 
 
-_DIVERGED_M = 1e5  # a local step this large (metres) means the iteration diverged
-
-
-def _gn_direction(problem: CoopProblem, X: np.ndarray, huber: float | None, newton: bool) -> tuple[np.ndarray, float]:
-    """Gauss-Newton direction (n, 3) at X and the decrease of the quadratic model along it,
-    g^T Delta / 2 (the cost's decrease the linearization predicts for the full step).
-
-    huber None: eq. 16 on the whitened system. With huber and newton=False: IRLS (rows scaled by
-    sqrt(w)). With huber and newton=True: Gauss-Newton on the Huber cost itself - gradient from the
-    clipped residual psi(r) = clip(r, -delta, delta), curvature 1 on the quadratic branch and 0 on
-    the linear branch (rho'' = 0); the GNSS factors keep the normal matrix positive definite.
-    """
-    if huber is None or not newton:
-        A, b = whitened_system(problem, X, huber)
-        delta, g = solve_normal(A, b)
-        return delta.reshape(-1, 3), 0.5 * float(g @ delta)
+def _newton_huber(problem: CoopProblem, X: np.ndarray, huber: float) -> SparseNormal:
+    """Gauss-Newton normal equations of the Huber cost itself at X (n, 3): gradient from the clipped
+    residual psi(r) = clip(r, -delta, delta), curvature 1 on the quadratic branch and 0 on the
+    linear branch (rho'' = 0): N = A^T C A, g = A^T [b_gnss; psi(r)], C = diag(1 (GNSS rows), 1{|r| <= delta});
+    the GNSS factors keep N positive definite, so its step is a descent direction of the Huber cost."""
     A, b = whitened_system(problem, X, None)
     ng = 3 * problem.n
     r = b[ng:]
     rhs = np.concatenate([b[:ng], np.clip(r, -huber, huber)])
     curv = np.concatenate([np.ones(ng), (np.abs(r) <= huber).astype(float)])
-    delta, g = solve_normal(A, rhs, curv)
-    return delta.reshape(-1, 3), 0.5 * float(g @ delta)
+    # eq. 16 with the Huber curvature: (A^T C A) Delta = A^T psi
+    return SparseNormal((A.T @ (sparse.diags(curv) @ A)).tocsc(), A.T @ rhs)
 
 
 def solve_centralized(
@@ -396,7 +389,8 @@ def solve_centralized(
     losses=None,
     lm_lambda: float = 1e-4,
 ) -> CentralizedResult:
-    """Gauss-Newton on the stacked whitened system (eqs. 13-16) with backtracking step control.
+    """Gauss-Newton on the stacked whitened system (eqs. 13-16) with backtracking step control,
+    by the iteration of the graph library (estimators.graph.lm, method "gn").
 
     method: "gn" (Gauss-Newton with step halving, the default of seed 001) or "lm"
     (Levenberg-Marquardt, see `_solve_general`; lm_lambda: initial damping relative to diag(N)).
@@ -415,20 +409,20 @@ def solve_centralized(
     before any halving: it estimates the distance to the optimum) is below it (metres). Gauss-Newton
     converges only linearly here (nonzero range residuals; measured contraction 0.035 per iteration,
     at most 0.15, on the coop-fg epochs), so the optimum is then ~0.15 step_tol away or closer;
-    cost_tol: if > 0, also stop when the relative cost decrease is below it on two consecutive
-    steps. Off by default: the cost's evaluation scatters by ~3e-14 relative (round-off of
+    cost_tol: if > 0, also stop when the relative cost decrease of an accepted step is below it.
+    Off by default: the cost's evaluation scatters by ~3e-14 relative (round-off of
     d - |p_i - p_j|), so it cannot order iterates closer than ~5e-7 m along the weakest direction;
     a cost test stopped at up to 5e-7 m from the optimum on coop-fg epochs;
     covariance: "marginal" (n,3,3 blocks; dense inverse up to 3n = 600 unknowns, above that the
     sparse selected inverse `marginal_blocks`), "full" (also the (3n,3n) matrix) or "none".
-    A step that increases the cost is halved (up to max_halvings); if no halving decreases it the
-    solver stops with converged=False unless the step was already below step_tol. A step whose
-    predicted decrease (g^T Delta / 2) is below ROUNDOFF of the cost is taken whole whatever the
-    evaluated cost does (the cost cannot judge it), so `history` may rise by round-off there.
+    A step that raises the cost beyond its round-off (estimators.graph.lm.ROUNDOFF, relative) is
+    halved (up to max_halvings); if no halving lowers it the solver stops with converged=False
+    unless the step was already below step_tol. A step whose predicted decrease (g^T Delta / 2)
+    is below ROUNDOFF of the cost is taken whole whatever the evaluated cost does (the cost cannot
+    judge it), so `history` may rise by round-off there.
     With huber: least-squares solve first, then Gauss-Newton steps on the Huber cost (zero
-    curvature on the linear branch), falling back to the IRLS direction if no halving of the
-    Newton-Huber step decreases the cost. The covariance then uses the IRLS weights at the
-    solution (the usual approximation). `history` holds the Huber-cost phase only.
+    curvature on the linear branch, `_newton_huber`). The covariance then uses the IRLS weights
+    at the solution (the usual approximation). `history` holds the Huber-cost phase only.
     """
     if covariance not in ("marginal", "full", "none"):
         raise ValueError(f"solve_centralized: covariance must be marginal, full or none, got {covariance!r}")
@@ -448,44 +442,11 @@ def solve_centralized(
         # sit on the linear branch of the Huber loss and the Newton-Huber steps are well posed
         X = solve_centralized(problem, X, max_iter=max_iter, step_tol=step_tol, cost_tol=cost_tol,
                               max_halvings=max_halvings, covariance="none").positions
-    f = cost(problem, X, huber)
-    history = [f]
-    converged = False
-    it = 0
-    small_cost = 0  # consecutive accepted steps with a relative cost decrease below cost_tol
-    for it in range(1, max_iter + 1):
-        accepted = False
-        for newton in ((True, False) if huber is not None else (False,)):
-            # eq. 15-16: Delta = argmin |A Delta - b|^2  <=>  A^T A Delta = A^T b
-            delta, pred = _gn_direction(problem, X, huber, newton)
-            t = 1.0
-            for _ in range(max_halvings + 1):
-                X_new = X + t * delta
-                f_new = cost(problem, X_new, huber)
-                # a predicted decrease below the cost's round-off: the cost cannot judge the step (on
-                # coop-fg epochs its evaluation scatters by ~3e-14 relative, the round-off of
-                # d - |p_i - p_j| at d ~ 70 m), take the full step: near the optimum Gauss-Newton
-                # contracts by itself (measured: by 0.035 per iteration, at most 0.15)
-                if f_new <= f or pred <= ROUNDOFF * f:
-                    accepted = True
-                    break
-                t *= 0.5
-            if accepted:
-                break
-        if not accepted:
-            # no decrease along the GN direction: at a minimum to round-off, or a failure
-            converged = bool(np.abs(delta).max() < step_tol)
-            it -= 1
-            break
-        # the full Gauss-Newton step estimates the distance to the optimum (a halved one does not)
-        step = np.abs(delta).max()
-        rel = (f - f_new) / max(f, 1e-300)
-        X, f = X_new, f_new
-        history.append(f)
-        small_cost += 1 if cost_tol > 0.0 and rel < cost_tol else -small_cost
-        if step < step_tol or small_cost >= 2:
-            converged = True
-            break
+    # eq. 15-16: Delta = argmin |A Delta - b|^2  <=>  A^T A Delta = A^T b (estimators.graph.lm, GN)
+    system = (lambda X: whitened_system(problem, X)) if huber is None else (lambda X: _newton_huber(problem, X, huber))
+    res = minimize(X, lambda X: cost(problem, X, huber), system, lambda X, d: X + d.reshape(-1, 3), method="gn",
+                   max_iter=max_iter, step_tol=step_tol, cost_tol=cost_tol, max_halvings=max_halvings)
+    X = res.x
     cov = cov_full = None
     if covariance != "none":
         A, _ = whitened_system(problem, X, huber)
@@ -497,7 +458,7 @@ def solve_centralized(
             cov_full = full if covariance == "full" else None
         else:
             cov = marginal_blocks((A.T @ A).tocsc(), n)
-    return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history))
+    return CentralizedResult(X, cov, cov_full, res.cost, res.iterations, res.converged, res.history, report=res.report)
 
 
 def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_iter: int, step_tol: float,
@@ -518,7 +479,7 @@ def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_i
     res = minimize(X0, lambda X: _general_cost(problem, X, losses), lambda X: _general_system(problem, X, losses),
                    retract, method=method, max_iter=max_iter, step_tol=step_tol, cost_tol=cost_tol,
                    max_halvings=max_halvings, lm_lambda=lm_lambda)
-    X, f, it, converged, history, N = res.x, res.cost, res.iterations, res.converged, res.history, res.N
+    X, N = res.x, res.N
     fac = factor_spd(N)
     observable = fac.observable
     if not observable:
@@ -544,7 +505,8 @@ def _solve_general(problem: CoopProblem, x0, *, method: str, losses: dict, max_i
             sel = np.flatnonzero(np.repeat(free, 3))
             cov_full = np.zeros((3 * n, 3 * n))
             cov_full[np.ix_(sel, sel)] = full_free
-    return CentralizedResult(X, cov, cov_full, f, it, converged, tuple(history), observable, method)
+    return CentralizedResult(X, cov, cov_full, res.cost, res.iterations, res.converged, res.history, observable, method,
+                             res.report)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -613,7 +575,8 @@ class DistributedResult:
     messages: broadcasts sent (one per transmitting UAV per round, round 0 = GNSS broadcast);
     bytes_sent: messages * MESSAGE_BYTES; deliveries: successful receptions (directed links);
     max_step: (rounds,) largest position change |Delta_i| of each round, metres;
-    positions_history: (rounds + 1, n, 3) positions after each round (entry 0: GNSS).
+    positions_history: (rounds + 1, n, 3) positions after each round (entry 0: GNSS);
+    report: the estimators.graph.lm Report of the round iteration (None: no rounds were iterated).
     """
 
     positions: np.ndarray
@@ -625,6 +588,7 @@ class DistributedResult:
     deliveries: int
     max_step: np.ndarray
     positions_history: np.ndarray = field(repr=False)
+    report: Report | None = None
 
 
 def solve_distributed(
@@ -705,10 +669,8 @@ def solve_distributed(
             P[no_prior] = NO_INFO_VAR * np.eye(3)
         X[problem.fixed] = z[problem.fixed]
         P[problem.fixed] = 0.0
-    hist = [X.copy()]
-    steps: list[float] = []
     if mode == "gnss":
-        return DistributedResult(X, P, 0, True, 0, 0, 0, np.zeros(0), np.asarray(hist))
+        return DistributedResult(X, P, 0, True, 0, 0, 0, np.zeros(0), X[None].copy())
 
     # directed links: receiver dst uses the message of src and the range of edge eid
     src = np.concatenate([problem.edges[:, 0], problem.edges[:, 1]])
@@ -722,12 +684,11 @@ def solve_distributed(
     silent_round = np.full(n, np.iinfo(np.int64).max)
     for uav, r0 in (silent_from or {}).items():
         silent_round[int(uav)] = int(r0)
-
     messages = deliveries = 0
-    rounds = 0
-    converged = False
-    cap = 1 if mode == "single" else max_rounds
-    for rnd in range(cap):
+
+    def one_round(rnd: int, X: np.ndarray) -> np.ndarray:
+        """Round rnd: every UAV broadcasts, then takes its local Gauss-Newton step; P is updated."""
+        nonlocal P, tab_age, messages, deliveries
         # --- broadcast of (position, covariance): round 0 sends the GNSS fix and covariance
         sending = silent_round > rnd
         messages += int(sending.sum())
@@ -779,20 +740,12 @@ def solve_distributed(
         if not plain:
             dX[problem.fixed] = 0.0
             P_new[problem.fixed] = 0.0
-        X = X + dX
         P = 0.5 * (P_new + np.swapaxes(P_new, 1, 2))
-        hist.append(X.copy())
-        step = float(np.linalg.norm(dX, axis=1).max()) if n else 0.0
-        steps.append(step)
-        rounds = rnd + 1
-        if not np.isfinite(step) or step > _DIVERGED_M:
-            break  # diverged: reported with converged=False, never as convergence
-        if mode == "iterate" and step < tol:
-            converged = True
-            break
-    if mode == "single":
-        converged = True
-    return DistributedResult(
-        X, P, rounds, converged, messages, messages * MESSAGE_BYTES, deliveries,
-        np.asarray(steps), np.asarray(hist),
-    )
+        return X + dX
+
+    # the round iteration of the graph library: stops on tol, max_rounds or a diverged step
+    X, hist, report = lm.iterate_rounds(X, one_round, max_rounds=1 if mode == "single" else max_rounds,
+                                     tol=tol if mode == "iterate" else None)
+    rounds, converged = int(report.iterations[0]), bool(report.converged[0]) or mode == "single"
+    return DistributedResult(X, P, rounds, converged, messages, messages * MESSAGE_BYTES, deliveries,
+                             np.asarray(report.trace), hist, report)

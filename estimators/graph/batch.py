@@ -14,10 +14,11 @@ epoch). Factors (whitened, as in estimators.graph.model):
   the prior b ~ N(b_mean, b_cov) (B rows, whitened by the Cholesky factor of b_cov), so an epoch
   without a range of link i still determines b_i (by its prior). Combining the epochs' results
   is the caller's (testbed/replay/graph.py).
-Epochs share nothing, so their normal matrices are (E, k, k) dense blocks: Levenberg-Marquardt runs
-on all of them at once with one damping factor per epoch (the update rule of estimators.graph.lm:
-Madsen, Nielsen, Tingleff 2004, eq. 2.21 and algorithm 3.16), robust losses by IRLS
-(estimators.graph.losses), and each epoch stops on its own convergence test. Observability per
+Epochs share nothing, so their normal matrices are (E, k, k) dense blocks (estimators.graph.linear.
+DenseNormals): the Levenberg-Marquardt iteration of estimators.graph.lm (`solve`) runs on all of
+them at once with one damping factor per epoch (Madsen, Nielsen, Tingleff 2004, eq. 2.21 and
+algorithm 3.16), robust losses by IRLS (estimators.graph.losses), and each epoch stops on its own
+convergence test; once half of them have, the others continue alone. Observability per
 epoch by the relative Cholesky pivots of estimators.graph.linear (GAUGE_RATIO). Non-convergence
 and gauge freedom are results (flags per epoch), never exceptions.
 Never imports mujoco, testbed or gtsam.
@@ -29,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.graph.factors import range_terms
-from estimators.graph.linear import GAUGE_RATIO, factor_spd
-from estimators.graph.lm import ROUNDOFF, damping_update, marquardt_scaling
+from estimators.graph import lm
+from estimators.graph.linear import GAUGE_RATIO, DenseNormals, factor_spd
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 from estimators.so3 import so3_exp
 
@@ -108,7 +109,8 @@ class EpochsResult:
     tangent-space covariance (NaN where unobservable), unknowns in variable order, a pose's
     [dp world, dtheta body], then the B biases; offsets: (V,) first unknown of each variable; cost:
     (E,) final robust cost; iterations: (E,) linear solves (rejected LM steps included); converged,
-    observable: (E,) bool; b: (E, B) m the biases (None without)."""
+    observable: (E,) bool; b: (E, B) m the biases (None without); report: the estimators.graph.lm
+    Report of the iteration."""
 
     p: np.ndarray
     R: np.ndarray
@@ -119,6 +121,7 @@ class EpochsResult:
     converged: np.ndarray
     observable: np.ndarray
     b: np.ndarray | None = None
+    report: lm.Report | None = None
 
 
 class _Layout:
@@ -299,23 +302,6 @@ def _retract(lay: _Layout, p, R, b, delta):
     return p_new, R_new, b + delta[:, lay.kv:]
 
 
-def _damped_solve(N, g, lam):
-    """Solve (N + lam D) delta = g per epoch, D = diag(N) floored; returns delta (E, k) and D."""
-    D = marquardt_scaling(np.diagonal(N, axis1=1, axis2=2))
-    A = N + (lam[:, None] * D)[:, :, None] * np.eye(N.shape[1])
-    try:
-        L = np.linalg.cholesky(A)
-        y = np.linalg.solve(L, g[..., None])
-        return np.linalg.solve(np.swapaxes(L, 1, 2), y)[..., 0], D
-    except np.linalg.LinAlgError:  # one epoch numerically indefinite: solve each on its own
-        out = np.zeros_like(g)
-        for i in range(N.shape[0]):
-            fac = factor_spd(A[i])
-            if fac.ok:
-                out[i] = fac.solve(g[i])
-        return out, D
-
-
 def _observability_and_cov(N):
     """Per epoch: observable (relative pivot of the Cholesky of N above GAUGE_RATIO) and N^-1."""
     E, k = N.shape[0], N.shape[1]
@@ -342,6 +328,34 @@ def _observability_and_cov(N):
     return observable, cov
 
 
+class _Epochs:
+    """The epochs as a batch of problems for estimators.graph.lm.solve; x = (p (E, V, 3), R (E, V, 3, 3),
+    b (E, B))."""
+
+    def __init__(self, f: EpochFactors, losses: dict, E: int):
+        self.f, self.losses, self.size = f, losses, E
+        self.lay = _Layout(f, E)
+
+    def evaluate(self, x):
+        res = _residuals(self.f, self.lay, *x)  # at the candidates; the system of the accepted ones
+        return _cost(res, self.losses, self.size), res
+
+    def normal(self, x, res):
+        N, g, _ = _system(_residuals(self.f, self.lay, *x) if res is None else res, self.losses, self.lay)
+        return DenseNormals(N, g)
+
+    def retract(self, x, delta):
+        return _retract(self.lay, *x, delta)
+
+    @staticmethod
+    def select(mask, a, b):
+        return (np.where(mask[:, None, None], a[0], b[0]), np.where(mask[:, None, None, None], a[1], b[1]),
+                np.where(mask[:, None], a[2], b[2]))
+
+    def subset(self, keep):
+        return _Epochs(_subset(self.f, keep), self.losses, int(keep.sum()))
+
+
 def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dict | None = None, max_iter: int = 50,
                  step_tol: float = 1e-8, cost_tol: float = 1e-12, step_sigma: float = 0.0,
                  lm_lambda: float = 1e-4) -> EpochsResult:
@@ -356,60 +370,11 @@ def solve_epochs(f: EpochFactors, p0: np.ndarray, R0: np.ndarray, *, losses: dic
     for kind, loss in losses.items():
         if not isinstance(loss, Loss):
             raise ValueError(f"solve_epochs: losses[{kind!r}] must be a Loss, got {loss!r}")
-    P, RR = np.array(p0, float), np.array(R0, float)
-    E0 = P.shape[0]
-    BB = np.tile(np.asarray(f.b_mean, float) if f.n_bias else np.zeros(0), (E0, 1))
-    NN = np.zeros((E0,) + (_Layout(f, 0).k,) * 2)
-    CC, ITER, CONV = np.zeros(E0), np.zeros(E0, np.int64), np.zeros(E0, bool)
-    ids = np.arange(E0)
-    p, R, b, E = P, RR, BB, E0
-    lay = _Layout(f, E)
-    N, g, cost = _system(_residuals(f, lay, p, R, b), losses, lay)
-    lam, nu = np.full(E, lm_lambda), np.full(E, 2.0)
-    active, converged, iterations = np.ones(E, bool), np.zeros(E, bool), np.zeros(E, np.int64)
-    while active.any():
-        if active.sum() <= E // 2:  # most epochs done: continue on the others alone
-            P[ids], RR[ids], BB[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, b, N, cost, iterations, converged
-            ids, f = ids[active], _subset(f, active)
-            p, R, b, N, g, cost = p[active], R[active], b[active], N[active], g[active], cost[active]
-            lam, nu, iterations, converged = lam[active], nu[active], iterations[active], converged[active]
-            E = int(active.sum())
-            active = np.ones(E, bool)
-            lay = _Layout(f, E)
-        iterations += active
-        delta, D = _damped_solve(N, g, lam)
-        delta[~active] = 0.0
-        p_new, R_new, b_new = _retract(lay, p, R, b, delta)
-        res = _residuals(f, lay, p_new, R_new, b_new)  # at the candidates; the system of the accepted ones
-        f_new = _cost(res, losses, E)
-        pred = 0.5 * np.einsum("ek,ek->e", delta, lam[:, None] * D * delta + g)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = np.where(pred > 0, (cost - f_new) / pred, -1.0)
-        # the cost cannot tell this step apart: take it, the step test decides
-        q = np.where((pred <= ROUNDOFF * cost) & (f_new <= cost * (1.0 + ROUNDOFF)), 1.0, q)
-        accept = active & (q > 0)
-        reject = active & ~accept
-        step = np.abs(delta).max(axis=1, initial=0.0)
-        lam_new, nu_new = damping_update(lam, nu, q, accept)
-        lam, nu = np.where(active, lam_new, lam), np.where(active, nu_new, nu)
-        small = accept & ((step < step_tol) | (cost - f_new < cost_tol * np.maximum(cost, 1e-300)))
-        if step_sigma > 0:
-            small |= accept & (np.einsum("ei,eij,ej->e", delta, N, delta) < step_sigma ** 2)
-        p = np.where(accept[:, None, None], p_new, p)
-        R = np.where(accept[:, None, None, None], R_new, R)
-        b = np.where(accept[:, None], b_new, b)
-        # a rejected step below step_tol: the minimum is within step_tol (round-off decides the cost)
-        tiny = reject & (step < step_tol)
-        # no decrease even for a vanishing step: at a minimum to round-off
-        stuck = reject & (lam > 1e16)
-        converged |= small | tiny
-        stuck |= tiny
-        active &= ~(small | stuck) & (iterations < max_iter)
-        if accept.any():
-            N_new, g_new, _ = _system(res, losses, lay)
-            N = np.where(accept[:, None, None], N_new, N)
-            g = np.where(accept[:, None], g_new, g)
-            cost = np.where(accept, f_new, cost)
-    P[ids], RR[ids], BB[ids], NN[ids], CC[ids], ITER[ids], CONV[ids] = p, R, b, N, cost, iterations, converged
-    observable, cov = _observability_and_cov(NN)
-    return EpochsResult(P, RR, cov, _Layout(f, 0).offsets, CC, ITER, CONV, observable, BB if f.n_bias else None)
+    p, R = np.array(p0, float), np.array(R0, float)
+    E = p.shape[0]
+    b = np.tile(np.asarray(f.b_mean, float) if f.n_bias else np.zeros(0), (E, 1))
+    (p, R, b), lin, report = lm.solve(_Epochs(f, losses, E), (p, R, b), method="lm", max_iter=max_iter,
+                                      step_tol=step_tol, cost_tol=cost_tol, step_sigma=step_sigma, lm_lambda=lm_lambda)
+    observable, cov = _observability_and_cov(lin.N)
+    return EpochsResult(p, R, cov, _Layout(f, 0).offsets, report.cost, report.iterations, report.converged, observable,
+                        b if f.n_bias else None, report)

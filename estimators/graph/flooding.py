@@ -61,7 +61,8 @@ def solve_flooding(problem: CoopProblem, *, max_rounds: int = 100, covariance: s
     = broadcasts that carried records, bytes_sent their record bytes, deliveries = record
     receptions (directed, a record counted once per receiver that did not know it),
     positions_history: (rounds + 1, n, 3) each UAV's estimate after each round (its own GNSS fix
-    until its knowledge is complete, then the centralized solution).
+    until its knowledge is complete, then the centralized solution); report: the Report of that
+    centralized solve (estimators.graph.lm), None if flooding never completed.
     """
     n, m = problem.n, problem.m
     ends = problem.edges
@@ -105,4 +106,4 @@ def solve_flooding(problem: CoopProblem, *, max_rounds: int = 100, covariance: s
         X = solution.positions
     cov = solution.cov if converged and solution.cov is not None else problem.gnss_cov.copy()
     return DistributedResult(X, cov, rounds, converged, messages, bytes_sent, deliveries,
-                             np.asarray(steps), np.asarray(hist))
+                             np.asarray(steps), np.asarray(hist), solution.report if solution is not None else None)

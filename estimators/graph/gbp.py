@@ -27,6 +27,7 @@ import numpy as np
 
 from estimators.factor_graph import DistributedResult
 from estimators.graph.factors import range_terms
+from estimators.graph import lm
 
 __all__ = ["GBP_MESSAGE_BYTES", "solve_gbp"]
 
@@ -60,11 +61,10 @@ def solve_gbp(problem, *, max_rounds: int = 100, tol: float = 1e-4, damping: flo
     mL = np.zeros((2 * m, 3, 3))
     me = np.zeros((2 * m, 3))
     Lam, eta = Lg.copy(), eg.copy()
-    steps = []
-    hist = [X.copy()]
-    converged = False
-    rounds = 0
-    for rnd in range(max_rounds):
+
+    def one_round(rnd: int, X: np.ndarray) -> np.ndarray:
+        """One GBP round at the current means X (n, 3): new messages, beliefs, their means."""
+        nonlocal mL, me, Lam, eta
         h0, u = range_terms(X[dst], X[oth])
         # factor information over [p_dst; p_oth]: w [u; -u][u; -u]^T; eta_f = w J^T (d - h0 + J x0)
         uu = w[:, None, None] * u[:, :, None] * u[:, None, :]
@@ -81,16 +81,12 @@ def solve_gbp(problem, *, max_rounds: int = 100, tol: float = 1e-4, damping: flo
         Lam, eta = Lg.copy(), eg.copy()
         np.add.at(Lam, dst, mL)
         np.add.at(eta, dst, me)
-        X_new = np.linalg.solve(Lam, eta[:, :, None])[:, :, 0]
-        step = float(np.linalg.norm(X_new - X, axis=1).max())
-        X = X_new
-        hist.append(X.copy())
-        steps.append(step)
-        rounds = rnd + 1
-        if step < tol:
-            converged = True
-            break
+        return np.linalg.solve(Lam, eta[:, :, None])[:, :, 0]
+
+    # the round iteration of the graph library (estimators.graph.lm): stops on tol or a diverged step
+    X, hist, report = lm.iterate_rounds(X, one_round, max_rounds=max_rounds, tol=tol)
+    rounds, converged = int(report.iterations[0]), bool(report.converged[0])
     cov = np.linalg.inv(Lam)
     cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
     return DistributedResult(X, cov, rounds, converged, rounds * n, rounds * n * GBP_MESSAGE_BYTES, rounds * 2 * m,
-                             np.asarray(steps), np.asarray(hist))
+                             np.asarray(report.trace), hist, report)

@@ -8,10 +8,12 @@ LAPACK Cholesky for small systems; above `DENSE_LIMIT` unknowns a banded Cholesk
 Cuthill-McKee ordering (estimators.graph.banded) when the band is narrow, i.e. half-bandwidth below
 k * BAND_FRACTION, else SuperLU with a symmetric fill-reducing ordering and no pivoting) and reports
 the smallest relative pivot min_i D_i / N_ii; `observable` is that ratio above `GAUGE_RATIO`.
-The seed 001 solvers' linear algebra: `solve_normal` (a Gauss-Newton step from the whitened
-system), `dense_covariance` ((A^T A)^-1 by potrf/potri) and `marginal_blocks` (the 3x3 diagonal
-blocks of N^-1 by a selected inverse, for large swarms). The sliding window's block-tridiagonal
-solve: `solve_block_tridiagonal`.
+The normal equations N delta = g that the iteration of estimators.graph.lm solves, damped or not:
+`SparseNormal` (one problem, sparse N, factored by `factor_spd`) and `DenseNormals` (a batch of
+independent small problems, N (E, k, k), batched Cholesky). The seed 001 solvers' covariances:
+`dense_covariance` ((A^T A)^-1 by potrf/potri) and `marginal_blocks` (the 3x3 diagonal blocks of
+N^-1 by a selected inverse, for large swarms). The sliding window's block-tridiagonal solve:
+`solve_block_tridiagonal`.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ from scipy.sparse import linalg as splinalg
 from estimators.graph.banded import BandOrder, band_order, factor_banded, selected_inverse_diag
 
 __all__ = ["BAND_FRACTION", "DENSE_LIMIT", "GAUGE_RATIO", "GaugeWarning", "SpdFactor", "factor_spd", "narrow_band",
-           "solve_normal", "dense_covariance", "marginal_blocks", "solve_block_tridiagonal"]
+           "SparseNormal", "DenseNormals", "dense_covariance", "marginal_blocks", "solve_block_tridiagonal"]
 
 #: below this many unknowns the dense Cholesky beats the sparse factorization
 DENSE_LIMIT = 600
@@ -105,26 +107,89 @@ def narrow_band(N: sparse.spmatrix) -> BandOrder | None:
     return order if order.width < BAND_FRACTION * N.shape[0] else None
 
 
-def solve_normal(A: sparse.csr_matrix, b: np.ndarray, curv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(Delta (k,), g (k,)) of the normal equations A^T C A Delta = g = A^T b (seed 001 eq. 16),
-    A (rows, k) whitened Jacobian, b (rows,) whitened error, C = diag(curv) (identity if None).
+class SparseNormal:
+    """The normal equations N delta = g of one problem (a batch of E = 1 for estimators.graph.lm):
+    N (k, k) scipy sparse (or dense), symmetric PSD; g (1, k). Seed 001 eq. 16: N = A^T A, g = A^T b
+    for the whitened Jacobian A and error b (`from_whitened`)."""
 
-    Dense Cholesky up to DENSE_LIMIT unknowns, a banded Cholesky after a reverse Cuthill-McKee
-    ordering when the band is narrow (`narrow_band`), sparse LU otherwise. Raises LinAlgError when
-    A^T C A is not positive definite.
-    """
-    Ac = A if curv is None else sparse.diags(curv) @ A
-    N = (A.T @ Ac).tocsc()
-    g = A.T @ b
-    if N.shape[0] <= DENSE_LIMIT:
-        return linalg.cho_solve(linalg.cho_factor(N.toarray()), g), g
-    order = narrow_band(N)
-    if order is not None:  # banded Cholesky after reverse Cuthill-McKee (estimators.graph.banded)
-        fac = factor_banded(N)
-        if fac is None:
-            raise np.linalg.LinAlgError("solve_normal: A^T A is not positive definite")
-        return fac.solve(g), g
-    return splinalg.splu(N, permc_spec="MMD_AT_PLUS_A").solve(g), g
+    __slots__ = ("N", "g")
+
+    def __init__(self, N, g: np.ndarray):
+        self.N = N
+        self.g = np.asarray(g, float).reshape(1, -1)
+
+    @classmethod
+    def from_whitened(cls, A, b: np.ndarray) -> "SparseNormal":
+        """N = A^T A, g = A^T b from A (rows, k) sparse and b (rows,)."""
+        return cls((A.T @ A).tocsc(), A.T @ b)
+
+    def diagonal(self) -> np.ndarray:
+        """diag(N), (1, k)."""
+        return np.asarray(self.N.diagonal(), float)[None]
+
+    def solve(self, shift: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(delta (1, k), ok (1,)): (N + diag(shift)) delta = g, shift (1, k) or None (undamped);
+        ok False (delta zero) when that matrix is not positive definite (`factor_spd`)."""
+        M = self.N if shift is None else self.N + sparse.diags(shift[0])
+        fac = factor_spd(M)
+        if not fac.ok:
+            return np.zeros_like(self.g), np.zeros(1, bool)
+        return fac.solve(self.g[0])[None], np.ones(1, bool)
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        """delta^T N delta, (1,), for delta (1, k)."""
+        return np.array([float(delta[0] @ (self.N @ delta[0]))])
+
+    def where(self, mask: np.ndarray, other: "SparseNormal") -> "SparseNormal":
+        """self if mask[0] else other."""
+        return self if mask[0] else other
+
+
+class DenseNormals:
+    """The normal equations of E independent problems of k unknowns each: N (E, k, k) symmetric
+    PSD, g (E, k) (e.g. the epochs of estimators.graph.batch, the nodes of a distributed round)."""
+
+    __slots__ = ("N", "g")
+
+    def __init__(self, N: np.ndarray, g: np.ndarray):
+        self.N, self.g = N, g
+
+    def diagonal(self) -> np.ndarray:
+        """diag(N) per problem, (E, k)."""
+        return np.diagonal(self.N, axis1=1, axis2=2)
+
+    def solve(self, shift: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(delta (E, k), ok (E,)): (N + diag(shift)) delta = g per problem, shift (E, k) or None.
+        One batched Cholesky; if one matrix is numerically indefinite, each is factored on its own
+        (`factor_spd`) and a failed one gets ok False and delta zero."""
+        A = self.N if shift is None else self.N + shift[:, :, None] * np.eye(self.N.shape[1])
+        try:
+            L = np.linalg.cholesky(A)
+        except np.linalg.LinAlgError:
+            out, ok = np.zeros_like(self.g), np.zeros(self.g.shape[0], bool)
+            for i in range(A.shape[0]):
+                fac = factor_spd(A[i])
+                if fac.ok:
+                    out[i], ok[i] = fac.solve(self.g[i]), True
+            return out, ok
+        y = np.linalg.solve(L, self.g[..., None])
+        return np.linalg.solve(np.swapaxes(L, 1, 2), y)[..., 0], np.ones(self.g.shape[0], bool)
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        """delta^T N delta per problem, (E,), for delta (E, k)."""
+        return np.einsum("ei,eij,ej->e", delta, self.N, delta)
+
+    def where(self, mask: np.ndarray, other: "DenseNormals") -> "DenseNormals":
+        """Per problem: self where mask (E,) else other."""
+        return DenseNormals(np.where(mask[:, None, None], self.N, other.N), np.where(mask[:, None], self.g, other.g))
+
+    def take(self, idx: np.ndarray) -> "DenseNormals":
+        """The problems idx (index or mask)."""
+        return DenseNormals(self.N[idx], self.g[idx])
+
+    def put(self, idx: np.ndarray, part: "DenseNormals") -> None:
+        """Write part into the problems idx."""
+        self.N[idx], self.g[idx] = part.N, part.g
 
 
 def dense_covariance(A: sparse.csr_matrix) -> np.ndarray:

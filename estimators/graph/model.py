@@ -31,7 +31,7 @@ from scipy import sparse
 from estimators.so3 import skew, so3_exp, so3_log, so3_right_jacobian_inv
 from estimators.graph.factors import motion_covariance, range_terms, sqrt_information
 from estimators.graph.linear import GaugeWarning, factor_spd
-from estimators.graph.lm import minimize
+from estimators.graph.lm import Report, minimize
 from estimators.graph.losses import Loss, loss_rho, loss_weight
 
 __all__ = [
@@ -187,7 +187,7 @@ class Graph:
 class GraphResult:
     """values: {key: point (3,) | (p (3,), R (3, 3)) | scalar (1,)}; cov: {free key: (d, d)}
     tangent-space marginal covariance (NaN when unobservable); cost, iterations, converged,
-    history as estimators.graph.lm.Iterate; observable: no gauge freedom (else a GaugeWarning)."""
+    history, report as estimators.graph.lm.Iterate; observable: no gauge freedom (else a GaugeWarning)."""
 
     values: dict
     cov: dict
@@ -196,6 +196,7 @@ class GraphResult:
     converged: bool
     history: tuple
     observable: bool
+    report: Report | None = None
 
 
 def _offsets(graph: Graph) -> tuple[dict, int]:
@@ -272,4 +273,4 @@ def solve_graph(graph: Graph, init: dict, *, method: str = "lm", losses: dict | 
         for key, o in off.items():
             d = DIMS[graph.kinds[key]]
             cov[key] = full[o:o + d, o:o + d]
-    return GraphResult(res.x, cov, res.cost, res.iterations, res.converged, res.history, fac.observable)
+    return GraphResult(res.x, cov, res.cost, res.iterations, res.converged, res.history, fac.observable, res.report)

@@ -1,0 +1,134 @@
+"""One factor-graph library: every factor-graph solver of the testbed runs the iteration of
+estimators.graph.lm (`solve` for Gauss-Newton / Levenberg-Marquardt, `iterate_rounds` for the
+distributed message iterations), and its result carries the Report that iteration returned.
+
+The spy replaces lm.solve and lm.iterate_rounds by wrappers that record the Report of every call:
+a solver with its own loop would leave the record empty, or return a report the library did not
+make (checked by identity), or counts that differ from the report's.
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from estimators.factor_graph import solve_centralized, solve_distributed
+from estimators.graph import lm
+from estimators.graph import model as gm
+from estimators.graph.batch import EpochFactors, solve_epochs
+from estimators.graph.flooding import solve_flooding
+from estimators.graph.gbp import solve_gbp
+from testbed.synthetic.coop import make_epoch
+
+
+@pytest.fixture
+def spy(monkeypatch):
+    """The Reports returned by lm.solve and lm.iterate_rounds during the test, in call order."""
+    seen = []
+    solve, rounds = lm.solve, lm.iterate_rounds
+
+    def solve_spy(*a, **k):
+        out = solve(*a, **k)
+        seen.append(out[2])
+        return out
+
+    def rounds_spy(*a, **k):
+        out = rounds(*a, **k)
+        seen.append(out[2])
+        return out
+
+    monkeypatch.setattr(lm, "solve", solve_spy)
+    monkeypatch.setattr(lm, "iterate_rounds", rounds_spy)
+    return seen
+
+
+@pytest.fixture(scope="module")
+def epoch():
+    return make_epoch(18, seed=2).problem
+
+
+@pytest.mark.parametrize("kw,method,calls", [({}, "gn", 1), ({"huber": 1.345}, "gn", 2), ({"method": "lm"}, "lm", 1)])
+def test_centralized_runs_the_library_iteration(spy, epoch, kw, method, calls):
+    res = solve_centralized(epoch, covariance="none", **kw)
+    assert len(spy) == calls and res.report is spy[-1]  # huber: least squares first, then the Huber cost
+    assert res.report.method == method and res.converged
+    assert res.iterations == res.report.iterations[0] >= 1
+    assert res.history == res.report.trace and res.cost == res.report.cost[0]
+
+
+def test_centralized_general_graph_runs_the_library_iteration(spy, epoch):
+    fixed = np.zeros(epoch.n, bool)
+    fixed[:4] = True
+    res = solve_centralized(dataclasses.replace(epoch, fixed=fixed), covariance="none")
+    assert len(spy) == 1 and res.report is spy[0] and res.report.method == "gn"
+    assert np.array_equal(res.positions[fixed], epoch.gnss_pos[fixed])
+
+
+def test_flooding_solves_with_the_library_iteration(spy, epoch):
+    res = solve_flooding(epoch, covariance="none")
+    assert res.converged and len(spy) == 1 and res.report is spy[0] and res.report.method == "gn"
+
+
+@pytest.mark.parametrize("solver", ["distributed", "gbp"])
+def test_message_iterations_run_the_library_rounds(spy, epoch, solver):
+    res = (solve_distributed(epoch, max_rounds=40, tol=1e-3) if solver == "distributed"
+           else solve_gbp(epoch, max_rounds=40, tol=1e-3))
+    assert len(spy) == 1 and res.report is spy[0] and res.report.method == "rounds"
+    assert res.rounds == res.report.iterations[0] == len(res.max_step) == res.positions_history.shape[0] - 1
+    assert res.converged == res.report.converged[0]
+    np.testing.assert_array_equal(res.max_step, res.report.trace)
+
+
+def _points_to_anchors(E: int, rng) -> tuple[EpochFactors, np.ndarray, np.ndarray, np.ndarray]:
+    """E epochs of one point ranged by 4 fixed anchors (sigma 0.05 m), starts 0.01-3 m off."""
+    anchors = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 1.0], [0.0, 10.0, 2.0], [10.0, 10.0, 5.0]])
+    truth = rng.uniform(2.0, 8.0, (E, 3))
+    ep = np.repeat(np.arange(E), 4)
+    d = np.linalg.norm(truth[ep] - anchors[np.tile(np.arange(4), E)], axis=1) + 0.05 * rng.normal(size=4 * E)
+    f = EpochFactors(kinds=("point",), r_epoch=ep, r_a=np.zeros(4 * E, np.int64), r_b=np.full(4 * E, -1),
+                     r_arm_a=np.zeros((4 * E, 3)), r_arm_b=np.tile(anchors, (E, 1)), r_d=d,
+                     r_sigma=np.full(4 * E, 0.05), **EpochFactors.empty_rows())
+    off = rng.normal(size=(E, 3))
+    p0 = truth + off / np.linalg.norm(off, axis=1, keepdims=True) * np.geomspace(0.01, 3.0, E)[:, None]
+    return f, p0[:, None], np.tile(np.eye(3), (E, 1, 1, 1)), truth
+
+
+def test_epoch_batch_runs_the_library_iteration_epoch_by_epoch(spy):
+    """The batch (epochs finishing at different iterations, so the iteration continues on the
+    others alone) gives each epoch what the same iteration gives it alone."""
+    f, p0, R0, _ = _points_to_anchors(8, np.random.default_rng(5))
+    res = solve_epochs(f, p0, R0)
+    assert len(spy) == 1 and res.report is spy[0] and res.report.method == "lm"
+    np.testing.assert_array_equal(res.iterations, res.report.iterations)
+    np.testing.assert_array_equal(res.converged, res.report.converged)
+    assert res.iterations.max() > 2 * res.iterations.min()  # most epochs done while the others go on
+    for e in range(8):
+        keep = f.r_epoch == e
+        one = dataclasses.replace(f, **{k: getattr(f, k)[keep] for k in ("r_a", "r_b", "r_arm_a", "r_arm_b", "r_d", "r_sigma")},
+                                  r_epoch=np.zeros(4, np.int64), r_bias=None)
+        alone = solve_epochs(one, p0[e:e + 1], R0[e:e + 1])
+        np.testing.assert_allclose(res.p[e], alone.p[0], rtol=0, atol=1e-12)
+        assert res.iterations[e] == alone.iterations[0] and res.converged[e] == alone.converged[0]
+
+
+def test_general_graph_runs_the_library_iteration(spy):
+    g = gm.Graph()
+    g.add_variable("q", "point")
+    for j, a in enumerate(np.eye(3) * 10.0):
+        g.add_variable(f"a{j}", "point", fixed=True)
+        g.add(gm.Range("q", f"a{j}", float(np.linalg.norm(a - [1.0, 2.0, 3.0])), 0.05))
+    g.add(gm.Height("q", 3.0, 0.05))
+    init = {"q": np.array([2.0, 1.0, 2.0]), **{f"a{j}": a for j, a in enumerate(np.eye(3) * 10.0)}}
+    res = gm.solve_graph(g, init)
+    assert len(spy) == 1 and res.report is spy[0] and res.report.method == "lm" and res.converged
+    np.testing.assert_allclose(res.values["q"], [1.0, 2.0, 3.0], atol=1e-9)
+
+
+def test_rounds_stop_on_tolerance_cap_and_divergence():
+    x0 = np.ones((4, 3))
+    x, hist, rep = lm.iterate_rounds(x0, lambda r, x: 0.5 * x, max_rounds=100, tol=1e-3)
+    # |x_r - x_{r-1}| = sqrt(3) 2^-r < 1e-3 first at r = 11
+    assert rep.converged[0] and rep.iterations[0] == 11 and hist.shape == (12, 4, 3)
+    _, _, rep = lm.iterate_rounds(x0, lambda r, x: 0.5 * x, max_rounds=5, tol=1e-3)
+    assert not rep.converged[0] and rep.iterations[0] == 5
+    _, _, rep = lm.iterate_rounds(x0, lambda r, x: x * 1e6, max_rounds=50, tol=1e-3)
+    assert not rep.converged[0] and rep.iterations[0] == 1  # a step above DIVERGED_M stops at once
