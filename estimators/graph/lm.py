@@ -121,7 +121,7 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
     """Minimize every problem of the batch from x (see the module docstring); method "gn" or "lm".
     Returns (x, the normal equations at x (undamped), Report)."""
     if method not in METHODS:
-        raise ValueError(f"minimize: method must be 'gn' or 'lm', got {method!r}")
+        raise ValueError(f"lm.solve: method must be 'gn' or 'lm', got {method!r}")
     E0 = problem.size
     f, memo = problem.evaluate(x)
     lin = problem.normal(x, memo)
@@ -155,6 +155,7 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
         if method == "lm":
             x_new = problem.retract(x, delta)
             f_new, memo = problem.evaluate(x_new)
+            # gain ratio q = (F(x) - F(x + Delta)) / (L(0) - L(Delta)), L(0) - L(Delta) = Delta^T (lam D Delta + g) / 2
             pred = 0.5 * np.einsum("ek,ek->e", delta, lam[:, None] * D * delta + g)
             with np.errstate(divide="ignore", invalid="ignore"):
                 q = np.where(pred > 0, (f - f_new) / pred, -1.0)
@@ -162,6 +163,7 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
             q = np.where(pred <= ROUNDOFF * f, 1.0, q)
             q = np.where(ok, q, -1.0)
             accept = active & (q > 0)
+            # Madsen, Nielsen, Tingleff 2004, eq. 2.21 (algorithm 3.16)
             lam_new, nu_new = damping_update(lam, nu, q, accept)
             lam, nu = np.where(active, lam_new, lam), np.where(active, nu_new, nu)
             stopped = active & ~accept
