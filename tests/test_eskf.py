@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators import eskf
-from estimators.so3 import quat_exp, quat_to_rotmat
+from estimators.so3 import quat_exp, quat_to_rotmat, skew
 
 RNG = np.random.default_rng(7)
 
@@ -71,6 +71,32 @@ def test_update_gate_rejects_and_accepts():
     keep = eskf.screen(P, np.array([0.05, 5.0, 0.0]), H, np.eye(3) * 0.01, 10.83)  # 1 dof, 1e-3
     assert keep.tolist() == [True, False, True]
 
+
+def test_held_states_keep_their_estimate_and_variance_and_the_joseph_covariance():
+    """A held (consider) state correlated with the position: a position fix moves the position and
+    shrinks its variance, but leaves the held state's value and its own variance as they were; the
+    covariance is the Joseph form of the gain with the held rows zero (the exact covariance of that
+    estimator), computed here by hand."""
+    rng = np.random.default_rng(3)
+    n = eskf.N_ERR + 2
+    A = rng.normal(size=(n, n)) * 0.1
+    P = A @ A.T + 0.01 * np.eye(n)
+    x = _state()
+    s, H = eskf.site_position(x, np.zeros(3))
+    Rn = np.eye(3) * 0.01
+    z = s + [0.1, -0.05, 0.02]
+    hold = eskf.ACCEL_BIAS_ACROSS
+    x1, P1, res = eskf.update(x, P, z, lambda y: eskf.site_position(y, np.zeros(3)), Rn, np.inf, 1, hold)
+    assert res.accepted and abs(P[0, 9]) > 1e-3  # the held state is correlated with the position
+    assert np.array_equal(x1[[10, 11]], x[[10, 11]]) and np.allclose(P1[np.ix_(hold, hold)], P[np.ix_(hold, hold)])
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + Rn)
+    K[list(hold)] = 0.0
+    I_KH = np.eye(n) - K @ H
+    G = np.eye(n)
+    G[eskf.TH, eskf.TH] -= skew(0.5 * (K @ (z - s))[eskf.TH])
+    assert np.allclose(P1, G @ (I_KH @ P @ I_KH.T + K @ Rn @ K.T) @ G.T, atol=1e-12)
+    assert np.allclose(eskf.difference(x1, x), K @ (z - s), atol=1e-12)
+    assert P1[0, 0] < P[0, 0] and x1[0] != x[0]
 
 def test_iterated_update_reaches_the_map_estimate_of_ranges_with_a_large_prior_error():
     """Four noiseless-prior ranges 30 m away, the prior 5 m off (sigma 3 m): the iterated update
