@@ -62,6 +62,7 @@ from estimators.graph.motion import MotionBelief
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.range_lsq import determines_attitude, fresh_fit
+from estimators.sensor_models import correlated_sigma
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat, so3_log
 from testbed.config import check_fields, key, require
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
