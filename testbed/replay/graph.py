@@ -568,8 +568,8 @@ class PoseGraph:
 
     # ---------------------------------------------------------------- the motion model
     def _filter(self, ep: _Epoch) -> list[Estimate]:
-        """One epoch with the motion model (q_translation; docs/replay.md, "graph.poses on sparse
-        ranging"): the robots it names that have started are solved together with the belief's
+        """One epoch with the motion model (q_translation; docs/replay.md, "graph.poses with a
+        motion model"): the robots it names that have started are solved together with the belief's
         prediction as their prior (estimators.graph.motion, mo. 1-3); each other one it names tries
         to start from its epochs of the last init_window seconds."""
         t = float(np.mean(ep.times))
@@ -633,9 +633,8 @@ class PoseGraph:
         range, height and fix taken as one at t with its sigma grown by the motion since (the robot
         moves at v ~ N(0, v_sigma^2 I)); a pose robot with the prior that it is level within
         level_sigma (its position and heading uninformed: the ranges must determine them). On a
-        converged, observable solve
-        the robot joins the belief and its first estimate is published; else the epoch waits
-        (waiting_epochs)."""
+        converged, observable solve the robot joins the belief and its first estimate is published;
+        else the epoch waits (waiting_epochs)."""
         pool = [e for e in self.pool.get(v, []) if e.times[-1] >= t - self.p.init_window - 1e-9] + [ep]
         self.pool[v] = pool
         rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "r_key": [], "q": [], "h": []}
@@ -772,7 +771,7 @@ def _sym(c: np.ndarray) -> np.ndarray:
 
 def _factor_arrays(kinds: tuple[str, ...], ranges: dict, rows: dict[str, list], **state_prior) -> EpochFactors:
     """EpochFactors from the range arrays (PoseGraph._range_rows) and the prior and height row
-    tuples (see PoseGraph._factors), with the state prior x_p, x_R, x_cov when given."""
+    tuples (see PoseGraph._factors), with the state prior x_p, x_R, x_info when given."""
     q, h = rows["q"], rows["h"]
     col = lambda rs, k, shape=(): np.array([x[k] for x in rs], float).reshape((len(rs),) + shape)  # noqa: E731
     idx = lambda rs, k: np.array([x[k] for x in rs], np.int64).reshape(len(rs))  # noqa: E731
