@@ -7,7 +7,8 @@ points here from its docstrings; nothing here imports the simulator.
 
 - UWB two-way ranging (testbed.sensors.noise.twr_range injects it): the first-order clock and
   antenna-delay error of a range, its variance and its joint covariance over the links of one
-  epoch, and the variance an estimator gives a range taken as white noise.
+  epoch, and the variance an estimator gives a range taken as white noise; the sigma a filter
+  gives a range whose errors stay correlated in time (docs/calibration.md, cal. 8).
 - IMU: the white densities and the bias walk standing for the declared walk and Gauss-Markov
   terms (estimators.eskf.ImuNoise).
 - GNSS: the declared 1-sigma of a fix per axis (white noise and Gauss-Markov bias combined).
@@ -85,6 +86,16 @@ def twr_range_covariance(mode: str, d: np.ndarray, src: np.ndarray, dst: np.ndar
 
 
 # ------------------------------------------------------------------------------ IMU
+
+
+def correlated_sigma(sigma: float, correlation_s: float, dt: float | None) -> float:
+    """The sigma (m) a filter gives a range of declared sigma (m) whose link's errors stay
+    correlated over correlation_s (s), dt s after the link's previous range (None: its first):
+    the variance times the rows the link makes within that time, which carry the information of one."""
+    if dt is None or dt <= 0:
+        return sigma
+    # docs/calibration.md, cal. 8: variance x max(1, tau_c / dt)
+    return sigma * float(np.sqrt(max(1.0, correlation_s / dt)))
 
 
 def _walk(errors: dict) -> float:

@@ -109,13 +109,21 @@ def calibrated(dataset, tmp_path_factory):
     return out, tomllib.loads(out.read_text())
 
 
+def _link_rows(c: dict) -> dict:
+    """The calibration file's link rows {(src, dst): row}, each row's bias the link's total: its own
+    and its two devices' rows (docs/calibration.md, cal. 9)."""
+    dev = {r["src"]: r["bias"] for r in c["links"] if "dst" not in r}
+    return {(r["src"], r["dst"]): {**r, "bias": r["bias"] + dev.get(r["src"], 0.0) + dev.get(r["dst"], 0.0)}
+            for r in c["links"] if "dst" in r}
+
+
 def test_calibrate_recovers_the_injected_bias_scale_and_noise_within_their_sampling_error(dataset, calibrated):
     """Per link, b and s each alone: (estimate - true) / its sigma is Student's t with n - 2 dof (the
     noise variance estimated from the residuals), inside its central 99.9 % with Bonferroni over the
     36 coordinates; the pooled range sigma, sigma^2 dof / SIGMA^2 ~ chi2(dof), inside its central 99.9 %."""
     _, truth_bias = dataset
     _, c = calibrated
-    links = {(r["src"], r["dst"]): r for r in c["links"]}
+    links = _link_rows(c)
     assert set(links) == set(truth_bias)
     for key, (b, s) in truth_bias.items():
         r = links[key]
@@ -210,7 +218,7 @@ def test_replay_with_the_calibration_corrects_ranges_sets_noise_defaults_and_ski
     # the ranges fed are the recorded ones with the file's bias and scale removed, row for row
     raw = load_recording(spec).tables["links"]
     fed = load_recording(spec, calibration=cal).tables["links"]
-    fits = {frozenset((r["src"], r["dst"])): (r["bias"], r.get("scale", 0.0)) for r in c["links"]}
+    fits = {frozenset(k): (r["bias"], r.get("scale", 0.0)) for k, r in _link_rows(c).items()}
     b, s = np.array([fits[frozenset(k)] for k in zip(raw["src"], raw["dst"])]).T
     np.testing.assert_allclose(fed["value"], (raw["value"] - b) / (1 + s), rtol=1e-12)
 
@@ -262,3 +270,24 @@ def test_bad_input_is_one_line_and_exit_2_with_nothing_written(dataset, calibrat
     _one_line_exit_2(capsys, ["calibrate", str(both / "spec.toml"), "--window", "0,5", "--out", str(out)],
                      "calibrate estimates what this table holds")
     assert not out.exists() and not (tmp_path / "r").exists()
+
+
+def test_device_biases_split_each_link_and_are_kept_only_where_they_predict_left_out_links():
+    """cal. 9, 9b (testbed.replay.device_bias): biases made of device parts (plus a tag-tag link, which
+    fixes the anchors-tags gauge) are split back into those parts, exactly; every link keeps its total
+    (device parts plus remainder); the device rows are kept. Biases with no device structure (each
+    link its own, alternating in sign) are not kept: leaving a link out, the devices predict it worse
+    than no device model."""
+    from testbed.replay.device_bias import device_split
+
+    beta = {"a0": 0.10, "a1": -0.05, "a2": 0.20, "t0": 0.03, "t1": 0.12}
+    ends = [(a, t) for a in ("a0", "a1", "a2") for t in ("t0", "t1")] + [("t0", "t1")]
+    b = np.array([beta[x] + beta[y] for x, y in ends])
+    split = device_split(ends, b)
+    assert split.kept and np.abs(split.remainder).max() < 1e-12
+    assert all(abs(split.devices[k] - v) < 1e-12 for k, v in beta.items())
+    noise = np.array([0.2, -0.2, -0.2, 0.2, 0.2, -0.2, 0.0])
+    split = device_split(ends, b + noise)
+    totals = np.array([split.devices[x] + split.devices[y] for x, y in ends]) + split.remainder
+    np.testing.assert_allclose(totals, b + noise, atol=1e-12)
+    assert not device_split(ends[:6], noise[:6]).kept

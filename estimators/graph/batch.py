@@ -13,7 +13,14 @@ epoch). Factors (whitened, as in estimators.graph.model):
   still share nothing); a range row naming bias i measures |e_a - e_b| + b_i, and every epoch has
   the prior b ~ N(b_mean, b_cov) (B rows, whitened by the Cholesky factor of b_cov), so an epoch
   without a range of link i still determines b_i (by its prior). Combining the epochs' results
-  is the caller's (testbed/replay/graph.py).
+  is the caller's (testbed/replay/graph.py);
+- state prior (optional): each epoch's prior on all its variables at once, in information form:
+  mean x_mean and information x_info (kv, kv), symmetric positive semidefinite over the
+  variables' unknowns (a motion model's prediction: estimators.graph.motion; a zero eigenvalue: a
+  direction the prior leaves uninformed), residual per variable d = [p - p_mean; Log(R_mean^T R)]
+  (a point: p - p_mean), whitened W d with W = Lambda^1/2 U^T (x_info = U Lambda U^T), so that
+  W^T W = x_info; d Log(R_mean^T R exp(dtheta)) / d dtheta = J_r^-1(Log(R_mean^T R)). The epoch's
+  observability test counts only the information the prior gives.
 Epochs share nothing, so their normal matrices are (E, k, k) dense blocks (estimators.graph.linear.
 DenseNormals): the Levenberg-Marquardt iteration of estimators.graph.lm (`solve`) runs on all of
 them at once with one damping factor per epoch (Madsen, Nielsen, Tingleff 2004, eq. 2.21 and
@@ -33,7 +40,7 @@ from estimators.graph.factors import range_terms
 from estimators.graph import lm
 from estimators.graph.linear import GAUGE_RATIO, DenseNormals, factor_spd
 from estimators.graph.losses import Loss, loss_rho, loss_weight
-from estimators.so3 import so3_exp
+from estimators.so3 import so3_exp, so3_log, so3_right_jacobian_inv
 
 __all__ = ["EpochFactors", "EpochsResult", "solve_epochs"]
 
@@ -51,6 +58,10 @@ class EpochFactors:
     Prior rows: q_epoch, q_var (free), q_arm (P, 3), q_z (P, 3) m world, q_cov (P, 3, 3) m^2.
     Range biases (optional): r_bias (R,) int, the bias unknown a range adds (-1: none; None: -1
     for every range); b_mean (B,) m and b_cov (B, B) m^2 their prior in every epoch (None: B = 0).
+    State prior (optional, all three or none): x_p (E, V, 3) m world and x_R (E, V, 3, 3) its
+    mean (x_R ignored for points), x_info (E, kv, kv) its information (inverse covariance,
+    positive semidefinite) over the kv unknowns of the variables (a pose's [dp m world, dtheta
+    rad body], in variable order).
     """
 
     kinds: tuple[str, ...]
@@ -74,6 +85,9 @@ class EpochFactors:
     r_bias: np.ndarray | None = None
     b_mean: np.ndarray | None = None
     b_cov: np.ndarray | None = None
+    x_p: np.ndarray | None = None
+    x_R: np.ndarray | None = None
+    x_info: np.ndarray | None = None
 
     @property
     def n_bias(self) -> int:
@@ -92,6 +106,10 @@ class EpochFactors:
             raise ValueError("EpochFactors: sigmas must be positive")
         if self.r_bias is None:  # no range has a bias
             object.__setattr__(self, "r_bias", np.full(np.shape(self.r_epoch), -1, np.int64))
+        if (self.x_p is None) != (self.x_info is None) or (self.x_p is None) != (self.x_R is None):
+            raise ValueError("EpochFactors: a state prior needs x_p, x_R and x_info together")
+        if self.x_info is not None and not (np.all(np.isfinite(self.x_p)) and np.all(np.isfinite(self.x_info))):
+            raise ValueError("EpochFactors: the state prior is not finite")
         if np.any(np.asarray(self.r_bias) >= self.n_bias):
             raise ValueError(f"EpochFactors: r_bias names a bias beyond the {self.n_bias} of b_mean")
 
@@ -137,9 +155,11 @@ class _Layout:
         cols = self.offsets[:, None] + np.arange(6)[None, :]
         self.colmap = np.where(self.is_pose[:, None] | (np.arange(6)[None, :] < 3), cols, self.k)
         self.E = n_epochs
-        # slots: ranges, then heights, then 3 rows per prior, then the B bias priors, in order within each epoch
+        self.X = 0 if f.x_info is None else self.kv  # the state prior's rows per epoch
+        # slots: ranges, then heights, then 3 rows per prior, then the B bias priors, then the X state prior
+        # rows, in order within each epoch
         epochs = np.concatenate([f.r_epoch, f.h_epoch, np.repeat(f.q_epoch, 3),
-                                 np.repeat(np.arange(n_epochs), self.B)]).astype(np.int64)
+                                 np.repeat(np.arange(n_epochs), self.B), np.repeat(np.arange(n_epochs), self.X)]).astype(np.int64)
         order = np.argsort(epochs, kind="stable")
         counts = np.bincount(epochs, minlength=n_epochs)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -150,7 +170,14 @@ class _Layout:
         self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
         nq = 3 * f.q_epoch.size
         self.q_slot = slot[nr + nh:nr + nh + nq].reshape(-1, 3)
-        self.b_slot = slot[nr + nh + nq:].reshape(n_epochs, self.B)
+        nb = n_epochs * self.B
+        self.b_slot = slot[nr + nh + nq:nr + nh + nq + nb].reshape(n_epochs, self.B)
+        self.x_slot = slot[nr + nh + nq + nb:].reshape(n_epochs, self.X)
+        if self.X:
+            rows = np.arange(n_epochs)[:, None] * self.M + self.x_slot  # (E, X): the state prior's kv columns
+            self.x_prior = _Cols(np.arange(n_epochs * self.X), rows.reshape(-1, 1, 1) * (self.k + 1) + np.arange(self.kv)[None, None, :])
+            lam, U = np.linalg.eigh(f.x_info)
+            self.x_sqrt = np.sqrt(np.maximum(lam, 0.0))[:, :, None] * np.swapaxes(U, 1, 2)  # W, W^T W = x_info
         if self.B:
             kb = self.kv + np.arange(self.B)
             biased = np.flatnonzero(f.r_bias >= 0)
@@ -252,13 +279,36 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R, b=None):
         E = b.shape[0]
         out.append(("bias", np.repeat(np.arange(E), lay.B), lay.b_slot.reshape(-1, 1), e,
                     [(lay.b_prior, np.broadcast_to(W, (E, lay.B, lay.B)).reshape(-1, 1, lay.B))]))
+    if lay.X:
+        out.append(_state_prior(f, lay, p, R))
     return out
+
+
+def _state_prior(f: EpochFactors, lay: _Layout, p, R):
+    """The state prior's residual block (module docstring): d = [p - p_mean; Log(R_mean^T R)] per
+    variable (E, kv), whitened e = W (0 - d), Jacobian W dd/dx, W^T W = x_info."""
+    E, kv = p.shape[0], lay.kv
+    d, Jd = np.zeros((E, kv)), np.zeros((E, kv, kv))
+    poses = np.flatnonzero(lay.is_pose)
+    w = so3_log(np.swapaxes(f.x_R[:, poses], -1, -2) @ R[:, poses]) if poses.size else None  # (E, P, 3)
+    for i, o in enumerate(lay.offsets):
+        d[:, o:o + 3] = p[:, i] - f.x_p[:, i]
+        Jd[:, o:o + 3, o:o + 3] = np.eye(3)
+        if lay.is_pose[i]:
+            wi = w[:, int(np.searchsorted(poses, i))]
+            d[:, o + 3:o + 6] = wi
+            Jd[:, o + 3:o + 6, o + 3:o + 6] = [so3_right_jacobian_inv(x) for x in wi]
+    e = -(lay.x_sqrt @ d[..., None])
+    J = lay.x_sqrt @ Jd
+    return ("state", np.repeat(np.arange(E), kv), lay.x_slot.reshape(-1, 1), e.reshape(-1, 1), [(lay.x_prior, J.reshape(-1, 1, kv))])
 
 
 def _subset(f: EpochFactors, keep: np.ndarray) -> EpochFactors:
     """The factors of the epochs where keep (E,) bool, epochs renumbered in order."""
     new = np.cumsum(keep) - 1
     out = {"kinds": f.kinds, "b_mean": f.b_mean, "b_cov": f.b_cov}
+    if f.x_info is not None:
+        out.update(x_p=f.x_p[keep], x_R=f.x_R[keep], x_info=f.x_info[keep])
     for prefix, epoch in (("r_", f.r_epoch), ("h_", f.h_epoch), ("q_", f.q_epoch)):
         rows = keep[epoch]
         for name in EpochFactors.__slots__:

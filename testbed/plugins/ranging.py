@@ -68,6 +68,7 @@ import numpy as np
 from estimators.core import Gate, Gaussian, counting
 from estimators.geometry import DegenerateGeometryError
 from estimators.ranging import RangingEkf, RangingEpoch, RangingNoise, body_pose, initial_belief
+from estimators.sensor_models import correlated_sigma
 from estimators.so3 import quat_to_rotmat
 from testbed.config import check_fields, key, require
 from testbed.errors import ConfigError
@@ -211,10 +212,7 @@ class RangingEkfEstimator:
         docstring; 1 for its first)."""
         last = self.last_range.get(link)
         self.last_range[link] = t
-        if last is None or t <= last:
-            return sigma
-        # docs/calibration.md, cal. 8: the link's rows within the time its errors stay correlated
-        return sigma * float(np.sqrt(max(1.0, self.p["range_correlation"] / (t - last))))
+        return correlated_sigma(sigma, self.p["range_correlation"], None if last is None else t - last)
 
     def _advance(self, t: float | None) -> list[Estimate]:
         """Solve the buffered epoch once time moves past it (t None: at finish); then buffer at t."""

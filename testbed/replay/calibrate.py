@@ -57,9 +57,14 @@ adds 6 sigma_t^2 to each D_k^2: q(h) falls as h^-3 (a factor 8 per doubling) whe
 dominates and stays flat where the motion does. The rule: h the smallest of h_j = 2^j T (T the
 median spacing of the segment's range epochs) with q(h_j) <= 2 q(h_{j+1}) (cal. 7), else the largest
 with at least MIN_SAMPLES second differences.
+
+Device biases (cal. 9, 9b: testbed.replay.device_bias): the links' biases split into a bias per
+device (site or anchor) and each link's remainder, written as device rows when the device model
+predicts links left out of its fit better than no device model does.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +76,7 @@ from testbed.config import MIN_MAGNITUDE
 from testbed.errors import ConfigError
 from testbed.outdir import new_file
 from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE
+from testbed.replay.device_bias import device_split
 from testbed.replay.recording import RecordedTruth, Recording, load_recording
 from testbed.replay.spec import Window
 from testbed.replay.tables import find
@@ -278,7 +284,13 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
                                     range_sigma * np.sqrt(dof / chi2.ppf(0.025, dof))],
            "epoch_spacing_s": spacing,
            **{f"{k}_{c}": v[c] for k, v in q.items() for c in ("spacing_s", "samples", "interval", "by_spacing")}}
-    written = {"window": [t0, t1], "noise": noise, "fit": fit, "links": fits}
+    # eq. cal. 9, 9b: device biases, kept where they predict left-out links
+    split = device_split([(f.src, f.dst) for f in fits], np.array([f.bias for f in fits]))
+    fit.update(device_bias_rms=split.rms_bias, device_loo_rms=split.rms_loo, device_rows=int(split.kept))
+    devices = split.devices if split.kept else {}
+    if split.kept:
+        fits = [dataclasses.replace(f, bias=float(r)) for f, r in zip(fits, split.remainder)]
+    written = {"window": [t0, t1], "noise": noise, "fit": fit, "devices": devices, "links": fits}
     with new_file(Path(out), force=force) as tmp:
         tmp.write_text(to_toml(spec_path, written))
     return written
@@ -305,6 +317,9 @@ def to_toml(spec_path: Path, c: dict) -> str:
         if isinstance(v, list):
             v = "[" + ", ".join("[" + ", ".join(_num(y) for y in x) + "]" if isinstance(x, list) else _num(x) for x in v) + "]"
         lines.append(f"{k} = {v}")
+    for name, beta in c["devices"].items():
+        lines += ["", "[[links]]  # a device (eq. cal. 9): its bias enters every link it ends", f'src = "{name}"',
+                  f"bias = {_num(beta)}"]
     for f in c["links"]:
         lines += ["", "[[links]]", f'src = "{f.src}"', f'dst = "{f.dst}"', f"bias = {_num(f.bias)}",
                   f"sigma_bias = {_num(f.sigma_bias)}"]

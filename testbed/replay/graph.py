@@ -36,6 +36,16 @@ over every link seen: a link joins it with mean 0 and sigma its calibrated bias_
 solve gets the belief's marginal over its part's links as a prior (estimators.graph.batch); after
 the part, the likelihood each converged, unflagged epoch gave the biases (its posterior over the
 prior, in information form) is added to the belief. bias_estimates() gives it.
+
+Motion model (q_translation set; docs/replay.md, "graph.poses with a motion model"): the epochs
+are solved one at a time in time order, each over the started robots it names with the prediction
+of a joint constant-velocity belief (estimators.graph.motion) as a prior on their poses (the state
+prior of estimators.graph.batch), and the belief updated from its posterior (mo. 1-3); the range
+sigmas grown for correlated errors (range_correlation, cal. 8); a robot starts from its epochs of
+the last init_window s, solved alone with a level prior (level_sigma) for a pose, when its ranges
+determine its position and heading (waiting_epochs before). No warm start, batch or recovery: the
+prediction is the start; a solve that does not converge is withheld (nonconverged_epochs). A pose
+robot whose measured lever arms lie on one line gets no attitude estimate, in either mode.
 """
 from __future__ import annotations
 
@@ -48,9 +58,11 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimators.graph.batch import EpochFactors, EpochsResult, solve_epochs
+from estimators.graph.motion import MotionBelief
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.range_lsq import determines_attitude, fresh_fit
+from estimators.sensor_models import correlated_sigma
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat, so3_log
 from testbed.config import check_fields, key, require
 from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
@@ -94,9 +106,21 @@ class GraphParams:
     bias_states: bool = key(False, doc="a range-bias unknown per link (docs/replay.md, Range bias)")
     bias_sigma: float | None = key(None, lo=0, lo_open=True, unit="m",
                                    doc="prior sigma of a link's bias without a calibrated one (none: the link's range sigma)")
+    q_translation: float | None = key(None, lo=0, unit="m^2/s^3",
+                                      doc="white acceleration of a robot between epochs (none: no motion model, each epoch alone)")
+    q_rotation: float = key(1e-2, lo=0, unit="rad^2/s^3", doc="white angular acceleration of a pose robot between epochs (with q_translation)")
+    v_sigma: float = key(1.0, lo=0, lo_open=True, unit="m/s", doc="a robot's velocity at its first estimate, 1 sigma per axis (with q_translation)")
+    rate_sigma: float = key(1.0, lo=0, lo_open=True, unit="rad/s", doc="a pose robot's body rate at its first estimate, 1 sigma per axis (with q_translation)")
+    level_sigma: float = key(math.pi / 4, lo=0, lo_open=True, unit="rad",
+                             doc="a pose robot's tilt at its first estimate, 1 sigma per axis (with q_translation)")
+    init_window: float = key(2.0, lo=0, unit="s", doc="span of the ranges that start a robot together (with q_translation)")
+    range_correlation: float = key(0.0, lo=0, unit="s",
+                                   doc="correlation time of the range errors (with q_translation; docs/calibration.md, cal. 8)")
 
     def __post_init__(self) -> None:
         check_fields(self)
+        require(not (self.bias_states and self.q_translation is not None), "bias_states", self.bias_states,
+                "bias states are not carried by the motion model (q_translation) yet: use one of the two")
         for body, p in self.initial.items():
             require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
                     f"initial.{body}", p, "expected [x, y, z] (m, world) or [x, y, z, qw, qx, qy, qz]")
@@ -138,6 +162,7 @@ class PoseGraph:
         self.ranging = ("uwb", "phase") if self.p.use_phase else ("uwb",)
         self.loss = {"range": Loss(kind=self.p.loss, scale=self.p.loss_scale)}
         self.kind: dict[str, tuple[str, str | None]] | None = None  # body -> ("pose", None) | ("point", site)
+        self.on_line: set[str] = set()  # pose robots whose measured lever arms lie on one line: no attitude published
         self.history: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}  # body -> recent (t, p, R)
         self.key = None
         self.current: _Epoch | None = None
@@ -151,6 +176,13 @@ class PoseGraph:
         self.bias_index: dict[tuple[str, str, str], int] = {}
         self.bias_mean, self.bias_cov = np.zeros(0), np.zeros((0, 0))
         self.calibrated = (context.sensors.get("uwb") or {}).get("bias_sigma") or {}
+        # the motion model (q_translation): the joint belief of the started robots, the epochs of each
+        # robot not started yet (its last init_window s), each link's last range time (cal. 8)
+        self.belief = None if self.p.q_translation is None else MotionBelief(self.p.q_translation, self.p.q_rotation)
+        self.pool: dict[str, list[_Epoch]] = {}
+        if self.belief is not None:
+            self.counts["waiting_epochs"] = 0
+        self.last_range: dict[tuple[str, str, str], float] = {}
 
     # ---------------------------------------------------------------- collecting
     def _bin(self, t: float):
@@ -164,7 +196,7 @@ class PoseGraph:
         if self.key is None or key > self.key:
             if self.current is not None:
                 self.pending.append(self.current)
-                if len(self.pending) >= self.p.batch:
+                if len(self.pending) >= self.p.batch and self._kinds_known():
                     out += self._solve()
             self.key, self.current = key, _Epoch()
         return True
@@ -261,6 +293,8 @@ class PoseGraph:
         for v, seen in arms.items():
             if len(seen) >= 2:
                 self.kind[v] = ("pose", None)
+                if not determines_attitude(np.array(list(seen))):
+                    self.on_line.add(v)
             elif len(seen) == 1:
                 self.kind[v] = ("point", next(iter(seen.values())))
 
@@ -399,9 +433,19 @@ class PoseGraph:
         bodies = {self._arm(n)[0] for n in names} - {None} - set(ep.mocap)
         return tuple(v for v in self.vehicles if v in bodies and v in self.kind)
 
+    def _kinds_known(self) -> bool:
+        """Whether the pending epochs decide the robots' kinds: always, but with the motion model
+        (sparse ranging names a few sites an epoch), only once they span init_window."""
+        if self.kind is not None or self.belief is None:
+            return True
+        return self.pending[-1].times[-1] - self.pending[0].times[0] >= self.p.init_window
+
     def _solve(self) -> list[Estimate]:
         if self.kind is None:
             self._decide_kinds()
+        if self.belief is not None:
+            eps, self.pending = self.pending, []
+            return [est for ep in eps for est in self._filter(ep)]
         groups: dict[tuple, list[_Epoch]] = {}
         for ep in self.pending:
             groups.setdefault(self._present(ep), []).append(ep)
@@ -483,31 +527,154 @@ class PoseGraph:
         ok = (res.converged | flagged) & res.observable
         self.counts["nonconverged_epochs"] += int((~res.converged & ~flagged & res.observable).sum())
         self.counts["flagged_epochs"] += int(flagged.sum())
-        self.counts["lm_iterations"] += int(iterations.sum())
-        self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(iterations.max(initial=0)))
         self.counts["unobservable_epochs"] += int((~res.observable).sum())
-        for k, v in (("time", times), ("iterations", iterations), ("cost", res.cost), ("converged", res.converged),
-                     ("observable", res.observable), ("flagged", flagged)):
-            self.per_epoch[k].append(np.asarray(v, float))
+        self._record(times, res, iterations, flagged)
         out = []
         if sel is not None:
             self._fuse_biases(sel, res, res.converged & res.observable & ~flagged)
         for e in np.flatnonzero(ok):  # a non-converged epoch is flagged or withheld, and never a warm start
             t = float(times[e])
             for v, i in free.items():
-                o = res.offsets[i]
-                kind, site = self.kind[v]
-                p, R = res.p[e, i], res.R[e, i]
-                cov = res.cov[e]
                 if not flagged[e]:
-                    self._remember(v, t, p, R)
-                if kind == "point":
-                    out.append(Estimate(time=t, target=site, quantity="position", value=p, cov=_sym(cov[o:o + 3, o:o + 3])))
-                else:
-                    out.append(Estimate(time=t, target=v, quantity="position", value=p, cov=_sym(cov[o:o + 3, o:o + 3])))
-                    out.append(Estimate(time=t, target=v, quantity="attitude", value=rotmat_to_quat(R),
-                                        cov=_sym(cov[o + 3:o + 6, o + 3:o + 6])))
+                    self._remember(v, t, res.p[e, i], res.R[e, i])
+            out += self._publish(t, tuple(free), res, e)
         return out
+
+    def _publish(self, t: float, names: tuple[str, ...], res: EpochsResult, e: int) -> list[Estimate]:
+        """The estimates of epoch e of res at time t: a pose robot's position and attitude, a point
+        robot's site position, with their marginal covariances. A pose robot whose measured lever
+        arms lie on one line gets no attitude: no range measures its rotation about that line, and
+        its covariance there is only what a prior and the linearization left (a level prior and the
+        motion model), not a measurement."""
+        out = []
+        for i, v in enumerate(names):
+            o = res.offsets[i]
+            kind, site = self.kind[v]
+            p, R, cov = res.p[e, i], res.R[e, i], res.cov[e]
+            out.append(Estimate(time=t, target=site if kind == "point" else v, quantity="position", value=p,
+                                cov=_sym(cov[o:o + 3, o:o + 3])))
+            if kind == "pose" and v not in self.on_line:
+                out.append(Estimate(time=t, target=v, quantity="attitude", value=rotmat_to_quat(R),
+                                    cov=_sym(cov[o + 3:o + 6, o + 3:o + 6])))
+        return out
+
+    def _record(self, times: np.ndarray, res: EpochsResult, iterations: np.ndarray, flagged: np.ndarray) -> None:
+        """Count a solve's iterations and keep its per-epoch diagnostics."""
+        self.counts["lm_iterations"] += int(iterations.sum())
+        self.counts["lm_iterations_max"] = max(self.counts["lm_iterations_max"], int(iterations.max(initial=0)))
+        for k, v in (("time", times), ("iterations", iterations), ("cost", res.cost), ("converged", res.converged),
+                     ("observable", res.observable), ("flagged", flagged)):
+            self.per_epoch[k].append(np.asarray(v, float))
+
+    # ---------------------------------------------------------------- the motion model
+    def _filter(self, ep: _Epoch) -> list[Estimate]:
+        """One epoch with the motion model (q_translation; docs/replay.md, "graph.poses with a
+        motion model"): the robots it names that have started are solved together with the belief's
+        prediction as their prior (estimators.graph.motion, mo. 1-3); each other one it names tries
+        to start from its epochs of the last init_window seconds."""
+        t = float(np.mean(ep.times))
+        self.counts["epochs"] += 1
+        present = self._present(ep)
+        if not present:
+            self.counts["unobservable_epochs"] += 1
+            return []
+        ep = self._decorrelated(ep)
+        tracked = tuple(v for v in present if v in self.belief)
+        out = self._track(tracked, ep, t) if tracked else []
+        for v in present:
+            if v not in self.belief:
+                out += self._start(v, ep, t)
+        return out
+
+    def _decorrelated(self, ep: _Epoch) -> _Epoch:
+        """ep with each range's sigma grown for its link's errors correlated in time over
+        range_correlation s (docs/calibration.md, cal. 8; estimators.sensor_models.correlated_sigma)."""
+        if self.p.range_correlation <= 0:
+            return ep
+        sigma = []
+        for stream, a, b, s, t in zip(ep.r_stream, ep.r_src, ep.r_dst, ep.r_sigma, ep.times):
+            link = (stream,) + tuple(sorted((a, b)))
+            last = self.last_range.get(link)
+            self.last_range[link] = t
+            sigma.append(correlated_sigma(s, self.p.range_correlation, None if last is None else t - last))
+        return dataclasses.replace(ep, r_sigma=sigma)
+
+    def _track(self, names: tuple[str, ...], ep: _Epoch, t: float) -> list[Estimate]:
+        """Solve epoch ep (time t) over the started robots `names` with the belief's prediction to t
+        as their prior; a converged, observable solve updates the belief (mo. 3) and is published,
+        another is withheld (nonconverged_epochs), the belief left at its prediction."""
+        free = {v: i for i, v in enumerate(names)}
+        rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "r_key": [], "q": [], "h": []}
+        ends: dict[str, list] = {"var": [], "arm": []}
+        self._factors(ep, free, 0, rows, ends)
+        ranges = self._range_rows(rows, ends)
+        if not (ranges["r_d"].size or rows["q"] or rows["h"]):
+            return []
+        self.belief.predict(t)
+        p0, R0, cov0 = self.belief.prior(names)
+        f = _factor_arrays(tuple(self.kind[v][0] for v in names), ranges, rows, x_p=p0[None], x_R=R0[None],
+                           x_info=np.linalg.inv(cov0)[None])
+        res = self._solve_one(f, p0, R0)
+        ok = bool(res.converged[0] and res.observable[0])
+        self.counts["nonconverged_epochs"] += int(not ok)
+        self._record(np.array([t]), res, res.iterations, np.zeros(1))
+        if not ok:
+            return []
+        self.belief.update(names, res.p[0], res.R[0], res.cov[0])
+        return self._publish(t, names, res, 0)
+
+    def _solve_one(self, f: EpochFactors, p0: np.ndarray, R0: np.ndarray) -> EpochsResult:
+        """One epoch's solve from p0 (V, 3), R0 (V, 3, 3) with the params' loss and stopping rules."""
+        return solve_epochs(f, p0[None], R0[None], losses=self.loss, max_iter=self.p.max_iter, step_tol=self.p.step_tol,
+                            step_sigma=self.p.step_sigma, cost_tol=self.p.cost_tol)
+
+    def _start(self, v: str, ep: _Epoch, t: float) -> list[Estimate]:
+        """Try to start robot v at epoch ep (time t) from its epochs of the last init_window s, each
+        range, height and fix taken as one at t with its sigma grown by the motion since (the robot
+        moves at v ~ N(0, v_sigma^2 I)); a pose robot with the prior that it is level within
+        level_sigma (its position and heading uninformed: the ranges must determine them). On a
+        converged, observable solve the robot joins the belief and its first estimate is published;
+        else the epoch waits (waiting_epochs)."""
+        pool = [e for e in self.pool.get(v, []) if e.times[-1] >= t - self.p.init_window - 1e-9] + [ep]
+        self.pool[v] = pool
+        rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "r_key": [], "q": [], "h": []}
+        ends: dict[str, list] = {"var": [], "arm": []}
+        unused = self.counts["unused_measurements"]
+        grown = [_grown(e, self.p.v_sigma * (t - float(np.mean(e.times)))) for e in pool]
+        for e in grown:
+            self._factors(e, {v: 0}, 0, rows, ends)
+        ranges = self._range_rows(rows, ends)
+        self.counts["unused_measurements"] = unused  # a waiting epoch's rows are counted once it is tracked
+        kind = self.kind[v][0]
+        if ranges["r_d"].size + len(rows["h"]) + 3 * len(rows["q"]) < (6 if kind == "pose" else 3):
+            self.counts["waiting_epochs"] += 1
+            return []
+        merged = _Epoch(times=[t], mocap=ep.mocap, **{k: [x for e in grown for x in getattr(e, k)]
+                                                     for k in ("r_src", "r_dst", "r_d", "r_sigma", "r_stream", "fixes", "heights")})
+        fixed = [self.anchors[n] for n in set(merged.r_src) | set(merged.r_dst) if n in self.anchors] + [p for p, _ in ep.mocap.values()]
+        p0, R0, _ = self._initial(v, merged, None, fixed, 0)
+        prior = {}
+        if kind == "pose":  # level within level_sigma: information on the tilt (body x, y at a level R0) only
+            R0 = _heading(R0)
+            info = np.diag([0.0] * 3 + [self.p.level_sigma ** -2] * 2 + [0.0])
+            prior = {"x_p": p0[None, None], "x_R": R0[None, None], "x_info": info[None]}
+        f = _factor_arrays((kind,), ranges, rows, **prior)
+        res = self._solve_one(f, p0[None], R0[None])
+        iterations = res.iterations
+        if kind == "pose" and res.converged[0] and res.observable[0]:
+            # again with the level prior about the solution's own heading: about another heading, the
+            # tilt of Log(R0^T R) would mix with the heading difference
+            f = dataclasses.replace(f, x_p=res.p, x_R=_heading(res.R[0, 0])[None, None])
+            res = self._solve_one(f, res.p[0], res.R[0])
+            iterations = iterations + res.iterations
+        ok = bool(res.converged[0] and res.observable[0])
+        self._record(np.array([t]), res, iterations, np.zeros(1))
+        if not ok:
+            self.counts["waiting_epochs"] += 1
+            return []
+        self.pool.pop(v)
+        self.belief.add(v, kind, t, res.p[0, 0], res.R[0, 0], res.cov[0], self.p.v_sigma, self.p.rate_sigma)
+        return self._publish(t, (v,), res, 0)
 
 
     # ---------------------------------------------------------------- range biases
@@ -580,13 +747,31 @@ def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, ret
     return flagged, dataclasses.replace(second, p=p, R=R, cov=cov, cost=cost, b=bias)
 
 
+def _grown(ep: _Epoch, s: float) -> _Epoch:
+    """ep with every range, height and fix sigma grown by s m in quadrature (motion since)."""
+    if s <= 0:
+        return ep
+    return dataclasses.replace(ep, r_sigma=[math.hypot(x, s) for x in ep.r_sigma],
+                               heights=[(n, z, math.hypot(x, s)) for n, z, x in ep.heights],
+                               fixes=[(n, z, np.hypot(x, s)) for n, z, x in ep.fixes])
+
+
+def _heading(R: np.ndarray) -> np.ndarray:
+    """The level rotation (3, 3) about world z with the heading of R's body x axis (its y axis
+    where x is vertical)."""
+    x = np.hypot(R[0, 0], R[1, 0]) > 1e-6
+    psi = math.atan2(R[1, 0], R[0, 0]) if x else math.atan2(R[1, 1], R[0, 1]) - math.pi / 2
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def _sym(c: np.ndarray) -> np.ndarray:
     return 0.5 * (c + c.T)
 
 
-def _factor_arrays(kinds: tuple[str, ...], ranges: dict, rows: dict[str, list]) -> EpochFactors:
+def _factor_arrays(kinds: tuple[str, ...], ranges: dict, rows: dict[str, list], **state_prior) -> EpochFactors:
     """EpochFactors from the range arrays (PoseGraph._range_rows) and the prior and height row
-    tuples (see PoseGraph._factors)."""
+    tuples (see PoseGraph._factors), with the state prior x_p, x_R, x_info when given."""
     q, h = rows["q"], rows["h"]
     col = lambda rs, k, shape=(): np.array([x[k] for x in rs], float).reshape((len(rs),) + shape)  # noqa: E731
     idx = lambda rs, k: np.array([x[k] for x in rs], np.int64).reshape(len(rs))  # noqa: E731
@@ -594,4 +779,4 @@ def _factor_arrays(kinds: tuple[str, ...], ranges: dict, rows: dict[str, list]) 
         kinds=kinds, **ranges,
         h_epoch=idx(h, 0), h_var=idx(h, 1), h_arm=col(h, 2, (3,)), h_z=col(h, 3), h_sigma=col(h, 4),
         q_epoch=idx(q, 0), q_var=idx(q, 1), q_arm=col(q, 2, (3,)), q_z=col(q, 3, (3,)), q_cov=col(q, 4, (3, 3)),
-    )
+        **state_prior)
