@@ -163,6 +163,34 @@ class SwarmIns:
             self.P[i, :N_ERR, :N_ERR] = P0
         self.active[i] = True
 
+    def stop(self, i: int) -> None:
+        """Vehicle i's filter stopped (a re-initialisation: it starts again with `start`): inactive,
+        its correlations with the other vehicles and the delays dropped."""
+        if self.joint:
+            b = slice(N_ERR * i, N_ERR * i + N_ERR)
+            keep = self.P[b, b].copy()
+            self.P[b, :] = 0.0
+            self.P[:, b] = 0.0
+            self.P[b, b] = keep
+        self.active[i] = False
+
+    def innovations(self, rows: Rows) -> tuple[np.ndarray, np.ndarray]:
+        """The prior innovations z - h(x) (m,) and their filter part H P H^T (m, m) of rows about
+        active vehicles (distributed: each row on its own vehicle's filter, rows of two vehicles
+        uncorrelated), before an update."""
+        self.fold()
+        h, Hi, Hj = self._linearize(rows)
+        if self.joint:
+            H = self._dense(rows, Hi, Hj)
+            return rows.z - h, H @ self.P @ H.T
+        order, vi, sl, Hb = self._padded(rows, self._local(rows, Hi))
+        S = Hb @ self.P @ np.swapaxes(Hb, 1, 2)  # (n, M, M) per vehicle
+        out = np.zeros((rows.z.size, rows.z.size))
+        same = vi[:, None] == vi[None, :]
+        a, b = np.nonzero(same)
+        out[order[a], order[b]] = S[vi[a], sl[a], sl[b]]
+        return rows.z - h, out
+
     def set_white_noise(self, k: np.ndarray, accel_density: np.ndarray, gyro_density: np.ndarray) -> None:
         """Filters k (m,) assume white densities accel_density (m,) m/s^2/sqrt(Hz) and gyro_density
         (m,) rad/s/sqrt(Hz) from now on (their bias walks unchanged); folds what was accumulated."""
