@@ -175,21 +175,14 @@ class SwarmIns:
         self.active[i] = False
 
     def innovations(self, rows: Rows) -> tuple[np.ndarray, np.ndarray]:
-        """The prior innovations z - h(x) (m,) and their filter part H P H^T (m, m) of rows about
-        active vehicles (distributed: each row on its own vehicle's filter, rows of two vehicles
-        uncorrelated), before an update."""
+        """The prior innovations z - h(x) (m,) and their filter parts H_k P H_k^T (m,) of rows about
+        active vehicles (each on its own filter when distributed), before an update."""
         self.fold()
         h, Hi, Hj = self._linearize(rows)
         if self.joint:
             H = self._dense(rows, Hi, Hj)
-            return rows.z - h, H @ self.P @ H.T
-        order, vi, sl, Hb = self._padded(rows, self._local(rows, Hi))
-        S = Hb @ self.P @ np.swapaxes(Hb, 1, 2)  # (n, M, M) per vehicle
-        out = np.zeros((rows.z.size, rows.z.size))
-        same = vi[:, None] == vi[None, :]
-        a, b = np.nonzero(same)
-        out[order[a], order[b]] = S[vi[a], sl[a], sl[b]]
-        return rows.z - h, out
+            return rows.z - h, ((H @ self.P) * H).sum(axis=1)
+        return rows.z - h, self._row_variances(rows, self._local(rows, Hi))
 
     def set_white_noise(self, k: np.ndarray, accel_density: np.ndarray, gyro_density: np.ndarray) -> None:
         """Filters k (m,) assume white densities accel_density (m,) m/s^2/sqrt(Hz) and gyro_density

@@ -441,10 +441,11 @@ class CoopIns:
         least yaw0_sigma); kept running when the window does not determine a position
         (Reinitialisations)."""
         guard = self.innovations
-        nis, dof = guard.nis(i)
+        nis = guard.nis(i)
+        above = int((nis > guard.c).sum())
         guard.reset(i)
         fix = self.starts.fix(i, t)
-        if not self.reinit.add(self.vehicles[i], t, nis, dof, guard.bound(dof), fix is not None):
+        if not self.reinit.add(self.vehicles[i], t, above, nis.size, guard.c, fix is not None):
             return
         R = quat_to_rotmat(self.ins.q[i])
         v = R.T @ [0.0, 0.0, 1.0]

@@ -147,7 +147,7 @@ def range_guard(p: dict, n: int) -> RangeInnovations | None:
     (estimators.range_innovations) by params p (StartParams); None when range_window is 0."""
     if not p["range_window"]:
         return None
-    return RangeInnovations(n, int(p["range_window"]), p["divergence_prob"] or 1.0, bool(p["range_noise_adapt"]))
+    return RangeInnovations(n, int(p["range_window"]), p["divergence_prob"] or DIVERGENCE_ALPHA, bool(p["range_noise_adapt"]))
 
 
 class Reinitialisations:
@@ -161,11 +161,11 @@ class Reinitialisations:
         self.counts, self.events = counts, []
         counts["reinitialisations"] = 0
 
-    def add(self, body: str, t: float, nis: float, window: int, bound: float, fixed: bool) -> bool:
-        """body failed eq. D1 at t (s) (its sum nis over its last `window` ranges above bound);
+    def add(self, body: str, t: float, above: int, window: int, c: float, fixed: bool) -> bool:
+        """body failed eq. D1 at t (s): `above` of its last `window` ranges had a NIS above c;
         fixed: its window gives a position. Returns fixed (re-initialise)."""
+        what = f"{body} at {t:.2f} s: {above} of its last {window} ranges with NIS above {c:.2f} (eq. D1)"
         c = self.counts
-        what = f"{body} at {t:.2f} s: NIS of its last {window} ranges {nis:.1f} > {bound:.1f} (eq. D1)"
         if fixed:
             c["reinitialisations"] += 1
             c["reinitialised_diverged_nis"] = c.get("reinitialised_diverged_nis", 0) + 1
@@ -423,7 +423,7 @@ class NavEskf:
             return np.array([h for h, _ in hs]), np.vstack([H for _, H in hs])
         h, H = model(f.x)
         if guard is not None:
-            guard.add(np.full(z.size, k), z - h, H @ f.P @ H.T, declared)
+            guard.add(np.full(z.size, k), z - h, np.einsum("ij,jk,ik->i", H, f.P, H), declared)
             if self.p["divergence_prob"] and guard.diverged(k) and self._reinitialise(f, k, epoch[0][0]):
                 return
         keep = eskf.screen(f.P, z - h, H, Rn, self.gate[1])
@@ -459,9 +459,10 @@ class NavEskf:
         and the other start priors; True if so, False (kept running) when the window does not
         determine a position (Reinitialisations)."""
         body, guard = self.vehicles[k], self.innovations
-        nis, dof = guard.nis(k)
+        nis = guard.nis(k)
+        above = int((nis > guard.c).sum())
         guard.reset(k)
-        if not self.reinit.add(body, t, nis, dof, guard.bound(dof), self.starts.fix(body, t) is not None):
+        if not self.reinit.add(body, t, above, nis.size, guard.c, self.starts.fix(body, t) is not None):
             return False
         R = quat_to_rotmat(f.x[6:10])
         v = R.T @ [0.0, 0.0, 1.0]
