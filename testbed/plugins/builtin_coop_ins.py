@@ -42,8 +42,13 @@ A vehicle's filter starts at its first GNSS fix (position: the fix minus the rot
 velocity 0; roll and pitch levelled from its accelerometer less the declared constant bias,
 correlated with the bias error as estimators.eskf.level; yaw `yaw0`); until then its rows are
 skipped (counted). Or, given a position in `initial_pose`, at its first IMU sample from that pose
-(testbed.plugins.builtin_eskf.InitialPose); a vehicle that never starts is counted and named
-(health `unstarted_vehicles`, stderr). Each vehicle's IMU noise and bias priors come from its own
+(testbed.plugins.builtin_eskf.InitialPose); with neither, at the first epoch at which its anchor
+ranges and heights of the last `start_window` s determine its body origin (estimators.range_start,
+as nav.eskf); a vehicle that never starts is counted and named (health `unstarted_vehicles`,
+stderr). Range noise matched on the anchor ranges' innovations (eq. R1) and the divergence guard
+(eq. D1, a vehicle re-initialised from its ranges and heights): as nav.eskf
+(estimators.range_innovations; the distributed filter's from the ranges its linearity check
+passes). Each vehicle's IMU noise and bias priors come from its own
 IMU table (estimators.sensor_models.vehicle_imu).
 
 Sites: every row is taken at the lever arm of the site it measures (a GNSS antenna, any of a
@@ -71,9 +76,11 @@ the estimate had drifted).
 
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
-(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100); distributed only: network (a [network] table, docs/network.md;
+(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100), start_window (s, 2),
+range_window (20), range_noise_adapt (true), divergence_prob (1e-6); distributed only: network (a [network] table, docs/network.md;
 absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
-(1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges;
+(1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges,
+reinitialisations (with its reason and time, builtin_eskf.Reinitialisations);
 distributed also inconsistent_broadcasts (checked_broadcast), nonlinear_ranges (ranges a flown
 filter skipped, linear_ranges), forced_ranges (nonlinear ones taken all the same, _unlock) and the network's sent, delivered, dropped, bytes_sent and
 latency_p50_us / latency_p95_us.

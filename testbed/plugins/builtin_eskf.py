@@ -12,7 +12,10 @@ accelerometer sample (less the declared constant bias; its tilt error correlated
 accelerometer bias error, estimators.eskf.level), yaw `yaw0`; before that its GNSS and UWB rows are skipped (counted).
 A vehicle given a position in `initial_pose` (no GNSS needed) starts instead at its first IMU sample
 from that position of the body origin with its sigma; its `yaw_deg`, `yaw_sigma_deg` replace yaw0,
-yaw0_sigma. One that never starts is counted (health `unstarted_vehicles`) and named on stderr.
+yaw0_sigma. A vehicle with neither starts at the first anchor range at which its ranges and heights
+of the last `start_window` s determine its body origin (estimators.range_start, eqs. S1-S2: that
+fix and its covariance; heading yaw0 or its initial_pose yaw). One that never starts is counted
+(health `unstarted_vehicles`) and named on stderr.
 Each vehicle's noise and bias priors come from its own IMU table (estimators.sensor_models.vehicle_imu).
 
 Noise: IMU white noise and bias walks from the declared [sensors.imu] table (a Gauss-Markov
@@ -34,10 +37,14 @@ Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections cou
 GATE_LOCK_EPOCHS range epochs in a row with every range rejected, the position's covariance is
 opened until every range of the epoch passes (health `gate_inflations`; docs/estimators.md). The white
 IMU densities are measured on the samples (`imu_noise_window`, estimators.imu_adapt), floored at the
-declared ones.
+declared ones. The range variances are scaled by the median covariance match of each vehicle's last
+`range_window` range innovations (eq. R1), and a vehicle whose innovations fail the sign test of
+eq. D1 (`divergence_prob`) is re-initialised from its ranges and heights (health
+`reinitialisations`, stderr; estimators.range_innovations, docs/estimators.md).
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
+initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), start_window (s, 2), range_window (20),
+range_noise_adapt (true), divergence_prob (1e-6), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
 each update, estimators.eskf.update. Measured: no better with four anchors, worse with one; the
 ranges of one epoch in one update is what matters, see `_ranges`).
 """
