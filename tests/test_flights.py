@@ -217,11 +217,11 @@ def test_a_filter_gone_far_off_is_reinitialised_from_its_ranges_and_says_so(entr
     """A filter at rest started 16 m off and sure of it (0.1 m): the sum of its last W = 20 ranges'
     NIS (eq. D1) passes the chi-square bound at its fifth epoch of four ranges (4.5 s); it is
     dropped and started again from its window of ranges (2 s: two epochs, eight ranges) and is
-    within 0.3 m of the truth (three times the range noise) 2.5 s later; health and stderr say when
+    within 0.3 m of the truth (three times the range noise) 1.5 s later; health and stderr say when
     and why."""
     f, true = _drifted(entry, {"initial_pose": {"uav1": {"position": [16.0, 0.0, 5.0], "position_sigma": 0.1,
                                                           "yaw_deg": 0.0, "yaw_sigma_deg": 1.0}}}, "bmi088")
-    p = _fly(f, true, 7)
+    p = _fly(f, true, 6)
     f.finish()
     h = f.health()
     assert h["reinitialisations"] == 1 and h["reinitialised_diverged_nis"] == 1 and h["reinitialisation_last_ms"] == 4500, h
