@@ -163,6 +163,27 @@ class SwarmIns:
             self.P[i, :N_ERR, :N_ERR] = P0
         self.active[i] = True
 
+    def stop(self, i: int) -> None:
+        """Vehicle i's filter stopped (a re-initialisation: it starts again with `start`): inactive,
+        its correlations with the other vehicles and the delays dropped."""
+        if self.joint:
+            b = slice(N_ERR * i, N_ERR * i + N_ERR)
+            keep = self.P[b, b].copy()
+            self.P[b, :] = 0.0
+            self.P[:, b] = 0.0
+            self.P[b, b] = keep
+        self.active[i] = False
+
+    def innovations(self, rows: Rows) -> tuple[np.ndarray, np.ndarray]:
+        """The prior innovations z - h(x) (m,) and their filter parts H_k P H_k^T (m,) of rows about
+        active vehicles (each on its own filter when distributed), before an update."""
+        self.fold()
+        h, Hi, Hj = self._linearize(rows)
+        if self.joint:
+            H = self._dense(rows, Hi, Hj)
+            return rows.z - h, ((H @ self.P) * H).sum(axis=1)
+        return rows.z - h, self._row_variances(rows, self._local(rows, Hi))
+
     def set_white_noise(self, k: np.ndarray, accel_density: np.ndarray, gyro_density: np.ndarray) -> None:
         """Filters k (m,) assume white densities accel_density (m,) m/s^2/sqrt(Hz) and gyro_density
         (m,) rad/s/sqrt(Hz) from now on (their bias walks unchanged); folds what was accumulated."""

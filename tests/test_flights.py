@@ -5,11 +5,15 @@ recording has it (docs/estimators.md, "Flights: sparse ranging without GNSS"):
 - anchors at 1 Hz per vehicle (one anchor at a time, in turn), each pair of vehicles at 0.5 Hz,
   heights at 30 Hz (each body's true up coordinate, linearly interpolated from the 50 Hz truth,
   plus N(0, 0.05^2) m, declared sigma 0.05 m), no GNSS;
-- each filter starts from its `initial_pose`: the truth's first position plus N(0, 0.5^2) m per
-  axis (declared 0.5 m) and its yaw plus N(0, 5^2) deg (declared 5 deg), drawn once;
+- each filter starts without a GNSS fix and without an initial position: from its first anchor
+  ranges and heights over a 2-s window (estimators.range_start); its heading is its own
+  (`initial_pose.BODY.yaw_deg`, as a compass gives it): the truth's first yaw plus N(0, 5^2) deg
+  (declared 5 deg), drawn once (the truth's first position plus N(0, 0.5^2) m per axis is drawn
+  too, the `initial_pose` position the other option, and kept out of the start);
 - it is consistent (position ANEES inside its 99 % interval for the correlated samples,
-  testbed.scoring.metrics.anees_interval at the run's n_eff_position) and tracks (an estimate at every truth instant and a
-  position RMSE under 1 m, ten times the range noise).
+  testbed.scoring.metrics.anees_interval at the run's n_eff_position), tracks (an estimate at every
+  truth instant from 3 s on: three anchor ranges at 1 Hz take 2 s, and a position RMSE under 1 m,
+  ten times the range noise) and never re-initialises (eq. D1 at 1e-6 on a consistent filter).
 
 The suite flies HORIZON_S = 20 s; the same test over the issue's 60 s is
 `FLIGHTS_HORIZON_S=60 python -m pytest tests/test_flights.py` (docs/estimators.md gives its figures).
@@ -81,7 +85,7 @@ def _sparse(links: list[dict]) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory) -> tuple[Path, str]:
-    """(the sparse dataset's spec.toml, the --param giving every vehicle its initial pose)."""
+    """(the sparse dataset's spec.toml, the --param giving every vehicle its own heading (no position))."""
     d = tmp_path_factory.mktemp("flights")
     (d / "s.toml").write_text(SCENARIO)
     run(scenario.load(str(d / "s.toml")), d / "run", plots=False)
@@ -105,23 +109,24 @@ def flight(tmp_path_factory) -> tuple[Path, str]:
         w, x, y, zq = (float(rows[0][k]) for k in ("qw", "qx", "qy", "qz"))
         yaw = math.degrees(math.atan2(2 * (w * zq + x * y), 1 - 2 * (y * y + zq * zq))) + rng.normal(0, YAW_SIGMA_DEG)
         p = [float(rows[0][k]) + rng.normal(0, POSE_SIGMA) for k in ("x", "y", "z")]
-        poses.append(f"{body} = {{ position = [{p[0]!r}, {p[1]!r}, {p[2]!r}], position_sigma = {POSE_SIGMA}, "
-                     f"yaw_deg = {yaw!r}, yaw_sigma_deg = {YAW_SIGMA_DEG} }}")
+        assert len(p) == 3  # drawn (the initial_pose position of the other option), not given
+        poses.append(f"{body} = {{ yaw_deg = {yaw!r}, yaw_sigma_deg = {YAW_SIGMA_DEG} }}")
     heights.sort(key=lambda h: h[0])
     (data / "height.csv").write_text("time,site,value,sigma\n" + "".join(f"{t!r},{b},{v!r},{HEIGHT_SIGMA}\n" for t, b, v in heights))
     return data / "spec.toml", "initial_pose={ " + ", ".join(poses) + " }"
 
 
 @pytest.mark.parametrize("entry", ["nav.eskf", "coop.ins_distributed", "coop.ins"])
-def test_an_imu_filter_started_without_gnss_tracks_a_vibrating_flight_consistently(flight, tmp_path, entry):
+def test_an_imu_filter_started_from_ranges_without_gnss_or_a_position_tracks_a_vibrating_flight_consistently(flight, tmp_path, entry):
     spec, poses = flight
     assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--estimator", entry, "--param", poses]) == 0
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())["estimators"][entry]
     lo, hi = anees_interval(3, m["n_eff_position"], 0.99)
     print(f"{entry}: position RMSE {m['rmse_position_m']:.3f} m, ANEES {m['anees_position']:.3f} [{lo:.3f}, {hi:.3f}] "
           f"(n_eff {m['n_eff_position']:.1f}), health {m['health']}")
-    assert m["coverage_position"] == 1.0, m
+    assert m["coverage_position"] >= (HORIZON_S - 3.0) / HORIZON_S, m
     assert m["rmse_position_m"] < 1.0, (entry, m["rmse_position_m"])
+    assert m["health"]["reinitialisations"] == 0, m["health"]
     assert lo <= m["anees_position"] <= hi, (entry, m["anees_position"], lo, hi)
 
 
@@ -185,11 +190,11 @@ def test_nav_eskfs_gate_cannot_lock_the_ranges_out_for_good():
     attitude (no tilt or yaw uncertainty), an ideal IMU: nothing but the ranges moves its covariance,
     and its gate rejects every range (before: for ever). The fifth epoch in a row opens the position's covariance until every range passes;
     the filter comes back within 0.1 m of the truth and takes the ranges from then on. (Far off,
-    16 m, the released update jumped to the mirror solution below the anchors: re-initialising
-    from the ranges is not built.)"""
-    f, true = _drifted("nav.eskf", {"vel0_sigma": 0.01, "tilt0_sigma": 0.0, "initial_pose": {"uav1": {
+    16 m, the released update jumped to the mirror solution below the anchors: the divergence
+    guard's case, the next test; off here, as it would act first.)"""
+    f, true = _drifted("nav.eskf", {"vel0_sigma": 0.01, "tilt0_sigma": 0.0, "divergence_prob": 0.0, "initial_pose": {"uav1": {
         "position": [1.0, 0.0, 5.0], "position_sigma": 0.05, "yaw_deg": 0.0, "yaw_sigma_deg": 0.0}}}, "ideal")
-    p = _fly(f, true, 12)
+    p = _fly(f, true, 8)
     h = f.health()
     assert h["gate_inflations"] == 1 and h["rejected_measurements"] == 4 * len(ANCHORS), h
     assert np.linalg.norm(p - true) < 0.1, (p, h)
@@ -205,3 +210,61 @@ def test_the_distributed_filter_never_skips_every_anchor_range_for_good():
     h = f.health()
     assert h["forced_ranges"] >= 1 and h["nonlinear_ranges"] >= 4 * len(ANCHORS), h
     assert np.linalg.norm(p - true) < 0.5, (p, h)
+
+
+@pytest.mark.parametrize("entry", ["nav.eskf", "coop.ins", "coop.ins_distributed"])
+def test_a_filter_gone_far_off_is_reinitialised_from_its_ranges_and_says_so(entry, capsys):
+    """A filter at rest started 16 m off and sure of it (0.1 m): the sum of its last W = 20 ranges'
+    NIS (eq. D1) passes the chi-square bound at its fifth epoch of four ranges (4.5 s); it is
+    dropped and started again from its window of ranges (2 s: two epochs, eight ranges) and is
+    within 0.3 m of the truth (three times the range noise) 1.5 s later; health and stderr say when
+    and why."""
+    f, true = _drifted(entry, {"initial_pose": {"uav1": {"position": [16.0, 0.0, 5.0], "position_sigma": 0.1,
+                                                          "yaw_deg": 0.0, "yaw_sigma_deg": 1.0}}}, "bmi088")
+    p = _fly(f, true, 6)
+    f.finish()
+    h = f.health()
+    assert h["reinitialisations"] == 1 and h["reinitialised_diverged_nis"] == 1 and h["reinitialisation_last_ms"] == 4500, h
+    assert np.linalg.norm(p - true) < 0.3, (p, h)
+    assert "re-initialised from ranges and heights: uav1 at 4.50 s" in capsys.readouterr().err
+
+
+def test_the_range_noise_matched_on_the_innovations_is_the_data_s_and_never_below_the_declared():
+    """Eq. R1 on W = 20 innovations of variance H P H^T + 9 R (R = 0.01 m^2, H P H^T = 0.002 m^2)
+    with two 3-m outliers: lambda puts the median NIS at the chi-square median; the sample median of
+    20 (two moved to the top) lies between the 6th and 15th order statistics with probability
+    0.96, so lambda within [0.27, 2.9] x 9 allowing the outliers. Innovations quieter than
+    declared (R / 4) leave lambda = 1 (the floor). A filter 2 m off (each innovation 2 m, 0.11 m
+    sd) is capped at 25 and fails eq. D1; the outliers alone do not."""
+    from estimators.range_innovations import RangeInnovations
+
+    rng = np.random.default_rng(5)
+    g = RangeInnovations(3)
+    hph, R = np.full(20, 0.002), np.full(20, 0.01)
+    noisy = rng.normal(0, np.sqrt(0.002 + 9 * 0.01), 20)
+    noisy[[3, 11]] = 3.0
+    g.add(np.zeros(20, int), noisy, hph, R)
+    g.add(np.ones(20, int), rng.normal(0, np.sqrt(0.002 + 0.25 * 0.01), 20), hph, R)
+    g.add(np.full(20, 2), 2.0 + rng.normal(0, np.sqrt(0.002 + 0.01), 20), hph, R)
+    assert 0.27 * 9 <= g.scale[0] <= 2.9 * 9 and g.scale[1] == 1.0 and g.scale[2] == 25.0, g.scale
+    assert not g.diverged(0) and not g.diverged(1) and g.diverged(2)
+
+
+def test_a_start_from_sparse_ranges_and_heights_covers_the_body():
+    """Three anchor ranges, one a second (the body moving at 0.5 m/s), and a height: the fix of
+    eqs. S1-S2 at the last range holds the true position within its covariance (NEES under the
+    chi-square 3-dof 0.999 quantile, 16.3); with two ranges there is no fix."""
+    from estimators.range_start import BodyStarts
+
+    rng = np.random.default_rng(3)
+    starts = BodyStarts(2.0, 1.0)
+    v, p0, lever = np.array([0.3, -0.4, 0.0]), np.array([1.0, 2.0, 5.0]), np.array([0.1, 0.0, 0.05])
+    names = list(ANCHORS)
+    for k in range(3):
+        p = p0 + v * k
+        starts.height("b", float(k), p[2] + rng.normal(0, 0.05), 0.05, np.zeros(3))
+        starts.range("b", float(k), ANCHORS[names[k]], np.linalg.norm(p - ANCHORS[names[k]]) + rng.normal(0, 0.1), 0.1, lever)
+        fix = starts.fix("b", float(k))
+        assert (fix is None) == (k < 2), (k, fix)
+    e = fix[0] - (p0 + 2 * v)
+    assert e @ np.linalg.solve(fix[1], e) < 16.3, (fix, e)

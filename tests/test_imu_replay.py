@@ -151,10 +151,13 @@ def _yaw(q: np.ndarray) -> float:
 
 @pytest.mark.parametrize("entry", FILTERS)
 def test_without_gnss_a_filter_starts_from_its_initial_pose(dataset, tmp_path, entry, capsys):
-    """No poses.csv (no GNSS): uav1 and uav2 start at their first IMU sample from their own
-    initial pose (position, sigma; their own yaw: 30 and -60 deg, not yaw0); uav3, with none, never
-    starts, and says so in health and in one stderr line."""
+    """No poses.csv (no GNSS) and no rows in links.csv (no ranges to start from, estimators.range_start):
+    uav1 and uav2 start at their first IMU sample from their own initial pose (position, sigma;
+    their own yaw: 30 and -60 deg, not yaw0); uav3, with none, never starts, and says so in health
+    and in one stderr line."""
     spec = _variant(dataset, tmp_path / "d", drop=("poses.csv",))
+    links = spec.parent / "links.csv"
+    links.write_text(links.read_text().splitlines()[0] + "\n")
     truth = _first_truth(dataset)
     yaws = {"uav1": 30.0, "uav2": -60.0}
     poses = ", ".join(f"{b} = {{ position = {truth[b][0]}, position_sigma = 0.5, yaw_deg = {yaws[b]}, yaw_sigma_deg = 5.0 }}"
@@ -181,7 +184,9 @@ def test_an_imu_filter_updates_on_the_height_stream(dataset, tmp_path, entry):
     """A height.csv (each body's true up coordinate at 10 Hz from 0.5 s plus N(0, 0.05^2) noise, declared
     sigma 0.05 m): the filter's vertical variance at the end falls below that of the same replay
     without it, and every height row is used (nothing skipped). Before: the stream was ignored
-    (the two replays were identical; coop.ins and coop.ins_distributed until this stop)."""
+    (the two replays were identical; coop.ins and coop.ins_distributed until this stop). The range
+    noise is the declared in both (range_noise_adapt off: eq. R1's lambda, matched on each run's
+    own innovations, would differ between them by chance)."""
     rng = np.random.default_rng(3)
     rows = ["time,site,value,sigma"]
     with open(dataset / "truth.csv") as f:
@@ -193,7 +198,8 @@ def test_an_imu_filter_updates_on_the_height_stream(dataset, tmp_path, entry):
     heights = _variant(dataset, tmp_path / "b")
     (heights.parent / "height.csv").write_text("\n".join(rows) + "\n")
     for spec, out in ((plain, "ra"), (heights, "rb")):
-        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry, "--no-plots"]) == 0
+        assert main(["replay", str(spec), "--out", str(tmp_path / out), "--estimator", entry, "--param",
+                     "range_noise_adapt=false", "--no-plots"]) == 0
     a, b = (_one(load_tracks(tmp_path / k / ESTIMATES_FILE)) for k in ("ra", "rb"))
     for body in BODIES:
         assert b[(body, "position")].cov[-1][2, 2] < a[(body, "position")].cov[-1][2, 2], body

@@ -65,7 +65,7 @@ def test_param_values_reach_the_run(tmp_path):
 
 
 @pytest.mark.parametrize("entry, param, shown", [
-    ("nav.eskf", "gate=0.1", "params: gate = 0.1: unknown key (known: gate_prob,"),
+    ("nav.eskf", "gate=0.1", "params: gate = 0.1: unknown key (known: divergence_prob, gate_prob,"),
     ("nav.eskf", "gate_prob=often", "params: gate_prob = 'often': expected a number, got 'often'"),
     ("nav.eskf", "gate_prob=1.5", "params: gate_prob = 1.5: must be in [0, 1), got 1.5"),
     ("nav.eskf", "output_every=2.5", "params: output_every = 2.5: expected an integer, got 2.5"),

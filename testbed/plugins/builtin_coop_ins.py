@@ -42,8 +42,13 @@ A vehicle's filter starts at its first GNSS fix (position: the fix minus the rot
 velocity 0; roll and pitch levelled from its accelerometer less the declared constant bias,
 correlated with the bias error as estimators.eskf.level; yaw `yaw0`); until then its rows are
 skipped (counted). Or, given a position in `initial_pose`, at its first IMU sample from that pose
-(testbed.plugins.builtin_eskf.InitialPose); a vehicle that never starts is counted and named
-(health `unstarted_vehicles`, stderr). Each vehicle's IMU noise and bias priors come from its own
+(testbed.plugins.builtin_eskf.InitialPose); with neither, at the first epoch at which its anchor
+ranges and heights of the last `start_window` s determine its body origin (estimators.range_start,
+as nav.eskf); a vehicle that never starts is counted and named (health `unstarted_vehicles`,
+stderr). Range noise matched on the anchor ranges' innovations (eq. R1) and the divergence guard
+(eq. D1, a vehicle re-initialised from its ranges and heights): as nav.eskf
+(estimators.range_innovations; the distributed filter's from the ranges its linearity check
+passes). Each vehicle's IMU noise and bias priors come from its own
 IMU table (estimators.sensor_models.vehicle_imu).
 
 Sites: every row is taken at the lever arm of the site it measures (a GNSS antenna, any of a
@@ -71,9 +76,11 @@ the estimate had drifted).
 
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
-(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100); distributed only: network (a [network] table, docs/network.md;
+(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100), start_window (s, 2),
+range_window (20), range_noise_adapt (true), divergence_prob (1e-6); distributed only: network (a [network] table, docs/network.md;
 absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
-(1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges;
+(1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges,
+reinitialisations (with its reason and time, builtin_eskf.Reinitialisations);
 distributed also inconsistent_broadcasts (checked_broadcast), nonlinear_ranges (ranges a flown
 filter skipped, linear_ranges), forced_ranges (nonlinear ones taken all the same, _unlock) and the network's sent, delivered, dropped, bytes_sent and
 latency_p50_us / latency_p95_us.
@@ -86,11 +93,14 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimators import coop_ins as ci
+from estimators.range_start import BodyStarts
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
+from estimators.so3 import quat_to_rotmat
 from testbed.config import from_dict, key
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
-from testbed.plugins.builtin_eskf import StartParams, heading, imu_adapter, initial_poses, levelled_start, note_unstarted
+from testbed.plugins.builtin_eskf import (Reinitialisations, StartParams, heading, imu_adapter, initial_poses, levelled_start,
+                                          note_unstarted, range_guard)
 from testbed.plugins.params import fields_of, read
 
 
@@ -161,12 +171,16 @@ class CoopIns:
         self.new = np.full((n, 6), np.nan)  # samples of the instant being collected
         self.t_imu = None
         self.instants = 0
-        self._targets: tuple[int, tuple] = (0, ())  # (started flown filters, their vehicles): _flush's targets
+        self._targets: tuple[bytes, tuple] = (b"", ())  # (which flown filters are started, their vehicles): _flush's targets
         self.epoch_t = None
         self.rows = EpochRows()
         self._links: dict[tuple[str, str], tuple | None] = {}  # (src, dst): _link's answer
         self._imu_rows: dict[tuple, np.ndarray] = {}  # IMU sites of an instant: their filters
         self.counts = {"epochs": 0, "rejected_measurements": 0, "skipped_updates": 0, "stale_ranges": 0}
+        self.starts = BodyStarts(self.p["start_window"], self.p["vel0_sigma"])
+        self.innovations = range_guard(self.p, n)
+        self.reinit = Reinitialisations(self.counts)
+        self.restart: list[dict | None] = [None] * n  # a re-initialised vehicle's params of its next start (its own heading)
         self._network(context)
 
     def _network(self, context: Context) -> None:
@@ -225,6 +239,7 @@ class CoopIns:
         if self.epoch_t is not None:
             self._close(self.epoch_t)
         note_unstarted(type(self).__name__, [v for i, v in enumerate(self.vehicles) if not self.ins.active[i]], self.counts)
+        self.reinit.note(type(self).__name__)
         return out
 
     def health(self) -> dict[str, int]:
@@ -257,8 +272,8 @@ class CoopIns:
                 self.ins.set_white_noise(k, density[:, 0], density[:, 1])
         self.new[:] = np.nan
         for i, pose in self._posed:  # started from its initial pose at its first sample
-            if got[i] and not self.ins.active[i]:
-                self._start(i, t, np.array(pose.position, float), np.full(3, pose.position_sigma ** 2), np.zeros(3))
+            if got[i] and not self.ins.active[i] and self.restart[i] is None:
+                self._start(i, t, np.array(pose.position, float), np.diag(np.full(3, pose.position_sigma ** 2)), np.zeros(3))
         self.t_imu = None
         self.instants += 1
         if self.instants % int(self.p["output_every"]) or not self.ins.active[:self.n].any():
@@ -266,8 +281,9 @@ class CoopIns:
         ins = self.ins
         C = ins.marginals(slice(self.n))  # the flown filters'
         i = np.flatnonzero(ins.active[:self.n])
-        if self._targets[0] != i.size:  # vehicles only ever start: the count says which
-            self._targets = (i.size, tuple(self.vehicles[k] for k in i.tolist()))
+        started = ins.active[:self.n].tobytes()
+        if self._targets[0] != started:  # which vehicles are started (a re-initialised one stops until it restarts)
+            self._targets = (started, tuple(self.vehicles[k] for k in i.tolist()))
         target, time = self._targets[1], np.full(i.size, t)
         # each block copied out: a view would keep the whole (n, 15, 15) array alive with the estimate
         return [EstimateBatch(time=time, target=target, quantity=q, value=x[i], cov=C[i][:, s, s].copy())
@@ -293,13 +309,15 @@ class CoopIns:
         if i is None:
             return
         if m.stream == "height":  # the up coordinate of a site: a fix's third row
+            if m.sigma is not None:
+                self.starts.height(i, m.time, float(m.value[0]), float(m.sigma[0]), lever)
             if not self.ins.active[i] or m.sigma is None:
                 self.counts["skipped_updates"] += 1
                 return
             self.rows.add([float(m.value[0])], [float(m.sigma[0])], [i], [-1], [2], [NAN3], [(-1, -1)], [lever], [ZERO3])
             return
         if not self.ins.active[i]:
-            self._start(i, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, lever)
+            self._start(i, m.time, np.asarray(m.value, float), np.diag(np.asarray(m.sigma, float) ** 2), lever)
             return
         self.rows.add([float(x) for x in m.value[:3]], [float(x) for x in m.sigma[:3]], [i] * 3, [-1] * 3, [0, 1, 2],
                       [NAN3] * 3, [(-1, -1)] * 3, [lever] * 3, [ZERO3] * 3)
@@ -338,17 +356,19 @@ class CoopIns:
             self._links[(src, dst)] = link
         return self._links[(src, dst)]
 
-    def _start(self, i: int, t: float, z: np.ndarray, z_var: np.ndarray, lever: np.ndarray) -> None:
+    def _start(self, i: int, t: float, z: np.ndarray, z_cov: np.ndarray, lever: np.ndarray) -> None:
         """Vehicle i's filter at t (s) from position z (3,) m world of its site at lever (3,) m, with
-        variances z_var (3,) m^2: its first fix, or its initial pose (module docstring)."""
+        covariance z_cov (3, 3) m^2: its first fix, its initial pose, or the fix of its first ranges
+        and heights (module docstring); after a re-initialisation with its own heading."""
         if np.isnan(self.held[i, 0]):
             self.counts["skipped_updates"] += 1
             return
         self._advance(t)
-        p = heading(self.p, self.poses.get(self.vehicles[i]))
+        p = heading(self.p, self.poses.get(self.vehicles[i])) if self.restart[i] is None else self.restart[i]
         b0, bv = self.bias0[i], self.bias_var[i]
         q, R, P_th, P_thba = levelled_start(self.held[i, :3] - b0[:3], bv[:3], p)
-        P0 = np.diag(np.concatenate([z_var, [p["vel0_sigma"] ** 2] * 3, np.zeros(3), bv]))
+        P0 = np.diag(np.concatenate([np.zeros(3), [p["vel0_sigma"] ** 2] * 3, np.zeros(3), bv]))
+        P0[ci.P_, ci.P_] = z_cov
         P0[ci.TH, ci.TH] = P_th
         P0[ci.TH, ci.BA] = P_thba
         P0[ci.BA, ci.TH] = P_thba.T
@@ -371,11 +391,77 @@ class CoopIns:
                        other=np.array(rows.other, float), dev=np.array(rows.dev, int), lever=np.array(rows.lever, float),
                        lever_j=np.array(rows.lever_j, float))
         self.counts["epochs"] += 1
+        anchor = np.flatnonzero(rng & (rows.j < 0))
+        if anchor.size:  # the windows of a start from ranges (and of a re-initialisation): the whole declared variance
+            whole = range_variances(self.uwb, sigma[anchor], z[anchor], antenna_delays=True)
+            for k, v in zip(anchor.tolist(), np.sqrt(whole).tolist()):
+                self.starts.range(int(rows.i[k]), t, rows.other[k], float(z[k]), v, rows.lever[k])
+        ranged = np.unique(rows.i[anchor]).tolist()  # the vehicles with anchor ranges in the epoch
+        rows, guarded = self._guard(rows, anchor)
         rows = self._rows(t, now, rows)
         status = self.ins.update(rows, self.gate, int(self.p["iterations"]), float(self.p["huber"]) or None)
         mine = rows.i < self.n  # the flown filters' rows (not their own-measurement copies')
         self.counts["rejected_measurements"] += int((status[mine] == 0).sum())
         self.counts["skipped_updates"] += int((status[mine] < 0).sum())
+        if self.p["divergence_prob"]:
+            for i in guarded:
+                if self.innovations.diverged(i):
+                    self._reinitialise(i, t)
+        for i in ranged:
+            if not self.ins.active[i]:
+                self._range_start(i, t)
+
+    def _guard(self, rows: ci.Rows, anchor: np.ndarray) -> tuple[ci.Rows, list[int]]:
+        """(rows with the range variances times eq. R1's lambda: of the vehicle, or the larger of the
+        two between vehicles; the vehicles whose anchor ranges entered eqs. R1 and D1): the prior
+        innovations of the anchor ranges (rows anchor (k,)) of started vehicles recorded."""
+        guard = self.innovations
+        if guard is None:
+            return rows, []
+        k = anchor[self.ins.active[rows.i[anchor]]]
+        k = k[self._fusable(rows.subset(k))]
+        declared = rows.var[k]
+        lam = guard.scale[rows.i]
+        pair = rows.j >= 0
+        lam[pair] = np.maximum(lam[pair], guard.scale[rows.j[pair]])
+        rows = rows.replace(var=np.where(rows.component == 3, rows.var * lam, rows.var))
+        if not k.size:
+            return rows, []
+        nu, hph = self.ins.innovations(rows.subset(k))
+        guard.add(rows.i[k], nu, hph, declared)
+        return rows, np.unique(rows.i[k]).tolist()
+
+    def _fusable(self, rows: ci.Rows) -> np.ndarray:
+        """(m,) bool: the anchor ranges rows (m,) the flown filters fuse as they are (centralized: all)."""
+        return np.ones(rows.z.size, bool)
+
+    def _range_start(self, i: int, t: float) -> None:
+        """Start vehicle i (no fix, no initial position; or re-initialised) at t (s) from its window of
+        ranges and heights (estimators.range_start) when they determine its origin."""
+        fix = self.starts.fix(i, t)
+        if fix is not None:
+            self._start(i, t, fix[0], fix[1], ZERO3)
+
+    def _reinitialise(self, i: int, t: float) -> None:
+        """The divergence guard (eq. D1 failed at t, s), counted: vehicle i's filters started again
+        from its window of ranges and heights, with its flown filter's heading and yaw variance (at
+        least yaw0_sigma); kept running when the window does not determine a position
+        (Reinitialisations)."""
+        guard = self.innovations
+        nis = guard.nis(i)
+        above = int((nis > guard.c).sum())
+        guard.reset(i)
+        fix = self.starts.fix(i, t)
+        if not self.reinit.add(self.vehicles[i], t, above, nis.size, guard.c, fix is not None):
+            return
+        R = quat_to_rotmat(self.ins.q[i])
+        v = R.T @ [0.0, 0.0, 1.0]
+        P_th = self.ins.marginals(slice(i, i + 1))[0][ci.TH, ci.TH]
+        self.restart[i] = {**self.p, "yaw0": float(np.arctan2(R[1, 0], R[0, 0])),
+                           "yaw0_sigma": max(float(np.sqrt(max(v @ P_th @ v, 0.0))), self.p["yaw0_sigma"])}
+        for c in range(self.copies):
+            self.ins.stop(i + c * self.n)
+        self._start(i, t, fix[0], fix[1], ZERO3)
 
 
 def _bias_prior(imu: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -510,6 +596,17 @@ class CoopInsDistributed(CoopIns):
             parts.append(ci.Rows(z=ranged.z[ok], var=var, i=me, j=np.full(me.size, -1), component=ranged.component[ok],
                                  other=point, dev=ranged.dev[ok], lever=l_me, lever_j=np.zeros_like(l_me)))
         return ci.Rows(**{f: np.concatenate([getattr(r, f) for r in parts]) for f in ci.Rows.__dataclass_fields__})
+
+    def _fusable(self, rows: ci.Rows) -> np.ndarray:
+        """(m,) bool: the anchor ranges rows (m,) the flown filters find linear (linear_ranges): the
+        others' innovations at a linearisation they fail say nothing of the filter's consistency."""
+        linearity = float(self.p["linearity"])
+        if linearity <= 0 or not rows.z.size:
+            return np.ones(rows.z.size, bool)
+        self.ins.fold()
+        s_all, dS = self.ins.antennas()
+        C_all = antenna_covariances(self.ins.blocks(), dS)
+        return linear_ranges(s_all[rows.i], C_all[rows.i], rows.other, rows.var, linearity)
 
     def _unlock(self, i: np.ndarray, lin: np.ndarray) -> np.ndarray:
         """lin (m,) of anchor ranges of filters i (m,), with every range of a filter taken (counted in

@@ -12,7 +12,10 @@ accelerometer sample (less the declared constant bias; its tilt error correlated
 accelerometer bias error, estimators.eskf.level), yaw `yaw0`; before that its GNSS and UWB rows are skipped (counted).
 A vehicle given a position in `initial_pose` (no GNSS needed) starts instead at its first IMU sample
 from that position of the body origin with its sigma; its `yaw_deg`, `yaw_sigma_deg` replace yaw0,
-yaw0_sigma. One that never starts is counted (health `unstarted_vehicles`) and named on stderr.
+yaw0_sigma. A vehicle with neither starts at the first anchor range at which its ranges and heights
+of the last `start_window` s determine its body origin (estimators.range_start, eqs. S1-S2: that
+fix and its covariance; heading yaw0 or its initial_pose yaw). One that never starts is counted
+(health `unstarted_vehicles`) and named on stderr.
 Each vehicle's noise and bias priors come from its own IMU table (estimators.sensor_models.vehicle_imu).
 
 Noise: IMU white noise and bias walks from the declared [sensors.imu] table (a Gauss-Markov
@@ -36,10 +39,14 @@ Innovation gate: NIS above the chi-square quantile 1 - gate_prob (rejections cou
 GATE_LOCK_EPOCHS range epochs in a row with every range rejected, the position's covariance is
 opened until every range of the epoch passes (health `gate_inflations`; docs/estimators.md). The white
 IMU densities are measured on the samples (`imu_noise_window`, estimators.imu_adapt), floored at the
-declared ones.
+declared ones. The range variances are scaled by the median covariance match of each vehicle's last
+`range_window` range innovations (eq. R1), and a vehicle whose innovations fail the sign test of
+eq. D1 (`divergence_prob`) is re-initialised from its ranges and heights (health
+`reinitialisations`, stderr; estimators.range_innovations, docs/estimators.md).
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
+initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), start_window (s, 2), range_window (20),
+range_noise_adapt (true), divergence_prob (1e-6), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
 each update, estimators.eskf.update. Measured: no better with four anchors, worse with one; the
 ranges of one epoch in one update is what matters, see `_ranges`).
 """
@@ -56,6 +63,10 @@ from scipy.stats import chi2
 from estimators import eskf
 from estimators.core import symmetrize
 from estimators.imu_adapt import WINDOW, DifferenceNoise
+from estimators.range_innovations import ALPHA as DIVERGENCE_ALPHA
+from estimators.range_innovations import WINDOW as RANGE_WINDOW
+from estimators.range_innovations import RangeInnovations
+from estimators.range_start import BodyStarts
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from estimators.so3 import quat_to_rotmat
 from testbed.config import check_fields, from_dict, key
@@ -93,6 +104,13 @@ class StartParams:
     initial_pose: dict = key(factory=dict, doc="per vehicle {BODY = {position = [x, y, z] (m, world), position_sigma (m, 1), "
                              "yaw_deg (deg), yaw_sigma_deg (deg)}}: with a position, the vehicle starts at its first IMU "
                              "sample without a GNSS fix; its yaw replaces yaw0, yaw0_sigma")
+    start_window: float = key(2.0, lo=0, unit="s", doc="span of the anchor ranges and heights that start (and re-initialise) a "
+                              "vehicle without a fix or an initial position (estimators.range_start)")
+    range_window: int = key(RANGE_WINDOW, lo=0, doc="ranges per vehicle of the range-noise match (eq. R1) and the divergence "
+                            "test (eq. D1) (estimators.range_innovations; 0: neither)")
+    range_noise_adapt: bool = key(True, doc="range variances scaled by the covariance match of the innovations (eq. R1)")
+    divergence_prob: float = key(DIVERGENCE_ALPHA, lo=0, hi=1, hi_open=True,
+                                 doc="false-alarm probability of the divergence test (eq. D1; 0: no guard)")
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -131,6 +149,46 @@ def heading(p: dict, pose: InitialPose | None) -> dict:
         return p
     return {**p, "yaw0": p["yaw0"] if pose.yaw_deg is None else math.radians(pose.yaw_deg),
             "yaw0_sigma": p["yaw0_sigma"] if pose.yaw_sigma_deg is None else math.radians(pose.yaw_sigma_deg)}
+
+
+def range_guard(p: dict, n: int) -> RangeInnovations | None:
+    """The range-noise match (eq. R1) and divergence test (eq. D1) of n vehicles
+    (estimators.range_innovations) by params p (StartParams); None when range_window is 0."""
+    if not p["range_window"]:
+        return None
+    return RangeInnovations(n, int(p["range_window"]), p["divergence_prob"] or DIVERGENCE_ALPHA, bool(p["range_noise_adapt"]))
+
+
+class Reinitialisations:
+    """The divergence guard's record (eq. D1): health counts `reinitialisations`,
+    `reinitialised_diverged_nis` (by reason: the only one, eq. D1) and `reinitialisation_last_ms`
+    (the time of the last, ms); a divergence whose window of ranges and heights does not determine
+    a position cannot re-initialise: the filter runs on, counted in `divergences_without_fix`
+    (and `divergence_last_ms`). One stderr line per event at finish()."""
+
+    def __init__(self, counts: dict):
+        self.counts, self.events = counts, []
+        counts["reinitialisations"] = 0
+
+    def add(self, body: str, t: float, above: int, window: int, c: float, fixed: bool) -> bool:
+        """body failed eq. D1 at t (s): `above` of its last `window` ranges had a NIS above c;
+        fixed: its window gives a position. Returns fixed (re-initialise)."""
+        what = f"{body} at {t:.2f} s: {above} of its last {window} ranges with NIS above {c:.2f} (eq. D1)"
+        c = self.counts
+        if fixed:
+            c["reinitialisations"] += 1
+            c["reinitialised_diverged_nis"] = c.get("reinitialised_diverged_nis", 0) + 1
+            c["reinitialisation_last_ms"] = int(round(t * 1e3))
+            self.events.append(f"re-initialised from ranges and heights: {what}")
+        else:
+            c["divergences_without_fix"] = c.get("divergences_without_fix", 0) + 1
+            c["divergence_last_ms"] = int(round(t * 1e3))
+            self.events.append(f"diverged, not re-initialised (its ranges and heights give no position): {what}")
+        return fixed
+
+    def note(self, entry: str) -> None:
+        for e in self.events:
+            print(f"testbed: note: {entry}: {e}", file=sys.stderr)
 
 
 def note_unstarted(entry: str, bodies: list[str], counts: dict) -> None:
@@ -174,10 +232,12 @@ class _Vehicle:
     """One vehicle's filter: nominal x (34 + E,), covariance P (33 + E, 33 + E), time t (s), held
     IMU sample."""
 
-    __slots__ = ("x", "P", "t", "imu", "samples", "ranges", "noise", "bias0", "bias_var", "k_var", "locked")
+    __slots__ = ("x", "P", "t", "imu", "samples", "ranges", "noise", "bias0", "bias_var", "k_var", "locked", "k", "restart")
 
-    def __init__(self, imu: dict):
+    def __init__(self, imu: dict, k: int):
         self.x, self.P, self.t, self.imu, self.samples = None, None, None, None, 0
+        self.k = k  # its index among the vehicles
+        self.restart = None  # the params of its next start after a re-initialisation (its own heading)
         self.locked = 0  # range epochs in a row whose every range the gate rejected
         # its own declared IMU (estimators.sensor_models.vehicle_imu): noise, bias mean and variances
         acc, gyr = imu["accel"], imu["gyro"]
@@ -206,10 +266,14 @@ class NavEskf:
         self.delay_var = np.full(1 + len(self.anchors), delay ** 2) if delay > 0 else np.zeros(0)
         self.delay_index = {name: k for k, name in enumerate(self.anchors, start=1)}
         self.gate = {m: float(chi2.isf(self.p["gate_prob"], m)) for m in (1, 3)}
-        self.v = {name: _Vehicle(vehicle_imu(imu, name)) for name in context.vehicles}
+        self.v = {name: _Vehicle(vehicle_imu(imu, name), k) for k, name in enumerate(context.vehicles)}
         self.adapt = imu_adapter(self.p, [f.noise for f in self.v.values()])
         self.index = {name: k for k, name in enumerate(self.v)}
+        self.vehicles = list(self.v)
         self.counts = {"rejected_measurements": 0, "skipped_updates": 0, "gate_inflations": 0}
+        self.starts = BodyStarts(self.p["start_window"], self.p["vel0_sigma"])
+        self.innovations = range_guard(self.p, len(self.v))
+        self.reinit = Reinitialisations(self.counts)
 
     # ------------------------------------------------------------------ the protocol
     def process(self, m: Measurement):
@@ -229,6 +293,7 @@ class NavEskf:
 
     def finish(self) -> list[Estimate]:
         note_unstarted(type(self).__name__, [b for b, f in self.v.items() if f.x is None], self.counts)
+        self.reinit.note(type(self).__name__)
         return []
 
     def health(self) -> dict[str, int]:
@@ -259,9 +324,9 @@ class NavEskf:
         if f.x is None:
             f.t = m.time
             pose = self.poses.get(body)
-            if pose is None or pose.position is None:
+            if pose is None or pose.position is None or f.restart is not None:
                 return []
-            self._start(f, body, m.time, np.array(pose.position, float), np.full(3, pose.position_sigma ** 2), np.zeros(3))
+            self._start(f, body, m.time, np.array(pose.position, float), np.diag(np.full(3, pose.position_sigma ** 2)), np.zeros(3))
         f.samples += 1
         if f.samples % self.p["output_every"]:
             return []
@@ -272,23 +337,26 @@ class NavEskf:
             Estimate(time=m.time, target=body, quantity="attitude", value=x[6:10].copy(), cov=P[eskf.TH, eskf.TH].copy()),
         ]
 
-    def _start(self, f: _Vehicle, body: str, t: float, z: np.ndarray, z_var: np.ndarray, lever: np.ndarray) -> None:
+    def _start(self, f: _Vehicle, body: str, t: float, z: np.ndarray, z_cov: np.ndarray, lever: np.ndarray,
+               p: dict | None = None) -> None:
         """Start at time t (s) from position z (3,) m world of the site at lever (3,) m body frame
-        with variances z_var (3,) m^2 (the first fix, or the initial pose of the body origin): the
+        with covariance z_cov (3, 3) m^2 (the first fix, the initial pose of the body origin, or the
+        fix of its first ranges and heights), the heading of p (params; None: heading()): the
         initial state and covariance (module docstring). The levelling error
         is the accelerometer bias error seen across the vertical (estimators.eskf.level): the
         initial tilt and accelerometer bias errors are correlated, dtheta = J db_a, plus
         tilt0_sigma across the vertical (the vehicle not at rest: a drag-free quadrotor's
         accelerometer reads its thrust axis, so an acceleration a tilts the levelled vertical
         by a / g, 0.05 rad at 0.5 m/s^2) and yaw0_sigma about it."""
-        p = heading(self.p, self.poses.get(body))
+        p = heading(self.p, self.poses.get(body)) if p is None else p
         q, R, P_th, P_thba = levelled_start(f.imu[0] - f.bias0[:3], f.bias_var[:3], p)
         x = np.zeros(eskf.N_ERR + 1 + len(self.delay_var))
         x[0:3] = z - R @ lever
         x[6:10] = q
         x[10:16] = f.bias0
-        P = np.diag(np.concatenate([z_var, [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
+        P = np.diag(np.concatenate([np.zeros(3), [p["vel0_sigma"] ** 2] * 3, np.zeros(3),
                                     f.bias_var, f.k_var, self.delay_var]))
+        P[eskf.P, eskf.P] = z_cov
         P[eskf.TH, eskf.TH] = P_th
         P[eskf.TH, eskf.BA] = P_thba
         P[eskf.BA, eskf.TH] = P_thba.T
@@ -301,7 +369,7 @@ class NavEskf:
             self.counts["skipped_updates"] += 1
             return
         if f.x is None:
-            self._start(f, body, m.time, np.asarray(m.value, float), np.asarray(m.sigma, float) ** 2, lever)
+            self._start(f, body, m.time, np.asarray(m.value, float), np.diag(np.asarray(m.sigma, float) ** 2), lever)
             return
         self._to(f, m.time)
         self._apply(f, np.asarray(m.value, float), lambda x: eskf.site_position(x, lever), np.diag(np.asarray(m.sigma, float) ** 2))
@@ -313,6 +381,8 @@ class NavEskf:
         f = self.v.get(body)
         if f is None:
             return
+        if m.sigma is not None:
+            self.starts.height(body, m.time, float(m.value[0]), float(np.asarray(m.sigma, float)[0]), lever)
         if f.x is None or m.sigma is None:
             self.counts["skipped_updates"] += 1
             return
@@ -328,15 +398,21 @@ class NavEskf:
             return  # between tags: not used (module docstring)
         body, lever = self._site(m.src)
         f = self.v[body]
-        if f.x is None:
-            self.counts["skipped_updates"] += 1
+        anchor = self.anchors[m.dst]
+        sigma = np.asarray(m.sigma, float)[:1]
+        # the window of a start from ranges (and of a re-initialisation): the range's whole declared variance
+        var = float(range_variances(self.uwb, sigma, np.asarray(m.value, float)[:1], antenna_delays=True)[0])
+        self.starts.range(body, m.time, anchor, float(m.value[0]), float(np.sqrt(var)), lever)
+        if f.x is None:  # this range starts it (it is in the fix), or is skipped
+            self._range_start(f, body, m.time)
+            if f.x is None:
+                self.counts["skipped_updates"] += 1
             return
         self._to(f, m.time)
         extras = (0, self.delay_index[m.dst]) if len(self.delay_var) else ()
-        anchor = self.anchors[m.dst]
         r, _ = eskf.range_model(f.x, lever, anchor, extras)
         # the antenna delays are states here: the rest as white noise, at the predicted range r
-        var = float(range_variances(self.uwb, np.asarray(m.sigma, float)[:1], np.array([r]), antenna_delays=False)[0])
+        var = float(range_variances(self.uwb, sigma, np.array([r]), antenna_delays=False)[0])
         f.ranges.append((m.time, float(m.value[0]), lever, anchor, extras, var))
 
     def _ranges(self, f: _Vehicle) -> None:
@@ -347,12 +423,18 @@ class NavEskf:
         scenario: 12 m error, the gate then locking the ranges out, position NEES > 10^4)."""
         epoch, f.ranges = f.ranges, []
         z = np.array([e[1] for e in epoch])
-        Rn = np.diag([e[5] for e in epoch])
+        declared = np.array([e[5] for e in epoch])
+        k, guard = f.k, self.innovations
+        Rn = np.diag(declared * (guard.scale[k] if guard is not None else 1.0))  # eq. R1's lambda
 
         def model(x, rows=range(len(epoch))):
             hs = [eskf.range_model(x, epoch[k][2], epoch[k][3], epoch[k][4]) for k in rows]
             return np.array([h for h, _ in hs]), np.vstack([H for _, H in hs])
         h, H = model(f.x)
+        if guard is not None:
+            guard.add(np.full(z.size, k), z - h, np.einsum("ij,jk,ik->i", H, f.P, H), declared)
+            if self.p["divergence_prob"] and guard.diverged(k) and self._reinitialise(f, k, epoch[0][0]):
+                return
         keep = eskf.screen(f.P, z - h, H, Rn, self.gate[1])
         f.locked = 0 if keep.any() else f.locked + 1
         if f.locked >= GATE_LOCK_EPOCHS:
@@ -370,6 +452,34 @@ class NavEskf:
             rows = np.flatnonzero(keep)
             f.x, f.P, _ = eskf.update(f.x, f.P, z[rows], lambda x: model(x, rows), Rn[np.ix_(rows, rows)], np.inf,
                                       self.p["iterations"], eskf.ACCEL_BIAS_ACROSS)
+
+    def _range_start(self, f: _Vehicle, body: str, t: float) -> None:
+        """Start a vehicle with no fix or initial position, or re-initialise one, at t (s) from its
+        window of ranges and heights (estimators.range_start) when they determine its origin."""
+        if f.imu is None:
+            return
+        fix = self.starts.fix(body, t)
+        if fix is not None:
+            self._start(f, body, t, fix[0], fix[1], np.zeros(3), f.restart)
+
+    def _reinitialise(self, f: _Vehicle, k: int, t: float) -> bool:
+        """The divergence guard (eq. D1 failed at t, s), counted: the filter started again from its
+        window of ranges and heights, with its own heading and yaw variance (at least yaw0_sigma)
+        and the other start priors; True if so, False (kept running) when the window does not
+        determine a position (Reinitialisations)."""
+        body, guard = self.vehicles[k], self.innovations
+        nis = guard.nis(k)
+        above = int((nis > guard.c).sum())
+        guard.reset(k)
+        if not self.reinit.add(body, t, above, nis.size, guard.c, self.starts.fix(body, t) is not None):
+            return False
+        R = quat_to_rotmat(f.x[6:10])
+        v = R.T @ [0.0, 0.0, 1.0]
+        yaw_sd = float(np.sqrt(max(v @ f.P[eskf.TH, eskf.TH] @ v, 0.0)))
+        f.restart = {**self.p, "yaw0": math.atan2(R[1, 0], R[0, 0]), "yaw0_sigma": max(yaw_sd, self.p["yaw0_sigma"])}
+        f.x, f.P, f.locked = None, None, 0
+        self._range_start(f, body, t)
+        return True
 
     # ------------------------------------------------------------------ helpers
     def _site(self, site: str) -> tuple[str, np.ndarray]:

@@ -169,7 +169,7 @@ class _WindowIns(builtin_eskf.NavEskf):
         if f.x is None:
             if self.start_epochs > 1 and len(self.window.solver.epochs) < self.start_epochs:
                 return  # the window is not yet what the filter should start from (start_epochs)
-            self._start(f, e.target, e.time, z, np.diag(np.asarray(e.cov, float)).copy(), lever)
+            self._start(f, e.target, e.time, z, np.diag(np.diag(np.asarray(e.cov, float))), lever)  # its variances
         else:
             Rn = np.asarray(e.cov, float)
             if self.decorrelate:

@@ -67,6 +67,7 @@ import numpy as np
 
 from estimators.core import Gate, Gaussian, counting
 from estimators.geometry import DegenerateGeometryError
+from estimators.range_start import StartWindow
 from estimators.ranging import RangingEkf, RangingEpoch, RangingNoise, body_pose, initial_belief
 from estimators.sensor_models import correlated_sigma
 from estimators.so3 import quat_to_rotmat
@@ -266,7 +267,6 @@ class _Follower:
         self.body = body
         self.belief = None
         self.t_belief = None
-        self.init_buffer: list[tuple[float, list, tuple | None]] = []  # (t, [(site, X, r, sigma)], height) before the prior
         self.bias_index: dict[tuple[str, int, str], int] = {}  # (stream, antenna, known end) -> bias state
         self.antennas = list(antennas)
         self.index = {a: k for k, a in enumerate(self.antennas)}
@@ -279,6 +279,7 @@ class _Follower:
         self.origin_weights = c0 + N @ np.linalg.lstsq(self.arms.T @ N, -self.arms.T @ c0, rcond=None)[0]
         self.origin_offset = float((self.origin_weights @ self.arms)[2])  # m, up, of that point from the origin
         p = o.p
+        self.window = StartWindow(p["init_window"], p["v_sigma"])  # the ranges before the prior
         self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"], rotation=p["q_rotation"]),
                               gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]), bias_walk=p["bias_walk"])
         self._reset()
@@ -365,35 +366,26 @@ class _Follower:
 
     def _initialise(self, t: float, rows: list) -> bool:
         """Try to build the prior at t from the epochs of the last init_window s (docs/replay.md,
-        "Sparse ranging"); True when built. Each buffered range of age a = t - t_k counts as a range
-        at t of sigma hypot(sigma_k, v_sigma a), the latest height likewise; the velocity prior is
-        v_sigma per axis. An epoch with ranges that leaves the follower undetermined is counted in skipped_epochs."""
+        "Sparse ranging"; estimators.range_start, eq. S1: each buffered range of age a = t - t_k
+        counts as a range at t of sigma hypot(sigma_k, v_sigma a), the latest height likewise); the
+        velocity prior is v_sigma per axis; True when built. An epoch with ranges that leaves the
+        follower undetermined is counted in skipped_epochs."""
         p = self.o.p
-        self.init_buffer.append((t, [(site, X, r, s) for site, X, _, r, s, _, _ in rows], self.height))
-        self.init_buffer = [b for b in self.init_buffer if b[0] >= t - p["init_window"] - 1e-9]
+        h = self._height_row(self.height)
+        self.window.add(t, [self.index[site] for site, *_ in rows], [row[1] for row in rows], [row[3] for row in rows],
+                        [row[4] for row in rows], None if h is None else (h[0], h[1], h[2]))
         if not rows:
             if self.links:
                 self.o.counts["skipped_epochs"] += 1
             return False
-        ranged = [(tk, row) for tk, rs, _ in self.init_buffer for row in rs]
-        heights = [(tk, h) for tk, _, h in self.init_buffer if h is not None and self._height_row(h) is not None]
-        hk, h = heights[-1] if heights else (t, None)
-        h = self._height_row(h)
-        # a range of age a as one at t: the follower moved by v ~ N(0, v_sigma^2 I) a since, which changes
-        # the range by u^T v a ~ N(0, (v_sigma a)^2) (the same for a height)
-        stacked = RangingEpoch(
-            antenna=np.array([self.index[row[0]] for _, row in ranged], int), known_pos=np.array([row[1] for _, row in ranged]),
-            ranges=np.array([row[2] for _, row in ranged]),
-            sigma_range=np.array([np.hypot(row[3], p["v_sigma"] * (t - tk)) for tk, row in ranged]),
-            height=None if h is None else h[0], sigma_height=1.0 if h is None else float(np.hypot(h[1], p["v_sigma"] * (t - hk))),
-            height_weights=None if h is None else h[2])
         try:
-            self.belief = initial_belief(stacked, self.n, self.arms, v_cov=p["v_sigma"] ** 2, shape_sigma=p["shape_sigma"],
-                                         level_sigma=p["level_sigma"])
+            self.belief = initial_belief(self.window.epoch(t), self.n, self.arms, v_cov=p["v_sigma"] ** 2,
+                                         shape_sigma=p["shape_sigma"], level_sigma=p["level_sigma"])
         except DegenerateGeometryError:
             self.o.counts["skipped_epochs"] += 1
             return False
-        self.t_belief, self.init_buffer = t, []
+        self.t_belief = t
+        self.window.clear()
         return True
 
     def _bias_states(self) -> np.ndarray:
