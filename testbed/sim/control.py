@@ -122,7 +122,7 @@ class GeometricController:
 
     def _allocate(self, f: np.ndarray, m: np.ndarray) -> np.ndarray:
         """Rotor thrusts (K, 4) N within the rotor limits for K vehicles whose mixed command
-        exceeds them: collective f (K,) N, moments per unit inertia m (K, 3) body rad/s^2.
+        exceeds them: collective f (K,) and moments m (K, 3) per unit mass and inertia, m/s^2 and body rad/s^2.
 
         Priorities (docs/control.md, "Rotor limits"): the roll and pitch moments keep their
         direction, scaled down only if their spread over the rotors exceeds the rotor range; the
