@@ -64,6 +64,7 @@ class GeometricController:
         self.mix_f = self.mass * mix_inv[:, 0]
         self.mix_m = (mix_inv[:, 1:] * self.J).T  # moments are computed per unit inertia
         self.lo, self.hi = m.actuator_ctrlrange[ids, 0], m.actuator_ctrlrange[ids, 1]
+        self._lo_max, self._hi_min = float(self.lo.max()), float(self.hi.min())
         # tilt limit: tan of the largest angle of F/m from the vertical (0: off), and the least
         # vertical part of F/m kept when it is on (m/s^2)
         self._tan_tilt = float(np.tan(np.radians(gains.max_tilt_deg)))
@@ -113,10 +114,10 @@ class GeometricController:
         E = (R.transpose(0, 2, 1) @ Rd).reshape(-1, 9).take(_SKEW, axis=1)
         m = self._kr_half * (E[:, :3] - E[:, 3:]) - g.kw * omega + _cross(omega, omega * self.J) / self.J
         thrust = f[:, None] * self.mix_f + m @ self.mix_m
-        over = (thrust < self.lo) | (thrust > self.hi)
-        if over.any():
-            rows = np.flatnonzero(over.any(axis=1))
-            thrust[rows] = self._allocate(f[rows], m[rows])
+        if thrust.min() < self._lo_max or thrust.max() > self._hi_min:  # a cheap necessary test first
+            rows = np.flatnonzero(((thrust < self.lo) | (thrust > self.hi)).any(axis=1))
+            if rows.size:
+                thrust[rows] = self._allocate(f[rows], m[rows])
         np.maximum(thrust, self.lo, out=thrust)  # rounding only: _allocate keeps the limits
         return np.minimum(thrust, self.hi, out=out if out is not None else thrust)
 
