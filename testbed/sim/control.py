@@ -2,7 +2,9 @@
 
 Tracks position, velocity, acceleration and yaw of the reference; the commanded body moments and
 collective thrust are mapped to the four rotor thrusts through the airframe's mixer (built from
-the rotor sites and actuator gears of the compiled model) and clipped to the rotor limits. The
+the rotor sites and actuator gears of the compiled model). Where they exceed the rotor limits
+the command is allocated by priority (`GeometricController._allocate`): roll and pitch first,
+then the collective thrust, the yaw moment last (docs/control.md, "Rotor limits"). The
 desired angular velocity is taken as zero (the references are smooth and slow next to the
 attitude loop's bandwidth of about 8 rad/s).
 
@@ -62,6 +64,7 @@ class GeometricController:
         self.mix_f = self.mass * mix_inv[:, 0]
         self.mix_m = (mix_inv[:, 1:] * self.J).T  # moments are computed per unit inertia
         self.lo, self.hi = m.actuator_ctrlrange[ids, 0], m.actuator_ctrlrange[ids, 1]
+        self._lo_max, self._hi_min = float(self.lo.max()), float(self.hi.min())
         # tilt limit: tan of the largest angle of F/m from the vertical (0: off), and the least
         # vertical part of F/m kept when it is on (m/s^2)
         self._tan_tilt = float(np.tan(np.radians(gains.max_tilt_deg)))
@@ -111,5 +114,33 @@ class GeometricController:
         E = (R.transpose(0, 2, 1) @ Rd).reshape(-1, 9).take(_SKEW, axis=1)
         m = self._kr_half * (E[:, :3] - E[:, 3:]) - g.kw * omega + _cross(omega, omega * self.J) / self.J
         thrust = f[:, None] * self.mix_f + m @ self.mix_m
-        np.maximum(thrust, self.lo, out=thrust)
+        if thrust.min() < self._lo_max or thrust.max() > self._hi_min:  # a cheap necessary test first
+            rows = np.flatnonzero(((thrust < self.lo) | (thrust > self.hi)).any(axis=1))
+            if rows.size:
+                thrust[rows] = self._allocate(f[rows], m[rows])
+        np.maximum(thrust, self.lo, out=thrust)  # rounding only: _allocate keeps the limits
         return np.minimum(thrust, self.hi, out=out if out is not None else thrust)
+
+    def _allocate(self, f: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """Rotor thrusts (K, 4) N within the rotor limits for K vehicles whose mixed command
+        exceeds them: collective f (K,) and moments m (K, 3) per unit mass and inertia, m/s^2 and body rad/s^2.
+
+        Priorities (docs/control.md, "Rotor limits"): the roll and pitch moments keep their
+        direction, scaled down only if their spread over the rotors exceeds the rotor range; the
+        collective is moved to the nearest value at which they fit; the yaw moment gets what room
+        is left, scaled down (direction kept) to fit. A quadrotor's yaw moment is the rotors'
+        drag, k_m = 0.016 m times their thrust, so a small yaw demand needs large thrust
+        differences: clipped rotor by rotor, it would take the roll and pitch authority with it."""
+        lo, hi, mix_f = self.lo, self.hi, self.mix_f
+        rp = m[:, :2] @ self.mix_m[:2]  # (K, 4) N: roll and pitch
+        yaw = m[:, 2:] * self.mix_m[2]  # (K, 4) N: yaw
+        spread = rp.max(axis=1) - rp.min(axis=1)
+        rp *= np.minimum(1.0, (hi - lo).min() / np.maximum(spread, 1e-300))[:, None]
+        # the collective nearest f with every rotor of roll and pitch within its limits
+        f = np.minimum(np.maximum(f, ((lo - rp) / mix_f).max(axis=1)), ((hi - rp) / mix_f).min(axis=1))
+        base = f[:, None] * mix_f + rp
+        # the largest share s in [0, 1] of the yaw moment that keeps every rotor within its limits
+        room = np.where(yaw > 0.0, hi - base, lo - base)
+        share = np.divide(room, yaw, out=np.full_like(yaw, np.inf), where=yaw != 0.0)
+        s = np.clip(share.min(axis=1), 0.0, 1.0)
+        return base + s[:, None] * yaw

@@ -28,9 +28,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from testbed.environment import apply_defaults
+
+apply_defaults()  # before numpy loads (python -m tests.golden.values): single-threaded BLAS, as the tests run
+
+import numpy as np  # noqa: E402
 
 VALUES = Path(__file__).with_name("values.json")
 DURATION_S = 4.0
@@ -219,7 +221,6 @@ def largest_relative(stored: dict, now: dict) -> dict[str, float]:
 
 
 def main() -> None:
-    apply_defaults()  # single-threaded BLAS as in the CLI and the tests
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--update", action="store_true", help="rewrite the stored values")
     parser.add_argument("--save", metavar="FILE", help="write the values computed here to FILE")
