@@ -33,7 +33,7 @@ def _filter(sc, log):
     prior, P0, err0 = PB.initial_prior(cfg, sc, inp, stream_rng(sc.seed, "init"))
     meas = PB.measurement_epochs(cfg, inp)
     filt = PhaseEkfCovarianceAnalysis(PB.process_noise_model(cfg, sc.motion), Gate(alpha=cfg.gate_alpha, enabled=cfg.gate),
-                                      cfg.iterations)
+                                      cfg.iterations, cfg.rigid)
     track = drive(filt, AnalyzedGaussian(prior.mean, prior.cov, prior.cov), [Epoch(float(t), m) for t, m in zip(inp.times, meas)])
     means, covs = track.mean, track.cov
     infos = [b.info for b in track.beliefs]

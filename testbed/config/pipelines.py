@@ -93,6 +93,9 @@ class PhasePipelineConfig(_PipelineConfig):
       The built-in phase scenarios' q_rotation is the rule's stage 2 (testbed.reproduce.phase_q:
       with q fixed, the grid value whose final attitude ANEES at 20 s on the same calibration
       seeds is closest to 6); it applies in both motion modes.
+    rigid: the prediction adds the centripetal acceleration of the follower's turning rigid body to
+      eq. 24's constant velocity per antenna (estimators.phase_ekf.rigid_transition; false: the
+      paper's eq. 24 alone).
     range_sigma: filter range noise, 1 sigma (m; default: the declared [sensors.phase] phase_noise,
       in range terms); rate rows, if on, get sqrt(2) range_sigma / W.
     rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already
@@ -115,6 +118,7 @@ class PhasePipelineConfig(_PipelineConfig):
     q_flown: float = key(1e-6, lo=0, lo_open=True, unit="m^2/s^3", doc="white-acceleration density per antenna axis, flown motion")
     q_translation: float = key(0.0, lo=0, unit="m^2/s^3", doc="rigid-body white acceleration of the follower (0: the paper's Q)")
     q_rotation: float = key(0.0, lo=0, unit="rad^2/s^3", doc="rigid-body white angular acceleration of the follower")
+    rigid: bool = key(True, doc="prediction with the centripetal acceleration of the turning follower (false: the paper's eq. 24)")
     range_sigma: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed range noise, 1 sigma (none: the declared [sensors.phase] phase_noise)")
     rate_rows: Literal["window", "instantaneous", "off"] = key("off", doc="eq. 7 range-rate rows: off, window or instantaneous")
     init: Literal["drawn", "paper"] = key("drawn", doc="initial error drawn per run, or the paper's fixed error")
