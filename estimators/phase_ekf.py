@@ -32,7 +32,7 @@ constant-velocity model of eq. 24).  DEFAULT_Q = 1e-7 m^2/s^3 is only this modul
 The eq. 31 body itself moves at exactly constant velocity, so no physical q exists to copy: the
 built-in scenarios choose their `pipeline.q` by a stated rule on calibration seeds disjoint from
 every evaluation (the q whose ANEES is closest to its dof; testbed/reproduce/phase_q.py), which
-gives 1e-12 to 1e-8 depending on the formation's geometry. Any q > 0 makes the filter's P at least
+gives 1e-12, or 1e-9 on line H000, over whole 200 s runs. Any q > 0 makes the filter's P at least
 its actual error covariance for a motion without random acceleration (PhaseEkfCovarianceAnalysis:
 Gelb's covariance analysis from the filter's own gains and Jacobians, its inputs the measurements
 only).
