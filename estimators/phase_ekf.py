@@ -9,10 +9,11 @@ Public API
 transition(dt)                              Phi (18, 18), eq. 24
 ProcessNoise                                white-acceleration densities: per antenna, body translation, body rotation
 process_noise(dt, q, x)                     Q (18, 18), continuous white-noise-acceleration model
-PhaseEkf(q, gate, iterations)               THE filter on the estimator interface (core.Filter):
+PhaseEkf(q, gate, iterations, rigid)        THE filter on the estimator interface (core.Filter):
                                             predict(belief, dt), update(belief, measurement) -> belief
 PhaseEkfCovarianceAnalysis                  the same filter, also carrying its ACTUAL error covariance
-time_update(belief, dt, q)                  time update, eq. 18/22
+time_update(belief, dt, q, rigid)           time update, eq. 18/22 (rigid: with rigid_transition)
+rigid_transition(x, dt)                     eq. 24 plus the centripetal acceleration of a turning rigid body
 PhaseMeasurement                            one epoch: ranges, range rates, master antennas, sigmas, masks
 measurement_update(belief, meas, gate, iterations)   EKF (or iterated EKF) measurement update
                                             (eq. 19-22, Joseph) -> (Gaussian, core.UpdateInfo)
@@ -31,7 +32,7 @@ constant-velocity model of eq. 24).  DEFAULT_Q = 1e-7 m^2/s^3 is only this modul
 The eq. 31 body itself moves at exactly constant velocity, so no physical q exists to copy: the
 built-in scenarios choose their `pipeline.q` by a stated rule on calibration seeds disjoint from
 every evaluation (the q whose ANEES is closest to its dof; testbed/reproduce/phase_q.py), which
-gives 1e-12 to 1e-8 depending on the formation's geometry. Any q > 0 makes the filter's P at least
+gives 1e-12, or 1e-9 on line H000, over whole 200 s runs. Any q > 0 makes the filter's P at least
 its actual error covariance for a motion without random acceleration (PhaseEkfCovarianceAnalysis:
 Gelb's covariance analysis from the filter's own gains and Jacobians, its inputs the measurements
 only).
@@ -56,6 +57,26 @@ velocity ANEES 5.78 in [4.50, 7.75], all 12 rigid-body quantities of eq. 29-30 1
 [9.82, 14.43] (99 % intervals); 18-state ANEES 95.2 against [15.3, 20.9], the side lengths and
 their rates being over-confident (NEES 38.6 for 6 dof; 18.2 under q = 1e-7): a small independent
 q leaves the rigid triangle's shape almost without process noise.
+
+Rigid rotation (rigid=True; the paper's eq. 24 is rigid=False)
+-----------------------------------------------------------------
+The three antennas sit on one rigid body that turns. Antenna j, at rho_j from the body origin,
+accelerates by alpha x rho_j + omega x (omega x rho_j). Eq. 24 predicts every antenna at
+constant velocity, so it has neither term. The angular acceleration alpha is random to the filter
+(ProcessNoise.rotation). The centripetal term omega x (omega x rho_j) = omega x rho_dot_j is not:
+omega follows from the state itself (phase_model.angular_velocity, from the arms and their
+rates), and the term points along the lever arms, into the 6 directions that stretch the
+triangle, which no rigid-body noise reaches. Without it a constant-velocity prediction moves each
+antenna along its tangent and lengthens its arm by (omega t)^2 / 2: at the eq. 31 attitude rate
+(<= 5.5e-3 rad/s) that is 3e-5 m/s^2 on a 1 m arm, 0.15 m over a 100 s memory, against
+centimetre-level errors. Measured (docs/papers.md, seed 003, phase-cross-h000, calibration seeds,
+200 s, q = 1e-12, q_rotation = 1e-7): 18-state ANEES 1538 without the term, 30 with it; the
+attitude's 36.6 and 5.0. rigid_transition adds the term to the predicted mean, held over dt
+(second order in dt). Its Jacobian is left out of the covariance's transition (Phi of eq. 24
+stays): it is of the order of omega dt (<= 5.5e-4 per 0.1 s step at the eq. 31 rate), but while
+the prior's velocities are still metres per second apart the implied omega is wild, and with the
+Jacobian in the covariance 2 of the same 10 runs diverged (body ANEES 1565 and 620). The body
+origin gets none of the term (rho_dot_2 + rho_dot_3 = 0), so the body's prediction is eq. 24's.
 
 Innovation gate (cycle slips)
 -----------------------------
@@ -83,6 +104,7 @@ from estimators.phase_model import (
     ROWS_PER_MASTER,
     antenna_state_from_body,
     body_from_antennas,
+    centripetal_acceleration,
     measurement_model,
     row_label,
     stack_rows,
@@ -141,10 +163,21 @@ def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray 
     return np.kron(white_acceleration_q(dt), S)
 
 
-def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q) -> Gaussian:
-    """EKF time update over dt s (eq. 15, 18, 23): x' = Phi x, P' = Phi P Phi^T + Q."""
+def rigid_transition(x: np.ndarray, dt: float) -> np.ndarray:
+    """Prediction (18,) of the antenna state x (18,) over dt s: eq. 24 plus the centripetal
+    acceleration a = phase_model.centripetal_acceleration(x) of the turning rigid body, held over
+    dt (module docstring, "Rigid rotation"):  x_j' = x_j + dt v_j + dt^2/2 a_j,  v_j' = v_j + dt a_j."""
+    a = centripetal_acceleration(x)
+    return transition(dt) @ x + np.concatenate([0.5 * dt * dt * a, dt * a])
+
+
+def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q, rigid: bool = False) -> Gaussian:
+    """EKF time update over dt s (eq. 15, 18, 23): x' = Phi x, P' = Phi P Phi^T + Q; with rigid,
+    x' = rigid_transition(x, dt) and the same P' (the centripetal term's Jacobian is left out:
+    module docstring, "Rigid rotation")."""
     # eq. 22 (first two lines) with f linear: eq. 23-24
-    return kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean))
+    pred = kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean))
+    return Gaussian(rigid_transition(belief.mean, dt), pred.cov) if rigid else pred
 
 
 # ------------------------------------------------------------------------------------------------
@@ -257,17 +290,19 @@ class PhaseEkf:
     """The seed 003 EKF as a core.Filter: predict(belief, dt, u) and update(belief, measurement).
 
     q: white-acceleration density per antenna axis (m^2/s^3) or a ProcessNoise; gate: the
-    innovation gate; iterations: 1 = the paper's EKF, > 1 iterated EKF (`measurement_update`).
-    The filter has no input: u is ignored.
+    innovation gate; iterations: 1 = the paper's EKF, > 1 iterated EKF (`measurement_update`);
+    rigid: False = eq. 24's constant velocity per antenna, True = plus the centripetal
+    acceleration of the turning rigid body (rigid_transition). The filter has no input: u is ignored.
     """
 
     q: float | ProcessNoise = DEFAULT_Q
     gate: Gate = Gate()
     iterations: int = 1
+    rigid: bool = False
 
     def predict(self, belief: Gaussian, dt: float, u: None = None) -> Gaussian:
-        """Time update over dt s (eq. 18, 22-24)."""
-        return time_update(belief, dt, self.q)
+        """Time update over dt s (eq. 18, 22-24; with rigid, rigid_transition)."""
+        return time_update(belief, dt, self.q, self.rigid)
 
     def update(self, belief: Gaussian, measurement: PhaseMeasurement) -> Gaussian:
         """Measurement update with one epoch (eq. 16-22, 25-28); gate rejections are tallied."""
@@ -302,7 +337,7 @@ class PhaseEkfCovarianceAnalysis(PhaseEkf):
     __slots__ = ()
 
     def predict(self, belief: AnalyzedGaussian, dt: float, u: None = None) -> AnalyzedGaussian:
-        bel = time_update(belief, dt, self.q)
+        bel = time_update(belief, dt, self.q, self.rigid)
         F = transition(dt)
         return AnalyzedGaussian(bel.mean, bel.cov, F @ belief.actual @ F.T)
 
@@ -390,5 +425,5 @@ def pcrb_position_rmse(bounds: np.ndarray, body: bool = False) -> np.ndarray:
 __all__ = [
     "DEFAULT_Q", "AnalyzedGaussian", "PhaseEkf", "PhaseEkfCovarianceAnalysis", "PhaseMeasurement",
     "ProcessNoise", "body_state", "initial_belief", "measurement_update", "pcrb", "pcrb_position_rmse",
-    "process_noise", "time_update", "transition", "ROWS_PER_MASTER",
+    "process_noise", "rigid_transition", "time_update", "transition", "ROWS_PER_MASTER",
 ]

@@ -268,6 +268,41 @@ def body_from_antennas(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ------------------------------------------------------------------------------------------------
+# Rigid rotation of the antenna triangle: angular velocity and centripetal acceleration
+# ------------------------------------------------------------------------------------------------
+def angular_velocity(x: np.ndarray) -> np.ndarray:
+    """Angular velocity omega (3,) rad/s in N of the antenna triangle of the antenna state x (18,).
+
+    With the arms u = x1 - (x2 + x3)/2 and w = x2 - x3 (m) and their rates (m/s), a rigid body has
+    u_dot = omega x u and w_dot = omega x w; omega is the least-squares solution of these six
+    equations (exact when the state is a rigid motion):
+        A omega = u x u_dot + w x w_dot,   A = (|u|^2 + |w|^2) I - u u^T - w w^T,
+    A invertible whenever u and w are not parallel.
+    """
+    X = np.asarray(x, dtype=float)
+    P, V = X[:9].reshape(3, 3), X[9:].reshape(3, 3)
+    u, ud = P[0] - 0.5 * (P[1] + P[2]), V[0] - 0.5 * (V[1] + V[2])
+    w, wd = P[1] - P[2], V[1] - V[2]
+    A = (u @ u + w @ w) * np.eye(3) - np.outer(u, u) - np.outer(w, w)
+    return np.linalg.solve(A, np.cross(u, ud) + np.cross(w, wd))
+
+
+def centripetal_acceleration(x: np.ndarray) -> np.ndarray:
+    """Centripetal accelerations a (9,) m/s^2 of the three antennas about the body origin for the
+    antenna state x (18,) in N, [antenna j, xyz].
+
+    A rigid body turning at omega (angular_velocity) moves antenna j, at rho_j = x_j - (x2 + x3)/2
+    from the body origin with relative velocity rho_dot_j = omega x rho_j, with acceleration
+        a_j = alpha x rho_j + omega x (omega x rho_j) = alpha x rho_j + omega x rho_dot_j.
+    The constant-velocity model of eq. 24 has neither term; the angular acceleration alpha is the
+    rotational process noise (estimators.phase_ekf.ProcessNoise), the centripetal term
+    omega x rho_dot_j is returned here. Since rho_dot_2 + rho_dot_3 = 0 the body origin gets none.
+    """
+    V = np.asarray(x, dtype=float)[9:].reshape(3, 3)
+    return np.cross(angular_velocity(x), V - 0.5 * (V[1] + V[2])).reshape(-1)
+
+
+# ------------------------------------------------------------------------------------------------
 # Which attitude directions the filter's covariance leaves unobserved
 # ------------------------------------------------------------------------------------------------
 #: rad: a rotation axis whose standard deviation (the filter's own covariance) exceeds this is

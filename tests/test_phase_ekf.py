@@ -146,6 +146,39 @@ def test_predict_equals_core_kf_predict():
     assert np.allclose(transition(0.1)[:9, 9:], 0.1 * np.eye(9))
 
 
+def test_rigid_prediction_follows_a_turning_rigid_body_where_eq24_stretches_it():
+    """rigid_transition on a body turning at a constant omega (no angular acceleration): the
+    angular velocity is recovered from the antennas exactly, the centripetal accelerations are
+    omega x (omega x rho_j) and sum to zero on the body origin, and over one 0.1 s step the
+    predicted antennas miss the true rigid motion by third order only (omega^3 dt^3 / 6 |rho|),
+    where eq. 24's constant velocity misses by omega^2 dt^2 / 2 |rho|. The covariance is eq. 24's."""
+    from estimators.phase_ekf import rigid_transition
+    from estimators.phase_model import angular_velocity, centripetal_acceleration
+    from estimators.so3 import skew, so3_exp
+
+    om = np.array([0.3, -0.2, 0.5])  # rad/s, far above eq. 31's rates: the orders are visible
+    R0, p0, v0, dt = rot_zyx(0.4, -0.1, 0.2), np.array([30.0, -20.0, 10.0]), np.array([4.0, -4.0, 3.0]), 0.1
+
+    def state(t):
+        R = so3_exp(om * t) @ R0
+        return antenna_state_from_body(p0 + v0 * t, v0, R, skew(om) @ R)
+
+    x0, x1 = state(0.0), state(dt)
+    assert np.allclose(angular_velocity(x0), om, rtol=0, atol=1e-12)
+    P = x0[:9].reshape(3, 3)
+    rho = P - 0.5 * (P[1] + P[2])
+    a = centripetal_acceleration(x0).reshape(3, 3)
+    assert np.allclose(a, np.cross(om, np.cross(om, rho)), rtol=0, atol=1e-12)
+    assert np.allclose(a[1] + a[2], 0.0, atol=1e-12)
+    w = np.linalg.norm(om)
+    err_rigid = np.abs(rigid_transition(x0, dt)[:9] - x1[:9]).max()
+    err_cv = np.abs(transition(dt) @ x0 - x1)[:9].max()
+    assert 0.5 * (w * dt) ** 2 * 0.5 < err_cv < 0.5 * (w * dt) ** 2 * 1.5  # |rho| = 1 m
+    assert err_rigid < (w * dt) ** 3 / 6 * 1.5
+    b = Gaussian(x0, np.eye(18))
+    assert np.array_equal(predict(b, dt, 1e-9, rigid=True).cov, predict(b, dt, 1e-9).cov)
+
+
 def test_rigid_body_process_noise_is_the_covariance_of_rigid_antenna_accelerations():
     """ProcessNoise(antenna, translation, rotation).density(x) is the covariance density of the
     stacked antenna accelerations a + alpha x rho_j + w_j (a, alpha, w_j white with densities

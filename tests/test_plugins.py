@@ -386,7 +386,7 @@ def test_phase_builtin_is_its_filter_in_the_world_with_its_pcrb_and_nav_scores()
     sc = scenario.load("phase-cross-h000", duration=4.0, overrides={"pipeline.last_window": "2.0"})
     log, physics = simulate(sc)
     cfg, inp, q, prior, _, meas = prepare(sc, log)
-    filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=cfg.gate_alpha, enabled=cfg.gate), cfg.iterations)
+    filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=cfg.gate_alpha, enabled=cfg.gate), cfg.iterations, cfg.rigid)
     ref = drive(filt, AnalyzedGaussian(prior.mean, prior.cov, prior.cov), [Epoch(float(t), m) for t, m in zip(inp.times, meas)])
     p, v, R, Rd = inp.nav_pose
     track, sc_plug, health = _feed(sc, log, physics, PhaseEkf)

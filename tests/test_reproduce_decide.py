@@ -109,8 +109,8 @@ def test_visnav_glint_ordering_is_not_decidable_without_a_glint():
 
 
 def _sweep_rows(anees: dict[float, list[float]]) -> list[dict]:
-    """Sweep rows of phase_q with the given final body NEES per q (one per seed)."""
-    return [{"scenario": "s", "seed": 1000 + i, "q": q, "nees_body6_final": a, "anees": a, "rmse_position_m": 0.01,
+    """Sweep rows of phase_q with the given body ANEES per q (one per seed)."""
+    return [{"scenario": "s", "seed": 1000 + i, "q": q, "nees_body6_final": 6.0, "anees": a, "rmse_position_m": 0.01,
              "pcrb_rmse_position_m": 0.01, "rmse": 0.008, "pcrb_rmse": 0.009, "max_abs_position": [0.01, 0.02, 0.01]}
             for q, values in anees.items() for i, a in enumerate(values)]
 
@@ -135,20 +135,43 @@ def test_phase_q_rule_picks_the_anees_closest_to_dof_on_a_log_scale(tmp_path):
 
 
 def test_phase_q_stage_2_picks_the_attitude_anees_closest_to_dof_and_ignores_the_body_nees():
-    """Stage 2 of the rule: q_rotation by the final attitude NEES (6 dof), 0 allowed in the grid;
-    the body NEES (stage 1's quantity) does not enter."""
+    """Stage 2 of the rule: q_rotation by the attitude ANEES over the run (6 dof), 0 allowed in the
+    grid; the body ANEES (stage 1's quantity) does not enter; a seed whose attitude was never
+    observed (no attitude ANEES) is left out of the mean."""
     from testbed.reproduce import phase_q
 
     # attitude means 20 / 9 / 5 / 2.5: |ln(5/6)| = 0.18 < |ln(9/6)| = 0.41 -> 1e-7; body NEES all 6
     att = {0.0: [18.0, 22.0], 1e-8: [8.0, 10.0], 1e-7: [4.0, 6.0], 1e-6: [2.0, 3.0]}
-    rows = [{"q": 1e-9, "q_rotation": qr, "nees_body6_final": 6.0 if qr != 1e-7 else 60.0, "nees_attitude6_final": a}
+    rows = [{"q": 1e-9, "q_rotation": qr, "anees": 6.0 if qr != 1e-7 else 60.0, "anees_attitude6": a}
             for qr, values in att.items() for a in values]
+    rows.append({"q": 1e-9, "q_rotation": 1e-7, "anees": 6.0, "anees_attitude6": float("nan")})
     assert phase_q.anees_by_q(rows, "q_rotation") == {0.0: 20.0, 1e-8: 9.0, 1e-7: 5.0, 1e-6: 2.5}
     assert phase_q.choose(rows, "q_rotation") == 1e-7
     # 0 can be the rule's value (a filter already consistent without rotational noise)
-    assert phase_q.choose([{"q_rotation": 0.0, "nees_attitude6_final": 6.2},
-                           {"q_rotation": 1e-8, "nees_attitude6_final": 4.0}], "q_rotation") == 0.0
-    assert 0.0 in phase_q.QR_GRID and phase_q.RULE_NEES["q_rotation"] == ("nees_attitude6_final", 6)
+    assert phase_q.choose([{"q_rotation": 0.0, "anees_attitude6": 6.2},
+                           {"q_rotation": 1e-8, "anees_attitude6": 4.0}], "q_rotation") == 0.0
+    assert 0.0 in phase_q.QR_GRID and phase_q.RULE_NEES["q_rotation"] == ("anees_attitude6", 6)
+
+
+def test_phase_q_stage_2_is_skipped_where_the_attitude_is_unobserved(monkeypatch):
+    """Stage 2 runs only where stage 1's runs at its q observe the attitude at every scored epoch;
+    elsewhere q_rotation = 0 and no stage-2 sweep is run."""
+    from testbed.reproduce import phase_q
+
+    calls = []
+
+    def fake_sweep(name, seeds=(), qs=(), *, q_rotations=None, runs=None, **kw):
+        calls.append((tuple(qs), tuple(q_rotations)))
+        return [{"q": q, "q_rotation": qr, "anees": 6.0 if q == 1e-9 else 3.0, "anees_attitude6": 6.0 if qr == 1e-7 else 20.0,
+                 "attitude_unobserved_fraction": unobserved} for q in qs for qr in q_rotations]
+
+    monkeypatch.setattr(phase_q, "simulate_seeds", lambda *a, **k: iter(()))
+    monkeypatch.setattr(phase_q, "sweep", fake_sweep)
+    unobserved = 0.3
+    q, qr, _, rows2 = phase_q.calibrate("s")
+    assert (q, qr) == (1e-9, 0.0) and len(calls) == 1 and phase_q.choose(rows2, "q_rotation") == 0.0
+    unobserved, calls[:] = 0.0, []
+    assert phase_q.calibrate("s")[:2] == (1e-9, 1e-7) and calls[1] == ((1e-9,), phase_q.QR_GRID)
 
 
 def test_phase_q_command_refuses_an_unknown_scenario_in_one_line(capsys):

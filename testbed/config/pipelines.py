@@ -83,16 +83,19 @@ class PhasePipelineConfig(_PipelineConfig):
 
     nav_master: the master whose body frame is the navigation frame (1-based).
     q, q_flown: white-acceleration density per antenna axis (m^2/s^3) in prescribed / flown mode.
-      q is chosen by the stated rule of testbed.reproduce.phase_q (the grid q whose final body
-      ANEES at 20 s on calibration seeds 1000..1009 is closest to 6); the default 1e-9 is the
-      rule's q for phase-cross-h000, and every built-in scenario states its own, all printed by
+      q is chosen by the stated rule of testbed.reproduce.phase_q (the grid q whose body ANEES
+      over whole 200 s runs on calibration seeds 1000..1009 is closest to 6); the default 1e-12 is
+      the rule's q for phase-cross-h000, and every built-in scenario states its own, all printed by
       `python -m testbed.reproduce.phase_q`. q_flown (1e-6) was not calibrated.
     q_translation (m^2/s^3), q_rotation (rad^2/s^3): rigid-body white accelerations of the
       follower, common to its antennas (estimators.phase_ekf.ProcessNoise); 0 = the paper's Q.
       A scenario with a [disturbance] on the follower states its densities here (model-matched).
       The built-in phase scenarios' q_rotation is the rule's stage 2 (testbed.reproduce.phase_q:
-      with q fixed, the grid value whose final attitude ANEES at 20 s on the same calibration
-      seeds is closest to 6); it applies in both motion modes.
+      with q fixed, the grid value whose attitude ANEES over the same 200 s calibration runs is
+      closest to 6); it applies in both motion modes.
+    rigid: the prediction adds the centripetal acceleration of the follower's turning rigid body to
+      eq. 24's constant velocity per antenna (estimators.phase_ekf.rigid_transition; false: the
+      paper's eq. 24 alone).
     range_sigma: filter range noise, 1 sigma (m; default: the declared [sensors.phase] phase_noise,
       in range terms); rate rows, if on, get sqrt(2) range_sigma / W.
     rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already
@@ -111,10 +114,11 @@ class PhasePipelineConfig(_PipelineConfig):
 
     kind: Literal["phase-ekf"]
     nav_master: int = key(3, lo=1, doc="the master whose body frame is the navigation frame (1-based)")
-    q: float = key(1e-9, lo=0, lo_open=True, unit="m^2/s^3", doc="white-acceleration density per antenna axis, prescribed motion")
+    q: float = key(1e-12, lo=0, lo_open=True, unit="m^2/s^3", doc="white-acceleration density per antenna axis, prescribed motion")
     q_flown: float = key(1e-6, lo=0, lo_open=True, unit="m^2/s^3", doc="white-acceleration density per antenna axis, flown motion")
     q_translation: float = key(0.0, lo=0, unit="m^2/s^3", doc="rigid-body white acceleration of the follower (0: the paper's Q)")
     q_rotation: float = key(0.0, lo=0, unit="rad^2/s^3", doc="rigid-body white angular acceleration of the follower")
+    rigid: bool = key(True, doc="prediction with the centripetal acceleration of the turning follower (false: the paper's eq. 24)")
     range_sigma: float | None = key(None, lo=0, lo_open=True, unit="m", doc="assumed range noise, 1 sigma (none: the declared [sensors.phase] phase_noise)")
     rate_rows: Literal["window", "instantaneous", "off"] = key("off", doc="eq. 7 range-rate rows: off, window or instantaneous")
     init: Literal["drawn", "paper"] = key("drawn", doc="initial error drawn per run, or the paper's fixed error")

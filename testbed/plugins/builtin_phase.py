@@ -181,7 +181,8 @@ class PhaseEkf:
             raise ValueError(f"phase.ekf needs the prior of {self.target} (a scenario whose [pipeline] kind is phase-ekf)")
         mean, cov = context.prior[self.target]
         q = process_noise_model(self.cfg, context.motion)
-        filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=self.cfg.gate_alpha, enabled=self.cfg.gate), self.cfg.iterations)
+        filt = PhaseEkfCovarianceAnalysis(q, Gate(alpha=self.cfg.gate_alpha, enabled=self.cfg.gate), self.cfg.iterations,
+                                          self.cfg.rigid)
         self.stepper = Stepper(filt, AnalyzedGaussian(mean, cov, cov))
         self.rows: list[Measurement] = []
         self.states: list[tuple[float, AnalyzedGaussian]] = []  # every epoch's belief: navigation_states()
