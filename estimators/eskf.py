@@ -13,7 +13,7 @@ Mechanization with one IMU sample f (specific force, m/s^2) and w (rate, rad/s),
 corrected f_c = M_a (f - b_a), w_c = M_g (w - b_g), M = (I + K)^-1 (seed 004 eqs. 1-4 inverted):
     a  = R f_c + g,  g = (0, 0, -9.81) m/s^2                      (Sola eq. 260)
     p <- p + v dt + a dt^2 / 2;  v <- v + a dt;  q <- q (x) Exp(w_c dt)
-Error transition (exact Jacobian of that step, `transition`; d f_c = -M_a (db_a + dK_a f_c),
+Error transition (exact Jacobian of that step; `step` gives both, batched over vehicles; d f_c = -M_a (db_a + dK_a f_c),
 dK_a f_c = (I kron f_c^T) dvec(K_a)):
     F[P,V] = I dt, F[P,TH] = -R [f_c]x dt^2/2, F[P,BA] = -R M_a dt^2/2,
     F[P,KA] = -R M_a (I kron f_c^T) dt^2/2
@@ -75,66 +75,74 @@ def split(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     return x[0:3], x[3:6], x[6:10], x[10:13], x[13:16]
 
 
+def _mv(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """M v for matrices (..., 3, 3) and vectors (..., 3): (..., 3)."""
+    return (M @ v[..., None])[..., 0]
+
+
 def corrected(x: np.ndarray, f: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The IMU sample corrected by the state's errors: f_c (3,) m/s^2, w_c (3,) rad/s, and
-    M_a, M_g (3, 3) = (I + K)^-1 (module docstring)."""
-    Ma = np.linalg.inv(np.eye(3) + x[16:25].reshape(3, 3))
-    Mg = np.linalg.inv(np.eye(3) + x[25:34].reshape(3, 3))
-    return Ma @ (f - x[10:13]), Mg @ (w - x[13:16]), Ma, Mg
-
-
-def propagate(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
-    """Nominal state (34 + E,) after dt (s) with the IMU sample f (3,) m/s^2, w (3,) rad/s held."""
-    p, v, q, _, _ = split(x)
-    R = quat_to_rotmat(q)
-    fc, wc, _, _ = corrected(x, f, w)
-    # Sola eq. 260: a = R (a_m - a_b) + g, with a_m corrected for scale factor and misalignment
-    a = R @ fc + GRAVITY
-    out = x.copy()
-    out[0:3] = p + v * dt + 0.5 * dt * dt * a
-    out[3:6] = v + a * dt
-    qn = quat_mul(q, quat_exp(wc * dt))
-    out[6:10] = qn / np.linalg.norm(qn)
-    return out
+    """The IMU sample corrected by the state's errors: f_c (..., 3) m/s^2, w_c (..., 3) rad/s, and
+    M_a, M_g (..., 3, 3) = (I + K)^-1 (module docstring). Batched: x (..., 34 + E), f, w (..., 3)."""
+    Ma = np.linalg.inv(np.eye(3) + x[..., 16:25].reshape(x.shape[:-1] + (3, 3)))
+    Mg = np.linalg.inv(np.eye(3) + x[..., 25:34].reshape(x.shape[:-1] + (3, 3)))
+    return _mv(Ma, f - x[..., 10:13]), _mv(Mg, w - x[..., 13:16]), Ma, Mg
 
 
 def error_size(x: np.ndarray) -> int:
-    """Length of the error state of nominal state x: 33 + extras."""
-    return len(x) - 1
+    """Length of the error state of nominal state x (..., 34 + E): 33 + extras."""
+    return x.shape[-1] - 1
 
 
 def _times_kron(A: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """A (I kron v^T) (3, 9) for A (3, 3), v (3,): column 3 k + j is A[:, k] v[j] (the product
-    with the block-diagonal matrix written out: no 3 x 9 matrix built, no multiplication by its
-    zeros; the same numbers)."""
-    return (A[:, :, None] * v).reshape(3, 9)
+    """A (I kron v^T) (..., 3, 9) for A (..., 3, 3), v (..., 3): column 3 k + j is A[:, k] v[j]
+    (the product with the block-diagonal matrix written out: no 3 x 9 matrix built, no
+    multiplication by its zeros; the same numbers)."""
+    return (A[..., :, :, None] * v[..., None, None, :]).reshape(A.shape[:-2] + (3, 9))
 
 
-def transition(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
-    """Error-state transition F (n, n) of `propagate` at x (module docstring; extras constant)."""
-    R = quat_to_rotmat(x[6:10])
+def step(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt) -> tuple[np.ndarray, np.ndarray]:
+    """One IMU step (module docstring), batched over leading axes (one vehicle each): the nominal
+    state (..., 34 + E) after dt (s, scalar or (...,)) with the sample f (..., 3) m/s^2, w (..., 3)
+    rad/s held, and the error-state transition F (..., n, n) of that step at x (extras constant)."""
+    p, v, q = x[..., 0:3], x[..., 3:6], x[..., 6:10]
+    R = quat_to_rotmat(q)
     fc, wc, Ma, Mg = corrected(x, f, w)
+    dt = np.asarray(dt, float)[..., None, None]
+    dtv = dt[..., 0]
+    phi = wc * dtv
+    dq = quat_exp(phi)
+    # Sola eq. 260: a = R (a_m - a_b) + g, with a_m corrected for scale factor and misalignment
+    a = _mv(R, fc) + GRAVITY
+    out = x.copy()
+    out[..., 0:3] = p + v * dtv + 0.5 * dtv * dtv * a
+    out[..., 3:6] = v + a * dtv
+    qn = quat_mul(q, dq)
+    out[..., 6:10] = qn / np.sqrt(np.add.reduce(qn * qn, axis=-1, keepdims=True))
     RF = R @ skew(fc)
     RM = R @ Ma
-    phi = wc * dt
     JM = so3_right_jacobian(phi) @ Mg
-    F = np.eye(error_size(x))
-    F[P, V] = np.eye(3) * dt
-    F[P, TH] = -0.5 * dt * dt * RF
-    F[P, BA] = -0.5 * dt * dt * RM
-    F[P, KA] = _times_kron(-0.5 * dt * dt * RM, fc)
-    F[V, TH] = -RF * dt
-    F[V, BA] = -RM * dt
-    F[V, KA] = _times_kron(-RM, fc) * dt
-    F[TH, TH] = quat_to_rotmat(quat_exp(phi)).T
-    F[TH, BG] = -JM * dt
-    F[TH, KG] = _times_kron(-JM, wc) * dt
-    return F
+    n = error_size(x)
+    F = np.broadcast_to(np.eye(n), x.shape[:-1] + (n, n)).copy()
+    F[..., P, V] = np.eye(3) * dt
+    F[..., P, TH] = -0.5 * dt * dt * RF
+    F[..., P, BA] = -0.5 * dt * dt * RM
+    F[..., P, KA] = _times_kron(-0.5 * dt * dt * RM, fc)
+    F[..., V, TH] = -RF * dt
+    F[..., V, BA] = -RM * dt
+    F[..., V, KA] = _times_kron(-RM, fc) * dt
+    F[..., TH, TH] = np.swapaxes(quat_to_rotmat(dq), -1, -2)
+    F[..., TH, BG] = -JM * dt
+    F[..., TH, KG] = _times_kron(-JM, wc) * dt
+    return out, F
 
 
-def process_noise(noise: ImuNoise, dt: float, n: int = N_ERR) -> np.ndarray:
+def process_noise(noise: ImuNoise, dt, n: int = N_ERR) -> np.ndarray:
     """Q (n, n) of one step of dt (s): white noise into v and theta, bias walks (docstring);
-    none on the extras."""
+    none on the extras. Batched: noise a sequence of k ImuNoise (one per vehicle), dt scalar or
+    (k,): Q (k, n, n)."""
+    if not isinstance(noise, ImuNoise):
+        dts = np.broadcast_to(np.asarray(dt, float), (len(noise),))
+        return np.stack([process_noise(m, d, n) for m, d in zip(noise, dts.tolist())])
     q = np.zeros(n)
     q[V] = noise.accel_density ** 2 * dt
     q[TH] = noise.gyro_density ** 2 * dt

@@ -46,12 +46,16 @@ IMPUTATIONS = 20  # classical scaling rounds, each unranged pair's distance take
 HUBER = HUBER_DELTA  # the shape's range loss: Huber at 1.345 sigma (the window's; 1 % of UWB ranges are metres off)
 
 
-def mirror_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def mirror_plane(points: np.ndarray, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The reflection through the plane that fits points (..., m, 3) m best (least squares: through
-    their mean, normal to their direction of least extent): its point c (..., 3) m and matrix
-    H = I - 2 nu nu^T (..., 3, 3); a point p reflects to c + H (p - c)."""
-    c = points.mean(axis=-2)
-    nu = np.linalg.svd(points - c[..., None, :])[2][..., -1, :]
+    their mean, normal to their direction of least extent, the eigenvector of the smallest
+    eigenvalue of their scatter matrix): its point c (..., 3) m and matrix H = I - 2 nu nu^T
+    (..., 3, 3); a point p reflects to c + H (p - c). mask (..., m) bool: the points to fit (None:
+    all; batches of sets of different sizes, padded)."""
+    w = np.ones(points.shape[:-1]) if mask is None else mask.astype(float)
+    c = np.einsum("...m,...mi->...i", w, points) / np.maximum(w.sum(axis=-1), 1.0)[..., None]
+    d = (points - c[..., None, :]) * np.sqrt(w)[..., None]
+    nu = np.linalg.eigh(np.swapaxes(d, -1, -2) @ d)[1][..., :, 0]
     return c, np.eye(3) - 2.0 * nu[..., :, None] * nu[..., None, :]
 
 

@@ -131,16 +131,15 @@ def so3_log(R: np.ndarray) -> np.ndarray:
 
 
 def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
-    """Right Jacobian J_r(phi) (3, 3): Exp(phi + d) = Exp(phi) Exp(J_r(phi) d) to first order."""
+    """Right Jacobian J_r(phi) (..., 3, 3) of rotation vectors phi (..., 3) rad: Exp(phi + d) =
+    Exp(phi) Exp(J_r(phi) d) to first order."""
     phi = np.asarray(phi, dtype=float)
-    th = float(np.linalg.norm(phi))
+    th = np.sqrt(np.add.reduce(phi * phi, axis=-1))[..., None, None]  # |phi|
     K = skew(phi)
-    if th < 1e-4:
-        a = 0.5 - th * th / 24.0
-        b = 1.0 / 6.0 - th * th / 120.0
-    else:
-        a = (1.0 - np.cos(th)) / th ** 2
-        b = (th - np.sin(th)) / th ** 3
+    small = th < 1e-4
+    ts = np.where(small, 1.0, th)  # th where the closed form is used (no 0 / 0 elsewhere)
+    a = np.where(small, 0.5 - th * th / 24.0, (1.0 - np.cos(ts)) / ts ** 2)
+    b = np.where(small, 1.0 / 6.0 - th * th / 120.0, (ts - np.sin(ts)) / ts ** 3)
     return np.eye(3) - a * K + b * (K @ K)
 
 

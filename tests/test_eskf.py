@@ -40,10 +40,21 @@ def test_transition_is_the_jacobian_of_propagate():
     for _ in range(5):
         x, f, w = _state(), RNG.normal(0, 3, 3) + [0, 0, 9.81], RNG.normal(0, 1, 3)
         dt = 0.05
-        y = eskf.propagate(x, f, w, dt)
-        numeric = _numeric(lambda z: eskf.difference(eskf.propagate(z, f, w, dt), y), x)
-        F = eskf.transition(x, f, w, dt)
+        y, F = eskf.step(x, f, w, dt)
+        numeric = _numeric(lambda z: eskf.difference(eskf.step(z, f, w, dt)[0], y), x)
         assert np.allclose(F, numeric, atol=1e-7), np.abs(F - numeric).max()
+
+
+def test_a_batched_step_is_each_vehicles_step():
+    """estimators.eskf.step over a batch of vehicles (each its own state, sample and interval)
+    gives each vehicle's own step, to round-off."""
+    xs = np.stack([_state() for _ in range(4)])
+    f, w, dt = RNG.normal(0, 3, (4, 3)) + [0, 0, 9.81], RNG.normal(0, 1, (4, 3)), np.array([0.01, 0.02, 0.05, 0.1])
+    y, F = eskf.step(xs, f, w, dt)
+    for k in range(4):
+        yk, Fk = eskf.step(xs[k], f[k], w[k], dt[k])
+        np.testing.assert_allclose(y[k], yk, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(F[k], Fk, rtol=0, atol=1e-12)
 
 
 def test_measurement_jacobians():

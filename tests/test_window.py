@@ -13,6 +13,7 @@
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -365,3 +366,27 @@ def test_equivalent_measurement_removes_the_prior_from_a_fused_estimate():
     np.testing.assert_allclose(R2, R, atol=1e-8)
     _, R3, full3 = sw.equivalent_measurement(m0, P0, m0, P0)
     assert not full3.any() and (np.linalg.eigvalsh(R3) >= 1e3).all()
+
+
+def test_converged_means_within_two_hundredths_of_a_sigma_of_the_optimum():
+    """The centralized stopping rule (estimators.window._Window._rest): an epoch reported
+    converged (here within 12 Huber Gauss-Newton steps) has its newest positions within 2 % of
+    their own sigma of the optimum the same window reaches iterated on (to a rest of 1e-9 sigma).
+    The rule stops when the rest, extrapolated geometrically from the last steps at the slower
+    of the last two rates, is below 1 %; the margin of 2 allows the rate to slow down further.
+    Measured: 9 of 12 epochs converged, 0.0005-0.0086 sigma from the optimum; at the loop's cap of 5
+    steps none on this swarm (one epoch is 0.67 sigma away there: the iteration crawls in a weakly
+    observed direction, and it is reported)."""
+    eps, _ = synthetic(12)
+    est = sw.Centralized(N, window=4, q=Q, huber=1.345, max_iter=12)
+    converged = 0
+    for ep in eps:
+        ref = copy.deepcopy(est)
+        ref.max_iter, ref.tol = 300, 1e-9
+        got, best = est.add(ep), ref.add(ep)
+        assert best.converged
+        if got.converged:
+            converged += 1
+            sd = np.sqrt(np.diagonal(best.pos_cov, axis1=1, axis2=2))
+            assert (np.abs(got.pos - best.pos) <= 0.02 * sd).all(), np.abs(got.pos - best.pos).max()
+    assert converged  # the promise was tested

@@ -101,6 +101,7 @@ from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.builtin_eskf import (Reinitialisations, StartParams, heading, imu_adapter, initial_poses, levelled_start,
                                           note_unstarted, range_guard)
+from testbed.plugins.epochs import equal_time_runs
 from testbed.plugins.params import fields_of, read
 
 
@@ -472,12 +473,6 @@ def _bias_prior(imu: dict) -> tuple[np.ndarray, np.ndarray]:
     g2 = 9.81 ** 2 * (acc["scale_sigma"] ** 2 + acc["misalign_sigma"] ** 2)
     return (np.array([acc["bias"]] * 3 + [gyr["bias"]] * 3, float),
             np.array([acc["bias_sigma"] ** 2 + acc["gm_sigma"] ** 2 + g2] * 3 + [gyr["bias_sigma"] ** 2 + gyr["gm_sigma"] ** 2] * 3))
-
-
-def equal_time_runs(t: np.ndarray) -> list[tuple[int, int]]:
-    """(lo, hi) of each run of equal times in t (k,), in order."""
-    cuts = (np.flatnonzero(np.diff(t)) + 1).tolist()
-    return list(zip([0, *cuts], [*cuts, len(t)]))
 
 
 @dataclass(slots=True)

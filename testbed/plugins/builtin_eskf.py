@@ -70,7 +70,8 @@ from estimators.range_start import BodyStarts
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from estimators.so3 import quat_to_rotmat
 from testbed.config import check_fields, from_dict, key
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
+from testbed.plugins.epochs import equal_time_runs
 from testbed.plugins.params import fields_of, read
 
 
@@ -269,7 +270,7 @@ class NavEskf:
         self.v = {name: _Vehicle(vehicle_imu(imu, name), k) for k, name in enumerate(context.vehicles)}
         self.adapt = imu_adapter(self.p, [f.noise for f in self.v.values()])
         self.index = {name: k for k, name in enumerate(self.v)}
-        self.vehicles = list(self.v)
+        self.vehicles = list(self.v)  # index -> vehicle
         self.counts = {"rejected_measurements": 0, "skipped_updates": 0, "gate_inflations": 0}
         self.starts = BodyStarts(self.p["start_window"], self.p["vel0_sigma"])
         self.innovations = range_guard(self.p, len(self.v))
@@ -302,40 +303,80 @@ class NavEskf:
     # ------------------------------------------------------------------ per stream
     def _to(self, f: _Vehicle, t: float) -> None:
         """Propagate filter f to time t (s) with its held IMU sample (nothing if t is not later)."""
-        dt = t - f.t
-        if dt <= 0:
+        self._propagate([f], t)
+
+    def _propagate(self, fs: list[_Vehicle], t: float) -> None:
+        """Propagate the started filters fs to time t (s), each with its held IMU sample (one not
+        earlier than t unchanged), batched over them (estimators.eskf.step)."""
+        fs = [f for f in fs if t > f.t]
+        if not fs:
             return
-        fa, wa = f.imu
-        F = eskf.transition(f.x, fa, wa, dt)
-        f.x = eskf.propagate(f.x, fa, wa, dt)
-        f.P = symmetrize(F @ f.P @ F.T + eskf.process_noise(f.noise, dt, len(F)))
-        f.t = t
+        dt = np.array([t - f.t for f in fs])
+        x, F = eskf.step(np.stack([f.x for f in fs]), np.stack([f.imu[0] for f in fs]), np.stack([f.imu[1] for f in fs]), dt)
+        P = F @ np.stack([f.P for f in fs]) @ np.swapaxes(F, 1, 2) + eskf.process_noise([f.noise for f in fs], dt, F.shape[-1])
+        for k, f in enumerate(fs):
+            f.x, f.P, f.t = x[k], symmetrize(P[k]), t
+
+    def process_batch(self, b: MeasurementBatch) -> list[Estimate]:
+        """process() of each row of b, in order (the protocol); an IMU batch an instant (rows of
+        one time, distinct vehicles) at a time: `_instant` first, then its filters propagated
+        together (`_imu_rows`)."""
+        if b.stream != "imu":
+            return [e for m in b.rows() for e in self.process(m)]
+        out = []
+        for lo, hi in equal_time_runs(b.time):
+            bodies = [self.sites[s][0] for s in b.src[lo:hi].tolist()]
+            if len(set(bodies)) < len(bodies):  # a vehicle twice in an instant: row by row
+                out += [e for m in b.rows()[lo:hi] for e in self.process(m)]
+                continue
+            self._instant(b, lo, bodies)
+            out += self._imu_rows(float(b.time[lo]), bodies, np.asarray(b.value[lo:hi], float))
+        return out
+
+    def _instant(self, b: MeasurementBatch, lo: int, bodies: list[str]) -> None:
+        """What process() does for each IMU row of an instant before its sample (b's rows from lo,
+        of vehicles bodies): the vehicle's pending UWB ranges."""
+        for body in bodies:
+            f = self.v.get(body)
+            if f is not None and f.ranges:
+                self._ranges(f)
 
     def _imu(self, m: Measurement) -> list[Estimate]:
-        body = self.sites[m.src][0]
-        f = self.v[body]
-        value = np.asarray(m.value, float)
-        if f.x is not None:
-            self._to(f, m.time)
-        f.imu = (value[:3], value[3:])
-        if self.adapt is not None and self.adapt.add([self.index[body]], m.time, value[None]).size:
-            acc, gyr = self.adapt.density[self.index[body]]
-            f.noise = dataclasses.replace(f.noise, accel_density=float(acc), gyro_density=float(gyr))
-        if f.x is None:
-            f.t = m.time
-            pose = self.poses.get(body)
-            if pose is None or pose.position is None or f.restart is not None:
-                return []
-            self._start(f, body, m.time, np.array(pose.position, float), np.diag(np.full(3, pose.position_sigma ** 2)), np.zeros(3))
-        f.samples += 1
-        if f.samples % self.p["output_every"]:
-            return []
-        x, P = f.x, f.P
-        return [
-            Estimate(time=m.time, target=body, quantity="position", value=x[0:3].copy(), cov=P[eskf.P, eskf.P].copy()),
-            Estimate(time=m.time, target=body, quantity="velocity", value=x[3:6].copy(), cov=P[eskf.V, eskf.V].copy()),
-            Estimate(time=m.time, target=body, quantity="attitude", value=x[6:10].copy(), cov=P[eskf.TH, eskf.TH].copy()),
-        ]
+        return self._imu_rows(m.time, [self.sites[m.src][0]], np.asarray(m.value, float)[None])
+
+    def _imu_rows(self, t: float, bodies: list[str], values: np.ndarray) -> list[Estimate]:
+        """IMU samples values (k, 6) [accel m/s^2, gyro rad/s] of the distinct vehicles bodies
+        (k,) at t (s): each started filter propagated to t with its held sample (together), the
+        new samples held, the measured white noise updated, unstarted filters started where they
+        have an initial pose, and every `output_every`-th sample's estimates."""
+        fs = [self.v[b] for b in bodies]
+        self._propagate([f for f in fs if f.x is not None], t)
+        for f, value in zip(fs, values):
+            f.imu = (value[:3], value[3:])
+        if self.adapt is not None:
+            done = self.adapt.add([self.index[b] for b in bodies], t, values)
+            for k in done.tolist():
+                acc, gyr = self.adapt.density[k]
+                f = self.v[self.vehicles[k]]
+                f.noise = dataclasses.replace(f.noise, accel_density=float(acc), gyro_density=float(gyr))
+        out = []
+        for body, f in zip(bodies, fs):
+            if f.x is None:
+                f.t = t
+                pose = self.poses.get(body)
+                if pose is None or pose.position is None or f.restart is not None:
+                    continue
+                self._start(f, body, t, np.array(pose.position, float), np.diag(np.full(3, pose.position_sigma ** 2)), np.zeros(3))
+            f.samples += 1
+            if f.samples % self.p["output_every"]:
+                continue
+            x, P = f.x, f.P
+            out += [
+                Estimate(time=t, target=body, quantity="position", value=x[0:3].copy(), cov=P[eskf.P, eskf.P].copy()),
+                Estimate(time=t, target=body, quantity="velocity", value=x[3:6].copy(), cov=P[eskf.V, eskf.V].copy()),
+                Estimate(time=t, target=body, quantity="attitude", value=x[6:10].copy(), cov=P[eskf.TH, eskf.TH].copy()),
+            ]
+        return out
 
     def _start(self, f: _Vehicle, body: str, t: float, z: np.ndarray, z_cov: np.ndarray, lever: np.ndarray,
                p: dict | None = None) -> None:

@@ -31,7 +31,9 @@ early commit): Huber 1.345 with 5 steps per epoch let the estimate run away, 36 
 error in 6 s; least squares 2.2 m on the same log. In the cascade coop.window_ins, which flies
 on Huber 1.345 by default, the reverse: docs/denied.md),
 max_iter (5, Gauss-Newton steps per epoch, centralized), max_rounds (10, message rounds per
-epoch, distributed), tol (1e-3 m), init_sigma_v (10 m/s, the first epoch's velocity prior),
+epoch, distributed), tol (1e-3 m: the distributed rounds' stopping rule), tol_sigma (0.01: the
+centralized stopping rule, the newest states' estimated distance to the optimum within that many
+of their marginal sigmas; estimators.window, docs/denied.md), init_sigma_v (10 m/s, the first epoch's velocity prior),
 network (distributed: a [network] table, docs/network.md, through which the broadcasts travel:
 links the runtime opens (Context.links) drawn from the plugin's own rng, one
 estimators.transport.Transport of rounds per epoch; absent: ideal). The channel's geometry
@@ -70,7 +72,8 @@ class WindowParams:
     huber: float = key(0.0, lo=0, unit="sigma", doc="Huber range loss threshold (0: least squares)")
     max_iter: int = key(5, lo=1, doc="Gauss-Newton steps per epoch (centralized)")
     max_rounds: int = key(10, lo=1, doc="message rounds per epoch (distributed)")
-    tol: float = key(1e-3, lo=0, lo_open=True, unit="m", doc="convergence tolerance")
+    tol: float = key(1e-3, lo=0, lo_open=True, unit="m", doc="distributed: rounds stop when every newest position moved less than this")
+    tol_sigma: float = key(0.01, lo=0, lo_open=True, unit="sigma", doc="centralized: Gauss-Newton stops when the newest states' estimated distance to the optimum is below this many of their marginal sigmas")
     init_sigma_v: float = key(10.0, lo=0, lo_open=True, unit="m/s", doc="the first epoch's velocity prior, 1 sigma")
     network: dict | None = key(None, range="a [network] table (docs/network.md)", doc="distributed: the channel of the broadcasts (none: ideal)")
     mirrors: bool = key(True, doc="test each vehicle's mirror image through its neighbours' plane after every solve")
@@ -183,7 +186,7 @@ class Window(_WindowPlugin):
     def _solver(self, context):
         p = self.p
         return sw.Centralized(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
-                              max_iter=int(p["max_iter"]), tol=float(p["tol"]), init_sigma_v=float(p["init_sigma_v"]))
+                              max_iter=int(p["max_iter"]), tol=float(p["tol_sigma"]), init_sigma_v=float(p["init_sigma_v"]))
 
     def _add(self, ep):
         return self.solver.add(ep)

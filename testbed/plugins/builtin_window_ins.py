@@ -73,7 +73,7 @@ from estimators import eskf
 from estimators.window import equivalent_measurement
 from testbed.config import key
 from testbed.plugins import builtin_eskf, builtin_window
-from testbed.plugins.api import Context, Estimate, Measurement
+from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
 from testbed.plugins.collect import cov_problem, cov_problems
 from testbed.plugins.params import fields_of, read
 
@@ -138,16 +138,29 @@ class _WindowIns(builtin_eskf.NavEskf):
                 self._epoch(e)
         return self._imu(m) if m.stream == "imu" else []
 
-    def _imu(self, m: Measurement) -> list[Estimate]:
-        """nav.eskf's propagation and output; a filter whose covariance is no longer finite and
-        positive definite (after a vehicle tumbled: measured at 48 s of a 60 s flight of seed 18
-        on the distributed cascade) is dropped and restarts at the next epoch (counted)."""
-        out = super()._imu(m)
-        if out and any(cov_problems(np.stack([e.cov for e in out]))):  # one check of the sample's outputs
-            self.v[out[0].target].x = None
+    def _instant(self, b: MeasurementBatch, lo: int, bodies: list[str]) -> None:
+        """What process() does for an instant's IMU rows before the filters take them: the first
+        row closes the window's epoch (an IMU row does nothing else to the window: its site is
+        none the window indexes, and the rows after the first are of the same time)."""
+        first = Measurement(stream=b.stream, time=float(b.time[lo]), arrival=float(b.arrival[lo]),
+                            value=np.asarray(b.value[lo], float), src=str(b.src[lo]))
+        for e in self.window.process(first):
+            if e.quantity == "position":
+                self._epoch(e)
+
+    def _imu_rows(self, t: float, bodies: list[str], values: np.ndarray) -> list[Estimate]:
+        """nav.eskf's propagation and output (its `_imu_rows`); a filter whose covariance is no
+        longer finite and positive definite (after a vehicle tumbled: measured at 48 s of a 60 s
+        flight of seed 18 on the distributed cascade) is dropped and restarts at the next epoch
+        (counted)."""
+        out = super()._imu_rows(t, bodies, values)
+        if not out:
+            return out
+        bad = {e.target for e, r in zip(out, cov_problems(np.stack([e.cov for e in out]))) if r is not None}
+        for body in bad:
+            self.v[body].x = None
             self.counts["filter_restarts"] += 1
-            return []
-        return out
+        return [e for e in out if e.target not in bad] if bad else out
 
     def finish(self) -> list[Estimate]:
         self.window.finish()  # the last epoch: no IMU sample follows to fly on it

@@ -6,10 +6,19 @@ has moved past it), then hands the measurement to `_take` if its src site is one
 indexes; `finish` closes the last epoch. Subclasses define `index` ({src site: vehicle index}),
 `_reset()` (empty epoch), `_take(i, m)` (add one measurement of vehicle i) and `_close()` (solve
 the open epoch, return its estimates), and set `self.t = None` before the first measurement.
+`equal_time_runs` cuts a batch's rows into instants (rows of one time).
 """
 from __future__ import annotations
 
+import numpy as np
+
 from testbed.plugins.api import Estimate, Measurement
+
+
+def equal_time_runs(t: np.ndarray) -> list[tuple[int, int]]:
+    """(lo, hi) of each run of equal times in t (k,), in order."""
+    cuts = (np.flatnonzero(np.diff(t)) + 1).tolist()
+    return list(zip([0, *cuts], [*cuts, len(t)]))
 
 
 class EpochGrouping:
