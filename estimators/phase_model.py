@@ -170,17 +170,23 @@ def _normalize_with_rate(v, vd, Jv, Jvd):
     """
     n = np.linalg.norm(v)
     e = v / n
-    A = (np.eye(3) - np.outer(e, e)) / n
+    A = (_I3 - np.outer(e, e)) / n
     ed = A @ vd
     # d ed / d v = -[(e . vd) A + e ed^T + ed e^T] / n ; d ed / d vd = A
     Dv = -((e @ vd) * A + np.outer(e, ed) + np.outer(ed, e)) / n
     return e, ed, A @ Jv, Dv @ Jv + A @ Jvd
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b of two (3,) vectors: np.cross's products and differences in its order (the same
+    bits), without its axis handling, which costs several times the arithmetic on one vector."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _cross_with_rate(a, ad, Ja, Jad, b, bd, Jb, Jbd):
     """c = a x b and cd = ad x b + a x bd with Jacobians wrt the 18-state."""
-    c = np.cross(a, b)
-    cd = np.cross(ad, b) + np.cross(a, bd)
+    c = _cross(a, b)
+    cd = _cross(ad, b) + _cross(a, bd)
     Jc = skew(a) @ Jb - skew(b) @ Ja
     Jcd = skew(ad) @ Jb - skew(b) @ Jad + skew(a) @ Jbd - skew(bd) @ Ja
     return c, cd, Jc, Jcd
@@ -195,6 +201,17 @@ def rotation_from_antennas(x: np.ndarray) -> np.ndarray:
     ez = np.cross(u, w)
     ez /= np.linalg.norm(ez)
     return np.column_stack([ex, np.cross(ez, ex), ez])
+
+
+_I3 = np.eye(3)
+# selectors (3, 9) of u = x1 - (x2 + x3)/2 and w = x2 - x3 from the antenna positions, and (3, 18)
+# of u, w and of their rates from the 18-state (body_from_antennas)
+_LU = np.hstack([_I3, -0.5 * _I3, -0.5 * _I3])
+_LW = np.hstack([np.zeros((3, 3)), _I3, -_I3])
+_JU, _JUD = np.hstack([_LU, np.zeros((3, 9))]), np.hstack([np.zeros((3, 9)), _LU])
+_JW, _JWD = np.hstack([_LW, np.zeros((3, 9))]), np.hstack([np.zeros((3, 9)), _LW])
+for _a in (_I3, _LU, _LW, _JU, _JUD, _JW, _JWD):
+    _a.flags.writeable = False
 
 
 def body_from_antennas(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -215,13 +232,8 @@ def body_from_antennas(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(x, dtype=float)
     P = x[:9].reshape(3, 3)
     V = x[9:].reshape(3, 3)
-    I3 = np.eye(3)
-    Z = np.zeros((3, 3))
-    # selectors of u, w (and of their rates) from the 18-state
-    Lu = np.hstack([I3, -0.5 * I3, -0.5 * I3])
-    Lw = np.hstack([Z, I3, -I3])
-    Ju, Jud = np.hstack([Lu, np.zeros((3, 9))]), np.hstack([np.zeros((3, 9)), Lu])
-    Jw, Jwd = np.hstack([Lw, np.zeros((3, 9))]), np.hstack([np.zeros((3, 9)), Lw])
+    I3 = _I3
+    Lu, Lw, Ju, Jud, Jw, Jwd = _LU, _LW, _JU, _JUD, _JW, _JWD
     u, ud = Lu @ P.reshape(-1), Lu @ V.reshape(-1)
     w, wd = Lw @ P.reshape(-1), Lw @ V.reshape(-1)
 

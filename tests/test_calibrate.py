@@ -207,7 +207,7 @@ def test_replay_with_the_calibration_corrects_ranges_sets_noise_defaults_and_ski
     cal = tmp_path / "calib.toml"
     assert main(["calibrate", str(spec), "--window", "0,15", "--out", str(cal)]) == 0
     c = tomllib.loads(cal.read_text())
-    assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--calibration", str(cal)]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--calibration", str(cal), "--no-plots"]) == 0
     assert "window 0-15 s not scored" in capsys.readouterr().out
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert m["calibration"]["window_s"] == [0.0, 15.0]

@@ -147,13 +147,13 @@ def test_reproduce_denied_end_to_end(tmp_path, monkeypatch):
 
     from testbed.outputs import plots
 
-    drawn = {}  # the texts of every figure (testbed.outputs.plots.save)
+    drawn = {}  # the texts of every figure (testbed.outputs.plots.save), read after the save laid them out
     save = plots.save
 
     def record(fig, path):
-        fig.canvas.draw()
+        saved = save(fig, path)
         drawn[Path(path).name] = {t.get_text() for t in fig.findobj(Text) if t.get_text()}
-        return save(fig, path)
+        return saved
 
     monkeypatch.setattr(plots, "save", record)
     out = tmp_path / "rep"

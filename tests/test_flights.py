@@ -119,7 +119,8 @@ def flight(tmp_path_factory) -> tuple[Path, str]:
 @pytest.mark.parametrize("entry", ["nav.eskf", "coop.ins_distributed", "coop.ins"])
 def test_an_imu_filter_started_from_ranges_without_gnss_or_a_position_tracks_a_vibrating_flight_consistently(flight, tmp_path, entry):
     spec, poses = flight
-    assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--estimator", entry, "--param", poses]) == 0
+    assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--estimator", entry, "--param", poses,
+                 "--no-plots"]) == 0
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())["estimators"][entry]
     lo, hi = anees_interval(3, m["n_eff_position"], 0.99)
     print(f"{entry}: position RMSE {m['rmse_position_m']:.3f} m, ANEES {m['anees_position']:.3f} [{lo:.3f}, {hi:.3f}] "

@@ -152,7 +152,9 @@ def test_bad_entries_exit_2_before_simulating(tmp_path, capsys, entry, message):
 def test_a_failing_plugin_is_its_own_result_and_exits_1(tmp_path, capsys, body, message):
     """The failing estimator is named with its time and reason on stderr (one line) and in
     metrics.json; the other plugin and the pipeline are still scored; the run directory is
-    written (strict JSON, marked incomplete) and the command exits 1."""
+    written (strict JSON, marked incomplete) and the command exits 1. The first case draws the
+    run's figures (the others' estimators, beside the failed one); the rest run without them
+    (--no-plots: most of a short run's CPU time is its figures), as nothing here looks at one."""
     path = _write(tmp_path, f"""
         class Bad:
             def __init__(self, context, params): pass
@@ -165,8 +167,9 @@ def test_a_failing_plugin_is_its_own_result_and_exits_1(tmp_path, capsys, body, 
                     yield Estimate(time=m.time, target=m.src, quantity="position", value=m.value)
     """)
     out = tmp_path / "out"
+    plots = [] if body.startswith("raise") else ["--no-plots"]
     assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", f"{path}:Bad",
-                 "--estimator", f"{path}:Good"]) == 1
+                 "--estimator", f"{path}:Good", *plots]) == 1
     err = capsys.readouterr().err
     assert err.startswith("testbed: error: ") and f"estimator 'Bad' ({path}:Bad) at t = 0 s" in err
     assert message in err and str(out / "metrics.json") in err and err.count("\n") == 1
@@ -186,7 +189,7 @@ def test_a_plugin_failing_outside_the_feed_has_no_time(tmp_path, capsys):
             def process(self, m): return []
     """)
     out = tmp_path / "out"
-    assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", f"{path}:Bad"]) == 1
+    assert main(["run", "coop-fg", "--duration", "1", "--out", str(out), "--estimator", f"{path}:Bad", "--no-plots"]) == 1
     failed = json.loads((out / "metrics.json").read_text())["estimators"]["Bad"]["failed"]
     assert failed["time_s"] is None and "constructor: raised ValueError: no" in failed["reason"]
 
@@ -538,7 +541,8 @@ def test_bandwidth_builtin_equals_the_batch_filter():
 
 def _record_figures(monkeypatch, *modules) -> dict[str, set[str]]:
     """{PNG file name: every text drawn in it (legend labels, tick labels, titles)} of the figures
-    the given modules save through their `save` (testbed.outputs.plots.save), filled as they are written."""
+    the given modules save through their `save` (testbed.outputs.plots.save), filled as they are
+    written: read after the save, whose drawing laid out every text (no second drawing)."""
     from matplotlib.text import Text
 
     from testbed.outputs import plots
@@ -547,9 +551,9 @@ def _record_figures(monkeypatch, *modules) -> dict[str, set[str]]:
 
     def recording(save):
         def record(fig, path, *a, **k):
-            fig.canvas.draw()
+            saved = save(fig, path, *a, **k)
             drawn[Path(path).name] = {t.get_text() for t in fig.findobj(Text) if t.get_text()}
-            return save(fig, path, *a, **k)
+            return saved
         return record
 
     for module in (plots, *modules):
@@ -569,17 +573,39 @@ PHASE_FITTING = EstimatorSpec(entry="phase.ekf", params={"q": 1e-8})  # the buil
 
 @pytest.fixture(scope="module")
 def phase_reproduction(tmp_path_factory):
-    """One short `testbed reproduce phase` (2 runs of 1 s, run figures drawn) with two plugins, Origin
-    and phase.ekf at q = 1e-8, shared by the report test and the plugin test: (its directory, {PNG
-    file name: the texts drawn in it})."""
-    from testbed.reproduce import reproduce, visnav
+    """One short `testbed reproduce phase` (2 runs of 1 s) with two plugins, Origin and phase.ekf at
+    q = 1e-8, shared by the report test and the plugin test: (its directory, {PNG file name: the
+    texts drawn in it}). Its own figures are drawn, its runs' are not (--no-run-plots; the copies of
+    run 0's: test_reproduce_phase_copies_run_0s_figures_of_every_estimator). Its q calibration runs
+    the rule's code on two values of each grid instead of 6 and 7 (no test here reads the rule's
+    choice; tests/test_reproduce_decide.py tests the rule), a quarter of the full grids' CPU time."""
+    from testbed.reproduce import phase_q, reproduce, visnav
 
     tmp = tmp_path_factory.mktemp("phase")
     origin = EstimatorSpec(entry=f"{_write(tmp, ORIGIN)}:Origin")
     with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(phase_q, "Q_GRID", (1e-11, 1e-8))
+        mp.setattr(phase_q, "QR_GRID", (0.0, 1e-7))
         drawn = _record_figures(mp, visnav)
-        reproduce("phase", tmp / "rep", runs=2, duration=1.0, workers=1, estimators=(origin, PHASE_FITTING))
+        reproduce("phase", tmp / "rep", runs=2, duration=1.0, workers=1, estimators=(origin, PHASE_FITTING),
+                  run_plots=False)
     return tmp / "rep", drawn
+
+
+def test_reproduce_phase_copies_run_0s_figures_of_every_estimator(tmp_path, monkeypatch):
+    """`testbed reproduce phase` copies run 0's error figures of the ekf and of each plugin into its
+    plots/ (<scenario>-<figure>, <scenario>-<name>_<figure>): one formation (the reproduction's
+    list narrowed to it), one run of 1 s with its figures."""
+    from testbed.reproduce import phase
+
+    monkeypatch.setattr(phase, "SCENARIOS", ("phase-cross-h000",))
+    (tmp_path / "plots").mkdir()
+    R, _ = phase.compute(tmp_path, runs=1, motion="prescribed", duration=1.0, workers=1, estimators=(PHASE_FITTING,))
+    assert list(R) == ["phase-cross-h000"]
+    for fig in ("position_error.png", "velocity_error.png"):
+        assert (tmp_path / "runs" / "phase-cross-h000" / "run-000" / "plots" / f"{PHASE_FITTING.key}_{fig}").is_file()
+        for name in (f"phase-cross-h000-{fig}", f"phase-cross-h000-{PHASE_FITTING.key}_{fig}"):
+            assert (tmp_path / "plots" / name).is_file(), name
 
 
 @pytest.mark.slow  # builds the module's phase reproduction, ~45 s
@@ -620,7 +646,8 @@ def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, 
     """A plugin whose outputs fit nothing of the paper (Origin) gets its generic row; one whose outputs
     fit the paper's scores (the built-in filter under another name and setting, entered like any
     --estimator) is in every table and figure that shows the built-ins' per-estimator results, with
-    the paired tests against each built-in over the same 2 seeds."""
+    the paired tests against each built-in over the same 2 seeds (phase's copies of run 0's figures:
+    test_reproduce_phase_copies_run_0s_figures_of_every_estimator)."""
     from testbed.reproduce import visnav
 
     if paper == "phase":
@@ -650,7 +677,6 @@ def test_reproduce_gives_a_plugin_every_table_and_figure(tmp_path, monkeypatch, 
         assert f"\n{group},{name},2," in table and f"| {group} | {name} | 2 |" in md
         for fig in ("rmse_window.png", "rmse_vs_pcrb.png"):
             assert {name, "ekf"} <= drawn[fig], fig
-        assert (out / "plots" / f"{group}-{name}_position_error.png").is_file()
     else:
         assert f"\ngaussian,{name},rmse_position_m," in table and f"| {name} | " in md
         for case in visnav.CASES:

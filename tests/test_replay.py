@@ -49,7 +49,7 @@ def test_export_then_replay_gives_the_estimates_of_the_simulation(tmp_path, name
     sc = dataclasses.replace(sc, estimators=specs)
     metrics = run(sc, tmp_path / "run", plots=False)
     assert main(["export", str(tmp_path / "run"), "--out", str(tmp_path / "data")]) == 0
-    assert main(["replay", str(tmp_path / "data" / "spec.toml"), "--out", str(tmp_path / "rep")]) == 0
+    assert main(["replay", str(tmp_path / "data" / "spec.toml"), "--out", str(tmp_path / "rep"), "--no-plots"]) == 0
     replayed = json.loads((tmp_path / "rep" / "metrics.json").read_text())
     # the estimates themselves, fed from the log inside the simulation and from the files
     from testbed.api import load_run

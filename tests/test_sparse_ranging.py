@@ -101,7 +101,7 @@ def test_ranging_ekf_starts_within_two_seconds_and_stays_inside_its_covariance(e
     six, pooled as the replay scores it, lies in its 99 % interval for correlated samples
     (testbed.scoring.metrics: n_eff from the autocorrelation)."""
     assert main(["replay", str(exported), "--out", str(tmp_path / "rep"), "--estimator", "ranging.ekf",
-                 "--param", f"q_translation={rule_q_translation()!r}"]) == 0
+                 "--param", f"q_translation={rule_q_translation()!r}", "--no-plots"]) == 0
     e = json.loads((tmp_path / "rep" / "metrics.json").read_text())["estimators"]["ranging.ekf"]
     tags = {f"uav{i}/ant{j}" for i in (1, 2, 3) for j in (2, 3)}
     assert set(e["targets"]) == tags

@@ -9,6 +9,7 @@ class lacks the protocol is a UsageError (exit 2), naming the entry and what is 
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -35,8 +36,17 @@ class Plugin:
 
 
 def registered() -> dict[str, str]:
-    """Every registered estimator: {name: "module:Class"}, from the installed entry points."""
-    return dict(sorted((ep.name, ep.value) for ep in entry_points(group=GROUP)))
+    """Every registered estimator: {name: "module:Class"}, from the installed entry points (read
+    once per process: a package installed later is seen by the next command)."""
+    return dict(_entry_points_of(entry_points))
+
+
+@functools.lru_cache(maxsize=4)
+def _entry_points_of(find) -> tuple[tuple[str, str], ...]:
+    """The sorted (name, value) pairs `find(group=GROUP)` gives, read once per finder (scanning
+    every installed package's metadata takes milliseconds, and every run resolves its estimators;
+    keyed by the finder so that one put in its place is read, not the cache)."""
+    return tuple(sorted((ep.name, ep.value) for ep in find(group=GROUP)))
 
 
 def description(cls: type) -> str:

@@ -45,9 +45,10 @@ def run_estimators(scenario: Scenario, physics: Physics, log: dict[str, np.ndarr
     prior = priors(scenario, log)
     hooks = scenario_hooks(scenario, log)
     out, shown = {}, {}
+    arms = lever_arms(physics)
     for p in plugins:
         poll()  # a worker asked to stop does so between plugins (testbed.interrupt)
-        ctx = make_context(scenario, lever_arms(physics), p.key, p.params, prior)
+        ctx = make_context(scenario, arms, p.key, p.params, prior)
         truth = Truth(log, ctx)
         channel = Channel(scenario.network, truth, uwb_rows(log), ctx.vehicles, scenario.seed, p.key) \
             if scenario.network is not None and p.key not in done else None

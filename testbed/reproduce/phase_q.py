@@ -91,9 +91,11 @@ KEPT = {"nees_body6_final": "nees_body6_final", "nees_attitude6_final": "nees_at
         "gate_rejected_rows": "rejected_measurements"}
 
 
-def score_ekf(sc, log: dict) -> dict:
+def score_ekf(sc, log: dict, physics=None) -> dict:
     """The scores of the scenario's phase.ekf (its default estimator "ekf") on a run log, its
-    health() counts merged in (metrics.json `estimators.ekf` with `health` flattened)."""
+    health() counts merged in (metrics.json `estimators.ekf` with `health` flattened). physics:
+    the scenario's world (testbed.sim.world.build; built here when None), given by a sweep that
+    scores one log under several pipelines (the pipeline does not enter the world)."""
     # lazy: the filter and the scoring only when a sweep runs
     from testbed.errors import PluginError
     from testbed.plugins.defaults import default_specs
@@ -101,7 +103,7 @@ def score_ekf(sc, log: dict) -> dict:
     from testbed.plugins.run import run_estimators
     from testbed.sim.world import build
 
-    m = run_estimators(sc, build(sc), log, resolve(default_specs(sc)), None)[0]["ekf"]
+    m = run_estimators(sc, build(sc) if physics is None else physics, log, resolve(default_specs(sc)), None)[0]["ekf"]
     if "failed" in m:
         raise PluginError(m["failed"]["reason"], m["failed"]["time_s"])
     return {**m, **m.get("health", {})}
@@ -127,15 +129,18 @@ def sweep(name: str, seeds=CALIBRATION_SEEDS, qs=Q_GRID, *, q_rotations=None,
     scenario's), the EKF run on its log with each q (pipeline.q, or q_flown in flown mode) and each
     q_rotation (pipeline.q_rotation; None: the scenario's own). runs: the (scenario, log) pairs to use instead of simulating
     `seeds` (simulate_seeds); progress: optional callable(str) told after each seed."""
-    from testbed.plugins.phase_scores import window_keys  # lazy: the phase model only when a sweep runs
+    # lazy: the phase model and the physics only when a sweep runs
+    from testbed.plugins.phase_scores import window_keys
+    from testbed.sim.world import build
 
     field = "q_flown" if motion == "flown" else "q"
     rows = []
     for sc, log in (runs if runs is not None else simulate_seeds(name, seeds, duration=duration, motion=motion)):
+        physics = build(sc)  # one world for every (q, q_rotation) of this seed
         for q in qs:
             for qr in (q_rotations if q_rotations is not None else (sc.pipeline.q_rotation,)):
                 m = score_ekf(replace(sc, pipeline=replace(sc.pipeline, **{field: float(q), "q_rotation": float(qr)})),
-                              log)
+                              log, physics)
                 k = window_keys(m["last_window_s"])
                 extra = {key: m[k[key]] for key in ("rmse", "pcrb_rmse", "max_abs_position") if k[key] in m}
                 rows.append({"scenario": name, "seed": sc.seed, "q": float(q), "q_rotation": float(qr),

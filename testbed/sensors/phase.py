@@ -49,6 +49,7 @@ from testbed.sensors.config import PhaseConfig
 from testbed.sim.world import Physics
 
 TWO_PI = 2.0 * np.pi
+_SIGNS = np.array([-1, 1])
 
 
 def wrap_pi(x: np.ndarray) -> np.ndarray:
@@ -95,7 +96,9 @@ class Phase:
         # fixed draws per sample: phase noise, coarse noise, slip event, slip size/sign, nav errors
         e = self.rng.standard_normal((2, L))
         u = self.rng.random(L)
-        size = self.rng.integers(1, cfg.slip_max_cycles + 1, L) * self.rng.choice([-1, 1], L)
+        # a random sign per link: the draws of rng.choice([-1, 1], L) (the same integers in [0, 2)), without
+        # its argument handling, which costs several times the draw
+        size = self.rng.integers(1, cfg.slip_max_cycles + 1, L) * _SIGNS[self.rng.integers(0, 2, L)]
         nav = self.rng.standard_normal((2, L, 3))
         phi = r / lam + cfg.phase_noise / lam * e[0]  # total phase, cycles
         theta = TWO_PI * (phi - np.floor(phi))  # wrapped, [0, 2 pi)
@@ -116,8 +119,8 @@ class Phase:
             slipped = n_track != n_coarse
             self.phi_hat = np.where(slipped, theta / TWO_PI + n_coarse, self.phi_hat)
             self.slip_since |= slipped
-        self.theta_hist = np.roll(self.theta_hist, 1, axis=0)
-        self.clean_hist = np.roll(self.clean_hist, 1, axis=0)
+        # newest first: every row one place older (in place: numpy copies an overlapping source first)
+        self.theta_hist[1:], self.clean_hist[1:] = self.theta_hist[:-1], self.clean_hist[:-1]
         self.theta_hist[0], self.clean_hist[0] = theta, theta_clean
         self.n_hist = min(self.n_hist + 1, len(self.theta_hist))
         due = self.k % self.every == 0

@@ -583,13 +583,17 @@ def lever_arms(physics: Physics) -> dict[str, tuple[str, np.ndarray]]:
     m = physics.model
     d = mujoco.MjData(m)  # a scratch state: the run's own data is left alone
     mujoco.mj_kinematics(m, d)
+    named: dict[str, list[tuple[int, str]]] = {}  # "uavI" -> its sites (id, name), each name read once
+    for sid in range(m.nsite):
+        name = m.site(sid).name
+        head, sep, _ = name.partition("/")
+        if sep:
+            named.setdefault(head, []).append((sid, name))
     out = {}
     for i, bid in enumerate(physics.body_ids, start=1):
-        prefix = f"uav{i}/"
         R = d.xmat[bid].reshape(3, 3)
-        for sid in range(m.nsite):
-            name = m.site(sid).name
-            if name.startswith(prefix) and m.body_rootid[m.site_bodyid[sid]] == m.body_rootid[bid]:
+        for sid, name in named.get(f"uav{i}", ()):
+            if m.body_rootid[m.site_bodyid[sid]] == m.body_rootid[bid]:
                 arm = R.T @ (d.site_xpos[sid] - d.xpos[bid])
                 arm.flags.writeable = False
                 out[name] = (f"uav{i}", arm)
