@@ -722,17 +722,22 @@ class Distributed(_Window):
             holds[dst[ok], s] = True
             messages, sent_bytes = messages + 1, sent_bytes + nbytes
         start = np.full((n, 3), np.nan)
+        layouts = {}  # vehicles holding the same messages compute the same layout: computed once
         for d in range(n):
-            known = holds[d]
-            rows = known[edges[:, 0]] | known[edges[:, 1]] if edges.size else np.zeros(0, bool)
-            members = np.flatnonzero(known | np.isin(np.arange(n), edges[rows]))
-            local = np.full(n, -1)
-            local[members] = np.arange(len(members))
-            fix = np.where(known[members, None], ep.fix[members], np.nan)
-            arows = known[ep.anchor_vehicle]
-            laid = layout.start_positions(fix, ep.fix_sigma[members], local[edges[rows]], ep.ranges[rows], ep.range_sigma[rows],
-                                          local[ep.anchor_vehicle[arows]], ep.anchor_pos[arows],
-                                          ep.anchor_range[arows], ep.anchor_sigma[arows])
+            key = holds[d].tobytes()  # the layout is a function of what d holds
+            if key not in layouts:
+                known = holds[d]
+                rows = known[edges[:, 0]] | known[edges[:, 1]] if edges.size else np.zeros(0, bool)
+                members = np.flatnonzero(known | np.isin(np.arange(n), edges[rows]))
+                local = np.full(n, -1)
+                local[members] = np.arange(len(members))
+                fix = np.where(known[members, None], ep.fix[members], np.nan)
+                arows = known[ep.anchor_vehicle]
+                laid = layout.start_positions(fix, ep.fix_sigma[members], local[edges[rows]], ep.ranges[rows],
+                                              ep.range_sigma[rows], local[ep.anchor_vehicle[arows]], ep.anchor_pos[arows],
+                                              ep.anchor_range[arows], ep.anchor_sigma[arows])
+                layouts[key] = (laid, local)
+            laid, local = layouts[key]
             if laid is not None:
                 start[d] = laid[local[d]]
         return start, messages, sent_bytes

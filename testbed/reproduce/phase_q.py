@@ -156,7 +156,11 @@ def anees_by_q(rows: list[dict], param: str = "q") -> dict[float, float]:
     scenario's sweep."""
     key = RULE_NEES[param][0]
     vals = sorted({r[param] for r in rows})
-    return {v: float(np.nanmean([r.get(key, np.nan) for r in rows if r[param] == v])) for v in vals}
+    out = {}
+    for v in vals:
+        kept = [x for x in (r.get(key, np.nan) for r in rows if r[param] == v) if not math.isnan(x)]
+        out[v] = float(np.mean(kept)) if kept else math.nan  # no seed observed it
+    return out
 
 
 def choose(rows: list[dict], param: str = "q") -> float:
