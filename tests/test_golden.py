@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from tests.golden.values import RTOL, VALUES, compute, differences, keys
+from tests.golden.values import CLOSED_LOOP_RTOL, RTOL, THRESHOLD_FRACTIONS, VALUES, compute, differences, keys
 
 STORED = json.loads(VALUES.read_text())
 
@@ -21,13 +21,14 @@ def test_outputs_match_the_stored_values(key):
 
 
 def _some_number(case: dict) -> str:
-    return next(p for p, v in sorted(case["metrics"].items()) if isinstance(v, float) and abs(v) > 1e-3)
+    return next(p for p, v in sorted(case["metrics"].items())
+                if isinstance(v, float) and abs(v) > 1e-3 and p.rsplit(".", 1)[-1] not in THRESHOLD_FRACTIONS)
 
 
-def test_the_comparison_fails_beyond_the_tolerance_and_holds_within_it():
-    key = "coop-fg/prescribed"
+@pytest.mark.parametrize("key, rtol", [("coop-fg/prescribed", RTOL), ("coop-denied/coop", CLOSED_LOOP_RTOL)])
+def test_the_comparison_fails_beyond_the_tolerance_and_holds_within_it(key, rtol):
     path = _some_number(STORED[key])
-    for factor, flagged in ((10 * RTOL, True), (0.1 * RTOL, False)):
+    for factor, flagged in ((10 * rtol, True), (0.1 * rtol, False)):
         now = copy.deepcopy({key: STORED[key]})
         now[key]["metrics"][path] *= 1 + factor
         assert bool(differences({key: STORED[key]}, now)) is flagged, (factor, path)
@@ -37,4 +38,5 @@ def test_the_comparison_fails_beyond_the_tolerance_and_holds_within_it():
         assert bool(differences({key: STORED[key]}, now)) is flagged, (factor, "truth/pos")
     now = copy.deepcopy({key: STORED[key]})
     now[key]["metrics"]["scenario"] = "other"
-    assert differences({key: STORED[key]}, now) == [f"{key} metrics.json scenario: stored 'coop-fg', now 'other'"]
+    name = STORED[key]["metrics"]["scenario"]
+    assert differences({key: STORED[key]}, now) == [f"{key} metrics.json scenario: stored {name!r}, now 'other'"]

@@ -52,6 +52,12 @@ LOG_SUFFIXES = ("/value", "/clean", "/time", "/sigma", "/bias")
 # values"): open loop (the physics reads no BLAS; an estimator's numbers carry its rounding)
 # at most 2.5e-10, closed loop (an estimate flown, so rounding reaches the physics) 2.1e-12.
 RTOL = 1e-9
+# A closed loop's rounding reaches the physics and grows with the flight: since rotor commands past
+# their limits are allocated by priority (testbed/sim/control.py), uav2 and uav9 saturate during
+# coop-denied's take-off and the 4-s flight moves by up to 1.13e-9 under Haswell (8.3e-10 in the
+# log arrays; it was 2.1e-12 before). Closed-loop cases pass within CLOSED_LOOP_RTOL, about 9x
+# the measured difference (docs/testing.md, "The tolerance, measured").
+CLOSED_LOOP_RTOL = 1e-8
 ATOL = 1e-12  # a metric that is zero up to rounding (an RMSE of a vehicle on its reference)
 
 # A metric that counts the samples past a limit (the attitude samples whose own sd exceeds 0.1 rad:
@@ -152,12 +158,12 @@ def compute(names: list[str] | None = None) -> dict[str, dict]:
     return out
 
 
-def _close(a: object, b: object, fraction: bool = False) -> bool:
-    """Numbers within the tolerance (fraction: a count of samples past a limit, FRACTION_ATOL);
-    anything else (strings, flags, null) equal."""
+def _close(a: object, b: object, rtol: float, fraction: bool = False) -> bool:
+    """Numbers within the tolerance rtol (fraction: a count of samples past a limit,
+    FRACTION_ATOL); anything else (strings, flags, null) equal."""
     if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, (int, float)) or not isinstance(b, (int, float)):
         return a == b
-    return abs(a - b) <= (FRACTION_ATOL if fraction else RTOL * max(abs(a), abs(b)) + ATOL)
+    return abs(a - b) <= (FRACTION_ATOL if fraction else rtol * max(abs(a), abs(b)) + ATOL)
 
 
 def _scale(values: list) -> float:
@@ -179,11 +185,12 @@ def differences(stored: dict, now: dict) -> list[str]:
     if sorted(stored) != sorted(now):
         out.append(f"runs: stored {sorted(stored)} != now {sorted(now)}")
     for key in sorted(set(stored) & set(now)):
+        rtol = CLOSED_LOOP_RTOL if stored[key]["kind"] == "closed" else RTOL
         sm, nm = stored[key]["metrics"], now[key]["metrics"]
         for path in sorted(set(sm) | set(nm)):
             if path not in sm or path not in nm:
                 out.append(f"{key} metrics.json {path}: {'missing now' if path in sm else 'new'}")
-            elif not _close(sm[path], nm[path], path.rsplit(".", 1)[-1] in THRESHOLD_FRACTIONS):
+            elif not _close(sm[path], nm[path], rtol, path.rsplit(".", 1)[-1] in THRESHOLD_FRACTIONS):
                 out.append(f"{key} metrics.json {path}: stored {sm[path]!r}, now {nm[path]!r}")
         sl, nl = stored[key]["log"], now[key]["log"]
         for arr in sorted(set(sl) | set(nl)):
@@ -195,7 +202,7 @@ def differences(stored: dict, now: dict) -> list[str]:
                 continue
             for part in ("sum", "abs_sum", "rows"):
                 worst = _normwise(sl[arr][part], nl[arr][part])
-                if worst > RTOL + ATOL / max(_scale(sl[arr][part]), 1e-300):
+                if worst > rtol + ATOL / max(_scale(sl[arr][part]), 1e-300):
                     out.append(f"{key} log.npz {arr} {part}: largest difference {worst:.3g} of its largest magnitude")
     return out
 
