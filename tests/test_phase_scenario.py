@@ -159,10 +159,14 @@ def test_monte_carlo_cross_h000_matched_truth_is_consistent_and_near_pcrb():
     Printed, not asserted: the 18-state ANEES, over-confident in the 6 remaining directions (the
     antenna triangle's side lengths and their rates, also printed) in which a rigid body has no
     random motion (phase_ekf docstring); and the body ANEES of the paper's row set (eq. 7 rates as
-    independent rows) on the same logs, over-confident because they repeat the ranges.
+    independent rows) on the same logs, over-confident because they repeat the ranges (with
+    PHASE_LONG=1).
     """
     runs = 30
-    mc = _monte_carlo(runs, 20.0, MATCHED, alt={"pipeline.rate_rows": '"window"'})
+    # the paper's row set on the same logs is printed only (with PHASE_LONG=1 and -s): it asserts
+    # nothing, and its 30 filter runs are a quarter of this test's CPU
+    alt = {"pipeline.rate_rows": '"window"'} if os.environ.get("PHASE_LONG") else None
+    mc = _monte_carlo(runs, 20.0, MATCHED, alt=alt)
     _report("matched truth", mc, runs)
     lo6, hi6 = chi2_interval(6, runs)
     assert lo6 < mc["n6"] < hi6
