@@ -28,6 +28,7 @@ import os
 import shlex
 import shutil
 import sys
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -143,17 +144,32 @@ def clean_stale(out: Path) -> None:
                 print(f"testbed: removed {entry} (left by pid {pid}, which died)", file=sys.stderr)
 
 
-def remove_unheld_locks(directory: Path) -> None:
-    """Remove the lock files in `directory` that no process holds: left by a writer killed before it
-    could release its lock (a Ray task cancelled by force). A lock someone holds is left alone; a
-    writer taking one at the same time sees its file gone and takes a new one (Lock.acquire)."""
+def remove_unheld_locks(directory: Path, wait_s: float = 0.0) -> None:
+    """Remove the lock files in `directory` that no process holds, with the temporary directories of
+    their outputs: left by a writer killed before it could release its lock or remove its temporary
+    directory (a Ray task cancelled by force). A lock is waited for up to wait_s seconds (a killed
+    writer may take a moment to die); one still held then is left alone with its temporary
+    directory; a writer taking one at the same time sees its file gone and takes a new one
+    (Lock.acquire)."""
+    deadline = time.monotonic() + wait_s
     for path in sorted(Path(directory).glob(f".*{LOCK_TAG}")):
         try:
             fd = os.open(path, os.O_RDWR)
         except OSError:
             continue
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() >= deadline:
+                        raise
+                    time.sleep(0.05)
+            name = path.name[1:-len(LOCK_TAG)]  # .OUT.testbed-lock -> OUT
+            for tmp in sorted(path.parent.glob(f".{name}{TMP_TAG}*")):
+                if tmp.is_dir() and not tmp.is_symlink():
+                    shutil.rmtree(tmp, ignore_errors=True)
             path.unlink(missing_ok=True)
         except BlockingIOError:
             pass  # held: its writer is alive

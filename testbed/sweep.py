@@ -180,7 +180,8 @@ def sweep(scenario: Scenario, runs: int, out: Path, *, workers: int | None = Non
             bar.close()
             # runs that completed while the others were being stopped count as well
             done = [i for i in range(runs) if run_complete(d / f"run-{i:03d}")]
-            remove_unheld_locks(d)  # of runs whose task was killed before it could release them
+            # of runs whose task was killed before it could release them, with their temporary directories
+            remove_unheld_locks(d, wait_s=10.0)
             if done and (o.resume or not o.existed):
                 _write_summary(d, scenario, runs, sorted(done))
                 o.commit()

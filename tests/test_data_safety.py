@@ -282,13 +282,18 @@ def test_a_replay_may_write_beside_its_dataset_files_and_leaves_them_as_they_wer
 
 def test_unheld_lock_files_are_removed_and_held_ones_kept(tmp_path):
     """After an interrupted Ray sweep, a run's lock whose task was killed before releasing it is
-    removed by the sweep (outdir.remove_unheld_locks); a lock a live writer holds stays."""
-    from testbed.outdir import LOCK_TAG, Lock, remove_unheld_locks
+    removed by the sweep (outdir.remove_unheld_locks) with the run's temporary directory; a lock a
+    live writer holds stays, with its temporary directory, also after waiting for it."""
+    from testbed.outdir import LOCK_TAG, TMP_TAG, Lock, remove_unheld_locks
 
     held = Lock(tmp_path / "run-000")
     held.acquire()
+    (tmp_path / f".run-000{TMP_TAG}123").mkdir()
     (tmp_path / f".run-001{LOCK_TAG}").write_text("pid 1 (killed)\n")
-    remove_unheld_locks(tmp_path)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [f".run-000{LOCK_TAG}"]
+    (tmp_path / f".run-001{TMP_TAG}456").mkdir()
+    (tmp_path / f".run-001{TMP_TAG}456" / "log.npz").write_bytes(b"partial")
+    remove_unheld_locks(tmp_path, wait_s=0.2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f".run-000{LOCK_TAG}", f".run-000{TMP_TAG}123"]
+    (tmp_path / f".run-000{TMP_TAG}123").rmdir()
     held.release()
     assert list(tmp_path.iterdir()) == []
