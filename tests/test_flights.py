@@ -25,7 +25,6 @@ import csv
 import json
 import math
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np

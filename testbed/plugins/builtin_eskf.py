@@ -269,7 +269,6 @@ class NavEskf:
         self.gate = {m: float(chi2.isf(self.p["gate_prob"], m)) for m in (1, 3)}
         self.v = {name: _Vehicle(vehicle_imu(imu, name), k) for k, name in enumerate(context.vehicles)}
         self.adapt = imu_adapter(self.p, [f.noise for f in self.v.values()])
-        self.index = {name: k for k, name in enumerate(self.v)}
         self.vehicles = list(self.v)  # index -> vehicle
         self.counts = {"rejected_measurements": 0, "skipped_updates": 0, "gate_inflations": 0}
         self.starts = BodyStarts(self.p["start_window"], self.p["vel0_sigma"])
@@ -354,7 +353,7 @@ class NavEskf:
         for f, value in zip(fs, values):
             f.imu = (value[:3], value[3:])
         if self.adapt is not None:
-            done = self.adapt.add([self.index[b] for b in bodies], t, values)
+            done = self.adapt.add([self.v[b].k for b in bodies], t, values)
             for k in done.tolist():
                 acc, gyr = self.adapt.density[k]
                 f = self.v[self.vehicles[k]]

@@ -683,11 +683,11 @@ class PoseGraph:
         the first time joins the belief with mean 0 and sigma its calibrated bias_sigma, else params
         bias_sigma, else its first range's sigma; the prior of every epoch of f is the belief's
         marginal over f's links. Returns f and those links' indices (B,) in the belief."""
-        for key, sigma in zip(keys, f.r_sigma):
-            if key not in self.bias_index:
-                _, a, b = key
+        for link, sigma in zip(keys, f.r_sigma):
+            if link not in self.bias_index:
+                _, a, b = link
                 s0 = self.calibrated.get(a, {}).get(b) or self.p.bias_sigma or float(sigma)
-                self.bias_index[key] = len(self.bias_index)
+                self.bias_index[link] = len(self.bias_index)
                 n = self.bias_mean.size
                 self.bias_mean = np.append(self.bias_mean, 0.0)
                 cov = np.zeros((n + 1, n + 1))
