@@ -27,15 +27,10 @@ class DifferenceNoise:
     """Eqs. A1-A2 for n vehicles. floor (n, 2): the declared white densities (accel
     m/s^2/sqrt(Hz), gyro rad/s/sqrt(Hz)) of each; window: W."""
 
-    def __init__(self, floor: np.ndarray, window: int = WINDOW, tau: float = 0.0):
+    def __init__(self, floor: np.ndarray, window: int = WINDOW):
         self.floor = np.asarray(floor, float).reshape(-1, 2)
         n = len(self.floor)
         self.window = int(window)
-        self.tau = float(tau)
-        self.m = np.zeros(n, int)  # samples per cluster (eq. A0), set at each vehicle's first interval
-        self.t_first = np.full(n, np.nan)  # each vehicle's first sample time
-        self.csum = np.zeros((n, 6))  # the open cluster's sum of samples
-        self.cn = np.zeros(n, int)  # and its count
         self.last = np.full((n, 6), np.nan)  # each vehicle's previous sample
         self.t_last = np.full(n, np.nan)
         self.sq = np.zeros((n, 2))  # sum of |dy|^2 / 2 over the block, accel and gyro
@@ -48,18 +43,6 @@ class DifferenceNoise:
         vehicles (indices) whose block has just closed: their `density` rows are new."""
         i = np.asarray(i, int)
         y = np.asarray(y, float).reshape(len(i), 6)
-        if self.tau > 0.0:  # eq. A0: the means of clusters of m samples, taken as samples
-            first = np.isnan(self.t_first[i])
-            self.t_first[i[first]] = t
-            new_m = i[(self.m[i] == 0) & ~first & (t > self.t_first[i])]
-            self.m[new_m] = np.maximum(1, np.round(self.tau / (t - self.t_first[new_m]))).astype(int)
-            self.csum[i] += y
-            self.cn[i] += 1
-            full = (self.m[i] > 0) & (self.cn[i] >= self.m[i])
-            if not full.any():
-                return np.zeros(0, int)
-            i, y = i[full], self.csum[i[full]] / self.cn[i[full], None]
-            self.csum[i], self.cn[i] = 0.0, 0
         seen = np.isfinite(self.t_last[i]) & (t > self.t_last[i])
         k = i[seen]
         d = y[seen] - self.last[k]

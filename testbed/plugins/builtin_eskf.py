@@ -102,8 +102,6 @@ class StartParams:
     output_every: int = key(1, lo=1, doc="estimates at every n-th IMU sample")
     imu_noise_window: int = key(WINDOW, lo=0, doc="IMU white densities measured from the samples' first differences over "
                                 "blocks of this many samples, floored at the declared ones (estimators.imu_adapt; 0: the declared)")
-    imu_noise_tau: float = key(0.0, lo=0, unit="s", doc="IMU white densities measured on the means of clusters of this "
-                               "span (eq. A0; 0: on the samples)")
     initial_pose: dict = key(factory=dict, doc="per vehicle {BODY = {position = [x, y, z] (m, world), position_sigma (m, 1), "
                              "yaw_deg (deg), yaw_sigma_deg (deg)}}: with a position, the vehicle starts at its first IMU "
                              "sample without a GNSS fix; its yaw replaces yaw0, yaw0_sigma")
@@ -133,7 +131,7 @@ def imu_adapter(p: dict, noise: list) -> DifferenceNoise | None:
     (estimators.eskf.ImuNoise, one each), by params p (StartParams); None when off."""
     if not p["imu_noise_window"]:
         return None
-    return DifferenceNoise(np.array([[k.accel_density, k.gyro_density] for k in noise]), int(p["imu_noise_window"]), p["imu_noise_tau"])
+    return DifferenceNoise(np.array([[k.accel_density, k.gyro_density] for k in noise]), int(p["imu_noise_window"]))
 
 
 def initial_poses(p: dict, vehicles, entry: str) -> dict[str, InitialPose]:
