@@ -723,6 +723,7 @@ class Distributed(_Window):
             messages, sent_bytes = messages + 1, sent_bytes + nbytes
         start = np.full((n, 3), np.nan)
         layouts = {}  # vehicles holding the same messages compute the same layout: computed once
+        shapes = {}  # and vehicles holding the same ranges the same shape (layout.start_positions)
         for d in range(n):
             key = holds[d].tobytes()  # the layout is a function of what d holds
             if key not in layouts:
@@ -735,7 +736,7 @@ class Distributed(_Window):
                 arows = known[ep.anchor_vehicle]
                 laid = layout.start_positions(fix, ep.fix_sigma[members], local[edges[rows]], ep.ranges[rows],
                                               ep.range_sigma[rows], local[ep.anchor_vehicle[arows]], ep.anchor_pos[arows],
-                                              ep.anchor_range[arows], ep.anchor_sigma[arows])
+                                              ep.anchor_range[arows], ep.anchor_sigma[arows], shapes)
                 layouts[key] = (laid, local)
             laid, local = layouts[key]
             if laid is not None:
