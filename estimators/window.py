@@ -293,11 +293,13 @@ class _Window:
         pm[a, l, :3] = c0 + np.einsum("mij,mj->mi", H0, pm[a, l, :3] - c0)
         pm[a, l, 3:] = np.einsum("mij,mj->mi", H0, pm[a, l, 3:])
         self.prior_mean = pm.reshape(self.B, self.s)
-        T = np.tile(np.eye(self.s), (self.B, 1, 1)).reshape(self.B, self.nv, 6, self.nv, 6)
-        T[a, l, :3, l, :3] = H0
-        T[a, l, 3:, l, 3:] = H0
-        T = T.reshape(self.B, self.s, self.s)
-        self.prior_info = T @ self.prior_info @ T
+        # T Lambda T, T the identity but H0 on each reflected vehicle's position and velocity
+        # blocks (H0 symmetric): its rows of Lambda times H0 from the left, then its columns from
+        # the right; no (s, s) product (the other rows and columns are Lambda's)
+        L = self.prior_info.reshape(self.B, self.nv, 2, 3, self.nv, 2, 3).copy()
+        L[a, l] = np.einsum("mij,mpjvqk->mpivqk", H0, L[a, l])
+        L[a, :, :, :, l] = np.einsum("mvpiqk,mjk->mvpiqj", L[a, :, :, :, l], H0)
+        self.prior_info = L.reshape(self.B, self.s, self.s)
 
     def _kept(self, which: np.ndarray, c: np.ndarray, H: np.ndarray, cost: np.ndarray) -> np.ndarray | None:
         """One agent (B = 1): reflect the vehicles `which` together (`_reflect`); keep it and
