@@ -117,6 +117,10 @@ HALVINGS = 8  # step halvings per Gauss-Newton step (a full step that raises the
 # a vehicle's mirror image (`_Window._mirrors`) replaces it when the window's cost there is lower
 # by more than this: the measurements at least 100 times likelier (cost = -log likelihood + const)
 MIRROR_LOG_RATIO = float(np.log(100.0))
+# the batched screen of the centralized test (`_Window._alone`) passes a vehicle whose cost change
+# is within this much of the threshold, relative to the window's cost (the screen and the test sum
+# the same terms in another order: they differ by rounding, far below this)
+MIRROR_SCREEN = 1e-6
 
 BROADCAST_BYTES = 72  # per window epoch: position (3 float64) + the 6 unique covariance entries (6 float64)
 START_BYTES = 48  # the distributed start message: the sender's fix and its sigma (6 float64) ...
@@ -313,6 +317,30 @@ class _Window:
         self.X, self.prior_mean, self.prior_info = saved
         return None
 
+    def _alone(self, ok: np.ndarray, c: np.ndarray, H: np.ndarray) -> np.ndarray:
+        """The centralized window's (B = 1) mirror test batched: (n,) the change of the swarm's
+        cost when vehicle i alone is replaced by its mirror image (c, H of `_mirrors`), for every
+        vehicle with ok (n,) at once (0 elsewhere). Only vehicle i's own factors change (its
+        fixes, anchor ranges, ranges to the others at their current positions, motion; the
+        prior's cost does not, `_reflect`), and those are the cost of agent i of a Distributed
+        window that holds every other vehicle at the current estimate as an exact broadcast (no
+        covariance) and no prior: one cost evaluation of that view before and one after
+        reflecting all of them. It screens the vehicle-by-vehicle test (`_mirror`): the same
+        numbers up to rounding, so the test starts at the first vehicle within MIRROR_SCREEN of
+        the threshold and runs as before from there."""
+        K, n = self.X.shape[1], self.n
+        view = Distributed(n, window=self.window, q=self.q, huber=self.huber)
+        view.epochs = list(self.epochs)
+        view.X = self.X.reshape(K, n, 6).transpose(1, 0, 2).copy()  # (n, K, 6): one agent per vehicle
+        view.prior_info, view.prior_mean = np.zeros((n, 6, 6)), np.zeros((n, 6))
+        P = self._pos()
+        view.heard_pos = [np.broadcast_to(P[k], (n, n, 3)) for k in range(K)]
+        view.heard = [np.ones((n, n), bool)] * K
+        view.range_sigma = [np.stack([ep.range_sigma, ep.range_sigma]) for ep in self.epochs]
+        before = view._system(cost_only=True)[3]
+        view._reflect(np.flatnonzero(ok), c, H)
+        return np.where(ok, view._system(cost_only=True)[3] - before, 0.0)
+
     def _groups(self) -> list[np.ndarray]:
         """The vehicles linked by tag-to-tag ranges anywhere in the window: one (m,) index array
         per connected group."""
@@ -338,8 +366,10 @@ class _Window:
         ok, c, H = self._mirrors()
         if not ok.any():
             return kept
-        if self.B == 1:  # one cost for the swarm: vehicle by vehicle
-            for i in np.flatnonzero(ok):
+        if self.B == 1:  # one cost for the swarm: vehicle by vehicle, from the first the screen passes
+            alone = self._alone(ok, c, H)
+            near = np.flatnonzero(alone < -MIRROR_LOG_RATIO + MIRROR_SCREEN * max(1.0, abs(float(cost[0]))))
+            for i in np.flatnonzero(ok & (np.arange(self.n) >= near[0])) if near.size else ():
                 new = self._kept(np.array([i]), c, H, cost)
                 if new is not None:
                     cost, kept = new, kept + 1
@@ -657,7 +687,7 @@ class Distributed(_Window):
     sigmas (`_sigmas`; 0: off), or at max_rounds. The second rule is a cut on the step, not a
     test of convergence: the rounds converge linearly and slowly (a median 193 rounds to 1e-7 m
     on coop-denied), so tol almost never fires and every epoch runs max_rounds; cut at 0.1 or
-    0.2 sigma, the rounds took 17-22 % less CPU and the cascade flown on them was less accurate
+    0.2 sigma, the flights took 12-29 % less CPU and the cascade flown on them was less accurate
     and less consistent (docs/denied.md, "Stopping the distributed rounds early"), so the
     plugins leave it off."""
 

@@ -415,3 +415,25 @@ def test_distributed_rounds_stop_at_the_first_round_within_tol_sigma(monkeypatch
     for ep in eps:
         est = plain.add(ep)
         assert est.iterations == 30 and not est.converged
+
+
+@pytest.mark.parametrize("huber", [None, 1.345])
+def test_centralized_mirror_screen_is_each_vehicles_own_cost_change(huber):
+    """The batched screen of the centralized mirror test (`_Window._alone`): for every vehicle,
+    the change of the whole window's cost when it alone is reflected, as the vehicle-by-vehicle
+    test computes it, to rounding (far inside MIRROR_SCREEN, the screen's margin)."""
+    eps, _ = synthetic(6)
+    w = sw.Centralized(N, window=5, q=Q, huber=huber)
+    for ep in eps:
+        w.add(ep)
+    ok, c, H = w._mirrors()
+    assert ok.all()
+    alone = w._alone(ok, c, H)
+    cost = w._system(cost_only=True)[3][0]
+    for i in range(N):
+        saved = w.X, w.prior_mean, w.prior_info
+        w._reflect(np.array([i]), c, H)
+        exact = w._system(cost_only=True)[3][0] - cost
+        w.X, w.prior_mean, w.prior_info = saved
+        assert abs(alone[i] - exact) <= 1e-9 * max(1.0, abs(cost)), (i, alone[i], exact)
+        assert abs(exact) > 1.0  # a reflection that moves the vehicle changes the cost: not a vacuous match
