@@ -83,8 +83,9 @@ its direction of least extent): any reflection of the whole group keeps every ra
 them, and this one moves the vehicles least, so only the GNSS fixes and anchors can refuse it.
 The distributed window does not: no vehicle sees the group's cost. Since the window starts from
 the swarm's shape (estimators.layout, and the distributed start exchange below) the test has not
-fired in any flight measured (docs/denied.md); it stays as a guard, at about a sixth of the
-centralized cascade's CPU, `mirrors = False` to turn it off.
+fired in any flight measured (docs/denied.md); it stays as a guard, `mirrors = False` to turn it
+off. The centralized vehicle-by-vehicle test is screened by every vehicle's cost change computed
+at once (`_Window._alone`), and runs one by one only from the first vehicle the screen passes.
 
 Tracklets (`tracklets = True`): each estimate also carries the newest epoch's position marginal
 and the window's own prediction of it without that epoch's factors; `equivalent_measurement`
