@@ -286,11 +286,19 @@ SYMMETRY_ROUNDOFF = 1e-9  # relative asymmetry max|P - P^T| / max|P| still count
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
     """(P + P^T) / 2: removes the round-off asymmetry of a covariance product. An asymmetry beyond
-    round-off (max|P - P^T| > SYMMETRY_ROUNDOFF * max|P|) is a repair and is counted (`tally`)."""
-    A = P - P.T
-    if np.abs(A).max(initial=0.0) > SYMMETRY_ROUNDOFF * np.abs(P).max(initial=0.0):
-        tally(covariance_repairs=1)
-    return 0.5 * (P + P.T)
+    round-off (max|P - P^T| > SYMMETRY_ROUNDOFF * max|P|) is a repair and is counted (`tally`).
+    Batched: P (..., n, n), each matrix checked and counted on its own (the same numbers as one
+    call per matrix)."""
+    Pt = np.swapaxes(P, -1, -2)
+    A = P - Pt
+    if P.ndim == 2:
+        repairs = int(np.abs(A).max(initial=0.0) > SYMMETRY_ROUNDOFF * np.abs(P).max(initial=0.0))
+    else:
+        big = np.abs(P).max(axis=(-2, -1), initial=0.0)
+        repairs = int(np.count_nonzero(np.abs(A).max(axis=(-2, -1), initial=0.0) > SYMMETRY_ROUNDOFF * big))
+    if repairs:
+        tally(covariance_repairs=repairs)
+    return 0.5 * (P + Pt)
 
 
 def is_spd(P: np.ndarray) -> bool:

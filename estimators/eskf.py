@@ -140,9 +140,17 @@ def process_noise(noise: ImuNoise, dt, n: int = N_ERR) -> np.ndarray:
     """Q (n, n) of one step of dt (s): white noise into v and theta, bias walks (docstring);
     none on the extras. Batched: noise a sequence of k ImuNoise (one per vehicle), dt scalar or
     (k,): Q (k, n, n)."""
-    if not isinstance(noise, ImuNoise):
+    if not isinstance(noise, ImuNoise):  # (k, n, n) at once: the same numbers as one call per vehicle
         dts = np.broadcast_to(np.asarray(dt, float), (len(noise),))
-        return np.stack([process_noise(m, d, n) for m, d in zip(noise, dts.tolist())])
+        # Python floats, as the single call computes them (numpy's square may round differently)
+        qs = np.array([[m.accel_density ** 2 * d, m.gyro_density ** 2 * d, m.accel_walk ** 2 * d, m.gyro_walk ** 2 * d]
+                       for m, d in zip(noise, dts.tolist())], float).reshape(-1, 4)
+        q = np.zeros((len(noise), n))
+        for k, block in enumerate((V, TH, BA, BG)):
+            q[:, block] = qs[:, k, None]
+        Q = np.zeros((len(noise), n, n))
+        Q.reshape(len(noise), n * n)[:, ::n + 1] = q
+        return Q
     q = np.zeros(n)
     q[V] = noise.accel_density ** 2 * dt
     q[TH] = noise.gyro_density ** 2 * dt

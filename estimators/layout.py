@@ -165,11 +165,20 @@ def place_on_fixes(Y: np.ndarray, fix: np.ndarray, fix_sigma: np.ndarray, anchor
 
 def start_positions(fix: np.ndarray, fix_sigma: np.ndarray, edges: np.ndarray, ranges: np.ndarray,
                     range_sigma: np.ndarray, anchor_vehicle: np.ndarray, anchor_pos: np.ndarray, anchor_range: np.ndarray,
-                    anchor_sigma: np.ndarray) -> np.ndarray | None:
+                    anchor_sigma: np.ndarray, shapes: dict | None = None) -> np.ndarray | None:
     """(n, 3) m world: the vehicles' positions from one epoch's ranges and fixes (module
     docstring; arguments as estimators.window.Epoch's); None where the method does not apply
-    (ranges not connecting every vehicle, fewer than 3 fixes): start from the fixes then."""
-    Y = shape_from_ranges(len(fix), edges, ranges, range_sigma)
+    (ranges not connecting every vehicle, fewer than 3 fixes): start from the fixes then.
+    shapes: a dict the caller keeps across calls, of the shapes found (steps 1-4, a function of
+    n and the ranges alone): a call with the same n, edges, ranges and sigmas takes its shape
+    from there (the same numbers) and only places it on its own fixes (step 5)."""
+    key = (len(fix), *(np.ascontiguousarray(a).tobytes() for a in (edges, ranges, range_sigma)))
+    if shapes is not None and key in shapes:
+        Y = shapes[key]
+    else:
+        Y = shape_from_ranges(len(fix), edges, ranges, range_sigma)
+        if shapes is not None:
+            shapes[key] = Y
     if Y is None:
         return None
     return place_on_fixes(Y, fix, fix_sigma, anchor_vehicle, anchor_pos, anchor_range, anchor_sigma)

@@ -39,8 +39,9 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   Gauss-Newton step on its own window, a neighbour's broadcast position at each epoch entering
   as a prior, i.e. (Schur complement, as estimators.factor_graph) the neighbour fixed there with
   the range variance inflated to sigma_d^2 + u^T Sigma_j u (u taken at the round's start and held
-  through its step: `_weigh`). Rounds stop when every newest position moved less than `tol` or at
-  `max_rounds`. A message travels through an estimators.transport.Transport (None: ideal); what
+  through its step: `_weigh`). Rounds stop when every newest position moved less than `tol`, or
+  every vehicle's newest-state step is below `tol_sigma` of its own marginal sigmas, or at
+  `max_rounds` (`Distributed`). A message travels through an estimators.transport.Transport (None: ideal); what
   a vehicle last received from a neighbour is what its ranges use, at every epoch of the window.
   Broadcasting only the newest epoch, each older epoch's ranges kept the neighbour's position as
   first heard while the vehicle's own state there moved on: the swarm's common position drifted
@@ -82,8 +83,9 @@ its direction of least extent): any reflection of the whole group keeps every ra
 them, and this one moves the vehicles least, so only the GNSS fixes and anchors can refuse it.
 The distributed window does not: no vehicle sees the group's cost. Since the window starts from
 the swarm's shape (estimators.layout, and the distributed start exchange below) the test has not
-fired in any flight measured (docs/denied.md); it stays as a guard, at about a sixth of the
-centralized cascade's CPU, `mirrors = False` to turn it off.
+fired in any flight measured (docs/denied.md); it stays as a guard, `mirrors = False` to turn it
+off. The centralized vehicle-by-vehicle test is screened by every vehicle's cost change computed
+at once (`_Window._alone`), and runs one by one only from the first vehicle the screen passes.
 
 Tracklets (`tracklets = True`): each estimate also carries the newest epoch's position marginal
 and the window's own prediction of it without that epoch's factors; `equivalent_measurement`
@@ -116,6 +118,10 @@ HALVINGS = 8  # step halvings per Gauss-Newton step (a full step that raises the
 # a vehicle's mirror image (`_Window._mirrors`) replaces it when the window's cost there is lower
 # by more than this: the measurements at least 100 times likelier (cost = -log likelihood + const)
 MIRROR_LOG_RATIO = float(np.log(100.0))
+# the batched screen of the centralized test (`_Window._alone`) passes a vehicle whose cost change
+# is within this much of the threshold, relative to the window's cost (the screen and the test sum
+# the same terms in another order: they differ by rounding, far below this)
+MIRROR_SCREEN = 1e-6
 
 BROADCAST_BYTES = 72  # per window epoch: position (3 float64) + the 6 unique covariance entries (6 float64)
 START_BYTES = 48  # the distributed start message: the sender's fix and its sigma (6 float64) ...
@@ -293,11 +299,13 @@ class _Window:
         pm[a, l, :3] = c0 + np.einsum("mij,mj->mi", H0, pm[a, l, :3] - c0)
         pm[a, l, 3:] = np.einsum("mij,mj->mi", H0, pm[a, l, 3:])
         self.prior_mean = pm.reshape(self.B, self.s)
-        T = np.tile(np.eye(self.s), (self.B, 1, 1)).reshape(self.B, self.nv, 6, self.nv, 6)
-        T[a, l, :3, l, :3] = H0
-        T[a, l, 3:, l, 3:] = H0
-        T = T.reshape(self.B, self.s, self.s)
-        self.prior_info = T @ self.prior_info @ T
+        # T Lambda T, T the identity but H0 on each reflected vehicle's position and velocity
+        # blocks (H0 symmetric): its rows of Lambda times H0 from the left, then its columns from
+        # the right; no (s, s) product (the other rows and columns are Lambda's)
+        L = self.prior_info.reshape(self.B, self.nv, 2, 3, self.nv, 2, 3).copy()
+        L[a, l] = np.einsum("mij,mpjvqk->mpivqk", H0, L[a, l])
+        L[a, :, :, :, l] = np.einsum("mvpiqk,mjk->mvpiqj", L[a, :, :, :, l], H0)
+        self.prior_info = L.reshape(self.B, self.s, self.s)
 
     def _kept(self, which: np.ndarray, c: np.ndarray, H: np.ndarray, cost: np.ndarray) -> np.ndarray | None:
         """One agent (B = 1): reflect the vehicles `which` together (`_reflect`); keep it and
@@ -309,6 +317,30 @@ class _Window:
             return new
         self.X, self.prior_mean, self.prior_info = saved
         return None
+
+    def _alone(self, ok: np.ndarray, c: np.ndarray, H: np.ndarray) -> np.ndarray:
+        """The centralized window's (B = 1) mirror test batched: (n,) the change of the swarm's
+        cost when vehicle i alone is replaced by its mirror image (c, H of `_mirrors`), for every
+        vehicle with ok (n,) at once (0 elsewhere). Only vehicle i's own factors change (its
+        fixes, anchor ranges, ranges to the others at their current positions, motion; the
+        prior's cost does not, `_reflect`), and those are the cost of agent i of a Distributed
+        window that holds every other vehicle at the current estimate as an exact broadcast (no
+        covariance) and no prior: one cost evaluation of that view before and one after
+        reflecting all of them. It screens the vehicle-by-vehicle test (`_mirror`): the same
+        numbers up to rounding, so the test starts at the first vehicle within MIRROR_SCREEN of
+        the threshold and runs as before from there."""
+        K, n = self.X.shape[1], self.n
+        view = Distributed(n, window=self.window, q=self.q, huber=self.huber)
+        view.epochs = list(self.epochs)
+        view.X = self.X.reshape(K, n, 6).transpose(1, 0, 2).copy()  # (n, K, 6): one agent per vehicle
+        view.prior_info, view.prior_mean = np.zeros((n, 6, 6)), np.zeros((n, 6))
+        P = self._pos()
+        view.heard_pos = [np.broadcast_to(P[k], (n, n, 3)) for k in range(K)]
+        view.heard = [np.ones((n, n), bool)] * K
+        view.range_sigma = [np.stack([ep.range_sigma, ep.range_sigma]) for ep in self.epochs]
+        before = view._system(cost_only=True)[3]
+        view._reflect(np.flatnonzero(ok), c, H)
+        return np.where(ok, view._system(cost_only=True)[3] - before, 0.0)
 
     def _groups(self) -> list[np.ndarray]:
         """The vehicles linked by tag-to-tag ranges anywhere in the window: one (m,) index array
@@ -335,8 +367,10 @@ class _Window:
         ok, c, H = self._mirrors()
         if not ok.any():
             return kept
-        if self.B == 1:  # one cost for the swarm: vehicle by vehicle
-            for i in np.flatnonzero(ok):
+        if self.B == 1:  # one cost for the swarm: vehicle by vehicle, from the first the screen passes
+            alone = self._alone(ok, c, H)
+            near = np.flatnonzero(alone < -MIRROR_LOG_RATIO + MIRROR_SCREEN * max(1.0, abs(float(cost[0]))))
+            for i in np.flatnonzero(ok & (np.arange(self.n) >= near[0])) if near.size else ():
                 new = self._kept(np.array([i]), c, H, cost)
                 if new is not None:
                     cost, kept = new, kept + 1
@@ -648,12 +682,21 @@ class Centralized(_Window):
 
 class Distributed(_Window):
     """One sliding window per vehicle, seed 001's message iteration at each new epoch (module
-    docstring). max_rounds: cap on rounds per epoch; transport: the channel (None: ideal)."""
+    docstring). max_rounds: cap on rounds per epoch; transport: the channel (None: ideal).
+    Rounds stop when every newest position moved less than tol (m) in the round, or when every
+    vehicle's full (undamped) step of its newest states is below tol_sigma of their marginal
+    sigmas (`_sigmas`; 0: off), or at max_rounds. The second rule is a cut on the step, not a
+    test of convergence: the rounds converge linearly and slowly (a median 193 rounds to 1e-7 m
+    on coop-denied), so tol almost never fires and every epoch runs max_rounds; cut at 0.1 or
+    0.2 sigma, the flights took 12-29 % less CPU and the cascade flown on them was less accurate
+    and less consistent (docs/denied.md, "Stopping the distributed rounds early"), so the
+    plugins leave it off."""
 
     def __init__(self, n: int, *, window: int = 5, q: float = 1.0, huber: float | None = None, max_rounds: int = 20,
-                 tol: float = 1e-3, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0):
+                 tol: float = 1e-3, tol_sigma: float = 0.0, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0):
         super().__init__(n, agents=n, per_agent=1, window=window, q=q, huber=huber, max_iter=max_rounds, tol=tol,
                          init_sigma_p=init_sigma_p, init_sigma_v=init_sigma_v)
+        self.tol_sigma = float(tol_sigma)
         # per window epoch: what receiver r last heard of sender s: position (n, n, 3), covariance
         # (n, n, 3, 3), heard (n, n) bool; and the covariance each vehicle broadcasts for it (n, 3, 3)
         self.heard_pos: list[np.ndarray] = []
@@ -723,6 +766,7 @@ class Distributed(_Window):
             messages, sent_bytes = messages + 1, sent_bytes + nbytes
         start = np.full((n, 3), np.nan)
         layouts = {}  # vehicles holding the same messages compute the same layout: computed once
+        shapes = {}  # and vehicles holding the same ranges the same shape (layout.start_positions)
         for d in range(n):
             key = holds[d].tobytes()  # the layout is a function of what d holds
             if key not in layouts:
@@ -735,7 +779,7 @@ class Distributed(_Window):
                 arows = known[ep.anchor_vehicle]
                 laid = layout.start_positions(fix, ep.fix_sigma[members], local[edges[rows]], ep.ranges[rows],
                                               ep.range_sigma[rows], local[ep.anchor_vehicle[arows]], ep.anchor_pos[arows],
-                                              ep.anchor_range[arows], ep.anchor_sigma[arows])
+                                              ep.anchor_range[arows], ep.anchor_sigma[arows], shapes)
                 layouts[key] = (laid, local)
             laid, local = layouts[key]
             if laid is not None:
@@ -790,9 +834,10 @@ class Distributed(_Window):
             senders = np.unique(pairs[:, 0]).size
             messages += senders  # one broadcast per sender and round
             sent_bytes += senders * nbytes
-            delta, S, _, _ = self._step(self._system())  # the tables changed: a new local system
+            delta, S, _, full = self._step(self._system())  # the tables changed: a new local system
             rounds += 1
-            converged = float(np.abs(delta.reshape(n, -1, 6)[:, -1, :3]).max()) < self.tol
+            converged = (float(np.abs(delta.reshape(n, -1, 6)[:, -1, :3]).max()) < self.tol
+                         or self._sigmas(full, S) < self.tol_sigma)
         mirrored = self._mirror() if self.mirrors else 0
         if mirrored:  # one local step from the mirror images (no message: the next epoch's rounds tell)
             self._weigh()

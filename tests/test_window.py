@@ -390,3 +390,50 @@ def test_converged_means_within_two_hundredths_of_a_sigma_of_the_optimum():
             sd = np.sqrt(np.diagonal(best.pos_cov, axis1=1, axis2=2))
             assert (np.abs(got.pos - best.pos) <= 0.02 * sd).all(), np.abs(got.pos - best.pos).max()
     assert converged  # the promise was tested
+
+
+def test_distributed_rounds_stop_at_the_first_round_within_tol_sigma(monkeypatch):
+    """Distributed's second stopping rule: the rounds of an epoch stop at the first round whose
+    every newest-state step is below tol_sigma of its marginal sigma (`_sigmas`), not before;
+    without it (tol_sigma 0, tol 0) every epoch runs to the cap and reports not converged."""
+    eps, _ = synthetic(8)
+    seen = []
+    real = sw._Window._sigmas
+    monkeypatch.setattr(sw._Window, "_sigmas", staticmethod(lambda full, S: seen.append(real(full, S)) or seen[-1]))
+    ruled = sw.Distributed(N, window=5, q=Q, max_rounds=30, tol=0.0, tol_sigma=0.2)
+    stopped = 0
+    for ep in eps:
+        seen.clear()
+        est = ruled.add(ep)
+        assert len(seen) == est.iterations  # one test per round
+        assert all(s >= 0.2 for s in seen[:-1])  # no earlier round was within the rule
+        if est.converged:
+            assert seen[-1] < 0.2 and est.iterations < 30
+            stopped += 1
+    assert stopped >= 6  # measured: 8 of 8 epochs, in 2-19 rounds
+    plain = sw.Distributed(N, window=5, q=Q, max_rounds=30, tol=0.0)
+    for ep in eps:
+        est = plain.add(ep)
+        assert est.iterations == 30 and not est.converged
+
+
+@pytest.mark.parametrize("huber", [None, 1.345])
+def test_centralized_mirror_screen_is_each_vehicles_own_cost_change(huber):
+    """The batched screen of the centralized mirror test (`_Window._alone`): for every vehicle,
+    the change of the whole window's cost when it alone is reflected, as the vehicle-by-vehicle
+    test computes it, to rounding (far inside MIRROR_SCREEN, the screen's margin)."""
+    eps, _ = synthetic(6)
+    w = sw.Centralized(N, window=5, q=Q, huber=huber)
+    for ep in eps:
+        w.add(ep)
+    ok, c, H = w._mirrors()
+    assert ok.all()
+    alone = w._alone(ok, c, H)
+    cost = w._system(cost_only=True)[3][0]
+    for i in range(N):
+        saved = w.X, w.prior_mean, w.prior_info
+        w._reflect(np.array([i]), c, H)
+        exact = w._system(cost_only=True)[3][0] - cost
+        w.X, w.prior_mean, w.prior_info = saved
+        assert abs(alone[i] - exact) <= 1e-9 * max(1.0, abs(cost)), (i, alone[i], exact)
+        assert abs(exact) > 1.0  # a reflection that moves the vehicle changes the cost: not a vacuous match

@@ -70,7 +70,7 @@ from estimators.range_start import BodyStarts
 from estimators.sensor_models import imu_noise, range_variances, vehicle_imu
 from estimators.so3 import quat_to_rotmat
 from testbed.config import check_fields, from_dict, key
-from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
+from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.epochs import equal_time_runs
 from testbed.plugins.params import fields_of, read
 
@@ -312,9 +312,9 @@ class NavEskf:
             return
         dt = np.array([t - f.t for f in fs])
         x, F = eskf.step(np.stack([f.x for f in fs]), np.stack([f.imu[0] for f in fs]), np.stack([f.imu[1] for f in fs]), dt)
-        P = F @ np.stack([f.P for f in fs]) @ np.swapaxes(F, 1, 2) + eskf.process_noise([f.noise for f in fs], dt, F.shape[-1])
+        P = symmetrize(F @ np.stack([f.P for f in fs]) @ np.swapaxes(F, 1, 2) + eskf.process_noise([f.noise for f in fs], dt, F.shape[-1]))
         for k, f in enumerate(fs):
-            f.x, f.P, f.t = x[k], symmetrize(P[k]), t
+            f.x, f.P, f.t = x[k], P[k], t
 
     def process_batch(self, b: MeasurementBatch) -> list[Estimate]:
         """process() of each row of b, in order (the protocol); an IMU batch an instant (rows of
@@ -340,14 +340,14 @@ class NavEskf:
             if f is not None and f.ranges:
                 self._ranges(f)
 
-    def _imu(self, m: Measurement) -> list[Estimate]:
+    def _imu(self, m: Measurement) -> list[EstimateBatch]:
         return self._imu_rows(m.time, [self.sites[m.src][0]], np.asarray(m.value, float)[None])
 
-    def _imu_rows(self, t: float, bodies: list[str], values: np.ndarray) -> list[Estimate]:
+    def _imu_rows(self, t: float, bodies: list[str], values: np.ndarray) -> list[EstimateBatch]:
         """IMU samples values (k, 6) [accel m/s^2, gyro rad/s] of the distinct vehicles bodies
         (k,) at t (s): each started filter propagated to t with its held sample (together), the
         new samples held, the measured white noise updated, unstarted filters started where they
-        have an initial pose, and every `output_every`-th sample's estimates."""
+        have an initial pose, and every `output_every`-th sample's estimates (`_estimates`)."""
         fs = [self.v[b] for b in bodies]
         self._propagate([f for f in fs if f.x is not None], t)
         for f, value in zip(fs, values):
@@ -358,7 +358,7 @@ class NavEskf:
                 acc, gyr = self.adapt.density[k]
                 f = self.v[self.vehicles[k]]
                 f.noise = dataclasses.replace(f.noise, accel_density=float(acc), gyro_density=float(gyr))
-        out = []
+        shown = []  # the vehicles whose estimates this sample gives
         for body, f in zip(bodies, fs):
             if f.x is None:
                 f.t = t
@@ -367,15 +367,20 @@ class NavEskf:
                     continue
                 self._start(f, body, t, np.array(pose.position, float), np.diag(np.full(3, pose.position_sigma ** 2)), np.zeros(3))
             f.samples += 1
-            if f.samples % self.p["output_every"]:
-                continue
-            x, P = f.x, f.P
-            out += [
-                Estimate(time=t, target=body, quantity="position", value=x[0:3].copy(), cov=P[eskf.P, eskf.P].copy()),
-                Estimate(time=t, target=body, quantity="velocity", value=x[3:6].copy(), cov=P[eskf.V, eskf.V].copy()),
-                Estimate(time=t, target=body, quantity="attitude", value=x[6:10].copy(), cov=P[eskf.TH, eskf.TH].copy()),
-            ]
-        return out
+            if not f.samples % self.p["output_every"]:
+                shown.append(body)
+        return self._estimates(t, shown)
+
+    def _estimates(self, t: float, bodies: list[str]) -> list[EstimateBatch]:
+        """The position, velocity and attitude of the filters of `bodies` (k,) at t (s), with their
+        covariances: one EstimateBatch per quantity (no object per vehicle); [] for none."""
+        if not bodies:
+            return []
+        x = np.stack([self.v[b].x[0:10] for b in bodies])  # (k, 10): p, v, q
+        P = np.stack([self.v[b].P[0:9, 0:9] for b in bodies])  # (k, 9, 9): p, v, theta
+        time, target = np.full(len(bodies), t), tuple(bodies)
+        return [EstimateBatch(time=time, target=target, quantity=q, value=x[:, s], cov=P[:, e, e].copy())
+                for q, s, e in (("position", eskf.P, eskf.P), ("velocity", eskf.V, eskf.V), ("attitude", slice(6, 10), eskf.TH))]
 
     def _start(self, f: _Vehicle, body: str, t: float, z: np.ndarray, z_cov: np.ndarray, lever: np.ndarray,
                p: dict | None = None) -> None:

@@ -73,7 +73,7 @@ from estimators import eskf
 from estimators.window import equivalent_measurement
 from testbed.config import key
 from testbed.plugins import builtin_eskf, builtin_window
-from testbed.plugins.api import Context, Estimate, Measurement, MeasurementBatch
+from testbed.plugins.api import Context, Estimate, EstimateBatch, Measurement, MeasurementBatch
 from testbed.plugins.collect import cov_problem, cov_problems
 from testbed.plugins.params import fields_of, read
 
@@ -148,7 +148,7 @@ class _WindowIns(builtin_eskf.NavEskf):
             if e.quantity == "position":
                 self._epoch(e)
 
-    def _imu_rows(self, t: float, bodies: list[str], values: np.ndarray) -> list[Estimate]:
+    def _imu_rows(self, t: float, bodies: list[str], values: np.ndarray) -> list[EstimateBatch]:
         """nav.eskf's propagation and output (its `_imu_rows`); a filter whose covariance is no
         longer finite and positive definite (after a vehicle tumbled: measured at 48 s of a 60 s
         flight of seed 18 on the distributed cascade) is dropped and restarts at the next epoch
@@ -156,11 +156,16 @@ class _WindowIns(builtin_eskf.NavEskf):
         out = super()._imu_rows(t, bodies, values)
         if not out:
             return out
-        bad = {e.target for e, r in zip(out, cov_problems(np.stack([e.cov for e in out]))) if r is not None}
-        for body in bad:
+        bad = np.zeros(len(out[0]), bool)  # the vehicles (rows of every batch) with a bad covariance
+        for b in out:
+            bad |= np.array([r is not None for r in cov_problems(b.cov)])
+        if not bad.any():
+            return out
+        for body in np.asarray(out[0].target)[bad].tolist():
             self.v[body].x = None
             self.counts["filter_restarts"] += 1
-        return [e for e in out if e.target not in bad] if bad else out
+        shown = [body for body, ok in zip(out[0].target, ~bad) if ok]
+        return self._estimates(t, shown)
 
     def finish(self) -> list[Estimate]:
         self.window.finish()  # the last epoch: no IMU sample follows to fly on it

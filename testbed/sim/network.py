@@ -283,10 +283,20 @@ class RoundTransport:
         t = self.t0 + rnd * self.round_s
         end = t + self.round_s
         ok = np.zeros(len(src), bool)
-        for s in np.unique(src).tolist():
-            sel = np.flatnonzero(src == s)
-            arrival = self.network.multicast(t, s, dst[sel], nbytes, (rnd, s))
-            ok[sel] = arrival <= end
+        cfg = self.network.cfg
+        if cfg is not None and cfg.bandwidth > 0 and cfg.budget_on == "receive":
+            # a receiver's bucket pays the senders one after the other
+            for s in np.unique(src).tolist():
+                sel = np.flatnonzero(src == s)
+                arrival = self.network.multicast(t, s, dst[sel], nbytes, (rnd, s))
+                ok[sel] = arrival <= end
+                self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
+        else:  # every sender's multicast in one pass, in sender order (the same draws, drops and queue order)
+            order = np.argsort(src, kind="stable")
+            senders, which = np.unique(src[order], return_inverse=True)
+            arrival = self.network._transmit(float(t), np.asarray(src[order], int), np.asarray(dst[order], int), int(nbytes),
+                                             [(rnd, s) for s in senders.tolist()], which)
+            ok[order] = arrival <= end
             self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
         for d in np.unique(dst).tolist():
             self.network.receive(end, d)
