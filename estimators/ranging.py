@@ -82,6 +82,9 @@ class RangingEpoch:
     height: m, height (z in N) of the point sum_j c_j x_j of the array, or None;
     height_weights: (n,) the c_j (None = 1 / n each: the antennas' centroid); sigma_height: m.
     bias: (L,) int, the bias state k_l added to link l's range (-1: none), or None (no bias).
+    offset: (L,) s, link l's time offset c_l (its range at t is the distance at t + c_l:
+    r_l = |x_j - X_l| + c_l u_l^T (v_j - V_l), docs/calibration.md cal. 10), or None (all 0);
+    V_l from known_vel (None: static).
     """
 
     antenna: np.ndarray
@@ -95,6 +98,7 @@ class RangingEpoch:
     height: float | None = None
     height_weights: np.ndarray | None = None
     bias: np.ndarray | None = None
+    offset: np.ndarray | None = None
     sigma_height: float = 0.1
 
     @property
@@ -159,6 +163,16 @@ def ranging_model(x: np.ndarray, n: int, epoch: RangingEpoch) -> tuple[np.ndarra
         H[biased, col] = 1.0
     # eq. 27: d r / d x_j = u^T
     H[rows[:, None], pos_cols] = u
+    if epoch.offset is not None:
+        c = np.asarray(epoch.offset, float).reshape(L)
+        V0 = np.zeros((L, 3)) if epoch.known_vel is None else np.asarray(epoch.known_vel, float).reshape(L, 3)
+        w = V[j] - V0
+        rdot = np.einsum("lk,lk->l", u, w)
+        # eq. cal. 10 (docs/calibration.md): r_l(t) = |x_j - X_l| + c_l rdot_l, the distance at t + c_l;
+        # d rdot / d x_j = (w - u rdot)^T / r (eq. 28), d rdot / d v_j = u^T
+        h[:L] += c * rdot
+        H[rows[:, None], pos_cols] += c[:, None] * (w - u * rdot[:, None]) / r[:, None]
+        H[rows[:, None], 3 * n + pos_cols] = c[:, None] * u
     if has_rate:
         V0 = np.zeros((L, 3)) if epoch.known_vel is None else np.asarray(epoch.known_vel, float).reshape(L, 3)
         w = V[j] - V0

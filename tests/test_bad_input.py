@@ -427,8 +427,8 @@ def _spec_estimators(d: Path, table: str) -> None:
 @pytest.mark.parametrize("table, named", [
     ('estimators = [{ entry = "graph.poses", params = { epoch = -1 } }]', ("graph.poses", "epoch", "-1")),
     ('estimators = [{ entry = "graph.poses", params = { loss = "bogus" } }]', ("graph.poses", "loss", "'bogus'")),
-    ('estimators = [{ entry = "graph.poses", params = { bias_states = true, q_translation = 0.01 } }]',
-     ("graph.poses", "bias_states", "True")),
+    ('estimators = [{ entry = "graph.poses", params = { bias_sigma = 0.0, q_translation = 0.01 } }]',
+     ("graph.poses", "bias_sigma", "0.0")),
     ('estimators = [{ entry = "nav.eskf", params = { bogus = 1 } }]', ("nav.eskf", "bogus", "1")),
     ('estimators = [{ entry = "coop.window", params = { windw = 3 } }]', ("coop.window", "windw", "3")),
     ('estimators = [{ entry = "coop.centralized", params = { huber_k = 2.0 } }]', ("coop.centralized", "huber_k", "2.0")),

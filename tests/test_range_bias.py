@@ -99,6 +99,17 @@ def test_a_calibration_table_removes_the_known_bias_and_gives_its_sigma_as_the_p
     assert max(s for (_, _, o), (_, s) in est.bias_estimates().items() if o in BIAS) <= 0.02
 
 
+def test_time_offset_rows_add_up_and_reach_the_estimators_unapplied(exported, tmp_path):
+    """A device row's and a link row's time offsets add up per link (cal. 10), both orders, in
+    Context.sensors["uwb"]["time_offset"]; the ranges stay as recorded."""
+    spec = _copy(exported, tmp_path / "d", {}, "src,dst,time_offset\nuav1/uwb,,0.05\nanchor1,uav1/uwb,-0.02\n")
+    rec = load_recording(spec)
+    off = rec.context("x", {}).sensors["uwb"]["time_offset"]
+    assert off[TAG]["anchor1"] == off["anchor1"][TAG] == pytest.approx(0.03, abs=1e-15)
+    assert off[TAG]["anchor2"] == 0.05 and "anchor1" not in off.get("uav2/uwb", {})
+    np.testing.assert_array_equal(rec.tables["links"]["value"], load_recording(exported / "spec.toml").tables["links"]["value"])
+
+
 def test_device_and_link_rows_add_up_and_scale_divides(exported, tmp_path):
     """d_meas = (1 + s) d + b_src + b_dst + b_link: a device row of the tag (0.1 m, scale 1e-3) and
     a link row (0.2 m, scale 2e-3) on anchor1."""
@@ -118,6 +129,8 @@ def test_device_and_link_rows_add_up_and_scale_divides(exported, tmp_path):
     ("src,dst,bias\nuav1/uwb,,0.1\nuav1/uwb,,0.2\n", "the device uav1/uwb is calibrated twice"),
     ("src,dst,scale\nuav1/uwb,,0.5\n", "column scale: must be at most 0.1"),
     ("src,dst,bias,sigma_bias\nuav1/uwb,,0.1,0\n", "column sigma_bias: must be positive"),
+    ("src,dst,time_offset\nuav1/uwb,anchor1,-2\n", "column time_offset: must be at most 1"),
+    ("src,dst,time_offset,sigma_time_offset\nuav1/uwb,,0.1,-1\n", "column sigma_time_offset: must be positive"),
     ("src,dst,bias,offset\nuav1/uwb,,0.1,1\n", "unknown column 'offset'"),
 ])
 def test_a_bad_calibration_table_is_one_line_and_exit_2(exported, tmp_path, capsys, table, says):
@@ -181,3 +194,32 @@ def test_solve_epochs_biases_fused_over_independent_epochs_find_the_biases():
     e = b - bias
     assert e @ Lam @ e < chi2.ppf(0.99, 2)
     assert np.all(np.abs(b) > 10 / np.sqrt(np.diag(Lam)))
+
+
+def test_graph_poses_motion_model_carries_bias_states_found_within_their_covariance(exported, tmp_path):
+    """graph.poses with its motion model (q_translation; the prescribed flight is constant velocity,
+    so 0) and bias_states: the biases are states of the joint belief (estimators.graph.motion), a
+    random constant per link; uav1's sixteen biases (true: BIAS, 0 elsewhere) lie within their joint
+    covariance (chi2, 16 dof, 1 % false alarm), each added one beyond 3 sigma with its sign, and the
+    tag's RMSE is below the same filter's without bias states."""
+    spec = _copy(exported, tmp_path / "d", BIAS)
+    rec = load_recording(spec)
+    rmse, est = {}, None
+    for states in (False, True):
+        p = {"bias_states": states, "q_translation": 0.0, "q_rotation": 0.0}
+        keep: list = []
+        track, _, _ = run_plugin(resolve([EstimatorSpec(entry="graph.poses", params=p)])[0], rec.context("g", p), rec.feed, keep=keep)
+        s = track[(TAG, "position")]
+        err = s.value - RecordedTruth(rec).at(TAG, "position", s.time)
+        rmse[states], est = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), keep[0]
+    assert rmse[True] < rmse[False], rmse
+    b = est.belief
+    mine = [k for k in b.bias_at if TAG in k]
+    assert len(mine) == 16
+    idx = np.array([b.bias_at[k] for k in mine])
+    e = b.biases(mine) - np.array([BIAS.get(next(n for n in k[1:] if n != TAG), 0.0) for k in mine])
+    assert float(e @ np.linalg.solve(b.cov[np.ix_(idx, idx)], e)) < chi2.ppf(0.99, e.size)
+    for k, (bias, sigma) in est.bias_estimates().items():
+        other = next(n for n in k[1:] if n != TAG) if TAG in k else None
+        if other in BIAS:
+            assert abs(bias) > 3 * sigma and np.sign(bias) == np.sign(BIAS[other])

@@ -74,6 +74,27 @@ def test_jacobian_with_bias_states_matches_central_differences(seed):
     assert np.allclose(H, _central(lambda y: ranging_model(y, n, ep)[0], x, 1e-6), rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_jacobian_with_time_offsets_matches_central_differences(seed):
+    """A link's time offset c (docs/calibration.md, cal. 10): its range row becomes
+    |x_j - X_l| + c u^T (v_j - V_l), the distance at t + c to first order, with its Jacobian (and
+    bias states beside it)."""
+    rng = np.random.default_rng(seed)
+    n, b = int(rng.integers(1, 5)), 2
+    ep = _random_epoch(rng, n, True, False, True)
+    L = ep.n_links
+    V = rng.normal(0, 1, (L, 3))
+    ep = dataclasses.replace(ep, offset=rng.uniform(-0.2, 0.2, L), known_vel=V, bias=rng.integers(-1, b, L))
+    x = np.concatenate([rng.uniform(-5, 5, 3 * n), rng.normal(0, 1, 3 * n), rng.normal(0, 0.3, b)])
+    h, H = ranging_model(x, n, ep)
+    h0, _ = ranging_model(x, n, dataclasses.replace(ep, offset=None))
+    P, Vj = x[:3 * n].reshape(n, 3)[ep.antenna], x[3 * n:6 * n].reshape(n, 3)[ep.antenna]
+    u = (P - ep.known_pos) / np.linalg.norm(P - ep.known_pos, axis=1)[:, None]
+    np.testing.assert_allclose(h[:L], h0[:L] + ep.offset * np.einsum("lk,lk->l", u, Vj - V), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(h[L:], h0[L:], rtol=0, atol=0)
+    assert np.allclose(H, _central(lambda y: ranging_model(y, n, ep)[0], x, 1e-6), rtol=1e-6, atol=1e-7)
+
+
 def test_bias_states_are_held_or_walk_in_the_time_update():
     """Phi keeps a bias; Q adds bias_walk dt to its variance (0: a random constant)."""
     n, b, dt = 2, 3, 0.5

@@ -20,7 +20,10 @@ epoch). Factors (whitened, as in estimators.graph.model):
   direction the prior leaves uninformed), residual per variable d = [p - p_mean; Log(R_mean^T R)]
   (a point: p - p_mean), whitened W d with W = Lambda^1/2 U^T (x_info = U Lambda U^T), so that
   W^T W = x_info; d Log(R_mean^T R exp(dtheta)) / d dtheta = J_r^-1(Log(R_mean^T R)). The epoch's
-  observability test counts only the information the prior gives.
+  observability test counts only the information the prior gives. With biases, the state prior may
+  cover them too (x_b, their mean: a motion model's belief correlates poses and biases): x_info is
+  then over the kv + B unknowns, the residual d gains b - x_b, and the separate bias prior (b_cov)
+  is not used.
 Epochs share nothing, so their normal matrices are (E, k, k) dense blocks (estimators.graph.linear.
 DenseNormals): the Levenberg-Marquardt iteration of estimators.graph.lm (`solve`) runs on all of
 them at once with one damping factor per epoch (Madsen, Nielsen, Tingleff 2004, eq. 2.21 and
@@ -61,7 +64,8 @@ class EpochFactors:
     State prior (optional, all three or none): x_p (E, V, 3) m world and x_R (E, V, 3, 3) its
     mean (x_R ignored for points), x_info (E, kv, kv) its information (inverse covariance,
     positive semidefinite) over the kv unknowns of the variables (a pose's [dp m world, dtheta
-    rad body], in variable order).
+    rad body], in variable order); x_b (E, B) m (optional, with biases): the state prior covers the
+    biases too, x_info then (E, kv + B, kv + B), and b_cov is not used (None allowed).
     """
 
     kinds: tuple[str, ...]
@@ -88,6 +92,7 @@ class EpochFactors:
     x_p: np.ndarray | None = None
     x_R: np.ndarray | None = None
     x_info: np.ndarray | None = None
+    x_b: np.ndarray | None = None
 
     @property
     def n_bias(self) -> int:
@@ -112,6 +117,8 @@ class EpochFactors:
             raise ValueError("EpochFactors: the state prior is not finite")
         if np.any(np.asarray(self.r_bias) >= self.n_bias):
             raise ValueError(f"EpochFactors: r_bias names a bias beyond the {self.n_bias} of b_mean")
+        if self.x_b is not None and (self.x_info is None or np.shape(self.x_b)[-1] != self.n_bias):
+            raise ValueError("EpochFactors: x_b (the biases in the state prior) needs x_info and one mean per bias of b_mean")
 
     @staticmethod
     def empty_rows(n: int = 0) -> dict:
@@ -155,11 +162,13 @@ class _Layout:
         cols = self.offsets[:, None] + np.arange(6)[None, :]
         self.colmap = np.where(self.is_pose[:, None] | (np.arange(6)[None, :] < 3), cols, self.k)
         self.E = n_epochs
-        self.X = 0 if f.x_info is None else self.kv  # the state prior's rows per epoch
-        # slots: ranges, then heights, then 3 rows per prior, then the B bias priors, then the X state prior
+        self.joint = f.x_b is not None  # the state prior covers the biases: no separate bias prior rows
+        self.X = 0 if f.x_info is None else self.kv + (self.B if self.joint else 0)  # the state prior's rows per epoch
+        Bp = 0 if self.joint else self.B  # the bias prior's rows per epoch
+        # slots: ranges, then heights, then 3 rows per prior, then the Bp bias priors, then the X state prior
         # rows, in order within each epoch
         epochs = np.concatenate([f.r_epoch, f.h_epoch, np.repeat(f.q_epoch, 3),
-                                 np.repeat(np.arange(n_epochs), self.B), np.repeat(np.arange(n_epochs), self.X)]).astype(np.int64)
+                                 np.repeat(np.arange(n_epochs), Bp), np.repeat(np.arange(n_epochs), self.X)]).astype(np.int64)
         order = np.argsort(epochs, kind="stable")
         counts = np.bincount(epochs, minlength=n_epochs)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -170,12 +179,12 @@ class _Layout:
         self.r_slot, self.h_slot = slot[:nr], slot[nr:nr + nh]
         nq = 3 * f.q_epoch.size
         self.q_slot = slot[nr + nh:nr + nh + nq].reshape(-1, 3)
-        nb = n_epochs * self.B
-        self.b_slot = slot[nr + nh + nq:nr + nh + nq + nb].reshape(n_epochs, self.B)
+        nb = n_epochs * Bp
+        self.b_slot = slot[nr + nh + nq:nr + nh + nq + nb].reshape(n_epochs, Bp)
         self.x_slot = slot[nr + nh + nq + nb:].reshape(n_epochs, self.X)
         if self.X:
             rows = np.arange(n_epochs)[:, None] * self.M + self.x_slot  # (E, X): the state prior's kv columns
-            self.x_prior = _Cols(np.arange(n_epochs * self.X), rows.reshape(-1, 1, 1) * (self.k + 1) + np.arange(self.kv)[None, None, :])
+            self.x_prior = _Cols(np.arange(n_epochs * self.X), rows.reshape(-1, 1, 1) * (self.k + 1) + np.arange(self.X)[None, None, :])
             lam, U = np.linalg.eigh(f.x_info)
             self.x_sqrt = np.sqrt(np.maximum(lam, 0.0))[:, :, None] * np.swapaxes(U, 1, 2)  # W, W^T W = x_info
         if self.B:
@@ -184,9 +193,10 @@ class _Layout:
             # a range's bias column, and the B x B block of each epoch's bias prior
             self.r_bias = _Cols(biased, ((f.r_epoch[biased] * self.M + self.r_slot[biased]) * (self.k + 1)
                                          + self.kv + f.r_bias[biased])[:, None, None])
-            rows = np.arange(n_epochs)[:, None] * self.M + self.b_slot  # (E, B)
-            self.b_prior = _Cols(np.arange(n_epochs * self.B), (rows.reshape(-1, 1, 1) * (self.k + 1) + kb[None, None, :]))
-            self.b_chol = np.linalg.cholesky(f.b_cov)
+            if not self.joint:
+                rows = np.arange(n_epochs)[:, None] * self.M + self.b_slot  # (E, B)
+                self.b_prior = _Cols(np.arange(n_epochs * self.B), (rows.reshape(-1, 1, 1) * (self.k + 1) + kb[None, None, :]))
+                self.b_chol = np.linalg.cholesky(f.b_cov)
         self.ends = {"ra": _Ends(self, f.r_epoch, f.r_a, f.r_arm_a, self.r_slot[:, None]),
                      "rb": _Ends(self, f.r_epoch, f.r_b, f.r_arm_b, self.r_slot[:, None]),
                      "h": _Ends(self, f.h_epoch, f.h_var, f.h_arm, self.h_slot[:, None]),
@@ -272,7 +282,7 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R, b=None):
         e = np.linalg.solve(lay.q_chol, (f.q_z - eq)[..., None])[..., 0]
         # W = L^-1 (W^T W = cov^-1): whitened e = W (z - h), Jacobian W dh/dx
         out.append(("prior", f.q_epoch, lay.q_slot, e, [(Q, np.linalg.solve(lay.q_chol[Q.at], J))]))
-    if lay.B:
+    if lay.B and not lay.joint:
         # the bias prior: whitened W (b_mean - b), W = L^-1 (L L^T = b_cov), Jacobian W
         W = np.linalg.inv(lay.b_chol)
         e = ((f.b_mean - b) @ W.T).reshape(-1, 1)
@@ -280,15 +290,19 @@ def _residuals(f: EpochFactors, lay: _Layout, p, R, b=None):
         out.append(("bias", np.repeat(np.arange(E), lay.B), lay.b_slot.reshape(-1, 1), e,
                     [(lay.b_prior, np.broadcast_to(W, (E, lay.B, lay.B)).reshape(-1, 1, lay.B))]))
     if lay.X:
-        out.append(_state_prior(f, lay, p, R))
+        out.append(_state_prior(f, lay, p, R, b))
     return out
 
 
-def _state_prior(f: EpochFactors, lay: _Layout, p, R):
+def _state_prior(f: EpochFactors, lay: _Layout, p, R, b):
     """The state prior's residual block (module docstring): d = [p - p_mean; Log(R_mean^T R)] per
-    variable (E, kv), whitened e = W (0 - d), Jacobian W dd/dx, W^T W = x_info."""
-    E, kv = p.shape[0], lay.kv
-    d, Jd = np.zeros((E, kv)), np.zeros((E, kv, kv))
+    variable, then b - x_b with the biases in it (E, X), whitened e = W (0 - d), Jacobian W dd/dx,
+    W^T W = x_info."""
+    E, kv, X = p.shape[0], lay.kv, lay.X
+    d, Jd = np.zeros((E, X)), np.zeros((E, X, X))
+    if lay.joint:
+        d[:, kv:] = b - f.x_b
+        Jd[:, kv:, kv:] = np.eye(X - kv)
     poses = np.flatnonzero(lay.is_pose)
     w = so3_log(np.swapaxes(f.x_R[:, poses], -1, -2) @ R[:, poses]) if poses.size else None  # (E, P, 3)
     for i, o in enumerate(lay.offsets):
@@ -300,7 +314,7 @@ def _state_prior(f: EpochFactors, lay: _Layout, p, R):
             Jd[:, o + 3:o + 6, o + 3:o + 6] = [so3_right_jacobian_inv(x) for x in wi]
     e = -(lay.x_sqrt @ d[..., None])
     J = lay.x_sqrt @ Jd
-    return ("state", np.repeat(np.arange(E), kv), lay.x_slot.reshape(-1, 1), e.reshape(-1, 1), [(lay.x_prior, J.reshape(-1, 1, kv))])
+    return ("state", np.repeat(np.arange(E), X), lay.x_slot.reshape(-1, 1), e.reshape(-1, 1), [(lay.x_prior, J.reshape(-1, 1, X))])
 
 
 def _subset(f: EpochFactors, keep: np.ndarray) -> EpochFactors:
@@ -308,7 +322,7 @@ def _subset(f: EpochFactors, keep: np.ndarray) -> EpochFactors:
     new = np.cumsum(keep) - 1
     out = {"kinds": f.kinds, "b_mean": f.b_mean, "b_cov": f.b_cov}
     if f.x_info is not None:
-        out.update(x_p=f.x_p[keep], x_R=f.x_R[keep], x_info=f.x_info[keep])
+        out.update(x_p=f.x_p[keep], x_R=f.x_R[keep], x_info=f.x_info[keep], x_b=None if f.x_b is None else f.x_b[keep])
     for prefix, epoch in (("r_", f.r_epoch), ("h_", f.h_epoch), ("q_", f.q_epoch)):
         rows = keep[epoch]
         for name in EpochFactors.__slots__:

@@ -23,6 +23,12 @@ depend on y alone, so z | y keeps its conditional law and (exact for a linear mo
     z <- z (+) K d,   C_zz <- C_zz - K (C_yy - P) K^T,   C_zy <- K P,   C_yy <- P
 
 with (-) and (+) the tangent difference and retraction of each robot's pose.
+
+Range biases (optional): a bias b_l (m) per link l joins the belief with add_bias, mean 0 and its
+prior variance, independent of the rest; a random constant (F = 1, Q = 0 in mo. 2). An epoch's
+solve over some robots' poses and some links' biases takes the belief's joint marginal over both
+as its prior (prior(names, links)), and update(names, ..., links, b) is mo. 3 with y the poses and
+those biases (the rates, the other robots and the other links' biases in z).
 """
 from __future__ import annotations
 
@@ -53,6 +59,8 @@ class MotionBelief:
     v: dict = field(default_factory=dict)       # name -> (3,) m/s world
     w: dict = field(default_factory=dict)       # name -> (3,) rad/s body (zero for a point)
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    bias: dict = field(default_factory=dict)    # link -> bias m
+    bias_at: dict = field(default_factory=dict)  # link -> its index in cov
     _cache: tuple | None = field(default=None, repr=False)
 
     def __contains__(self, name: str) -> bool:
@@ -75,6 +83,13 @@ class MotionBelief:
         self.kinds[name], self.start[name], self.cov = kind, n, C
         self.p[name], self.R[name] = np.array(p, float), np.array(R, float)
         self.v[name], self.w[name] = np.zeros(3), np.zeros(3)
+
+    def add_bias(self, link, sigma: float) -> None:
+        """A link's bias joins: mean 0 m, variance sigma^2 m^2, independent of the rest."""
+        n = self.cov.shape[0]
+        C = np.zeros((n + 1, n + 1))
+        C[:n, :n], C[n, n] = self.cov, sigma ** 2
+        self.cov, self.bias_at[link], self.bias[link] = C, n, 0.0
 
     def predict(self, t: float) -> None:
         """Move the belief to time t (mo. 1, mo. 2); a time not after the belief's is a no-op."""
@@ -116,24 +131,36 @@ class MotionBelief:
                            tri([a + 3 for a, k in s if k == 6]), tri([a + 9 for a, k in s if k == 6]))
         return self._cache[1:]
 
-    def _pose_index(self, names) -> np.ndarray:
-        return np.concatenate([np.arange(self.start[r], self.start[r] + POSE_DIMS[self.kinds[r]]) for r in names])
+    def _pose_index(self, names, links=()) -> np.ndarray:
+        return np.concatenate([np.arange(self.start[r], self.start[r] + POSE_DIMS[self.kinds[r]]) for r in names] +
+                              [np.array([self.bias_at[k] for k in links], np.int64)])
 
-    def prior(self, names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The marginal over the poses of `names` (V of them, in that order): p (V, 3), R (V, 3, 3)
-        and their covariance (kv, kv), the unknowns in the order of the names."""
-        y = self._pose_index(names)
+    def prior(self, names, links=()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The marginal over the poses of `names` (V of them, in that order), then the biases of
+        `links` (B): p (V, 3), R (V, 3, 3) and their covariance (kv + B, kv + B), the unknowns in the
+        order of the names, then of the links (their means: biases(links))."""
+        y = self._pose_index(names, links)
         return (np.stack([self.p[r] for r in names]), np.stack([self.R[r] for r in names]),
                 self.cov[np.ix_(y, y)].copy())
 
-    def update(self, names, p: np.ndarray, R: np.ndarray, P: np.ndarray) -> None:
-        """The belief after an epoch whose solve over the poses of `names` gave p (V, 3), R (V, 3, 3)
-        with covariance P (kv, kv), from the prior of prior(names) (mo. 3)."""
-        y = self._pose_index(names)
+    def biases(self, links) -> np.ndarray:
+        """(B,) m the bias means of `links`."""
+        return np.array([self.bias[k] for k in links], float)
+
+    def bias_cov(self, links) -> np.ndarray:
+        """(B, B) m^2 the covariance of the biases of `links`."""
+        i = np.array([self.bias_at[k] for k in links], np.int64)
+        return self.cov[np.ix_(i, i)].copy()
+
+    def update(self, names, p: np.ndarray, R: np.ndarray, P: np.ndarray, links=(), b: np.ndarray | None = None) -> None:
+        """The belief after an epoch whose solve over the poses of `names` and the biases of `links`
+        gave p (V, 3), R (V, 3, 3), b (B,) m with covariance P (kv + B, kv + B), from the prior of
+        prior(names, links) (mo. 3)."""
+        y = self._pose_index(names, links)
         z = np.setdiff1d(np.arange(self.cov.shape[0]), y)
         w = so3_log(np.stack([self.R[r].T @ R[i] for i, r in enumerate(names)]))
         d = np.concatenate([p[i] - self.p[r] if self.kinds[r] == "point" else np.concatenate([p[i] - self.p[r], w[i]])
-                            for i, r in enumerate(names)])
+                            for i, r in enumerate(names)] + [np.asarray(b, float) - self.biases(links) if links else np.zeros(0)])
         Cyy, Czy = self.cov[np.ix_(y, y)], self.cov[np.ix_(z, y)]
         # mo. 3
         K = np.linalg.solve(Cyy, Czy.T).T
@@ -148,6 +175,11 @@ class MotionBelief:
             self.p[r], self.R[r] = np.array(p[i], float), np.array(R[i], float)
         delta = np.zeros(self.cov.shape[0])
         delta[z] = dz
+        for i, k in enumerate(links):
+            self.bias[k] = float(b[i])
+        for k, i in self.bias_at.items():
+            if k not in links:
+                self.bias[k] += delta[i]
         for r in self.names:
             s, k = self.start[r], POSE_DIMS[self.kinds[r]]
             if r not in names:

@@ -56,6 +56,11 @@ Context.sensors[stream] (testbed.replay.calibration: "uwb") when it has one, els
 the link's range sigma (its first range's declared sigma, or range_sigma). bias_estimates() gives
 them.
 
+Time offsets (docs/calibration.md, cal. 10): a link (stream, antenna, known end) whose
+Context.sensors[stream]["time_offset"] (testbed.replay.calibration: "uwb") gives it an offset c s
+measures the distance at t + c: its range row is r = |x_j - X| + c u^T (v_j - V) (+ b), the rate
+from the filter's own velocity state (estimators.ranging.ranging_model, RangingEpoch.offset).
+
 params: RangingParams (`testbed estimators ranging.ekf`).
 """
 from __future__ import annotations
@@ -152,6 +157,8 @@ class RangingEkfEstimator:
         # {stream: {antenna: {known end: m}}}: a calibration table's sigmas (testbed.replay.calibration)
         self.calibrated = {k: v["bias_sigma"] for k, v in context.sensors.items()
                            if isinstance(v, dict) and isinstance(v.get("bias_sigma"), dict)}
+        self.offsets = {k: v["time_offset"] for k, v in context.sensors.items()
+                        if isinstance(v, dict) and isinstance(v.get("time_offset"), dict)}
         self.poses: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
         self.t = None
         self.last_range: dict[tuple[str, str, str], float] = {}  # (stream, antenna, known end) -> time of its last range
@@ -328,8 +335,10 @@ class _Follower:
         rates = [self.rates.get((row[0], row[6]), (np.nan, 1.0)) for row in rows]
         rd, sd = np.array([x[0] for x in rates]), np.array([x[1] for x in rates])
         use_rates = bool(self.o.p["use_rates"]) and np.isfinite(rd).any()
-        return RangingEpoch(antenna=j, known_pos=X, ranges=r, sigma_range=s,
-                            range_rates=rd if use_rates else None, known_vel=V if use_rates else None,
+        c = np.array([self.o.offsets.get(row[5], {}).get(row[0], {}).get(row[6], 0.0) for row in rows])
+        timed = bool(np.any(c != 0.0))
+        return RangingEpoch(antenna=j, known_pos=X, ranges=r, sigma_range=s, offset=c if timed else None,
+                            range_rates=rd if use_rates else None, known_vel=V if use_rates or timed else None,
                             sigma_range_rate=sd, rate_window=self.o.p["rate_window"],
                             height=None if h is None else h[0], sigma_height=1.0 if h is None else h[1],
                             height_weights=None if h is None else h[2])

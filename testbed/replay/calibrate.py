@@ -22,9 +22,11 @@ ones, so the least-squares covariance, which counts n, is widened by tau (1 for 
 p = 2, or p = 1 (b alone: scale 0, no sigma_scale) for a link whose scale does not predict ranges
 it was not fitted on (cal. 2b: two-fold cross-validation in time within the segment, each half
 fitted with and without s and tested on the other; s is kept when it lowers the summed weighted
-squared error of the held-out halves) or lies beyond the format's bound (MAX_SCALE). A scale
-error of the radios' clocks holds on every part of the segment; a "scale" that fits one half's
-multipath does not carry over to the other half, nor to the replay. The range noise
+squared error of the held-out halves), is not significant (|s| <= z sigma_s, z the two-sided
+normal quantile of family-wise false alarm SCALE_ALARM over the segment's links, Bonferroni) or
+lies beyond the format's bound (MAX_SCALE). A scale error of the radios' clocks holds on every part
+of the segment; a "scale" that fits one half's multipath does not carry over to the other half,
+nor to the replay; and a scale is applied as a correction whose error no estimator carries. The range noise
 default of every estimator, pooled over the links:
 
     range_sigma^2 = sum_l sum_i res_i^2 / sum_l (n_l - p_l)                         (cal. 4)
@@ -61,6 +63,13 @@ with at least MIN_SAMPLES second differences.
 Device biases (cal. 9, 9b: testbed.replay.device_bias): the links' biases split into a bias per
 device (site or anchor) and each link's remainder, written as device rows when the device model
 predicts links left out of its fit better than no device model does.
+
+Device time offsets (cal. 10, 10b: testbed.replay.device_offset): r(t) = d(t + c), c = gamma_src +
+gamma_dst, fitted on the residuals of cal. 2 against the true range rate (central differences over
++-T, T the segment's epoch spacing; [1, d] projected out, so b, s and gamma are the joint least
+squares), kept where they predict held-out rows and differ from 0; then every link is fitted again
+(cal. 1-4, 2b) on e - c rdot. A device offset beyond MAX_TIME_OFFSET_S is not written. Written as
+device rows (time_offset, sigma_time_offset).
 """
 from __future__ import annotations
 
@@ -70,13 +79,14 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
+from scipy.stats import chi2, norm
 
 from testbed.config import MIN_MAGNITUDE
 from testbed.errors import ConfigError
 from testbed.outdir import new_file
-from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE
+from testbed.replay.calibration import FILE_FORMAT, MAX_SCALE, MAX_TIME_OFFSET_S
 from testbed.replay.device_bias import device_split
+from testbed.replay.device_offset import device_offsets
 from testbed.replay.recording import RecordedTruth, Recording, load_recording
 from testbed.replay.spec import Window
 from testbed.replay.tables import find
@@ -84,6 +94,10 @@ from testbed.scoring.metrics import autocovariance_sums, geyer_time, integrated_
 
 #: the fewest rows a link needs in the segment (two unknowns and one degree of freedom)
 MIN_ROWS = 3
+#: the family-wise false-alarm probability of the scales' significance test over a segment's links
+#: (cal. 2b): a scale is applied as a correction whose error no estimator carries (it grows with
+#: the range), so a spurious one must be rare
+SCALE_ALARM = 0.05
 #: the fewest second differences a spacing needs for its q (cal. 7)
 MIN_SAMPLES = 16
 
@@ -92,8 +106,9 @@ MIN_SAMPLES = 16
 class LinkFit:
     """One link's fit (cal. 1-3): ends, rows n, bias m, scale (0 when not fitted), their sigmas
     (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof,
-    integrated autocorrelation time tau (rows), the median spacing of the link's rows (s) and the
-    autocovariance sums of its residuals (testbed.scoring.metrics.autocovariance_sums, m^2)."""
+    integrated autocorrelation time tau (rows), the median spacing of the link's rows (s), the
+    autocovariance sums of its residuals (testbed.scoring.metrics.autocovariance_sums, m^2), the
+    residuals (n,) m in time order and the true range rate with [1, d] projected out (n,) m/s."""
 
     src: str
     dst: str
@@ -108,6 +123,8 @@ class LinkFit:
     tau: float
     spacing: float
     acov: np.ndarray
+    res: np.ndarray
+    rate_perp: np.ndarray
 
 
 def _wls(e: np.ndarray, d: np.ndarray, w: np.ndarray, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -136,35 +153,60 @@ def scale_predicts(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> bool:
     return err[2] < err[1]
 
 
-def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float, float, int, float, np.ndarray]:
-    """(b, s, sigma_b, sigma_s, rss, dof, tau, autocovariance sums of the residuals (n,)) of
-    e = b + s d + n (cal. 2-3) with weights w (n,), rows
-    in time order; s = 0 and sigma_s NaN when the scale does not predict (scale_predicts, cal. 2b)
-    or lies beyond the format's MAX_SCALE. ValueError when the rows cannot determine b."""
-    # eq. cal. 2b: the scale only where it predicts held-out ranges
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    """fit_link's result: b m, s (0 when not fitted), their sigmas (sigma_scale NaN when not fitted),
+    the residuals (n,) m in time order, dof, integrated time tau (rows), autocovariance sums (n,) m^2,
+    and the rate (n,) m/s with the columns [1, d] of the fit projected out (for cal. 10)."""
+
+    bias: float
+    scale: float
+    sigma_bias: float
+    sigma_scale: float
+    res: np.ndarray
+    dof: int
+    tau: float
+    acov: np.ndarray
+    rate_perp: np.ndarray
+
+
+def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray, rate: np.ndarray, z: float = 0.0) -> _Fit:
+    """The fit of e = b + s d + n (cal. 2-3) with weights w (n,), rows in time order; s = 0 (sigma
+    NaN) when the scale does not predict (scale_predicts, cal. 2b), lies within z of its sigmas of 0
+    (cal. 2b) or beyond the format's MAX_SCALE. rate (n,) m/s:
+    the true range rate, returned with [1, d] projected out. ValueError when the rows cannot
+    determine b."""
+    # eq. cal. 2b: the scale only where it predicts held-out ranges and is significant
     for cols in ((2, 1) if scale_predicts(e, d, w) else (1,)):
         sol = _wls(e, d, w, cols)
         if sol is None or (cols == 2 and abs(sol[0][1]) > MAX_SCALE):
             continue
         x, Ninv = sol
-        res = e - np.stack([np.ones_like(d), d], axis=1)[:, :cols] @ x
-        dof = e.size - cols
+        A = np.stack([np.ones_like(d), d], axis=1)[:, :cols]
+        res = e - A @ x
+        dof = e.size - A.shape[1]
         tau = integrated_time(res)
         # eq. cal. 2: the covariance of white residuals, widened by their correlation time
         sig = np.sqrt(np.diag(tau * float(w @ res ** 2) / dof * Ninv))
-        return (float(x[0]), float(x[1]) if cols == 2 else 0.0, float(sig[0]),
-                float(sig[1]) if cols == 2 else float("nan"), float(res @ res), dof, tau, autocovariance_sums(res))
+        if cols == 2 and abs(x[1]) <= z * sig[1]:
+            continue
+        perp = rate - A @ (Ninv @ (A.T @ (w * rate)))
+        return _Fit(float(x[0]), float(x[1]) if cols == 2 else 0.0, float(sig[0]), float(sig[1]) if cols == 2 else float("nan"),
+                    res, dof, tau, autocovariance_sums(res), perp)
     raise ValueError("fewer rows than unknowns")
 
 
-def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
-    """Every uwb link of the recording's rows with truth at both ends (cal. 1-3), sorted by ends."""
+def link_fits(rec: Recording, truth: RecordedTruth, h: float, offsets: dict | None = None) -> list[LinkFit]:
+    """Every uwb link of the recording's rows with truth at both ends (cal. 1-3, cal. 2b's
+    significance over the L links fitted), with the true range rate at its rows (central differences
+    over +-h s, each end clipped to its body's truth span; for cal. 10), sorted by ends. offsets
+    {(src, dst): c s}: the fit of e - c rate (cal. 10: the biases and scales given the time offsets)."""
     t = rec.tables["links"]
     time = t["time"] - rec.spec.window.start
     groups: dict[tuple[str, str], list[int]] = {}
     for i in np.flatnonzero(t["kind"] == "uwb").tolist():
         groups.setdefault(tuple(sorted((str(t["src"][i]), str(t["dst"][i])))), []).append(i)
-    out = []
+    chosen = []
     for (a, b), rows in sorted(groups.items()):
         rows = np.array(rows)
         ok = np.ones(rows.size, bool)
@@ -173,20 +215,32 @@ def link_fits(rec: Recording, truth: RecordedTruth) -> list[LinkFit]:
                 lo, hi = truth.span.get(truth.body_of(end), (np.inf, -np.inf))
                 ok &= (time[rows] >= lo) & (time[rows] <= hi)
         rows = rows[ok][np.argsort(time[rows[ok]], kind="stable")]
-        if rows.size < MIN_ROWS:
-            continue
+        if rows.size >= MIN_ROWS:
+            chosen.append((a, b, rows))
+    # eq. cal. 2b: two-sided, family-wise false alarm SCALE_ALARM over the links
+    z = float(norm.ppf(1.0 - SCALE_ALARM / (2 * max(len(chosen), 1))))
+    out = []
+    for a, b, rows in chosen:
         tr = time[rows]
+        dist = lambda x: np.linalg.norm(truth.at(a, "position", x) - truth.at(b, "position", x), axis=1)  # noqa: E731
         # eq. cal. 1: e = r - d, d the true distance between the ends (lever arms included)
-        d = np.linalg.norm(truth.at(a, "position", tr) - truth.at(b, "position", tr), axis=1)
+        d = dist(tr)
+        lo = max([truth.span[truth.body_of(n)][0] for n in (a, b) if n not in truth.anchors], default=-np.inf)
+        hi = min([truth.span[truth.body_of(n)][1] for n in (a, b) if n not in truth.anchors], default=np.inf)
+        tm, tp = np.maximum(tr - h, lo), np.minimum(tr + h, hi)
+        # the true range rate, central differences (cal. 10)
+        rate = np.where(tp > tm, (dist(tp) - dist(tm)) / np.where(tp > tm, tp - tm, 1.0), 0.0)
         sigma = t["sigma"][rows]
         w = np.where(np.isfinite(sigma), 1.0 / np.where(np.isfinite(sigma), sigma, 1.0) ** 2, 1.0)
         try:
-            bias, scale, sb, ss, rss, dof, tau, acov = fit_link(t["value"][rows] - d, d, w)
+            c = (offsets or {}).get((a, b), 0.0)
+            f = fit_link(t["value"][rows] - d - c * rate, d, w, rate, z)
         except ValueError:
             continue
+        rss = float(f.res @ f.res)
         # eq. cal. 3: the link's range noise
-        out.append(LinkFit(a, b, int(rows.size), bias, scale, sb, ss, float(np.sqrt(rss / dof)), rss, dof, tau,
-                           float(np.median(np.diff(tr))), acov))
+        out.append(LinkFit(a, b, int(rows.size), f.bias, f.scale, f.sigma_bias, f.sigma_scale, float(np.sqrt(rss / f.dof)),
+                           rss, f.dof, f.tau, float(np.median(np.diff(tr))), f.acov, f.res, f.rate_perp))
     return out
 
 
@@ -258,10 +312,20 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     if "truth" not in rec.tables:
         raise ConfigError(f"{spec_path}: the dataset has no truth table (truth.csv): calibrate needs truth on the segment")
     truth = RecordedTruth(rec)
-    fits = link_fits(rec, truth)
+    epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
+    spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
+    fits = link_fits(rec, truth, spacing)
     if not fits:
         raise ConfigError(f"--window {t0:g},{t1:g}: no uwb link has {MIN_ROWS} or more rows with truth at both ends "
                           f"in it (the truth table spans {_span(rec)})")
+    # eq. cal. 10, 10b: device time offsets on the residuals (the rate with [1, d] projected out: the
+    # joint least squares), kept where they predict held-out rows and differ from 0; then every link
+    # fitted again given its offset (cal. 2, 2b)
+    off = device_offsets([(f.src, f.dst) for f in fits], [f.res for f in fits], [f.rate_perp for f in fits],
+                         np.array([1.0 / (f.tau * f.sigma ** 2) for f in fits]))
+    offsets = {n: g for n, (g, _) in off.devices.items() if off.kept and abs(g) <= MAX_TIME_OFFSET_S}
+    if offsets:
+        fits = link_fits(rec, truth, spacing, {(f.src, f.dst): offsets.get(f.src, 0.0) + offsets.get(f.dst, 0.0) for f in fits})
     dof = sum(f.dof for f in fits)
     # eq. cal. 4: the pooled range noise
     range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))
@@ -270,8 +334,6 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     for f in fits:
         pooled[:f.acov.size] += f.acov
     range_correlation = geyer_time(pooled) * sum(f.rss * f.spacing for f in fits) / sum(f.rss for f in fits)
-    epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
-    spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
     q = process_noise(rec, truth, 0.0, t1 - t0, spacing)
     # a density below every physical value (MIN_MAGNITUDE) is the rounding of a motion without any, e.g.
     # a prescribed constant-velocity flight: written as 0, the value every estimator parameter accepts;
@@ -287,9 +349,13 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     # eq. cal. 9, 9b: device biases, kept where they predict left-out links
     split = device_split([(f.src, f.dst) for f in fits], np.array([f.bias for f in fits]))
     fit.update(device_bias_rms=split.rms_bias, device_loo_rms=split.rms_loo, device_rows=int(split.kept))
-    devices = split.devices if split.kept else {}
+    devices = {n: {"bias": beta} for n, beta in split.devices.items()} if split.kept else {}
     if split.kept:
         fits = [dataclasses.replace(f, bias=float(r)) for f, r in zip(fits, split.remainder)]
+    fit.update(offset_cv_with=off.cv_with, offset_cv_without=off.cv_without, offset_wald=off.wald, offset_rank=off.rank,
+               offset_rows=int(bool(offsets)))
+    for n, g in offsets.items():
+        devices.setdefault(n, {}).update(time_offset=g, sigma_time_offset=off.devices[n][1])
     written = {"window": [t0, t1], "noise": noise, "fit": fit, "devices": devices, "links": fits}
     with new_file(Path(out), force=force) as tmp:
         tmp.write_text(to_toml(spec_path, written))
@@ -317,9 +383,9 @@ def to_toml(spec_path: Path, c: dict) -> str:
         if isinstance(v, list):
             v = "[" + ", ".join("[" + ", ".join(_num(y) for y in x) + "]" if isinstance(x, list) else _num(x) for x in v) + "]"
         lines.append(f"{k} = {v}")
-    for name, beta in c["devices"].items():
-        lines += ["", "[[links]]  # a device (eq. cal. 9): its bias enters every link it ends", f'src = "{name}"',
-                  f"bias = {_num(beta)}"]
+    for name, dev in c["devices"].items():
+        lines += ["", "[[links]]  # a device (eq. cal. 9, 10): its bias and time offset enter every link it ends",
+                  f'src = "{name}"', *[f"{k} = {_num(v)}" for k, v in dev.items()]]
     for f in c["links"]:
         lines += ["", "[[links]]", f'src = "{f.src}"', f'dst = "{f.dst}"', f"bias = {_num(f.bias)}",
                   f"sigma_bias = {_num(f.sigma_bias)}"]

@@ -13,6 +13,12 @@ link's remaining bias (m) is sqrt(sigma_src^2 + sigma_dst^2 + sigma_link^2) over
 declare one; it is Context.sensors["uwb"]["bias_sigma"][src][dst] (both orders), absent for a
 link no row with a sigma names.
 
+A row's time offset c (s, docs/calibration.md cal. 10; device and link rows add up like the
+biases) says the link's range at time t is the distance at t + c: r(t) = d(t) + c d'(t) + ...
+It is not applied at load (a range's rate is the estimator's to know): it is handed to the
+estimators as Context.sensors["uwb"]["time_offset"][src][dst] (s, both orders), for the links
+with a nonzero one.
+
 The calibration file (`testbed calibrate` writes it, `testbed replay --calibration FILE` reads it;
 docs/calibration.md): TOML, `format`, `window` [T0, T1] (s, the files' clock: the segment it was
 fitted on, never scored), `[noise]` (the estimators' defaults by parameter name: NOISE_KEYS),
@@ -41,16 +47,19 @@ FILE_FORMAT = 1
 #: the calibration file's [noise] keys: estimator parameters of these names take these values
 #: where the user set none (m; m^2/s^3; rad^2/s^3; s)
 NOISE_KEYS = ("range_sigma", "q_translation", "q_rotation", "range_correlation")
+#: the largest time offset a row may declare (s): a ranging radio's timestamps off by a second are broken
+MAX_TIME_OFFSET_S = 1.0
 #: the record keys of a [[links]] row besides calibration.csv's columns
 LINK_RECORD_KEYS = ("sigma", "samples", "tau")
 
 
 @dataclass(frozen=True, slots=True)
 class Calibration:
-    """Per device and per link (frozenset of the two ends): (bias m, scale, sigma_bias m or NaN)."""
+    """Per device and per link (frozenset of the two ends): (bias m, scale, sigma_bias m or NaN,
+    time offset s)."""
 
-    devices: dict[str, tuple[float, float, float]]
-    links: dict[frozenset, tuple[float, float, float]]
+    devices: dict[str, tuple[float, float, float, float]]
+    links: dict[frozenset, tuple[float, float, float, float]]
 
     def of(self, src: str, dst: str) -> tuple[float, float, float]:
         """(b, s, sigma of b or NaN) of the link src-dst: the sums of the measurement equation."""
@@ -60,6 +69,11 @@ class Calibration:
         return (float(sum(p[0] for p in parts)), float(sum(p[1] for p in parts)),
                 float(np.sqrt(sum(x * x for x in sig))) if sig else float("nan"))
 
+    def offset(self, src: str, dst: str) -> float:
+        """The time offset c (s) of the link src-dst: the sum of its device and link rows'."""
+        return float(sum(p[3] for p in (self.devices.get(src), self.devices.get(dst),
+                                         self.links.get(frozenset((src, dst)))) if p is not None))
+
     def apply(self, src: np.ndarray, dst: np.ndarray, value: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ranges and sigmas (n,) of the links src[i]-dst[i] with the known bias and scale removed."""
         bs = np.array([self.of(a, b)[:2] for a, b in zip(src.tolist(), dst.tolist())]).reshape(-1, 2)
@@ -67,13 +81,22 @@ class Calibration:
 
     def bias_sigma(self, pairs: set[tuple[str, str]]) -> dict[str, dict[str, float]]:
         """{src: {dst: sigma m}} (both orders) of the links in pairs that have a declared sigma."""
-        out: dict[str, dict[str, float]] = {}
-        for a, b in sorted(pairs):
-            s = self.of(a, b)[2]
-            if np.isfinite(s):
-                out.setdefault(a, {})[b] = s
-                out.setdefault(b, {})[a] = s
-        return out
+        return _both_orders(pairs, lambda a, b: self.of(a, b)[2], np.isfinite)
+
+    def time_offsets(self, pairs: set[tuple[str, str]]) -> dict[str, dict[str, float]]:
+        """{src: {dst: c s}} (both orders) of the links in pairs that have a nonzero time offset."""
+        return _both_orders(pairs, self.offset, lambda c: c != 0.0)
+
+
+def _both_orders(pairs: set[tuple[str, str]], value, keep) -> dict[str, dict[str, float]]:
+    """{src: {dst: value(src, dst)}} in both orders over pairs, where keep(value)."""
+    out: dict[str, dict[str, float]] = {}
+    for a, b in sorted(pairs):
+        x = value(a, b)
+        if keep(x):
+            out.setdefault(a, {})[b] = x
+            out.setdefault(b, {})[a] = x
+    return out
 
 
 def read_calibration(path: Path, names: set[str]) -> Calibration:
@@ -83,9 +106,10 @@ def read_calibration(path: Path, names: set[str]) -> Calibration:
 
 def _from_table(t: Table, names: set[str]) -> Calibration:
     """Check the rows of a calibration table: names known (sites or anchors of the spec), no row
-    twice, |bias| <= MAX_BIAS_M, |scale| <= MAX_SCALE, sigmas > 0; ConfigError (one line) on a mistake."""
-    devices: dict[str, tuple[float, float, float]] = {}
-    links: dict[frozenset, tuple[float, float, float]] = {}
+    twice, |bias| <= MAX_BIAS_M, |scale| <= MAX_SCALE, |time_offset| <= MAX_TIME_OFFSET_S, sigmas > 0;
+    ConfigError (one line) on a mistake."""
+    devices: dict[str, tuple[float, float, float, float]] = {}
+    links: dict[frozenset, tuple[float, float, float, float]] = {}
     first: dict[object, int] = {}
     for i in range(t["src"].size):
         src, dst = str(t["src"][i]), str(t["dst"][i])
@@ -94,10 +118,10 @@ def _from_table(t: Table, names: set[str]) -> Calibration:
                 raise t.error(i, col, f"{name!r} is not a site (body/site) or an anchor of the spec")
         if src == dst:
             raise t.error(i, "dst", "a link from a site to itself")
-        for col, lim in (("bias", MAX_BIAS_M), ("scale", MAX_SCALE)):
+        for col, lim in (("bias", MAX_BIAS_M), ("scale", MAX_SCALE), ("time_offset", MAX_TIME_OFFSET_S)):
             if abs(t[col][i]) > lim:
                 raise t.error(i, col, f"must be at most {lim:g} in magnitude, got {float(t[col][i]):g}")
-        for col in ("sigma_bias", "sigma_scale"):
+        for col in ("sigma_bias", "sigma_scale", "sigma_time_offset"):
             if t[col][i] <= 0:
                 raise t.error(i, col, f"must be positive (or empty), got {float(t[col][i]):g}")
         key = frozenset((src, dst)) if dst else src
@@ -105,7 +129,8 @@ def _from_table(t: Table, names: set[str]) -> Calibration:
             raise t.error(i, "src", f"{'the link ' + src + ' - ' + dst if dst else 'the device ' + src} "
                                     f"is calibrated twice (also row {first[key] + 1})")
         first[key] = i
-        entry = (float(np.nan_to_num(t["bias"][i])), float(np.nan_to_num(t["scale"][i])), float(t["sigma_bias"][i]))
+        entry = (float(np.nan_to_num(t["bias"][i])), float(np.nan_to_num(t["scale"][i])), float(t["sigma_bias"][i]),
+                 float(np.nan_to_num(t["time_offset"][i])))
         if dst:
             links[key] = entry
         else:

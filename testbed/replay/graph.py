@@ -35,7 +35,10 @@ over every link seen: a link joins it with mean 0 and sigma its calibrated bias_
 (Context.sensors["uwb"]), else params bias_sigma, else its first range's sigma. Each epoch of a
 solve gets the belief's marginal over its part's links as a prior (estimators.graph.batch); after
 the part, the likelihood each converged, unflagged epoch gave the biases (its posterior over the
-prior, in information form) is added to the belief. bias_estimates() gives it.
+prior, in information form) is added to the belief. bias_estimates() gives it. With the motion
+model, the biases are states of its belief instead (estimators.graph.motion: random constants,
+each epoch's solve over its robots' poses and its links' biases with their joint prediction as
+prior, mo. 3 over both).
 
 Motion model (q_translation set; docs/replay.md, "graph.poses with a motion model"): the epochs
 are solved one at a time in time order, each over the started robots it names with the prediction
@@ -46,6 +49,9 @@ the last init_window s, solved alone with a level prior (level_sigma) for a pose
 determine its position and heading (waiting_epochs before). No warm start, batch or recovery: the
 prediction is the start; a solve that does not converge is withheld (nonconverged_epochs). A pose
 robot whose measured lever arms lie on one line gets no attitude estimate, in either mode.
+A link with a time offset c (Context.sensors["uwb"]["time_offset"], docs/calibration.md cal. 10:
+its range at t is the distance at t + c) has its range corrected by the prediction's range rate,
+r - c rdot, before the epoch's solve (mo. 4).
 """
 from __future__ import annotations
 
@@ -55,10 +61,11 @@ from typing import Literal
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 from scipy.stats import chi2
 
 from estimators.graph.batch import EpochFactors, EpochsResult, solve_epochs
-from estimators.graph.motion import MotionBelief
+from estimators.graph.motion import POSE_DIMS, MotionBelief
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.range_lsq import determines_attitude, fresh_fit
@@ -73,6 +80,10 @@ from testbed.plugins.params import read
 # (x_w - x_f)^T P^-1 (x_w - x_f) <= chi2_k(AGREE_LEVEL), k its unknowns, P the covariance of the
 # lower-cost iterate; what is published is that iterate with covariance P + (x_w - x_f)(x_w - x_f)^T.
 AGREE_LEVEL = 0.999
+#: m^2, rad^2: the variance a robot's pose joins the motion model's belief with before the start's
+#: solve updates it (bias_states; its cross-covariances are zero, so mo. 3's gain ignores it: any
+#: value gives the same update)
+UNINFORMED = 1e6
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -119,8 +130,6 @@ class GraphParams:
 
     def __post_init__(self) -> None:
         check_fields(self)
-        require(not (self.bias_states and self.q_translation is not None), "bias_states", self.bias_states,
-                "bias states are not carried by the motion model (q_translation) yet: use one of the two")
         for body, p in self.initial.items():
             require(isinstance(p, list) and len(p) in (3, 7) and all(isinstance(x, (int, float)) and np.isfinite(x) for x in p),
                     f"initial.{body}", p, "expected [x, y, z] (m, world) or [x, y, z, qw, qx, qy, qz]")
@@ -176,6 +185,8 @@ class PoseGraph:
         self.bias_index: dict[tuple[str, str, str], int] = {}
         self.bias_mean, self.bias_cov = np.zeros(0), np.zeros((0, 0))
         self.calibrated = (context.sensors.get("uwb") or {}).get("bias_sigma") or {}
+        # each link's time offset {src: {dst: s}} (cal. 10), applied with the motion model only
+        self.offsets = (context.sensors.get("uwb") or {}).get("time_offset") or {}
         # the motion model (q_translation): the joint belief of the started robots, the epochs of each
         # robot not started yet (its last init_window s), each link's last range time (cal. 8)
         self.belief = None if self.p.q_translation is None else MotionBelief(self.p.q_translation, self.p.q_rotation)
@@ -578,6 +589,8 @@ class PoseGraph:
         if not present:
             self.counts["unobservable_epochs"] += 1
             return []
+        if self.p.bias_states:
+            self._join_biases(ep)
         ep = self._decorrelated(ep)
         tracked = tuple(v for v in present if v in self.belief)
         out = self._track(tracked, ep, t) if tracked else []
@@ -606,22 +619,79 @@ class PoseGraph:
         free = {v: i for i, v in enumerate(names)}
         rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "r_key": [], "q": [], "h": []}
         ends: dict[str, list] = {"var": [], "arm": []}
+        if self.offsets:
+            self.belief.predict(t)
+            ep = self._timed(ep)
         self._factors(ep, free, 0, rows, ends)
         ranges = self._range_rows(rows, ends)
         if not (ranges["r_d"].size or rows["q"] or rows["h"]):
             return []
         self.belief.predict(t)
-        p0, R0, cov0 = self.belief.prior(names)
+        links = tuple(dict.fromkeys(rows["r_key"]))  # the epoch's links, in order (bias_states; else none)
+        p0, R0, cov0 = self.belief.prior(names, links)
+        biased = {}
+        if links:
+            b0 = self.belief.biases(links)
+            at = {k: i for i, k in enumerate(links)}
+            biased = {"r_bias": np.array([at[k] for k in rows["r_key"]], np.int64), "b_mean": b0, "x_b": b0[None]}
         f = _factor_arrays(tuple(self.kind[v][0] for v in names), ranges, rows, x_p=p0[None], x_R=R0[None],
-                           x_info=np.linalg.inv(cov0)[None])
+                           x_info=np.linalg.inv(cov0)[None], **biased)
         res = self._solve_one(f, p0, R0)
         ok = bool(res.converged[0] and res.observable[0])
         self.counts["nonconverged_epochs"] += int(not ok)
         self._record(np.array([t]), res, res.iterations, np.zeros(1))
         if not ok:
             return []
-        self.belief.update(names, res.p[0], res.R[0], res.cov[0])
+        self.belief.update(names, res.p[0], res.R[0], res.cov[0], links, None if res.b is None else res.b[0])
         return self._publish(t, names, res, 0)
+
+    def _join_biases(self, ep: _Epoch) -> None:
+        """Add to the motion model's belief a bias state for each link of ep's ranges it does not
+        hold yet: mean 0, sigma its calibrated bias_sigma, else params bias_sigma, else its first
+        range's sigma (before cal. 8's growth), a random constant."""
+        for stream, a, b, sigma in zip(ep.r_stream, ep.r_src, ep.r_dst, ep.r_sigma):
+            link = (stream,) + tuple(sorted((a, b)))
+            if link not in self.belief.bias_at:
+                self.belief.add_bias(link, self.calibrated.get(a, {}).get(b) or self.p.bias_sigma or float(sigma))
+
+    def _timed(self, ep: _Epoch) -> _Epoch:
+        """ep with each uwb range of a link with a time offset c (s) corrected by the prediction's
+        range rate (mo. 4, docs/replay.md; docs/calibration.md cal. 10), the belief predicted to ep:
+
+            r <- r - c rdot,   rdot = u^T (v_a - v_b),   sigma^2 <- sigma^2 + c^2 u^T (C_a + C_b) u
+
+        u the unit vector from end b to end a at the prediction; an end's velocity v (m/s world) is
+        its robot's predicted v + R (w x l) (a site at lever arm l; C the robot's velocity
+        covariance), zero for an anchor or a robot known by motion capture (C = 0)."""
+        d, sigma = list(ep.r_d), list(ep.r_sigma)
+        for i, (a, b, stream) in enumerate(zip(ep.r_src, ep.r_dst, ep.r_stream)):
+            c = self.offsets.get(a, {}).get(b, 0.0) if stream == "uwb" else 0.0
+            if c == 0.0:
+                continue
+            (ea, va, ca), (eb, vb, cb) = self._end_motion(a, ep), self._end_motion(b, ep)
+            u = (ea - eb) / max(float(np.linalg.norm(ea - eb)), 1e-9)
+            # mo. 4
+            d[i] -= c * float(u @ (va - vb))
+            sigma[i] = math.sqrt(sigma[i] ** 2 + c * c * float(u @ (ca + cb) @ u))
+        return dataclasses.replace(ep, r_d=d, r_sigma=sigma)
+
+    def _end_motion(self, name: str, ep: _Epoch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(position m, velocity m/s, velocity covariance (3, 3)) of a range end at the belief's
+        prediction: a tracked robot's site, else a fixed point at rest."""
+        body, arm = self._arm(name)
+        b = self.belief
+        rest = np.zeros(3), np.zeros((3, 3))
+        if body is None:  # an anchor (None: an unknown name, whose range _range_rows drops)
+            return (np.zeros(3) if arm is None else arm), *rest
+        if body in ep.mocap:
+            return ep.mocap[body][0] + ep.mocap[body][1] @ arm, *rest
+        if body not in b:  # a robot not started: its ranges are dropped by _range_rows
+            return np.zeros(3), *rest
+        R = b.R[body]
+        if self.kind[body][0] == "point":
+            arm = np.zeros(3)
+        i = b.start[body] + POSE_DIMS[b.kinds[body]]
+        return b.p[body] + R @ arm, b.v[body] + R @ np.cross(b.w[body], arm), b.cov[i:i + 3, i:i + 3]
 
     def _solve_one(self, f: EpochFactors, p0: np.ndarray, R0: np.ndarray) -> EpochsResult:
         """One epoch's solve from p0 (V, 3), R0 (V, 3, 3) with the params' loss and stopping rules."""
@@ -654,10 +724,17 @@ class PoseGraph:
         fixed = [self.anchors[n] for n in set(merged.r_src) | set(merged.r_dst) if n in self.anchors] + [p for p, _ in ep.mocap.values()]
         p0, R0, _ = self._initial(v, merged, None, fixed, 0)
         prior = {}
+        info = np.zeros((POSE_DIMS[kind], POSE_DIMS[kind]))
         if kind == "pose":  # level within level_sigma: information on the tilt (body x, y at a level R0) only
             R0 = _heading(R0)
             info = np.diag([0.0] * 3 + [self.p.level_sigma ** -2] * 2 + [0.0])
             prior = {"x_p": p0[None, None], "x_R": R0[None, None], "x_info": info[None]}
+        links = tuple(dict.fromkeys(rows["r_key"]))  # bias_states: the start's links, their biases solved too
+        if links:
+            cbb, b0 = self.belief.bias_cov(links), self.belief.biases(links)
+            at = {k: i for i, k in enumerate(links)}
+            prior = {"x_p": p0[None, None], "x_R": R0[None, None], "x_info": scipy.linalg.block_diag(info, np.linalg.inv(cbb))[None],
+                     "r_bias": np.array([at[k] for k in rows["r_key"]], np.int64), "b_mean": b0, "x_b": b0[None]}
         f = _factor_arrays((kind,), ranges, rows, **prior)
         res = self._solve_one(f, p0[None], R0[None])
         iterations = res.iterations
@@ -673,7 +750,12 @@ class PoseGraph:
             self.counts["waiting_epochs"] += 1
             return []
         self.pool.pop(v)
-        self.belief.add(v, kind, t, res.p[0, 0], res.R[0, 0], res.cov[0], self.p.v_sigma, self.p.rate_sigma)
+        if not links:
+            self.belief.add(v, kind, t, res.p[0, 0], res.R[0, 0], res.cov[0], self.p.v_sigma, self.p.rate_sigma)
+        else:  # joins uninformed and independent, then the start's solve updates it with its links' biases (mo. 3)
+            k = POSE_DIMS[kind]
+            self.belief.add(v, kind, t, res.p[0, 0], res.R[0, 0], UNINFORMED * np.eye(k), self.p.v_sigma, self.p.rate_sigma)
+            self.belief.update((v,), res.p[0], res.R[0], res.cov[0], links, res.b[0])
         return self._publish(t, (v,), res, 0)
 
 
@@ -720,6 +802,9 @@ class PoseGraph:
 
     def bias_estimates(self) -> dict[tuple[str, str, str], tuple[float, float]]:
         """{(stream, end, end): (bias m, its sigma m)} of the bias states (bias_states), ends sorted."""
+        if self.belief is not None:
+            b = self.belief
+            return {k: (b.bias[k], float(np.sqrt(b.cov[i, i]))) for k, i in b.bias_at.items()}
         return {k: (float(self.bias_mean[i]), float(np.sqrt(self.bias_cov[i, i]))) for k, i in self.bias_index.items()}
 
 
@@ -771,7 +856,8 @@ def _sym(c: np.ndarray) -> np.ndarray:
 
 def _factor_arrays(kinds: tuple[str, ...], ranges: dict, rows: dict[str, list], **state_prior) -> EpochFactors:
     """EpochFactors from the range arrays (PoseGraph._range_rows) and the prior and height row
-    tuples (see PoseGraph._factors), with the state prior x_p, x_R, x_info when given."""
+    tuples (see PoseGraph._factors), with the state prior x_p, x_R, x_info (and the biases r_bias,
+    b_mean, x_b) when given."""
     q, h = rows["q"], rows["h"]
     col = lambda rs, k, shape=(): np.array([x[k] for x in rs], float).reshape((len(rs),) + shape)  # noqa: E731
     idx = lambda rs, k: np.array([x[k] for x in rs], np.int64).reshape(len(rs))  # noqa: E731

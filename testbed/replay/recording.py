@@ -64,7 +64,8 @@ class Recording:
     """spec; directory; tables {name: Table} (rows within the window, times in the files' clock);
     feed: every measurement in feeding order, runs of one stream as MeasurementBatches (the rows
     one by one: measurements()); bias_sigma: {src: {dst: m}} the sigma of each calibrated uwb
-    link's remaining bias (testbed.replay.calibration), {} without calibration.csv; calibration:
+    link's remaining bias (testbed.replay.calibration), {} without calibration.csv; time_offset:
+    {src: {dst: s}} each calibrated link's nonzero time offset (cal. 10), {} without; calibration:
     the calibration file applied (`testbed replay --calibration`), else None."""
 
     spec: ReplaySpec
@@ -73,6 +74,7 @@ class Recording:
     feed: list[Measurement]
     bias_sigma: dict = field(default_factory=dict)
     calibration: CalibrationFile | None = None
+    time_offset: dict = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -87,6 +89,8 @@ class Recording:
         sensors = {k: dict(v) for k, v in self.spec.sensors.items()}
         if self.bias_sigma:
             sensors.setdefault("uwb", {})["bias_sigma"] = {k: dict(v) for k, v in self.bias_sigma.items()}
+        if self.time_offset:
+            sensors.setdefault("uwb", {})["time_offset"] = {k: dict(v) for k, v in self.time_offset.items()}
         return Context(
             vehicles=tuple(self.spec.bodies), sites=self.spec.sites, anchors=self.spec.anchor_points,
             sensors=sensors, prior=self.spec.priors, params=dict(params),
@@ -343,9 +347,9 @@ def load_recording(spec_path: Path, *, window: Window | None = None, window_key:
             raise ConfigError(f"{calibration}: the dataset has its own {find(directory, 'calibration').name} beside "
                               f"{spec_path.name}: keep one calibration")
         cal_file = read_calibration_file(calibration, set(spec.sites) | set(spec.anchors))
-        bias_sigma = _apply(spec, cal_file.table, tables, calibration)
+        bias_sigma, time_offset = _apply(spec, cal_file.table, tables, calibration)
     else:
-        bias_sigma = _calibrate(spec, tables, find(directory, "calibration"))
+        bias_sigma, time_offset = _calibrate(spec, tables, find(directory, "calibration"))
     w = spec.window
     if window is not None:  # a window the caller chose must lie within the measurements' span
         times = np.concatenate([t["time"] for name, t in tables.items() if name != "truth"])
@@ -358,30 +362,33 @@ def load_recording(spec_path: Path, *, window: Window | None = None, window_key:
     feed = _measurements(_streams(tables, w.start))
     if not feed:
         raise ConfigError(f"{spec_path}: window [{w.start:g}, {w.end:g}] s holds no measurement of the dataset")
-    return Recording(spec, directory, tables, feed, bias_sigma, cal_file)
+    return Recording(spec, directory, tables, feed, bias_sigma, cal_file, time_offset)
 
 
-def _calibrate(spec: ReplaySpec, tables: dict[str, Table], path: Path | None) -> dict:
+def _calibrate(spec: ReplaySpec, tables: dict[str, Table], path: Path | None) -> tuple[dict, dict]:
     """Remove calibration.csv's known bias and scale from the uwb ranges of tables["links"] (in
-    place); return the remaining bias sigmas {src: {dst: m}} ({} without the file)."""
+    place); return the remaining bias sigmas {src: {dst: m}} and the time offsets {src: {dst: s}}
+    ({}, {} without the file)."""
     if path is None:
-        return {}
+        return {}, {}
     return _apply(spec, read_calibration(path, set(spec.sites) | set(spec.anchors)), tables, path)
 
 
-def _apply(spec: ReplaySpec, cal: Calibration, tables: dict[str, Table], path: Path) -> dict:
+def _apply(spec: ReplaySpec, cal: Calibration, tables: dict[str, Table], path: Path) -> tuple[dict, dict]:
     """Remove cal's (read from path) known bias and scale from the uwb ranges of tables["links"] (in
-    place); return the remaining bias sigmas {src: {dst: m}}."""
-    if "bias_sigma" in spec.sensors.get("uwb", {}):
-        raise ConfigError(f"{path}: the spec's [sensors.uwb] bias_sigma and this calibration both give the bias sigmas: keep one")
+    place); return the remaining bias sigmas {src: {dst: m}} and the links' time offsets {src: {dst: s}}."""
+    for k, what in (("bias_sigma", "bias sigmas"), ("time_offset", "time offsets")):
+        if k in spec.sensors.get("uwb", {}):
+            raise ConfigError(f"{path}: the spec's [sensors.uwb] {k} and this calibration both give the {what}: keep one")
     if "links" not in tables:
-        return {}
+        return {}, {}
     t = tables["links"]
     uwb = t["kind"] == "uwb"
     value, sigma = t["value"].copy(), t["sigma"].copy()
     value[uwb], sigma[uwb] = cal.apply(t["src"][uwb], t["dst"][uwb], value[uwb], sigma[uwb])
     tables["links"] = Table(t.file, {**t.columns, "value": value, "sigma": sigma}, t.lines)
-    return cal.bias_sigma(set(zip(t["src"][uwb].tolist(), t["dst"][uwb].tolist())))
+    pairs = set(zip(t["src"][uwb].tolist(), t["dst"][uwb].tolist()))
+    return cal.bias_sigma(pairs), cal.time_offsets(pairs)
 
 
 class RecordedTruth:
