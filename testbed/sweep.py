@@ -85,20 +85,24 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
         }
     for k in keys:
         if f"{k}_dof" in summary:
-            summary[k].update(_over_runs(flat, k))
+            summary[k].update(_over_runs(metrics, k))
     return summary
 
 
-def _over_runs(flat: list[dict[str, float]], key: str) -> dict:
-    """{interval, n_eff} of the mean over the runs of the ANEES `key` (a dotted path), at the level
-    of the runs' own interval (KEY_interval_PCT.0 in the flattened metrics)."""
-    name = key.rpartition(".")[2]
-    n_eff = name.replace("anees", "n_eff")
-    pct = next(int(m[1]) for f in flat for k in f if (m := re.fullmatch(re.escape(key) + r"_interval_(\d+)\.0", k)))
-    runs = [{name: f[key], f"{name}_dof": f[f"{key}_dof"], n_eff: f[key[: len(key) - len(name)] + n_eff]}
-            for f in flat if key in f]
+def _over_runs(metrics: list[dict], key: str) -> dict:
+    """{interval, n_eff} of the mean over the runs of the ANEES `key` (a dotted path into each run's
+    metrics), at the level of the runs' own interval (KEY_interval_PCT beside it): the object
+    holding the key in each run, as anees_keys wrote it, goes to anees_over_runs."""
+    *parent, name = key.split(".")
+    runs = []
+    for m in metrics:
+        for p in parent:
+            m = m.get(p) if isinstance(m, dict) else (m[int(p)] if isinstance(m, list) and p.isdigit() and int(p) < len(m) else None)
+        if isinstance(m, dict) and m.get(name) is not None:
+            runs.append(m)
+    pct = next(int(g[1]) for r in runs for k in r if (g := re.fullmatch(re.escape(name) + r"_interval_(\d+)", k)))
     got = anees_over_runs(runs, name, pct / 100)
-    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[n_eff]}
+    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[name.replace("anees", "n_eff")]}
 
 
 def run_complete(run_dir: Path) -> bool:

@@ -12,7 +12,7 @@ import pytest
 from testbed.config import scenario
 from testbed.cli import main
 from testbed.errors import PluginError, UsageError
-from testbed.scoring.metrics import anees_interval
+from testbed.scoring.metrics import anees_over_runs, anees_run_interval
 from testbed.plugins import EstimatorSpec
 from testbed.plugins.context import make_context
 from testbed.sim.world import lever_arms
@@ -276,13 +276,19 @@ def test_sweep_and_reproduce_take_plugins(tmp_path):
                  "--out", str(tmp_path / "s"), "--no-plots"]) == 0
     scores = json.loads((tmp_path / "s" / "summary.json").read_text())["scores"]
     assert scores["estimators.UwbEkf.rmse_position_mean_m"]["n"] == 2
-    # an ANEES's mean over the runs with its interval over the runs' combined effective samples
+    # an ANEES's mean over the runs with its interval over the runs (anees_over_runs): the runs' combined
+    # effective samples when each run decides, else the spread of the two runs (Student t)
     runs = [json.loads((tmp_path / "s" / f"run-{i:03d}" / "metrics.json").read_text())["estimators"] for i in range(2)]
     for name, key in (("UwbEkf", "anees_position"), ("centralized", "anees_joint")):
-        s, n = scores[f"estimators.{name}.{key}"], [r[name][key.replace("anees", "n_eff")] for r in runs]
-        assert s["n_eff"] == pytest.approx(4 / sum(1 / x for x in n))
-        assert s["interval"] == pytest.approx(list(anees_interval(runs[0][name][f"{key}_dof"], s["n_eff"],
-                                                                  0.95 if name == "UwbEkf" else 0.99)))
+        s, level = scores[f"estimators.{name}.{key}"], 0.95 if name == "UwbEkf" else 0.99
+        per = [r[name] for r in runs]
+        if any(f"{key}_null_reason" in r for r in per):
+            expected = list(anees_run_interval(np.array([r[key] for r in per]), per[0][f"{key}_dof"], level))
+        else:
+            n = [r[key.replace("anees", "n_eff")] for r in per]
+            assert s["n_eff"] == pytest.approx(4 / sum(1 / x for x in n))
+            expected = anees_over_runs(per, key, level)[f"{key}_interval_{round(100 * level)}"]
+        assert s["interval"] == pytest.approx(expected)
     assert "interval" not in scores["estimators.UwbEkf.rmse_position_mean_m"]
 
 

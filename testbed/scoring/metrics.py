@@ -52,6 +52,7 @@ def anees_interval(dof: int, samples: float, level: float = 0.99, nu: float = np
     if not np.isfinite(nu):
         return lo, hi
     q = 0.5 + level / 2
+    # eq. C3 (docs/consistency.md)
     f = float(student_t.ppf(q, nu) / norm.ppf(q))
     return dof - f * (dof - lo), dof + f * (hi - dof)
 
@@ -110,8 +111,9 @@ def _series_time(x: np.ndarray) -> tuple[float, float]:
     if n < 4 or not np.any(x - x.mean()):
         return 1.0, float(n)
     tau, w = _geyer(autocovariance_sums(x))
-    den = 1.0 - (w - tau) / n  # eq. C1
-    return (min(tau / den, float(n)) if den > 0 else float(n)), n / w  # eq. C2
+    # eq. C1 (tau_c) and eq. C2 (nu), docs/consistency.md
+    den = 1.0 - (w - tau) / n
+    return (min(tau / den, float(n)) if den > 0 else float(n)), n / w
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,6 +199,15 @@ def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99
         out[f"{key}_null_reason"] = (f"not decidable from one run: its NEES span {s.span:.3g} correlation times, "
                                      f"fewer than {MIN_SPAN:g}")
     return out
+
+
+def anees_interval_at(keys: dict, key: str, level: float) -> list[float] | None:
+    """KEY's interval at another `level` from the keys anees_keys wrote (KEY_dof, the n_eff and
+    n_eff_dof keys); None where the run is not decidable (KEY_null_reason)."""
+    if f"{key}_null_reason" in keys:
+        return None
+    nu = keys.get(key.replace("anees", "n_eff_dof"))
+    return list(anees_interval(keys[f"{key}_dof"], keys[key.replace("anees", "n_eff")], level, np.inf if nu is None else nu))
 
 
 def _json_float(v: float) -> float | None:
