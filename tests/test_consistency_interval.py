@@ -105,7 +105,7 @@ def test_scale_free_and_edge_cases():
     keys = anees_keys(nees, DOF, "anees_position", 0.95)
     s = sample_size(nees)
     assert keys["anees_position"] == pytest.approx(nees.mean()) and keys["n_eff_position"] == s.n_eff
-    assert keys["n_eff_dof_position"] == s.nu and s.decidable
+    assert keys["n_eff_nu_position"] == s.nu and s.decidable
     assert keys["anees_position_interval_95"] == list(anees_interval(DOF, s.n_eff, 0.95, s.nu))
     # an estimated n_eff (finite nu) widens the interval around DOF, a count does not
     lo, hi = anees_interval(DOF, 50.0, 0.99, 10.0)
@@ -172,5 +172,5 @@ def test_an_error_correlated_over_the_whole_run_is_not_decidable_from_one_run():
     assert undecided and all(k["anees_null_reason"].startswith("not decidable from one run") for k in undecided)
     pooled = anees_over_runs(keys, "anees")
     lo, hi = pooled["anees_interval_99"]
-    assert lo < DOF < hi and pooled["n_eff_dof"] == 19 and "spread" in pooled["anees_interval_method"]
+    assert lo < DOF < hi and pooled["n_eff_nu"] == 19 and "spread" in pooled["anees_interval_method"]
     assert anees_over_runs(undecided[:1], "anees")["anees_interval_99"] is None

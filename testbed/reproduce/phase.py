@@ -354,7 +354,7 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
                f"t; the seeds share no noise: independent runs, docs/consistency.md).", ""]
 
         def by(means: dict, intervals: dict) -> str:
-            return ", ".join(f"{q}: {fmt_ci(a, *intervals[q])}" if intervals[q] else f"{q}: {fmt(a)} [one seed: n/a]"
+            return ", ".join(f"{q}: {fmt_ci(a, *intervals[q])}" if intervals[q] else f"{q}: {fmt(a)} [n/a: fewer than 2 seeds]"
                              for q, a in means.items())
 
         md += markdown_table(["scenario", "q of the scenario [m^2/s^3]", "q of the rule", "ANEES at each q [99 %]",

@@ -189,12 +189,12 @@ def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99
     """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of sample_size,
     `layout` its instant and target): {key: the mean of the samples, KEY_dof: dof, KEY_interval_PCT:
     its interval at `level` (PCT = 100 level, e.g. anees_interval_99), the key with "anees" ->
-    "n_eff": sample_size's n_eff, "anees" -> "n_eff_dof": its nu}. A run whose series spans fewer
+    "n_eff": sample_size's n_eff, "anees" -> "n_eff_nu": its nu}. A run whose series spans fewer
     than MIN_SPAN correlation times has the interval null and KEY_null_reason saying why."""
     s = sample_size(ne, **layout)
     out = {key: float(np.nanmean(ne)), f"{key}_dof": dof,
            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, s.n_eff, level, s.nu)) if s.decidable else None,
-           key.replace("anees", "n_eff"): s.n_eff, key.replace("anees", "n_eff_dof"): _json_float(s.nu)}
+           key.replace("anees", "n_eff"): s.n_eff, key.replace("anees", "n_eff_nu"): _json_float(s.nu)}
     if not s.decidable:
         out[f"{key}_null_reason"] = (f"not decidable from one run: its NEES span {s.span:.3g} correlation times, "
                                      f"fewer than {MIN_SPAN:g}")
@@ -203,15 +203,15 @@ def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99
 
 def anees_interval_at(keys: dict, key: str, level: float) -> list[float] | None:
     """KEY's interval at another `level` from the keys anees_keys wrote (KEY_dof, the n_eff and
-    n_eff_dof keys); None where the run is not decidable (KEY_null_reason)."""
+    n_eff_nu keys); None where the run is not decidable (KEY_null_reason)."""
     if f"{key}_null_reason" in keys:
         return None
-    nu = keys.get(key.replace("anees", "n_eff_dof"))
+    nu = keys.get(key.replace("anees", "n_eff_nu"))
     return list(anees_interval(keys[f"{key}_dof"], keys[key.replace("anees", "n_eff")], level, np.inf if nu is None else nu))
 
 
 def _json_float(v: float) -> float | None:
-    """v, or None for inf (strict JSON; an n_eff_dof of None: a count of independent samples, exact)."""
+    """v, or None for inf (strict JSON; an n_eff_nu of None: a count of independent samples, exact)."""
     return float(v) if np.isfinite(v) else None
 
 
@@ -271,7 +271,7 @@ def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
 
 def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
     """anees_keys of the mean over R independent runs (their own seeds) of per-run ANEES: runs, each
-    run's keys as anees_keys wrote them (KEY, KEY_dof, the n_eff and n_eff_dof keys, KEY_null_reason
+    run's keys as anees_keys wrote them (KEY, KEY_dof, the n_eff and n_eff_nu keys, KEY_null_reason
     when one run cannot decide). When every run decides: the effective samples combined by
     runs_effective_samples, their degrees of freedom by Satterthwaite's rule, (sum 1/n_i)^2 / sum
     (1/n_i)^2 / nu_i. When a run cannot: the spread of the per-run values decides (anees_run_interval;
@@ -284,7 +284,7 @@ def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
     dof, pct = have[0][f"{key}_dof"], round(100 * level)
     per_run = np.array([r[key] for r in have])
     out = {key: float(per_run.mean()), f"{key}_dof": dof}
-    n, nu = key.replace("anees", "n_eff"), key.replace("anees", "n_eff_dof")
+    n, nu = key.replace("anees", "n_eff"), key.replace("anees", "n_eff_nu")
     undecided = [r[f"{key}_null_reason"] for r in have if f"{key}_null_reason" in r]
     if not undecided:
         inv = 1.0 / np.array([r[n] for r in have])
