@@ -458,7 +458,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         for name, est in metrics["estimators"].items():
             # every ANEES with its interval and effective samples (docs/consistency.md)
             scores = [f"{k} {fmt_anees(est, k) if k.startswith('anees_') else fmt(est[k])}" for k in est
-                      if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k and not k.endswith("_dof")]
+                      if k.startswith(("rmse_", "anees_", "coverage_")) and "_interval_" not in k
+                      and not k.endswith(("_dof", "_null_reason"))]
             print(f"  {name}: " + (", ".join(scores) or f"{est.get('estimates', 0)} estimates"))
             if est.get("attitude_unobserved"):
                 print(f"  {name}: attitude not observed (its own covariance) of {', '.join(est['attitude_unobserved'])}")

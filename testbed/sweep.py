@@ -85,20 +85,35 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
         }
     for k in keys:
         if f"{k}_dof" in summary:
-            summary[k].update(_over_runs(flat, k))
+            summary[k].update(_over_runs(metrics, k))
     return summary
 
 
-def _over_runs(flat: list[dict[str, float]], key: str) -> dict:
-    """{interval, n_eff} of the mean over the runs of the ANEES `key` (a dotted path), at the level
-    of the runs' own interval (KEY_interval_PCT.0 in the flattened metrics)."""
-    name = key.rpartition(".")[2]
-    n_eff = name.replace("anees", "n_eff")
-    pct = next(int(m[1]) for f in flat for k in f if (m := re.fullmatch(re.escape(key) + r"_interval_(\d+)\.0", k)))
-    runs = [{name: f[key], f"{name}_dof": f[f"{key}_dof"], n_eff: f[key[: len(key) - len(name)] + n_eff]}
-            for f in flat if key in f]
+def _over_runs(metrics: list[dict], key: str) -> dict:
+    """{interval, n_eff} of the mean over the runs of the ANEES `key` (a dotted path into each run's
+    metrics), at the level of the runs' own interval (KEY_interval_PCT beside it): the object
+    holding the key in each run, as anees_keys wrote it, goes to anees_over_runs."""
+    parent, _, name = key.rpartition(".")
+    runs = [d for d in (_at(m, parent) if parent else m for m in metrics) if isinstance(d, dict) and d.get(name) is not None]
+    pct = next(int(g[1]) for r in runs for k in r if (g := re.fullmatch(re.escape(name) + r"_interval_(\d+)", k)))
     got = anees_over_runs(runs, name, pct / 100)
-    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[n_eff]}
+    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[name.replace("anees", "n_eff")]}
+
+
+def _at(obj: object, path: str) -> object:
+    """The value at a dotted path of flatten's (a key may hold dots itself: an estimator's entry
+    point), None where there is none."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if path == k:
+                return v
+            if path.startswith(f"{k}.") and (got := _at(v, path[len(k) + 1:])) is not None:
+                return got
+    elif isinstance(obj, list):
+        head, _, rest = path.partition(".")
+        if head.isdigit() and int(head) < len(obj):
+            return _at(obj[int(head)], rest) if rest else obj[int(head)]
+    return None
 
 
 def run_complete(run_dir: Path) -> bool:
@@ -127,7 +142,8 @@ def _write_summary(d: Path, scenario: Scenario, runs: int, done: list[int]) -> d
     w.writerow(["score", "mean", "std", "min", "max", "n", "ci95_lo", "ci95_hi", "interval_lo", "interval_hi", "n_eff"])
     for k, s in summary.items():
         ci = [repr(s["ci95"][0]), repr(s["ci95"][1])] if s["ci95"] is not None else ["", ""]
-        extra = [repr(s["interval"][0]), repr(s["interval"][1]), repr(s["n_eff"])] if "interval" in s else ["", "", ""]
+        extra = ([*([repr(v) for v in s["interval"]] if s["interval"] else ["", ""]),
+                  repr(s["n_eff"]) if s["n_eff"] is not None else ""] if "interval" in s else ["", "", ""])
         w.writerow([k, repr(s["mean"]), repr(s["std"]), repr(s["min"]), repr(s["max"]), s["n"], *ci, *extra])
     write_text(d / "summary.csv", buf.getvalue())
     return summary

@@ -1,4 +1,4 @@
-"""The ANEES interval of correlated NEES samples (testbed.scoring.metrics.effective_samples, docs/consistency.md).
+"""The ANEES interval of correlated NEES samples (testbed.scoring.metrics.sample_size, docs/consistency.md).
 
 Errors of a filter are autocorrelated; the chi-square interval that counts every output as an
 independent sample is far too narrow for them. Here the error is an AR(1) Gaussian sequence
@@ -6,7 +6,9 @@ e_k = a e_{k-1} + w_k (3-D) with its exact stationary covariance P = I, so its N
 that of a consistent filter: its ANEES must fall in the interval built on the effective number of
 samples at the stated rate, which the exact binomial (Clopper-Pearson) interval of the count over
 SEQUENCES independent sequences checks; the interval that counts every sample rejects it far more
-often. White noise (a = 0) gets nearly the independent interval.
+often. White noise (a = 0) gets nearly the independent interval. An error correlated over the
+whole run (a line fitted to every position so far, tests.interval_coverage.line_fit_nees) is, as
+a rule, not decidable from one run, and the decided runs keep the false-alarm rate at 1 - level.
 """
 from __future__ import annotations
 
@@ -14,9 +16,15 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from testbed.scoring.metrics import (COVERAGE_TOLERANCE_S, anees_interval, anees_keys, coverage, effective_samples,
-                             integrated_time, runs_effective_samples)
+from testbed.scoring.metrics import (COVERAGE_TOLERANCE_S, MIN_SPAN, anees_interval, anees_keys, anees_over_runs, coverage,
+                                     integrated_time, runs_effective_samples, sample_size)
 from testbed.scoring.stats import clopper_pearson
+from tests.interval_coverage import judged, line_fit_nees
+
+
+def effective_samples(ne: np.ndarray, **layout) -> float:
+    """sample_size's n_eff."""
+    return sample_size(ne, **layout).n_eff
 
 SEQUENCES, STEPS, DOF, LEVEL = 400, 2000, 3, 0.99
 
@@ -28,20 +36,23 @@ def _ar1(a: float, rng: np.random.Generator, shape=(SEQUENCES, STEPS, DOF)) -> n
     return lfilter([1.0], [1.0, -a], w, axis=1)
 
 
-def _inside(nees: np.ndarray, n: np.ndarray | float) -> int:
-    """How many sequences' ANEES (mean over axis 1) lie in anees_interval(DOF, n, LEVEL)."""
+def _inside(nees: np.ndarray, n: np.ndarray | float, nu: np.ndarray | float = np.inf) -> int:
+    """How many sequences' ANEES (mean over axis 1) lie in anees_interval(DOF, n, LEVEL, nu)."""
     m = nees.mean(axis=1)
-    n = np.broadcast_to(n, m.shape)
-    return int(sum(lo <= x <= hi for x, lo, hi in ((x, *anees_interval(DOF, float(k), LEVEL)) for x, k in zip(m, n))))
+    n, nu = np.broadcast_to(n, m.shape), np.broadcast_to(nu, m.shape)
+    return int(sum(lo <= x <= hi for x, lo, hi in ((x, *anees_interval(DOF, float(k), LEVEL, float(v)))
+                                                   for x, k, v in zip(m, n, nu))))
 
 
 def test_ar1_errors_fall_in_the_correlated_interval_at_the_stated_rate_and_the_independent_one_rejects_them():
     a = 0.9  # NEES autocorrelation a^(2k): tau = (1 + a^2) / (1 - a^2) = 9.5
     nees = (_ar1(a, np.random.default_rng(32)) ** 2).sum(axis=-1)  # P = I
-    n_eff = np.array([effective_samples(x) for x in nees])
+    sizes = [sample_size(x) for x in nees]
+    n_eff, nu = np.array([s.n_eff for s in sizes]), np.array([s.nu for s in sizes])
     tau = (1 + a * a) / (1 - a * a)
     assert abs(np.median(STEPS / n_eff) / tau - 1) < 0.1  # the estimated tau is the true one
-    new = clopper_pearson(_inside(nees, n_eff), SEQUENCES, level=0.999, sided="two-sided")
+    assert all(s.decidable for s in sizes)  # 2000 steps span about 210 correlation times
+    new = clopper_pearson(_inside(nees, n_eff, nu), SEQUENCES, level=0.999, sided="two-sided")
     old = clopper_pearson(_inside(nees, STEPS), SEQUENCES, level=0.999, sided="two-sided")
     assert new.interval[0] <= LEVEL <= new.interval[1], new
     assert old.interval[1] < 0.8, old  # measured 0.59: the independent interval rejects a consistent filter
@@ -49,14 +60,15 @@ def test_ar1_errors_fall_in_the_correlated_interval_at_the_stated_rate_and_the_i
 
 def test_white_nees_gets_nearly_the_independent_interval():
     nees = (np.random.default_rng(5).standard_normal((SEQUENCES, STEPS, DOF)) ** 2).sum(axis=-1)
-    n_eff = np.array([effective_samples(x) for x in nees])
+    sizes = [sample_size(x) for x in nees]
+    n_eff, nu = np.array([s.n_eff for s in sizes]), np.array([s.nu for s in sizes])
     assert np.all(n_eff <= STEPS)
     # tau - 1 is a sum of a few sample autocorrelations of white noise, each of std 1/sqrt(STEPS)
     assert np.median(STEPS / n_eff) < 1 + 6 / np.sqrt(STEPS)
-    lo, hi = anees_interval(DOF, float(np.median(n_eff)), LEVEL)
+    lo, hi = anees_interval(DOF, float(np.median(n_eff)), LEVEL, float(np.median(nu)))
     lo0, hi0 = anees_interval(DOF, STEPS, LEVEL)
     assert abs(hi - hi0) < 0.1 * (hi0 - DOF) and abs(lo - lo0) < 0.1 * (DOF - lo0)
-    inside = clopper_pearson(_inside(nees, n_eff), SEQUENCES, level=0.999, sided="two-sided")
+    inside = clopper_pearson(_inside(nees, n_eff, nu), SEQUENCES, level=0.999, sided="two-sided")
     assert inside.interval[0] <= LEVEL <= inside.interval[1], inside
 
 
@@ -91,8 +103,14 @@ def test_scale_free_and_edge_cases():
     assert integrated_time(np.full(10, 3.0)) == 1.0
     assert effective_samples(np.array([2.0])) == 1.0
     keys = anees_keys(nees, DOF, "anees_position", 0.95)
-    assert keys["anees_position"] == pytest.approx(nees.mean()) and keys["n_eff_position"] == effective_samples(nees)
-    assert keys["anees_position_interval_95"] == list(anees_interval(DOF, effective_samples(nees), 0.95))
+    s = sample_size(nees)
+    assert keys["anees_position"] == pytest.approx(nees.mean()) and keys["n_eff_position"] == s.n_eff
+    assert keys["n_eff_nu_position"] == s.nu and s.decidable
+    assert keys["anees_position_interval_95"] == list(anees_interval(DOF, s.n_eff, 0.95, s.nu))
+    # an estimated n_eff (finite nu) widens the interval around DOF, a count does not
+    lo, hi = anees_interval(DOF, 50.0, 0.99, 10.0)
+    lo0, hi0 = anees_interval(DOF, 50.0, 0.99)
+    assert lo < lo0 < DOF < hi0 < hi
     assert runs_effective_samples(np.array([100.0, 100.0, 100.0])) == pytest.approx(300.0)
     assert runs_effective_samples(np.array([10.0, 1000.0])) == pytest.approx(4 / (0.1 + 0.001))
 
@@ -131,3 +149,28 @@ def test_runs_are_independent_samples():
         d = per_run - per_run.mean()
         rho1 = float(d[:-1] @ d[1:] / (d @ d))
         assert abs(rho1) < 4 / np.sqrt(runs), (name, rho1)
+
+
+def test_an_error_correlated_over_the_whole_run_is_not_decidable_from_one_run():
+    """The filter of a line fitted to every position so far (no process noise, the exact model of its
+    truth): its error is correlated over the whole run, which the within-run autocorrelation cannot
+    measure (the sample mean absorbs it). The rule (span >= MIN_SPAN) declares most runs not
+    decidable (measured: 9 % decided, tests.interval_coverage), the runs it decides fall outside at
+    most at 1 - level (exact binomial), and the former interval (Geyer's tau, every run judged) rejects many (measured 8 %).
+    Across the runs, the spread of the per-run values decides (anees_over_runs)."""
+    runs = 300
+    nees = line_fit_nees(runs, 500, np.random.default_rng(11))
+    span, inside = judged(nees)
+    decided = span >= MIN_SPAN
+    assert decided.mean() < 0.25, decided.mean()
+    alarm = clopper_pearson(int(np.sum(decided & ~inside)), runs, level=0.999, sided="two-sided")
+    assert alarm.interval[0] <= 1 - LEVEL, alarm
+    old = _inside(nees, np.array([nees.shape[1] / integrated_time(x) for x in nees]))  # Geyer's tau, every run judged
+    assert clopper_pearson(runs - old, runs, level=0.999, sided="two-sided").interval[0] > 1 - LEVEL, runs - old
+    keys = [anees_keys(x, DOF) for x in nees[:20]]
+    undecided = [k for k in keys if k["anees_interval_99"] is None]
+    assert undecided and all(k["anees_null_reason"].startswith("not decidable from one run") for k in undecided)
+    pooled = anees_over_runs(keys, "anees")
+    lo, hi = pooled["anees_interval_99"]
+    assert lo < DOF < hi and pooled["n_eff_nu"] == 19 and "spread" in pooled["anees_interval_method"]
+    assert anees_over_runs(undecided[:1], "anees")["anees_interval_99"] is None

@@ -96,8 +96,10 @@ def test_coop_fg_end_to_end(tmp_path):
     # the epochs of a run are correlated: the intervals count their effective samples (n_eff <= K)
     c, it = est_m["centralized"], est_m["iterated"]
     assert c["n_eff_joint"] <= K and it["n_eff_spp"] <= K * int(spp.sum())
-    assert c["anees_joint_interval_99"] == list(anees_interval(54, c["n_eff_joint"]))
-    assert c["anees_joint_interval_99"][0] <= c["anees_joint"] <= c["anees_joint_interval_99"][1]
+    # 20 epochs cannot span MIN_SPAN correlation times: one run does not decide the joint ANEES (the
+    # reproduction's spread over runs does, testbed.reproduce.coop)
+    assert c["anees_joint_interval_99"] is None, c["anees_joint_interval_99"]
+    assert c["anees_joint_null_reason"].startswith("not decidable from one run")
     assert it["anees_spp"] > anees_interval(3, it["n_eff_spp"])[1]
 
 

@@ -11,7 +11,7 @@ recording has it (docs/estimators.md, "Flights: sparse ranging without GNSS"):
   (declared 5 deg), drawn once (the truth's first position plus N(0, 0.5^2) m per axis is drawn
   too, the `initial_pose` position the other option, and kept out of the start);
 - it is consistent (position ANEES inside its 99 % interval for the correlated samples,
-  testbed.scoring.metrics.anees_interval at the run's n_eff_position), tracks (an estimate at every
+  testbed.scoring.metrics.anees_interval_at from its metrics.json keys), tracks (an estimate at every
   truth instant from 3 s on: three anchor ranges at 1 Hz take 2 s, and a position RMSE under 1 m,
   ten times the range noise) and never re-initialises (eq. D1 at 1e-6 on a consistent filter).
 
@@ -34,7 +34,7 @@ from estimators.imu_adapt import DifferenceNoise
 from testbed.cli import main
 from testbed.config import scenario
 from testbed.runner import run
-from testbed.scoring.metrics import anees_interval
+from testbed.scoring.metrics import anees_interval_at
 
 HORIZON_S = float(os.environ.get("FLIGHTS_HORIZON_S", "20"))
 SCENARIO = f"""
@@ -121,12 +121,14 @@ def test_an_imu_filter_started_from_ranges_without_gnss_or_a_position_tracks_a_v
     assert main(["replay", str(spec), "--out", str(tmp_path / "r"), "--estimator", entry, "--param", poses,
                  "--no-plots"]) == 0
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())["estimators"][entry]
-    lo, hi = anees_interval(3, m["n_eff_position"], 0.99)
+    lo, hi = anees_interval_at(m, "anees_position", 0.99) or (float("nan"),) * 2
     print(f"{entry}: position RMSE {m['rmse_position_m']:.3f} m, ANEES {m['anees_position']:.3f} [{lo:.3f}, {hi:.3f}] "
-          f"(n_eff {m['n_eff_position']:.1f}), health {m['health']}")
+          f"(n_eff {m['n_eff_position']:.1f}) {m.get('anees_position_null_reason', '')}, health {m['health']}")
     assert m["coverage_position"] >= (HORIZON_S - 3.0) / HORIZON_S, m
     assert m["rmse_position_m"] < 1.0, (entry, m["rmse_position_m"])
     assert m["health"]["reinitialisations"] == 0, m["health"]
+    if "anees_position_null_reason" in m:  # one run cannot decide (docs/consistency.md, "Decidable from one run")
+        pytest.xfail(f"{entry}: {m['anees_position_null_reason']}")
     assert lo <= m["anees_position"] <= hi, (entry, m["anees_position"], lo, hi)
 
 

@@ -21,7 +21,7 @@ from testbed.plugins import builtin_phase as PB
 from testbed.plugins import phase_scores as PS
 from testbed.reproduce.phase_q import score_ekf
 from testbed.rng import stream_rng
-from testbed.scoring.metrics import anees_interval, anees_run_interval, runs_effective_samples
+from testbed.scoring.metrics import anees_over_runs
 from testbed.sim.simulate import simulate
 
 NAME = "phase-cross-h000"
@@ -297,24 +297,22 @@ def test_default_ekf_is_consistent_over_the_whole_run_of_every_builtin_phase_sce
     """The default filter of every built-in phase scenario over its whole 200 s run, evaluation
     seeds 1..LONG_RUNS (the q rule used 1000..1009 over the same horizon): the body ANEES of each
     run (metrics.json `anees`, t >= score_start) averaged over the runs lies inside the 99 %
-    interval over the runs' effective samples (anees_interval with runs_effective_samples: the
-    per-run `anees_interval_99` pooled, docs/consistency.md). The Student t interval over the
-    independent runs (anees_run_interval) is printed beside it; with 6 runs and one large run it
-    is too wide to decide anything. About 10 s of CPU a run, 8 minutes in all."""
-    per, n_eff, att = [], [], []
+    interval over the runs (anees_over_runs, docs/consistency.md: the runs' effective samples
+    pooled when every run is decidable from itself, else the Student t interval of the spread of
+    the independent runs). About 10 s of CPU a run, 8 minutes in all."""
+    runs = []
     for seed in range(1, LONG_RUNS + 1):
         sc = scenario_mod.load(name, seed=seed)
-        m = score_ekf(sc, simulate(sc)[0])
-        per.append(m["anees"])
-        n_eff.append(m["n_eff"])
-        att.append(m.get("anees_attitude6", np.nan))
-    lo, hi = anees_run_interval(np.array(per), 6)
-    plo, phi = anees_interval(6, runs_effective_samples(np.array(n_eff)))
-    print(f"{name}, {sc.duration:g} s: body ANEES {np.mean(per):.2f} in [{lo:.2f}, {hi:.2f}] (runs), "
-          f"[{plo:.2f}, {phi:.2f}] (effective samples); per run {np.round(per, 2).tolist()}; attitude ANEES "
-          f"{np.nanmean(att):.2f}")
+        runs.append(score_ekf(sc, simulate(sc)[0]))
+    a = anees_over_runs(runs, "anees")
+    per = [m["anees"] for m in runs]
+    print(f"{name}, {sc.duration:g} s: body ANEES {a['anees']:.2f} in {np.round(a['anees_interval_99'], 2).tolist()} "
+          f"(n_eff {a['n_eff']:.1f}, {a.get('anees_interval_method', 'effective samples pooled')}); per run "
+          f"{np.round(per, 2).tolist()}, n_eff {np.round([m['n_eff'] for m in runs], 1).tolist()}; attitude ANEES "
+          f"{np.nanmean([m.get('anees_attitude6', np.nan) for m in runs]):.2f}")
     assert sc.duration == 200.0
-    assert plo < np.mean(per) < phi
+    lo, hi = a["anees_interval_99"]
+    assert lo < a["anees"] < hi
 
 
 def test_unrepaired_cycle_slip_is_rejected_by_the_gate_not_absorbed():

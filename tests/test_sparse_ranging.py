@@ -16,7 +16,7 @@ from testbed.cli import main
 from testbed.config import scenario
 from testbed.replay.recording import load_recording
 from testbed.runner import run
-from testbed.scoring.metrics import anees_interval
+from testbed.scoring.metrics import anees_interval_at
 
 #: the circle's radius (m) and period (s), the UWB exchange rate (Hz) and the number of links
 RADIUS, PERIOD, RATE, LINKS = 4.0, 20.0, 240.0, 48
@@ -108,9 +108,11 @@ def test_ranging_ekf_starts_within_two_seconds_and_stays_inside_its_covariance(e
     for site in tags:
         pos = e["targets"][site]["position"]
         assert pos["first_estimate_s"] <= 2.0 and pos["coverage"] == 1.0, site
-    lo, hi = anees_interval(3, e["n_eff_position"], 0.99)
-    assert lo <= e["anees_position"] <= hi, (e["anees_position"], lo, hi)
     assert e["health"]["rejected_measurements"] == 0
+    if "anees_position_null_reason" in e:  # one run cannot decide (docs/consistency.md, "Decidable from one run")
+        pytest.xfail(e["anees_position_null_reason"])
+    lo, hi = anees_interval_at(e, "anees_position", 0.99)
+    assert lo <= e["anees_position"] <= hi, (e["anees_position"], lo, hi)
 
 
 #: graph.poses solves one epoch at a time with its motion model: its replay is judged on the
@@ -137,5 +139,7 @@ def test_graph_poses_with_its_motion_model_starts_within_two_seconds_and_stays_i
         assert target["position"]["first_estimate_s"] <= 2.0, body
     h = e["health"]
     assert h["nonconverged_epochs"] == 0 and h["unobservable_epochs"] == 0 and h["flagged_epochs"] == 0
-    lo, hi = anees_interval(3, e["n_eff_position"], 0.99)
+    if "anees_position_null_reason" in e:  # one run cannot decide (docs/consistency.md, "Decidable from one run")
+        pytest.xfail(e["anees_position_null_reason"])
+    lo, hi = anees_interval_at(e, "anees_position", 0.99)
     assert lo <= e["anees_position"] <= hi, (e["anees_position"], lo, hi)

@@ -61,11 +61,16 @@ def fmt_ci(mean: float, lo: float, hi: float) -> str:
 
 
 def fmt_anees(keys: dict, key: str = "anees") -> str:
-    """"ANEES [lo, hi] (n_eff N)" from the keys testbed.scoring.metrics.anees_keys writes ("" without KEY)."""
+    """"ANEES [lo, hi] (n_eff N)" from the keys testbed.scoring.metrics.anees_keys writes ("" without KEY);
+    "ANEES [not decidable from one run] (n_eff N)" where the interval is null."""
     if keys.get(key) is None:
         return ""
-    interval = next(v for k, v in keys.items() if k.startswith(f"{key}_interval_"))
-    return f"{fmt_ci(keys[key], *interval)} (n_eff {fmt(keys[key.replace('anees', 'n_eff')], 3)})"
+    interval = next(v for k, v in keys.items() if k.startswith(f"{key}_interval_") and k[-1].isdigit())
+    n_eff = keys.get(key.replace("anees", "n_eff"))
+    tail = f" (n_eff {fmt(n_eff, 3)})" if n_eff is not None else ""
+    if interval is None:
+        return f"{fmt(keys[key])} [not decidable from one run]{tail}"
+    return f"{fmt_ci(keys[key], *interval)}{tail}"
 
 
 def fmt_list(values: Iterable[float], sep: str = ", ") -> str:

@@ -35,7 +35,7 @@ import numpy as np
 
 from estimators.core import nees
 from testbed.errors import ConfigError
-from testbed.scoring.metrics import anees_keys, effective_samples, rmse
+from testbed.scoring.metrics import anees_keys, rmse, sample_size
 from testbed.plugins.collect import Track
 from testbed.plugins.score import Hook
 
@@ -150,7 +150,7 @@ def position_scores(err: np.ndarray, cov: np.ndarray, is_rtk: np.ndarray) -> dic
         **anees_keys(ne, 3),
         "anees_spp": masked_mean(ne, spp),
         "anees_rtk": masked_mean(ne, ~spp),
-        "n_eff_spp": effective_samples(ne[:, spp]) if spp.any() else None,
+        "n_eff_spp": sample_size(ne[:, spp]).n_eff if spp.any() else None,
         "epochs": int(K),
     }
     # strict JSON: a score that cannot exist is null, with the reason beside it

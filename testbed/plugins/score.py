@@ -4,7 +4,7 @@ Per (target, quantity), at the estimate times against interpolated truth (testbe
 RMSE total (root mean of |e|^2) and per axis; with a covariance, NEES e^T P^-1 e per sample, their
 mean (ANEES, `anees_dof` = 3), `n_eff` the effective number of independent samples behind it and
 `anees_interval_95` the two-sided 95 % interval of a consistent estimator's ANEES over n_eff
-samples (testbed.scoring.metrics.effective_samples: a filter's errors are correlated in time,
+samples (testbed.scoring.metrics.sample_size: a filter's errors are correlated in time,
 docs/consistency.md); coverage (testbed.scoring.metrics.coverage): `coverage` the fraction of the
 target's truth instants with an estimate within `coverage_tolerance_s`, `rate_hz` and
 `first_estimate_s`. An attitude series with a covariance also gets `unobserved`: the fraction of
@@ -206,7 +206,7 @@ def _summary(q: str, rows: list[tuple]) -> dict:
            f"rmse_{q}_axis_{u}": [x * k for x in _axis(e_all)], f"coverage_{q}": float(np.mean([r[4] for r in rows]))}
     with_cov = [(r[3], r[1]) for r in rows if r[1].size]
     if with_cov:
-        # the targets' samples at common instants are averaged (effective_samples, sparse layout)
+        # the targets' samples at common instants are averaged (sample_size, sparse layout)
         instant = np.unique(np.concatenate([r[0] for r in with_cov]), return_inverse=True)[1]
         target = np.repeat(np.arange(len(with_cov)), [r[0].size for r in with_cov])
         out.update(anees_keys(np.concatenate([r[1] for r in with_cov]), 3, f"anees_{q}", 0.95,

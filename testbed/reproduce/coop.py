@@ -40,7 +40,7 @@ joint ANEES (54 dof): every epoch of a run shares the run's per-device antenna d
 offsets, so the K epochs are not independent samples; its 99 % interval comes from the spread of
 the per-run joint ANEES over the independent runs (testbed.scoring.metrics.anees_run_interval, Student t
 with runs - 1 dof; docs/papers.md, seed 001). The 3-dof interval of the iterated ANEES counts the
-effective samples of each run (testbed.scoring.metrics.effective_samples) combined over the independent
+effective samples of each run (testbed.scoring.metrics.sample_size) combined over the independent
 runs (runs_effective_samples; docs/consistency.md).
 
 Round cap: the paper's scheme needs hundreds of rounds per epoch (seeded run: median ~230, 36 %

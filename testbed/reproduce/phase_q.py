@@ -154,13 +154,24 @@ def anees_by_q(rows: list[dict], param: str = "q") -> dict[float, float]:
     """{value of `param`: mean over the rows' seeds of the ANEES the rule calibrates for it
     (RULE_NEES; a seed without one, e.g. an attitude never observed, is left out)} of one
     scenario's sweep."""
+    return {v: float(np.mean(kept)) if kept.size else math.nan  # no seed observed it
+            for v, kept in _per_value(rows, param).items()}
+
+
+def anees_interval_by_q(rows: list[dict], param: str = "q", level: float = 0.99) -> dict[float, list[float] | None]:
+    """{value of `param`: the interval a consistent filter's mean (anees_by_q) falls in, from the
+    spread of the seeds' per-run ANEES (testbed.scoring.metrics.anees_run_interval, Student t: the
+    seeds are independent runs, docs/consistency.md), None with fewer than 2 seeds}."""
+    dof = RULE_NEES[param][1]
+    return {v: list(anees_run_interval(kept, dof, level)) if kept.size >= 2 else None
+            for v, kept in _per_value(rows, param).items()}
+
+
+def _per_value(rows: list[dict], param: str) -> dict[float, np.ndarray]:
+    """{value of `param`: the seeds' ANEES the rule calibrates (RULE_NEES) at it, NaN left out}."""
     key = RULE_NEES[param][0]
-    vals = sorted({r[param] for r in rows})
-    out = {}
-    for v in vals:
-        kept = [x for x in (r.get(key, np.nan) for r in rows if r[param] == v) if not math.isnan(x)]
-        out[v] = float(np.mean(kept)) if kept else math.nan  # no seed observed it
-    return out
+    return {v: np.array([x for x in (r.get(key, np.nan) for r in rows if r[param] == v) if not math.isnan(x)])
+            for v in sorted({r[param] for r in rows})}
 
 
 def choose(rows: list[dict], param: str = "q") -> float:

@@ -157,4 +157,5 @@ def write(path: Path, groups: dict[str, list[dict]], keys: list[str]) -> None:
     write_csv(path, ["group", "estimator", "runs"] + [f"{c}_{s}" for c in cols for s in ("mean", "std")]
               + [f"{ANEES}_mean", f"{interval}_lo", f"{interval}_hi", n_eff],
               [[r["group"], r["estimator"], r["runs"]] + [v for c in cols for v in (r[c] or (None, None))]
-               + ([r[ANEES][ANEES], *r[ANEES][interval], r[ANEES][n_eff]] if r[ANEES] else [None] * 4) for r in rows])
+               + ([r[ANEES][ANEES], *(r[ANEES][interval] or (None, None)), r[ANEES][n_eff]] if r[ANEES] else [None] * 4)
+               for r in rows])

@@ -313,7 +313,7 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
             rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
             for key in ANEES:
                 if a := r["anees"][key]:  # {}: an estimator without that ANEES (a plugin's outputs that do not fit)
-                    rows += [[case, name, key, a[key], *a[f"{key}_interval_99"]],
+                    rows += [[case, name, key, a[key], *(a[f"{key}_interval_99"] or (None, None))],
                              [case, name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")], None, None]]
             rows += [[case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
     for label, ex in extra.items():
@@ -323,7 +323,7 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
                 for key in ANEES:
                     if not (a := anees_over_runs([m], key)):  # one run: its 99 % interval; {}: none
                         continue
-                    rows += [[f"{label}/{case}", name, key, a[key], *a[f"{key}_interval_99"]],
+                    rows += [[f"{label}/{case}", name, key, a[key], *(a[f"{key}_interval_99"] or (None, None))],
                              [f"{label}/{case}", name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")],
                               None, None]]
     return rows

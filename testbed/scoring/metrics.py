@@ -6,8 +6,11 @@ rotation R_true^T R_est (never a difference of Euler angles or quaternions).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import norm
 from scipy.stats import t as student_t
 
 from estimators.core import chi2_interval
@@ -32,12 +35,26 @@ def attitude_error_vector(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     return rel.as_rotvec().reshape(*np.shape(R_est)[:-2], 3)
 
 
-def anees_interval(dof: int, samples: float, level: float = 0.99) -> tuple[float, float]:
+#: The fewest correlation times the NEES series behind a per-run ANEES must span for its interval to be
+#: decided from that run (docs/consistency.md, "Decidable from one run"; derived on AR(1) series by
+#: `python -m tests.interval_coverage`): below it the run's interval is null, "not decidable from one run"
+MIN_SPAN = 20.0
+
+
+def anees_interval(dof: int, samples: float, level: float = 0.99, nu: float = np.inf) -> tuple[float, float]:
     """Interval a consistent filter's ANEES falls in with probability `level`: the chi-square
-    interval of `samples` independent NEES samples of `dof` degrees each (estimators.core.chi2_interval).
-    For the NEES of a filter, whose errors are correlated in time, `samples` is their effective
-    number (effective_samples), not their count (docs/consistency.md)."""
-    return chi2_interval(dof, samples, level)
+    interval of `samples` independent NEES samples of `dof` degrees each (estimators.core.chi2_interval),
+    its distances to dof widened by t_nu / z (Student and normal quantiles at `level`) when `samples` is
+    an estimate with nu degrees of freedom (docs/consistency.md, eq. C3). For the NEES of a filter,
+    whose errors are correlated in time, `samples` is their effective number (sample_size), not their
+    count; nu = inf: a known number (independent samples)."""
+    lo, hi = chi2_interval(dof, samples, level)
+    if not np.isfinite(nu):
+        return lo, hi
+    q = 0.5 + level / 2
+    # eq. C3 (docs/consistency.md)
+    f = float(student_t.ppf(q, nu) / norm.ppf(q))
+    return dof - f * (dof - lo), dof + f * (hi - dof)
 
 
 def autocovariance_sums(x: np.ndarray) -> np.ndarray:
@@ -50,19 +67,25 @@ def autocovariance_sums(x: np.ndarray) -> np.ndarray:
     return np.fft.irfft(f * np.conj(f), 2 * n)[:n]
 
 
+def _geyer(acov: np.ndarray) -> tuple[float, int]:
+    """(tau, W) of geyer_time: tau >= 1 and W, the number of lags -W/2 .. W/2 its sum covers (1 when
+    nothing is summed)."""
+    n = acov.size
+    if n < 4 or not acov[0] > 0:
+        return 1.0, 1
+    rho = acov / acov[0]
+    pairs = rho[0 : n - 1 : 2] + rho[1:n:2]  # G_m, m = 0 .. n//2 - 1
+    stop = np.flatnonzero(pairs <= 0)
+    pairs = np.minimum.accumulate(pairs[: stop[0] if stop.size else pairs.size])
+    return max(1.0, float(2 * pairs.sum() - 1)), max(1, 4 * pairs.size - 1)
+
+
 def geyer_time(acov: np.ndarray) -> float:
     """Integrated autocorrelation time tau = 1 + 2 sum_{k>=1} rho_k (in lags) of autocovariance sums
     acov (K,) (autocovariance_sums, or their sum over series of one process), rho_k = acov_k / acov_0,
     the sum truncated by Geyer's initial monotone sequence (pairs G_m = rho_2m + rho_2m+1 summed while
     positive, each capped by the one before). Returns tau >= 1 (1 when K < 4 or acov_0 = 0)."""
-    n = acov.size
-    if n < 4 or not acov[0] > 0:
-        return 1.0
-    rho = acov / acov[0]
-    pairs = rho[0 : n - 1 : 2] + rho[1:n:2]  # G_m, m = 0 .. n//2 - 1
-    stop = np.flatnonzero(pairs <= 0)
-    pairs = np.minimum.accumulate(pairs[: stop[0] if stop.size else pairs.size])
-    return max(1.0, float(2 * pairs.sum() - 1))
+    return _geyer(acov)[0]
 
 
 def integrated_time(x: np.ndarray) -> float:
@@ -76,23 +99,58 @@ def integrated_time(x: np.ndarray) -> float:
     return geyer_time(autocovariance_sums(x))
 
 
-def effective_samples(ne: np.ndarray, instant: np.ndarray | None = None, target: np.ndarray | None = None) -> float:
+def _series_time(x: np.ndarray) -> tuple[float, float]:
+    """(tau_c, nu) of one NEES series x (T,) in time order: Geyer's tau corrected for the bias the
+    sample mean gives it, and the degrees of freedom of that estimate (docs/consistency.md, eqs. C1-C2):
+
+        tau_c = tau / (1 - (W - tau) / T)   (at most T),      nu = T / W
+
+    W the lags Geyer's sum covers. A constant series or T < 4: (1, T)."""
+    x = np.asarray(x, float)
+    n = x.size
+    if n < 4 or not np.any(x - x.mean()):
+        return 1.0, float(n)
+    tau, w = _geyer(autocovariance_sums(x))
+    # eq. C1 (tau_c) and eq. C2 (nu), docs/consistency.md
+    den = 1.0 - (w - tau) / n
+    return (min(tau / den, float(n)) if den > 0 else float(n)), n / w
+
+
+@dataclass(frozen=True, slots=True)
+class SampleSize:
+    """How many independent samples a run's NEES are worth (sample_size). n_eff: effective samples
+    (Var(ANEES) = 2 dof / n_eff); nu: degrees of freedom of that estimate (inf: a count, exact);
+    span: correlation times covered by the shortest series that sets n_eff (inf: independent samples);
+    decidable: span >= MIN_SPAN, one run can decide the interval."""
+
+    n_eff: float
+    nu: float
+    span: float
+
+    @property
+    def decidable(self) -> bool:
+        return self.span >= MIN_SPAN
+
+
+def sample_size(ne: np.ndarray, instant: np.ndarray | None = None, target: np.ndarray | None = None) -> SampleSize:
     """Effective number of independent samples behind the ANEES (mean of the finite entries) of
     NEES samples ne (T,) of one target in time order, or (T, m) of m targets at T common instants
     (NaN: no sample of that target at that instant), or (N,) samples with instant (N,) int, the
     index of each sample's instant in time order, and target (N,) int, its target's (the same
     layout without the T x m array): n_eff with Var(ANEES) = 2 dof / n_eff for a consistent
-    estimator, so that anees_interval(dof, n_eff) holds (docs/consistency.md):
+    estimator, so that anees_interval(dof, n_eff, level, nu) holds (docs/consistency.md):
 
         n_eff = min(N, T / (tau_y r), sum_i T_i / tau_i),   r = Var(y) / mean_i Var(ne_i)
 
-    y (T,) the per-instant mean over the targets, tau_y its integrated_time, r the share of a
-    single target's variance the per-instant mean keeps (1/m for independent targets, 1 for
-    targets that share their errors: a cooperative filter's), N the number of samples; T_i / tau_i
-    the effective samples of target i alone, whose sum (the targets taken as independent) bounds
-    n_eff when the targets' instants do not coincide (then y interleaves them and hides their own
-    correlation). Scale free: an over-confident filter's NEES, scaled up, gets the same n_eff.
-    0 for no sample.
+    y (T,) the per-instant mean over the targets, tau_y its bias-corrected time (_series_time), r
+    the share of a single target's variance the per-instant mean keeps (1/m for independent
+    targets, 1 for targets that share their errors: a cooperative filter's), N the number of
+    samples; T_i / tau_i the effective samples of target i alone, whose sum (the targets taken as
+    independent) bounds n_eff when the targets' instants do not coincide (then y interleaves them
+    and hides their own correlation). nu and span are those of the term that sets n_eff: T / W_y
+    and T / tau_y; for the sum, the Satterthwaite combination (sum s_i)^2 / sum (s_i^2 / nu_i) and
+    the shortest min_i T_i / tau_i; for N, inf. Scale free: an over-confident filter's NEES,
+    scaled up, gets the same n_eff. (0, inf, 0) for no sample, (1, inf, inf) for one.
     """
     x = np.asarray(ne, float)
     if instant is None:
@@ -102,15 +160,21 @@ def effective_samples(ne: np.ndarray, instant: np.ndarray | None = None, target:
     keep = np.isfinite(x)
     x, instant, target = x[keep], np.asarray(instant)[keep], np.asarray(target)[keep]
     if x.size < 2:
-        return float(x.size)
+        return SampleSize(float(x.size), np.inf, np.inf if x.size else 0.0)
     _, at = np.unique(instant, return_inverse=True)
     y = np.bincount(at, x) / np.bincount(at)  # (T,) the per-instant mean
     order = np.lexsort((instant, target))  # by target, each in time order
     series = np.split(x[order], np.flatnonzero(np.diff(target[order])) + 1)
     var = np.array([s.var() for s in series])
     r = float(np.var(y) / var.mean()) if var.mean() > 0 else 1.0
-    alone = sum(s.size / integrated_time(s) for s in series)
-    return float(min(x.size, y.size / (integrated_time(y) * max(r, 1.0 / len(series))), alone))
+    tau_y, nu_y = _series_time(y)
+    times = [_series_time(x_i) for x_i in series]
+    own = np.array([(x_i.size / t, nu) for x_i, (t, nu) in zip(series, times)])  # (m, 2): T_i / tau_i, nu_i
+    alone = float(own[:, 0].sum())
+    terms = [SampleSize(float(x.size), np.inf, np.inf),
+             SampleSize(y.size / (tau_y * max(r, 1.0 / len(series))), nu_y, y.size / tau_y),
+             SampleSize(alone, alone**2 / float(np.sum(own[:, 0] ** 2 / own[:, 1])), float(own[:, 0].min()))]
+    return min(terms, key=lambda s: s.n_eff)
 
 
 def runs_effective_samples(n_eff: np.ndarray) -> float:
@@ -122,14 +186,33 @@ def runs_effective_samples(n_eff: np.ndarray) -> float:
 
 
 def anees_keys(ne: np.ndarray, dof: int, key: str = "anees", level: float = 0.99, **layout) -> dict:
-    """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of
-    effective_samples, `layout` its instant and target): {key: the mean of the samples, KEY_dof:
-    dof, KEY_interval_PCT: its interval at `level` (PCT = 100 level, e.g. anees_interval_99), the
-    key with "anees" -> "n_eff": effective_samples}."""
-    n_eff = effective_samples(ne, **layout)
-    return {key: float(np.nanmean(ne)), f"{key}_dof": dof,
-            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
-            key.replace("anees", "n_eff"): n_eff}
+    """metrics.json keys of the ANEES of NEES samples ne (at least one; layout of sample_size,
+    `layout` its instant and target): {key: the mean of the samples, KEY_dof: dof, KEY_interval_PCT:
+    its interval at `level` (PCT = 100 level, e.g. anees_interval_99), the key with "anees" ->
+    "n_eff": sample_size's n_eff, "anees" -> "n_eff_nu": its nu}. A run whose series spans fewer
+    than MIN_SPAN correlation times has the interval null and KEY_null_reason saying why."""
+    s = sample_size(ne, **layout)
+    out = {key: float(np.nanmean(ne)), f"{key}_dof": dof,
+           f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, s.n_eff, level, s.nu)) if s.decidable else None,
+           key.replace("anees", "n_eff"): s.n_eff, key.replace("anees", "n_eff_nu"): _json_float(s.nu)}
+    if not s.decidable:
+        out[f"{key}_null_reason"] = (f"not decidable from one run: its NEES span {s.span:.3g} correlation times, "
+                                     f"fewer than {MIN_SPAN:g}")
+    return out
+
+
+def anees_interval_at(keys: dict, key: str, level: float) -> list[float] | None:
+    """KEY's interval at another `level` from the keys anees_keys wrote (KEY_dof, the n_eff and
+    n_eff_nu keys); None where the run is not decidable (KEY_null_reason)."""
+    if f"{key}_null_reason" in keys:
+        return None
+    nu = keys.get(key.replace("anees", "n_eff_nu"))
+    return list(anees_interval(keys[f"{key}_dof"], keys[key.replace("anees", "n_eff")], level, np.inf if nu is None else nu))
+
+
+def _json_float(v: float) -> float | None:
+    """v, or None for inf (strict JSON; an n_eff_nu of None: a count of independent samples, exact)."""
+    return float(v) if np.isfinite(v) else None
 
 
 def anees_run_interval(per_run: np.ndarray, dof: int, level: float = 0.99) -> tuple[float, float]:
@@ -187,17 +270,34 @@ def ranging_rate(log: dict[str, np.ndarray], duration: float) -> float | None:
 
 
 def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
-    """anees_keys of the mean over independent runs (their own seeds) of per-run ANEES: runs, each
-    run's keys as anees_keys wrote them (KEY, KEY_dof and the n_eff key); the effective samples
-    combined by runs_effective_samples. Runs without the key are left out; {} if none has it."""
+    """anees_keys of the mean over R independent runs (their own seeds) of per-run ANEES: runs, each
+    run's keys as anees_keys wrote them (KEY, KEY_dof, the n_eff and n_eff_nu keys, KEY_null_reason
+    when one run cannot decide). When every run decides: the effective samples combined by
+    runs_effective_samples, their degrees of freedom by Satterthwaite's rule, (sum 1/n_i)^2 / sum
+    (1/n_i)^2 / nu_i. When a run cannot: the spread of the per-run values decides (anees_run_interval;
+    n_eff 2 dof R / s^2 and nu = R - 1 the ones it implies, KEY_interval_method says so), and with
+    R = 1 the interval is null with the run's reason (docs/consistency.md, "Several runs"). Runs
+    without the key are left out; {} if none has it."""
     have = [r for r in runs if r.get(key) is not None]
     if not have:
         return {}
-    dof = have[0][f"{key}_dof"]
-    n_eff = runs_effective_samples(np.array([r[key.replace("anees", "n_eff")] for r in have]))
-    return {key: float(np.mean([r[key] for r in have])), f"{key}_dof": dof,
-            f"{key}_interval_{round(100 * level)}": list(anees_interval(dof, n_eff, level)),
-            key.replace("anees", "n_eff"): n_eff}
+    dof, pct = have[0][f"{key}_dof"], round(100 * level)
+    per_run = np.array([r[key] for r in have])
+    out = {key: float(per_run.mean()), f"{key}_dof": dof}
+    n, nu = key.replace("anees", "n_eff"), key.replace("anees", "n_eff_nu")
+    undecided = [r[f"{key}_null_reason"] for r in have if f"{key}_null_reason" in r]
+    if not undecided:
+        inv = 1.0 / np.array([r[n] for r in have])
+        dofs = np.array([np.inf if r.get(nu) is None else r[nu] for r in have], float)
+        n_eff, v = runs_effective_samples(1.0 / inv), float(inv.sum() ** 2 / np.sum(inv**2 / dofs))
+        return {**out, f"{key}_interval_{pct}": list(anees_interval(dof, n_eff, level, v)), n: n_eff, nu: _json_float(v)}
+    if len(have) == 1:
+        return {**out, f"{key}_interval_{pct}": None, n: have[0][n], nu: have[0].get(nu), f"{key}_null_reason": undecided[0]}
+    var = float(per_run.var(ddof=1))
+    return {**out, f"{key}_interval_{pct}": list(anees_run_interval(per_run, dof, level)),
+            n: _json_float(2 * dof * len(have) / var if var > 0 else np.inf), nu: len(have) - 1,
+            f"{key}_interval_method": (f"spread of the {len(have)} per-run values (Student t): "
+                                       f"{len(undecided)} of {len(have)} runs not decidable from one run")}
 
 
 #: Coverage tolerance (s): a truth instant is covered when an estimate lies at most this far from it
