@@ -295,8 +295,8 @@ def angular_velocity(x: np.ndarray) -> np.ndarray:
     P, V = X[:9].reshape(3, 3), X[9:].reshape(3, 3)
     u, ud = P[0] - 0.5 * (P[1] + P[2]), V[0] - 0.5 * (V[1] + V[2])
     w, wd = P[1] - P[2], V[1] - V[2]
-    A = (u @ u + w @ w) * np.eye(3) - np.outer(u, u) - np.outer(w, w)
-    return np.linalg.solve(A, np.cross(u, ud) + np.cross(w, wd))
+    A = (u @ u + w @ w) * _I3 - np.outer(u, u) - np.outer(w, w)
+    return np.linalg.solve(A, _cross(u, ud) + _cross(w, wd))
 
 
 def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -319,7 +319,9 @@ def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarra
     V = X[9:].reshape(3, 3)
     rho_dot = V - 0.5 * (V[1] + V[2])
     omega = angular_velocity(X)
-    a = np.cross(omega, rho_dot).reshape(-1)
+    r = rho_dot.T  # omega x rho_dot_j for the three antennas, np.cross's products in its order
+    a = np.column_stack([omega[1] * r[2] - omega[2] * r[1], omega[2] * r[0] - omega[0] * r[2],
+                         omega[0] * r[1] - omega[1] * r[0]]).reshape(-1)
     if not jacobian:
         return a
     P = X[:9].reshape(3, 3)
@@ -335,14 +337,17 @@ def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarra
     rhs = ((skew(u) @ _JUD - skew(ud) @ _JU - d_a_omega(u) @ _JU)
            + (skew(w) @ _JWD - skew(wd) @ _JW - d_a_omega(w) @ _JW))
     d_omega = np.linalg.solve(A, rhs)
-    J = np.empty((9, 18))
-    for j in range(3):
-        d_rho_dot = np.zeros((3, 18))
-        d_rho_dot[:, 9 + 3 * j:12 + 3 * j] += _I3
-        d_rho_dot[:, 12:15] -= 0.5 * _I3
-        d_rho_dot[:, 15:18] -= 0.5 * _I3
-        J[3 * j:3 * j + 3] = skew(omega) @ d_rho_dot - skew(rho_dot[j]) @ d_omega
-    return a, J
+    # d a_j = [omega]x d rho_dot_j - [rho_dot_j]x d omega, the three antennas at once
+    return a, (skew(omega) @ _D_RHO_DOT - skew(rho_dot) @ d_omega).reshape(9, 18)
+
+
+#: (3, 3, 18) d rho_dot_j / d x of the three antennas' velocities relative to the body origin,
+#: rho_dot_j = v_j - (v_2 + v_3) / 2 (centripetal_acceleration)
+_D_RHO_DOT = np.zeros((3, 3, 18))
+for _j in range(3):
+    _D_RHO_DOT[_j, :, 9 + 3 * _j:12 + 3 * _j] += _I3
+    _D_RHO_DOT[_j, :, 12:18] -= 0.5 * np.hstack([_I3, _I3])
+_D_RHO_DOT.flags.writeable = False
 
 
 # ------------------------------------------------------------------------------------------------
