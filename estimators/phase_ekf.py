@@ -12,7 +12,7 @@ process_noise(dt, q, x)                     Q (18, 18), continuous white-noise-a
 PhaseEkf(q, gate, iterations, rigid)        THE filter on the estimator interface (core.Filter):
                                             predict(belief, dt), update(belief, measurement) -> belief
 PhaseEkfCovarianceAnalysis                  the same filter, also carrying its ACTUAL error covariance
-time_update(belief, dt, q, rigid)           time update, eq. 18/22 (rigid: with rigid_transition)
+time_update(belief, dt, q, rigid)           time update, eq. 18/22 (rigid: with rigid_transition and its input noise)
 rigid_transition(x, dt)                     eq. 24 plus the centripetal acceleration of a turning rigid body
 PhaseMeasurement                            one epoch: ranges, range rates, master antennas, sigmas, masks
 measurement_update(belief, meas, gate, iterations)   EKF (or iterated EKF) measurement update
@@ -72,11 +72,18 @@ antenna along its tangent and lengthens its arm by (omega t)^2 / 2: at the eq. 3
 centimetre-level errors. Measured (docs/papers.md, seed 003, phase-cross-h000, calibration seeds,
 200 s, q = 1e-12, q_rotation = 1e-7): 18-state ANEES 1538 without the term, 30 with it; the
 attitude's 36.6 and 5.0. rigid_transition adds the term to the predicted mean, held over dt
-(second order in dt). Its Jacobian is left out of the covariance's transition (Phi of eq. 24
-stays): it is of the order of omega dt (<= 5.5e-4 per 0.1 s step at the eq. 31 rate), but while
-the prior's velocities are still metres per second apart the implied omega is wild, and with the
-Jacobian in the covariance 2 of the same 10 runs diverged (body ANEES 1565 and 620). The body
-origin gets none of the term (rho_dot_2 + rho_dot_3 = 0), so the body's prediction is eq. 24's.
+(second order in dt). The term is computed from the estimate, so it carries the estimate's error:
+a(x) - a(x_true) ~ J_a (x - x_true), J_a = d a / d x (phase_model.centripetal_acceleration). The
+covariance takes it as an input noise independent of the state's error:
+    P' = Phi P Phi^T + Q + G J_a P J_a^T G^T,   G = [dt^2/2 I9; dt I9]        ("Rigid rotation")
+(the linearized transition Phi + G J_a would also correlate the term with the state's error; that
+correlation is dropped). Without it the 6 directions that stretch the triangle, which no rigid-body noise
+reaches, kept only q = 1e-12 and the 18-state was over-confident at 20 s (cross H000, calibration
+seeds 1000..1009: final 18-state NEES 30.5, 6 side lengths and rates 19.2; with it 19.6 and 9.8).
+J_a in Phi instead (the linearized transition) diverged in 2 of 10 runs while the prior's
+velocities were metres per second apart and the implied omega wild (body ANEES 1565 and 620).
+The body origin gets none of the term (rho_dot_2 + rho_dot_3 = 0, so the rows of J_a of antennas
+2 and 3 cancel in the body): the body's prediction and covariance are eq. 24's.
 
 Innovation gate (cycle slips)
 -----------------------------
@@ -163,21 +170,27 @@ def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray 
     return np.kron(white_acceleration_q(dt), S)
 
 
-def rigid_transition(x: np.ndarray, dt: float) -> np.ndarray:
+def rigid_transition(x: np.ndarray, dt: float, a: np.ndarray | None = None) -> np.ndarray:
     """Prediction (18,) of the antenna state x (18,) over dt s: eq. 24 plus the centripetal
-    acceleration a = phase_model.centripetal_acceleration(x) of the turning rigid body, held over
-    dt (module docstring, "Rigid rotation"):  x_j' = x_j + dt v_j + dt^2/2 a_j,  v_j' = v_j + dt a_j."""
-    a = centripetal_acceleration(x)
+    acceleration a = phase_model.centripetal_acceleration(x) (9,) of the turning rigid body (given,
+    or computed here), held over dt (module docstring, "Rigid rotation"):
+    x_j' = x_j + dt v_j + dt^2/2 a_j,  v_j' = v_j + dt a_j."""
+    a = centripetal_acceleration(x) if a is None else a
     return transition(dt) @ x + np.concatenate([0.5 * dt * dt * a, dt * a])
 
 
 def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q, rigid: bool = False) -> Gaussian:
     """EKF time update over dt s (eq. 15, 18, 23): x' = Phi x, P' = Phi P Phi^T + Q; with rigid,
-    x' = rigid_transition(x, dt) and the same P' (the centripetal term's Jacobian is left out:
-    module docstring, "Rigid rotation")."""
+    x' = rigid_transition(x, dt) and P' = Phi P Phi^T + Q + G J_a P J_a^T G^T, the centripetal
+    term's uncertainty as an input noise (module docstring, "Rigid rotation")."""
     # eq. 22 (first two lines) with f linear: eq. 23-24
     pred = kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean))
-    return Gaussian(rigid_transition(belief.mean, dt), pred.cov) if rigid else pred
+    if not rigid:
+        return pred
+    a, Ja = centripetal_acceleration(belief.mean, jacobian=True)
+    # "Rigid rotation": G = [dt^2/2 I9; dt I9], the centripetal input's covariance J_a P J_a^T
+    GJ = np.concatenate([0.5 * dt * dt * Ja, dt * Ja])
+    return Gaussian(rigid_transition(belief.mean, dt, a), symmetrize(pred.cov + GJ @ belief.cov @ GJ.T))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -295,13 +295,13 @@ def angular_velocity(x: np.ndarray) -> np.ndarray:
     P, V = X[:9].reshape(3, 3), X[9:].reshape(3, 3)
     u, ud = P[0] - 0.5 * (P[1] + P[2]), V[0] - 0.5 * (V[1] + V[2])
     w, wd = P[1] - P[2], V[1] - V[2]
-    A = (u @ u + w @ w) * np.eye(3) - np.outer(u, u) - np.outer(w, w)
-    return np.linalg.solve(A, np.cross(u, ud) + np.cross(w, wd))
+    A = (u @ u + w @ w) * _I3 - np.outer(u, u) - np.outer(w, w)
+    return np.linalg.solve(A, _cross(u, ud) + _cross(w, wd))
 
 
-def centripetal_acceleration(x: np.ndarray) -> np.ndarray:
+def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Centripetal accelerations a (9,) m/s^2 of the three antennas about the body origin for the
-    antenna state x (18,) in N, [antenna j, xyz].
+    antenna state x (18,) in N, [antenna j, xyz]; with jacobian, also d a / d x (9, 18) (1/s^2, 1/s).
 
     A rigid body turning at omega (angular_velocity) moves antenna j, at rho_j = x_j - (x2 + x3)/2
     from the body origin with relative velocity rho_dot_j = omega x rho_j, with acceleration
@@ -309,9 +309,45 @@ def centripetal_acceleration(x: np.ndarray) -> np.ndarray:
     The constant-velocity model of eq. 24 has neither term; the angular acceleration alpha is the
     rotational process noise (estimators.phase_ekf.ProcessNoise), the centripetal term
     omega x rho_dot_j is returned here. Since rho_dot_2 + rho_dot_3 = 0 the body origin gets none.
+
+    Jacobian: with A omega = c, c = u x u_dot + w x w_dot (angular_velocity),
+        d omega = A^-1 (dc - dA omega),  dc = [u]x du_dot - [u_dot]x du + (the same in w),
+        dA omega = (2 omega u^T - (u . omega) I - u omega^T) du + (the same in w),
+        d a_j = [omega]x d rho_dot_j - [rho_dot_j]x d omega.
     """
-    V = np.asarray(x, dtype=float)[9:].reshape(3, 3)
-    return np.cross(angular_velocity(x), V - 0.5 * (V[1] + V[2])).reshape(-1)
+    X = np.asarray(x, dtype=float)
+    V = X[9:].reshape(3, 3)
+    rho_dot = V - 0.5 * (V[1] + V[2])
+    omega = angular_velocity(X)
+    r = rho_dot.T  # omega x rho_dot_j for the three antennas, np.cross's products in its order
+    a = np.column_stack([omega[1] * r[2] - omega[2] * r[1], omega[2] * r[0] - omega[0] * r[2],
+                         omega[0] * r[1] - omega[1] * r[0]]).reshape(-1)
+    if not jacobian:
+        return a
+    P = X[:9].reshape(3, 3)
+    u, ud = P[0] - 0.5 * (P[1] + P[2]), rho_dot[0]
+    w, wd = P[1] - P[2], V[1] - V[2]
+    A = (u @ u + w @ w) * _I3 - np.outer(u, u) - np.outer(w, w)
+
+    def d_a_omega(v: np.ndarray) -> np.ndarray:
+        # d (A omega) / d v at fixed omega, for v = u or w
+        return 2.0 * np.outer(omega, v) - (v @ omega) * _I3 - np.outer(v, omega)
+
+    # (3, 18): d omega / d x through u, u_dot, w, w_dot and their selectors
+    rhs = ((skew(u) @ _JUD - skew(ud) @ _JU - d_a_omega(u) @ _JU)
+           + (skew(w) @ _JWD - skew(wd) @ _JW - d_a_omega(w) @ _JW))
+    d_omega = np.linalg.solve(A, rhs)
+    # d a_j = [omega]x d rho_dot_j - [rho_dot_j]x d omega, the three antennas at once
+    return a, (skew(omega) @ _D_RHO_DOT - skew(rho_dot) @ d_omega).reshape(9, 18)
+
+
+#: (3, 3, 18) d rho_dot_j / d x of the three antennas' velocities relative to the body origin,
+#: rho_dot_j = v_j - (v_2 + v_3) / 2 (centripetal_acceleration)
+_D_RHO_DOT = np.zeros((3, 3, 18))
+for _j in range(3):
+    _D_RHO_DOT[_j, :, 9 + 3 * _j:12 + 3 * _j] += _I3
+    _D_RHO_DOT[_j, :, 12:18] -= 0.5 * np.hstack([_I3, _I3])
+_D_RHO_DOT.flags.writeable = False
 
 
 # ------------------------------------------------------------------------------------------------
@@ -350,3 +386,40 @@ def unobserved_rotation_axes(x: np.ndarray, P: np.ndarray, limit: float = ATTITU
     lam, V = np.linalg.eigh(rotation_covariance(x, P))
     A = V[:, lam > limit ** 2][:, ::-1].T
     return A * np.sign(A[np.arange(len(A)), np.argmax(np.abs(A), axis=1)])[:, None]
+
+
+# ------------------------------------------------------------------------------------------------
+# A line of masters: the rotation about it is not observable
+# ------------------------------------------------------------------------------------------------
+#: masters whose antennas lie along one line: the second singular value of their centred positions
+#: below this share of the first. Ranges from points on a line are unchanged when the follower's
+#: whole trajectory turns about that line; the antennas' offsets from it (1 m triangles) observe
+#: the turn only weakly. The built-in formations: line H000 0.0033 (antennas within 0.67 m of one
+#: line over 402 m), every other one 0.31 or more; 0.03 lies a decade from both.
+LINE_RATIO = 0.03
+
+
+def masters_line(master_pos: np.ndarray, master_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The line the masters' antennas lie along, or None when they do not (LINE_RATIO).
+
+    master_pos, master_vel: (M, 3, 3) master antenna positions (m) and velocities (m/s), any one
+    frame (the masters' own navigation, an input). Returns (c (3,) m the antennas' centroid,
+    c_dot (3,) m/s its velocity, e (3,) the unit direction of the line, signed so that its largest
+    component is positive)."""
+    X = np.asarray(master_pos, float).reshape(-1, 3)
+    c = X.mean(axis=0)
+    _, sv, Vt = np.linalg.svd(X - c)
+    if sv[1] >= LINE_RATIO * sv[0]:
+        return None
+    e = Vt[0] * np.sign(Vt[0][np.argmax(np.abs(Vt[0]))])
+    return c, np.asarray(master_vel, float).reshape(-1, 3).mean(axis=0), e
+
+
+def line_rotation(p: np.ndarray, v: np.ndarray, line: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """(6,) the change of a body's position p (3,) m and velocity v (3,) m/s when its trajectory
+    turns by 1 rad about the masters' line (c, c_dot, e) = masters_line(...), same frame:
+        d p = e x (p - c),   d v = e x (v - c_dot)      (m/rad, m/s/rad; the line's own turn neglected).
+    The ranges from points on the line do not change when the trajectory turns about it (for any
+    angle): the direction the ranges of a line of masters do not observe."""
+    c, c_dot, e = line
+    return np.concatenate([np.cross(e, p - c), np.cross(e, v - c_dot)])

@@ -71,3 +71,64 @@ def test_cross_h000_observes_its_attitude_and_scores_it(scores):
     m = scores["phase-cross-h000"]
     assert m["attitude_unobserved_fraction"] == 0.0 and m["attitude_unobserved_axes_final"] == []
     assert m["anees_attitude6_dof"] == 6 and len(m["anees_attitude6_interval_99"]) == 2 and m["n_eff_attitude6"] >= 1
+
+
+def test_line_h000_scores_its_body_without_the_turn_about_the_masters_line_and_reports_that_turn(scores):
+    """A line of masters (estimators.phase_model.masters_line) does not observe a turn of the
+    follower's trajectory about that line: `anees` is the body NEES over the 5 other directions
+    (`anees_dof` 5), the turn's own NEES is `anees_unobserved` (1 dof, with its interval), the
+    line's axis is reported, and the two parts add up to the whole 6-dof NEES. Cross H000 observes
+    every direction: 6 dof, nothing reported apart."""
+    m, c = scores["phase-line-h000"], scores["phase-cross-h000"]
+    assert m["anees_dof"] == 5 and m["anees_unobserved_dof"] == 1 and len(m["anees_unobserved_interval_99"]) == 2
+    # the masters' line runs along the nav master's left axis (a lateral line), level in the world
+    assert abs(m["unobserved_line_axis"][1]) == pytest.approx(1.0, abs=1e-6)
+    assert c["anees_dof"] == 6 and "anees_unobserved" not in c and "unobserved_line_axis" not in c
+
+
+def test_the_nees_along_a_direction_and_the_rest_are_chi_square_with_1_and_d_minus_1_dof():
+    """nees_along on errors drawn from their covariance: the mean of the part along n is 1 and of
+    the rest d - 1 (d = 6), each within 4 standard errors of 20000 draws (sd sqrt(2 dof) / sqrt(N));
+    the rest equals the NEES of T e for a T (5, 6) with T n = 0."""
+    from estimators.core import nees
+    from testbed.plugins.phase_scores import nees_along
+
+    rng = np.random.default_rng(11)
+    S = rng.standard_normal((6, 6))
+    C = S @ S.T + 0.1 * np.eye(6)
+    n = rng.standard_normal(6)
+    N = 20000
+    e = rng.multivariate_normal(np.zeros(6), C, size=N)
+    Cs, ns = np.broadcast_to(C, (N, 6, 6)), np.broadcast_to(n, (N, 6))
+    along = nees_along(e, Cs, ns)
+    rest = nees(e, Cs) - along
+    assert abs(along.mean() - 1.0) < 4 * np.sqrt(2.0 / N)
+    assert abs(rest.mean() - 5.0) < 4 * np.sqrt(10.0 / N)
+    T = np.linalg.svd(n[None])[2][1:]  # (5, 6), rows orthogonal to n
+    np.testing.assert_allclose(rest[:5], nees(e[:5] @ T.T, np.broadcast_to(T @ C @ T.T, (5, 5, 5))), rtol=1e-9)
+
+
+def test_masters_line_is_found_only_for_masters_along_a_line_and_its_turn_keeps_their_ranges():
+    """masters_line: antennas within 0.5 m of a 400 m line are a line (LINE_RATIO), a V is not;
+    turning a point and its velocity about that line by a small angle changes its ranges to points
+    on the line by second order only, and line_rotation is that turn's first-order change."""
+    from estimators.phase_model import line_rotation, masters_line
+    from estimators.so3 import so3_exp
+
+    rng = np.random.default_rng(2)
+    along = np.linspace(-200.0, 200.0, 15)
+    X = np.column_stack([along, 0.5 * rng.uniform(-1, 1, 15), np.zeros(15)]).reshape(5, 3, 3) + [0.0, 0.0, 100.0]
+    V = np.zeros_like(X)
+    c, c_dot, e = masters_line(X, V)
+    assert abs(e[0]) == pytest.approx(1.0, abs=1e-5) and np.allclose(c_dot, 0.0)
+    vee = X.copy()
+    vee[:, :, 1] += np.abs(vee[:, :, 0])  # the same points bent into a V
+    assert masters_line(vee, V) is None
+    p, v, phi = np.array([-50.0, 200.0, 150.0]), np.array([4.0, -4.0, 3.0]), 1e-4
+    Rt = so3_exp(phi * e)
+    p2, v2 = c + Rt @ (p - c), c_dot + Rt @ (v - c_dot)
+    on_line = c + np.outer(np.linspace(-1, 1, 5), 200.0 * e)
+    r, r2 = np.linalg.norm(on_line - p, axis=1), np.linalg.norm(on_line - p2, axis=1)
+    assert np.abs(r2 - r).max() < 1e-9  # exact for points on the line (round-off of 300 m ranges)
+    d = line_rotation(p, v, (c, c_dot, e))
+    np.testing.assert_allclose(np.concatenate([p2 - p, v2 - v]) / phi, d, rtol=0, atol=1e-3 * np.abs(d).max())

@@ -31,6 +31,7 @@ from estimators.phase_model import (
     row_label,
     stack_rows,
 )
+from estimators import phase_frames as PF
 from estimators.so3 import rot_zyx, rot_zyx_dot
 from testbed.synthetic.phase import (
     P0_POS,
@@ -151,7 +152,8 @@ def test_rigid_prediction_follows_a_turning_rigid_body_where_eq24_stretches_it()
     angular velocity is recovered from the antennas exactly, the centripetal accelerations are
     omega x (omega x rho_j) and sum to zero on the body origin, and over one 0.1 s step the
     predicted antennas miss the true rigid motion by third order only (omega^3 dt^3 / 6 |rho|),
-    where eq. 24's constant velocity misses by omega^2 dt^2 / 2 |rho|. The covariance is eq. 24's."""
+    where eq. 24's constant velocity misses by omega^2 dt^2 / 2 |rho|. The covariance is eq. 24's
+    plus the centripetal term's input noise G J_a P J_a^T G^T, which leaves the body's block alone."""
     from estimators.phase_ekf import rigid_transition
     from estimators.phase_model import angular_velocity, centripetal_acceleration
     from estimators.so3 import skew, so3_exp
@@ -176,7 +178,30 @@ def test_rigid_prediction_follows_a_turning_rigid_body_where_eq24_stretches_it()
     assert 0.5 * (w * dt) ** 2 * 0.5 < err_cv < 0.5 * (w * dt) ** 2 * 1.5  # |rho| = 1 m
     assert err_rigid < (w * dt) ** 3 / 6 * 1.5
     b = Gaussian(x0, np.eye(18))
-    assert np.array_equal(predict(b, dt, 1e-9, rigid=True).cov, predict(b, dt, 1e-9).cov)
+    _, Ja = centripetal_acceleration(x0, jacobian=True)
+    GJ = np.concatenate([0.5 * dt * dt * Ja, dt * Ja])
+    rigid_cov = predict(b, dt, 1e-9, rigid=True).cov
+    np.testing.assert_allclose(rigid_cov, predict(b, dt, 1e-9).cov + GJ @ GJ.T, rtol=1e-12, atol=1e-15)
+    B = PF.BODY_PV
+    np.testing.assert_allclose(B @ rigid_cov @ B.T, B @ predict(b, dt, 1e-9).cov @ B.T, rtol=1e-12, atol=1e-15)
+
+
+def test_centripetal_jacobian_is_the_derivative_of_the_centripetal_acceleration():
+    """centripetal_acceleration's analytic d a / d x (9, 18) against central differences, at a
+    turning rigid body with antenna errors (so that the state is not exactly rigid)."""
+    from estimators.phase_model import centripetal_acceleration
+    from estimators.so3 import skew
+
+    R, om = rot_zyx(0.3, -0.2, 0.1), np.array([0.01, -0.02, 0.03])
+    x = antenna_state_from_body(np.array([1.0, 2.0, 3.0]), np.array([4.0, -4.0, 3.0]), R, R @ skew(om))
+    x = x + 1e-3 * np.random.default_rng(5).standard_normal(18)
+    a, J = centripetal_acceleration(x, jacobian=True)
+    assert np.array_equal(a, centripetal_acceleration(x))
+    h = 1e-7
+    num = np.column_stack([(centripetal_acceleration(x + h * e) - centripetal_acceleration(x - h * e)) / (2 * h)
+                           for e in np.eye(18)])
+    # central differences at h = 1e-7: truncation ~ h^2 and round-off ~ 1e-16 / h, far below 1e-8
+    np.testing.assert_allclose(J, num, rtol=0, atol=1e-8)
 
 
 def test_rigid_body_process_noise_is_the_covariance_of_rigid_antenna_accelerations():

@@ -153,24 +153,27 @@ def test_phase_q_stage_2_picks_the_attitude_anees_closest_to_dof_and_ignores_the
     assert 0.0 in phase_q.QR_GRID and phase_q.RULE_NEES["q_rotation"] == ("anees_attitude6", 6)
 
 
-def test_phase_q_stage_2_is_skipped_where_the_attitude_is_unobserved(monkeypatch):
-    """Stage 2 runs only where stage 1's runs at its q observe the attitude at every scored epoch;
-    elsewhere q_rotation = 0 and no stage-2 sweep is run."""
+def test_phase_q_stage_2_uses_the_body_at_the_smallest_q_where_the_attitude_is_unobserved(monkeypatch):
+    """Stage 2 by the attitude runs at stage 1's q where stage 1's runs at that q observe the
+    attitude at every scored epoch; elsewhere q = Q_GRID[0] and q_rotation is the value whose body
+    ANEES (over its `anees_dof`, 5 here) is closest to that dof."""
     from testbed.reproduce import phase_q
 
     calls = []
 
     def fake_sweep(name, seeds=(), qs=(), *, q_rotations=None, runs=None, **kw):
         calls.append((tuple(qs), tuple(q_rotations)))
-        return [{"q": q, "q_rotation": qr, "anees": 6.0 if q == 1e-9 else 3.0, "anees_attitude6": 6.0 if qr == 1e-7 else 20.0,
+        return [{"q": q, "q_rotation": qr, "anees": (6.0 if q == 1e-9 else 3.0) if qr == 0.0 else (5.0 if qr == 1e-5 else 12.0),
+                 "anees_dof": dof, "anees_attitude6": 6.0 if qr == 1e-7 else 20.0,
                  "attitude_unobserved_fraction": unobserved} for q in qs for qr in q_rotations]
 
     monkeypatch.setattr(phase_q, "simulate_seeds", lambda *a, **k: iter(()))
     monkeypatch.setattr(phase_q, "sweep", fake_sweep)
-    unobserved = 0.3
-    q, qr, _, rows2 = phase_q.calibrate("s")
-    assert (q, qr) == (1e-9, 0.0) and len(calls) == 1 and phase_q.choose(rows2, "q_rotation") == 0.0
-    unobserved, calls[:] = 0.0, []
+    unobserved, dof = 0.3, 5
+    q, qr, rows1, rows2 = phase_q.calibrate("s")
+    assert (q, qr) == (phase_q.Q_GRID[0], 1e-5) and calls[1] == ((phase_q.Q_GRID[0],), phase_q.QR_GRID)
+    assert phase_q.rule(rows1, rows2) == (q, qr)
+    unobserved, dof, calls[:] = 0.0, 6, []
     assert phase_q.calibrate("s")[:2] == (1e-9, 1e-7) and calls[1] == ((1e-9,), phase_q.QR_GRID)
 
 

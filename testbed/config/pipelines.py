@@ -84,7 +84,7 @@ class PhasePipelineConfig(_PipelineConfig):
     nav_master: the master whose body frame is the navigation frame (1-based).
     q, q_flown: white-acceleration density per antenna axis (m^2/s^3) in prescribed / flown mode.
       q is chosen by the stated rule of testbed.reproduce.phase_q (the grid q whose body ANEES
-      over whole 200 s runs on calibration seeds 1000..1009 is closest to 6); the default 1e-12 is
+      over whole 200 s runs on calibration seeds 1000..1009 is closest to its dof); the default 1e-12 is
       the rule's q for phase-cross-h000, and every built-in scenario states its own, all printed by
       `python -m testbed.reproduce.phase_q`. q_flown (1e-6) was not calibrated.
     q_translation (m^2/s^3), q_rotation (rad^2/s^3): rigid-body white accelerations of the
@@ -92,10 +92,11 @@ class PhasePipelineConfig(_PipelineConfig):
       A scenario with a [disturbance] on the follower states its densities here (model-matched).
       The built-in phase scenarios' q_rotation is the rule's stage 2 (testbed.reproduce.phase_q:
       with q fixed, the grid value whose attitude ANEES over the same 200 s calibration runs is
-      closest to 6); it applies in both motion modes.
+      closest to 6; where the attitude is unobserved, at q = 1e-12 the value whose body ANEES is
+      closest to its dof); it applies in both motion modes.
     rigid: the prediction adds the centripetal acceleration of the follower's turning rigid body to
-      eq. 24's constant velocity per antenna (estimators.phase_ekf.rigid_transition; false: the
-      paper's eq. 24 alone).
+      eq. 24's constant velocity per antenna, its uncertainty as an input noise
+      (estimators.phase_ekf.rigid_transition, time_update; false: the paper's eq. 24 alone).
     range_sigma: filter range noise, 1 sigma (m; default: the declared [sensors.phase] phase_noise,
       in range terms); rate rows, if on, get sqrt(2) range_sigma / W.
     rate_rows: "off" (default: ranges only; the eq. 7 rates are differences of range rows already

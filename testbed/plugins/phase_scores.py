@@ -22,7 +22,8 @@ from scipy.spatial.transform import Rotation
 from estimators.core import nees
 from estimators.phase_ekf import ProcessNoise, pcrb
 from estimators.phase_frames import BODY_POS, BODY_PV, to_nav
-from estimators.phase_model import antenna_state_from_body, body_from_antennas, unobserved_rotation_axes
+from estimators.phase_model import (antenna_state_from_body, body_from_antennas, line_rotation, masters_line,
+                                    unobserved_rotation_axes)
 from estimators.so3 import euler_from_rotation, skew
 from testbed.config.pipelines import PhasePipelineConfig
 from testbed.scoring.metrics import anees_keys, rmse
@@ -208,6 +209,7 @@ class PhaseScored(Hook):
     body: np.ndarray
     states: np.ndarray
     bound: np.ndarray
+    line: np.ndarray | None = None
 
     def _scored(self, t: np.ndarray) -> np.ndarray:
         """(len(t),) bool: the scored ones of times t (all when none is)."""
@@ -250,8 +252,17 @@ class PhaseScored(Hook):
             return {}
         C = np.stack([joints[i].cov for i in hit])[np.argsort(k)]
         e = np.concatenate([errs[(self.target, "position")], errs[(self.target, "velocity")]], axis=1)
-        ne = nees(e, C)
-        return {**anees_keys(ne[self._scored(p.time)], 6), "nees_body6_final": float(ne[-1])}
+        ne, sc = nees(e, C), self._scored(p.time)
+        out = {"nees_body6_final": float(ne[-1])}
+        if self.line is None:
+            return {**anees_keys(ne[sc], 6), **out}
+        # a line of masters: the NEES along the turn about it (1 dof) apart from the rest (5 dof)
+        _, kp = at_epochs(self.time, p.time)
+        est = np.concatenate([p.value, v.value], axis=1)
+        n = np.array([line_rotation(x[:3], x[3:], (ln[:3], ln[3:6], ln[6:])) for x, ln in zip(est, self.line[kp])])
+        nu = nees_along(e, C, n)
+        return {**anees_keys(ne[sc] - nu[sc], 5), **anees_keys(nu[sc], 1, "anees_unobserved"), **out,
+                "unobserved_line_axis": self.line[kp[-1], 6:].tolist()}
 
     def _navigation(self, track: Track) -> dict:
         """The 18-state scores from the estimator's navigation states (frame phase-N, layout phase-18)."""
@@ -307,7 +318,32 @@ def phase_hooks(scenario, log: dict) -> list[Hook]:
     target = f"uav{inp.follower}"
     return [Bound(target, inp.times, R @ bound @ np.swapaxes(R, 1, 2)),
             PhaseWindow(target, inp.times, R, Rd, bound, float(cfg.last_window)),
-            PhaseScored(target, inp.times, float(cfg.score_start), body[:, :6], states, bound)]
+            PhaseScored(target, inp.times, float(cfg.score_start), body[:, :6], states, bound, masters_line_world(inp))]
+
+
+def masters_line_world(inp: PhaseInputs) -> np.ndarray | None:
+    """(K, 9) per phase epoch the masters' line (estimators.phase_model.masters_line) in world axes,
+    [c (m), c_dot (m/s), e], from the masters' own antennas and the nav master's measured pose (the
+    inputs, as phase.ekf maps N to the world: c_W = p + R c, c_dot_W = v + R c_dot + dR/dt c,
+    e_W = R e); None unless the masters lie along a line at every epoch."""
+    lines = [masters_line(X, V) for X, V in zip(inp.master_pos, inp.master_vel)]
+    if any(ln is None for ln in lines):
+        return None
+    p, v, R, Rd = inp.nav_pose
+    c, cd, e = (np.array(a) for a in zip(*lines))
+    return np.concatenate([p + np.einsum("kij,kj->ki", R, c), v + np.einsum("kij,kj->ki", R, cd) + np.einsum("kij,kj->ki", Rd, c),
+                           np.einsum("kij,kj->ki", R, e)], axis=1)
+
+
+def nees_along(e: np.ndarray, C: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(K,) the part of the NEES e^T C^-1 e of errors e (K, d) with covariances C (K, d, d) that lies
+    along the directions n (K, d):
+        (n^T C^-1 e)^2 / (n^T C^-1 n),
+    chi-square with 1 dof for a consistent estimator; the rest of the NEES is chi-square with d - 1
+    dof, the NEES of the error in the directions the ones along n leave (any T (d - 1, d) with
+    T n = 0: (T e)^T (T C T^T)^-1 T e)."""
+    Ci_n = np.linalg.solve(C, n[..., None])[..., 0]
+    return np.einsum("ki,ki->k", Ci_n, e) ** 2 / np.einsum("ki,ki->k", Ci_n, n)
 
 
 def attitude_nees(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> float:

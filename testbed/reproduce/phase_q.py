@@ -33,12 +33,18 @@ evaluation run was looked at:
     filter observes), averaged over the same CALIBRATION_SEEDS on CALIBRATION_HORIZON_S runs, is
     closest to its dof 6 on a log scale (the larger q_rotation on a tie). Stage 1 runs with
     q_rotation = 0, so the rule does not depend on the value a scenario file already carries.
-    Stage 2 runs only where stage 1's runs at its q observe the attitude at every scored epoch
-    (`attitude_unobserved_fraction` 0 on every calibration seed); elsewhere q_rotation = 0. An
-    attitude the filter does not observe has no ANEES to calibrate (line H000: a line of masters
-    at one height cannot see a rotation about the line), and there a rotational noise only widens
-    the body (line H000 on the calibration seeds, q = 1e-9: body ANEES 6.49 at q_rotation = 0,
-    3.33 at 1e-5, the value an attitude ANEES of 8e4 asked for).
+    This stage 2 runs where stage 1's runs at its q observe the attitude at every scored epoch
+    (`attitude_unobserved_fraction` 0 on every calibration seed).
+
+    RULE (stage 2, attitude unobserved): elsewhere an attitude the filter does not observe has no
+    ANEES to calibrate (line H000: a line of masters cannot see a turn about the line), and stage
+    1's q, found without rotational noise, stands in for the antennas' rotation: there q = Q_GRID[0]
+    (the eq. 31 body has no random acceleration), and q_rotation = the value of QR_GRID whose body
+    ANEES (stage 1's quantity, over the directions the masters observe: `anees` with `anees_dof`)
+    at that q, averaged over the same seeds and runs, is closest to its dof on a log scale (the
+    larger q_rotation on a tie). Written after the calibration runs of line H000 showed that no q
+    of the grid at q_rotation = 0 is consistent over 200 s on the observed directions (5 dof: 1562
+    at 1e-12, 480 at 1e-11, 3.0 at 1e-9, 2.2 at 1e-8), before any evaluation run of this rule.
 
 Why the attitude: at stage 1's small q the filter is over-confident in its attitude and, through
 it, in the 18-state (tests/test_phase_scenario.py), because the independent per-antenna q no longer
@@ -52,7 +58,8 @@ rigid-body noise reaches, and is left as the evaluation's check (on other seeds)
 (the paper's Q) and the decades 1e-10 .. 1e-5 (1e-5: the model-matched test's rotational
 disturbance; the eq. 31 attitude-rate amplitude squared over one 200 s period is 1.5e-7).
 
-`choose(rows)` applies the rule to a sweep (`choose(rows, "q_rotation")` stage 2); `calibrate(name)`
+`choose(rows)` applies the rule to a sweep (`choose(rows, "q_rotation")` stage 2), `rule(rows1, rows2)`
+both stages to their sweeps; `calibrate(name)`
 runs both stages on one scenario; `sweep(name, seeds, qs, q_rotations=...)` simulates each seed once and runs the EKF on that log with
 every (q, q_rotation) (`score_ekf`: the phase.ekf estimator and its scores);
 `python -m testbed.reproduce.phase_q` prints the rule's q and q_rotation for every built-in phase
@@ -78,13 +85,15 @@ CALIBRATION_HORIZON_S = 200.0  # s: the built-in phase scenarios' duration, the 
 Q_GRID = (1e-12, 1e-11, 1e-9, 1e-8, 1e-7, 1e-6)  # m^2/s^3 (1e-12: the smallest number a scenario file accepts)
 QR_GRID = (0.0, 1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5)  # rad^2/s^3, stage 2
 DOF = 6  # body position and velocity: the `anees` of testbed.plugins.phase_scores.PhaseScored; also the attitude's
-#: per stage: the swept parameter -> (the ANEES over the run the rule calibrates, its dof)
+#: per stage: the swept parameter -> (the ANEES over the run the rule calibrates, its dof unless the
+#: rows carry KEY_dof: the body's is 5 where a line of masters leaves one direction unobserved,
+#: testbed.plugins.phase_scores.PhaseScored)
 RULE_NEES = {"q": ("anees", DOF), "q_rotation": ("anees_attitude6", 6)}
 #: the scores of one (seed, q, q_rotation) kept by the sweep: row key -> key of score_ekf (the RMSEs
 #: and the PCRB over t >= score_start, testbed.plugins.phase_scores.PhaseScored; the gate's
 #: rejected rows, the filter's health())
 KEPT = {"nees_body6_final": "nees_body6_final", "nees_attitude6_final": "nees_attitude6_final",
-        "nees_final": "nees_final", "anees": "anees", "anees_attitude6": "anees_attitude6",
+        "nees_final": "nees_final", "anees": "anees", "anees_dof": "anees_dof", "anees_attitude6": "anees_attitude6",
         "attitude_unobserved_fraction": "attitude_unobserved_fraction",
         "rmse_position_m": "rmse_position_after_start_m",
         "pcrb_rmse_position_m": "pcrb_rmse_position_after_start_m", "rmse_attitude_deg": "rmse_attitude_after_start_deg",
@@ -150,52 +159,73 @@ def sweep(name: str, seeds=CALIBRATION_SEEDS, qs=Q_GRID, *, q_rotations=None,
     return rows
 
 
-def anees_by_q(rows: list[dict], param: str = "q") -> dict[float, float]:
+def anees_by_q(rows: list[dict], param: str = "q", key: str | None = None) -> dict[float, float]:
     """{value of `param`: mean over the rows' seeds of the ANEES the rule calibrates for it
-    (RULE_NEES; a seed without one, e.g. an attitude never observed, is left out)} of one
-    scenario's sweep."""
+    (RULE_NEES, or the rows' `key`; a seed without one, e.g. an attitude never observed, is left
+    out)} of one scenario's sweep."""
     return {v: float(np.mean(kept)) if kept.size else math.nan  # no seed observed it
-            for v, kept in _per_value(rows, param).items()}
+            for v, kept in _per_value(rows, param, key).items()}
 
 
-def anees_interval_by_q(rows: list[dict], param: str = "q", level: float = 0.99) -> dict[float, list[float] | None]:
+def anees_interval_by_q(rows: list[dict], param: str = "q", key: str | None = None,
+                        level: float = 0.99) -> dict[float, list[float] | None]:
     """{value of `param`: the interval a consistent filter's mean (anees_by_q) falls in, from the
     spread of the seeds' per-run ANEES (testbed.scoring.metrics.anees_run_interval, Student t: the
     seeds are independent runs, docs/consistency.md), None with fewer than 2 seeds}."""
-    dof = RULE_NEES[param][1]
+    dof = rule_dof(rows, param, key)
     return {v: list(anees_run_interval(kept, dof, level)) if kept.size >= 2 else None
-            for v, kept in _per_value(rows, param).items()}
+            for v, kept in _per_value(rows, param, key).items()}
 
 
-def _per_value(rows: list[dict], param: str) -> dict[float, np.ndarray]:
-    """{value of `param`: the seeds' ANEES the rule calibrates (RULE_NEES) at it, NaN left out}."""
-    key = RULE_NEES[param][0]
+def _per_value(rows: list[dict], param: str, key: str | None = None) -> dict[float, np.ndarray]:
+    """{value of `param`: the seeds' ANEES the rule calibrates (RULE_NEES, or the rows' `key`) at it,
+    NaN left out}."""
+    key = key or RULE_NEES[param][0]
     return {v: np.array([x for x in (r.get(key, np.nan) for r in rows if r[param] == v) if not math.isnan(x)])
             for v in sorted({r[param] for r in rows})}
 
 
-def choose(rows: list[dict], param: str = "q") -> float:
+def choose(rows: list[dict], param: str = "q", key: str | None = None) -> float:
     """The RULE (module docstring) on one scenario's sweep over `param` ("q": stage 1,
-    "q_rotation": stage 2): the value whose ANEES is closest to its dof on a log scale, the
-    larger value on a tie."""
-    a, dof = anees_by_q(rows, param), RULE_NEES[param][1]
+    "q_rotation": stage 2; key "anees": stage 2 with the attitude unobserved): the value whose
+    ANEES is closest to its dof on a log scale, the larger value on a tie."""
+    a, dof = anees_by_q(rows, param, key), rule_dof(rows, param, key)
     return min(a, key=lambda v: (abs(math.log(a[v] / dof)), -v))
+
+
+def rule_dof(rows: list[dict], param: str = "q", key: str | None = None) -> int:
+    """The dof of the ANEES the rule calibrates for `param` (or of the rows' `key`) on one
+    scenario's rows (RULE_NEES; the rows' KEY_dof where they carry it)."""
+    name, dof = RULE_NEES[param]
+    key = key or name
+    return int(rows[0].get(f"{key}_dof", dof if key == name else DOF))
+
+
+def attitude_observed(rows1: list[dict]) -> bool:
+    """Whether every stage-1 run at stage 1's q observes the attitude at every scored epoch (the
+    RULE's stage 2 by the attitude; else stage 2 with the attitude unobserved)."""
+    q = choose(rows1)
+    return not any(r["attitude_unobserved_fraction"] > 0 for r in rows1 if r["q"] == q)
+
+
+def rule(rows1: list[dict], rows2: list[dict]) -> tuple[float, float]:
+    """(q, q_rotation) of the RULE from one scenario's stage-1 rows (Q_GRID at q_rotation 0) and
+    stage-2 rows (QR_GRID at the q `calibrate` sweeps them at)."""
+    if attitude_observed(rows1):
+        return choose(rows1), choose(rows2, "q_rotation")
+    return Q_GRID[0], choose(rows2, "q_rotation", "anees")
 
 
 def calibrate(name: str, seeds=CALIBRATION_SEEDS, *, duration: float | None = CALIBRATION_HORIZON_S,
               motion: str = "prescribed", progress=None) -> tuple[float, float, list[dict], list[dict]]:
     """Both stages of the rule on scenario `name`, each seed simulated once: (q, q_rotation,
-    stage-1 rows over Q_GRID at q_rotation 0, stage-2 rows over QR_GRID at that q, or stage 1's
-    rows at that q where stage 2 does not run). In flown
+    stage-1 rows over Q_GRID at q_rotation 0, stage-2 rows over QR_GRID at the chosen q). In flown
     mode the swept q is q_flown (the scenarios' q_flown is not calibrated by this rule)."""
     runs = list(simulate_seeds(name, seeds, duration=duration, motion=motion))
     rows1 = sweep(name, qs=Q_GRID, q_rotations=(0.0,), motion=motion, runs=runs, progress=progress)
-    q = choose(rows1)
-    at_q = [r for r in rows1 if r["q"] == q]
-    if any(r["attitude_unobserved_fraction"] > 0 for r in at_q):  # attitude not observed: no stage 2
-        return q, 0.0, rows1, at_q
+    q = choose(rows1) if attitude_observed(rows1) else Q_GRID[0]  # stage 2 by the attitude, or without it
     rows2 = sweep(name, qs=(q,), q_rotations=QR_GRID, motion=motion, runs=runs)
-    return q, choose(rows2, "q_rotation"), rows1, rows2
+    return (*rule(rows1, rows2), rows1, rows2)
 
 
 def _mean_by_q(rows: list[dict], key: str, rms: bool = False) -> tuple[list[float], list[float]]:
@@ -271,12 +301,14 @@ def main(argv: list[str] | None = None) -> int:
         q, qr, sweeps[name], rows2 = calibrate(name)
         chosen[name] = q
         # one ANEES per calibration seed; seeds share no noise: the runs are independent samples
-        lo, hi = anees_run_interval(np.array([r["anees"] for r in rows2 if r["q_rotation"] == qr]), DOF)
+        lo, hi = anees_run_interval(np.array([r["anees"] for r in rows2 if r["q_rotation"] == qr]), rule_dof(rows2))
         print(f"{name}: q = {q:g}, q_rotation = {qr:g}  (body ANEES at both, 99 % run interval "
               f"[{lo:.2f}, {hi:.2f}]; body ANEES by q: "
               + ", ".join(f"{v:g}: {a:.2f}" for v, a in anees_by_q(sweeps[name]).items())
-              + f"; attitude ANEES by q_rotation at q = {q:g}: "
-              + ", ".join(f"{v:g}: {a:.2f}" for v, a in anees_by_q(rows2, "q_rotation").items()) + ")", flush=True)
+              + f"; attitude / body ANEES by q_rotation at q = {q:g}: "
+              + ", ".join(f"{v:g}: {a:.2f} / {b:.2f}" for (v, a), b in zip(anees_by_q(rows2, "q_rotation").items(),
+                                                                           anees_by_q(rows2, "q_rotation", "anees").values()))
+              + ")", flush=True)
     if args.plot is not None:
         plot(sweeps, chosen, args.plot, horizon=CALIBRATION_HORIZON_S,
              long=sweep(args.long, duration=None) if args.long else None)
