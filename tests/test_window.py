@@ -22,6 +22,7 @@ import pytest
 from scipy.stats import t as student_t
 
 from estimators import window as sw
+from estimators.graph import linear
 from estimators.graph.model import ConstantVelocity, Graph, Prior, Range, solve_graph
 
 N, DT, Q = 5, 0.2, 1.0
@@ -306,6 +307,7 @@ def test_bounded_work_per_epoch(monkeypatch):
         return real(D, U, R)
 
     monkeypatch.setattr(sw, "solve_block_tridiagonal", counting)
+    monkeypatch.setattr(linear, "solve_block_tridiagonal", counting)  # the iteration's (BlockTridiagonalNormals)
     eps, _ = synthetic(40, outage=(100, 100))
     est = sw.Centralized(N, window=4, q=Q, max_iter=3, tol=0.0)
     per_epoch = []
