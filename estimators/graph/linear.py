@@ -180,6 +180,12 @@ class DenseNormals:
         """delta^T N delta per problem, (E,), for delta (E, k)."""
         return np.einsum("ei,eij,ej->e", delta, self.N, delta)
 
+    def inverse(self) -> np.ndarray:
+        """N^-1 per problem (E, k, k) (a covariance), L^-T L^-1 from the Cholesky factor N = L L^T.
+        Raises numpy.linalg.LinAlgError where an N is not positive definite."""
+        Li = np.linalg.inv(np.linalg.cholesky(self.N))
+        return np.einsum("nba,nbc->nac", Li, Li)
+
     def where(self, mask: np.ndarray, other: "DenseNormals") -> "DenseNormals":
         """Per problem: self where mask (E,) else other."""
         return DenseNormals(np.where(mask[:, None, None], self.N, other.N), np.where(mask[:, None], self.g, other.g))

@@ -2,12 +2,14 @@
 the round iteration of its distributed (message-passing) solvers.
 
 `solve(problem, x)` minimizes a batch of E independent robust least-squares problems at once (E = 1:
-one graph, sparse; E > 1: the epochs of estimators.graph.batch, dense). The problem gives:
+one graph, sparse; E > 1: the epochs of estimators.graph.batch, dense, or the agents of the
+sliding window, estimators.window, block-tridiagonal). The problem gives:
     size                                  E
     evaluate(x) -> (cost (E,), memo)      robust objective sum rho(|b_k|) of each problem, and
                                           whatever `normal` may reuse at the same x (or None)
     normal(x, memo) -> normal equations   IRLS-weighted N delta = g of each problem at x
-                                          (estimators.graph.linear: SparseNormal, DenseNormals)
+                                          (estimators.graph.linear: SparseNormal, DenseNormals,
+                                          BlockTridiagonalNormals)
     retract(x, delta) -> x'               x "plus" the steps delta (E, k) (vector addition, or a
                                           manifold retraction for poses)
     select(mask, a, b) -> x               per problem a where mask (E,) else b
@@ -21,8 +23,9 @@ L(0) - L(Delta) = Delta^T (lam D Delta + g) / 2, decides: q > 0 accepts and
 lam *= max(1/3, 1 - (2q - 1)^3), else lam *= nu, nu *= 2 (Madsen, Nielsen, Tingleff 2004, "Methods
 for non-linear least squares problems", eq. 2.21 and algorithm 3.16); a damped matrix that is not
 positive definite is a rejected step. GN: the undamped step with backtracking (halving) until the
-cost does not rise; a singular N, or no halving that lowers the cost, stops the iteration (the
-step that failed is not counted).
+cost does not rise by more than its round-off (`roundoff`); a singular N, or no halving that does
+so, stops the iteration (the step that failed is not counted). A batch halves each problem's step
+on its own.
 Convergence, per problem: an accepted step whose largest component is below step_tol (GN: the full
 step, which estimates the distance to the optimum, not a halved one), or (cost_tol > 0) whose
 relative cost decrease is below cost_tol, or (step_sigma > 0) that is shorter than step_sigma
@@ -31,7 +34,7 @@ starts, or (stop given) that passes the caller's own test stop(delta, lin) -> (E
 after every linear solve with its full step delta (E, k) and the normal equations lin it solved;
 also a rejected (LM) or failed (GN) step whose largest component is below step_tol (the
 minimum is within step_tol; round-off decides the cost there). Steps whose predicted decrease is
-below the round-off of the cost (ROUNDOFF relative) are taken whatever the evaluated cost does:
+below the round-off of the cost (`roundoff` relative) are taken whatever the evaluated cost does:
 there the cost cannot order the iterates (on coop-fg epochs it scatters by ~3e-14 relative, i.e. it cannot tell points
 ~5e-7 m apart along the weakest direction), so a cost test would stop short of the optimum; the
 step test decides. Reaching max_iter is a result (converged False), never an exception.
