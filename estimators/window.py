@@ -105,7 +105,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
+from scipy import linalg, sparse
 from scipy.sparse import csgraph
 
 from estimators import layout
@@ -483,8 +483,10 @@ class _Window:
     def _sigmas(full: np.ndarray, S: np.ndarray) -> float:
         """The largest full (undamped) Gauss-Newton step (B, K, s) of a newest-epoch state in
         units of that state's marginal sigma, sqrt(diag S^-1) (S (B, s, s) the newest epoch's
-        information at the step's start)."""
-        sd = np.sqrt(np.diagonal(np.linalg.inv(S), axis1=1, axis2=2))
+        information at the step's start): with S = L L^T (Cholesky), (S^-1)_jj = sum_i (L^-1)_ij^2,
+        L^-1 by a triangular inversion (no general inverse)."""
+        Li = np.stack([linalg.lapack.dtrtri(c, lower=1)[0] for c in np.linalg.cholesky(S)])
+        sd = np.sqrt(np.einsum("bij,bij->bj", Li, Li))
         return float((np.abs(full[:, -1]) / sd).max())
 
     @staticmethod
