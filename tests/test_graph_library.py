@@ -17,7 +17,7 @@ from estimators.graph import lm
 from estimators.graph import model as gm
 from estimators.graph.batch import EpochFactors, solve_epochs
 from estimators.graph.flooding import solve_flooding
-from estimators.graph.linear import DenseNormals
+from estimators.graph.linear import BlockTridiagonalNormals, DenseNormals
 from estimators.graph.gbp import solve_gbp
 from testbed.synthetic.coop import make_epoch
 from tests.test_window import N, Q, synthetic
@@ -218,3 +218,38 @@ def test_callers_stop_test_and_cost_roundoff():
     flat = dict(method="gn", max_iter=3, step_tol=0.0, cost_tol=0.0, max_halvings=0)
     assert lm.solve(_Line(1e-13), np.zeros(1), **flat)[2].iterations[0] == 0
     assert lm.solve(_Line(1e-13), np.zeros(1), roundoff=1e-12, **flat)[2].iterations[0] == 3
+
+
+def test_normal_equation_objects_equal_their_dense_matrices():
+    """BlockTridiagonalNormals (the window's) and DenseNormals.inverse against the dense matrix
+    they stand for: diagonal, quadratic form, damped solve, the newest epoch's information (the
+    inverse of its marginal covariance) and per-chain selection; random SPD chains, to 1e-10."""
+    rng = np.random.default_rng(7)
+    B, K, s = 3, 4, 2
+    J = np.zeros((B, K, s, K, s))  # block-bidiagonal: each block row links epochs k and k + 1
+    for k in range(K):
+        J[:, k, :, k] = rng.normal(size=(B, s, s))
+        if k + 1 < K:
+            J[:, k, :, k + 1] = rng.normal(size=(B, s, s))
+    J = J.reshape(B, K * s, K * s)
+    H = np.einsum("bri,brj->bij", J, J) + np.eye(K * s)  # SPD, block-tridiagonal
+    blk = H.reshape(B, K, s, K, s)
+    D = np.stack([blk[:, k, :, k, :] for k in range(K)], 1)
+    U = np.stack([blk[:, k, :, k + 1, :] for k in range(K - 1)], 1)
+    R = rng.normal(size=(B, K, s))
+    lin = BlockTridiagonalNormals(D, U, R)
+    delta = rng.normal(size=(B, K * s))
+    np.testing.assert_allclose(lin.diagonal(), np.diagonal(H, axis1=1, axis2=2), rtol=1e-12)
+    np.testing.assert_allclose(lin.quad(delta), np.einsum("bi,bij,bj->b", delta, H, delta), rtol=1e-10)
+    shift = rng.uniform(0.1, 1.0, (B, K * s))
+    step, ok = lin.solve(shift)
+    Hs = H + shift[:, :, None] * np.eye(K * s)
+    np.testing.assert_allclose(step, np.linalg.solve(Hs, R.reshape(B, -1)[..., None])[..., 0], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.inv(lin.S), np.linalg.inv(Hs)[:, -s:, -s:], rtol=1e-10)
+    assert ok.all()
+    other = BlockTridiagonalNormals(2.0 * D, U, R)
+    mixed = lin.where(np.array([True, False, True]), other)
+    np.testing.assert_array_equal(mixed.D[1], 2.0 * D[1])
+    np.testing.assert_array_equal(mixed.D[0], D[0])
+    P = DenseNormals(H, R.reshape(B, -1)).inverse()
+    np.testing.assert_allclose(P, np.linalg.inv(H), rtol=1e-10, atol=1e-12)
