@@ -59,7 +59,7 @@ from estimators.core import symmetrize
 from estimators.graph.factors import (
     gnss_h, gnss_jacobian, inflated_range_variance, range_h, range_jacobian, range_terms, sqrt_information,
 )
-from estimators.graph.linear import DENSE_LIMIT, GaugeWarning, SparseNormal, dense_covariance, factor_spd, marginal_blocks
+from estimators.graph.linear import DENSE_LIMIT, DenseNormals, GaugeWarning, SparseNormal, dense_covariance, factor_spd, marginal_blocks
 from estimators.graph import lm
 from estimators.graph.lm import Report, minimize
 from estimators.graph.losses import HUBER_DELTA, Loss, huber_rho, huber_weight, loss_rho, loss_weight
@@ -731,11 +731,10 @@ def solve_distributed(
             # eq. 16 (local): (A_i^T A_i) Delta_i = A_i^T b_i, accumulated factor by factor
             np.add.at(Lam, dst[v], w[:, None, None] * u[:, :, None] * u[:, None, :])
             np.add.at(g, dst[v], (w * res)[:, None] * u)
-            c = np.linalg.cholesky(Lam)
-            dX = np.linalg.solve(Lam, g[..., None])[..., 0]
-            # eq. 19: Sigma_i = (R^T R)^-1 = (A_i^T A_i)^-1 restricted to p_i
-            Ci = np.linalg.inv(c)
-            P_new = np.einsum("nba,nbc->nac", Ci, Ci)
+            local = DenseNormals(Lam, g)
+            dX = local.solve(None)[0]
+            # eq. 19: Sigma_i = (R^T R)^-1 = (A_i^T A_i)^-1 restricted to p_i (raises if not positive definite)
+            P_new = local.inverse()
         dX = damping * dX
         if not plain:
             dX[problem.fixed] = 0.0

@@ -25,7 +25,10 @@ Factors (seed 001's, docs/papers.md, plus the motion between epochs that a windo
 Online: `add(epoch)` appends one epoch (warm start: the previous estimate propagated at constant
 velocity), marginalizes the oldest when the window is full, and takes Gauss-Newton steps on the
 window until the newest epoch's estimated distance to the optimum is below `tol` of its marginal
-sigmas (`_rest`; centralized) or `max_iter`. No look-ahead: the estimate of
+sigmas (`_rest`; centralized) or `max_iter`: the library's iteration, estimators.graph.lm.solve,
+the agents below a batch of independent problems each with its own step halving (`_solve`,
+`_Chains`); a step that no halving keeps from raising the cost stops that solve, not converged.
+No look-ahead: the estimate of
 epoch k uses the epochs up to k only. Cost per epoch: max_iter x (K block solves of 6n x 6n),
 bounded by the window length whatever the run length (the normal matrix is block-tridiagonal in
 time: motion factors link only consecutive epochs; `solve_block_tridiagonal` eliminates it forward).
@@ -39,9 +42,9 @@ Two solvers share this machinery (batched over B "agents", each with s = 6 nv st
   Gauss-Newton step on its own window, a neighbour's broadcast position at each epoch entering
   as a prior, i.e. (Schur complement, as estimators.factor_graph) the neighbour fixed there with
   the range variance inflated to sigma_d^2 + u^T Sigma_j u (u taken at the round's start and held
-  through its step: `_weigh`). Rounds stop when every newest position moved less than `tol`, or
-  every vehicle's newest-state step is below `tol_sigma` of its own marginal sigmas, or at
-  `max_rounds` (`Distributed`). A message travels through an estimators.transport.Transport (None: ideal); what
+  through its step: `_weigh`). Rounds stop when every newest position moved less than `tol` (its
+  largest component) or at `max_rounds`, or when a step diverges: the library's round iteration,
+  estimators.graph.lm.iterate_rounds. A message travels through an estimators.transport.Transport (None: ideal); what
   a vehicle last received from a neighbour is what its ranges use, at every epoch of the window.
   Broadcasting only the newest epoch, each older epoch's ranges kept the neighbour's position as
   first heard while the vehicle's own state there moved on: the swarm's common position drifted
@@ -94,26 +97,32 @@ fed every epoch should take to count no measurement twice (testbed.plugins.built
 decorrelate).
 
 Built on the graph library (estimators.graph): its range and motion factors (graph.factors), the
-Huber loss (graph.losses) and the block-tridiagonal solve (graph.linear). Never imports mujoco or
-testbed.
+Huber loss (graph.losses), the block-tridiagonal solve and normal equations (graph.linear) and its
+iterations (graph.lm): every estimate carries the lm Report of its iteration. Never imports mujoco
+or testbed.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
+from scipy import linalg, sparse
 from scipy.sparse import csgraph
 
 from estimators import layout
+from estimators.graph import lm
 from estimators.graph.factors import inflated_range_variance, motion_blocks, motion_input_blocks, range_terms
-from estimators.graph.linear import solve_block_tridiagonal
+from estimators.graph.linear import BlockTridiagonalNormals, solve_block_tridiagonal
 from estimators.graph.losses import huber_rho, huber_weight
 from estimators.transport import Transport
 
 __all__ = ["Epoch", "WindowEstimate", "Centralized", "Distributed", "BROADCAST_BYTES", "equivalent_measurement"]
 
-HALVINGS = 8  # step halvings per Gauss-Newton step (a full step that raises the cost is halved)
+HALVINGS = 8  # trials per Gauss-Newton step: the full step, then halved while the cost rises (7 halvings)
+# the relative round-off of the window's cost: its motion terms are summed as 0.5 x^T M x - g^T x
+# over positions of tens of metres, terms of ~1e4 that cancel to ~1 (measured: ~1e-12 absolute
+# noise on costs of ~20, where a plain sum of squares has lm.ROUNDOFF)
+COST_ROUNDOFF = 1e-12
 
 # a vehicle's mirror image (`_Window._mirrors`) replaces it when the window's cost there is lower
 # by more than this: the measurements at least 100 times likelier (cost = -log likelihood + const)
@@ -159,7 +168,10 @@ class WindowEstimate:
     (n, 3, 3) marginal covariances; iterations (GN steps or rounds); converged; mirrored
     (vehicles replaced by their mirror image at this epoch, module docstring); messages,
     bytes_sent (distributed broadcasts, 0 centralized); tracklet (with `tracklets` on: the newest
-    position marginal and the window's prediction of it, `_Window._tracklet`; else None)."""
+    position marginal and the window's prediction of it, `_Window._tracklet`; else None); report:
+    the estimators.graph.lm Report of the epoch's iteration (centralized: its last Gauss-Newton
+    solve, the one after the mirror test when a vehicle was mirrored, iterations then counting
+    both; distributed: its rounds)."""
 
     t: float
     pos: np.ndarray
@@ -172,6 +184,7 @@ class WindowEstimate:
     messages: int = 0
     bytes_sent: int = 0
     tracklet: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    report: lm.Report | None = None
 
 
 def equivalent_measurement(m: np.ndarray, P: np.ndarray, m_pred: np.ndarray, P_pred: np.ndarray,
@@ -487,40 +500,26 @@ class _Window:
                 R[:, k + 1] += known[1]
         return D, U, R, C
 
-    def _step(self, sys):
-        """One Gauss-Newton step from the system sys (_system at the current estimate), halved per
-        agent until that agent's cost does not rise (at most HALVINGS times). Returns (delta
-        (B, K, s) taken, newest information S (B, s, s) at the old estimate, the new system, the
-        full step (B, K, s): the distance to the optimum as the linearization sees it)."""
-        D, U, R, C = sys
-        delta, S = solve_block_tridiagonal(D, U, R)
-        X0, alpha = self.X, np.ones(self.B)
-        for _ in range(HALVINGS):
-            self.X = X0 + alpha[:, None, None] * delta
-            new = self._system()
-            worse = new[3] > C + 1e-12 * np.abs(C)
-            if not worse.any():
-                break
-            alpha = np.where(worse, 0.5 * alpha, alpha)
-        return alpha[:, None, None] * delta, S, new, delta
-
-    def _iterate(self, rounds: int) -> tuple[int, bool, np.ndarray]:
-        """Up to `rounds` steps, stopped by the rule of `_rest` (steps, stopped, newest information S)."""
-        sys = self._system()
-        steps = []  # each step's `_sigmas`
-        for it in range(1, rounds + 1):
-            _, S, sys, full = self._step(sys)
-            steps.append(self._sigmas(full, S))
-            if self._rest(steps) <= self.tol:
-                return it, True, S
-        return rounds, False, S
+    def _solve(self, max_iter: int, tol: float | None) -> tuple[lm.Report, np.ndarray]:
+        """Gauss-Newton on the window from the current estimate: estimators.graph.lm.solve with the
+        agents as a batch of independent problems (`_Chains`), each agent its own step halving
+        (HALVINGS trials; a step that no halving keeps from raising that agent's cost is not taken
+        and stops its solve); at most max_iter steps, stopped by the rule of `_rest` below tol
+        (None: no rule). Returns lm's Report and S (B, s, s), the newest epoch's information of
+        the last linear solve (at the start of the last step: what the estimate's covariance is)."""
+        chains = _Chains(self, tol)
+        self.X, _, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
+                                     max_halvings=HALVINGS - 1, stop=chains.stop, roundoff=COST_ROUNDOFF)
+        return report, chains.S
 
     @staticmethod
     def _sigmas(full: np.ndarray, S: np.ndarray) -> float:
         """The largest full (undamped) Gauss-Newton step (B, K, s) of a newest-epoch state in
         units of that state's marginal sigma, sqrt(diag S^-1) (S (B, s, s) the newest epoch's
-        information at the step's start)."""
-        sd = np.sqrt(np.diagonal(np.linalg.inv(S), axis1=1, axis2=2))
+        information at the step's start): with S = L L^T (Cholesky), (S^-1)_jj = sum_i (L^-1)_ij^2,
+        L^-1 by a triangular inversion (no general inverse)."""
+        Li = np.stack([linalg.lapack.dtrtri(c, lower=1)[0] for c in np.linalg.cholesky(S)])
+        sd = np.sqrt(np.einsum("bij,bij->bj", Li, Li))
         return float((np.abs(full[:, -1]) / sd).max())
 
     @staticmethod
@@ -630,6 +629,43 @@ class _Window:
         return Xv[:, :3], Xv[:, 3:], C[:, :3, :3], C[:, 3:, 3:]
 
 
+class _Chains:
+    """The window's agents as a batch of B independent problems for estimators.graph.lm.solve:
+    x the window's estimate X (B, K, s), their cost and normal equations those of
+    `_Window._system` (block-tridiagonal, linear.BlockTridiagonalNormals), retraction x + delta.
+    `stop` is lm's caller test: the centralized rule of `_Window._rest` below tol (None: never),
+    and it keeps S of the last linear solve."""
+
+    def __init__(self, win: _Window, tol: float | None):
+        self.win, self.size, self.tol = win, win.B, tol
+        self.steps: list[float] = []  # each step's `_Window._sigmas`
+        self.S = None
+
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, tuple]:
+        self.win.X = x
+        D, U, R, C = self.win._system()
+        return C, (D, U, R)
+
+    def normal(self, x: np.ndarray, memo: tuple | None) -> BlockTridiagonalNormals:
+        return BlockTridiagonalNormals(*(memo if memo is not None else self.evaluate(x)[1]))
+
+    @staticmethod
+    def retract(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        return x + delta.reshape(x.shape)
+
+    @staticmethod
+    def select(mask: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.where(mask[:, None, None], a, b)
+
+    def stop(self, delta: np.ndarray, lin: BlockTridiagonalNormals) -> np.ndarray:
+        """The full step delta (B, K s) solved from lin: converged (B,) by `_Window._rest`."""
+        self.S = lin.S
+        if self.tol is None:
+            return np.zeros(self.size, bool)
+        self.steps.append(self.win._sigmas(delta.reshape(self.win.X.shape), lin.S))
+        return np.full(self.size, self.win._rest(self.steps) <= self.tol)
+
+
 class Centralized(_Window):
     """The swarm's sliding window solved as one graph (module docstring). tol: the stopping rule's
     sigmas of the newest epoch's estimated distance to the optimum (`_rest`)."""
@@ -669,34 +705,31 @@ class Centralized(_Window):
             ep.fix, ep.fix_sigma, ep.edges, ep.ranges, ep.range_sigma, ep.anchor_vehicle, ep.anchor_pos, ep.anchor_range,
             ep.anchor_sigma)
         self._append(ep, start)  # the first epoch from the swarm's shape (estimators.layout)
-        it, converged, S = self._iterate(self.max_iter)
+        report, S = self._solve(self.max_iter, self.tol)
+        it = int(report.iterations[0])
         mirrored = self._mirror() if self.mirrors else 0
         if mirrored:  # solve again from the mirror images
-            more, converged, S = self._iterate(self.max_iter)
-            it += more
+            report, S = self._solve(self.max_iter, self.tol)
+            it += int(report.iterations[0])
         pos, vel, pc, vc = self._newest(S)
-        return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it, converged=converged,
-                              mirrored=mirrored,
-                              tracklet=self._tracklet() if self.tracklets else None)
+        return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it,
+                              converged=bool(report.converged[0]), mirrored=mirrored,
+                              tracklet=self._tracklet() if self.tracklets else None, report=report)
 
 
 class Distributed(_Window):
     """One sliding window per vehicle, seed 001's message iteration at each new epoch (module
     docstring). max_rounds: cap on rounds per epoch; transport: the channel (None: ideal).
-    Rounds stop when every newest position moved less than tol (m) in the round, or when every
-    vehicle's full (undamped) step of its newest states is below tol_sigma of their marginal
-    sigmas (`_sigmas`; 0: off), or at max_rounds. The second rule is a cut on the step, not a
-    test of convergence: the rounds converge linearly and slowly (a median 193 rounds to 1e-7 m
-    on coop-denied), so tol almost never fires and every epoch runs max_rounds; cut at 0.1 or
-    0.2 sigma, the flights took 12-29 % less CPU and the cascade flown on them was less accurate
-    and less consistent (docs/denied.md, "Stopping the distributed rounds early"), so the
-    plugins leave it off."""
+    Rounds stop when every newest position moved less than tol (m) in the round (its largest
+    component), or at max_rounds: the rounds converge linearly and slowly (a median 193 rounds to
+    1e-7 m on coop-denied), so tol almost never fires and every epoch runs max_rounds. A cut on
+    the step in sigmas was measured and not kept: it cost accuracy and consistency
+    (docs/denied.md, "Stopping the distributed rounds early")."""
 
     def __init__(self, n: int, *, window: int = 5, q: float = 1.0, huber: float | None = None, max_rounds: int = 20,
-                 tol: float = 1e-3, tol_sigma: float = 0.0, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0):
+                 tol: float = 1e-3, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0):
         super().__init__(n, agents=n, per_agent=1, window=window, q=q, huber=huber, max_iter=max_rounds, tol=tol,
                          init_sigma_p=init_sigma_p, init_sigma_v=init_sigma_v)
-        self.tol_sigma = float(tol_sigma)
         # per window epoch: what receiver r last heard of sender s: position (n, n, 3), covariance
         # (n, n, 3, 3), heard (n, n) bool; and the covariance each vehicle broadcasts for it (n, 3, 3)
         self.heard_pos: list[np.ndarray] = []
@@ -805,10 +838,7 @@ class Distributed(_Window):
         # round 0's local step: own GNSS, anchors, motion and the window's older ranges only (not
         # at the first epoch: from the start exchange's layout it would step to the fix)
         self._weigh()
-        if first:
-            S = solve_block_tridiagonal(*self._system()[:3])[1]
-        else:
-            _, S, _, _ = self._step(self._system())
+        S = solve_block_tridiagonal(*self._system()[:3])[1] if first else self._solve(1, None)[1]
         # (n, 3, 3): what each vehicle knows from its own measurements (GNSS, anchors, motion),
         # without any range to a neighbour: the covariance it broadcasts (module docstring)
         D, U, R, _ = self._system(ranges=False)
@@ -817,13 +847,15 @@ class Distributed(_Window):
         edges = np.concatenate([e.edges for e in self.epochs])
         pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)
         nbytes = BROADCAST_BYTES * len(self.epochs)  # the sender's whole window
-        converged = not pairs.size
-        rounds = 0
-        while not converged and rounds < self.max_iter:
+
+        def exchange(rnd: int, newest: np.ndarray) -> np.ndarray:
+            """Round rnd: every vehicle broadcasts its window, then takes one Gauss-Newton step on
+            its own; the newest positions (n, 3) after it."""
+            nonlocal S, messages, sent_bytes
             if self.broadcast == "marginal":
                 self.sent_cov[-1] = self._newest(S)[2]
             ok = np.ones(len(pairs), bool) if transport is None else np.asarray(
-                transport.deliver(first + rounds, pairs[:, 0], pairs[:, 1], nbytes), bool)
+                transport.deliver(first + rnd, pairs[:, 0], pairs[:, 1], nbytes), bool)
             s_, d_ = pairs[ok, 0], pairs[ok, 1]
             P = self._pos()
             for k in range(len(self.epochs)):  # the sender's current estimate of every window epoch
@@ -834,15 +866,18 @@ class Distributed(_Window):
             senders = np.unique(pairs[:, 0]).size
             messages += senders  # one broadcast per sender and round
             sent_bytes += senders * nbytes
-            delta, S, _, full = self._step(self._system())  # the tables changed: a new local system
-            rounds += 1
-            converged = (float(np.abs(delta.reshape(n, -1, 6)[:, -1, :3]).max()) < self.tol
-                         or self._sigmas(full, S) < self.tol_sigma)
+            S = self._solve(1, None)[1]  # the tables changed: a new local system
+            return self._pos()[-1]
+
+        # rounds until every newest position moved less than tol (its largest component)
+        _, _, report = lm.iterate_rounds(self._pos()[-1], exchange, max_rounds=self.max_iter if pairs.size else 0,
+                                         tol=self.tol, ord=np.inf)
         mirrored = self._mirror() if self.mirrors else 0
         if mirrored:  # one local step from the mirror images (no message: the next epoch's rounds tell)
             self._weigh()
-            _, S, _, _ = self._step(self._system())
+            S = self._solve(1, None)[1]
         pos, vel, pc, vc = self._newest(S)
-        return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=rounds,
-                              converged=converged, mirrored=mirrored, messages=messages, bytes_sent=sent_bytes,
-                              tracklet=self._tracklet() if self.tracklets else None)
+        return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=int(report.iterations[0]),
+                              converged=bool(report.converged[0]) or not pairs.size, mirrored=mirrored,
+                              messages=messages, bytes_sent=sent_bytes,
+                              tracklet=self._tracklet() if self.tracklets else None, report=report)

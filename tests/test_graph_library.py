@@ -11,13 +11,16 @@ import dataclasses
 import numpy as np
 import pytest
 
+from estimators import window as sw
 from estimators.factor_graph import solve_centralized, solve_distributed
 from estimators.graph import lm
 from estimators.graph import model as gm
 from estimators.graph.batch import EpochFactors, solve_epochs
 from estimators.graph.flooding import solve_flooding
+from estimators.graph.linear import BlockTridiagonalNormals, DenseNormals
 from estimators.graph.gbp import solve_gbp
 from testbed.synthetic.coop import make_epoch
+from tests.test_window import N, Q, synthetic
 
 
 @pytest.fixture
@@ -123,6 +126,44 @@ def test_general_graph_runs_the_library_iteration(spy):
     np.testing.assert_allclose(res.values["q"], [1.0, 2.0, 3.0], atol=1e-9)
 
 
+@pytest.fixture(scope="module")
+def window_epochs():
+    return synthetic(4)[0]
+
+
+def test_centralized_window_runs_the_library_iteration(spy, window_epochs):
+    """The centralized window's Gauss-Newton is lm.solve: one call per epoch (a second after a
+    mirror image was kept), the estimate carries the last call's report, its iterations the sum."""
+    est = sw.Centralized(N, window=3, q=Q, huber=1.345)
+    for ep in window_epochs:
+        spy.clear()
+        e = est.add(ep)
+        assert len(spy) == 1 + (e.mirrored > 0) and e.report is spy[-1] and e.report.method == "gn"
+        assert e.iterations == sum(int(r.iterations[0]) for r in spy) >= 1
+        assert e.converged == e.report.converged[0]
+        assert np.all(np.diff(e.report.trace) <= sw.COST_ROUNDOFF * e.report.trace[0])  # never a rise past round-off
+    assert e.converged  # the stopping rule (lm's caller test) did stop a solve
+
+
+def test_distributed_window_runs_the_library_rounds_and_steps(spy, window_epochs):
+    """The distributed window's rounds are lm.iterate_rounds and every vehicle's local step is
+    lm.solve over the vehicles as a batch (one Gauss-Newton step each, its own step halving): a
+    step before the rounds (after the first epoch), one per round, the estimate carrying the
+    rounds' report."""
+    est = sw.Distributed(N, window=3, q=Q, max_rounds=6, tol=1e-3)
+    for k, ep in enumerate(window_epochs):
+        spy.clear()
+        e = est.add(ep)
+        rounds = [r for r in spy if r.method == "rounds"]
+        steps = [r for r in spy if r.method == "gn"]
+        assert len(rounds) == 1 and e.report is rounds[0] and len(steps) + len(rounds) == len(spy)
+        assert e.iterations == e.report.iterations[0] == len(e.report.trace) >= 1
+        assert e.converged == e.report.converged[0]
+        assert len(steps) == e.iterations + (k > 0) + (e.mirrored > 0)
+        assert all(r.iterations.shape == (N,) and r.iterations.max() <= 1 for r in steps)
+        assert e.report.trace[-1] < 1e-3 if e.converged else e.iterations == 6
+
+
 def test_rounds_stop_on_tolerance_cap_and_divergence():
     x0 = np.ones((4, 3))
     x, hist, rep = lm.iterate_rounds(x0, lambda r, x: 0.5 * x, max_rounds=100, tol=1e-3)
@@ -132,3 +173,83 @@ def test_rounds_stop_on_tolerance_cap_and_divergence():
     assert not rep.converged[0] and rep.iterations[0] == 5
     _, _, rep = lm.iterate_rounds(x0, lambda r, x: x * 1e6, max_rounds=50, tol=1e-3)
     assert not rep.converged[0] and rep.iterations[0] == 1  # a step above DIVERGED_M stops at once
+    _, _, rep = lm.iterate_rounds(x0, lambda r, x: 0.5 * x, max_rounds=100, tol=1e-3, ord=np.inf)
+    assert rep.converged[0] and rep.iterations[0] == 10  # a node's largest component: 2^-r < 1e-3 first at r = 10
+
+
+class _Line:
+    """One problem of one unknown for lm.solve: cost(x) = 1 + slope x, normal equations N = 1,
+    g = 1 (every step +1); retract x + delta."""
+
+    size = 1
+
+    def __init__(self, slope: float):
+        self.slope = slope
+
+    def evaluate(self, x):
+        return np.array([1.0 + self.slope * x[0]]), None
+
+    def normal(self, x, memo):
+        return DenseNormals(np.ones((1, 1, 1)), np.ones((1, 1)))
+
+    @staticmethod
+    def retract(x, delta):
+        return x + delta[0]
+
+    @staticmethod
+    def select(mask, a, b):
+        return a if mask[0] else b
+
+
+def test_callers_stop_test_and_cost_roundoff():
+    """lm.solve's `stop` is called after every linear solve with the full step and the normal
+    equations solved, and converges an accepted step it passes; `roundoff` is the relative rise
+    of the cost that a Gauss-Newton step may take (a cost flat to round-off)."""
+    seen = []
+
+    def stop(delta, lin):
+        seen.append((delta.copy(), lin))
+        return np.array([len(seen) == 2])
+
+    _, _, rep = lm.solve(_Line(-1.0), np.zeros(1), method="gn", step_tol=0.0, cost_tol=0.0, stop=stop)
+    assert rep.converged[0] and rep.iterations[0] == 2 and len(seen) == 2
+    assert all(np.array_equal(d, [[1.0]]) and isinstance(lin, DenseNormals) for d, lin in seen)
+    # each step raises the cost by 1e-13 relative: above lm.ROUNDOFF, within 1e-12
+    flat = dict(method="gn", max_iter=3, step_tol=0.0, cost_tol=0.0, max_halvings=0)
+    assert lm.solve(_Line(1e-13), np.zeros(1), **flat)[2].iterations[0] == 0
+    assert lm.solve(_Line(1e-13), np.zeros(1), roundoff=1e-12, **flat)[2].iterations[0] == 3
+
+
+def test_normal_equation_objects_equal_their_dense_matrices():
+    """BlockTridiagonalNormals (the window's) and DenseNormals.inverse against the dense matrix
+    they stand for: diagonal, quadratic form, damped solve, the newest epoch's information (the
+    inverse of its marginal covariance) and per-chain selection; random SPD chains, to 1e-10."""
+    rng = np.random.default_rng(7)
+    B, K, s = 3, 4, 2
+    J = np.zeros((B, K, s, K, s))  # block-bidiagonal: each block row links epochs k and k + 1
+    for k in range(K):
+        J[:, k, :, k] = rng.normal(size=(B, s, s))
+        if k + 1 < K:
+            J[:, k, :, k + 1] = rng.normal(size=(B, s, s))
+    J = J.reshape(B, K * s, K * s)
+    H = np.einsum("bri,brj->bij", J, J) + np.eye(K * s)  # SPD, block-tridiagonal
+    blk = H.reshape(B, K, s, K, s)
+    D = np.stack([blk[:, k, :, k, :] for k in range(K)], 1)
+    U = np.stack([blk[:, k, :, k + 1, :] for k in range(K - 1)], 1)
+    R = rng.normal(size=(B, K, s))
+    lin = BlockTridiagonalNormals(D, U, R)
+    delta = rng.normal(size=(B, K * s))
+    np.testing.assert_allclose(lin.diagonal(), np.diagonal(H, axis1=1, axis2=2), rtol=1e-12)
+    np.testing.assert_allclose(lin.quad(delta), np.einsum("bi,bij,bj->b", delta, H, delta), rtol=1e-10)
+    shift = rng.uniform(0.1, 1.0, (B, K * s))
+    step, ok = lin.solve(shift)
+    Hs = H + shift[:, :, None] * np.eye(K * s)
+    np.testing.assert_allclose(step, np.linalg.solve(Hs, R.reshape(B, -1)[..., None])[..., 0], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.inv(lin.S), np.linalg.inv(Hs)[:, -s:, -s:], rtol=1e-10)
+    assert ok.all()
+    other = BlockTridiagonalNormals(2.0 * D, U, R)
+    mixed = lin.where(np.array([True, False, True]), other)
+    np.testing.assert_array_equal(mixed.D[1], 2.0 * D[1])
+    np.testing.assert_array_equal(mixed.D[0], D[0])
+    P = DenseNormals(H, R.reshape(B, -1)).inverse()
+    np.testing.assert_allclose(P, np.linalg.inv(H), rtol=1e-10, atol=1e-12)

@@ -27,6 +27,7 @@ import numpy as np
 
 from estimators.factor_graph import DistributedResult
 from estimators.graph.factors import range_terms
+from estimators.graph.linear import DenseNormals
 from estimators.graph import lm
 
 __all__ = ["GBP_MESSAGE_BYTES", "solve_gbp"]
@@ -81,12 +82,12 @@ def solve_gbp(problem, *, max_rounds: int = 100, tol: float = 1e-4, damping: flo
         Lam, eta = Lg.copy(), eg.copy()
         np.add.at(Lam, dst, mL)
         np.add.at(eta, dst, me)
-        return np.linalg.solve(Lam, eta[:, :, None])[:, :, 0]
+        return DenseNormals(Lam, eta).solve(None)[0]  # each belief's mean
 
     # the round iteration of the graph library (estimators.graph.lm): stops on tol or a diverged step
     X, hist, report = lm.iterate_rounds(X, one_round, max_rounds=max_rounds, tol=tol)
     rounds, converged = int(report.iterations[0]), bool(report.converged[0])
-    cov = np.linalg.inv(Lam)
+    cov = DenseNormals(Lam, eta).inverse()
     cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
     return DistributedResult(X, cov, rounds, converged, rounds * n, rounds * n * GBP_MESSAGE_BYTES, rounds * 2 * m,
                              np.asarray(report.trace), hist, report)

@@ -13,7 +13,7 @@ The normal equations N delta = g that the iteration of estimators.graph.lm solve
 independent small problems, N (E, k, k), batched Cholesky). The seed 001 solvers' covariances:
 `dense_covariance` ((A^T A)^-1 by potrf/potri) and `marginal_blocks` (the 3x3 diagonal blocks of
 N^-1 by a selected inverse, for large swarms). The sliding window's block-tridiagonal solve:
-`solve_block_tridiagonal`.
+`solve_block_tridiagonal`, and its normal equations for the iteration, `BlockTridiagonalNormals`.
 """
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ from scipy.sparse import linalg as splinalg
 from estimators.graph.banded import BandOrder, band_order, factor_banded, selected_inverse_diag
 
 __all__ = ["BAND_FRACTION", "DENSE_LIMIT", "GAUGE_RATIO", "GaugeWarning", "SpdFactor", "factor_spd", "narrow_band",
-           "SparseNormal", "DenseNormals", "dense_covariance", "marginal_blocks", "solve_block_tridiagonal"]
+           "SparseNormal", "DenseNormals", "dense_covariance", "marginal_blocks", "solve_block_tridiagonal",
+           "BlockTridiagonalNormals"]
 
 #: below this many unknowns the dense Cholesky beats the sparse factorization
 DENSE_LIMIT = 600
@@ -179,6 +180,12 @@ class DenseNormals:
         """delta^T N delta per problem, (E,), for delta (E, k)."""
         return np.einsum("ei,eij,ej->e", delta, self.N, delta)
 
+    def inverse(self) -> np.ndarray:
+        """N^-1 per problem (E, k, k) (a covariance), L^-T L^-1 from the Cholesky factor N = L L^T.
+        Raises numpy.linalg.LinAlgError where an N is not positive definite."""
+        Li = np.linalg.inv(np.linalg.cholesky(self.N))
+        return np.einsum("nba,nbc->nac", Li, Li)
+
     def where(self, mask: np.ndarray, other: "DenseNormals") -> "DenseNormals":
         """Per problem: self where mask (E,) else other."""
         return DenseNormals(np.where(mask[:, None, None], self.N, other.N), np.where(mask[:, None], self.g, other.g))
@@ -302,3 +309,43 @@ def solve_block_tridiagonal(D: np.ndarray, U: np.ndarray, R: np.ndarray) -> tupl
     for k in range(K - 2, -1, -1):
         delta.append(F[k].solve(Y[k] - np.einsum("bij,bj->bi", U[:, k], delta[-1])))
     return np.stack(delta[::-1], axis=1), S
+
+
+class BlockTridiagonalNormals:
+    """The normal equations H delta = g of B independent chains of K epochs of s unknowns each
+    (the agents of the sliding window, estimators.window), for estimators.graph.lm: H block-
+    tridiagonal in time with diagonal blocks D (B, K, s, s) and blocks H[k, k+1] U (B, K-1, s, s);
+    g (B, K s), the right-hand sides R (B, K, s) flattened epoch-major. A solve also leaves S
+    (B, s, s), the newest epoch's information of the matrix it solved (`solve_block_tridiagonal`;
+    None before any solve)."""
+
+    __slots__ = ("D", "U", "g", "S")
+
+    def __init__(self, D: np.ndarray, U: np.ndarray, R: np.ndarray):
+        self.D, self.U, self.g, self.S = D, U, R.reshape(R.shape[0], -1), None
+
+    def diagonal(self) -> np.ndarray:
+        """diag(H) per chain, (B, K s)."""
+        return np.diagonal(self.D, axis1=2, axis2=3).reshape(self.g.shape)
+
+    def solve(self, shift: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(delta (B, K s), ok (B,) all True): (H + diag(shift)) delta = g, shift (B, K s) or None.
+        A singular block raises numpy.linalg.LinAlgError (as `solve_block_tridiagonal`)."""
+        B, K, s = self.D.shape[:3]
+        D = self.D if shift is None else self.D + shift.reshape(B, K, s)[..., None] * np.eye(s)
+        delta, self.S = solve_block_tridiagonal(D, self.U, self.g.reshape(B, K, s))
+        return delta.reshape(B, -1), np.ones(B, bool)
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        """delta^T H delta per chain, (B,), for delta (B, K s)."""
+        d = delta.reshape(self.D.shape[:3])
+        return (np.einsum("bki,bkij,bkj->b", d, self.D, d)
+                + 2.0 * np.einsum("bki,bkij,bkj->b", d[:, :-1], self.U, d[:, 1:]))
+
+    def where(self, mask: np.ndarray, other: "BlockTridiagonalNormals") -> "BlockTridiagonalNormals":
+        """Per chain: self where mask (B,) else other (S not carried)."""
+        if mask.all() or not mask.any():
+            return self if mask.all() else other
+        return BlockTridiagonalNormals(np.where(mask[:, None, None, None], self.D, other.D),
+                                       np.where(mask[:, None, None, None], self.U, other.U),
+                                       np.where(mask[:, None], self.g, other.g))

@@ -2,12 +2,14 @@
 the round iteration of its distributed (message-passing) solvers.
 
 `solve(problem, x)` minimizes a batch of E independent robust least-squares problems at once (E = 1:
-one graph, sparse; E > 1: the epochs of estimators.graph.batch, dense). The problem gives:
+one graph, sparse; E > 1: the epochs of estimators.graph.batch, dense, or the agents of the
+sliding window, estimators.window, block-tridiagonal). The problem gives:
     size                                  E
     evaluate(x) -> (cost (E,), memo)      robust objective sum rho(|b_k|) of each problem, and
                                           whatever `normal` may reuse at the same x (or None)
     normal(x, memo) -> normal equations   IRLS-weighted N delta = g of each problem at x
-                                          (estimators.graph.linear: SparseNormal, DenseNormals)
+                                          (estimators.graph.linear: SparseNormal, DenseNormals,
+                                          BlockTridiagonalNormals)
     retract(x, delta) -> x'               x "plus" the steps delta (E, k) (vector addition, or a
                                           manifold retraction for poses)
     select(mask, a, b) -> x               per problem a where mask (E,) else b
@@ -21,15 +23,18 @@ L(0) - L(Delta) = Delta^T (lam D Delta + g) / 2, decides: q > 0 accepts and
 lam *= max(1/3, 1 - (2q - 1)^3), else lam *= nu, nu *= 2 (Madsen, Nielsen, Tingleff 2004, "Methods
 for non-linear least squares problems", eq. 2.21 and algorithm 3.16); a damped matrix that is not
 positive definite is a rejected step. GN: the undamped step with backtracking (halving) until the
-cost does not rise; a singular N, or no halving that lowers the cost, stops the iteration (the
-step that failed is not counted).
+cost does not rise by more than its round-off (`roundoff`); a singular N, or no halving that does
+so, stops the iteration (the step that failed is not counted). A batch halves each problem's step
+on its own.
 Convergence, per problem: an accepted step whose largest component is below step_tol (GN: the full
 step, which estimates the distance to the optimum, not a halved one), or (cost_tol > 0) whose
 relative cost decrease is below cost_tol, or (step_sigma > 0) that is shorter than step_sigma
 standard deviations of the estimate, sqrt(Delta^T N Delta) < step_sigma with N where the step
-starts; also a rejected (LM) or failed (GN) step whose largest component is below step_tol (the
+starts, or (stop given) that passes the caller's own test stop(delta, lin) -> (E,) bool, called
+after every linear solve with its full step delta (E, k) and the normal equations lin it solved;
+also a rejected (LM) or failed (GN) step whose largest component is below step_tol (the
 minimum is within step_tol; round-off decides the cost there). Steps whose predicted decrease is
-below the round-off of the cost (ROUNDOFF relative) are taken whatever the evaluated cost does:
+below the round-off of the cost (`roundoff` relative) are taken whatever the evaluated cost does:
 there the cost cannot order the iterates (on coop-fg epochs it scatters by ~3e-14 relative, i.e. it cannot tell points
 ~5e-7 m apart along the weakest direction), so a cost test would stop short of the optimum; the
 step test decides. Reaching max_iter is a result (converged False), never an exception.
@@ -117,9 +122,12 @@ def _put(full: tuple, idx, part: tuple) -> None:
 
 
 def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float = 1e-8, cost_tol: float = 1e-12,
-          step_sigma: float = 0.0, max_halvings: int = 30, lm_lambda: float = 1e-4):
-    """Minimize every problem of the batch from x (see the module docstring); method "gn" or "lm".
-    Returns (x, the normal equations at x (undamped), Report)."""
+          step_sigma: float = 0.0, max_halvings: int = 30, lm_lambda: float = 1e-4, stop=None,
+          roundoff: float = ROUNDOFF):
+    """Minimize every problem of the batch from x (see the module docstring); method "gn" or "lm";
+    roundoff: the relative round-off of the problem's cost (ROUNDOFF for a plain sum of squares;
+    larger where the cost is computed with cancellation). Returns (x, the normal equations at x
+    (undamped), Report)."""
     if method not in METHODS:
         raise ValueError(f"lm.solve: method must be 'gn' or 'lm', got {method!r}")
     E0 = problem.size
@@ -152,6 +160,7 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
             delta, ok = lin.solve(None)
         delta = np.where((active & ok)[:, None], delta, 0.0)
         step = np.abs(delta).max(axis=1, initial=0.0)
+        own = stop(delta, lin) if stop is not None else False
         if method == "lm":
             x_new = problem.retract(x, delta)
             f_new, memo = problem.evaluate(x_new)
@@ -160,7 +169,7 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
             with np.errstate(divide="ignore", invalid="ignore"):
                 q = np.where(pred > 0, (f - f_new) / pred, -1.0)
             # the cost cannot tell this step apart: take it, the step test decides
-            q = np.where(pred <= ROUNDOFF * f, 1.0, q)
+            q = np.where(pred <= roundoff * f, 1.0, q)
             q = np.where(ok, q, -1.0)
             accept = active & (q > 0)
             # Madsen, Nielsen, Tingleff 2004, eq. 2.21 (algorithm 3.16)
@@ -171,12 +180,14 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
             stopped &= tiny | (lam > 1e16)  # else a rejected step: try again with more damping
         else:
             pred = 0.5 * np.einsum("ek,ek->e", g, delta)
-            x_new, f_new, memo = x, f.copy(), None
+            x_new, f_new = x, f.copy()
             accept, pending, t = np.zeros_like(active), active & ok, np.ones(delta.shape[0])
             for _ in range(max_halvings + 1):
                 x_try = problem.retract(x, t[:, None] * delta)
-                f_try, _ = problem.evaluate(x_try)
-                good = pending & ((f_try <= f * (1.0 + ROUNDOFF)) | (pred <= ROUNDOFF * f))
+                # the problems are independent and an accepted one keeps its t: the last trial's
+                # memo is that of every accepted problem's new x
+                f_try, memo = problem.evaluate(x_try)
+                good = pending & ((f_try <= f * (1.0 + roundoff)) | (pred <= roundoff * f))
                 x_new, f_new = problem.select(good, x_try, x_new), np.where(good, f_try, f_new)
                 accept |= good
                 pending &= ~good
@@ -191,6 +202,7 @@ def solve(problem, x, *, method: str = "lm", max_iter: int = 50, step_tol: float
             small |= accept & (f - f_new < cost_tol * np.maximum(f, 1e-300))
         if step_sigma > 0.0:
             small |= accept & (lin.quad(delta) < step_sigma ** 2)
+        small |= accept & own
         converged |= small | tiny
         active &= ~(small | stopped) & (iterations < max_iter)
         if accept.any():
@@ -240,17 +252,19 @@ def minimize(x, cost, system, retract, *, method: str = "lm", max_iter: int = 50
     return Iterate(x, float(rep.cost[0]), int(rep.iterations[0]), bool(rep.converged[0]), rep.trace, lin.N, rep)
 
 
-def iterate_rounds(x: np.ndarray, round_fn, *, max_rounds: int, tol: float | None):
+def iterate_rounds(x: np.ndarray, round_fn, *, max_rounds: int, tol: float | None, ord=None):
     """The distributed round iteration (module docstring) from the node estimates x (n, d):
     round_fn(r, x) -> x' runs round r (messages, each node's step). Stops when every node's step
     |x'_i - x_i| is below tol (converged; tol None: never, the caller runs max_rounds), after
-    max_rounds, or when a step is not finite or above DIVERGED_M (not converged).
+    max_rounds, or when a step is not finite or above DIVERGED_M (not converged). ord: the
+    vector norm of a node's step (numpy.linalg.norm's; None Euclidean, numpy.inf the largest
+    component).
     Returns (x, history (rounds + 1, n, d) with x0 first, Report)."""
     hist, steps = [x.copy()], []
     converged = False
     for rnd in range(max_rounds):
         x_new = round_fn(rnd, x)
-        step = float(np.linalg.norm(x_new - x, axis=1).max()) if x.shape[0] else 0.0
+        step = float(np.linalg.norm(x_new - x, ord=ord, axis=1).max()) if x.shape[0] else 0.0
         x = x_new
         hist.append(x.copy())
         steps.append(step)

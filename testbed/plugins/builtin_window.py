@@ -31,9 +31,8 @@ early commit): Huber 1.345 with 5 steps per epoch let the estimate run away, 36 
 error in 6 s; least squares 2.2 m on the same log. In the cascade coop.window_ins, which flies
 on Huber 1.345 by default, the reverse: docs/denied.md),
 max_iter (5, Gauss-Newton steps per epoch, centralized), max_rounds (10, message rounds per
-epoch, distributed), tol (1e-3 m) and round_tol_sigma (0: off; the distributed rounds' stopping
-rules, estimators.window.Distributed; docs/denied.md, "Stopping the distributed rounds early",
-measured what 0.1 and 0.2 cost), tol_sigma (0.01: the
+epoch, distributed), tol (1e-3 m, the distributed rounds' stopping rule,
+estimators.window.Distributed; docs/denied.md, "Stopping the distributed rounds early"), tol_sigma (0.01: the
 centralized stopping rule, the newest states' estimated distance to the optimum within that many
 of their marginal sigmas; estimators.window, docs/denied.md), init_sigma_v (10 m/s, the first epoch's velocity prior),
 network (distributed: a [network] table, docs/network.md, through which the broadcasts travel:
@@ -76,7 +75,6 @@ class WindowParams:
     max_rounds: int = key(10, lo=1, doc="message rounds per epoch (distributed)")
     tol: float = key(1e-3, lo=0, lo_open=True, unit="m", doc="distributed: rounds stop when every newest position moved less than this")
     tol_sigma: float = key(0.01, lo=0, lo_open=True, unit="sigma", doc="centralized: Gauss-Newton stops when the newest states' estimated distance to the optimum is below this many of their marginal sigmas")
-    round_tol_sigma: float = key(0.0, lo=0, unit="sigma", doc="distributed: rounds also stop when every vehicle's newest-state step of a round is below this many of its marginal sigmas (0: off)")
     init_sigma_v: float = key(10.0, lo=0, lo_open=True, unit="m/s", doc="the first epoch's velocity prior, 1 sigma")
     network: dict | None = key(None, range="a [network] table (docs/network.md)", doc="distributed: the channel of the broadcasts (none: ideal)")
     mirrors: bool = key(True, doc="test each vehicle's mirror image through its neighbours' plane after every solve")
@@ -205,7 +203,7 @@ class WindowDistributed(_WindowPlugin):
         self.network = None if cfg is None else context.links(cfg, self.n)
         self.round_s = 0.0 if cfg is None else cfg.round_s
         return sw.Distributed(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
-                              max_rounds=int(p["max_rounds"]), tol=float(p["tol"]), tol_sigma=float(p["round_tol_sigma"]),
+                              max_rounds=int(p["max_rounds"]), tol=float(p["tol"]),
                               init_sigma_v=float(p["init_sigma_v"]))
 
     def _add(self, ep):
