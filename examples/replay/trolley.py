@@ -88,12 +88,17 @@ def read_mocap(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t[start], mean[:, :3], quat_mul(quat, MOCAP_TO_BODY)
 
 
-def true_ranges(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Anchor-to-tag distances (N, 8, 3) m at times t (inside tm), from the body pose interpolated
-    linearly (position) and by slerp (attitude)."""
+def tag_positions(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tags (N, 3, 3) m world and the body-to-world rotation (N, 3, 3) at times t (inside tm),
+    from the body pose interpolated linearly (position) and by slerp (attitude)."""
     pos = np.stack([np.interp(t, tm, p[:, k]) for k in range(3)], axis=1)
     rot = Slerp(tm, Rotation.from_quat(q, scalar_first=True))(t).as_matrix()
-    tags = pos[:, None] + np.einsum("nij,kj->nki", rot, TAGS)
+    return pos[:, None] + np.einsum("nij,kj->nki", rot, TAGS), rot
+
+
+def true_ranges(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Anchor-to-tag distances (N, 8, 3) m at times t (inside tm)."""
+    tags, _ = tag_positions(t, tm, p, q)
     return np.linalg.norm(tags[:, None] - ANCHORS[None, :, None], axis=-1)
 
 
