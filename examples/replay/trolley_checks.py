@@ -46,7 +46,7 @@ def pose_jacobian(tags: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, np.nda
     rng = np.linalg.norm(d, axis=-1)
     u = d / rng[..., None]
     arm = np.einsum("nij,kj->nki", rot, T.TAGS)
-    # chk. 1 (docs/replay.md)
+    # tf. 1 (docs/replay.md)
     jac = np.concatenate([u, np.cross(arm[:, None], u)], axis=-1)
     return rng, jac.reshape(len(tags), 24, 6)
 
@@ -57,7 +57,7 @@ def fit_at_truth(e: np.ndarray, jac: np.ndarray) -> tuple[np.ndarray, np.ndarray
     ok = np.isfinite(e)
     j0, e0 = jac * ok[..., None], np.where(ok, e, 0.0)
     h = np.einsum("nli,nlj->nij", j0, j0)
-    # chk. 2 (docs/replay.md)
+    # tf. 2 (docs/replay.md)
     return np.linalg.solve(h, np.einsum("nli,nl->ni", j0, e0)[..., None])[..., 0], SIGMA**2 * np.linalg.inv(h)
 
 
@@ -69,6 +69,17 @@ def lag_scan(d: dict) -> None:
         e = d["r"] - T.true_ranges(d["tu"] + delta, d["tm"], d["p"], d["q"])
         rms = [np.sqrt(np.nanmean(np.clip(e[m] - np.nanmedian(e[m], 0), -CLIP, CLIP) ** 2)) for m in (d["cal"], ~d["cal"])]
         print(f"   {delta:+.2f}: {rms[0]:.4f} | {rms[1]:.4f}")
+
+
+def row_clock(tu: np.ndarray) -> None:
+    """Check 1: the UWB rows' stamps tu (N,) s against a regular clock fitted to the row index (the
+    logger's delay, up to a constant): its rms and its largest mean over 5 s."""
+    n = np.arange(len(tu))
+    fit = np.polyfit(n, tu, 1)
+    delay = tu - np.polyval(fit, n)
+    blocks = [delay[np.floor(tu / 5.0) == i].mean() for i in np.unique(np.floor(tu / 5.0))]
+    print(f"1. row stamps against a regular clock of period {fit[0] * 1e3:.4f} ms: rms {delay.std() * 1e3:.1f} ms, "
+          f"largest 5-s mean {np.abs(blocks).max() * 1e3:.1f} ms")
 
 
 def pattern(e: np.ndarray, azimuth: np.ndarray, cal: np.ndarray) -> None:
@@ -93,6 +104,7 @@ def main() -> int:
     d = load()
     tu, cal = d["tu"], d["cal"]
     lag_scan(d)
+    row_clock(tu)
     tags, rot = T.tag_positions(tu, d["tm"], d["p"], d["q"])
     rng, jac = pose_jacobian(tags, rot)
     e = d["r"] - rng
@@ -120,6 +132,15 @@ def main() -> int:
         print(f"1. error = mean + tau v: tau {k_lag[2]:+.4f} s, rms {rms(lag, k_lag):.4f}")
         print(f"2. error = R(yaw) c: c {k_arm[2:].round(4)} m body, rms {rms(arm, k_arm):.4f}; "
               f"yaw of the ranges against the truth, mean {DEG(dx[m & clean, 5].mean()):+.2f} deg")
+        moving = m & (np.linalg.norm(vel, axis=1) > 0.2)
+        along = vel[moving] / np.linalg.norm(vel[moving], axis=1, keepdims=True)
+        nees = [np.mean(np.einsum("ni,ni->n", dx[moving, :2], w) ** 2 / np.einsum("ni,nij,nj->n", w, cov[moving][:, :2, :2], w))
+                for w in (along, along[:, ::-1] * [-1, 1])]
+        print(f"1. NEES along the motion {nees[0]:.2f}, across it {nees[1]:.2f} (speed over 0.2 m/s)")
+        ahead = np.einsum("ni,ni->n", dx[moving, :2], along) / np.linalg.norm(vel[moving], axis=1)  # s
+        block = np.floor(tu[moving] / 5.0)
+        lags = [ahead[block == i].mean() for i in np.unique(block) if np.sum(block == i) >= 100]
+        print(f"   the lag this implies, mean over 5-s blocks: {min(lags):+.3f} to {max(lags):+.3f} s")
         blocks = [dx[b, 5].mean() for b in (m & clean & (np.floor(tu / 5.0) == i) for i in np.unique(np.floor(tu[m] / 5.0)))
                   if b.sum() >= 100]
         print(f"   in 5-s blocks from {DEG(min(blocks)):+.1f} to {DEG(max(blocks)):+.1f} deg")
@@ -132,7 +153,8 @@ def main() -> int:
         ac = [np.dot(xs[:-n], xs[n:]) / np.dot(xs, xs) for n in (10, 100, 300)]  # rows at 100 Hz: 0.1, 1, 3 s
         print(f"4. range residual: rms {np.sqrt(np.mean(noise ** 2)):.4f}, 1.4826 median |residual| {1.4826 * np.median(np.abs(noise)):.4f} m, "
               f"share beyond {CLIP} m {np.mean(np.abs(noise) > CLIP):.4f}")
-        print(f"   NEES per axis x, y, z: {z2.mean(0).round(2)}; epochs without an outlier {zc.mean(0).round(2)}; "
+        nees3 = np.einsum("ni,nij,nj->n", dx[m, :3], np.linalg.inv(cov[m][:, :3, :3]), dx[m, :3]).mean()
+        print(f"   position NEES {nees3:.2f}; per axis x, y, z: {z2.mean(0).round(2)}; epochs without an outlier {zc.mean(0).round(2)}; "
               f"median / 0.455 {(np.median(z2, 0) / 0.455).round(2)}")
         print(f"   energy per dof in the pose subspace {np.mean(np.sum(proj ** 2, 1)) / 6:.2e}, "
               f"in the rest {np.mean(np.sum(rest ** 2, 1)) / 18:.2e} m^2 (equal for white noise)")
