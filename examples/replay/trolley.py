@@ -73,12 +73,17 @@ def read_uwb(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return t, r.reshape(len(rows), len(ANCHORS), len(TAGS))
 
 
+def read_mocap_rows(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Motion capture rows as recorded: times (M,) s of the files' clock, and (M, 7) position m and
+    quaternion wxyz of the motion capture's rigid body."""
+    rows = list(csv.reader(path.open()))[1:]
+    return np.array([_clock(r[0]) for r in rows]), np.array([[float(x) for x in r[1:8]] for r in rows])
+
+
 def read_mocap(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Motion capture, duplicated timestamps averaged: times (M,) s of the files' clock, body
     origin (M, 3) m world, body-to-world quaternion (M, 4) wxyz of the body frame (MOCAP_TO_BODY applied)."""
-    rows = list(csv.reader(path.open()))[1:]
-    t = np.array([_clock(r[0]) for r in rows])
-    v = np.array([[float(x) for x in r[1:8]] for r in rows])
+    t, v = read_mocap_rows(path)
     start = np.r_[True, np.diff(t) > 0]
     group = np.cumsum(start) - 1
     n = np.bincount(group)

@@ -71,15 +71,16 @@ def lag_scan(d: dict) -> None:
         print(f"   {delta:+.2f}: {rms[0]:.4f} | {rms[1]:.4f}")
 
 
-def row_clock(tu: np.ndarray) -> None:
-    """Check 1: the UWB rows' stamps tu (N,) s against a regular clock fitted to the row index (the
-    logger's delay, up to a constant): its rms and its largest mean over 5 s."""
-    n = np.arange(len(tu))
-    fit = np.polyfit(n, tu, 1)
-    delay = tu - np.polyval(fit, n)
-    blocks = [delay[np.floor(tu / 5.0) == i].mean() for i in np.unique(np.floor(tu / 5.0))]
-    print(f"1. row stamps against a regular clock of period {fit[0] * 1e3:.4f} ms: rms {delay.std() * 1e3:.1f} ms, "
-          f"largest 5-s mean {np.abs(blocks).max() * 1e3:.1f} ms")
+def row_clock(name: str, t: np.ndarray) -> None:
+    """Check 1: a stream's row stamps t (N,) s, as recorded, against a regular clock fitted to the
+    row index (the logger's delay, up to a constant): its rms and its largest mean over 5 s."""
+    n = np.arange(len(t))
+    fit = np.polyfit(n, t, 1)
+    delay = t - np.polyval(fit, n)
+    block = np.floor((t - t[0]) / 5.0)
+    largest = max(abs(delay[block == i].mean()) for i in np.unique(block))
+    print(f"1. {name} row stamps against a regular clock of period {fit[0] * 1e3:.4f} ms: rms {delay.std() * 1e3:.1f} ms, "
+          f"largest 5-s mean {largest * 1e3:.1f} ms")
 
 
 def pattern(e: np.ndarray, azimuth: np.ndarray, cal: np.ndarray) -> None:
@@ -104,7 +105,8 @@ def main() -> int:
     d = load()
     tu, cal = d["tu"], d["cal"]
     lag_scan(d)
-    row_clock(tu)
+    row_clock("UWB", T.read_uwb(T.RAW / T.UWB_FILE)[0])
+    row_clock("motion capture", T.read_mocap_rows(T.RAW / T.MOCAP_FILE)[0])
     tags, rot = T.tag_positions(tu, d["tm"], d["p"], d["q"])
     rng, jac = pose_jacobian(tags, rot)
     e = d["r"] - rng
