@@ -12,7 +12,8 @@ checks are those of docs/replay.md, "Why the trolley's estimates are overconfide
 2. an offset of the truth fixed in the body frame, and a yaw offset;
 3. range errors that depend on the azimuth of arrival (an antenna pattern), fitted on the segment
    and used to predict the window;
-4. whether the noise is stationary, tested with the pose fit linearised at the truth.
+4. whether the noise is stationary, tested with the pose fit linearised at the truth, and whether
+   the three tags' errors move together as one rigid motion.
 """
 from __future__ import annotations
 
@@ -81,6 +82,25 @@ def row_clock(name: str, t: np.ndarray) -> None:
     largest = max(abs(delay[block == i].mean()) for i in np.unique(block))
     print(f"1. {name} row stamps against a regular clock of period {fit[0] * 1e3:.4f} ms: rms {delay.std() * 1e3:.1f} ms, "
           f"largest 5-s mean {largest * 1e3:.1f} ms")
+
+
+def rigid_split(e: np.ndarray, tags: np.ndarray, rot: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
+    """Check 4: each tag's horizontal displacement from its own 8 ranges alone (e (N, 8, 3) m at the
+    tags (N, 3, 3) m world), split per epoch into a planar rigid motion of the tag triangle (a
+    translation and a yaw about the body origin: 3 of the 6 numbers) and the rest. Returns the mean
+    energy per dimension m^2 of each over rows (N,) bool; independent per-tag errors give them alike."""
+    d = tags[:, None] - T.ANCHORS[None, :, None]
+    u = (d / np.linalg.norm(d, axis=-1, keepdims=True))[rows][..., :2]
+    a, b = u.transpose(0, 2, 1, 3), e[rows].transpose(0, 2, 1)                  # per tag: (n, 3, 8, 2), (n, 3, 8)
+    shift = np.linalg.solve(np.einsum("nkai,nkaj->nkij", a, a), np.einsum("nkai,nka->nki", a, b)[..., None])[..., 0]
+    arm = np.einsum("nij,kj->nki", rot[rows], T.TAGS)[..., :2]
+    basis = np.zeros((rows.sum(), 6, 3))
+    basis[:, 0::2, 0] = basis[:, 1::2, 1] = 1
+    basis[:, 0::2, 2], basis[:, 1::2, 2] = -arm[..., 1], arm[..., 0]            # yaw: z x arm
+    q = np.linalg.qr(basis)[0]
+    y = shift.reshape(-1, 6)
+    rigid = np.sum(np.einsum("nij,ni->nj", q, y) ** 2, axis=1)
+    return float(rigid.mean() / 3), float((np.sum(y ** 2, axis=1) - rigid).mean() / 3)
 
 
 def pattern(e: np.ndarray, azimuth: np.ndarray, cal: np.ndarray) -> None:
@@ -160,6 +180,15 @@ def main() -> int:
               f"median / 0.455 {(np.median(z2, 0) / 0.455).round(2)}")
         print(f"   energy per dof in the pose subspace {np.mean(np.sum(proj ** 2, 1)) / 6:.2e}, "
               f"in the rest {np.mean(np.sum(rest ** 2, 1)) / 18:.2e} m^2 (equal for white noise)")
+        rigid, rest3 = rigid_split(e, tags, rot, m & clean)
+        print(f"   each tag's displacement from its own ranges, energy per dimension: rigid {rigid:.2e}, "
+              f"the rest {rest3:.2e} m^2 (about equal for independent tags)")
+        x = e[m & clean] - e[m & clean].mean(axis=0)
+        z = (x / x.std(axis=0)).reshape(-1, 24)
+        corr = z.T @ z / len(z)
+        anchor = np.repeat(np.arange(8), 3)
+        same = (anchor[:, None] == anchor[None]) & ~np.eye(24, dtype=bool)
+        print(f"   mean correlation of two tags' residuals to one anchor {corr[same].mean():+.3f}")
         print(f"   x error (clipped at 0.1 m) autocorrelation at 0.1, 1, 3 s: {np.round(ac, 2)}")
     drift = np.nanmean(e[~cal], axis=0)
     print(f"4. each link's mean residual, window minus segment: rms {np.sqrt(np.mean(drift ** 2)):.4f}, "
