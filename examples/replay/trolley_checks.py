@@ -88,7 +88,8 @@ def rigid_split(e: np.ndarray, tags: np.ndarray, rot: np.ndarray, rows: np.ndarr
     """Check 4: each tag's horizontal displacement from its own 8 ranges alone (e (N, 8, 3) m at the
     tags (N, 3, 3) m world), split per epoch into a planar rigid motion of the tag triangle (a
     translation and a yaw about the body origin: 3 of the 6 numbers) and the rest. Returns the mean
-    energy per dimension m^2 of each over rows (N,) bool; independent per-tag errors give them about alike."""
+    energy per dimension m^2 of each over rows (N,) bool; independent per-tag errors give them
+    about alike."""
     d = tags[:, None] - T.ANCHORS[None, :, None]
     u = (d / np.linalg.norm(d, axis=-1, keepdims=True))[rows][..., :2]
     a, b = u.transpose(0, 2, 1, 3), e[rows].transpose(0, 2, 1)                  # per tag: (n, 3, 8, 2), (n, 3, 8)
