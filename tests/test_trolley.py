@@ -2,6 +2,7 @@
 dataset (examples/replay/trolley/) and `testbed replay` runs every ranging estimator on it."""
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -106,3 +107,33 @@ def test_range_fit_jacobian_matches_central_differences_and_recovers_a_pose(monk
     x = np.array([0.3, -0.5, 0.9, 0.4, -0.2, 0.7])
     num = np.stack([(seen["res"](x + h) - seen["res"](x - h)) / 2e-6 for h in np.eye(6) * 1e-6], axis=1)
     np.testing.assert_allclose(seen["jac"](x), num, atol=1e-6 * np.abs(num).max())
+
+
+def test_the_checks_fit_at_the_truth_is_the_linearised_pose_fit(monkeypatch):
+    """examples/replay/trolley_checks.py: the pose Jacobian of the ranges (origin and a small world
+    rotation) equals central differences to 1e-6, and the fit at the truth takes ranges of a pose
+    moved by 10 um and 10 urad back to that move (to second order, which the flat geometry's weak roll
+    and pitch amplify: 1e-8), with a missing range."""
+    from scipy.spatial.transform import Rotation
+
+    t = _trolley()
+    monkeypatch.setitem(sys.modules, "trolley", t)
+    spec = importlib.util.spec_from_file_location("trolley_checks", ROOT / "examples" / "replay" / "trolley_checks.py")
+    checks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(checks)
+
+    def tags(x, rot):
+        turned = Rotation.from_rotvec(x[3:]).as_matrix() @ rot
+        return (np.array([0.4, -0.7, 0.96]) + x[:3] + t.TAGS @ turned.T)[None], turned[None]
+
+    rot = Rotation.from_rotvec([0.05, -0.03, 1.2]).as_matrix()
+    rng, jac = checks.pose_jacobian(*tags(np.zeros(6), rot))
+    num = np.stack([(checks.pose_jacobian(*tags(h, rot))[0] - checks.pose_jacobian(*tags(-h, rot))[0]).ravel() / 2e-6
+                    for h in np.eye(6) * 1e-6], axis=1)
+    np.testing.assert_allclose(jac[0], num, atol=1e-6)
+    move = np.array([1e-5, -1e-5, 5e-6, 1e-5, -1e-5, 1e-5])
+    e = (checks.pose_jacobian(*tags(move, rot))[0] - rng).reshape(1, 24)
+    e[0, 5] = np.nan
+    dx, cov = checks.fit_at_truth(e, jac)
+    np.testing.assert_allclose(dx[0], move, atol=1e-8)
+    assert cov.shape == (1, 6, 6) and np.all(np.linalg.eigvalsh(cov[0]) > 0)

@@ -73,12 +73,17 @@ def read_uwb(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return t, r.reshape(len(rows), len(ANCHORS), len(TAGS))
 
 
+def read_mocap_rows(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Motion capture rows as recorded: times (M,) s of the files' clock, and (M, 7) position m and
+    quaternion wxyz of the motion capture's rigid body."""
+    rows = list(csv.reader(path.open()))[1:]
+    return np.array([_clock(r[0]) for r in rows]), np.array([[float(x) for x in r[1:8]] for r in rows])
+
+
 def read_mocap(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Motion capture, duplicated timestamps averaged: times (M,) s of the files' clock, body
     origin (M, 3) m world, body-to-world quaternion (M, 4) wxyz of the body frame (MOCAP_TO_BODY applied)."""
-    rows = list(csv.reader(path.open()))[1:]
-    t = np.array([_clock(r[0]) for r in rows])
-    v = np.array([[float(x) for x in r[1:8]] for r in rows])
+    t, v = read_mocap_rows(path)
     start = np.r_[True, np.diff(t) > 0]
     group = np.cumsum(start) - 1
     n = np.bincount(group)
@@ -88,12 +93,17 @@ def read_mocap(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t[start], mean[:, :3], quat_mul(quat, MOCAP_TO_BODY)
 
 
-def true_ranges(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Anchor-to-tag distances (N, 8, 3) m at times t (inside tm), from the body pose interpolated
-    linearly (position) and by slerp (attitude)."""
+def tag_positions(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tags (N, 3, 3) m world and the body-to-world rotation (N, 3, 3) at times t (inside tm),
+    from the body pose interpolated linearly (position) and by slerp (attitude)."""
     pos = np.stack([np.interp(t, tm, p[:, k]) for k in range(3)], axis=1)
     rot = Slerp(tm, Rotation.from_quat(q, scalar_first=True))(t).as_matrix()
-    tags = pos[:, None] + np.einsum("nij,kj->nki", rot, TAGS)
+    return pos[:, None] + np.einsum("nij,kj->nki", rot, TAGS), rot
+
+
+def true_ranges(t: np.ndarray, tm: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Anchor-to-tag distances (N, 8, 3) m at times t (inside tm)."""
+    tags, _ = tag_positions(t, tm, p, q)
     return np.linalg.norm(tags[:, None] - ANCHORS[None, :, None], axis=-1)
 
 
