@@ -103,7 +103,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from estimators import layout
+from estimators import layout, window_delays
 from estimators.graph.factors import inflated_range_variance, motion_blocks, motion_input_blocks, range_terms
 from estimators.graph.linear import solve_block_tridiagonal
 from estimators.graph.losses import huber_rho, huber_weight
@@ -131,7 +131,9 @@ class Epoch:
     anchor_vehicle (a,) vehicle index, anchor_pos (a, 3) m world, anchor_range, anchor_sigma
     (a,) m: tag-to-anchor ranges; motion (n, 6) the known motion of each vehicle since the window's
     previous epoch, [dp (m), dv (m/s)] world: the acceleration integrated once (dv) and twice (dp)
-    over the interval (None: none, the motion factor's mean is constant velocity).
+    over the interval (None: none, the motion factor's mean is constant velocity); anchor_device
+    (a,) the UWB device index of each anchor range's anchor (tags: the vehicle index; None: no
+    antenna-delay model, estimators.window_delays).
     """
 
     t: float
@@ -145,6 +147,7 @@ class Epoch:
     anchor_range: np.ndarray
     anchor_sigma: np.ndarray
     motion: np.ndarray | None = None
+    anchor_device: np.ndarray | None = None
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -210,6 +213,7 @@ class _Window:
         self.X = np.zeros((self.B, 0, self.s))  # (B, K, s) the window's estimate
         self.prior_info = np.zeros((self.B, self.s, self.s))
         self.prior_mean = np.zeros((self.B, self.s))
+        self.prior_sens = None  # (B, s, D) d prior_mean / d antenna delays (Centralized with delay_sigma)
         self._eye = np.eye(per_agent)
         self._krons: dict[float, tuple] = {}
         self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
@@ -298,16 +302,18 @@ class _Window:
         T[a, l, 3:, l, 3:] = H0
         T = T.reshape(self.B, self.s, self.s)
         self.prior_info = T @ self.prior_info @ T
+        if self.prior_sens is not None:  # the prior mean's antenna-delay sensitivity, reflected with it
+            self.prior_sens = T @ self.prior_sens
 
     def _kept(self, which: np.ndarray, c: np.ndarray, H: np.ndarray, cost: np.ndarray) -> np.ndarray | None:
         """One agent (B = 1): reflect the vehicles `which` together (`_reflect`); keep it and
         return the new cost where the cost falls by more than MIRROR_LOG_RATIO, else undo, None."""
-        saved = self.X, self.prior_mean, self.prior_info
+        saved = self.X, self.prior_mean, self.prior_info, self.prior_sens
         self._reflect(which, c, H)
         new = self._system(cost_only=True)[3]
         if new[0] < cost[0] - MIRROR_LOG_RATIO:
             return new
-        self.X, self.prior_mean, self.prior_info = saved
+        self.X, self.prior_mean, self.prior_info, self.prior_sens = saved
         return None
 
     def _groups(self) -> list[np.ndarray]:
@@ -524,6 +530,7 @@ class _Window:
         info = K11 - np.swapaxes(Bm, 1, 2) @ AiB
         info = 0.5 * (info + np.swapaxes(info, 1, 2))
         b = r1 - np.einsum("bij,bi->bj", AiB, r0)
+        self._delays_marginalized(info, AiB)
         self.prior_info = info
         self.prior_mean = self.X[:, 1] + np.linalg.solve(info, b[..., None])[..., 0]
         self.epochs.pop(0)
@@ -534,6 +541,10 @@ class _Window:
 
     def _dropped(self) -> None:
         """Hook: the oldest epoch left the window."""
+
+    def _delays_marginalized(self, info: np.ndarray, AiB: np.ndarray) -> None:
+        """Hook: epoch 0 is being marginalized (info (B, s, s) the new prior's information, AiB
+        (B, s, s) A^-1 K01 of `_marginalize`; self.prior_info still the old prior's)."""
 
     def _append(self, ep: Epoch, start: np.ndarray | None = None) -> None:
         """Append epoch ep with its warm start (constant-velocity prediction; first epoch: the
@@ -601,9 +612,32 @@ class Centralized(_Window):
     sigmas of the newest epoch's estimated distance to the optimum (`_rest`)."""
 
     def __init__(self, n: int, *, window: int = 5, q: float = 1.0, huber: float | None = None, max_iter: int = 10,
-                 tol: float = 0.01, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0):
+                 tol: float = 0.01, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0, delay_sigma: float = 0.0,
+                 devices: int = 0):
         super().__init__(n, agents=1, per_agent=n, window=window, q=q, huber=huber, max_iter=max_iter, tol=tol,
                          init_sigma_p=init_sigma_p, init_sigma_v=init_sigma_v)
+        # the antenna delays as consider parameters (estimators.window_delays): 1-sigma (m) of each
+        # of `devices` UWB devices' delay (0: none; the ranges' sigmas then hold them, if at all)
+        self.delay_sigma, self.devices = float(delay_sigma), int(devices)
+
+    def _delays_marginalized(self, info, AiB):
+        if self.delay_sigma > 0:  # eq. wd. 3
+            G0 = self.prior_info[0] @ self.prior_sens[0] + window_delays.delay_gradient(
+                self._pos()[0], self.epochs[0], self.devices, self.huber)
+            self.prior_sens = window_delays.marginal_sensitivity(info[0], AiB[0], G0)[None]
+
+    def _consider(self, pc: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The newest epoch's position and velocity covariances pc, vc (n, 3, 3) with the antenna
+        delays' term sigma_b^2 J J^T added (eq. wd. 1; unchanged without delay_sigma)."""
+        if self.delay_sigma <= 0:
+            return pc, vc
+        D, U, _, _ = self._system()
+        P = self._pos()
+        G = np.stack([window_delays.delay_gradient(P[k], ep, self.devices, self.huber) for k, ep in enumerate(self.epochs)])
+        G[0] += self.prior_info[0] @ self.prior_sens[0]
+        J = window_delays.newest_sensitivity(D[0], U[0], G).reshape(self.n, 6, self.devices)
+        C = self.delay_sigma ** 2 * J @ np.swapaxes(J, 1, 2)  # (n, 6, 6)
+        return pc + C[:, :3, :3], vc + C[:, 3:, 3:]
 
     def _where(self, i):
         return np.zeros_like(i), i
@@ -635,12 +669,15 @@ class Centralized(_Window):
             ep.fix, ep.fix_sigma, ep.edges, ep.ranges, ep.range_sigma, ep.anchor_vehicle, ep.anchor_pos, ep.anchor_range,
             ep.anchor_sigma)
         self._append(ep, start)  # the first epoch from the swarm's shape (estimators.layout)
+        if self.prior_sens is None and self.delay_sigma > 0:  # the first prior: wide, moved by no delay
+            self.prior_sens = np.zeros((1, self.s, self.devices))
         it, converged, S = self._iterate(self.max_iter)
         mirrored = self._mirror() if self.mirrors else 0
         if mirrored:  # solve again from the mirror images
             more, converged, S = self._iterate(self.max_iter)
             it += more
         pos, vel, pc, vc = self._newest(S)
+        pc, vc = self._consider(pc, vc)
         return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it, converged=converged,
                               mirrored=mirrored,
                               tracklet=self._tracklet() if self.tracklets else None)
