@@ -398,8 +398,7 @@ def test_antenna_delay_sensitivity_is_how_the_estimate_moves_with_the_delays():
     """estimators.window_delays (eqs. wd. 1-3): the newest epoch's sensitivity J = dx/db to the
     radios' antenna delays, carried through three marginalizations by the prior's sensitivity, is
     how the converged estimate moves when every range gets the delays b_a + b_c of its two devices
-    (a linear change, 1 mm: second-order terms below 1e-3 of it). The consider covariance adds
-    sigma_b^2 J J^T to the position marginal (positive semidefinite: never less)."""
+    (10 um each: a linear change; within 1 % of it)."""
     from estimators import window_delays
 
     eps, truth = synthetic(6)
@@ -412,8 +411,8 @@ def test_antenna_delay_sensitivity_is_how_the_estimate_moves_with_the_delays():
            for e, p in zip(eps, truth)]
     b = np.random.default_rng(7).normal(0.0, 1e-5, devices)
 
-    def solve(shift: bool, window: int = 3):
-        w = sw.Centralized(N, window=window, q=Q, max_iter=300, tol=1e-12, delay_sigma=0.05, devices=devices)
+    def solve(shift: bool):
+        w = sw.Centralized(N, window=3, q=Q, max_iter=60, tol=1e-12, delay_sigma=0.05, devices=devices)
         for e in eps:
             if shift:
                 e = dataclasses.replace(e, ranges=e.ranges + b[e.edges[:, 0]] + b[e.edges[:, 1]],
@@ -429,10 +428,6 @@ def test_antenna_delay_sensitivity_is_how_the_estimate_moves_with_the_delays():
     moved = solve(True)[1].pos - est.pos
     assert np.abs(moved).max() > 1e-5  # the delays do move it
     np.testing.assert_allclose(moved, J @ b, atol=1e-2 * np.abs(moved).max())
-    plain = sw.Centralized(N, window=3, q=Q, max_iter=60, tol=1e-9)
-    for e in eps:
-        last = plain.add(e)
-    np.testing.assert_allclose(est.pos_cov - last.pos_cov, 0.05 ** 2 * J @ np.swapaxes(J, 1, 2), rtol=1e-6, atol=1e-12)
 
 
 def test_consider_covariance_adds_the_delays_term_and_leaves_the_estimate():
