@@ -109,7 +109,7 @@ import numpy as np
 from scipy import linalg, sparse
 from scipy.sparse import csgraph
 
-from estimators import layout
+from estimators import layout, window_delays
 from estimators.graph import lm
 from estimators.graph.factors import inflated_range_variance, motion_blocks, motion_input_blocks, range_terms
 from estimators.graph.linear import BlockTridiagonalNormals, solve_block_tridiagonal
@@ -146,7 +146,9 @@ class Epoch:
     anchor_vehicle (a,) vehicle index, anchor_pos (a, 3) m world, anchor_range, anchor_sigma
     (a,) m: tag-to-anchor ranges; motion (n, 6) the known motion of each vehicle since the window's
     previous epoch, [dp (m), dv (m/s)] world: the acceleration integrated once (dv) and twice (dp)
-    over the interval (None: none, the motion factor's mean is constant velocity).
+    over the interval (None: none, the motion factor's mean is constant velocity); anchor_device
+    (a,) the UWB device index of each anchor range's anchor (tags: the vehicle index; None: no
+    antenna-delay model, estimators.window_delays).
     """
 
     t: float
@@ -160,6 +162,7 @@ class Epoch:
     anchor_range: np.ndarray
     anchor_sigma: np.ndarray
     motion: np.ndarray | None = None
+    anchor_device: np.ndarray | None = None
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -229,6 +232,7 @@ class _Window:
         self.X = np.zeros((self.B, 0, self.s))  # (B, K, s) the window's estimate
         self.prior_info = np.zeros((self.B, self.s, self.s))
         self.prior_mean = np.zeros((self.B, self.s))
+        self.prior_sens = None  # (B, s, D) d prior_mean / d antenna delays (Centralized with delay_sigma)
         self._eye = np.eye(per_agent)
         self._krons: dict[float, tuple] = {}
         self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
@@ -319,16 +323,20 @@ class _Window:
         L[a, l] = np.einsum("mij,mpjvqk->mpivqk", H0, L[a, l])
         L[a, :, :, :, l] = np.einsum("mvpiqk,mjk->mvpiqj", L[a, :, :, :, l], H0)
         self.prior_info = L.reshape(self.B, self.s, self.s)
+        if self.prior_sens is not None:  # the prior mean's antenna-delay sensitivity, reflected with it: T J
+            J = self.prior_sens.reshape(self.B, self.nv, 2, 3, -1).copy()
+            J[a, l] = np.einsum("mij,mpjd->mpid", H0, J[a, l])
+            self.prior_sens = J.reshape(self.prior_sens.shape)
 
     def _kept(self, which: np.ndarray, c: np.ndarray, H: np.ndarray, cost: np.ndarray) -> np.ndarray | None:
         """One agent (B = 1): reflect the vehicles `which` together (`_reflect`); keep it and
         return the new cost where the cost falls by more than MIRROR_LOG_RATIO, else undo, None."""
-        saved = self.X, self.prior_mean, self.prior_info
+        saved = self.X, self.prior_mean, self.prior_info, self.prior_sens
         self._reflect(which, c, H)
         new = self._system(cost_only=True)[3]
         if new[0] < cost[0] - MIRROR_LOG_RATIO:
             return new
-        self.X, self.prior_mean, self.prior_info = saved
+        self.X, self.prior_mean, self.prior_info, self.prior_sens = saved
         return None
 
     def _alone(self, ok: np.ndarray, c: np.ndarray, H: np.ndarray) -> np.ndarray:
@@ -557,6 +565,7 @@ class _Window:
         info = K11 - np.swapaxes(Bm, 1, 2) @ AiB
         info = 0.5 * (info + np.swapaxes(info, 1, 2))
         b = r1 - np.einsum("bij,bi->bj", AiB, r0)
+        self._delays_marginalized(info, AiB)
         self.prior_info = info
         self.prior_mean = self.X[:, 1] + np.linalg.solve(info, b[..., None])[..., 0]
         self.epochs.pop(0)
@@ -567,6 +576,10 @@ class _Window:
 
     def _dropped(self) -> None:
         """Hook: the oldest epoch left the window."""
+
+    def _delays_marginalized(self, info: np.ndarray, AiB: np.ndarray) -> None:
+        """Hook: epoch 0 is being marginalized (info (B, s, s) the new prior's information, AiB
+        (B, s, s) A^-1 K01 of `_marginalize`; self.prior_info still the old prior's)."""
 
     def _append(self, ep: Epoch, start: np.ndarray | None = None) -> None:
         """Append epoch ep with its warm start (constant-velocity prediction; first epoch: the
@@ -671,9 +684,32 @@ class Centralized(_Window):
     sigmas of the newest epoch's estimated distance to the optimum (`_rest`)."""
 
     def __init__(self, n: int, *, window: int = 5, q: float = 1.0, huber: float | None = None, max_iter: int = 10,
-                 tol: float = 0.01, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0):
+                 tol: float = 0.01, init_sigma_p: float = 1e3, init_sigma_v: float = 10.0, delay_sigma: float = 0.0,
+                 devices: int = 0):
         super().__init__(n, agents=1, per_agent=n, window=window, q=q, huber=huber, max_iter=max_iter, tol=tol,
                          init_sigma_p=init_sigma_p, init_sigma_v=init_sigma_v)
+        # the antenna delays as consider parameters (estimators.window_delays): 1-sigma (m) of each
+        # of `devices` UWB devices' delay (0: none; the ranges' sigmas then hold them, if at all)
+        self.delay_sigma, self.devices = float(delay_sigma), int(devices)
+
+    def _delays_marginalized(self, info, AiB):
+        if self.delay_sigma > 0:  # eq. wd. 3
+            G0 = self.prior_info[0] @ self.prior_sens[0] + window_delays.delay_gradient(
+                self._pos()[0], self.epochs[0], self.devices, self.huber)
+            self.prior_sens = window_delays.marginal_sensitivity(info[0], AiB[0], G0)[None]
+
+    def _consider(self, pc: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The newest epoch's position and velocity covariances pc, vc (n, 3, 3) with the antenna
+        delays' term sigma_b^2 J J^T added (eq. wd. 1; unchanged without delay_sigma)."""
+        if self.delay_sigma <= 0:
+            return pc, vc
+        D, U, _, _ = self._system()
+        P = self._pos()
+        G = np.stack([window_delays.delay_gradient(P[k], ep, self.devices, self.huber) for k, ep in enumerate(self.epochs)])
+        G[0] += self.prior_info[0] @ self.prior_sens[0]
+        J = window_delays.newest_sensitivity(D[0], U[0], G).reshape(self.n, 6, self.devices)
+        C = self.delay_sigma ** 2 * J @ np.swapaxes(J, 1, 2)  # (n, 6, 6)
+        return pc + C[:, :3, :3], vc + C[:, 3:, 3:]
 
     def _where(self, i):
         return np.zeros_like(i), i
@@ -705,6 +741,8 @@ class Centralized(_Window):
             ep.fix, ep.fix_sigma, ep.edges, ep.ranges, ep.range_sigma, ep.anchor_vehicle, ep.anchor_pos, ep.anchor_range,
             ep.anchor_sigma)
         self._append(ep, start)  # the first epoch from the swarm's shape (estimators.layout)
+        if self.prior_sens is None and self.delay_sigma > 0:  # the first prior: wide, moved by no delay
+            self.prior_sens = np.zeros((1, self.s, self.devices))
         report, S = self._solve(self.max_iter, self.tol)
         it = int(report.iterations[0])
         mirrored = self._mirror() if self.mirrors else 0
@@ -712,6 +750,7 @@ class Centralized(_Window):
             report, S = self._solve(self.max_iter, self.tol)
             it += int(report.iterations[0])
         pos, vel, pc, vc = self._newest(S)
+        pc, vc = self._consider(pc, vc)
         return WindowEstimate(t=ep.t, pos=pos, vel=vel, pos_cov=pc, vel_cov=vc, iterations=it,
                               converged=bool(report.converged[0]), mirrored=mirrored,
                               tracklet=self._tracklet() if self.tracklets else None, report=report)

@@ -11,15 +11,16 @@ anchor (known anchor positions from the Context). GNSS: the fix's declared sigma
 before the first with a GNSS fix is skipped (counted).
 
 Range weights. The window takes ranges as independent; their errors are not: every radio's
-antenna delay (constant over the run) enters each range it takes part in, at every epoch. A
-range's variance is the declared noise, the two-way-ranging clock term and the link bias
-(estimators.sensor_models.range_variances without the delays), plus, for the delays, c times the
-row sum of |C| over the epoch's ranges, C the device-shared covariance of the epoch's antenna
-delays (estimators.sensor_models.twr_range_covariance; devices: the vehicles' tags and the
-anchors): for link (a, b), c sigma_ad^2 (deg a + deg b), deg the ranges of the epoch a device
-takes part in. With c = 1 the diagonal bounds C (C - diag(row sums of |C|) is negative
-semidefinite: Gershgorin), a bound for one epoch that the window then repeats over its epochs;
-c = `delay_epochs`. c = 0: the delays as white noise, 2 sigma_ad^2 per range (before).
+antenna delay (constant over the run) enters each range it takes part in, at every epoch, and
+the window and its prior, which add the epochs up, cannot average it out. `antenna_delays`:
+"consider" (coop.window's default): a range's variance is the declared noise, the two-way-ranging
+clock term and the link bias (estimators.sensor_models.range_variances without the delays), and
+the delays are consider parameters of the centralized window (estimators.window_delays): the
+estimate is not corrected for them, its covariance gains what they move it by (docs/estimators.md,
+"The window's antenna delays"); "white": each range's variance also holds the two delays as
+white noise, 2 sigma_ad^2 (coop.window_distributed, whose message iteration has no consider term,
+and the cascades, whose filters take the window's tracklets; docs/denied.md: the centralized
+window's position ANEES 3.6-4.1 on 3 dof that way).
 
 params (defaults): window (5 epochs), q (2.0 m^2/s^3, the white acceleration density of the
 motion factors), range_scale (1: the factor on every range's 1-sigma; the declared variance
@@ -50,11 +51,12 @@ known motion over the interval an epoch closes, the input of the window's motion
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from estimators import window as sw
-from estimators.sensor_models import range_variances, twr_range_covariance
+from estimators.sensor_models import range_variances
 from testbed.config import check_fields, from_dict, key
 from testbed.config.network import NetworkConfig
 from testbed.plugins.api import Context, Estimate, Measurement
@@ -69,7 +71,7 @@ class WindowParams:
     window: int = key(5, lo=1, doc="epochs in the window")
     q: float = key(2.0, lo=0, unit="m^2/s^3", doc="white acceleration density of the motion factors")
     range_scale: float = key(1.0, lo=0, lo_open=True, doc="factor on every range's 1-sigma")
-    delay_epochs: float = key(0.0, lo=0, doc="factor on the row sums of the epoch's antenna-delay covariance in a range's variance (0: the delays as white)")
+    antenna_delays: Literal["consider", "white"] = key("consider", doc="the radios' constant antenna delays: consider parameters of the centralized window (estimators.window_delays), or white noise in each range's variance")
     huber: float = key(0.0, lo=0, unit="sigma", doc="Huber range loss threshold (0: least squares)")
     max_iter: int = key(5, lo=1, doc="Gauss-Newton steps per epoch (centralized)")
     max_rounds: int = key(10, lo=1, doc="message rounds per epoch (distributed)")
@@ -85,13 +87,20 @@ class WindowParams:
             from_dict(NetworkConfig, self.network, "", "network")
 
 
+@dataclass(frozen=True, kw_only=True)
+class WindowDistributedParams(WindowParams):
+    """Parameters of coop.window_distributed: as coop.window's; the antenna delays white only."""
+
+    antenna_delays: Literal["white"] = key("white", doc="the radios' constant antenna delays: white noise in each range's variance (consider parameters: centralized only)")
+
+
 class _WindowPlugin(EpochGrouping):
     """One epoch's fixes and ranges (testbed.plugins.epochs) and the output; subclasses make the solver."""
 
     Params = WindowParams
 
     def __init__(self, context: Context, params: dict):
-        self.p = fields_of(read(WindowParams, params, type(self).__name__))
+        self.p = fields_of(read(self.Params, params, type(self).__name__))
         self.vehicles = context.vehicles
         self.n = len(self.vehicles)
         self.index = {f"{v}/uwb": i for i, v in enumerate(self.vehicles)}
@@ -127,12 +136,8 @@ class _WindowPlugin(EpochGrouping):
         of the module docstring ("Range weights")."""
         if not rows:
             return np.zeros(0)
-        i, j, d, sigma = (np.array(c) for c in zip(*rows))
-        var = range_variances(self.uwb, sigma, d, antenna_delays=not self.p["delay_epochs"])
-        if self.uwb is not None and self.p["delay_epochs"] > 0:
-            # the device-shared covariance of the epoch's antenna delays (clock terms in var)
-            C = twr_range_covariance(self.uwb["mode"], d, i, j, 0.0, self.uwb["reply_time"], self.uwb["antenna_delay_sigma"])
-            var = var + self.p["delay_epochs"] * np.abs(C).sum(axis=1)
+        _, _, d, sigma = (np.array(c) for c in zip(*rows))
+        var = range_variances(self.uwb, sigma, d, antenna_delays=self.p["antenna_delays"] == "white")
         return self.p["range_scale"] * np.sqrt(var)
 
     def _epoch(self) -> sw.Epoch:
@@ -145,6 +150,7 @@ class _WindowPlugin(EpochGrouping):
                         anchor_vehicle=np.array([a[0] for a in anc], np.int64),
                         anchor_pos=np.array([a[1] for a in anc], float).reshape(-1, 3),
                         anchor_range=np.array([a[2] for a in anc], float), anchor_sigma=np.array([a[3] for a in anc], float),
+                        anchor_device=np.array([self.n + k for _, k, _, _, _ in self.anchor], np.int64),
                         motion=None if self.motion is None or not self.solver.epochs else self.motion(self.t))
 
     def _close(self) -> list[Estimate]:
@@ -186,8 +192,11 @@ class Window(_WindowPlugin):
 
     def _solver(self, context):
         p = self.p
+        consider = p["antenna_delays"] == "consider" and self.uwb is not None
         return sw.Centralized(self.n, window=int(p["window"]), q=float(p["q"]), huber=float(p["huber"]) or None,
-                              max_iter=int(p["max_iter"]), tol=float(p["tol_sigma"]), init_sigma_v=float(p["init_sigma_v"]))
+                              max_iter=int(p["max_iter"]), tol=float(p["tol_sigma"]), init_sigma_v=float(p["init_sigma_v"]),
+                              delay_sigma=self.uwb["antenna_delay_sigma"] if consider else 0.0,
+                              devices=self.n + len(self.anchors))
 
     def _add(self, ep):
         return self.solver.add(ep)
@@ -195,6 +204,7 @@ class Window(_WindowPlugin):
 
 class WindowDistributed(_WindowPlugin):
     description = "seed 001 sliding-window factor graph, distributed message iteration (optionally over [network])"
+    Params = WindowDistributedParams
 
     def _solver(self, context):
         p = self.p

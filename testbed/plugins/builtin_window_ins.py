@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -88,6 +89,8 @@ class WindowInsParams(builtin_eskf.NavEskfParams, builtin_window.WindowParams):
     # 3 m outlier ranges throw single vehicles metres off vertically, and the swarm fell on 4 of 10
     # calibration seeds)
     huber: float = key(1.345, lo=0, unit="sigma", doc="Huber range loss threshold (0: least squares)")
+    # the filters take the window's tracklets, which hold no consider term (builtin_window, "Range weights")
+    antenna_delays: Literal["white"] = key("white", doc="the radios' constant antenna delays: white noise in each range's variance (the filters take the window's tracklets)")
     decorrelate: bool = key(True, doc="feed each epoch's new information only (equivalent measurement), not the marginal")
     imu_motion: bool = key(False, doc="the filters' IMU motion between epochs as the known input of the window's motion factor")
     start_epochs: int = key(1, lo=1, doc="a vehicle's filter starts once the window holds this many epochs")
@@ -121,7 +124,7 @@ class _WindowIns(builtin_eskf.NavEskf):
         self.decorrelate = bool(p["decorrelate"])
         self.start_epochs = int(p["start_epochs"])
         super().__init__(context, _part(p, builtin_eskf.NavEskfParams))
-        self.window = self.window_class(context, _part(p, builtin_window.WindowParams))
+        self.window = self.window_class(context, _part(p, self.window_class.Params))
         self.window.solver.tracklets = self.decorrelate
         if p["imu_motion"]:
             self.window.motion = self._motion
