@@ -211,6 +211,17 @@ def test_denied_street_claims_are_decided_only_when_a_vehicle_lost_gnss():
             assert claims[f"{v}_flight_without_contact"].to_json()["holds"] is True  # always decidable
 
 
+def test_a_floor_contact_breaks_the_no_contact_claim():
+    """A vehicle fallen to the floor in one run is no clean flight: the claim counts every kind of
+    contact (vehicle, obstacle, floor), and only in its own variant."""
+    res = _results(3.2, {})
+    res.flights["coop_onboard"][4]["contacts_floor"] = 2
+    claims = {c.id: c for c in denied.decide(res)}
+    assert claims["coop_onboard_flight_without_contact"].holds is False
+    assert claims["coop_onboard_flight_without_contact"].numbers["contacts"]["coop_onboard"] == 2
+    assert all(claims[f"{v}_flight_without_contact"].holds for v in denied.COOPERATIVE if v != "coop_onboard")
+
+
 def test_cascade_skips_a_bad_window_covariance_and_restarts_a_broken_filter():
     from testbed.plugins.api import Estimate, Measurement
     from testbed.plugins.builtin_window_ins import WindowIns
