@@ -161,7 +161,7 @@ def test_mutated_builtin_scenarios_exit_0_complete_or_2_in_one_line(name, flown,
 
 # A handful of fixed cases: the exit code and stderr a user sees. One success and one refusal go
 # through a real process (`python -m testbed`); the other refusals through the same main() in this
-# process (a new interpreter per case costs ~2 s of CPU for its imports alone).
+# process (a new interpreter per case: 0.2-3.4 s wall each under load, most of it start-up and imports).
 SUBPROCESS_CASES = [
     (["run", "bandwidth", "--out", "out", "--duration", "0.2"], 0),  # ~3 s of CPU (visnav, 15 figures: ~7 s)
     (["run", "./bad.toml", "--out", "out"], 2),
