@@ -111,7 +111,7 @@ def test_pixel_camera_path_runs_through_the_filters():
     sc = scenario.load("visnav", duration=1.0, overrides={"sensors.camera.mode": '"pixels"'})
     log, physics = simulate(sc)
     assert log["camera/value"].shape[0] >= 4 * 10
-    got = _filtered(sc, log, physics)  # the filters on the log just checked (rendering: most of the cost)
+    got = _filtered(sc, log, physics)  # the filters on the log just checked: one rendered simulation, not two
     assert list(got) == list(FILTERS)
     for name, (scores, errs) in got.items():
         assert scores["finite"] and np.isfinite(scores["anees"]) and all(np.isfinite(scores[f"anees_{q}"]) for q in errs), name
