@@ -16,6 +16,7 @@ from testbed.plugins.feed import batched, measurements, run_plugin
 from testbed.plugins.loading import resolve
 from testbed.config.estimators import EstimatorSpec
 from testbed.sim.simulate import simulate
+from testbed.stream import stream_names
 
 
 class _P:
@@ -145,6 +146,15 @@ def test_the_batched_feed_is_the_row_feed_in_runs(denied_log):
         assert (a.stream, a.time, a.arrival, a.src, a.dst) == (b.stream, b.time, b.arrival, b.src, b.dst)
         np.testing.assert_array_equal(a.value, b.value)
         np.testing.assert_array_equal(a.sigma, b.sigma)
+
+
+def test_streams_without_a_row_feed_nothing_both_ways(denied_log):
+    """A log whose streams are all empty (a swarm moved out of every range) feeds nothing, row by row
+    or batched (batched raised an IndexError)."""
+    sc, log, _ = denied_log
+    names = set(stream_names(log))
+    empty = {k: v[:0] if k.split("/")[0] in names else v for k, v in log.items()}
+    assert names and list(measurements(sc, empty)) == [] and list(batched(sc, empty)) == []
 
 
 @pytest.mark.parametrize("key", ["c", "d"])

@@ -13,14 +13,17 @@ from testbed.cluster import TaskLost
 from testbed.errors import RunError, UsageError
 from testbed.sweep import sweep
 from testbed.workers import backend
-from tests.test_faults import _debris, _start, _testbed, _tmp_dirs, _wait_for
+from testbed.cli import main
+from tests.test_faults import _debris, _start, _tmp_dirs, _wait_for
 
 FILES = ["summary.json", "summary.csv", "sweep.toml", *(f"run-{i:03d}/{f}" for i in range(3)
                                                         for f in ("metrics.json", "log.npz"))]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def local_ray():
+    """A local Ray instance for one test, stopped after it: idle, it would still cost CPU while the
+    interrupted sweep below starts its own."""
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
@@ -70,8 +73,8 @@ def test_a_task_lost_for_good_keeps_the_finished_runs(tmp_path, monkeypatch):
     assert _debris(tmp_path) == []
 
 
-@pytest.mark.slow  # starts Ray twice from the command line, ~1.5 min on a loaded machine
-def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tmp_path, local_pool):
+@pytest.mark.slow  # starts Ray twice (the command line, then this process), ~1.5 min on a loaded machine
+def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tmp_path, local_pool, monkeypatch):
     args = ["sweep", "bandwidth", "--runs", "3", "--duration", "1.0", "--seed", "3", "--backend", "ray", "--no-plots"]
     # one task at a time: with two, the second finishes with the first, and the signal that follows
     # the first would meet the second's completion (a race inside Ray, not the testbed's to test)
@@ -89,8 +92,10 @@ def test_interrupted_ray_sweep_keeps_finished_runs_and_resumes_byte_identical(tm
     if len(done) < 3:
         assert summary["incomplete"] is True and summary["runs_done"] == len(done)
     assert _debris(tmp_path) == []
-    q = _testbed(tmp_path, *args, "--out", "sw", "--resume")
-    assert q.returncode == 0, q.stderr
+    # the command that follows the interruption, in this process (it starts its own Ray here, as
+    # the command line does; no local_ray is left running): saves an interpreter start
+    monkeypatch.chdir(tmp_path)
+    assert main([*args, "--out", "sw", "--resume"]) == 0
     whole = local_pool[0]  # the same sweep uninterrupted (the local pool: the Ray sweep's bytes, test above)
     for f in FILES:
         assert (tmp_path / "sw" / f).read_bytes() == (whole / f).read_bytes(), f

@@ -10,7 +10,8 @@ never a traceback, a hang (SIGALRM after TIME_LIMIT_S) or a file outside OUT (th
 directory, a fresh temporary one, must hold only the scenario and OUT; no MUJOCO_LOG.TXT).
 
 Seeded (derandomize) with a fixed number of examples that fits CI; TESTBED_FUZZ=slow selects the
-`slow` profile with many more. A few fixed cases also run as subprocesses of `python -m testbed`.
+`slow` profile with many more. A few fixed cases follow: two as subprocesses of `python -m testbed`
+(an exit 0 and an exit 2), the others through main() in-process.
 """
 from __future__ import annotations
 
@@ -158,13 +159,17 @@ def test_mutated_builtin_scenarios_exit_0_complete_or_2_in_one_line(name, flown,
         check_outcome(code, err, cwd, {"fuzz.toml"}, cwd / "out")
 
 
-# A handful of fixed cases through a real process: the exit code and stderr a user sees.
+# A handful of fixed cases: the exit code and stderr a user sees. One success and one refusal go
+# through a real process (`python -m testbed`); the other refusals through the same main() in this
+# process (a new interpreter per case: 0.2-3.4 s wall each under load, most of it start-up and imports).
 SUBPROCESS_CASES = [
     (["run", "bandwidth", "--out", "out", "--duration", "0.2"], 0),  # ~3 s of CPU (visnav, 15 figures: ~7 s)
     (["run", "./bad.toml", "--out", "out"], 2),
-    (["run", "visnav", "--out", "out", "--set", "control.kv=nan", "--motion", "flown"], 2),
-    (["run", "visnav", "--out", "out", "--duration", "inf"], 2),
-    (["render", "nowhere", "--fps", "0"], 2),
+]
+IN_PROCESS_CASES = [
+    ["run", "visnav", "--out", "out", "--set", "control.kv=nan", "--motion", "flown"],
+    ["run", "visnav", "--out", "out", "--duration", "inf"],
+    ["render", "nowhere", "--fps", "0"],
 ]
 
 
@@ -176,3 +181,10 @@ def test_subprocess_exit_codes_and_one_line(argv, expected, tmp_path):
     p = subprocess.run([sys.executable, "-m", "testbed", *argv], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert p.returncode == expected, p.stderr
     check_outcome(p.returncode, p.stderr if expected == 2 else "", tmp_path, {"bad.toml"}, tmp_path / "out")
+
+
+@pytest.mark.parametrize("argv", IN_PROCESS_CASES, ids=[" ".join(c[:4]) for c in IN_PROCESS_CASES])
+def test_fixed_bad_cases_exit_2_in_one_line(argv, tmp_path):
+    code, err = run_cli(argv, tmp_path)
+    assert code == 2, err
+    check_outcome(code, err, tmp_path, set(), tmp_path / "out")

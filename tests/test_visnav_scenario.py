@@ -94,10 +94,9 @@ def test_run_directory_scores_every_filter_and_is_reproducible(tmp_path):
         assert np.isfinite(timing[name]["wall_ms"]) and timing[name]["wall_ms"] > 0
 
 
-def _filtered(sc):
-    """Run the scenario's default filters on a fresh simulation: {name: (scores, {quantity:
-    (errors (E, 3), covariances (E, 3, 3))})}, the follower relative to the leader."""
-    log, physics = simulate(sc)
+def _filtered(sc, log, physics):
+    """Run the scenario's default filters on its simulation (log, physics: simulate(sc)): {name:
+    (scores, {quantity: (errors (E, 3), covariances (E, 3, 3))})}, the follower relative to the leader."""
     scores, tracks = run_estimators(sc, physics, log, resolve(estimator_specs(sc)), None)
     truth = Truth(log, make_context(sc, lever_arms(physics), "truth", {}))
     out = {}
@@ -110,9 +109,9 @@ def _filtered(sc):
 def test_pixel_camera_path_runs_through_the_filters():
     """Rendered camera + OpenCV detection feeds the filters (short: rendering is slow)."""
     sc = scenario.load("visnav", duration=1.0, overrides={"sensors.camera.mode": '"pixels"'})
-    log, _ = simulate(sc)
+    log, physics = simulate(sc)
     assert log["camera/value"].shape[0] >= 4 * 10
-    got = _filtered(sc)
+    got = _filtered(sc, log, physics)  # the filters on the log just checked: one rendered simulation, not two
     assert list(got) == list(FILTERS)
     for name, (scores, errs) in got.items():
         assert scores["finite"] and np.isfinite(scores["anees"]) and all(np.isfinite(scores[f"anees_{q}"]) for q in errs), name
@@ -135,7 +134,8 @@ GAUSSIAN_MC = {
 def gaussian_mc():
     out = []
     for i in range(MC_RUNS):
-        out.append(_filtered(scenario.load("visnav", duration=MC_DURATION, seed=100 + i, overrides=GAUSSIAN_MC)))
+        sc = scenario.load("visnav", duration=MC_DURATION, seed=100 + i, overrides=GAUSSIAN_MC)
+        out.append(_filtered(sc, *simulate(sc)))
     return out
 
 
@@ -180,10 +180,11 @@ def test_gaussian_monte_carlo_no_divergence(gaussian_mc, name):
 
 @pytest.mark.slow
 def test_reproduce_writes_tables_claims_and_plots(tmp_path):
-    """`testbed reproduce visnav` on 2 short runs: files written, every claim decided."""
+    """`testbed reproduce visnav` on 2 runs of 1 s (nothing checked here depends on the length): files
+    written, every claim decided."""
     from testbed.reproduce import reproduce
 
-    summary = reproduce("visnav", tmp_path, runs=2, duration=2.0, workers=1)
+    summary = reproduce("visnav", tmp_path, runs=2, duration=1.0, workers=1)
     for f in ("table.md", "table.csv", "claims.json", "runs.json", "plots/rhcf_position_glint_run0.png",
               "plots/compare_position_glint.png", "plots/rms_error_vs_time_glint.png"):
         assert (tmp_path / f).is_file(), f

@@ -97,6 +97,8 @@ def batched(scenario: Scenario, log: dict[str, np.ndarray]) -> Iterator[Measurem
     if not cols:
         return
     sid, row = _order(cols)
+    if not sid.size:  # streams in the log, none with a row (e.g. a swarm moved out of every range): nothing to feed
+        return
     # a run ends where the stream changes or the rows of the stream are not consecutive
     cut = np.flatnonzero((np.diff(sid) != 0) | (np.diff(row) != 1)) + 1
     batchable = [c.batchable for c in cols]
