@@ -98,7 +98,10 @@ def test_the_replay_of_an_export_gives_the_estimates_of_the_simulation(exported)
                   and k in replayed[key]}
         assert "rmse_position_m" in scores or "rmse_velocity_m_s" in scores, key
         for k, v in scores.items():
-            np.testing.assert_allclose(replayed[key][k], v, rtol=1e-9, atol=1e-12, err_msg=f"{key} {k}")
+            if v is None or isinstance(v, str):  # an interval not decidable from one run, and its reason
+                assert replayed[key][k] == v, (key, k)
+            else:
+                np.testing.assert_allclose(replayed[key][k], v, rtol=1e-9, atol=1e-12, err_msg=f"{key} {k}")
 
 
 def _left_out(notes: str, spec: Path, keys: set[str]) -> dict[str, str]:

@@ -76,11 +76,14 @@ def test_cross_h000_observes_its_attitude_and_scores_it(scores):
 def test_line_h000_scores_its_body_without_the_turn_about_the_masters_line_and_reports_that_turn(scores):
     """A line of masters (estimators.phase_model.masters_line) does not observe a turn of the
     follower's trajectory about that line: `anees` is the body NEES over the 5 other directions
-    (`anees_dof` 5), the turn's own NEES is `anees_unobserved` (1 dof, with its interval), the
+    (`anees_dof` 5), the turn's own NEES is `anees_unobserved` (1 dof, with its interval, or the
+    reason one run cannot decide it: docs/consistency.md), the
     line's axis is reported, and the two parts add up to the whole 6-dof NEES. Cross H000 observes
     every direction: 6 dof, nothing reported apart."""
     m, c = scores["phase-line-h000"], scores["phase-cross-h000"]
-    assert m["anees_dof"] == 5 and m["anees_unobserved_dof"] == 1 and len(m["anees_unobserved_interval_99"]) == 2
+    assert m["anees_dof"] == 5 and m["anees_unobserved_dof"] == 1
+    assert (len(m["anees_unobserved_interval_99"]) == 2 if m["anees_unobserved_interval_99"] is not None
+            else m["anees_unobserved_null_reason"].startswith("not decidable from one run"))
     # the masters' line runs along the nav master's left axis (a lateral line), level in the world
     assert abs(m["unobserved_line_axis"][1]) == pytest.approx(1.0, abs=1e-6)
     assert c["anees_dof"] == 6 and "anees_unobserved" not in c and "unobserved_line_axis" not in c

@@ -630,13 +630,14 @@ def test_phase_reproduction_writes_its_report(phase_reproduction):
     assert doc["window_s"] == 0.5 and "uses the last 0.5 s instead" in table and "RMSE pos last 0.5 s" in table
     # eight formations, three ANEES each, and the attitude's where a run observed it (line H000: none),
     # for the ekf and the plugin phase.ekf; and phase.ekf's position ANEES in the plugin section
-    # (Origin has no covariance); and the q rule's table: the body and the attitude ANEES of each of the
-    # eight formations, each value with its interval over the seeds
+    # (Origin has no covariance); and the q rule's table: the body ANEES at each q, and the attitude and
+    # the body ANEES at each q_rotation, of each of the eight formations, each value with its interval
+    # over the seeds
     observed = {k: {d.parent.name for d in (out / "runs").glob("phase-*/run-*")
                     if "anees_attitude6" in json.loads((d / "metrics.json").read_text())["estimators"][k]}
                 for k in ("ekf", PHASE_FITTING.entry)}
     assert "phase-line-h000" not in observed["ekf"]
-    assert assert_every_anees_has_its_interval(table) == sum(8 * 3 + len(o) for o in observed.values()) + 8 + 2 * 8
+    assert assert_every_anees_has_its_interval(table) == sum(8 * 3 + len(o) for o in observed.values()) + 8 + 3 * 8
     assert "last_100s" not in (out / "table.csv").read_text()
     assert "testbed reproduce phase --out" in md and "--runs 2" in md and "--duration 1" in md
     for c in doc["claims"]:
