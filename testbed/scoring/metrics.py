@@ -289,7 +289,8 @@ def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
     if not undecided:
         inv = 1.0 / np.array([r[n] for r in have])
         dofs = np.array([np.inf if r.get(nu) is None else r[nu] for r in have], float)
-        n_eff, v = runs_effective_samples(1.0 / inv), float(inv.sum() ** 2 / np.sum(inv**2 / dofs))
+        spread = float(np.sum(inv**2 / dofs))  # 0 when every run's n_eff is a count (nu inf): exact
+        n_eff, v = runs_effective_samples(1.0 / inv), (float(inv.sum() ** 2 / spread) if spread > 0 else np.inf)
         return {**out, f"{key}_interval_{pct}": list(anees_interval(dof, n_eff, level, v)), n: n_eff, nu: _json_float(v)}
     if len(have) == 1:
         return {**out, f"{key}_interval_{pct}": None, n: have[0][n], nu: have[0].get(nu), f"{key}_null_reason": undecided[0]}
