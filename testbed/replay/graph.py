@@ -140,7 +140,7 @@ class GraphParams:
 @dataclass
 class _Epoch:
     """The measurements of one epoch (times in s; names are sites or bodies); the ranges as
-    columns: src, dst names, d m, sigma m."""
+    columns: src, dst names, d m, sigma m, time s (each range's own: `times` holds every row's)."""
 
     times: list = field(default_factory=list)
     r_src: list = field(default_factory=list)
@@ -148,6 +148,7 @@ class _Epoch:
     r_d: list = field(default_factory=list)
     r_sigma: list = field(default_factory=list)
     r_stream: list = field(default_factory=list)
+    r_time: list = field(default_factory=list)
     fixes: list = field(default_factory=list)    # (name, z (3,) m, sigma (3,) m)
     heights: list = field(default_factory=list)  # (name, z m, sigma m)
     mocap: dict = field(default_factory=dict)    # body -> (p (3,), R (3, 3))
@@ -238,6 +239,7 @@ class PoseGraph:
             ep.r_d += b.value[lo:hi, 0][use].tolist()
             ep.r_sigma += sigma[lo:hi][use].tolist()
             ep.r_stream += [b.stream] * int(use.sum())
+            ep.r_time += b.time[lo:hi][use].tolist()
         return out
 
     def process(self, m: Measurement) -> list[Estimate]:
@@ -253,6 +255,7 @@ class PoseGraph:
             ep.r_d.append(float(m.value[0]))
             ep.r_sigma.append(float(m.sigma[0]) if m.sigma is not None else self.p.range_sigma)
             ep.r_stream.append(m.stream)
+            ep.r_time.append(m.time)
         elif m.stream == "gnss":
             sigma = np.asarray(m.sigma, float) if m.sigma is not None else None
             if sigma is None:
@@ -605,7 +608,7 @@ class PoseGraph:
         if self.p.range_correlation <= 0:
             return ep
         sigma = []
-        for stream, a, b, s, t in zip(ep.r_stream, ep.r_src, ep.r_dst, ep.r_sigma, ep.times):
+        for stream, a, b, s, t in zip(ep.r_stream, ep.r_src, ep.r_dst, ep.r_sigma, ep.r_time):
             link = (stream,) + tuple(sorted((a, b)))
             last = self.last_range.get(link)
             self.last_range[link] = t
@@ -720,7 +723,7 @@ class PoseGraph:
             self.counts["waiting_epochs"] += 1
             return []
         merged = _Epoch(times=[t], mocap=ep.mocap, **{k: [x for e in grown for x in getattr(e, k)]
-                                                     for k in ("r_src", "r_dst", "r_d", "r_sigma", "r_stream", "fixes", "heights")})
+                                                     for k in ("r_src", "r_dst", "r_d", "r_sigma", "r_stream", "r_time", "fixes", "heights")})
         fixed = [self.anchors[n] for n in set(merged.r_src) | set(merged.r_dst) if n in self.anchors] + [p for p, _ in ep.mocap.values()]
         p0, R0, _ = self._initial(v, merged, None, fixed, 0)
         prior = {}
