@@ -14,7 +14,14 @@ per axis; the true signal's own change between two samples is counted as noise t
 holds each sample over dt makes an error of that size), so sigma errs large, never small. Eq. A2:
 the white density of that per-sample sigma (sigma = n / sqrt(dt)), floored at the declared density
 (the preset's static figure): the data can only raise it. The densities of a block hold from the
-end of that block until the end of the next. Pure numpy; never imports mujoco or testbed.
+end of that block until the end of the next.
+
+With `average` M > 1, eqs. A1-A2 take the means of M successive samples as their samples (y_k the
+k-th mean, dt_k the span between two means, M sample intervals; a block is then W means): sigma^2
+is the Allan variance at tau = M dt, and eq. A2 its white-equivalent density sqrt(AVAR(tau) tau).
+Of white noise that is the density M = 1 gives; of the rotors' vibration, narrow-band far above
+1 / (2 tau), the means keep little (docs/estimators.md, "Flights: sparse ranging without GNSS",
+where the filters' need of it is measured). Pure numpy; never imports mujoco or testbed.
 """
 from __future__ import annotations
 
@@ -25,12 +32,16 @@ WINDOW = 100  # samples per block (1 s at 100 Hz): W of eq. A1
 
 class DifferenceNoise:
     """Eqs. A1-A2 for n vehicles. floor (n, 2): the declared white densities (accel
-    m/s^2/sqrt(Hz), gyro rad/s/sqrt(Hz)) of each; window: W."""
+    m/s^2/sqrt(Hz), gyro rad/s/sqrt(Hz)) of each; window: W; average: M, samples per mean
+    (module docstring; 1: the samples themselves)."""
 
-    def __init__(self, floor: np.ndarray, window: int = WINDOW):
+    def __init__(self, floor: np.ndarray, window: int = WINDOW, average: int = 1):
         self.floor = np.asarray(floor, float).reshape(-1, 2)
         n = len(self.floor)
         self.window = int(window)
+        self.average = int(average)
+        self.sum = np.zeros((n, 6))  # each vehicle's running sum of its current mean
+        self.summed = np.zeros(n, int)
         self.last = np.full((n, 6), np.nan)  # each vehicle's previous sample
         self.t_last = np.full(n, np.nan)
         self.sq = np.zeros((n, 2))  # sum of |dy|^2 / 2 over the block, accel and gyro
@@ -43,6 +54,12 @@ class DifferenceNoise:
         vehicles (indices) whose block has just closed: their `density` rows are new."""
         i = np.asarray(i, int)
         y = np.asarray(y, float).reshape(len(i), 6)
+        if self.average > 1:  # only each vehicle's M-th sample goes on, as the mean of its last M
+            self.sum[i] += y
+            self.summed[i] += 1
+            full = self.summed[i] >= self.average
+            i, y = i[full], self.sum[i[full]] / self.average
+            self.sum[i], self.summed[i] = 0.0, 0
         seen = np.isfinite(self.t_last[i]) & (t > self.t_last[i])
         k = i[seen]
         d = y[seen] - self.last[k]

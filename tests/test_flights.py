@@ -148,6 +148,18 @@ def test_the_imu_noise_measured_on_white_samples_is_their_sigma_and_never_below_
     np.testing.assert_array_equal(adapt.density[1], [1.0, 1.0])
 
 
+def test_the_imu_noise_measured_on_means_of_white_samples_is_the_same_density():
+    """Eqs. A1-A2 on W = 100 means of M = 10 white samples (the sigmas above, 100 Hz): the means
+    have sigma / sqrt(10) over 0.1 s, the same density sigma sqrt(dt); 297 terms as above, so
+    within 20 %. The block closes at the 1000th sample, not before."""
+    rng = np.random.default_rng(6)
+    dt, sd = 0.01, np.array([0.2, 0.2, 0.2, 0.02, 0.02, 0.02])
+    adapt = DifferenceNoise(np.array([[1e-3, 1e-4]]), window=100, average=10)
+    closed = [k for k in range(1000) if adapt.add(np.array([0]), k * dt, rng.normal(0, 1, (1, 6)) * sd).size]
+    assert closed == [999]
+    np.testing.assert_allclose(adapt.density[0] / np.sqrt(dt), [0.2, 0.02], rtol=0.2)
+
+
 ANCHORS = {f"anchor{k + 1}": np.array(a) for k, a in enumerate([[-20.0, -15.0, 3.0], [25.0, -20.0, 9.0], [20.0, 25.0, 3.0],
                                                                  [-20.0, 20.0, 9.0]])}
 

@@ -45,7 +45,7 @@ eq. D1 (`divergence_prob`) is re-initialised from its ranges and heights (health
 `reinitialisations`, stderr; estimators.range_innovations, docs/estimators.md).
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), start_window (s, 2), range_window (20),
+initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), imu_noise_average (1), start_window (s, 2), range_window (20),
 range_noise_adapt (true), divergence_prob (1e-6), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
 each update, estimators.eskf.update. Measured: no better with four anchors, worse with one; the
 ranges of one epoch in one update is what matters, see `_ranges`).
@@ -102,6 +102,8 @@ class StartParams:
     output_every: int = key(1, lo=1, doc="estimates at every n-th IMU sample")
     imu_noise_window: int = key(WINDOW, lo=0, doc="IMU white densities measured from the samples' first differences over "
                                 "blocks of this many samples, floored at the declared ones (estimators.imu_adapt; 0: the declared)")
+    imu_noise_average: int = key(1, lo=1, doc="eqs. A1-A2 on the means of this many successive samples, each block "
+                                 "imu_noise_window means: the Allan variance at that span (estimators.imu_adapt; 1: the samples)")
     initial_pose: dict = key(factory=dict, doc="per vehicle {BODY = {position = [x, y, z] (m, world), position_sigma (m, 1), "
                              "yaw_deg (deg), yaw_sigma_deg (deg)}}: with a position, the vehicle starts at its first IMU "
                              "sample without a GNSS fix; its yaw replaces yaw0, yaw0_sigma")
@@ -131,7 +133,8 @@ def imu_adapter(p: dict, noise: list) -> DifferenceNoise | None:
     (estimators.eskf.ImuNoise, one each), by params p (StartParams); None when off."""
     if not p["imu_noise_window"]:
         return None
-    return DifferenceNoise(np.array([[k.accel_density, k.gyro_density] for k in noise]), int(p["imu_noise_window"]))
+    return DifferenceNoise(np.array([[k.accel_density, k.gyro_density] for k in noise]), int(p["imu_noise_window"]),
+                           int(p["imu_noise_average"]))
 
 
 def initial_poses(p: dict, vehicles, entry: str) -> dict[str, InitialPose]:
