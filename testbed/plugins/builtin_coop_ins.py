@@ -76,7 +76,8 @@ the estimate had drifted).
 
 params (defaults): huber (1.345; 0: least squares), gate_prob (0: no gate), iterations (3, of
 the iterated update), yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma
-(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100), imu_noise_average (1), start_window (s, 2),
+(m/s, 1.0), output_every (1), initial_pose ({}), imu_noise_window (100), imu_noise_average (1),
+start_window (s, 2),
 range_window (20), range_noise_adapt (true), divergence_prob (1e-6); distributed only: network (a [network] table, docs/network.md;
 absent: ideal), stale_s (s, 1.0), peer_inflation (4), broadcast_check (1e-3; 0: off), linearity
 (1.0; 0: off). health(): epochs, rejected_measurements, skipped_updates, stale_ranges,

@@ -45,7 +45,8 @@ eq. D1 (`divergence_prob`) is re-initialised from its ranges and heights (health
 `reinitialisations`, stderr; estimators.range_innovations, docs/estimators.md).
 
 params: yaw0 (rad, 0), yaw0_sigma (rad, 0.1), tilt0_sigma (rad, 0.05), vel0_sigma (m/s, 1.0),
-initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), imu_noise_average (1), start_window (s, 2), range_window (20),
+initial_pose ({}: per vehicle, InitialPose), imu_noise_window (100), imu_noise_average (1),
+start_window (s, 2), range_window (20),
 range_noise_adapt (true), divergence_prob (1e-6), gate_prob (1e-4), output_every (1), iterations (1: the plain EKF; more: Gauss-Newton iterations of
 each update, estimators.eskf.update. Measured: no better with four anchors, worse with one; the
 ranges of one epoch in one update is what matters, see `_ranges`).
