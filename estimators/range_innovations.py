@@ -38,6 +38,8 @@ never imports testbed.
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import binom, chi2
@@ -48,9 +50,10 @@ LAMBDA_MAX = 25.0  # cap of eq. R1 (range sigma at most 5 times the declared)
 M1 = float(chi2.ppf(0.5, 1))  # the median of chi-square of 1 dof
 
 
+@lru_cache(maxsize=None)
 def sign_test_threshold(window: int, alpha: float) -> float:
     """c of eq. D1: the chi-square(1) quantile whose exceedance probability p gives
-    binom.sf(window // 2, window, p) = alpha."""
+    binom.sf(window // 2, window, p) = alpha (constants only: solved once per pair, then cached)."""
     p = brentq(lambda q: binom.sf(window // 2, window, q) - alpha, 1e-12, 0.5, xtol=1e-14)
     return float(chi2.isf(p, 1))
 

@@ -25,6 +25,13 @@ from estimators.ranging import RangingEpoch, initial_belief
 PRUNE_EVERY = 64  # epochs between two prunings of a window (a range costs an append)
 
 
+def grown_sigma(sigma, v_sigma: float, age):
+    """Eq. S1: sigma (m, scalar or (k,)) of a range or height of age (s, scalar or (k,)) taken as
+    one at the fix's time, the body moving at v_sigma (m/s, per axis) since: hypot(sigma, v_sigma age)."""
+    # eq. S1
+    return np.hypot(sigma, v_sigma * age)
+
+
 class StartWindow:
     """The ranges and heights of one body over the last `span` s (s; 0: one epoch), v_sigma (m/s)
     its velocity prior per axis (eq. S1)."""
@@ -66,9 +73,9 @@ class StartWindow:
         hk, h = height if height is not None else heights[-1] if heights else (t, None)
         return RangingEpoch(
             antenna=antenna.astype(int), known_pos=known, ranges=ranges,
-            sigma_range=np.hypot(sigma, self.v_sigma * (t - tk)),  # eq. S1
+            sigma_range=grown_sigma(sigma, self.v_sigma, t - tk),
             height=None if h is None else h[0],
-            sigma_height=1.0 if h is None else float(np.hypot(h[1], self.v_sigma * (t - hk))),
+            sigma_height=1.0 if h is None else float(grown_sigma(h[1], self.v_sigma, t - hk)),
             height_weights=None if h is None else h[2])
 
     def clear(self) -> None:

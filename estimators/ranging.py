@@ -163,23 +163,21 @@ def ranging_model(x: np.ndarray, n: int, epoch: RangingEpoch) -> tuple[np.ndarra
         H[biased, col] = 1.0
     # eq. 27: d r / d x_j = u^T
     H[rows[:, None], pos_cols] = u
+    if epoch.offset is not None or has_rate:
+        V0 = np.zeros((L, 3)) if epoch.known_vel is None else np.asarray(epoch.known_vel, float).reshape(L, 3)
+        w = V[j] - V0
+        # eq. 10 with the relative velocity; eq. 28 (corrected): d rdot / d x_j = (w - u rdot)^T / r, d rdot / d v_j = u^T
+        rdot = np.einsum("lk,lk->l", u, w)
+        rdot_x = (w - u * rdot[:, None]) / r[:, None]
     if epoch.offset is not None:
         c = np.asarray(epoch.offset, float).reshape(L)
-        V0 = np.zeros((L, 3)) if epoch.known_vel is None else np.asarray(epoch.known_vel, float).reshape(L, 3)
-        w = V[j] - V0
-        rdot = np.einsum("lk,lk->l", u, w)
-        # eq. cal. 10 (docs/calibration.md): r_l(t) = |x_j - X_l| + c_l rdot_l, the distance at t + c_l;
-        # d rdot / d x_j = (w - u rdot)^T / r (eq. 28), d rdot / d v_j = u^T
+        # eq. cal. 10 (docs/calibration.md): r_l(t) = |x_j - X_l| + c_l rdot_l, the distance at t + c_l
         h[:L] += c * rdot
-        H[rows[:, None], pos_cols] += c[:, None] * (w - u * rdot[:, None]) / r[:, None]
+        H[rows[:, None], pos_cols] += c[:, None] * rdot_x
         H[rows[:, None], 3 * n + pos_cols] = c[:, None] * u
     if has_rate:
-        V0 = np.zeros((L, 3)) if epoch.known_vel is None else np.asarray(epoch.known_vel, float).reshape(L, 3)
-        w = V[j] - V0
         if epoch.rate_window is None:
-            # eq. 10 with the relative velocity; eq. 28 (corrected): (w - u rdot) / r, and u
-            rdot = np.einsum("lk,lk->l", u, w)
-            Hp, Hv = (w - u * rdot[:, None]) / r[:, None], u
+            Hp, Hv = rdot_x, u
         else:
             # eq. 7 as measured: (r(t) - r(t - W)) / W with x_j(t - W) = x_j - W v_j (eq. 24)
             W = np.broadcast_to(np.asarray(epoch.rate_window, float), (L,))[:, None]

@@ -144,12 +144,15 @@ def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
 
 
 def so3_right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
-    """J_r^-1(phi) (3, 3): Log(Exp(phi) Exp(d)) = phi + J_r^-1(phi) d to first order, phi (3,) rad."""
-    th = float(np.linalg.norm(phi))
+    """J_r^-1(phi) (..., 3, 3): Log(Exp(phi) Exp(d)) = phi + J_r^-1(phi) d to first order, phi (..., 3) rad
+    (batched over leading axes)."""
+    phi = np.asarray(phi, dtype=float)
+    th = np.sqrt(phi[..., None, :] @ phi[..., :, None])[..., 0, 0]
     K = skew(phi)
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * K
-    return np.eye(3) + 0.5 * K + (1.0 / th ** 2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))) * K @ K
+    small = th < 1e-8
+    t = np.where(small, 1.0, th)
+    c = np.where(small, 0.0, 1.0 / (t * t) - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
+    return np.eye(3) + 0.5 * K + (c[..., None, None] * K) @ K
 
 
 # --------------------------------------------------------------------------------------------

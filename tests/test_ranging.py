@@ -349,6 +349,23 @@ def test_plugin_says_so_when_no_range_ends_at_a_known_point():
     assert out == [] and est.health()["skipped_epochs"] == 5 and est.health()["unknown_end_rows"] == 30
 
 
+def test_plugin_moves_a_one_antenna_follower_with_q_translation_alone():
+    """q is the antennas' motion relative to each other (an array's flex): a follower tracked at one
+    antenna gets none of it, its white acceleration is q_translation's (docs/replay.md, "Sparse
+    ranging"); an array of two keeps q per antenna besides."""
+    sites = {"uav1/uwb": ("uav1", np.zeros(3)), "uav2/ant1": ("uav2", np.array([0.3, 0.0, 0.0])),
+             "uav2/ant2": ("uav2", np.array([-0.3, 0.0, 0.0]))}
+    ctx = Context(vehicles=("uav1", "uav2"), sites=sites, anchors={}, sensors={}, duration=5.0, seed=0,
+                  rng=np.random.default_rng(0))
+    est = RangingEkfEstimator(ctx, {"known": [], "q": 0.5, "q_translation": 0.02})
+    one, two = est.followers["uav1"], est.followers["uav2"]
+    assert (one.n, two.n) == (1, 2)
+    assert one.ekf.q == RangingNoise(antenna=0.0, translation=0.02, rotation=0.01)
+    assert two.ekf.q == RangingNoise(antenna=0.5, translation=0.02, rotation=0.01)
+    b = one.ekf.predict(Gaussian(np.zeros(6), np.zeros((6, 6))), 1.0)
+    np.testing.assert_allclose(np.diag(b.cov)[:3], 0.02 / 3, rtol=1e-12)  # q_t dt^3 / 3 per axis
+
+
 @pytest.mark.parametrize("src", ["uav2", "uav2/ant4"])
 def test_plugin_height_is_the_up_coordinate_of_its_site_or_body(src):
     """"height" means one thing everywhere (docs/replay.md): the up coordinate of the named site or

@@ -311,7 +311,7 @@ def _state_prior(f: EpochFactors, lay: _Layout, p, R, b):
         if lay.is_pose[i]:
             wi = w[:, int(np.searchsorted(poses, i))]
             d[:, o + 3:o + 6] = wi
-            Jd[:, o + 3:o + 6, o + 3:o + 6] = [so3_right_jacobian_inv(x) for x in wi]
+            Jd[:, o + 3:o + 6, o + 3:o + 6] = so3_right_jacobian_inv(wi)
     e = -(lay.x_sqrt @ d[..., None])
     J = lay.x_sqrt @ Jd
     return ("state", np.repeat(np.arange(E), X), lay.x_slot.reshape(-1, 1), e.reshape(-1, 1), [(lay.x_prior, J.reshape(-1, 1, X))])
@@ -405,7 +405,7 @@ class _Epochs:
         return _cost(res, self.losses, self.size), res
 
     def normal(self, x, res):
-        N, g, _ = _system(_residuals(self.f, self.lay, *x) if res is None else res, self.losses, self.lay)
+        N, g, _ = _system(res, self.losses, self.lay)
         return DenseNormals(N, g)
 
     def retract(self, x, delta):

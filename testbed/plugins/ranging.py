@@ -36,7 +36,10 @@ Epochs: measurements of one time of validity form an epoch, processed when a lat
 (or at finish), never looking ahead; an epoch may hold a single range, or a height alone
 (sparse, asynchronous ranging: docs/replay.md, "Sparse ranging"). Between epochs the antennas
 move at constant velocity with white acceleration (estimators.ranging.RangingNoise: q per
-antenna, q_translation common, q_rotation about the centroid). Initialisation: the follower's
+antenna, q_translation common, q_rotation about the centroid). q is the antennas' motion relative
+to each other (an array's flex): a follower tracked at a single antenna has none, and its white
+acceleration is q_translation alone (q would add to it the acceleration q_translation already
+holds: a calibration's q_translation measures all of it, docs/calibration.md cal. 6). Initialisation: the follower's
 ranges of the last init_window seconds build the prior at the epoch being solved
 (estimators.ranging.initial_belief: a rigid pose fix from the lever arms, or a fix per antenna),
 each range of age a with its sigma grown to hypot(sigma, v_sigma a) (the follower moved by at
@@ -89,7 +92,8 @@ class RangingParams:
     follower: str | None = key(None, doc="the one tracked body (none: every vehicle that is not known, each its own filter)")
     antennas: tuple[str, ...] | None = key(None, doc="the followers' antenna sites (none: each follower's sites named by [sensors.uwb] tags, else all)")
     known: tuple[str, ...] | None = key(None, doc="bodies on the pose stream (none: every vehicle but the follower; no vehicle when no follower is named)")
-    q: float = key(1e-3, lo=0, unit="m^2/s^3", doc="white-acceleration density per antenna axis")
+    q: float = key(1e-3, lo=0, unit="m^2/s^3",
+                   doc="white-acceleration density per antenna axis, independent between the antennas of an array (unused for one antenna)")
     q_translation: float = key(1e-2, lo=0, unit="m^2/s^3", doc="rigid-body white acceleration")
     q_rotation: float = key(1e-2, lo=0, unit="rad^2/s^3", doc="rigid-body white angular acceleration")
     gate_alpha: float = key(1e-3, lo=0, hi=1, lo_open=True, hi_open=True, doc="false-alarm rate of the innovation gate")
@@ -287,7 +291,10 @@ class _Follower:
         self.origin_offset = float((self.origin_weights @ self.arms)[2])  # m, up, of that point from the origin
         p = o.p
         self.window = StartWindow(p["init_window"], p["v_sigma"])  # the ranges before the prior
-        self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"], translation=p["q_translation"], rotation=p["q_rotation"]),
+        # q is the antennas' motion relative to each other (an array's flex): a follower tracked at one
+        # antenna has none, its acceleration is q_translation's alone (docs/replay.md, "Sparse ranging")
+        self.ekf = RangingEkf(n=self.n, q=RangingNoise(antenna=p["q"] if self.n > 1 else 0.0, translation=p["q_translation"],
+                                                       rotation=p["q_rotation"]),
                               gate=Gate(alpha=p["gate_alpha"]), iterations=int(p["iterations"]), bias_walk=p["bias_walk"])
         self._reset()
 

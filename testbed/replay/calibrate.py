@@ -196,17 +196,31 @@ def fit_link(e: np.ndarray, d: np.ndarray, w: np.ndarray, rate: np.ndarray, z: f
     raise ValueError("fewer rows than unknowns")
 
 
-def link_fits(rec: Recording, truth: RecordedTruth, h: float, offsets: dict | None = None) -> list[LinkFit]:
-    """Every uwb link of the recording's rows with truth at both ends (cal. 1-3, cal. 2b's
-    significance over the L links fitted), with the true range rate at its rows (central differences
-    over +-h s, each end clipped to its body's truth span; for cal. 10), sorted by ends. offsets
-    {(src, dst): c s}: the fit of e - c rate (cal. 10: the biases and scales given the time offsets)."""
+@dataclass(frozen=True, slots=True)
+class LinkRows:
+    """One link's rows of the segment with truth at both ends, in time order: ends, the measured
+    ranges value (n,) m, the true distance d (n,) m, the true range rate (n,) m/s (for cal. 10), the
+    weights w (n,) 1/m^2 and the times (n,) s (window clock)."""
+
+    src: str
+    dst: str
+    value: np.ndarray
+    d: np.ndarray
+    rate: np.ndarray
+    w: np.ndarray
+    time: np.ndarray
+
+
+def link_rows(rec: Recording, truth: RecordedTruth, h: float) -> list[LinkRows]:
+    """Every uwb link of the recording with MIN_ROWS or more rows with truth at both ends, sorted by
+    ends, with the true distance (cal. 1) and range rate at its rows (central differences over +-h s,
+    each end clipped to its body's truth span; for cal. 10)."""
     t = rec.tables["links"]
     time = t["time"] - rec.spec.window.start
     groups: dict[tuple[str, str], list[int]] = {}
     for i in np.flatnonzero(t["kind"] == "uwb").tolist():
         groups.setdefault(tuple(sorted((str(t["src"][i]), str(t["dst"][i])))), []).append(i)
-    chosen = []
+    out = []
     for (a, b), rows in sorted(groups.items()):
         rows = np.array(rows)
         ok = np.ones(rows.size, bool)
@@ -215,16 +229,10 @@ def link_fits(rec: Recording, truth: RecordedTruth, h: float, offsets: dict | No
                 lo, hi = truth.span.get(truth.body_of(end), (np.inf, -np.inf))
                 ok &= (time[rows] >= lo) & (time[rows] <= hi)
         rows = rows[ok][np.argsort(time[rows[ok]], kind="stable")]
-        if rows.size >= MIN_ROWS:
-            chosen.append((a, b, rows))
-    # eq. cal. 2b: two-sided, family-wise false alarm SCALE_ALARM over the links
-    z = float(norm.ppf(1.0 - SCALE_ALARM / (2 * max(len(chosen), 1))))
-    out = []
-    for a, b, rows in chosen:
+        if rows.size < MIN_ROWS:
+            continue
         tr = time[rows]
         dist = lambda x: np.linalg.norm(truth.at(a, "position", x) - truth.at(b, "position", x), axis=1)  # noqa: E731
-        # eq. cal. 1: e = r - d, d the true distance between the ends (lever arms included)
-        d = dist(tr)
         lo = max([truth.span[truth.body_of(n)][0] for n in (a, b) if n not in truth.anchors], default=-np.inf)
         hi = min([truth.span[truth.body_of(n)][1] for n in (a, b) if n not in truth.anchors], default=np.inf)
         tm, tp = np.maximum(tr - h, lo), np.minimum(tr + h, hi)
@@ -232,15 +240,30 @@ def link_fits(rec: Recording, truth: RecordedTruth, h: float, offsets: dict | No
         rate = np.where(tp > tm, (dist(tp) - dist(tm)) / np.where(tp > tm, tp - tm, 1.0), 0.0)
         sigma = t["sigma"][rows]
         w = np.where(np.isfinite(sigma), 1.0 / np.where(np.isfinite(sigma), sigma, 1.0) ** 2, 1.0)
+        # eq. cal. 1: d the true distance between the ends (lever arms included)
+        out.append(LinkRows(a, b, t["value"][rows], dist(tr), rate, w, tr))
+    return out
+
+
+def link_fits(links: list[LinkRows], offsets: dict | None = None) -> list[LinkFit]:
+    """The fit of every link of link_rows (cal. 1-3, cal. 2b's significance over the L links), those
+    whose rows determine it. offsets {(src, dst): c s}: the fit of e - c rate (cal. 10: the biases and
+    scales given the time offsets)."""
+    # eq. cal. 2b: two-sided, family-wise false alarm SCALE_ALARM over the links
+    z = float(norm.ppf(1.0 - SCALE_ALARM / (2 * max(len(links), 1))))
+    out = []
+    for k in links:
         try:
-            c = (offsets or {}).get((a, b), 0.0)
-            f = fit_link(t["value"][rows] - d - c * rate, d, w, rate, z)
+            c = (offsets or {}).get((k.src, k.dst), 0.0)
+            # eq. cal. 1: e = r - d
+            f = fit_link(k.value - k.d - c * k.rate, k.d, k.w, k.rate, z)
         except ValueError:
             continue
         rss = float(f.res @ f.res)
         # eq. cal. 3: the link's range noise
-        out.append(LinkFit(a, b, int(rows.size), f.bias, f.scale, f.sigma_bias, f.sigma_scale, float(np.sqrt(rss / f.dof)),
-                           rss, f.dof, f.tau, float(np.median(np.diff(tr))), f.acov, f.res, f.rate_perp))
+        out.append(LinkFit(k.src, k.dst, int(k.value.size), f.bias, f.scale, f.sigma_bias, f.sigma_scale,
+                           float(np.sqrt(rss / f.dof)), rss, f.dof, f.tau, float(np.median(np.diff(k.time))), f.acov, f.res,
+                           f.rate_perp))
     return out
 
 
@@ -314,7 +337,8 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
     truth = RecordedTruth(rec)
     epochs = np.unique(rec.tables["links"]["time"][rec.tables["links"]["kind"] == "uwb"])
     spacing = float(np.median(np.diff(epochs))) if epochs.size > 1 else t1 - t0
-    fits = link_fits(rec, truth, spacing)
+    links = link_rows(rec, truth, spacing)
+    fits = link_fits(links)
     if not fits:
         raise ConfigError(f"--window {t0:g},{t1:g}: no uwb link has {MIN_ROWS} or more rows with truth at both ends "
                           f"in it (the truth table spans {_span(rec)})")
@@ -325,7 +349,7 @@ def calibrate(spec_path: Path, window: tuple[float, float], out: Path, *, force:
                          np.array([1.0 / (f.tau * f.sigma ** 2) for f in fits]))
     offsets = {n: g for n, (g, _) in off.devices.items() if off.kept and abs(g) <= MAX_TIME_OFFSET_S}
     if offsets:
-        fits = link_fits(rec, truth, spacing, {(f.src, f.dst): offsets.get(f.src, 0.0) + offsets.get(f.dst, 0.0) for f in fits})
+        fits = link_fits(links, {(f.src, f.dst): offsets.get(f.src, 0.0) + offsets.get(f.dst, 0.0) for f in fits})
     dof = sum(f.dof for f in fits)
     # eq. cal. 4: the pooled range noise
     range_sigma = float(np.sqrt(sum(f.rss for f in fits) / dof))

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DeviceSplit", "device_split"]
+__all__ = ["DeviceSplit", "device_split", "incidence"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,6 +40,16 @@ class DeviceSplit:
     kept: bool
 
 
+def incidence(ends: list[tuple[str, str]]) -> tuple[dict[str, int], np.ndarray]:
+    """The devices of links ends [(src, dst)] (L,): {name: column} in sorted order, and the
+    incidence matrix A (L, D), 1 in the columns of each link's two devices (cal. 9, 10)."""
+    col = {n: j for j, n in enumerate(sorted({n for pair in ends for n in pair}))}
+    A = np.zeros((len(ends), len(col)))
+    for i, (a, b) in enumerate(ends):
+        A[i, col[a]] = A[i, col[b]] = 1.0
+    return col, A
+
+
 def _fit(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The minimum-norm least-squares beta of A beta = b (cal. 9)."""
     return np.linalg.lstsq(A, b, rcond=None)[0]
@@ -49,11 +59,7 @@ def device_split(ends: list[tuple[str, str]], bias: np.ndarray) -> DeviceSplit:
     """Split the biases bias (L,) m of the links ends [(src, dst)] into device biases and link
     remainders (cal. 9), and test the device model by leave-one-link-out (cal. 9b)."""
     bias = np.asarray(bias, float)
-    names = sorted({n for pair in ends for n in pair})
-    col = {n: j for j, n in enumerate(names)}
-    A = np.zeros((len(ends), len(names)))
-    for i, (a, b) in enumerate(ends):
-        A[i, col[a]] = A[i, col[b]] = 1.0
+    col, A = incidence(ends)
     beta = _fit(A, bias)
     pred = np.empty_like(bias)
     for i in range(len(ends)):
@@ -62,5 +68,5 @@ def device_split(ends: list[tuple[str, str]], bias: np.ndarray) -> DeviceSplit:
         pred[i] = A[i] @ _fit(A[keep], bias[keep])
     rms_bias = float(np.sqrt(np.mean(bias ** 2))) if bias.size else 0.0
     rms_loo = float(np.sqrt(np.mean((bias - pred) ** 2))) if bias.size else 0.0
-    return DeviceSplit({n: float(beta[col[n]]) for n in names}, bias - A @ beta, rms_bias, rms_loo,
+    return DeviceSplit({n: float(beta[j]) for n, j in col.items()}, bias - A @ beta, rms_bias, rms_loo,
                        bool(bias.size >= 2 and rms_loo < rms_bias))

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from testbed.replay.device_bias import incidence
+
 __all__ = ["OFFSET_ALARM", "OffsetFit", "device_offsets"]
 
 #: the false-alarm probability of cal. 10b's Wald test
@@ -38,13 +40,10 @@ OFFSET_ALARM = 0.05
 
 @dataclass(frozen=True, slots=True)
 class OffsetFit:
-    """devices {name: (gamma s, its sigma s)}; links (L,) c_l s and their sigmas (L,) s, in the order
-    given; cv_with, cv_without: cal. 10b's summed held-out weighted squared errors; wald: gamma^T N
-    gamma and its rank r; kept: cal. 10b holds."""
+    """devices {name: (gamma s, its sigma s)}; cv_with, cv_without: cal. 10b's summed held-out
+    weighted squared errors; wald: gamma^T N gamma and its rank r; kept: cal. 10b holds."""
 
     devices: dict[str, tuple[float, float]]
-    links: np.ndarray
-    sigma_links: np.ndarray
     cv_with: float
     cv_without: float
     wald: float
@@ -67,18 +66,14 @@ def device_offsets(ends: list[tuple[str, str]], res: list[np.ndarray], rate: lis
                    weight: np.ndarray) -> OffsetFit:
     """cal. 10, 10b for the links ends [(src, dst)], each with its residuals res[l] (n_l,) m in time
     order, true range rates rate[l] (n_l,) m/s and weight w_l = 1 / (tau_l sigma_l^2) (L,) 1/m^2."""
-    names = sorted({n for pair in ends for n in pair})
-    col = {n: j for j, n in enumerate(names)}
-    D = len(names)
+    col, A = incidence(ends)
+    D = len(col)
     rows = list(zip(res, rate, np.asarray(weight, float)))
     N, g = _normal(ends, rows, col, D)
     # eq. cal. 10
     cov = np.linalg.pinv(N, hermitian=True)
     gamma = cov @ g
     rank = int(np.linalg.matrix_rank(N, hermitian=True)) if D else 0
-    A = np.zeros((len(ends), D))
-    for i, (a, b) in enumerate(ends):
-        A[i, col[a]] = A[i, col[b]] = 1.0
     # eq. cal. 10b: two-fold cross-validation in time, then the Wald test
     err = {True: 0.0, False: 0.0}
     halves = [[(x[:x.size // 2], y[:y.size // 2], w) for x, y, w in rows], [(x[x.size // 2:], y[y.size // 2:], w) for x, y, w in rows]]
@@ -91,5 +86,4 @@ def device_offsets(ends: list[tuple[str, str]], res: list[np.ndarray], rate: lis
     wald = float(gamma @ N @ gamma)
     kept = bool(rank > 0 and err[True] < err[False] and wald > chi2.ppf(1.0 - OFFSET_ALARM, rank))
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    return OffsetFit({n: (float(gamma[col[n]]), float(sig[col[n]])) for n in names}, A @ gamma,
-                     np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", A, cov, A), 0.0)), err[True], err[False], wald, rank, kept)
+    return OffsetFit({n: (float(gamma[j]), float(sig[j])) for n, j in col.items()}, err[True], err[False], wald, rank, kept)

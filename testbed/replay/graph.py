@@ -69,6 +69,7 @@ from estimators.graph.motion import POSE_DIMS, MotionBelief
 from estimators.graph.warmstart import MotionFit, fit_motion
 from estimators.graph.losses import Loss
 from estimators.range_lsq import determines_attitude, fresh_fit
+from estimators.range_start import grown_sigma
 from estimators.sensor_models import correlated_sigma
 from estimators.so3 import quat_to_rotmat, rotmat_to_quat, so3_log
 from testbed.config import check_fields, key, require
@@ -713,7 +714,7 @@ class PoseGraph:
         rows: dict[str, list] = {"r_e": [], "r_a": [], "r_b": [], "r_d": [], "r_sigma": [], "r_key": [], "q": [], "h": []}
         ends: dict[str, list] = {"var": [], "arm": []}
         unused = self.counts["unused_measurements"]
-        grown = [_grown(e, self.p.v_sigma * (t - float(np.mean(e.times)))) for e in pool]
+        grown = [_grown(e, self.p.v_sigma, t - float(np.mean(e.times))) for e in pool]
         for e in grown:
             self._factors(e, {v: 0}, 0, rows, ends)
         ranges = self._range_rows(rows, ends)
@@ -835,13 +836,14 @@ def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, ret
     return flagged, dataclasses.replace(second, p=p, R=R, cov=cov, cost=cost, b=bias)
 
 
-def _grown(ep: _Epoch, s: float) -> _Epoch:
-    """ep with every range, height and fix sigma grown by s m in quadrature (motion since)."""
-    if s <= 0:
+def _grown(ep: _Epoch, v_sigma: float, age: float) -> _Epoch:
+    """ep with every range, height and fix sigma grown by the motion over age s at v_sigma m/s
+    (eq. S1, estimators.range_start.grown_sigma)."""
+    if v_sigma * age <= 0:
         return ep
-    return dataclasses.replace(ep, r_sigma=[math.hypot(x, s) for x in ep.r_sigma],
-                               heights=[(n, z, math.hypot(x, s)) for n, z, x in ep.heights],
-                               fixes=[(n, z, np.hypot(x, s)) for n, z, x in ep.fixes])
+    return dataclasses.replace(ep, r_sigma=grown_sigma(np.array(ep.r_sigma, float), v_sigma, age).tolist(),
+                               heights=[(n, z, float(grown_sigma(x, v_sigma, age))) for n, z, x in ep.heights],
+                               fixes=[(n, z, grown_sigma(x, v_sigma, age)) for n, z, x in ep.fixes])
 
 
 def _heading(R: np.ndarray) -> np.ndarray:
