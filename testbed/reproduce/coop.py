@@ -10,8 +10,8 @@ then writes:
   runs: sqrt of the mean of the per-run squared RMSEs) -- and the improvement factor
   RMSE_gnss / RMSE_estimator of every estimator after GNSS only;
 - the consistency table (every estimator: ANEES over all vehicles and over the SPP ones, mean over
-  the runs with the interval of the runs' combined effective samples; solver counts where the
-  estimator reports them), the improvement table (every estimator: mean factor, the factors of
+  the runs with its interval over the runs, testbed.scoring.metrics.anees_over_runs, or "not
+  decidable from one run"; solver counts where the estimator reports them), the improvement table (every estimator: mean factor, the factors of
   the four figure UAVs, Spearman correlation with the neighbour counts) and the pairwise table
   (every pair of estimators, each per-UAV Wilcoxon test both ways, paired over the same seeds);
 - figure 6 (plots/fig6_error_vs_time.png): position error against time in run 0 for four SPP
@@ -559,8 +559,9 @@ def _markdown(res: CoopResults, claims: list[Claim], cons: list[dict], impr: lis
                          + [["mean", *(_mean(res.pooled[w]) for w in names), *(_mean(res.factor[w]) for w in names[1:])]])
     md += ["", f"## Consistency and solver effort (every estimator, over the {runs} run(s))", "",
            "ANEES: mean over the runs [99 % interval of a consistent estimator over the runs' combined effective "
-           "samples] (n_eff; docs/consistency.md); iterations and messages per epoch where the estimator reports "
-           "them (health()).", ""]
+           "samples, or from the spread of the per-run values when a run cannot decide its own; or not decidable "
+           "from one run] (n_eff; docs/consistency.md); iterations and messages per epoch where the estimator "
+           "reports them (health()).", ""]
     md += markdown_table(["estimator", "runs", "ANEES (3 dof)", "ANEES SPP (3 dof)", "iterations/epoch", "messages/epoch"],
                          [[_label(c["estimator"]), c["runs_scored"], fmt_anees(c) or "n/a",
                            fmt_anees(c, "anees_spp") or "n/a",
