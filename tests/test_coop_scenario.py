@@ -30,6 +30,8 @@ from testbed.runner import run
 from testbed.sim.simulate import simulate
 from testbed.sim.world import build
 
+from table_checks import assert_every_anees_has_its_interval  # tests/ helper
+
 ROOT = Path(__file__).resolve().parents[1]
 ESTIMATORS = ("gnss_only", "one_shot", "iterated", "centralized")
 KEYS = ("rmse_position_per_vehicle_m", "rmse_position_mean_m", "iterations_mean", "messages_per_epoch", "anees")
@@ -187,6 +189,8 @@ def test_reproduce_coop_writes_tables_figure_and_decided_claims(tmp_path):
         assert (out / f).is_file(), f
     lines = (out / "table.csv").read_text().strip().splitlines()
     assert len(lines) == 19 and lines[0].startswith("uav,rtk,neighbours,rtk_neighbours")
+    # the consistency table: each of the 4 estimators' ANEES, all vehicles and SPP, with its interval
+    assert assert_every_anees_has_its_interval((out / "table.md").read_text()) == 4 * 2
     claims = json.loads((out / "claims.json").read_text())["claims"]
     assert claims == json.loads(json.dumps(summary["claims"]))
     ids = {c["id"] for c in claims}
