@@ -9,7 +9,8 @@ are independent, one seed each; null with fewer than 2 runs) of every numeric sc
 dotted path (`estimators.ekf.rmse_position_m`, `tracking_rmse_m.6`), always from the metrics.json files on disk;
 an ANEES also gets the interval of a consistent estimator's mean over the runs (`interval`, at the
 runs' own level) and its effective samples (`n_eff`: testbed.scoring.metrics.anees_over_runs,
-docs/consistency.md), empty in summary.csv for the other scores.
+docs/consistency.md), empty in summary.csv for the other scores; in summary.json a null interval
+has `null_reason` beside it, and one from the spread of the runs' values `interval_method`.
 `OUT/sweep.toml` is the swept scenario (run i: its seed + i). A plugin estimator that fails in a
 run is that run's result (testbed.plugins.failures): the sweep goes on, summary.json lists
 `failed_estimators` {KEY: [run indices]}, and sweep raises EstimatorsFailed (exit 1) once written. Ctrl-C, SIGTERM or SIGHUP stop every
@@ -69,7 +70,8 @@ def flatten(obj: object, prefix: str = "") -> dict[str, float]:
 def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
     """Per-score statistics over runs: {key: {mean, std, min, max, n, ci95}} (ci95: [lo, hi] Student t
     95 % interval of the mean over the runs, None with one run); an ANEES (a key with its
-    KEY_dof beside it) also {interval, n_eff} of its mean over the runs (anees_over_runs)."""
+    KEY_dof beside it) also {interval, n_eff} of its mean over the runs (anees_over_runs), with
+    null_reason where the interval is null and interval_method where the runs' spread decides."""
     flat = [flatten(m) for m in metrics]
     keys = sorted({k for f in flat for k in f if k != "seed"})
     summary = {}
@@ -90,14 +92,16 @@ def summarize(metrics: list[dict]) -> dict[str, dict[str, float]]:
 
 
 def _over_runs(metrics: list[dict], key: str) -> dict:
-    """{interval, n_eff} of the mean over the runs of the ANEES `key` (a dotted path into each run's
-    metrics), at the level of the runs' own interval (KEY_interval_PCT beside it): the object
-    holding the key in each run, as anees_keys wrote it, goes to anees_over_runs."""
+    """{interval, n_eff[, null_reason][, interval_method]} of the mean over the runs of the ANEES `key`
+    (a dotted path into each run's metrics), at the level of the runs' own interval (KEY_interval_PCT
+    beside it): the object holding the key in each run, as anees_keys wrote it, goes to anees_over_runs."""
     parent, _, name = key.rpartition(".")
     runs = [d for d in (_at(m, parent) if parent else m for m in metrics) if isinstance(d, dict) and d.get(name) is not None]
     pct = next(int(g[1]) for r in runs for k in r if (g := re.fullmatch(re.escape(name) + r"_interval_(\d+)", k)))
     got = anees_over_runs(runs, name, pct / 100)
-    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[name.replace("anees", "n_eff")]}
+    # a null interval has its reason, a run-spread interval its method (docs/consistency.md, "Several runs")
+    return {"interval": got[f"{name}_interval_{pct}"], "n_eff": got[name.replace("anees", "n_eff")],
+            **{w: got[f"{name}_{w}"] for w in ("null_reason", "interval_method") if f"{name}_{w}" in got}}
 
 
 def _at(obj: object, path: str) -> object:

@@ -174,3 +174,27 @@ def test_an_error_correlated_over_the_whole_run_is_not_decidable_from_one_run():
     lo, hi = pooled["anees_interval_99"]
     assert lo < DOF < hi and pooled["n_eff_nu"] == 19 and "spread" in pooled["anees_interval_method"]
     assert anees_over_runs(undecided[:1], "anees")["anees_interval_99"] is None
+
+
+def test_only_the_scoring_module_builds_an_anees_interval_from_its_parts():
+    """One method (docs/consistency.md): outside testbed.scoring.metrics no module of testbed/ takes
+    the chi-square interval or the runs' pooled effective samples directly, which would skip the rule
+    (MIN_SPAN) and the nu widening (eq. C3); each goes through anees_keys, anees_over_runs or
+    anees_interval. The check can fail: a planted import is found."""
+    import ast
+    from pathlib import Path
+
+    parts = {"chi2_interval", "runs_effective_samples"}
+
+    def takes(source: str) -> set[str]:
+        if not any(w in source for w in parts):  # parse only the files that name one
+            return set()
+        return parts & set().union(*({a.name for a in node.names} if isinstance(node, ast.ImportFrom) else
+                                     {node.attr} if isinstance(node, ast.Attribute) else set()
+                                     for node in ast.walk(ast.parse(source))))
+
+    assert takes("from estimators.core import chi2_interval\n") == {"chi2_interval"}
+    root = Path(__file__).resolve().parents[1] / "testbed"
+    offenders = {str(p.relative_to(root)): got for p in sorted(root.rglob("*.py"))
+                 if p.relative_to(root).as_posix() != "scoring/metrics.py" and (got := takes(p.read_text()))}
+    assert offenders == {}

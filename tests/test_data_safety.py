@@ -195,7 +195,8 @@ def test_metrics_are_strict_json_and_a_missing_score_is_null_with_a_reason(tmp_p
     for est in m["estimators"].values():
         assert est["rmse_position_rtk_mean_m"] is None and est["anees_rtk"] is None
         assert est["null_reasons"] == {"rmse_position_rtk_mean_m": "no RTK vehicle in this scenario",
-                                       "anees_rtk": "no RTK vehicle in this scenario"}
+                                       "anees_rtk": "no RTK vehicle in this scenario",
+                                       "n_eff_rtk": "no RTK vehicle in this scenario"}
         assert isinstance(est["rmse_position_spp_mean_m"], float) and "rmse_position_spp_mean_m" not in est["null_reasons"]
 
 

@@ -32,3 +32,18 @@ def test_parallel_sweep_is_bit_identical_to_serial_runs(tmp_path):
     want = student_t.interval(0.95, 1, loc=x.mean(), scale=x.std(ddof=1) / np.sqrt(2))
     np.testing.assert_allclose(summary[key]["ci95"], want, rtol=1e-12)
     assert summary[key]["ci95"][0] < x.mean() < summary[key]["ci95"][1]
+
+
+def test_the_summary_gives_a_null_anees_interval_its_reason_and_a_spread_one_its_method():
+    """summary.json: an ANEES whose runs cannot decide has its interval null with the reason beside it
+    (one run), and from two runs on the interval from the runs' spread says so (anees_over_runs)."""
+    from testbed.scoring.metrics import anees_keys
+    from testbed.sweep import summarize
+
+    rng = np.random.default_rng(3)
+    runs = [{"estimators": {"ekf": anees_keys(rng.chisquare(3, 8), 3)}} for _ in range(3)]  # 8 samples: undecidable
+    one = summarize(runs[:1])["estimators.ekf.anees"]
+    assert one["interval"] is None and one["null_reason"].startswith("not decidable from one run")
+    three = summarize(runs)["estimators.ekf.anees"]
+    assert len(three["interval"]) == 2 and "spread of the 3 per-run values" in three["interval_method"]
+    assert "null_reason" not in three

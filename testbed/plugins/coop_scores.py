@@ -13,7 +13,9 @@ estimate's own (3, 3) covariance, 3 dof):
   `rmse_position_rtk_mean_m` their mean over the SPP / RTK vehicles;
 - `anees`, `anees_dof`, `anees_interval_99`, `n_eff` (testbed.scoring.metrics.anees_keys of the (K, N)
   NEES: the epochs and vehicles of a run are correlated, the interval counts the effective
-  samples, docs/consistency.md); `anees_spp`, `anees_rtk`, `n_eff_spp`; `epochs` = K;
+  samples, docs/consistency.md); the same keys of the SPP and of the RTK vehicles (`anees_spp`,
+  `anees_spp_dof`, `anees_spp_interval_99` or `anees_spp_null_reason`, `n_eff_spp`, `n_eff_nu_spp`;
+  `anees_rtk` ...); `epochs` = K;
 - `anees_joint` (with its _dof = 3N, _interval_99 and `n_eff_joint`): the NEES of all 3N coordinates
   of each epoch with the estimator's joint covariance, when it gives one (EstimateBatch.cov_joint);
 - from the estimator's health() counts, when it reports them (a per-epoch solver: `epochs`,
@@ -35,7 +37,7 @@ import numpy as np
 
 from estimators.core import nees
 from testbed.errors import ConfigError
-from testbed.scoring.metrics import anees_keys, rmse, sample_size
+from testbed.scoring.metrics import anees_keys, rmse
 from testbed.plugins.collect import Track
 from testbed.plugins.score import Hook
 
@@ -148,16 +150,17 @@ def position_scores(err: np.ndarray, cov: np.ndarray, is_rtk: np.ndarray) -> dic
         "rmse_position_spp_mean_m": masked_mean(per_uav, spp),
         "rmse_position_rtk_mean_m": masked_mean(per_uav, ~spp),
         **anees_keys(ne, 3),
-        "anees_spp": masked_mean(ne, spp),
-        "anees_rtk": masked_mean(ne, ~spp),
-        "n_eff_spp": sample_size(ne[:, spp]).n_eff if spp.any() else None,
         "epochs": int(K),
     }
     # strict JSON: a score that cannot exist is null, with the reason beside it
-    why = {f"{k}_{g}{u}": f"no {g.upper()} vehicle in this scenario" for g, m in (("spp", spp), ("rtk", ~spp)) if not m.any()
-           for k, u in (("rmse_position", "_mean_m"), ("anees", ""))}
-    if not spp.any():
-        why["n_eff_spp"] = "no SPP vehicle in this scenario"
+    why = {}
+    for g, m in (("spp", spp), ("rtk", ~spp)):
+        if m.any():  # the group's ANEES with its interval (or why one run cannot decide it) and n_eff
+            s.update(anees_keys(ne[:, m], 3, f"anees_{g}"))
+        else:
+            s[f"anees_{g}"] = s[f"n_eff_{g}"] = None
+            why.update({k: f"no {g.upper()} vehicle in this scenario"
+                        for k in (f"rmse_position_{g}_mean_m", f"anees_{g}", f"n_eff_{g}")})
     if why:
         s["null_reasons"] = why
     return s

@@ -10,8 +10,8 @@ then writes:
   runs: sqrt of the mean of the per-run squared RMSEs) -- and the improvement factor
   RMSE_gnss / RMSE_estimator of every estimator after GNSS only;
 - the consistency table (every estimator: ANEES over all vehicles and over the SPP ones, mean over
-  the runs with the interval of the runs' combined effective samples; solver counts where the
-  estimator reports them), the improvement table (every estimator: mean factor, the factors of
+  the runs with its interval over the runs, testbed.scoring.metrics.anees_over_runs, or "not
+  decidable from one run"; solver counts where the estimator reports them), the improvement table (every estimator: mean factor, the factors of
   the four figure UAVs, Spearman correlation with the neighbour counts) and the pairwise table
   (every pair of estimators, each per-UAV Wilcoxon test both ways, paired over the same seeds);
 - figure 6 (plots/fig6_error_vs_time.png): position error against time in run 0 for four SPP
@@ -41,7 +41,8 @@ offsets, so the K epochs are not independent samples; its 99 % interval comes fr
 the per-run joint ANEES over the independent runs (testbed.scoring.metrics.anees_run_interval, Student t
 with runs - 1 dof; docs/papers.md, seed 001). The 3-dof interval of the iterated ANEES counts the
 effective samples of each run (testbed.scoring.metrics.sample_size) combined over the independent
-runs (runs_effective_samples; docs/consistency.md).
+runs, or the spread of the per-run values when a run cannot decide its own (anees_over_runs, the
+one method of docs/consistency.md); with one such run the claim is not decidable.
 
 Round cap: the paper's scheme needs hundreds of rounds per epoch (seeded run: median ~230, 36 %
 of the epochs reach 300); the scenario caps them at pipeline.max_rounds = 300 with tol = 1 mm. The
@@ -62,7 +63,7 @@ from scipy.stats import spearmanr
 
 from testbed.config import from_dict, to_dict
 from testbed.log import load_log
-from testbed.scoring.metrics import anees_interval, anees_over_runs, anees_run_interval, mean_ci, runs_effective_samples
+from testbed.scoring.metrics import anees_over_runs, anees_run_interval, mean_ci
 from testbed.plugins import coop_scores
 from testbed.plugins.collect import load_tracks
 from testbed.plugins.graph_check import exposes_graphs, gtsam_check
@@ -70,7 +71,7 @@ from testbed.plugins.loading import resolve
 from testbed.plugins.run import run_estimators
 from testbed.config.estimators import EstimatorSpec
 from testbed.outputs.plots import compare_bars
-from testbed.outputs.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, markdown_table, \
+from testbed.outputs.report import Claim, Undefined, claims_section, fmt, fmt_anees, fmt_list, markdown_table, \
     write_claims, write_csv, write_markdown
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
 from testbed.config.scenario import Scenario, load
@@ -223,7 +224,8 @@ def _nlos_experiment(scenario: Scenario, seed: int, specs: tuple[EstimatorSpec, 
         got = run_estimators(sc, physics, log, resolve(specs_), None)[0]
         # the ANEES with its interval and effective samples (anees_keys), for fmt_anees
         return {k: {"rmse_position_spp_mean_m": v.get("rmse_position_spp_mean_m"),
-                    **{a: x for a, x in v.items() if a in ("anees", "n_eff") or a.startswith("anees_interval_")}}
+                    **{a: x for a, x in v.items()
+                       if a in ("anees", "n_eff", "anees_null_reason") or a.startswith("anees_interval_")}}
                 for k, v in got.items()}
 
     for robust in ("none", "huber"):
@@ -350,7 +352,7 @@ def _gtsam_claim(gtsam: dict) -> Claim:
     text = "(testbed) our centralized Gauss-Newton equals GTSAM's on the same graph"
     if not gtsam:
         return Claim(id="centralized_equals_gtsam", text=text, numbers={}, criterion="no estimator exposes its epoch graphs",
-                     holds=None, not_decidable="no estimator of the runs exposes its epoch graphs", summary="n/a",
+                     holds=False, not_decidable="no estimator of the runs exposes its epoch graphs", summary="n/a",
                      paper_value="(testbed check)", test="none")
     dpos = max(g["max_position_diff_m"] for g in gtsam.values())
     dcov = max(g["max_cov_rel_diff"] for g in gtsam.values())
@@ -381,20 +383,6 @@ def decide(res: CoopResults) -> list[Claim]:
     four = res.four
     f4 = [float(fac[u - 1]) for u in four]
     lo_o, hi_o = min(PAPER_FACTORS) / ORDER_SLACK, max(PAPER_FACTORS) * ORDER_SLACK
-    est = [m["estimators"] for m in res.metrics]
-    anees_it = float(np.mean([e["iterated"]["anees_spp"] for e in est]))
-    anees_c = float(np.mean([e["centralized"]["anees_spp"] for e in est]))
-    joint_runs = np.array([e["centralized"]["anees_joint"] for e in est])
-    jn = float(np.mean(joint_runs))
-    # the epochs of a run share its radios' antenna delays and clock offsets (constant): the runs,
-    # not the K runs epochs, are the independent samples (testbed.scoring.metrics.anees_run_interval);
-    # the runs are independent (each its own seed), so their effective samples add up
-    # (runs_effective_samples) and the spread of their values gives an interval of its own
-    corr = anees_interval(3 * n, runs_effective_samples([e["centralized"]["n_eff_joint"] for e in est]))
-    jlo, jhi = anees_run_interval(joint_runs, 3 * n) if runs > 1 else corr
-    it3, c3 = (anees_interval(3, runs_effective_samples([e[w]["n_eff_spp"] for e in est]))
-               for w in ("iterated", "centralized"))
-    hi3 = it3[1]
     test_note = _test_note(runs, n)
     return [
         _better_claim("cooperation_improves_every_uav", "cooperation improves the positioning of every UAV", c_every,
@@ -423,31 +411,59 @@ def decide(res: CoopResults) -> list[Claim]:
               test="point comparison with the paper's single values (pooled RMSE; the paper gives no spread)",
               interval=(lo_o, hi_o), n=runs),
         _gtsam_claim(res.gtsam),
-        Claim(id="distributed_covariance_overconfident",
-              text="(the paper's open question, docs/papers.md) re-using neighbours' estimates makes the distributed covariance "
-                   "over-confident",
-              numbers={"anees_spp_iterated": anees_it, "anees_spp_centralized": anees_c,
-                       "anees_joint_centralized": jn, "joint_dof": 3 * n,
-                       "interval_99_upper_3dof": hi3, "interval_99_3dof_iterated": list(it3),
-                       "interval_99_3dof_centralized": list(c3), "joint_interval_99": [jlo, jhi],
-                       "joint_interval_99_effective_epochs": list(corr),
-                       "anees_joint_centralized_per_run": [float(x) for x in joint_runs],
-                       "anees_iterated_run0": est[0]["iterated"]["anees"],
-                       "anees_centralized_run0": est[0]["centralized"]["anees"]},
-              criterion="iterated ANEES (3 dof, SPP UAVs) above the upper end of the 99 % interval of a consistent "
-                        "estimator (over the effective samples of the correlated epochs and vehicles) while the "
-                        "centralized joint ANEES (54 dof) is inside its 99 % interval, from the spread of the per-run "
-                        "joint ANEES (runs independent, epochs of a run not: Student t, runs - 1 dof; with 1 run the "
-                        "chi-square interval of the run's effective epochs)",
-              holds=bool(anees_it > hi3 and jlo <= jn <= jhi),
-              summary=f"ANEES iterated {fmt_ci(anees_it, *it3)} vs centralized {fmt_ci(anees_c, *c3)} (3 dof, 99 %); "
-                      f"joint {fmt(jn)} in "
-                      f"({fmt(jlo)}, {fmt(jhi)})", paper_value="(open question)",
-              test=f"iterated ANEES {fmt(anees_it)} against the chi-square 99 % upper limit {fmt(hi3)} (3 dof); "
-                   f"statistic and interval: the centralized joint ANEES ({3 * n} dof) and its Student t 99 % "
-                   "interval over the runs",
-              statistic=jn, interval=(jlo, jhi), n=runs, level=0.99),
+        _covariance_claim([m["estimators"] for m in res.metrics], n),
     ]
+
+
+def _covariance_claim(est: list[dict], n: int) -> Claim:
+    """The claim "re-using neighbours' estimates makes the distributed covariance over-confident" from
+    est, each run's metrics.json `estimators` (the iterated and centralized keys of
+    testbed.plugins.coop_scores), n UAVs: every interval by the one method of docs/consistency.md."""
+    runs = len(est)
+    anees_it = float(np.mean([e["iterated"]["anees_spp"] for e in est]))
+    anees_c = float(np.mean([e["centralized"]["anees_spp"] for e in est]))
+    joint_runs = np.array([e["centralized"]["anees_joint"] for e in est])
+    jn = float(np.mean(joint_runs))
+    # every interval by the one method over the independent runs (anees_over_runs, docs/consistency.md):
+    # the runs' effective samples combined, or the spread of their values when a run cannot decide
+    # its own; with one undecidable run, no interval (its reason)
+    over = {w: anees_over_runs([e[w] for e in est], "anees_spp") for w in ("iterated", "centralized")}
+    joint = anees_over_runs([e["centralized"] for e in est], "anees_joint")
+    # the epochs of a run share its radios' antenna delays and clock offsets (constant): the runs,
+    # not the K runs epochs, are the independent samples, so from 2 runs on the joint interval is the
+    # spread of the per-run values (testbed.scoring.metrics.anees_run_interval)
+    jint = list(anees_run_interval(joint_runs, 3 * n)) if runs > 1 else joint["anees_joint_interval_99"]
+    it3, c3 = (over[w]["anees_spp_interval_99"] for w in ("iterated", "centralized"))
+    why = "; ".join(f"{what}: {d[f'{k}_null_reason']}" for what, d, k, got in
+                    (("iterated SPP ANEES", over["iterated"], "anees_spp", it3),
+                     ("centralized joint ANEES", joint, "anees_joint", jint)) if got is None)
+    return Claim(id="distributed_covariance_overconfident",
+                 text="(the paper's open question, docs/papers.md) re-using neighbours' estimates makes the "
+                      "distributed covariance over-confident",
+                 numbers={"anees_spp_iterated": anees_it, "anees_spp_centralized": anees_c,
+                          "anees_joint_centralized": jn, "joint_dof": 3 * n,
+                          "interval_99_upper_3dof": it3[1] if it3 else None, "interval_99_3dof_iterated": it3,
+                          "interval_99_3dof_centralized": c3, "joint_interval_99": jint,
+                          "anees_spp_over_runs": over, "anees_joint_over_runs": joint,
+                          "anees_joint_centralized_per_run": [float(x) for x in joint_runs],
+                          "anees_iterated_run0": est[0]["iterated"]["anees"],
+                          "anees_centralized_run0": est[0]["centralized"]["anees"]},
+                 criterion="iterated ANEES (3 dof, SPP UAVs) above the upper end of the 99 % interval of a consistent "
+                           "estimator over the runs (docs/consistency.md: the runs' combined effective samples of the "
+                           "correlated epochs and vehicles, or the spread of the per-run values when a run cannot decide "
+                           "its own) while the centralized joint ANEES (54 dof) is inside its 99 % interval, from the "
+                           "spread of the per-run joint ANEES (runs independent, epochs of a run not: Student t, runs - 1 "
+                           "dof; with 1 run the run's own interval over its effective epochs); not decidable where an "
+                           "interval is not",
+                 holds=bool(not why and anees_it > it3[1] and jint[0] <= jn <= jint[1]), not_decidable=why,
+                 summary=f"ANEES iterated {fmt_anees(over['iterated'], 'anees_spp')} vs centralized "
+                         f"{fmt_anees(over['centralized'], 'anees_spp')} (3 dof, 99 %); joint {fmt(jn)} in "
+                         + (f"({fmt(jint[0])}, {fmt(jint[1])})" if jint else "(not decidable from one run)"),
+                 paper_value="(open question)",
+                 test=f"iterated ANEES {fmt(anees_it)} against the upper end {fmt(it3[1] if it3 else None)} of its 99 % "
+                      f"interval (3 dof); statistic and interval: the centralized joint ANEES ({3 * n} dof) and its 99 % "
+                      "interval over the runs",
+                 statistic=jn, interval=tuple(jint) if jint else None, n=runs, level=0.99)
 
 
 def _column(w: str) -> str:
@@ -477,18 +493,14 @@ def _mean(x) -> float | None:
 
 def _consistency(res: CoopResults) -> list[dict]:
     """Per estimator, over the runs where it has the keys: ANEES of all vehicles (anees_over_runs:
-    mean, 99 % interval of a consistent estimator, combined effective samples), ANEES of the SPP
-    vehicles (mean and its 99 % interval, 3 dof), iterations and messages per epoch (solver counts,
+    mean, 99 % interval of a consistent estimator, combined effective samples), the same of the SPP
+    vehicles' ANEES (anees_spp keys, 3 dof), iterations and messages per epoch (solver counts,
     where the estimator reports them)."""
     rows = []
     for w in res.names:
         runs = [m["estimators"].get(w, {}) for m in res.metrics]
-        spp = [r for r in runs if r.get("anees_spp") is not None and r.get("n_eff_spp")]
         rows.append({"estimator": w, "runs_scored": sum("failed" not in r and bool(r) for r in runs),
-                     **anees_over_runs(runs, "anees", 0.99),
-                     "anees_spp": _mean(r["anees_spp"] for r in spp),
-                     "anees_spp_interval_99": list(anees_interval(3, runs_effective_samples([r["n_eff_spp"] for r in spp])))
-                     if spp else None,
+                     **anees_over_runs(runs, "anees", 0.99), **anees_over_runs(runs, "anees_spp", 0.99),
                      "iterations_mean": _mean(r.get("iterations_mean") for r in runs),
                      "messages_per_epoch": _mean(r.get("messages_per_epoch") for r in runs)})
     return rows
@@ -547,11 +559,12 @@ def _markdown(res: CoopResults, claims: list[Claim], cons: list[dict], impr: lis
                          + [["mean", *(_mean(res.pooled[w]) for w in names), *(_mean(res.factor[w]) for w in names[1:])]])
     md += ["", f"## Consistency and solver effort (every estimator, over the {runs} run(s))", "",
            "ANEES: mean over the runs [99 % interval of a consistent estimator over the runs' combined effective "
-           "samples] (n_eff; docs/consistency.md); iterations and messages per epoch where the estimator reports "
-           "them (health()).", ""]
+           "samples, or from the spread of the per-run values when a run cannot decide its own; or not decidable "
+           "from one run] (n_eff; docs/consistency.md); iterations and messages per epoch where the estimator "
+           "reports them (health()).", ""]
     md += markdown_table(["estimator", "runs", "ANEES (3 dof)", "ANEES SPP (3 dof)", "iterations/epoch", "messages/epoch"],
                          [[_label(c["estimator"]), c["runs_scored"], fmt_anees(c) or "n/a",
-                           fmt_ci(c["anees_spp"], *c["anees_spp_interval_99"]) if c["anees_spp"] is not None else "n/a",
+                           fmt_anees(c, "anees_spp") or "n/a",
                            fmt(c["iterations_mean"]), fmt(c["messages_per_epoch"])] for c in cons])
     md += ["", "## Improvement over GNSS only (every estimator)", "",
            f"Factor RMSE_gnss / RMSE per UAV (pooled); UAVs {res.four} are figure 6's; Spearman: one-sided rank "
