@@ -112,6 +112,7 @@ from estimators.phase_model import (
     antenna_state_from_body,
     body_from_antennas,
     centripetal_acceleration,
+    lever_arms,
     measurement_model,
     row_label,
     stack_rows,
@@ -152,9 +153,7 @@ class ProcessNoise:
         if self.translation:
             S += np.kron(np.full((3, 3), self.translation), np.eye(3))
         if self.rotation:
-            P = np.asarray(x, float)[:9].reshape(3, 3)
-            rho = P - 0.5 * (P[1] + P[2])
-            Sk = skew(rho)  # (3, 3, 3): [rho_j]x
+            Sk = skew(lever_arms(x)[0])  # (3, 3, 3): [rho_j]x
             S += self.rotation * np.einsum("iab,jcb->iajc", Sk, Sk).reshape(9, 9)
         return S
 
