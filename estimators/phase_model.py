@@ -293,6 +293,11 @@ def lever_arms(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return P - 0.5 * (P[1] + P[2]), V - 0.5 * (V[1] + V[2])
 
 
+#: (9, 9) d rho / d x[:9]: the lever arms of lever_arms, stacked [antenna j, xyz], from the antenna positions
+LEVER_ARMS_JACOBIAN = np.kron(np.eye(3) - 0.5 * np.array([[0.0, 1.0, 1.0]] * 3), np.eye(3))
+LEVER_ARMS_JACOBIAN.flags.writeable = False
+
+
 def _omega(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
     """(omega (3,), A (3, 3), rho_dot (3, 3), (u, u_dot, w, w_dot)) of angular_velocity at the
     antenna state x (18,): the arms once for angular_velocity and centripetal_acceleration."""

@@ -45,6 +45,9 @@ evaluation run was looked at:
     larger q_rotation on a tie). Written after the calibration runs of line H000 showed that no q
     of the grid at q_rotation = 0 is consistent over 200 s on the observed directions (5 dof: 1562
     at 1e-12, 480 at 1e-11, 3.0 at 1e-9, 2.2 at 1e-8), before any evaluation run of this rule.
+    Re-applied, unchanged, when the rotational noise began to average over the lever arms'
+    uncertainty (estimators.phase_ekf, "Uncertain lever arms"): line H000's q_rotation 1e-5 -> 1e-6
+    (docs/papers.md, seed 003).
 
 Why the attitude: at stage 1's small q the filter is over-confident in its attitude and, through
 it, in the 18-state (tests/test_phase_scenario.py), because the independent per-antenna q no longer
