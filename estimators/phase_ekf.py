@@ -8,7 +8,7 @@ Public API
 ----------
 transition(dt)                              Phi (18, 18), eq. 24
 ProcessNoise                                white-acceleration densities: per antenna, body translation, body rotation
-process_noise(dt, q, x)                     Q (18, 18), continuous white-noise-acceleration model
+process_noise(dt, q, x, P)                  Q (18, 18), continuous white-noise-acceleration model
 PhaseEkf(q, gate, iterations, rigid)        THE filter on the estimator interface (core.Filter):
                                             predict(belief, dt), update(belief, measurement) -> belief
 PhaseEkfCovarianceAnalysis                  the same filter, also carrying its ACTUAL error covariance
@@ -45,7 +45,7 @@ a + alpha x rho_j, rho_j = x_j - (x_2 + x_3) / 2 its lever arm from the body ori
 The 9 x 9 acceleration density of the stacked antennas is then
     S_ij = q_t I3 + q_r [rho_i]x [rho_j]x^T   (+ q I3 if i = j, the independent term above),
 and Q = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]], with rho from the state the prediction starts
-from. This is exactly the motion of a scenario's [disturbance] (testbed.sim.disturbance) on a body
+from (and, in the filter, averaged over its covariance: "Uncertain lever arms" below). This is exactly the motion of a scenario's [disturbance] (testbed.sim.disturbance) on a body
 whose attitude changes slowly over dt. At the small q the built-in scenarios use, the independent
 term no longer covers the deterministic attitude-driven antenna accelerations of eq. 31; the
 rotational term does, and the scenarios set it by the rule's stage 2 (testbed/reproduce/phase_q.py). A rigid body has no random motion in the 6 directions
@@ -57,6 +57,26 @@ velocity ANEES 5.78 in [4.50, 7.75], all 12 rigid-body quantities of eq. 29-30 1
 [9.82, 14.43] (99 % intervals); 18-state ANEES 95.2 against [15.3, 20.9], the side lengths and
 their rates being over-confident (NEES 38.6 for 6 dof; 18.2 under q = 1e-7): a small independent
 q leaves the rigid triangle's shape almost without process noise.
+
+Uncertain lever arms (the rotational term of ProcessNoise, with the belief's covariance)
+----------------------------------------------------------------------------------------
+The rotational term moves antenna j by alpha x rho_j, and rho_j is the filter's ESTIMATE of the
+lever arm, not the true one. Where the attitude is well observed (sd of a few mrad) the two agree;
+where it is not (line H000: a line of masters does not see the turn about it, attitude sd of
+20-500 deg) the noise at the estimated arms goes in the wrong directions and misses the ones the
+true rotation moves the antennas in. The time update therefore takes the density's expectation
+over the arms' Gaussian uncertainty rho_j = rho_hat_j + d_j, d = L x[:9] with L the (9, 9) map of
+lever_arms and C = L P[:9, :9] L^T its covariance, C_ij = E[d_i d_j^T] (3, 3):
+    E[[rho_i]x [rho_j]x^T] = [rho_hat_i]x [rho_hat_j]x^T + tr(C_ij) I3 - C_ji           ("Uncertain lever arms")
+(from [a]x [b]x^T = (a . b) I - b a^T; exact for Gaussian d, since the term is quadratic in it).
+The body origin still gets nothing: rho_2 + rho_3 = 0 for every state, so d_2 + d_3 = 0 too.
+On the seven formations that observe the attitude C is of mm^2 against 1 m^2 arms once the
+filter has converged; only the first seconds, while the prior is metres wide, see a change
+(cross H000, seed 1000, 20 s: means within 2.7e-6 m, variances within 5.6e-4 relative, body
+ANEES 7.0944454 -> 7.0944461, 18-state 18.604 -> 18.598). Measured on line H000, calibration
+seed 1002, 200 s: the body NEES (6 dof) at 40-65 s was 21-27 with the arms' estimate alone and 6-8
+with the expectation (docs/papers.md, seed 003, "Line H000 over 200 s"). The PCRB (along the true trajectory) uses the true
+arms, without this term.
 
 Rigid rotation (rigid=True; the paper's eq. 24 is rigid=False)
 -----------------------------------------------------------------
@@ -107,11 +127,13 @@ from scipy import linalg
 from estimators.core import (NO_GATE, Gate, Gaussian, UpdateInfo, kf_predict, linearized_update, symmetrize,
                              white_acceleration_q)
 from estimators.phase_model import (
+    LEVER_ARMS_JACOBIAN,
     N_STATE,
     ROWS_PER_MASTER,
     antenna_state_from_body,
     body_from_antennas,
     centripetal_acceleration,
+    lever_arms,
     measurement_model,
     row_label,
     stack_rows,
@@ -145,28 +167,35 @@ class ProcessNoise:
     translation: float = 0.0
     rotation: float = 0.0
 
-    def density(self, x: np.ndarray | None) -> np.ndarray:
+    def density(self, x: np.ndarray | None, P: np.ndarray | None = None) -> np.ndarray:
         """Acceleration density S (9, 9) of the stacked antennas at state x (18,) (needed only
-        if rotation > 0: the lever arms rho_j = x_j - (x_2 + x_3) / 2)."""
+        if rotation > 0: the lever arms rho_j = x_j - (x_2 + x_3) / 2); with P (18, 18), the
+        covariance of x, the rotational term is averaged over the lever arms' uncertainty
+        (module docstring, "Uncertain lever arms")."""
         S = self.antenna * np.eye(9)
         if self.translation:
             S += np.kron(np.full((3, 3), self.translation), np.eye(3))
         if self.rotation:
-            P = np.asarray(x, float)[:9].reshape(3, 3)
-            rho = P - 0.5 * (P[1] + P[2])
-            Sk = skew(rho)  # (3, 3, 3): [rho_j]x
+            Sk = skew(lever_arms(x)[0])  # (3, 3, 3): [rho_j]x
             S += self.rotation * np.einsum("iab,jcb->iajc", Sk, Sk).reshape(9, 9)
+            if P is not None:
+                # "Uncertain lever arms": E[[d_i]x [d_j]x^T] = tr(C_ij) I - C_ji, C = L P L^T
+                C = (LEVER_ARMS_JACOBIAN @ P[:9, :9] @ LEVER_ARMS_JACOBIAN.T).reshape(3, 3, 3, 3)
+                S += self.rotation * (np.einsum("iaja->ij", C)[:, None, :, None] * np.eye(3)[None, :, None, :]
+                                      - C.transpose(2, 1, 0, 3)).reshape(9, 9)
         return S
 
 
-def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray | None = None) -> np.ndarray:
+def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray | None = None,
+                  P: np.ndarray | None = None) -> np.ndarray:
     """Process noise Q (18, 18) of the CV model over dt s.
 
     q: a density per antenna axis (m^2/s^3), Q = q [[dt^3/3 I9, dt^2/2 I9], [dt^2/2 I9, dt I9]]
     (eq. 14's Q_k), or a ProcessNoise, Q = [[dt^3/3 S, dt^2/2 S], [dt^2/2 S, dt S]] with S its
-    density at the state x (18,) the interval starts from (module docstring).
+    density at the state x (18,) the interval starts from, averaged over its covariance P (18, 18)
+    when given (module docstring, "Uncertain lever arms").
     """
-    S = ProcessNoise(antenna=q).density(None) if not isinstance(q, ProcessNoise) else q.density(x)
+    S = ProcessNoise(antenna=q).density(None) if not isinstance(q, ProcessNoise) else q.density(x, P)
     return np.kron(white_acceleration_q(dt), S)
 
 
@@ -180,11 +209,12 @@ def rigid_transition(x: np.ndarray, dt: float, a: np.ndarray | None = None) -> n
 
 
 def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q, rigid: bool = False) -> Gaussian:
-    """EKF time update over dt s (eq. 15, 18, 23): x' = Phi x, P' = Phi P Phi^T + Q; with rigid,
+    """EKF time update over dt s (eq. 15, 18, 23): x' = Phi x, P' = Phi P Phi^T + Q (Q with the
+    belief's lever-arm uncertainty, module docstring "Uncertain lever arms"); with rigid,
     x' = rigid_transition(x, dt) and P' = Phi P Phi^T + Q + G J_a P J_a^T G^T, the centripetal
     term's uncertainty as an input noise (module docstring, "Rigid rotation")."""
     # eq. 22 (first two lines) with f linear: eq. 23-24
-    pred = kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean))
+    pred = kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean, belief.cov))
     if not rigid:
         return pred
     a, Ja = centripetal_acceleration(belief.mean, jacobian=True)

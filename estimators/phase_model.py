@@ -178,9 +178,11 @@ def _normalize_with_rate(v, vd, Jv, Jvd):
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x b of two (3,) vectors: np.cross's products and differences in its order (the same
-    bits), without its axis handling, which costs several times the arithmetic on one vector."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    """a x b of (..., 3) vectors (broadcast on the leading axes): np.cross's products and
+    differences in its order (the same bits), without its axis handling, which costs several times
+    the arithmetic on one vector."""
+    a, b = a.T, b.T  # components first
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]).T
 
 
 def _cross_with_rate(a, ad, Ja, Jad, b, bd, Jb, Jbd):
@@ -282,21 +284,41 @@ def body_from_antennas(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # ------------------------------------------------------------------------------------------------
 # Rigid rotation of the antenna triangle: angular velocity and centripetal acceleration
 # ------------------------------------------------------------------------------------------------
+def lever_arms(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The antennas' lever arms rho_j = x_j - (x_2 + x_3) / 2 from the body origin (eq. 29) and
+    their rates rho_dot_j = v_j - (v_2 + v_3) / 2, each (3, 3) [antenna j, xyz] (m, m/s, in N),
+    of the antenna state x (18,). The nose arm u = rho_1 and the wing arm w = x_2 - x_3 = rho_2 - rho_3."""
+    X = np.asarray(x, dtype=float)
+    P, V = X[:9].reshape(3, 3), X[9:].reshape(3, 3)
+    return P - 0.5 * (P[1] + P[2]), V - 0.5 * (V[1] + V[2])
+
+
+#: (9, 9) d rho / d x[:9]: the lever arms of lever_arms, stacked [antenna j, xyz], from the antenna positions
+LEVER_ARMS_JACOBIAN = np.kron(np.eye(3) - 0.5 * np.array([[0.0, 1.0, 1.0]] * 3), np.eye(3))
+LEVER_ARMS_JACOBIAN.flags.writeable = False
+
+
+def _omega(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+    """(omega (3,), A (3, 3), rho_dot (3, 3), (u, u_dot, w, w_dot)) of angular_velocity at the
+    antenna state x (18,): the arms once for angular_velocity and centripetal_acceleration."""
+    rho, rho_dot = lever_arms(x)
+    X = np.asarray(x, dtype=float)
+    u, ud = rho[0], rho_dot[0]
+    w, wd = X[3:6] - X[6:9], X[12:15] - X[15:18]
+    A = (u @ u + w @ w) * _I3 - np.outer(u, u) - np.outer(w, w)
+    return np.linalg.solve(A, _cross(u, ud) + _cross(w, wd)), A, rho_dot, (u, ud, w, wd)
+
+
 def angular_velocity(x: np.ndarray) -> np.ndarray:
     """Angular velocity omega (3,) rad/s in N of the antenna triangle of the antenna state x (18,).
 
-    With the arms u = x1 - (x2 + x3)/2 and w = x2 - x3 (m) and their rates (m/s), a rigid body has
-    u_dot = omega x u and w_dot = omega x w; omega is the least-squares solution of these six
-    equations (exact when the state is a rigid motion):
+    With the arms u = x1 - (x2 + x3)/2 and w = x2 - x3 (m) and their rates (m/s) (lever_arms), a
+    rigid body has u_dot = omega x u and w_dot = omega x w; omega is the least-squares solution of
+    these six equations (exact when the state is a rigid motion):
         A omega = u x u_dot + w x w_dot,   A = (|u|^2 + |w|^2) I - u u^T - w w^T,
     A invertible whenever u and w are not parallel.
     """
-    X = np.asarray(x, dtype=float)
-    P, V = X[:9].reshape(3, 3), X[9:].reshape(3, 3)
-    u, ud = P[0] - 0.5 * (P[1] + P[2]), V[0] - 0.5 * (V[1] + V[2])
-    w, wd = P[1] - P[2], V[1] - V[2]
-    A = (u @ u + w @ w) * _I3 - np.outer(u, u) - np.outer(w, w)
-    return np.linalg.solve(A, _cross(u, ud) + _cross(w, wd))
+    return _omega(x)[0]
 
 
 def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -304,7 +326,7 @@ def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarra
     antenna state x (18,) in N, [antenna j, xyz]; with jacobian, also d a / d x (9, 18) (1/s^2, 1/s).
 
     A rigid body turning at omega (angular_velocity) moves antenna j, at rho_j = x_j - (x2 + x3)/2
-    from the body origin with relative velocity rho_dot_j = omega x rho_j, with acceleration
+    from the body origin with relative velocity rho_dot_j = omega x rho_j (lever_arms), with acceleration
         a_j = alpha x rho_j + omega x (omega x rho_j) = alpha x rho_j + omega x rho_dot_j.
     The constant-velocity model of eq. 24 has neither term; the angular acceleration alpha is the
     rotational process noise (estimators.phase_ekf.ProcessNoise), the centripetal term
@@ -315,19 +337,10 @@ def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarra
         dA omega = (2 omega u^T - (u . omega) I - u omega^T) du + (the same in w),
         d a_j = [omega]x d rho_dot_j - [rho_dot_j]x d omega.
     """
-    X = np.asarray(x, dtype=float)
-    V = X[9:].reshape(3, 3)
-    rho_dot = V - 0.5 * (V[1] + V[2])
-    omega = angular_velocity(X)
-    r = rho_dot.T  # omega x rho_dot_j for the three antennas, np.cross's products in its order
-    a = np.column_stack([omega[1] * r[2] - omega[2] * r[1], omega[2] * r[0] - omega[0] * r[2],
-                         omega[0] * r[1] - omega[1] * r[0]]).reshape(-1)
+    omega, A, rho_dot, (u, ud, w, wd) = _omega(x)
+    a = _cross(omega, rho_dot).reshape(-1)
     if not jacobian:
         return a
-    P = X[:9].reshape(3, 3)
-    u, ud = P[0] - 0.5 * (P[1] + P[2]), rho_dot[0]
-    w, wd = P[1] - P[2], V[1] - V[2]
-    A = (u @ u + w @ w) * _I3 - np.outer(u, u) - np.outer(w, w)
 
     def d_a_omega(v: np.ndarray) -> np.ndarray:
         # d (A omega) / d v at fixed omega, for v = u or w

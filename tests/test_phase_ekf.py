@@ -229,6 +229,30 @@ def test_rigid_body_process_noise_is_the_covariance_of_rigid_antenna_acceleratio
     assert np.array_equal(process_noise(dt, ProcessNoise(antenna=3e-3)), process_noise(dt, 3e-3))
 
 
+def test_rotational_noise_with_uncertain_lever_arms_is_its_expectation_over_them():
+    """density(x, P) (module docstring, "Uncertain lever arms"): the covariance density of
+    alpha x rho_j when the arms rho_j are the state's, drawn from N(x, P): checked against 50000
+    sampled (x, alpha) (per entry within 5 standard errors); the body origin (mean of antennas 2
+    and 3) gets none of it; without P it is the density at the mean."""
+    rng = np.random.default_rng(12)
+    x = antenna_state_from_body(np.array([3.0, -2.0, 50.0]), np.zeros(3), rot_zyx(0.7, -0.2, 0.3), np.zeros((3, 3)))
+    A = rng.normal(size=(18, 18)) * 0.2
+    P = A @ A.T
+    qn = ProcessNoise(antenna=0.0, rotation=5e-4)
+    S = qn.density(x, P)
+    n = 50_000
+    X = rng.multivariate_normal(x, P, size=n)[:, :9].reshape(n, 3, 3)
+    rho = X - 0.5 * (X[:, 1:2] + X[:, 2:3])
+    al = rng.normal(size=(n, 1, 3)) * np.sqrt(qn.rotation)
+    acc = np.cross(al, rho).reshape(n, 9)
+    emp = acc.T @ acc / n
+    se = np.sqrt((acc[:, :, None] * acc[:, None, :]).var(axis=0) / n)  # std error of each entry's mean
+    assert np.all(np.abs(emp - S) < 5 * se + 1e-15)
+    body = np.kron([[0.0, 0.5, 0.5]], np.eye(3))
+    assert np.abs(body @ S @ body.T).max() < 1e-18
+    assert np.array_equal(qn.density(x), qn.density(x, None)) and not np.allclose(qn.density(x), S)
+
+
 def test_linear_measurement_equals_core_kf_update():
     rng = np.random.default_rng(6)
     A = rng.normal(size=(18, 18))

@@ -299,15 +299,8 @@ def _body_nees_observed(r: dict) -> tuple[float, int]:
 LONG_RUNS = 6  # evaluation seeds 1..6
 
 
-LINE_H000_WHOLE_RUN = pytest.mark.xfail(
-    strict=True, reason="line H000 over 200 s, seeds 1..6: the turn about the masters' line, reported apart, "
-    "7.04 on 1 dof against [0.51, 1.68] over the runs' effective samples: its covariance is not honest; the body "
-    "7.12 on its 5 observed directions (run interval [1.21, 8.79]) (docs/papers.md, seed 003, 'The line's turn')")
-
-
 @pytest.mark.skipif(not os.environ.get("PHASE_LONG"), reason="200 s runs: PHASE_LONG=1 pytest -s -k whole_run")
-@pytest.mark.parametrize("name", [pytest.param(n, marks=LINE_H000_WHOLE_RUN) if n == "phase-line-h000" else n
-                                  for n in PHASE_SCENARIOS])
+@pytest.mark.parametrize("name", PHASE_SCENARIOS)
 def test_default_ekf_is_consistent_over_the_whole_run_of_every_builtin_phase_scenario(name):
     """The default filter of every built-in phase scenario over its whole 200 s run, evaluation
     seeds 1..LONG_RUNS (the q rule used 1000..1009 over the same horizon): the body ANEES of each

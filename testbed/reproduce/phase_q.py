@@ -45,6 +45,9 @@ evaluation run was looked at:
     larger q_rotation on a tie). Written after the calibration runs of line H000 showed that no q
     of the grid at q_rotation = 0 is consistent over 200 s on the observed directions (5 dof: 1562
     at 1e-12, 480 at 1e-11, 3.0 at 1e-9, 2.2 at 1e-8), before any evaluation run of this rule.
+    Re-applied, unchanged, when the rotational noise began to average over the lever arms'
+    uncertainty (estimators.phase_ekf, "Uncertain lever arms"): line H000's q_rotation 1e-5 -> 1e-6
+    (docs/papers.md, seed 003).
 
 Why the attitude: at stage 1's small q the filter is over-confident in its attitude and, through
 it, in the 18-state (tests/test_phase_scenario.py), because the independent per-antenna q no longer
@@ -208,12 +211,16 @@ def attitude_observed(rows1: list[dict]) -> bool:
     return not any(r["attitude_unobserved_fraction"] > 0 for r in rows1 if r["q"] == q)
 
 
+def stage1_q(rows1: list[dict]) -> float:
+    """q of the RULE's stage 1 from one scenario's stage-1 rows (Q_GRID at q_rotation 0): choose's,
+    or Q_GRID[0] where the attitude is unobserved (the stage 2 that calibrates without it)."""
+    return choose(rows1) if attitude_observed(rows1) else Q_GRID[0]
+
+
 def rule(rows1: list[dict], rows2: list[dict]) -> tuple[float, float]:
     """(q, q_rotation) of the RULE from one scenario's stage-1 rows (Q_GRID at q_rotation 0) and
-    stage-2 rows (QR_GRID at the q `calibrate` sweeps them at)."""
-    if attitude_observed(rows1):
-        return choose(rows1), choose(rows2, "q_rotation")
-    return Q_GRID[0], choose(rows2, "q_rotation", "anees")
+    stage-2 rows (QR_GRID at stage1_q, the q `calibrate` sweeps them at)."""
+    return stage1_q(rows1), choose(rows2, "q_rotation", None if attitude_observed(rows1) else "anees")
 
 
 def calibrate(name: str, seeds=CALIBRATION_SEEDS, *, duration: float | None = CALIBRATION_HORIZON_S,
@@ -223,8 +230,7 @@ def calibrate(name: str, seeds=CALIBRATION_SEEDS, *, duration: float | None = CA
     mode the swept q is q_flown (the scenarios' q_flown is not calibrated by this rule)."""
     runs = list(simulate_seeds(name, seeds, duration=duration, motion=motion))
     rows1 = sweep(name, qs=Q_GRID, q_rotations=(0.0,), motion=motion, runs=runs, progress=progress)
-    q = choose(rows1) if attitude_observed(rows1) else Q_GRID[0]  # stage 2 by the attitude, or without it
-    rows2 = sweep(name, qs=(q,), q_rotations=QR_GRID, motion=motion, runs=runs)
+    rows2 = sweep(name, qs=(stage1_q(rows1),), q_rotations=QR_GRID, motion=motion, runs=runs)
     return (*rule(rows1, rows2), rows1, rows2)
 
 
