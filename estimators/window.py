@@ -515,7 +515,7 @@ class _Window:
         and stops its solve); at most max_iter steps, stopped by the rule of `_rest` below tol
         (None: no rule). Returns lm's Report and S (B, s, s), the newest epoch's information of
         the last linear solve (at the start of the last step: what the estimate's covariance is)."""
-        chains = _Chains(self, tol)
+        chains = _Chains(self, tol, max_iter)
         self.X, _, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
                                      max_halvings=HALVINGS - 1, stop=chains.stop, roundoff=COST_ROUNDOFF)
         return report, chains.S
@@ -647,20 +647,37 @@ class _Chains:
     x the window's estimate X (B, K, s), their cost and normal equations those of
     `_Window._system` (block-tridiagonal, linear.BlockTridiagonalNormals), retraction x + delta.
     `stop` is lm's caller test: the centralized rule of `_Window._rest` below tol (None: never),
-    and it keeps S of the last linear solve."""
+    and it keeps S of the last linear solve.
 
-    def __init__(self, win: _Window, tol: float | None):
-        self.win, self.size, self.tol = win, win.B, tol
+    A trial point's normal equations are needed only if another step may follow it: the trials
+    of the last step lm can take (max_iter steps, or `stop` said converged) are evaluated for
+    their cost alone (`_Window._system(cost_only=True)`, the same number) and their normal
+    equations (which lm hands back, unused by the window) are built only if asked for
+    (`_Deferred`). Every other evaluation builds the system and passes it on as lm's memo."""
+
+    def __init__(self, win: _Window, tol: float | None, max_iter: int):
+        self.win, self.size, self.tol, self.max_iter = win, win.B, tol, max_iter
         self.steps: list[float] = []  # each step's `_Window._sigmas`
         self.S = None
+        self.taken = 0  # steps lm has solved for (one `stop` call each)
+        self.last = False  # the step being tried is the last lm can take
 
-    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, tuple]:
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, tuple | None]:
         self.win.X = x
+        if self.last:
+            return self.win._system(cost_only=True)[3], None
         D, U, R, C = self.win._system()
         return C, (D, U, R)
 
     def normal(self, x: np.ndarray, memo: tuple | None) -> BlockTridiagonalNormals:
-        return BlockTridiagonalNormals(*(memo if memo is not None else self.evaluate(x)[1]))
+        if memo is not None:
+            return BlockTridiagonalNormals(*memo)
+        return _Deferred(self, x)
+
+    def build(self, x: np.ndarray) -> BlockTridiagonalNormals:
+        """The normal equations at x (sets the window's estimate to x)."""
+        self.win.X = x
+        return BlockTridiagonalNormals(*self.win._system()[:3])
 
     @staticmethod
     def retract(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -673,10 +690,37 @@ class _Chains:
     def stop(self, delta: np.ndarray, lin: BlockTridiagonalNormals) -> np.ndarray:
         """The full step delta (B, K s) solved from lin: converged (B,) by `_Window._rest`."""
         self.S = lin.S
+        self.taken += 1
         if self.tol is None:
-            return np.zeros(self.size, bool)
-        self.steps.append(self.win._sigmas(delta.reshape(self.win.X.shape), lin.S))
-        return np.full(self.size, self.win._rest(self.steps) <= self.tol)
+            done = np.zeros(self.size, bool)
+        else:
+            self.steps.append(self.win._sigmas(delta.reshape(self.win.X.shape), lin.S))
+            done = np.full(self.size, self.win._rest(self.steps) <= self.tol)
+        self.last = self.taken >= self.max_iter or bool(done.all())
+        return done
+
+
+class _Deferred:
+    """The normal equations at x of `_Chains`, built on first use (`_Chains.build`); `where`
+    with every entry of mask True is itself, unbuilt (lm's last accepted step)."""
+
+    __slots__ = ("_chains", "_x", "_lin")
+
+    def __init__(self, chains: _Chains, x: np.ndarray):
+        self._chains, self._x, self._lin = chains, x, None
+
+    def _built(self) -> BlockTridiagonalNormals:
+        if self._lin is None:
+            X = self._chains.win.X
+            self._lin = self._chains.build(self._x)
+            self._chains.win.X = X
+        return self._lin
+
+    def where(self, mask: np.ndarray, other) -> BlockTridiagonalNormals:
+        return self if mask.all() else self._built().where(mask, other)
+
+    def __getattr__(self, name: str):
+        return getattr(self._built(), name)
 
 
 class Centralized(_Window):
