@@ -163,14 +163,25 @@ class Network:
         srcs[i], in one pass over their messages (the same draws, drops and queue order); (k,)
         how many of each were queued."""
         srcs = np.asarray(srcs, dtype=int).reshape(-1)
-        if self.cfg is not None and self.cfg.bandwidth > 0 and self.cfg.budget_on == "receive":
-            # a receiver's bucket pays the senders one after the other
-            return np.array([self.broadcast(t, s, nbytes, p) for s, p in zip(srcs.tolist(), payloads)], int)
         k, others = len(srcs), np.arange(self.n - 1)
         dst = (others[None] + (others[None] >= srcs[:, None])).ravel()  # each sender's others, ascending
         which = np.repeat(np.arange(k), self.n - 1)
-        arrival = self._transmit(float(t), srcs[which], dst, int(nbytes), payloads, which)
+        arrival = self._transmit_grouped(float(t), srcs[which], dst, int(nbytes), payloads, which)
         return np.isfinite(arrival).reshape(k, self.n - 1).sum(axis=1)
+
+    def _transmit_grouped(self, t: float, src: np.ndarray, dst: np.ndarray, nbytes: int, payloads: list,
+                          which: np.ndarray) -> np.ndarray:
+        """The transmissions of several senders in turn: messages src -> dst (m,) grouped by
+        sender (each sender's contiguous), sender group which (m,) (0, 1, .. in order) carrying
+        payloads[which]; (m,) arrival times, inf where dropped. In one pass (`_transmit`: the
+        same draws, drops and queue order as one multicast per sender) unless a receiver's
+        bucket pays, which pays the senders one after the other (one `_transmit` each)."""
+        if not (self.cfg is not None and self.cfg.bandwidth > 0 and self.cfg.budget_on == "receive"):
+            return self._transmit(t, src, dst, nbytes, payloads, which)
+        cuts = np.flatnonzero(np.diff(which)) + 1
+        return np.concatenate([np.zeros(0)] + [
+            self._transmit(t, src[a:b], dst[a:b], nbytes, [payloads[which[a]]], np.zeros(b - a, int))
+            for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), len(which)]) if b > a])
 
     def _transmit(self, t: float, src: np.ndarray, dst: np.ndarray, nbytes: int, payloads: list, which: np.ndarray) -> np.ndarray:
         """Messages src -> dst (m,) at t (s) carrying payloads[which] (m,), grouped by sender (one
@@ -283,21 +294,13 @@ class RoundTransport:
         t = self.t0 + rnd * self.round_s
         end = t + self.round_s
         ok = np.zeros(len(src), bool)
-        cfg = self.network.cfg
-        if cfg is not None and cfg.bandwidth > 0 and cfg.budget_on == "receive":
-            # a receiver's bucket pays the senders one after the other
-            for s in np.unique(src).tolist():
-                sel = np.flatnonzero(src == s)
-                arrival = self.network.multicast(t, s, dst[sel], nbytes, (rnd, s))
-                ok[sel] = arrival <= end
-                self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
-        else:  # every sender's multicast in one pass, in sender order (the same draws, drops and queue order)
-            order = np.argsort(src, kind="stable")
-            senders, which = np.unique(src[order], return_inverse=True)
-            arrival = self.network._transmit(float(t), np.asarray(src[order], int), np.asarray(dst[order], int), int(nbytes),
-                                             [(rnd, s) for s in senders.tolist()], which)
-            ok[order] = arrival <= end
-            self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
+        # every sender's multicast, in sender order (Network._transmit_grouped)
+        order = np.argsort(src, kind="stable")
+        senders, which = np.unique(src[order], return_inverse=True)
+        arrival = self.network._transmit_grouped(float(t), np.asarray(src[order], int), np.asarray(dst[order], int), int(nbytes),
+                                                 [(rnd, s) for s in senders.tolist()], which)
+        ok[order] = arrival <= end
+        self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
         for d in np.unique(dst).tolist():
             self.network.receive(end, d)
         return ok
