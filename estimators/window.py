@@ -237,6 +237,7 @@ class _Window:
         self._krons: dict[float, tuple] = {}
         self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
         self.mirrors = True  # test each vehicle's mirror image after the solve (module docstring)
+        self.lin = (None, None)  # (X, the normal equations at X) of the last `_solve`
 
     def _motion(self, k: int) -> tuple:
         """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
@@ -514,11 +515,22 @@ class _Window:
         (HALVINGS trials; a step that no halving keeps from raising that agent's cost is not taken
         and stops its solve); at most max_iter steps, stopped by the rule of `_rest` below tol
         (None: no rule). Returns lm's Report and S (B, s, s), the newest epoch's information of
-        the last linear solve (at the start of the last step: what the estimate's covariance is)."""
+        the last linear solve (at the start of the last step: what the estimate's covariance is).
+        lm's normal equations at the result are kept as `lin` with the estimate they belong to
+        (`_consider` reuses them)."""
         chains = _Chains(self, tol, max_iter)
-        self.X, _, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
+        self.X, lin, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
                                      max_halvings=HALVINGS - 1, stop=chains.stop, roundoff=COST_ROUNDOFF)
+        self.lin = (self.X, lin)
         return report, chains.S
+
+    def _linearized(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(D, U, R) of `_system` at the current estimate: those of the last `_solve` where the
+        estimate is still its result (the same numbers), else assembled."""
+        X, lin = self.lin
+        if X is not self.X:
+            return self._system()[:3]
+        return lin.D, lin.U, lin.g.reshape(lin.D.shape[:3])
 
     @staticmethod
     def _sigmas(full: np.ndarray, S: np.ndarray) -> float:
@@ -623,7 +635,7 @@ class _Window:
         while the window holds one epoch (nothing predicts it)."""
         if self.X.shape[1] < 2:
             return None
-        D, U, R, _ = self._system()
+        D, U, R = self._linearized()
         Dn, Rn, _ = self._intra(self._pos(), newest=True)
         delta, S = solve_block_tridiagonal(D, U, R)
         delta_p, S_p = solve_block_tridiagonal(D - Dn, U, R - Rn)
@@ -720,6 +732,8 @@ class _Deferred:
         return self if mask.all() else self._built().where(mask, other)
 
     def __getattr__(self, name: str):
+        if name.startswith("_"):  # a slot not yet set (copy, pickle) or a special name: not the system's
+            raise AttributeError(name)
         return getattr(self._built(), name)
 
 
@@ -747,7 +761,7 @@ class Centralized(_Window):
         delays' term sigma_b^2 J J^T added (eq. wd. 1; unchanged without delay_sigma)."""
         if self.delay_sigma <= 0:
             return pc, vc
-        D, U, _, _ = self._system()
+        D, U, _ = self._linearized()
         P = self._pos()
         G = np.stack([window_delays.delay_gradient(P[k], ep, self.devices, self.huber) for k, ep in enumerate(self.epochs)])
         G[0] += self.prior_info[0] @ self.prior_sens[0]
