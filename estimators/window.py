@@ -213,6 +213,57 @@ def equivalent_measurement(m: np.ndarray, P: np.ndarray, m_pred: np.ndarray, P_p
     return z, 0.5 * (R + np.swapaxes(R, 1, 2)), full
 
 
+class _Terms:
+    """The terms `_Window._intra` adds, each kind of factor given for every window epoch at once,
+    summed at the end in the order the factors come epoch by epoch: within epoch k, kind 0
+    (GNSS) before 1 (anchor ranges) before 2, 3, .. (the tag-to-tag ranges' parts, `_ranges`),
+    each kind's rows in their order. Every entry of the blocks, right-hand sides and costs so
+    receives its terms in one fixed order, whatever the batching (np.add.at adds one after the
+    other). where: the window's `_where` (vehicle -> agent, slot)."""
+
+    __slots__ = ("cost_only", "where", "parts")
+
+    def __init__(self, cost_only: bool, where):
+        self.cost_only, self.where, self.parts = cost_only, where, []
+
+    def add(self, kind: int, k: np.ndarray, i: np.ndarray, j: np.ndarray, H3: np.ndarray | None = None,
+            g3: np.ndarray | None = None, cost: np.ndarray | None = None) -> None:
+        """Rows (m,) at epochs k of vehicles i: H3 (m, 3, 3) to the position block (i, j) (j of
+        i's agent), g3 (m, 3) to i's right-hand side, cost (m,) to its agent's cost (None: none)."""
+        self.parts.append((kind, k, i, j, H3, g3, cost))
+
+    def sum(self, B: int, K: int, nv: int) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+        """(Hpp (B, K, nv, nv, 3, 3), Rp (B, K, nv, 3), C (B,)); (None, None, C) cost-only."""
+
+        def gather(n: int) -> tuple | None:
+            parts = [p for p in self.parts if p[n] is not None]
+            if not parts:
+                return None
+            key = np.concatenate([p[1] * 8 + p[0] for p in parts])
+            order = np.argsort(key, kind="stable")  # epoch by epoch, kind by kind, rows in order
+            cat = [np.concatenate([p[c] for p in parts])[order] for c in (1, 2, 3, n)]
+            return (*cat[:3], cat[3])
+
+        C = np.zeros(B)
+        got = gather(6)
+        if got is not None:
+            np.add.at(C, self.where(got[1])[0], got[3])
+        if self.cost_only:
+            return None, None, C
+        Hpp, Rp = np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3))
+        got = gather(4)
+        if got is not None:
+            k, i, j, H3 = got
+            a, li = self.where(i)
+            np.add.at(Hpp, (a, k, li, self.where(j)[1]), H3)
+        got = gather(5)
+        if got is not None:
+            k, i, _, g3 = got
+            a, li = self.where(i)
+            np.add.at(Rp, (a, k, li), g3)
+        return Hpp, Rp, C
+
+
 class _Window:
     """Common machinery (module docstring): agents, slots, window bookkeeping, motion, solve.
 
@@ -238,6 +289,7 @@ class _Window:
         self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
         self.mirrors = True  # test each vehicle's mirror image after the solve (module docstring)
         self.lin = (None, None)  # (X, the normal equations at X) of the last `_solve`
+        self._rows_cache = None  # `_rows`'s
 
     def _motion(self, k: int) -> tuple:
         """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
@@ -267,7 +319,9 @@ class _Window:
     def _where(self, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
-    def _ranges(self, k: int, P: np.ndarray, D: np.ndarray, R: np.ndarray) -> None:
+    def _ranges(self, P: np.ndarray, ks: list[int], tags: tuple, sys: _Terms) -> None:
+        """Add the tag-to-tag ranges tags of window epochs ks (`_rows`) at positions P (K, n, 3)
+        to sys (kinds 2, 3, ..)."""
         raise NotImplementedError
 
     def _view(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -413,58 +467,75 @@ class _Window:
         a, l = self._where(np.arange(self.n))
         return self.X.reshape(self.B, K, self.nv, 6)[a, :, l, :3].transpose(1, 0, 2)
 
-    def _add_block(self, sys, k, i, j, H3, g3=None, cost=None):
-        """Add H3 (m, 3, 3) to the position block (i, j) of epoch k (i, j (m,) vehicles, the same
-        agent), g3 (m, 3) to vehicle i's right-hand side and cost (m,) to its agent's cost (sys
-        without blocks, (None, None, C): the cost only)."""
-        Hpp, Rp, C = sys
-        a, li = self._where(i)
-        if Hpp is not None:
-            np.add.at(Hpp, (a, k, li, self._where(j)[1]), H3)
-        if g3 is not None and Rp is not None:
-            np.add.at(Rp, (a, k, li), g3)
-        if cost is not None:
-            np.add.at(C, a, cost)
-
-    def _add_point(self, sys, k, i, u, r, sigma, count=True, robust=True):
-        """Rows of a factor on vehicle i's position at epoch k with residual r (m,) = z - h,
-        dh/dp_i = u (m, 3), 1-sigma sigma (m,): D += w u u^T, R += w u r, cost += rho(r / sigma),
-        w the IRLS weight / sigma^2 (count False: the cost is counted by the other end; robust
-        False: least squares whatever `huber`). Returns w (m,); None for a cost-only sys (no
-        block assembled: the mirror test's and line search's cost, the same numbers)."""
+    def _point(self, sys: "_Terms", kind: int, k: np.ndarray, i: np.ndarray, u: np.ndarray, r: np.ndarray,
+               sigma: np.ndarray, count: bool = True) -> np.ndarray | None:
+        """Rows of a factor on vehicle i's position at epochs k (m,) with residual r (m,) = z - h,
+        dh/dp_i = u (m, 3), 1-sigma sigma (m,): D += w u u^T, R += w u r, cost += rho(r / sigma)
+        (Huber on `huber`), w the IRLS weight / sigma^2 (count False: the cost is counted by the
+        other end); kind: the factor's place among an epoch's (`_Terms`). Returns w (m,); None
+        for a cost-only sys (no block assembled: the mirror test's and line search's cost, the
+        same numbers)."""
         s = r / sigma
-        delta = self.huber if robust else None
-        if sys[0] is None:
+        if sys.cost_only:
             if count:
-                np.add.at(sys[2], self._where(i)[0], huber_rho(s, delta))
+                sys.add(kind, k, i, i, cost=huber_rho(s, self.huber))
             return None
-        w = huber_weight(s, delta) / sigma ** 2
-        self._add_block(sys, k, i, i, w[:, None, None] * u[:, :, None] * u[:, None, :], (w * r)[:, None] * u,
-                        huber_rho(s, delta) if count else None)
+        w = huber_weight(s, self.huber) / sigma ** 2
+        sys.add(kind, k, i, i, w[:, None, None] * u[:, :, None] * u[:, None, :], (w * r)[:, None] * u,
+                huber_rho(s, self.huber) if count else None)
         return w
+
+    def _rows(self, ks: list[int]) -> tuple:
+        """The measurements of window epochs ks, each kind's rows of every epoch one after the
+        other (epoch by epoch, in each epoch's order), with the epoch k of each row: GNSS (k, vehicle,
+        fix (m, 3), weight sigma^-2 (m, 3), its information block (m, 3, 3)); anchor ranges (k,
+        vehicle, anchor (m, 3), range, sigma); tag-to-tag ranges (k, edges (m, 2), range, sigma).
+        Cached while the window holds the same epochs."""
+        eps = [self.epochs[k] for k in ks]
+        if self._rows_cache is not None:  # the same epochs (the objects, kept alive here) at the same places
+            kept, kept_ks, rows = self._rows_cache
+            if kept_ks == ks and all(a is b for a, b in zip(kept, eps)):
+                return rows
+
+        def cat(parts, shape=()):
+            return np.concatenate(parts) if parts else np.zeros((0, *shape))
+
+        has = [np.flatnonzero(~np.isnan(ep.fix[:, 0])) for ep in eps]
+        w = [ep.fix_sigma[h] ** -2.0 for ep, h in zip(eps, has)]  # per epoch, as each epoch's own rows
+        gnss = (cat([np.full(len(h), k) for k, h in zip(ks, has)]).astype(np.int64), cat(has).astype(np.int64),
+                cat([ep.fix[h] for ep, h in zip(eps, has)], (3,)), cat(w, (3,)), cat([x[:, :, None] * np.eye(3) for x in w], (3, 3)))
+        anchors = (cat([np.full(len(ep.anchor_vehicle), k) for k, ep in zip(ks, eps)]).astype(np.int64),
+                   cat([ep.anchor_vehicle for ep in eps]).astype(np.int64), cat([ep.anchor_pos for ep in eps], (3,)),
+                   cat([ep.anchor_range for ep in eps]), cat([ep.anchor_sigma for ep in eps]))
+        tags = (cat([np.full(len(ep.ranges), k) for k, ep in zip(ks, eps)]).astype(np.int64),
+                cat([ep.edges.reshape(-1, 2) for ep in eps], (2,)).astype(np.int64), cat([ep.ranges for ep in eps]),
+                cat([ep.range_sigma for ep in eps]))
+        self._rows_cache = (eps, ks, (gnss, anchors, tags))
+        return gnss, anchors, tags
 
     def _intra(self, P: np.ndarray, ranges: bool = True, newest: bool = False, cost_only: bool = False):
         """(D, R, C): diagonal blocks (B, K, s, s), right-hand sides (B, K, s) and cost (B,) of
         every factor within an epoch (prior, GNSS, anchor ranges, tag-to-tag ranges unless `ranges` is False),
         linearized at positions P (K, n, 3). Position blocks are gathered first (B, K, nv, nv, 3, 3).
         newest: the newest epoch's own factors only (no prior, the other epochs' blocks zero).
-        cost_only: (None, None, C), no block assembled (the same C)."""
+        cost_only: (None, None, C), no block assembled (the same C).
+        Each kind of factor is computed for every epoch at once and the terms summed in the order
+        epoch by epoch, kind by kind (`_Terms`)."""
         K, B, nv = P.shape[0], self.B, self.nv
-        sys = (None, None, np.zeros(B)) if cost_only else (np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3)), np.zeros(B))
-        for k, ep in enumerate(self.epochs):
-            if newest and k < K - 1:
-                continue
-            has = np.flatnonzero(~np.isnan(ep.fix[:, 0]))
-            if has.size:  # GNSS fix: least squares, diagonal (east, north, up) information
-                w = ep.fix_sigma[has] ** -2.0
-                r = ep.fix[has] - P[k, has]
-                self._add_block(sys, k, has, has, w[:, :, None] * np.eye(3), w * r, 0.5 * (w * r * r).sum(1))
-            if ep.anchor_vehicle.size:
-                dist, u = range_terms(P[k, ep.anchor_vehicle], ep.anchor_pos)
-                self._add_point(sys, k, ep.anchor_vehicle, u, ep.anchor_range - dist, ep.anchor_sigma)
-            if ranges and ep.edges.size:
-                self._ranges(k, P, sys)
-        Hpp, Rp, C = sys
+        sys = _Terms(cost_only, self._where)
+        ks = [K - 1] if newest else list(range(K))
+        gnss, anchors, tags = self._rows(ks)
+        k, v, fix, w, W3 = gnss
+        if v.size:  # GNSS fix: least squares, diagonal (east, north, up) information
+            r = fix - P[k, v]
+            sys.add(0, k, v, v, W3, w * r, 0.5 * (w * r * r).sum(1))
+        k, v, pos, rng, sig = anchors
+        if v.size:
+            dist, u = range_terms(P[k, v], pos)
+            self._point(sys, 1, k, v, u, rng - dist, sig)
+        if ranges and tags[0].size:
+            self._ranges(P, ks, tags, sys)
+        Hpp, Rp, C = sys.sum(B, K, nv)
         if cost_only:
             e0 = self.prior_mean - self.X[:, 0]
             return None, None, C + 0.5 * np.einsum("bi,bij,bj->b", e0, self.prior_info, e0)
@@ -776,18 +847,18 @@ class Centralized(_Window):
         P = self._pos()[k]
         return np.broadcast_to(P, (self.n, *P.shape)), np.ones((self.n, self.n), bool)
 
-    def _ranges(self, k, P, sys):
-        ep = self.epochs[k]
-        i, j = ep.edges[:, 0], ep.edges[:, 1]
+    def _ranges(self, P, ks, tags, sys):
+        k, edges, d, sigma = tags
+        i, j = edges[:, 0], edges[:, 1]
         dist, u = range_terms(P[k, i], P[k, j])
-        r = ep.ranges - dist
-        w = self._add_point(sys, k, i, u, r, ep.range_sigma)
+        r = d - dist
+        w = self._point(sys, 2, k, i, u, r, sigma)
         if w is None:
             return  # cost only: counted once, at end i
-        self._add_point(sys, k, j, -u, r, ep.range_sigma, count=False)
+        self._point(sys, 3, k, j, -u, r, sigma, count=False)
         uu = w[:, None, None] * u[:, :, None] * u[:, None, :]  # cross blocks of the pair: -w u u^T
-        self._add_block(sys, k, i, j, -uu)
-        self._add_block(sys, k, j, i, -uu)
+        sys.add(4, k, i, j, -uu)
+        sys.add(5, k, j, i, -uu)
 
     def add(self, ep: Epoch) -> WindowEstimate:
         """Append epoch ep (time-ordered), slide, solve; the newest epoch's estimate."""
@@ -851,14 +922,17 @@ class Distributed(_Window):
         for table in (self.heard_pos, self.heard_cov, self.heard, self.sent_cov):
             table.pop(0)
 
-    def _ranges(self, k, P, sys):
-        ep = self.epochs[k]
+    def _ranges(self, P, ks, tags, sys):
+        k, edges, d, _ = tags
+        heard = np.stack(self.heard)
+        heard_pos = np.stack(self.heard_pos)
         for a, b in ((0, 1), (1, 0)):  # each end of a link uses the other end's last broadcast
-            me, other = ep.edges[:, a], ep.edges[:, b]
-            ok = self.heard[k][me, other]
-            me, other, d, sigma = me[ok], other[ok], ep.ranges[ok], self.range_sigma[k][a, ok]
-            dist, u = range_terms(P[k, me], self.heard_pos[k][me, other])
-            self._add_point(sys, k, me, u, d - dist, sigma)
+            me, other = edges[:, a], edges[:, b]
+            ok = heard[k, me, other]
+            sigma = np.concatenate([self.range_sigma[kk][a] for kk in ks])  # `_weigh`'s, as tags
+            ka, me, other, da, sigma = k[ok], me[ok], other[ok], d[ok], sigma[ok]
+            dist, u = range_terms(P[ka, me], heard_pos[ka, me, other])
+            self._point(sys, 2 + a, ka, me, u, da - dist, sigma)
 
     def _weigh(self) -> None:
         """Each range's 1-sigma with its neighbour's broadcast covariance, sqrt(sigma_d^2 + u^T
