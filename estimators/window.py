@@ -218,7 +218,7 @@ class _Terms:
     summed at the end in the order the factors come epoch by epoch: within epoch k, kind 0
     (GNSS) before 1 (anchor ranges) before 2, 3, .. (the tag-to-tag ranges' parts, `_ranges`),
     each kind's rows in their order. Every entry of the blocks, right-hand sides and costs so
-    receives its terms in one fixed order, whatever the batching (np.add.at adds one after the
+    receives its terms in one fixed order, whatever the batching (`_added` adds one after the
     other). where: the window's `_where` (vehicle -> agent, slot)."""
 
     __slots__ = ("cost_only", "where", "parts")
@@ -231,6 +231,15 @@ class _Terms:
         """Rows (m,) at epochs k of vehicles i: H3 (m, 3, 3) to the position block (i, j) (j of
         i's agent), g3 (m, 3) to i's right-hand side, cost (m,) to its agent's cost (None: none)."""
         self.parts.append((kind, k, i, j, H3, g3, cost))
+
+    @staticmethod
+    def _added(size: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(size, *values.shape[1:]): zeros with values (m, ...) added at rows (m,), one after the
+        other in their order (np.bincount over the flat entries: what np.add.at on zeros gives,
+        in a third of its time)."""
+        width = int(np.prod(values.shape[1:], dtype=np.int64))
+        flat = (rows[:, None] * width + np.arange(width)).ravel()
+        return np.bincount(flat, values.reshape(-1), minlength=size * width).reshape(size, *values.shape[1:])
 
     def sum(self, B: int, K: int, nv: int) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
         """(Hpp (B, K, nv, nv, 3, 3), Rp (B, K, nv, 3), C (B,)); (None, None, C) cost-only."""
@@ -247,7 +256,7 @@ class _Terms:
         C = np.zeros(B)
         got = gather(6)
         if got is not None:
-            np.add.at(C, self.where(got[1])[0], got[3])
+            np.add.at(C, self.where(got[1])[0], got[3])  # one index: add.at's fast path
         if self.cost_only:
             return None, None, C
         Hpp, Rp = np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3))
@@ -255,12 +264,12 @@ class _Terms:
         if got is not None:
             k, i, j, H3 = got
             a, li = self.where(i)
-            np.add.at(Hpp, (a, k, li, self.where(j)[1]), H3)
+            Hpp = self._added(B * K * nv * nv, ((a * K + k) * nv + li) * nv + self.where(j)[1], H3).reshape(Hpp.shape)
         got = gather(5)
         if got is not None:
             k, i, _, g3 = got
             a, li = self.where(i)
-            np.add.at(Rp, (a, k, li), g3)
+            Rp = self._added(B * K * nv, (a * K + k) * nv + li, g3).reshape(Rp.shape)
         return Hpp, Rp, C
 
 
