@@ -299,6 +299,7 @@ class _Window:
         self.mirrors = True  # test each vehicle's mirror image after the solve (module docstring)
         self.lin = (None, None)  # (X, the normal equations at X) of the last `_solve`
         self._rows_cache = None  # `_rows`'s
+        self._inputs: dict = {}  # `_input`'s parts of each epoch pair: {id(epoch k + 1): (epoch k, epoch k + 1, g0, g1, quad)}
 
     def _motion(self, k: int) -> tuple:
         """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
@@ -313,15 +314,20 @@ class _Window:
         """The known-input terms of the motion factor between window epochs k, k+1 (Epoch.motion of
         epoch k + 1) at the states x0, x1 (B, nv, 6): right-hand sides g0, g1 (B, s) to add to those
         of epochs k, k+1 and the cost (B,) to add; None without an input."""
-        u = self.epochs[k + 1].motion
-        if u is None:
+        e0, e1 = self.epochs[k], self.epochs[k + 1]
+        if e1.motion is None:
             return None
-        G0, G1, W = motion_input_blocks(self.epochs[k + 1].t - self.epochs[k].t, self.q)
-        a, l = self._where(np.arange(self.n))
-        U = np.zeros((self.B, self.nv, 6))
-        U[a, l] = u
-        g0, g1 = U @ G0.T, U @ G1.T
-        cost = 0.5 * np.einsum("bvi,ij,bvj->b", U, W, U) - np.einsum("bvi,bvi->b", g0, x0) - np.einsum("bvi,bvi->b", g1, x1)
+        kept = self._inputs.get(id(e1))
+        if kept is None or kept[0] is not e0 or kept[1] is not e1:  # the parts that do not depend on x0, x1
+            G0, G1, W = motion_input_blocks(e1.t - e0.t, self.q)
+            a, l = self._where(np.arange(self.n))
+            U = np.zeros((self.B, self.nv, 6))
+            U[a, l] = e1.motion
+            kept = (e0, e1, U @ G0.T, U @ G1.T, 0.5 * np.einsum("bvi,ij,bvj->b", U, W, U))
+            live = {id(e) for e in self.epochs}
+            self._inputs = {i: v for i, v in self._inputs.items() if i in live} | {id(e1): kept}
+        _, _, g0, g1, quad = kept
+        cost = quad - np.einsum("bvi,bvi->b", g0, x0) - np.einsum("bvi,bvi->b", g1, x1)
         return g0.reshape(self.B, self.s), g1.reshape(self.B, self.s), cost
 
     # index of each vehicle's first state in (agent, slot) layout
@@ -1027,6 +1033,7 @@ class Distributed(_Window):
         edges = np.concatenate([e.edges for e in self.epochs])
         pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)
         nbytes = BROADCAST_BYTES * len(self.epochs)  # the sender's whole window
+        senders = np.unique(pairs[:, 0]).size  # one broadcast per sender and round
 
         def exchange(rnd: int, newest: np.ndarray) -> np.ndarray:
             """Round rnd: every vehicle broadcasts its window, then takes one Gauss-Newton step on
@@ -1043,8 +1050,7 @@ class Distributed(_Window):
                 self.heard_cov[k][d_, s_] = self.sent_cov[k][s_]
                 self.heard[k][d_, s_] = True
             self._weigh()
-            senders = np.unique(pairs[:, 0]).size
-            messages += senders  # one broadcast per sender and round
+            messages += senders
             sent_bytes += senders * nbytes
             S = self._solve(1, None)[1]  # the tables changed: a new local system
             return self._pos()[-1]
