@@ -603,7 +603,7 @@ class _Window:
         (None: no rule). Returns lm's Report and S (B, s, s), the newest epoch's information of
         the last linear solve (at the start of the last step: what the estimate's covariance is).
         lm's normal equations at the result are kept as `lin` with the estimate they belong to
-        (`_consider` reuses them)."""
+        (`_linearized`: the tracklet and the consider term reuse them)."""
         chains = _Chains(self, tol, max_iter)
         self.X, lin, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
                                      max_halvings=HALVINGS - 1, stop=chains.stop, roundoff=COST_ROUNDOFF)
