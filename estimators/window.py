@@ -213,6 +213,66 @@ def equivalent_measurement(m: np.ndarray, P: np.ndarray, m_pred: np.ndarray, P_p
     return z, 0.5 * (R + np.swapaxes(R, 1, 2)), full
 
 
+class _Terms:
+    """The terms `_Window._intra` adds, each kind of factor given for every window epoch at once,
+    summed at the end in the order the factors come epoch by epoch: within epoch k, kind 0
+    (GNSS) before 1 (anchor ranges) before 2, 3, .. (the tag-to-tag ranges' parts, `_ranges`),
+    each kind's rows in their order. Every entry of the blocks, right-hand sides and costs so
+    receives its terms in one fixed order, whatever the batching (`_added` adds one after the
+    other). where: the window's `_where` (vehicle -> agent, slot)."""
+
+    __slots__ = ("cost_only", "where", "parts")
+
+    def __init__(self, cost_only: bool, where):
+        self.cost_only, self.where, self.parts = cost_only, where, []
+
+    def add(self, kind: int, k: np.ndarray, i: np.ndarray, j: np.ndarray, H3: np.ndarray | None = None,
+            g3: np.ndarray | None = None, cost: np.ndarray | None = None) -> None:
+        """Rows (m,) at epochs k of vehicles i: H3 (m, 3, 3) to the position block (i, j) (j of
+        i's agent), g3 (m, 3) to i's right-hand side, cost (m,) to its agent's cost (None: none)."""
+        self.parts.append((kind, k, i, j, H3, g3, cost))
+
+    @staticmethod
+    def _added(size: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(size, *values.shape[1:]): zeros with values (m, ...) added at rows (m,), one after the
+        other in their order (np.bincount over the flat entries: what np.add.at on zeros gives,
+        in a third of its time)."""
+        width = int(np.prod(values.shape[1:], dtype=np.int64))
+        flat = (rows[:, None] * width + np.arange(width)).ravel()
+        return np.bincount(flat, values.reshape(-1), minlength=size * width).reshape(size, *values.shape[1:])
+
+    def sum(self, B: int, K: int, nv: int) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+        """(Hpp (B, K, nv, nv, 3, 3), Rp (B, K, nv, 3), C (B,)); (None, None, C) cost-only."""
+
+        def gather(n: int) -> tuple | None:
+            parts = [p for p in self.parts if p[n] is not None]
+            if not parts:
+                return None
+            key = np.concatenate([p[1] * 8 + p[0] for p in parts])
+            order = np.argsort(key, kind="stable")  # epoch by epoch, kind by kind, rows in order
+            cat = [np.concatenate([p[c] for p in parts])[order] for c in (1, 2, 3, n)]
+            return (*cat[:3], cat[3])
+
+        C = np.zeros(B)
+        got = gather(6)
+        if got is not None:
+            np.add.at(C, self.where(got[1])[0], got[3])  # one index: add.at's fast path
+        if self.cost_only:
+            return None, None, C
+        Hpp, Rp = np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3))
+        got = gather(4)
+        if got is not None:
+            k, i, j, H3 = got
+            a, li = self.where(i)
+            Hpp = self._added(B * K * nv * nv, ((a * K + k) * nv + li) * nv + self.where(j)[1], H3).reshape(Hpp.shape)
+        got = gather(5)
+        if got is not None:
+            k, i, _, g3 = got
+            a, li = self.where(i)
+            Rp = self._added(B * K * nv, (a * K + k) * nv + li, g3).reshape(Rp.shape)
+        return Hpp, Rp, C
+
+
 class _Window:
     """Common machinery (module docstring): agents, slots, window bookkeeping, motion, solve.
 
@@ -237,6 +297,9 @@ class _Window:
         self._krons: dict[float, tuple] = {}
         self.tracklets = False  # True: each estimate carries its tracklet (`_tracklet`, one more solve)
         self.mirrors = True  # test each vehicle's mirror image after the solve (module docstring)
+        self.lin = (None, None)  # (X, the normal equations at X) of the last `_solve`
+        self._rows_cache = None  # `_rows`'s
+        self._inputs: dict = {}  # `_input`'s parts of each epoch pair: {id(epoch k + 1): (epoch k, epoch k + 1, g0, g1, quad)}
 
     def _motion(self, k: int) -> tuple:
         """(M00, M01, M11) of the motion factor between window epochs k, k+1 and the same blocks
@@ -251,22 +314,29 @@ class _Window:
         """The known-input terms of the motion factor between window epochs k, k+1 (Epoch.motion of
         epoch k + 1) at the states x0, x1 (B, nv, 6): right-hand sides g0, g1 (B, s) to add to those
         of epochs k, k+1 and the cost (B,) to add; None without an input."""
-        u = self.epochs[k + 1].motion
-        if u is None:
+        e0, e1 = self.epochs[k], self.epochs[k + 1]
+        if e1.motion is None:
             return None
-        G0, G1, W = motion_input_blocks(self.epochs[k + 1].t - self.epochs[k].t, self.q)
-        a, l = self._where(np.arange(self.n))
-        U = np.zeros((self.B, self.nv, 6))
-        U[a, l] = u
-        g0, g1 = U @ G0.T, U @ G1.T
-        cost = 0.5 * np.einsum("bvi,ij,bvj->b", U, W, U) - np.einsum("bvi,bvi->b", g0, x0) - np.einsum("bvi,bvi->b", g1, x1)
+        kept = self._inputs.get(id(e1))
+        if kept is None or kept[0] is not e0 or kept[1] is not e1:  # the parts that do not depend on x0, x1
+            G0, G1, W = motion_input_blocks(e1.t - e0.t, self.q)
+            a, l = self._where(np.arange(self.n))
+            U = np.zeros((self.B, self.nv, 6))
+            U[a, l] = e1.motion
+            kept = (e0, e1, U @ G0.T, U @ G1.T, 0.5 * np.einsum("bvi,ij,bvj->b", U, W, U))
+            live = {id(e) for e in self.epochs}
+            self._inputs = {i: v for i, v in self._inputs.items() if i in live} | {id(e1): kept}
+        _, _, g0, g1, quad = kept
+        cost = quad - np.einsum("bvi,bvi->b", g0, x0) - np.einsum("bvi,bvi->b", g1, x1)
         return g0.reshape(self.B, self.s), g1.reshape(self.B, self.s), cost
 
     # index of each vehicle's first state in (agent, slot) layout
     def _where(self, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
-    def _ranges(self, k: int, P: np.ndarray, D: np.ndarray, R: np.ndarray) -> None:
+    def _ranges(self, P: np.ndarray, ks: list[int], tags: tuple, sys: _Terms) -> None:
+        """Add the tag-to-tag ranges tags of window epochs ks (`_rows`) at positions P (K, n, 3)
+        to sys (kinds 2, 3, ..)."""
         raise NotImplementedError
 
     def _view(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -412,58 +482,75 @@ class _Window:
         a, l = self._where(np.arange(self.n))
         return self.X.reshape(self.B, K, self.nv, 6)[a, :, l, :3].transpose(1, 0, 2)
 
-    def _add_block(self, sys, k, i, j, H3, g3=None, cost=None):
-        """Add H3 (m, 3, 3) to the position block (i, j) of epoch k (i, j (m,) vehicles, the same
-        agent), g3 (m, 3) to vehicle i's right-hand side and cost (m,) to its agent's cost (sys
-        without blocks, (None, None, C): the cost only)."""
-        Hpp, Rp, C = sys
-        a, li = self._where(i)
-        if Hpp is not None:
-            np.add.at(Hpp, (a, k, li, self._where(j)[1]), H3)
-        if g3 is not None and Rp is not None:
-            np.add.at(Rp, (a, k, li), g3)
-        if cost is not None:
-            np.add.at(C, a, cost)
-
-    def _add_point(self, sys, k, i, u, r, sigma, count=True, robust=True):
-        """Rows of a factor on vehicle i's position at epoch k with residual r (m,) = z - h,
-        dh/dp_i = u (m, 3), 1-sigma sigma (m,): D += w u u^T, R += w u r, cost += rho(r / sigma),
-        w the IRLS weight / sigma^2 (count False: the cost is counted by the other end; robust
-        False: least squares whatever `huber`). Returns w (m,); None for a cost-only sys (no
-        block assembled: the mirror test's and line search's cost, the same numbers)."""
+    def _point(self, sys: "_Terms", kind: int, k: np.ndarray, i: np.ndarray, u: np.ndarray, r: np.ndarray,
+               sigma: np.ndarray, count: bool = True) -> np.ndarray | None:
+        """Rows of a factor on vehicle i's position at epochs k (m,) with residual r (m,) = z - h,
+        dh/dp_i = u (m, 3), 1-sigma sigma (m,): D += w u u^T, R += w u r, cost += rho(r / sigma)
+        (Huber on `huber`), w the IRLS weight / sigma^2 (count False: the cost is counted by the
+        other end); kind: the factor's place among an epoch's (`_Terms`). Returns w (m,); None
+        for a cost-only sys (no block assembled: the mirror test's and line search's cost, the
+        same numbers)."""
         s = r / sigma
-        delta = self.huber if robust else None
-        if sys[0] is None:
+        if sys.cost_only:
             if count:
-                np.add.at(sys[2], self._where(i)[0], huber_rho(s, delta))
+                sys.add(kind, k, i, i, cost=huber_rho(s, self.huber))
             return None
-        w = huber_weight(s, delta) / sigma ** 2
-        self._add_block(sys, k, i, i, w[:, None, None] * u[:, :, None] * u[:, None, :], (w * r)[:, None] * u,
-                        huber_rho(s, delta) if count else None)
+        w = huber_weight(s, self.huber) / sigma ** 2
+        sys.add(kind, k, i, i, w[:, None, None] * u[:, :, None] * u[:, None, :], (w * r)[:, None] * u,
+                huber_rho(s, self.huber) if count else None)
         return w
+
+    def _rows(self, ks: list[int]) -> tuple:
+        """The measurements of window epochs ks, each kind's rows of every epoch one after the
+        other (epoch by epoch, in each epoch's order), with the epoch k of each row: GNSS (k, vehicle,
+        fix (m, 3), weight sigma^-2 (m, 3), its information block (m, 3, 3)); anchor ranges (k,
+        vehicle, anchor (m, 3), range, sigma); tag-to-tag ranges (k, edges (m, 2), range, sigma).
+        Cached while the window holds the same epochs."""
+        eps = [self.epochs[k] for k in ks]
+        if self._rows_cache is not None:  # the same epochs (the objects, kept alive here) at the same places
+            kept, kept_ks, rows = self._rows_cache
+            if kept_ks == ks and all(a is b for a, b in zip(kept, eps)):
+                return rows
+
+        def cat(parts, shape=()):
+            return np.concatenate(parts) if parts else np.zeros((0, *shape))
+
+        has = [np.flatnonzero(~np.isnan(ep.fix[:, 0])) for ep in eps]
+        w = [ep.fix_sigma[h] ** -2.0 for ep, h in zip(eps, has)]  # per epoch, as each epoch's own rows
+        gnss = (cat([np.full(len(h), k) for k, h in zip(ks, has)]).astype(np.int64), cat(has).astype(np.int64),
+                cat([ep.fix[h] for ep, h in zip(eps, has)], (3,)), cat(w, (3,)), cat([x[:, :, None] * np.eye(3) for x in w], (3, 3)))
+        anchors = (cat([np.full(len(ep.anchor_vehicle), k) for k, ep in zip(ks, eps)]).astype(np.int64),
+                   cat([ep.anchor_vehicle for ep in eps]).astype(np.int64), cat([ep.anchor_pos for ep in eps], (3,)),
+                   cat([ep.anchor_range for ep in eps]), cat([ep.anchor_sigma for ep in eps]))
+        tags = (cat([np.full(len(ep.ranges), k) for k, ep in zip(ks, eps)]).astype(np.int64),
+                cat([ep.edges.reshape(-1, 2) for ep in eps], (2,)).astype(np.int64), cat([ep.ranges for ep in eps]),
+                cat([ep.range_sigma for ep in eps]))
+        self._rows_cache = (eps, ks, (gnss, anchors, tags))
+        return gnss, anchors, tags
 
     def _intra(self, P: np.ndarray, ranges: bool = True, newest: bool = False, cost_only: bool = False):
         """(D, R, C): diagonal blocks (B, K, s, s), right-hand sides (B, K, s) and cost (B,) of
         every factor within an epoch (prior, GNSS, anchor ranges, tag-to-tag ranges unless `ranges` is False),
         linearized at positions P (K, n, 3). Position blocks are gathered first (B, K, nv, nv, 3, 3).
         newest: the newest epoch's own factors only (no prior, the other epochs' blocks zero).
-        cost_only: (None, None, C), no block assembled (the same C)."""
+        cost_only: (None, None, C), no block assembled (the same C).
+        Each kind of factor is computed for every epoch at once and the terms summed in the order
+        epoch by epoch, kind by kind (`_Terms`)."""
         K, B, nv = P.shape[0], self.B, self.nv
-        sys = (None, None, np.zeros(B)) if cost_only else (np.zeros((B, K, nv, nv, 3, 3)), np.zeros((B, K, nv, 3)), np.zeros(B))
-        for k, ep in enumerate(self.epochs):
-            if newest and k < K - 1:
-                continue
-            has = np.flatnonzero(~np.isnan(ep.fix[:, 0]))
-            if has.size:  # GNSS fix: least squares, diagonal (east, north, up) information
-                w = ep.fix_sigma[has] ** -2.0
-                r = ep.fix[has] - P[k, has]
-                self._add_block(sys, k, has, has, w[:, :, None] * np.eye(3), w * r, 0.5 * (w * r * r).sum(1))
-            if ep.anchor_vehicle.size:
-                dist, u = range_terms(P[k, ep.anchor_vehicle], ep.anchor_pos)
-                self._add_point(sys, k, ep.anchor_vehicle, u, ep.anchor_range - dist, ep.anchor_sigma)
-            if ranges and ep.edges.size:
-                self._ranges(k, P, sys)
-        Hpp, Rp, C = sys
+        sys = _Terms(cost_only, self._where)
+        ks = [K - 1] if newest else list(range(K))
+        gnss, anchors, tags = self._rows(ks)
+        k, v, fix, w, W3 = gnss
+        if v.size:  # GNSS fix: least squares, diagonal (east, north, up) information
+            r = fix - P[k, v]
+            sys.add(0, k, v, v, W3, w * r, 0.5 * (w * r * r).sum(1))
+        k, v, pos, rng, sig = anchors
+        if v.size:
+            dist, u = range_terms(P[k, v], pos)
+            self._point(sys, 1, k, v, u, rng - dist, sig)
+        if ranges and tags[0].size:
+            self._ranges(P, ks, tags, sys)
+        Hpp, Rp, C = sys.sum(B, K, nv)
         if cost_only:
             e0 = self.prior_mean - self.X[:, 0]
             return None, None, C + 0.5 * np.einsum("bi,bij,bj->b", e0, self.prior_info, e0)
@@ -514,11 +601,22 @@ class _Window:
         (HALVINGS trials; a step that no halving keeps from raising that agent's cost is not taken
         and stops its solve); at most max_iter steps, stopped by the rule of `_rest` below tol
         (None: no rule). Returns lm's Report and S (B, s, s), the newest epoch's information of
-        the last linear solve (at the start of the last step: what the estimate's covariance is)."""
-        chains = _Chains(self, tol)
-        self.X, _, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
+        the last linear solve (at the start of the last step: what the estimate's covariance is).
+        lm's normal equations at the result are kept as `lin` with the estimate they belong to
+        (`_linearized`: the tracklet and the consider term reuse them)."""
+        chains = _Chains(self, tol, max_iter)
+        self.X, lin, report = lm.solve(chains, self.X, method="gn", max_iter=max_iter, step_tol=0.0, cost_tol=0.0,
                                      max_halvings=HALVINGS - 1, stop=chains.stop, roundoff=COST_ROUNDOFF)
+        self.lin = (self.X, lin)
         return report, chains.S
+
+    def _linearized(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(D, U, R) of `_system` at the current estimate: those of the last `_solve` where the
+        estimate is still its result (the same numbers), else assembled."""
+        X, lin = self.lin
+        if X is not self.X:
+            return self._system()[:3]
+        return lin.D, lin.U, lin.g.reshape(lin.D.shape[:3])
 
     @staticmethod
     def _sigmas(full: np.ndarray, S: np.ndarray) -> float:
@@ -623,7 +721,7 @@ class _Window:
         while the window holds one epoch (nothing predicts it)."""
         if self.X.shape[1] < 2:
             return None
-        D, U, R, _ = self._system()
+        D, U, R = self._linearized()
         Dn, Rn, _ = self._intra(self._pos(), newest=True)
         delta, S = solve_block_tridiagonal(D, U, R)
         delta_p, S_p = solve_block_tridiagonal(D - Dn, U, R - Rn)
@@ -647,20 +745,37 @@ class _Chains:
     x the window's estimate X (B, K, s), their cost and normal equations those of
     `_Window._system` (block-tridiagonal, linear.BlockTridiagonalNormals), retraction x + delta.
     `stop` is lm's caller test: the centralized rule of `_Window._rest` below tol (None: never),
-    and it keeps S of the last linear solve."""
+    and it keeps S of the last linear solve.
 
-    def __init__(self, win: _Window, tol: float | None):
-        self.win, self.size, self.tol = win, win.B, tol
+    A trial point's normal equations are needed only if another step may follow it: the trials
+    of the last step lm can take (max_iter steps, or `stop` said converged) are evaluated for
+    their cost alone (`_Window._system(cost_only=True)`, the same number) and their normal
+    equations (which lm hands back, unused by the window) are built only if asked for
+    (`_Deferred`). Every other evaluation builds the system and passes it on as lm's memo."""
+
+    def __init__(self, win: _Window, tol: float | None, max_iter: int):
+        self.win, self.size, self.tol, self.max_iter = win, win.B, tol, max_iter
         self.steps: list[float] = []  # each step's `_Window._sigmas`
         self.S = None
+        self.taken = 0  # steps lm has solved for (one `stop` call each)
+        self.last = False  # the step being tried is the last lm can take
 
-    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, tuple]:
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, tuple | None]:
         self.win.X = x
+        if self.last:
+            return self.win._system(cost_only=True)[3], None
         D, U, R, C = self.win._system()
         return C, (D, U, R)
 
     def normal(self, x: np.ndarray, memo: tuple | None) -> BlockTridiagonalNormals:
-        return BlockTridiagonalNormals(*(memo if memo is not None else self.evaluate(x)[1]))
+        if memo is not None:
+            return BlockTridiagonalNormals(*memo)
+        return _Deferred(self, x)
+
+    def build(self, x: np.ndarray) -> BlockTridiagonalNormals:
+        """The normal equations at x (sets the window's estimate to x)."""
+        self.win.X = x
+        return BlockTridiagonalNormals(*self.win._system()[:3])
 
     @staticmethod
     def retract(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -673,10 +788,39 @@ class _Chains:
     def stop(self, delta: np.ndarray, lin: BlockTridiagonalNormals) -> np.ndarray:
         """The full step delta (B, K s) solved from lin: converged (B,) by `_Window._rest`."""
         self.S = lin.S
+        self.taken += 1
         if self.tol is None:
-            return np.zeros(self.size, bool)
-        self.steps.append(self.win._sigmas(delta.reshape(self.win.X.shape), lin.S))
-        return np.full(self.size, self.win._rest(self.steps) <= self.tol)
+            done = np.zeros(self.size, bool)
+        else:
+            self.steps.append(self.win._sigmas(delta.reshape(self.win.X.shape), lin.S))
+            done = np.full(self.size, self.win._rest(self.steps) <= self.tol)
+        self.last = self.taken >= self.max_iter or bool(done.all())
+        return done
+
+
+class _Deferred:
+    """The normal equations at x of `_Chains`, built on first use (`_Chains.build`); `where`
+    with every entry of mask True is itself, unbuilt (lm's last accepted step)."""
+
+    __slots__ = ("_chains", "_x", "_lin")
+
+    def __init__(self, chains: _Chains, x: np.ndarray):
+        self._chains, self._x, self._lin = chains, x, None
+
+    def _built(self) -> BlockTridiagonalNormals:
+        if self._lin is None:
+            X = self._chains.win.X
+            self._lin = self._chains.build(self._x)
+            self._chains.win.X = X
+        return self._lin
+
+    def where(self, mask: np.ndarray, other) -> BlockTridiagonalNormals:
+        return self if mask.all() else self._built().where(mask, other)
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):  # a slot not yet set (copy, pickle) or a special name: not the system's
+            raise AttributeError(name)
+        return getattr(self._built(), name)
 
 
 class Centralized(_Window):
@@ -703,7 +847,7 @@ class Centralized(_Window):
         delays' term sigma_b^2 J J^T added (eq. wd. 1; unchanged without delay_sigma)."""
         if self.delay_sigma <= 0:
             return pc, vc
-        D, U, _, _ = self._system()
+        D, U, _ = self._linearized()
         P = self._pos()
         G = np.stack([window_delays.delay_gradient(P[k], ep, self.devices, self.huber) for k, ep in enumerate(self.epochs)])
         G[0] += self.prior_info[0] @ self.prior_sens[0]
@@ -718,18 +862,18 @@ class Centralized(_Window):
         P = self._pos()[k]
         return np.broadcast_to(P, (self.n, *P.shape)), np.ones((self.n, self.n), bool)
 
-    def _ranges(self, k, P, sys):
-        ep = self.epochs[k]
-        i, j = ep.edges[:, 0], ep.edges[:, 1]
+    def _ranges(self, P, ks, tags, sys):
+        k, edges, d, sigma = tags
+        i, j = edges[:, 0], edges[:, 1]
         dist, u = range_terms(P[k, i], P[k, j])
-        r = ep.ranges - dist
-        w = self._add_point(sys, k, i, u, r, ep.range_sigma)
+        r = d - dist
+        w = self._point(sys, 2, k, i, u, r, sigma)
         if w is None:
             return  # cost only: counted once, at end i
-        self._add_point(sys, k, j, -u, r, ep.range_sigma, count=False)
+        self._point(sys, 3, k, j, -u, r, sigma, count=False)
         uu = w[:, None, None] * u[:, :, None] * u[:, None, :]  # cross blocks of the pair: -w u u^T
-        self._add_block(sys, k, i, j, -uu)
-        self._add_block(sys, k, j, i, -uu)
+        sys.add(4, k, i, j, -uu)
+        sys.add(5, k, j, i, -uu)
 
     def add(self, ep: Epoch) -> WindowEstimate:
         """Append epoch ep (time-ordered), slide, solve; the newest epoch's estimate."""
@@ -793,14 +937,17 @@ class Distributed(_Window):
         for table in (self.heard_pos, self.heard_cov, self.heard, self.sent_cov):
             table.pop(0)
 
-    def _ranges(self, k, P, sys):
-        ep = self.epochs[k]
+    def _ranges(self, P, ks, tags, sys):
+        k, edges, d, _ = tags
+        heard = np.stack(self.heard)
+        heard_pos = np.stack(self.heard_pos)
         for a, b in ((0, 1), (1, 0)):  # each end of a link uses the other end's last broadcast
-            me, other = ep.edges[:, a], ep.edges[:, b]
-            ok = self.heard[k][me, other]
-            me, other, d, sigma = me[ok], other[ok], ep.ranges[ok], self.range_sigma[k][a, ok]
-            dist, u = range_terms(P[k, me], self.heard_pos[k][me, other])
-            self._add_point(sys, k, me, u, d - dist, sigma)
+            me, other = edges[:, a], edges[:, b]
+            ok = heard[k, me, other]
+            sigma = np.concatenate([self.range_sigma[kk][a] for kk in ks])  # `_weigh`'s, as tags
+            ka, me, other, da, sigma = k[ok], me[ok], other[ok], d[ok], sigma[ok]
+            dist, u = range_terms(P[ka, me], heard_pos[ka, me, other])
+            self._point(sys, 2 + a, ka, me, u, da - dist, sigma)
 
     def _weigh(self) -> None:
         """Each range's 1-sigma with its neighbour's broadcast covariance, sqrt(sigma_d^2 + u^T
@@ -886,6 +1033,7 @@ class Distributed(_Window):
         edges = np.concatenate([e.edges for e in self.epochs])
         pairs = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0) if edges.size else np.zeros((0, 2), np.int64)
         nbytes = BROADCAST_BYTES * len(self.epochs)  # the sender's whole window
+        senders = np.unique(pairs[:, 0]).size  # one broadcast per sender and round
 
         def exchange(rnd: int, newest: np.ndarray) -> np.ndarray:
             """Round rnd: every vehicle broadcasts its window, then takes one Gauss-Newton step on
@@ -902,8 +1050,7 @@ class Distributed(_Window):
                 self.heard_cov[k][d_, s_] = self.sent_cov[k][s_]
                 self.heard[k][d_, s_] = True
             self._weigh()
-            senders = np.unique(pairs[:, 0]).size
-            messages += senders  # one broadcast per sender and round
+            messages += senders
             sent_bytes += senders * nbytes
             S = self._solve(1, None)[1]  # the tables changed: a new local system
             return self._pos()[-1]

@@ -178,6 +178,39 @@ def test_broadcast_all_is_each_broadcast_in_turn(budget_on):
     assert 0 < each[-1]["dropped_budget"] and 0 < each[-1]["dropped_range"] and 0 < each[-1]["dropped_loss"]
 
 
+@pytest.mark.parametrize("budget_on", ["send", "receive"])
+def test_a_round_is_each_senders_multicast_in_turn(budget_on):
+    """A round of the round transport (a distributed window's messages, senders unordered) is
+    each sender's multicast in sender order, then every receiver's queue drained at the round's
+    end: the same arrivals in time, drops and counts (range, budget, loss)."""
+    cfg = dict(latency=0.005, jitter=0.002, jitter_model="lognormal", loss_prob=0.05, ge_p=0.1, ge_r=0.3,
+               ge_loss_bad=0.5, nlos_loss=0.2, max_range=60.0, bandwidth=3000.0, budget_on=budget_on)
+
+    def traffic(rounds: bool) -> list:
+        rs, nw, out = np.random.default_rng(6), net(n=8, **cfg), []
+        for rnd in range(60):
+            t, end = 0.01 * rnd, 0.01 * (rnd + 1)
+            nw.set_geometry(t, rs.uniform(0.0, 80.0, (8, 3)), rs.random((8, 8)) < 0.8)
+            pairs = np.argwhere(~np.eye(8, dtype=bool) & (rs.random((8, 8)) < 0.5))
+            pairs = pairs[rs.permutation(len(pairs))]  # senders in no order
+            src, dst = pairs[:, 0], pairs[:, 1]
+            if rounds:
+                out.append(nw.rounds(0.0, 0.01).deliver(rnd, src, dst, 200).tolist())
+            else:
+                ok = np.zeros(len(src), bool)
+                for s in np.unique(src).tolist():
+                    sel = np.flatnonzero(src == s)
+                    ok[sel] = nw.multicast(t, s, dst[sel], 200, (rnd, s)) <= end
+                out.append(ok.tolist())
+                for d in np.unique(dst).tolist():
+                    nw.receive(end, d)
+        return out + [nw.stats()]
+
+    each, together = traffic(False), traffic(True)
+    assert together == each
+    assert 0 < each[-1]["dropped_budget"] and 0 < each[-1]["dropped_range"] and 0 < each[-1]["dropped_loss"]
+
+
 def test_network_table_is_checked_at_the_boundary():
     with pytest.raises(ConfigError, match=r"f.toml.*network.loss_prob.*1.5"):
         from_dict(NetworkConfig, {"loss_prob": 1.5}, "f.toml", "network")

@@ -229,6 +229,25 @@ def test_distributed_cost_gradient_is_the_steps_right_hand_side():
     np.testing.assert_allclose(fd, analytic, rtol=1e-4)
 
 
+@pytest.mark.parametrize("make", [lambda: sw.Centralized(N, window=3, q=Q, huber=1.345, max_iter=3),
+                                  lambda: sw.Distributed(N, window=3, q=Q, huber=1.345, max_rounds=2, tol=0.0)])
+def test_the_cost_alone_is_the_systems_cost_and_the_last_solves_system_is_reused(make):
+    """What a solve's last trials are judged by (the cost without the system, `_Chains`) is the
+    cost the system is assembled with, to the bit, at the estimate and away from it; and the
+    system the tracklet and the consider term take from the last solve (`_linearized`) is the
+    one assembled at the estimate."""
+    eps, _ = synthetic(5)
+    win = make()
+    for ep in eps:
+        win.add(ep)
+    for D, Dl in zip(win._system()[:3], win._linearized()):
+        assert np.array_equal(D, Dl)
+    X0 = win.X.copy()
+    for x in (X0, X0 + np.random.default_rng(1).normal(0.0, 0.5, X0.shape)):
+        win.X = x
+        assert np.array_equal(win._system(cost_only=True)[3], win._system()[3])
+
+
 def test_motion_input_is_a_change_of_variables():
     """A known motion input shared by every vehicle (Epoch.motion: the increments of a trajectory
     s(t), s(0) = s'(0) = 0) with fixes z is the input-free window on fixes z - s(t), moved by s:

@@ -163,27 +163,47 @@ class Network:
         srcs[i], in one pass over their messages (the same draws, drops and queue order); (k,)
         how many of each were queued."""
         srcs = np.asarray(srcs, dtype=int).reshape(-1)
-        if self.cfg is not None and self.cfg.bandwidth > 0 and self.cfg.budget_on == "receive":
-            # a receiver's bucket pays the senders one after the other
-            return np.array([self.broadcast(t, s, nbytes, p) for s, p in zip(srcs.tolist(), payloads)], int)
         k, others = len(srcs), np.arange(self.n - 1)
         dst = (others[None] + (others[None] >= srcs[:, None])).ravel()  # each sender's others, ascending
         which = np.repeat(np.arange(k), self.n - 1)
-        arrival = self._transmit(float(t), srcs[which], dst, int(nbytes), payloads, which)
+        arrival = self._transmit_grouped(float(t), srcs[which], dst, int(nbytes), payloads, which)
         return np.isfinite(arrival).reshape(k, self.n - 1).sum(axis=1)
 
-    def _transmit(self, t: float, src: np.ndarray, dst: np.ndarray, nbytes: int, payloads: list, which: np.ndarray) -> np.ndarray:
+    def _transmit_grouped(self, t: float, src: np.ndarray, dst: np.ndarray, nbytes: int, payloads: list,
+                          which: np.ndarray, handed: float = -math.inf) -> np.ndarray:
+        """The transmissions of several senders in turn: messages src -> dst (m,) grouped by
+        sender (each sender's contiguous), sender group which (m,) (0, 1, .. in order) carrying
+        payloads[which]; (m,) arrival times, inf where dropped. In one pass (`_transmit`: the
+        same draws, drops and queue order as one multicast per sender) unless a receiver's
+        bucket pays, which pays the senders one after the other (one `_transmit` each). handed:
+        as `_transmit`'s."""
+        if not (self.cfg is not None and self.cfg.bandwidth > 0 and self.cfg.budget_on == "receive"):
+            return self._transmit(t, src, dst, nbytes, payloads, which, handed)
+        cuts = np.flatnonzero(np.diff(which)) + 1
+        return np.concatenate([np.zeros(0)] + [
+            self._transmit(t, src[a:b], dst[a:b], nbytes, [payloads[which[a]]], np.zeros(b - a, int), handed)
+            for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), len(which)]) if b > a])
+
+    def _transmit(self, t: float, src: np.ndarray, dst: np.ndarray, nbytes: int, payloads: list, which: np.ndarray,
+                  handed: float = -math.inf) -> np.ndarray:
         """Messages src -> dst (m,) at t (s) carrying payloads[which] (m,), grouped by sender (one
-        transmission each), queued unless dropped: (m,) arrival times, inf where dropped."""
+        transmission each), queued unless dropped: (m,) arrival times, inf where dropped.
+        Those arriving by `handed` (s) are handed over at once instead, counted as a receive at
+        that time would count them, never queued: for a caller that drains every receiver's queue
+        then and discards what it gets (RoundTransport, which reads the arrival times)."""
         m = len(dst)
         self._count["sent"] += m
         self._bytes["bytes_sent"] += m * nbytes
         arrival = np.full(m, t) if self.ideal else self._channel(t, src, dst, nbytes)
-        queues, seq, latency = self._queues, self._seq, self._latency
-        for s, d, a, w in zip(src.tolist(), dst.tolist(), arrival.tolist(), which.tolist()):
-            if a < math.inf:
-                heapq.heappush(queues[d], (a, next(seq), Message(sent=t, arrival=a, src=s, dst=d, nbytes=nbytes, payload=payloads[w])))
-                latency.append(a - t)
+        queued = np.flatnonzero(arrival < math.inf)
+        self._latency.extend((arrival[queued] - t).tolist())
+        now = arrival[queued] <= handed
+        self._count["delivered"] += int(now.sum())
+        self._bytes["bytes_delivered"] += int(now.sum()) * nbytes
+        queues, seq = self._queues, self._seq
+        late = queued[~now]
+        for s, d, a, w in zip(src[late].tolist(), dst[late].tolist(), arrival[late].tolist(), which[late].tolist()):
+            heapq.heappush(queues[d], (a, next(seq), Message(sent=t, arrival=a, src=s, dst=d, nbytes=nbytes, payload=payloads[w])))
         return arrival
 
     def _channel(self, t: float, src: np.ndarray, dsts: np.ndarray, nbytes: int) -> np.ndarray:
@@ -283,21 +303,14 @@ class RoundTransport:
         t = self.t0 + rnd * self.round_s
         end = t + self.round_s
         ok = np.zeros(len(src), bool)
-        cfg = self.network.cfg
-        if cfg is not None and cfg.bandwidth > 0 and cfg.budget_on == "receive":
-            # a receiver's bucket pays the senders one after the other
-            for s in np.unique(src).tolist():
-                sel = np.flatnonzero(src == s)
-                arrival = self.network.multicast(t, s, dst[sel], nbytes, (rnd, s))
-                ok[sel] = arrival <= end
-                self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
-        else:  # every sender's multicast in one pass, in sender order (the same draws, drops and queue order)
-            order = np.argsort(src, kind="stable")
-            senders, which = np.unique(src[order], return_inverse=True)
-            arrival = self.network._transmit(float(t), np.asarray(src[order], int), np.asarray(dst[order], int), int(nbytes),
-                                             [(rnd, s) for s in senders.tolist()], which)
-            ok[order] = arrival <= end
-            self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
+        # every sender's multicast, in sender order (Network._transmit_grouped); what arrives by
+        # the round's end is handed over at once (the receive below would drain it, unread)
+        order = np.argsort(src, kind="stable")
+        senders, which = np.unique(src[order], return_inverse=True)
+        arrival = self.network._transmit_grouped(float(t), np.asarray(src[order], int), np.asarray(dst[order], int), int(nbytes),
+                                                 [(rnd, s) for s in senders.tolist()], which, handed=end)
+        ok[order] = arrival <= end
+        self.late += int((np.isfinite(arrival) & (arrival > end)).sum())
         for d in np.unique(dst).tolist():
             self.network.receive(end, d)
         return ok
