@@ -32,10 +32,11 @@ def local_ray():
 @pytest.fixture(scope="module")
 def local_pool(tmp_path_factory):
     """The reference both Ray tests compare with: bandwidth, seed 3, 1 s, 3 runs swept by the local
-    process pool (2 workers), computed once, without figures as every sweep here: (its directory,
-    its summary)."""
+    backend, computed once, without figures as every sweep here: (its directory, its summary). One
+    worker: the runs one after the other in this process, no pool's interpreters to start; the
+    local pool of 2 workers gives the same bytes (tests/test_sweep.py, tests/test_faults.py)."""
     out = tmp_path_factory.mktemp("local") / "sw"
-    summary = sweep(scenario.load("bandwidth", duration=1.0, seed=3), 3, out, workers=2, progress=False, plots=False)
+    summary = sweep(scenario.load("bandwidth", duration=1.0, seed=3), 3, out, workers=1, progress=False, plots=False)
     return out, summary
 
 

@@ -294,7 +294,7 @@ def test_sweep_and_reproduce_take_plugins(tmp_path):
 
 
 def test_reproduce_coop_gives_a_plugin_every_table_plot_and_test(tmp_path, monkeypatch):
-    """`reproduce coop --estimator examples/uwb_ekf.py:UwbEkf` (2 runs of 3 s, NLOS experiment on):
+    """`reproduce coop --estimator examples/uwb_ekf.py:UwbEkf` (2 runs of 2 s, NLOS experiment on):
     the plugin is in Table 4 (RMSE and improvement factor columns), the consistency, improvement
     and pairwise tables (a test against each built-in over the same 2 seeds), figure 6,
     rmse_mean.png and the NLOS experiment, its numbers read from the runs' metrics.json like the
@@ -317,7 +317,7 @@ def test_reproduce_coop_gives_a_plugin_every_table_plot_and_test(tmp_path, monke
     out = tmp_path / "rep"
     out.mkdir()
     ekf = f"{ROOT}/examples/uwb_ekf.py:UwbEkf"
-    doc = rep.reproduce(out, runs=2, duration=3.0, workers=1, nlos=True, estimators=(EstimatorSpec(entry=ekf),))
+    doc = rep.reproduce(out, runs=2, duration=2.0, workers=1, nlos=True, estimators=(EstimatorSpec(entry=ekf),))
     names = ["gnss_only", "one_shot", "iterated", "centralized", "UwbEkf"]
     assert doc["estimators"] == names and drawn == {"bars": names, "fig6": names}
     assert any((out / "plots").glob("run0_UwbEkf_uav*_envelope.png"))
@@ -489,8 +489,15 @@ def test_navigation_states_are_checked():
             _navigation(plugin, bad)
 
 
+@pytest.fixture(scope="module")
+def visnav_run():
+    """visnav, 3 s, prescribed, simulated once for both filters below: (scenario, log, physics)."""
+    sc = scenario.load("visnav", duration=3.0)
+    return (sc, *simulate(sc))
+
+
 @pytest.mark.parametrize("name", ["ekf", "rhcf"])
-def test_visnav_builtins_are_scored_relative_to_the_leader(name):
+def test_visnav_builtins_are_scored_relative_to_the_leader(visnav_run, name):
     """visnav.* estimate the follower relative to the leader (frame "uav1") at every camera epoch;
     the generic scores of those series are the errors against the relative truth of
     testbed.plugins.relnav_scores (position, velocity in the leader frame, attitude q_L^* q_F), and
@@ -499,8 +506,7 @@ def test_visnav_builtins_are_scored_relative_to_the_leader(name):
     from testbed.plugins import builtin_visnav
     from testbed.plugins.relnav_scores import true_relative_state
 
-    sc = scenario.load("visnav", duration=3.0)
-    log, physics = simulate(sc)
+    sc, log, physics = visnav_run
     track, scores, _ = _feed(sc, log, physics, getattr(builtin_visnav, name.capitalize()))
     epochs, first = np.unique(log["camera/time"], return_index=True)
     truth = true_relative_state(log, 1, 2, log["camera/state_index"][first])
@@ -815,6 +821,7 @@ def test_diagnostics_are_collected_when_asked_and_checked():
             run_plugin(Plugin("d", "d", Diag, {}), ctx, [b], {})
 
 
+# Bad raises at its first measurement of t >= 1 s: the runs that fly it last 1.5 s, which reach t = 1 s
 FAILING_AND_GOOD = """
     class Bad:
         def __init__(self, context, params): pass
@@ -837,7 +844,7 @@ def test_a_sweep_scores_the_others_and_lists_the_failed_runs(tmp_path):
     from testbed.sweep import sweep
 
     path = _write(tmp_path, FAILING_AND_GOOD)
-    sc = scenario.load("coop-fg", duration=2.0, seed=3)
+    sc = scenario.load("coop-fg", duration=1.5, seed=3)
     sc = dataclasses.replace(sc, estimators=(EstimatorSpec(entry=f"{path}:Bad"), EstimatorSpec(entry=f"{path}:Good")))
     with pytest.raises(EstimatorsFailed, match=r"Bad in runs 0, 1") as e:
         sweep(sc, 2, tmp_path / "sweep", workers=1, progress=False, plots=False)
@@ -852,7 +859,7 @@ def test_a_sweep_scores_the_others_and_lists_the_failed_runs(tmp_path):
 def test_a_reproduction_writes_its_report_without_the_failed_estimator_and_exits_1(tmp_path, capsys):
     path = _write(tmp_path, FAILING_AND_GOOD)
     out = tmp_path / "rp"
-    assert main(["reproduce", "coop", "--runs", "2", "--duration", "2", "--workers", "1", "--out", str(out), "--quiet",
+    assert main(["reproduce", "coop", "--runs", "2", "--duration", "1.5", "--workers", "1", "--out", str(out), "--quiet",
                  "--estimator", f"{path}:Bad", "--estimator", f"{path}:Good", "--no-run-plots"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "estimators failed in 2 runs" in err and "runs/run-000: Bad" in err
@@ -869,7 +876,7 @@ def test_a_reproduction_scored_in_process_reports_the_failed_estimator_too(tmp_p
     by seed, with each run's time and reason; the report is written; exit 1."""
     path = _write(tmp_path, FAILING_AND_GOOD)
     out = tmp_path / "rv"
-    assert main(["reproduce", "visnav", "--runs", "1", "--duration", "2", "--workers", "1", "--out", str(out), "--quiet",
+    assert main(["reproduce", "visnav", "--runs", "1", "--duration", "1.5", "--workers", "1", "--out", str(out), "--quiet",
                  "--estimator", f"{path}:Bad"]) == 1
     err = capsys.readouterr().err
     assert err.splitlines()[-1].startswith("testbed: error: estimators failed in 1 runs") and "seed 1: Bad" in err
