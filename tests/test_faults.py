@@ -285,21 +285,19 @@ def test_killing_the_sweep_parent_leaves_no_orphan_workers(tmp_path, monkeypatch
 
 
 def test_two_writers_of_one_output_exactly_one_wins(tmp_path, monkeypatch, capsys):
-    # the first writer must still be writing when the second one starts: 8 s of bandwidth took ~2 s
-    # all told and once finished before a second writer in its own process (~1.5 s of start-up; a CI
-    # failure). The second writer runs in this process, right after the first's lock appears (no
-    # start-up); 200 s (~1.4 s CPU of simulation, 600 s: ~4.3 s, all waited for below) keeps the
-    # first writing for over a second of CPU after its lock.
-    a = _start(tmp_path, "run", "bandwidth", "--duration", "200", "--out", "r", "--no-plots")
+    # the first writer must still be writing when the second one starts (its own start-up takes
+    # ~1.5 s): 8 s of bandwidth took ~2 s all told and once finished before it (a CI failure);
+    # 600 s keeps it writing for several seconds (the test: 8.4 s)
+    a = _start(tmp_path, "run", "bandwidth", "--duration", "600", "--out", "r", "--no-plots")
     _wait_for(lambda: (tmp_path / ".r.testbed-lock").is_file() and _tmp_dirs(tmp_path, "r"), "the first writer's lock")
     monkeypatch.chdir(tmp_path)  # the second writer, in this process
     capsys.readouterr()
     assert main(["run", "bandwidth", "--duration", "0.5", "--out", "r", "--force"]) == 2
     (line,) = capsys.readouterr().err.splitlines()
-    assert line.startswith("testbed: error: r: is being written by ") and f"pid {a.pid} (testbed run bandwidth --duration 200" in line
+    assert line.startswith("testbed: error: r: is being written by ") and f"pid {a.pid} (testbed run bandwidth --duration 600" in line
     a.communicate(timeout=120)
     assert a.returncode == 0
-    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["duration_s"] == 200.0
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["duration_s"] == 600.0
     assert sorted(os.listdir(tmp_path)) == ["r"]
 
 
