@@ -16,7 +16,7 @@ from scipy.stats import chi2, norm, t as t_dist
 
 from testbed.cli import main
 from testbed.replay.export import write_csv
-from testbed.replay.recording import load_recording
+from testbed.replay.recording import RecordedTruth, load_recording
 
 T = 0.1          # s, epoch spacing
 DURATION = 30.0  # s
@@ -229,12 +229,28 @@ def test_replay_with_the_calibration_corrects_ranges_sets_noise_defaults_and_ski
     e = m["estimators"]["ranging.ekf"]
     assert e["unscored_estimates"]["rover position in the calibration window"] == 151
     assert e["targets"]["rover"]["position"]["samples"] == 150
-    # the ranges fed are the recorded ones with the file's bias and scale removed, row for row
-    raw = load_recording(spec).tables["links"]
+    # the ranges fed are the recorded ones with the file's bias and scale removed, row for row, each
+    # scale held at its value at the nearer end of its span beyond it (cal. 2c): the span is the true
+    # distances of the link's rows in 0-15 s, and the replay's rows reach beyond it
+    rec = load_recording(spec)
+    raw = rec.tables["links"]
     fed = load_recording(spec, calibration=cal).tables["links"]
-    fits = {frozenset(k): (r["bias"], r.get("scale", 0.0)) for k, r in _link_rows(c).items()}
-    b, s = np.array([fits[frozenset(k)] for k in zip(raw["src"], raw["dst"])]).T
-    np.testing.assert_allclose(fed["value"], (raw["value"] - b) / (1 + s), rtol=1e-12)
+    inf = float("inf")
+    fits = {frozenset(k): (r["bias"], r.get("scale", 0.0), r.get("scale_from", -inf), r.get("scale_to", inf))
+            for k, r in _link_rows(c).items()}
+    b, s, lo, hi = np.array([fits[frozenset(k)] for k in zip(raw["src"], raw["dst"])]).T
+    truth, beyond = RecordedTruth(rec), 0
+    for (src, dst), r in _link_rows(c).items():
+        if "scale" in r:
+            rows = (raw["src"] == src) & (raw["dst"] == dst)
+            t = raw["time"][rows]
+            d = np.linalg.norm(truth.at(src, "position", t) - truth.at(dst, "position", t), axis=1)
+            assert (r["scale_from"], r["scale_to"]) == pytest.approx((d[t <= 15].min(), d[t <= 15].max()), abs=1e-9)
+            beyond += int(np.sum((d < r["scale_from"] - 0.5) | (d > r["scale_to"] + 0.5)))
+    assert beyond > 100
+    # r = d + b + s clamp(d, lo, hi): d = r - b - s clamp(d_lin, lo, hi), d_lin = (r - b) / (1 + s) within the span
+    want = raw["value"] - b - s * np.clip((raw["value"] - b) / (1 + s), lo, hi)
+    np.testing.assert_allclose(fed["value"], want, rtol=1e-12)
     # the time offsets are not applied at load: the estimators get each link's (its devices' rows summed;
     # cal. 10), both orders
     offsets = load_recording(spec, calibration=cal).context("x", {}).sensors["uwb"]["time_offset"]

@@ -39,15 +39,16 @@ def exported(tmp_path_factory):
 def _copy(exported: Path, to: Path, bias: dict[str, float], calibration: str | None = None) -> Path:
     """The export with `bias` added to uav1's ranges to those anchors, and calibration.csv."""
     shutil.copytree(exported, to)
-    with open(exported / "links.csv", newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    for r in rows:
-        if r["src"] == TAG and r["dst"] in bias:
-            r["value"] = repr(float(r["value"]) + bias[r["dst"]])
-    with open(to / "links.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    if bias:  # else links.csv stays as exported
+        with open(exported / "links.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        for r in rows:
+            if r["src"] == TAG and r["dst"] in bias:
+                r["value"] = repr(float(r["value"]) + bias[r["dst"]])
+        with open(to / "links.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
     if calibration is not None:
         (to / "calibration.csv").write_text(calibration)
     return to / "spec.toml"
@@ -122,6 +123,30 @@ def test_device_and_link_rows_add_up_and_scale_divides(exported, tmp_path):
     np.testing.assert_allclose(got["value"], want, rtol=0, atol=1e-12)
 
 
+def test_a_scale_is_never_extrapolated_beyond_its_span(exported, tmp_path):
+    """cal. 2c: a link whose error is a constant 0.2 m, calibrated with a spurious scale (-5 %, as a
+    fit on a short span can keep) fitted on the middle 2 m of its true ranges only, its line through
+    the truth at the span's middle. Within the span the correction's error is |s| |d - mid| / (1 + s);
+    beyond, the correction is held at its value at the span's nearer end, so no fed range is off by
+    more than |s| (to - from) / 2 = 0.05 m. Extrapolated, the link's farthest ranges would be off by
+    several times that."""
+    s, beta = -0.05, 0.2
+    clean = load_recording(exported / "spec.toml").tables["links"]
+    link = (clean["src"] == TAG) & (clean["dst"] == "anchor1") & (clean["kind"] == "uwb")
+    mid = float(np.median(clean["value"][link]))
+    lo, hi = mid - 1.0, mid + 1.0
+    row = f"{TAG},anchor1,{beta - s * mid!r},{s},{lo!r},{hi!r}\n"
+    spec = _copy(exported, tmp_path / "d", {"anchor1": beta}, "src,dst,bias,scale,scale_from,scale_to\n" + row)
+    fed = load_recording(spec).tables["links"]
+    # the clean ranges (no bias added) stand for the truth: the link's rows as the calibration sees them
+    err = np.abs(fed["value"][link] - clean["value"][link])
+    assert err.max() <= abs(s) * (hi - lo) / 2 + 1e-12
+    beyond = np.abs(clean["value"][link] - mid) - (hi - lo) / 2
+    # the span is narrower than the use: extrapolated, the farthest rows would be off by over 3 times the bound
+    assert (beyond > 0).sum() > 10 and beyond.max() > hi - lo
+    np.testing.assert_array_equal(fed["value"][~link], clean["value"][~link])
+
+
 @pytest.mark.parametrize("table, says", [
     ("src,dst,bias\nuav1/nope,,0.1\n", "column src: 'uav1/nope' is not a site"),
     ("src,dst,bias\nuav1/uwb,anchor1,nan\n", "column bias: must be a finite number"),
@@ -132,6 +157,9 @@ def test_device_and_link_rows_add_up_and_scale_divides(exported, tmp_path):
     ("src,dst,time_offset\nuav1/uwb,anchor1,-2\n", "column time_offset: must be at most 1"),
     ("src,dst,time_offset,sigma_time_offset\nuav1/uwb,,0.1,-1\n", "column sigma_time_offset: must be positive"),
     ("src,dst,bias,offset\nuav1/uwb,,0.1,1\n", "unknown column 'offset'"),
+    ("src,dst,scale,scale_from\nuav1/uwb,anchor1,0.01,5\n", "column scale_to: a scale's span needs both"),
+    ("src,dst,bias,scale_from,scale_to\nuav1/uwb,anchor1,0.1,5,8\n", "column scale_from: a span without a scale"),
+    ("src,dst,scale,scale_from,scale_to\nuav1/uwb,anchor1,0.01,8,5\n", "column scale_to: must exceed scale_from (8)"),
 ])
 def test_a_bad_calibration_table_is_one_line_and_exit_2(exported, tmp_path, capsys, table, says):
     spec = _copy(exported, tmp_path / "d", {}, table)

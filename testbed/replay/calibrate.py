@@ -26,7 +26,10 @@ squared error of the held-out halves), is not significant (|s| <= z sigma_s, z t
 normal quantile of family-wise false alarm SCALE_ALARM over the segment's links, Bonferroni) or
 lies beyond the format's bound (MAX_SCALE). A scale error of the radios' clocks holds on every part
 of the segment; a "scale" that fits one half's multipath does not carry over to the other half,
-nor to the replay; and a scale is applied as a correction whose error no estimator carries. The range noise
+nor to the replay; and a scale is applied as a correction whose error no estimator carries. A kept
+scale holds on the span [min d, max d] of the true distances it was fitted on (scale_from,
+scale_to): on replay its correction is held at its value at the span's nearer end beyond it (cal. 2c,
+testbed.replay.calibration), never extrapolated. The range noise
 default of every estimator, pooled over the links:
 
     range_sigma^2 = sum_l sum_i res_i^2 / sum_l (n_l - p_l)                         (cal. 4)
@@ -108,7 +111,8 @@ class LinkFit:
     (sigma_scale NaN when not fitted), the range noise sigma m, the residuals' sum of squares, dof,
     integrated autocorrelation time tau (rows), the median spacing of the link's rows (s), the
     autocovariance sums of its residuals (testbed.scoring.metrics.autocovariance_sums, m^2), the
-    residuals (n,) m in time order and the true range rate with [1, d] projected out (n,) m/s."""
+    residuals (n,) m in time order, the true range rate with [1, d] projected out (n,) m/s, and the
+    span (scale_from, scale_to) m of the true distances fitted (cal. 2c; NaN when no scale)."""
 
     src: str
     dst: str
@@ -125,6 +129,8 @@ class LinkFit:
     acov: np.ndarray
     res: np.ndarray
     rate_perp: np.ndarray
+    scale_from: float
+    scale_to: float
 
 
 def _wls(e: np.ndarray, d: np.ndarray, w: np.ndarray, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -260,10 +266,12 @@ def link_fits(links: list[LinkRows], offsets: dict | None = None) -> list[LinkFi
         except ValueError:
             continue
         rss = float(f.res @ f.res)
+        # eq. cal. 2c: a scale holds on the span of true distances it was fitted on
+        span = (float(k.d.min()), float(k.d.max())) if np.isfinite(f.sigma_scale) else (np.nan, np.nan)
         # eq. cal. 3: the link's range noise
         out.append(LinkFit(k.src, k.dst, int(k.value.size), f.bias, f.scale, f.sigma_bias, f.sigma_scale,
                            float(np.sqrt(rss / f.dof)), rss, f.dof, f.tau, float(np.median(np.diff(k.time))), f.acov, f.res,
-                           f.rate_perp))
+                           f.rate_perp, *span))
     return out
 
 
@@ -414,7 +422,9 @@ def to_toml(spec_path: Path, c: dict) -> str:
         lines += ["", "[[links]]", f'src = "{f.src}"', f'dst = "{f.dst}"', f"bias = {_num(f.bias)}",
                   f"sigma_bias = {_num(f.sigma_bias)}"]
         if np.isfinite(f.sigma_scale):
-            lines += [f"scale = {_num(f.scale)}", f"sigma_scale = {_num(f.sigma_scale)}"]
+            lines += [f"scale = {_num(f.scale)}", f"sigma_scale = {_num(f.sigma_scale)}",
+                      f"scale_from = {_num(f.scale_from)}  # m: the span of true distances the scale was fitted on (eq. cal. 2c)",
+                      f"scale_to = {_num(f.scale_to)}"]
         lines += [f"sigma = {_num(f.sigma)}  # m, the link's range noise (eq. cal. 3)", f"samples = {f.samples}",
                   f"tau = {_num(f.tau)}  # rows, the residuals' integrated autocorrelation time"]
     return "\n".join(lines) + "\n"

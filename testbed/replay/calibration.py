@@ -7,8 +7,16 @@ Measurement equation of a `uwb` range between src and dst, d the true distance (
     d_meas = (1 + s) d + b + noise,   s = s_src + s_dst + s_link,   b = b_src + b_dst + b_link
 
 A row with an empty `dst` is a device (its bias and scale enter every link it ends); a row with
-both ends is a link (either order). Empty cells: bias 0, scale 0, no sigma. Applied:
-d = (d_meas - b) / (1 + s), the row's declared sigma divided by (1 + s) likewise. The sigma of a
+both ends is a link (either order). Empty cells: bias 0, scale 0, no sigma. A row's scale may hold
+only within a span of true distances [scale_from, scale_to] (m; the span it was fitted on, docs/
+calibration.md cal. 2c): beyond it, its correction is held at its value at the nearer end. Row k
+then enters as b_k + s_k clamp(d, from_k, to_k) (no span: from_k = -inf, to_k = +inf), and
+
+    d_meas = d + sum_k (b_k + s_k clamp(d, from_k, to_k)) + noise                     (cal. 2c)
+
+is inverted exactly at load (piecewise linear, increasing: |s| <= 0.3): without spans
+d = (d_meas - b) / (1 + s); the row's declared sigma is divided by the slope d d_meas / d d at d
+(1 + s without spans) likewise. The sigma of a
 link's remaining bias (m) is sqrt(sigma_src^2 + sigma_dst^2 + sigma_link^2) over the rows that
 declare one; it is Context.sensors["uwb"]["bias_sigma"][src][dst] (both orders), absent for a
 link no row with a sigma names.
@@ -56,28 +64,37 @@ LINK_RECORD_KEYS = ("sigma", "samples", "tau")
 @dataclass(frozen=True, slots=True)
 class Calibration:
     """Per device and per link (frozenset of the two ends): (bias m, scale, sigma_bias m or NaN,
-    time offset s)."""
+    time offset s, scale_from m, scale_to m) (the scale's span: -inf, +inf where none is declared)."""
 
-    devices: dict[str, tuple[float, float, float, float]]
-    links: dict[frozenset, tuple[float, float, float, float]]
+    devices: dict[str, tuple[float, float, float, float, float, float]]
+    links: dict[frozenset, tuple[float, float, float, float, float, float]]
+
+    def _parts(self, src: str, dst: str) -> list[tuple[float, float, float, float, float, float]]:
+        """The rows of the link src-dst: its two devices' and its own, those that exist."""
+        return [p for p in (self.devices.get(src), self.devices.get(dst), self.links.get(frozenset((src, dst))))
+                if p is not None]
 
     def of(self, src: str, dst: str) -> tuple[float, float, float]:
         """(b, s, sigma of b or NaN) of the link src-dst: the sums of the measurement equation."""
-        parts = [self.devices.get(src), self.devices.get(dst), self.links.get(frozenset((src, dst)))]
-        parts = [p for p in parts if p is not None]
+        parts = self._parts(src, dst)
         sig = [p[2] for p in parts if np.isfinite(p[2])]
         return (float(sum(p[0] for p in parts)), float(sum(p[1] for p in parts)),
                 float(np.sqrt(sum(x * x for x in sig))) if sig else float("nan"))
 
     def offset(self, src: str, dst: str) -> float:
         """The time offset c (s) of the link src-dst: the sum of its device and link rows'."""
-        return float(sum(p[3] for p in (self.devices.get(src), self.devices.get(dst),
-                                         self.links.get(frozenset((src, dst)))) if p is not None))
+        return float(sum(p[3] for p in self._parts(src, dst)))
 
     def apply(self, src: np.ndarray, dst: np.ndarray, value: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ranges and sigmas (n,) of the links src[i]-dst[i] with the known bias and scale removed."""
-        bs = np.array([self.of(a, b)[:2] for a, b in zip(src.tolist(), dst.tolist())]).reshape(-1, 2)
-        return (value - bs[:, 0]) / (1.0 + bs[:, 1]), sigma / (1.0 + bs[:, 1])
+        """Ranges and sigmas (n,) m of the links src[i]-dst[i] with the known bias and scale removed
+        (cal. 2c inverted)."""
+        groups: dict[tuple[str, str], list[int]] = {}
+        for i, key in enumerate(zip(src.tolist(), dst.tolist())):
+            groups.setdefault(key, []).append(i)
+        d, slope = np.empty(value.shape), np.empty(value.shape)
+        for (a, b), rows in groups.items():
+            d[rows], slope[rows] = _true_range(self._parts(a, b), value[rows])
+        return d, sigma / slope
 
     def bias_sigma(self, pairs: set[tuple[str, str]]) -> dict[str, dict[str, float]]:
         """{src: {dst: sigma m}} (both orders) of the links in pairs that have a declared sigma."""
@@ -86,6 +103,23 @@ class Calibration:
     def time_offsets(self, pairs: set[tuple[str, str]]) -> dict[str, dict[str, float]]:
         """{src: {dst: c s}} (both orders) of the links in pairs that have a nonzero time offset."""
         return _both_orders(pairs, self.offset, lambda c: c != 0.0)
+
+
+def _true_range(parts: list[tuple[float, ...]], r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(d, d r / d d) (n,) of the ranges r (n,) m of one link whose rows are parts (Calibration's
+    tuples): the exact inverse of cal. 2c, r = d + sum_k (b_k + s_k clamp(d, from_k, to_k)), a
+    continuous increasing piecewise-linear function of d with knots at the finite span ends."""
+    b, s = float(sum(p[0] for p in parts)), float(sum(p[1] for p in parts))
+    knots = np.array(sorted({x for p in parts for x in p[4:6] if np.isfinite(x)}))
+    if knots.size == 0:
+        return (r - b) / (1.0 + s), np.full(r.shape, 1.0 + s)
+    # eq. cal. 2c at the knots, and its slope on each of the knots.size + 1 pieces (at a point inside each)
+    f = knots + b + sum(p[1] * np.clip(knots, p[4], p[5]) for p in parts)
+    mid = np.concatenate([[knots[0] - 1.0], (knots[:-1] + knots[1:]) / 2, [knots[-1] + 1.0]])
+    slopes = 1.0 + sum(p[1] * ((mid >= p[4]) & (mid <= p[5])) for p in parts)
+    j = np.searchsorted(f, r, side="right")
+    k = np.maximum(j - 1, 0)
+    return knots[k] + (r - f[k]) / slopes[j], slopes[j]
 
 
 def _both_orders(pairs: set[tuple[str, str]], value, keep) -> dict[str, dict[str, float]]:
@@ -106,10 +140,11 @@ def read_calibration(path: Path, names: set[str]) -> Calibration:
 
 def _from_table(t: Table, names: set[str]) -> Calibration:
     """Check the rows of a calibration table: names known (sites or anchors of the spec), no row
-    twice, |bias| <= MAX_BIAS_M, |scale| <= MAX_SCALE, |time_offset| <= MAX_TIME_OFFSET_S, sigmas > 0;
+    twice, |bias| <= MAX_BIAS_M, |scale| <= MAX_SCALE, |time_offset| <= MAX_TIME_OFFSET_S, sigmas > 0,
+    a scale's span both ends or neither, 0 <= scale_from < scale_to, and only on a row with a scale;
     ConfigError (one line) on a mistake."""
-    devices: dict[str, tuple[float, float, float, float]] = {}
-    links: dict[frozenset, tuple[float, float, float, float]] = {}
+    devices: dict[str, tuple[float, float, float, float, float, float]] = {}
+    links: dict[frozenset, tuple[float, float, float, float, float, float]] = {}
     first: dict[object, int] = {}
     for i in range(t["src"].size):
         src, dst = str(t["src"][i]), str(t["dst"][i])
@@ -129,8 +164,20 @@ def _from_table(t: Table, names: set[str]) -> Calibration:
             raise t.error(i, "src", f"{'the link ' + src + ' - ' + dst if dst else 'the device ' + src} "
                                     f"is calibrated twice (also row {first[key] + 1})")
         first[key] = i
+        span = (t["scale_from"][i], t["scale_to"][i])
+        if np.isnan(span).any() and not np.isnan(span).all():
+            raise t.error(i, "scale_to" if np.isnan(span[1]) else "scale_from",
+                          "a scale's span needs both scale_from and scale_to (or neither)")
+        if not np.isnan(span).any():
+            if span[0] < 0:
+                raise t.error(i, "scale_from", f"must be at least 0 (a distance), got {float(span[0]):g}")
+            if span[1] <= span[0]:
+                raise t.error(i, "scale_to", f"must exceed scale_from ({float(span[0]):g}), got {float(span[1]):g}")
+            if not np.nan_to_num(t["scale"][i]):
+                raise t.error(i, "scale_from", "a span without a scale (the span is where the row's scale holds)")
         entry = (float(np.nan_to_num(t["bias"][i])), float(np.nan_to_num(t["scale"][i])), float(t["sigma_bias"][i]),
-                 float(np.nan_to_num(t["time_offset"][i])))
+                 float(np.nan_to_num(t["time_offset"][i])), float(np.nan_to_num(span[0], nan=-np.inf)),
+                 float(np.nan_to_num(span[1], nan=np.inf)))
         if dst:
             links[key] = entry
         else:

@@ -48,7 +48,7 @@ REQUIRED_TABLES = ("links",)
 #: read_table(path, "calibration", CALIBRATION_SCHEMA)
 CALIBRATION_SCHEMA = (("src", False, True), ("dst", False, False), ("bias", True, False), ("scale", True, False),
                       ("sigma_bias", True, False), ("sigma_scale", True, False), ("time_offset", True, False),
-                      ("sigma_time_offset", True, False))
+                      ("sigma_time_offset", True, False), ("scale_from", True, False), ("scale_to", True, False))
 #: the largest magnitude of any number in a table (s, m, m/s, ...): Unix times until the year 2286,
 #: any coordinate on Earth; squares and sums of squares of such numbers stay far from overflow
 MAX_MAGNITUDE = 1e10
