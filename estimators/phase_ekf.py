@@ -199,12 +199,12 @@ def process_noise(dt: float, q: float | ProcessNoise = DEFAULT_Q, x: np.ndarray 
     return np.kron(white_acceleration_q(dt), S)
 
 
-def rigid_transition(x: np.ndarray, dt: float, a: np.ndarray | None = None) -> np.ndarray:
+def rigid_transition(x: np.ndarray, dt: float) -> np.ndarray:
     """Prediction (18,) of the antenna state x (18,) over dt s: eq. 24 plus the centripetal
-    acceleration a = phase_model.centripetal_acceleration(x) (9,) of the turning rigid body (given,
-    or computed here), held over dt (module docstring, "Rigid rotation"):
-    x_j' = x_j + dt v_j + dt^2/2 a_j,  v_j' = v_j + dt a_j."""
-    a = centripetal_acceleration(x) if a is None else a
+    acceleration a = phase_model.centripetal_acceleration(x) (9,) of the turning rigid body, held
+    over dt (module docstring, "Rigid rotation"): x_j' = x_j + dt v_j + dt^2/2 a_j,  v_j' = v_j + dt a_j
+    (time_update's mean)."""
+    a = centripetal_acceleration(x)
     return transition(dt) @ x + np.concatenate([0.5 * dt * dt * a, dt * a])
 
 
@@ -214,13 +214,14 @@ def time_update(belief: Gaussian, dt: float, q: float | ProcessNoise = DEFAULT_Q
     x' = rigid_transition(x, dt) and P' = Phi P Phi^T + Q + G J_a P J_a^T G^T, the centripetal
     term's uncertainty as an input noise (module docstring, "Rigid rotation")."""
     # eq. 22 (first two lines) with f linear: eq. 23-24
-    pred = kf_predict(belief, transition(dt), process_noise(dt, q, belief.mean, belief.cov))
+    F, Q = transition(dt), process_noise(dt, q, belief.mean, belief.cov)
     if not rigid:
-        return pred
+        return kf_predict(belief, F, Q)
     a, Ja = centripetal_acceleration(belief.mean, jacobian=True)
-    # "Rigid rotation": G = [dt^2/2 I9; dt I9], the centripetal input's covariance J_a P J_a^T
+    # "Rigid rotation": the centripetal acceleration a as the known input G a, G = [dt^2/2 I9; dt I9]
+    # (rigid_transition), its uncertainty J_a P J_a^T as an input noise
     GJ = np.concatenate([0.5 * dt * dt * Ja, dt * Ja])
-    return Gaussian(rigid_transition(belief.mean, dt, a), symmetrize(pred.cov + GJ @ belief.cov @ GJ.T))
+    return kf_predict(belief, F, Q + GJ @ belief.cov @ GJ.T, u=np.concatenate([0.5 * dt * dt * a, dt * a]))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -356,10 +356,7 @@ def centripetal_acceleration(x: np.ndarray, jacobian: bool = False) -> np.ndarra
 
 #: (3, 3, 18) d rho_dot_j / d x of the three antennas' velocities relative to the body origin,
 #: rho_dot_j = v_j - (v_2 + v_3) / 2 (centripetal_acceleration)
-_D_RHO_DOT = np.zeros((3, 3, 18))
-for _j in range(3):
-    _D_RHO_DOT[_j, :, 9 + 3 * _j:12 + 3 * _j] += _I3
-    _D_RHO_DOT[_j, :, 12:18] -= 0.5 * np.hstack([_I3, _I3])
+_D_RHO_DOT = np.hstack([np.zeros((9, 9)), LEVER_ARMS_JACOBIAN]).reshape(3, 3, 18)
 _D_RHO_DOT.flags.writeable = False
 
 
