@@ -82,7 +82,11 @@ def solve_gbp(problem, *, max_rounds: int = 100, tol: float = 1e-4, damping: flo
         Lam, eta = Lg.copy(), eg.copy()
         np.add.at(Lam, dst, mL)
         np.add.at(eta, dst, me)
-        return DenseNormals(Lam, eta).solve(None)[0]  # each belief's mean
+        mean, ok = DenseNormals(Lam, eta).solve(None)  # each belief's mean
+        if not ok.all():  # a failed factorization gives a zero step, never a belief's mean
+            raise np.linalg.LinAlgError(f"GBP: the belief information of node(s) {np.flatnonzero(~ok).tolist()} "
+                                        "is not positive definite")
+        return mean
 
     # the round iteration of the graph library (estimators.graph.lm): stops on tol or a diverged step
     X, hist, report = lm.iterate_rounds(X, one_round, max_rounds=max_rounds, tol=tol)
