@@ -136,27 +136,19 @@ def step(x: np.ndarray, f: np.ndarray, w: np.ndarray, dt) -> tuple[np.ndarray, n
     return out, F
 
 
-def process_noise(noise: ImuNoise, dt, n: int = N_ERR) -> np.ndarray:
-    """Q (n, n) of one step of dt (s): white noise into v and theta, bias walks (docstring);
-    none on the extras. Batched: noise a sequence of k ImuNoise (one per vehicle), dt scalar or
-    (k,): Q (k, n, n)."""
-    if not isinstance(noise, ImuNoise):  # (k, n, n) at once: the same numbers as one call per vehicle
-        dts = np.broadcast_to(np.asarray(dt, float), (len(noise),))
-        # Python floats, as the single call computes them (numpy's square may round differently)
-        qs = np.array([[m.accel_density ** 2 * d, m.gyro_density ** 2 * d, m.accel_walk ** 2 * d, m.gyro_walk ** 2 * d]
-                       for m, d in zip(noise, dts.tolist())], float).reshape(-1, 4)
-        q = np.zeros((len(noise), n))
-        for k, block in enumerate((V, TH, BA, BG)):
-            q[:, block] = qs[:, k, None]
-        Q = np.zeros((len(noise), n, n))
-        Q.reshape(len(noise), n * n)[:, ::n + 1] = q
-        return Q
-    q = np.zeros(n)
-    q[V] = noise.accel_density ** 2 * dt
-    q[TH] = noise.gyro_density ** 2 * dt
-    q[BA] = noise.accel_walk ** 2 * dt
-    q[BG] = noise.gyro_walk ** 2 * dt
-    return np.diag(q)
+def process_noise(noise, dt, n: int = N_ERR) -> np.ndarray:
+    """Q (k, n, n) of one step of dt (s) (scalar or (k,)) of k vehicles, noise a sequence of k
+    ImuNoise (one each): white noise into v and theta, bias walks (docstring); none on the extras."""
+    dts = np.broadcast_to(np.asarray(dt, float), (len(noise),))
+    # Python floats (numpy's square may round differently)
+    qs = np.array([[m.accel_density ** 2 * d, m.gyro_density ** 2 * d, m.accel_walk ** 2 * d, m.gyro_walk ** 2 * d]
+                   for m, d in zip(noise, dts.tolist())], float).reshape(-1, 4)
+    q = np.zeros((len(noise), n))
+    for k, block in enumerate((V, TH, BA, BG)):
+        q[:, block] = qs[:, k, None]
+    Q = np.zeros((len(noise), n, n))
+    Q.reshape(len(noise), n * n)[:, ::n + 1] = q
+    return Q
 
 
 def site_position(x: np.ndarray, lever: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
