@@ -266,16 +266,10 @@ def test_default_ekf_is_consistent_on_every_builtin_phase_scenario(name, request
     chi2(dof runs) / runs. One test per scenario, each at 95 % (no family-wise correction: a stricter
     check of every scenario). phase-cross-h000's runs are the first 8 of deterministic_mc (the
     same scenario, seeds, horizon and filter), not computed twice."""
-    dof = 6
     if name == NAME:
-        n6 = list(request.getfixturevalue("deterministic_mc")["n6_runs"][:CONSISTENCY_RUNS])
+        n6, dof = list(request.getfixturevalue("deterministic_mc")["n6_runs"][:CONSISTENCY_RUNS]), 6
     else:
-        n6 = []
-        for seed in range(1, CONSISTENCY_RUNS + 1):
-            sc = scenario_mod.load(name, seed=seed, duration=SHORT_HORIZON_S)
-            r = _filter(sc, simulate(sc)[0])
-            n, dof = _body_nees_observed(r)
-            n6.append(n)
+        n6, dof, _ = _short_runs(name)
     sc = scenario_mod.load(name, seed=CONSISTENCY_RUNS, duration=SHORT_HORIZON_S)
     lo, hi = chi2_interval(dof, CONSISTENCY_RUNS, level=0.95)
     print(f"{name}: q = {sc.pipeline.q:g}, rate_rows {sc.pipeline.rate_rows}: ANEES body ({dof} dof) {np.mean(n6):.2f} "
@@ -283,17 +277,50 @@ def test_default_ekf_is_consistent_on_every_builtin_phase_scenario(name, request
     assert lo < np.mean(n6) < hi
 
 
-def _body_nees_observed(r: dict) -> tuple[float, int]:
-    """(final-epoch NEES, dof) of the body position and velocity of a _filter result: 6 dof, or
-    5 where the masters lie along a line (estimators.phase_model.masters_line), the turn about it
-    left out (PS.nees_along), as metrics.json `anees` does."""
+def _body_nees_observed(r: dict) -> tuple[float, int, float | None]:
+    """(final-epoch NEES, dof, turn) of the body position and velocity of a _filter result: 6 dof,
+    or 5 where the masters lie along a line (estimators.phase_model.masters_line), the turn about it
+    left out (PS.nees_along), as metrics.json `anees` does; turn: that turn's own NEES (1 dof; None
+    without a line)."""
     B = PF.BODY_PV
     e, C = B @ (r["means"][-1] - r["states"][-1]), B @ r["covs"][-1] @ B.T
     line = masters_line(r["inp"].master_pos[-1], r["inp"].master_vel[-1])
     if line is None:
-        return nees(e, C), 6
+        return nees(e, C), 6, None
     n = line_rotation(*np.split(B @ r["means"][-1], 2), line)
-    return nees(e, C) - PS.nees_along(e[None], C[None], n[None])[0], 5
+    turn = PS.nees_along(e[None], C[None], n[None])[0]
+    return nees(e, C) - turn, 5, turn
+
+
+_SHORT_RUNS: dict[str, tuple] = {}  # scenario -> _short_runs', each scenario's runs simulated once
+
+
+def _short_runs(name: str) -> tuple[list[float], int, list[float | None]]:
+    """(body NEES per run, dof, the turn's NEES per run) of the default filter on scenario name,
+    evaluation seeds 1..CONSISTENCY_RUNS, SHORT_HORIZON_S (_body_nees_observed)."""
+    if name not in _SHORT_RUNS:
+        runs = []
+        for seed in range(1, CONSISTENCY_RUNS + 1):
+            sc = scenario_mod.load(name, seed=seed, duration=SHORT_HORIZON_S)
+            runs.append(_body_nees_observed(_filter(sc, simulate(sc)[0])))
+        _SHORT_RUNS[name] = ([r[0] for r in runs], runs[0][1], [r[2] for r in runs])
+    return _SHORT_RUNS[name]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured: the turn about the masters' line of phase-line-h000 has final-epoch "
+                   "NEES 6.98 on 1 dof over seeds 1-8 at 20 s (per run 2.40, 2.10, 27.7, 0.50, 0.02, 8.13, 0.27, 14.8) "
+                   "against [0.27, 2.19]: the direction is reported apart (anees_unobserved) but its covariance is "
+                   "over-confident after a bad start (docs/papers.md, seed 003, 'Line H000 over 200 s')")
+def test_the_turn_about_the_masters_line_is_consistent():
+    """Where the masters lie on a line (phase-line-h000), the turn about it that the body ANEES
+    leaves out (test above) is judged on its own: the mean of its final-epoch NEES (1 dof) over the
+    same independent runs lies inside the two-sided 95 % chi-square interval of chi2(runs) / runs."""
+    _, _, turn = _short_runs("phase-line-h000")
+    assert all(t is not None for t in turn)
+    lo, hi = chi2_interval(1, CONSISTENCY_RUNS, level=0.95)
+    print(f"phase-line-h000: the turn about the line (1 dof) {np.mean(turn):.2f} in [{lo:.2f}, {hi:.2f}]")
+    assert lo < np.mean(turn) < hi
 
 
 LONG_RUNS = 6  # evaluation seeds 1..6
@@ -324,6 +351,10 @@ def test_default_ekf_is_consistent_over_the_whole_run_of_every_builtin_phase_sce
           + (f"; the line's turn (1 dof) {turn['anees_unobserved']:.2f} in "
              f"{np.round(turn['anees_unobserved_interval_99'], 2).tolist()}" if turn else ""))
     assert sc.duration == 200.0
+    intervals = [a["anees_interval_99"]] + ([turn["anees_unobserved_interval_99"]] if turn else [])
+    if any(lo <= 0 for lo, _ in intervals):  # the runs' spread: an interval that reaches 0 cannot reject
+        pytest.xfail(f"not decidable from {LONG_RUNS} runs: the interval over the runs' spread reaches 0 "
+                     f"({[np.round(i, 2).tolist() for i in intervals]})")
     lo, hi = a["anees_interval_99"]
     assert lo < a["anees"] < hi
     if turn:
