@@ -233,6 +233,12 @@ def csv_cell(v: object) -> object:
     return v
 
 
+def interval_cells(v: Sequence[float] | None) -> list:
+    """The two CSV cells [lo, hi] of an interval; [None, None] (empty cells) for a null one (an
+    interval not decidable, docs/consistency.md)."""
+    return list(v) if v is not None else [None, None]
+
+
 def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[object]]) -> Path:
     """Write a table as CSV (header row, then one row per entry, cells by `csv_cell`)."""
     path = Path(path)

@@ -50,8 +50,8 @@ from testbed.config import scenario as scenario_mod
 from testbed.scoring.metrics import anees_over_runs
 from testbed.plugins.phase_scores import window_keys
 from testbed.outputs.plots import grouped_bars
-from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, fmt_pm, markdown_table, write_claims, \
-    write_csv, write_markdown
+from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, fmt_list, fmt_pm, interval_cells, \
+    markdown_table, write_claims, write_csv, write_markdown
 from testbed.reproduce import phase_q
 from testbed.reproduce import plugins as plugin_rows
 from testbed.reproduce.runs import load_metrics, run_name, seeds, sweep_runs
@@ -313,18 +313,15 @@ def write(out: Path, R: dict[str, list[dict]], claims: list[Claim], *, runs: int
     w = _window(next(iter(R.values())))
     tag = w.replace(" ", "_")
 
-    def pm(v):
-        return list(v) if v is not None else [None, None]
-
     def anees(a, k):
-        return [a[k], *(a[f"{k}_interval_99"] or (None, None)), a[k.replace("anees", "n_eff")]] if a else [None] * 4
+        return [a[k], *interval_cells(a[f"{k}_interval_99"]), a[k.replace("anees", "n_eff")]] if a else [None] * 4
 
     write_csv(out / "table.csv",
               ["scenario", "estimator", "runs"] + [f"{k}_{s}" for k, _ in cols for s in ("mean", "std")]
               + [c for k, _ in ANEES_COLS
                  for c in (f"{k}_mean", f"{k}_interval_99_lo", f"{k}_interval_99_hi", k.replace("anees", "n_eff"))]
               + [f"max_abs_pos_{tag}_{a}_{s}" for s in ("mean", "worst") for a in "xyz"],
-              [[r["scenario"], r["estimator"], r["runs"]] + [v for k, _ in cols for v in pm(r[k])]
+              [[r["scenario"], r["estimator"], r["runs"]] + [v for k, _ in cols for v in interval_cells(r[k])]
                + [v for k, _ in ANEES_COLS for v in anees(r[k], k)]
                + (np.concatenate(r["max_abs_window"]).tolist() if r["max_abs_window"] else [None] * 6) for r in rows])
     md = [f"# Seed 003 reproduction: eight formations, {motion}, {runs} run(s) each, seeds "

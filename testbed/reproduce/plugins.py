@@ -27,7 +27,7 @@ import numpy as np
 
 from testbed.scoring.metrics import anees_over_runs, mean_ci
 from testbed.outputs.plots import grouped_bars
-from testbed.outputs.report import fmt, fmt_anees, fmt_pm, markdown_table, write_csv
+from testbed.outputs.report import fmt, fmt_anees, fmt_pm, interval_cells, markdown_table, write_csv
 from testbed.scoring.stats import wilcoxon_paired
 
 COLUMNS = (("rmse_position_m", "RMSE pos [m]"), ("pcrb_rmse_position_m", "PCRB pos [m]"),
@@ -156,6 +156,6 @@ def write(path: Path, groups: dict[str, list[dict]], keys: list[str]) -> None:
     interval, n_eff = f"{ANEES}_interval_95", ANEES.replace("anees", "n_eff")
     write_csv(path, ["group", "estimator", "runs"] + [f"{c}_{s}" for c in cols for s in ("mean", "std")]
               + [f"{ANEES}_mean", f"{interval}_lo", f"{interval}_hi", n_eff],
-              [[r["group"], r["estimator"], r["runs"]] + [v for c in cols for v in (r[c] or (None, None))]
-               + ([r[ANEES][ANEES], *(r[ANEES][interval] or (None, None)), r[ANEES][n_eff]] if r[ANEES] else [None] * 4)
+              [[r["group"], r["estimator"], r["runs"]] + [v for c in cols for v in interval_cells(r[c])]
+               + ([r[ANEES][ANEES], *interval_cells(r[ANEES][interval]), r[ANEES][n_eff]] if r[ANEES] else [None] * 4)
                for r in rows])

@@ -56,8 +56,8 @@ from matplotlib.figure import Figure
 from testbed.config import scenario as scenario_mod
 from testbed.scoring.metrics import anees_over_runs, mean_ci
 from testbed.outputs.plots import compare_bars, error_envelope, save
-from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, markdown_table, write_claims, write_csv, \
-    write_json, write_markdown
+from testbed.outputs.report import Claim, claims_section, fmt, fmt_anees, fmt_ci, interval_cells, markdown_table, \
+    write_claims, write_csv, write_json, write_markdown
 from testbed.plugins.context import make_context
 from testbed.sim.world import lever_arms
 from testbed.plugins.defaults import default_specs, estimator_specs
@@ -313,7 +313,7 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
             rows += [[case, name, key, r[key]["mean"], r[key]["lo"], r[key]["hi"]] for key, _, _ in QUANTITIES]
             for key in ANEES:
                 if a := r["anees"][key]:  # {}: an estimator without that ANEES (a plugin's outputs that do not fit)
-                    rows += [[case, name, key, a[key], *(a[f"{key}_interval_99"] or (None, None))],
+                    rows += [[case, name, key, a[key], *interval_cells(a[f"{key}_interval_99"])],
                              [case, name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")], None, None]]
             rows += [[case, name, "time_per_step_ms", r["time_per_step_ms"], None, None]]
     for label, ex in extra.items():
@@ -323,7 +323,7 @@ def _csv_rows(summaries: dict, extra: dict) -> list[list]:
                 for key in ANEES:
                     if not (a := anees_over_runs([m], key)):  # one run: its 99 % interval; {}: none
                         continue
-                    rows += [[f"{label}/{case}", name, key, a[key], *(a[f"{key}_interval_99"] or (None, None))],
+                    rows += [[f"{label}/{case}", name, key, a[key], *interval_cells(a[f"{key}_interval_99"])],
                              [f"{label}/{case}", name, key.replace("anees", "n_eff"), a[key.replace("anees", "n_eff")],
                               None, None]]
     return rows
