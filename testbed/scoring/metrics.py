@@ -173,8 +173,15 @@ def sample_size(ne: np.ndarray, instant: np.ndarray | None = None, target: np.nd
     alone = float(own[:, 0].sum())
     terms = [SampleSize(float(x.size), np.inf, np.inf),
              SampleSize(y.size / (tau_y * max(r, 1.0 / len(series))), nu_y, y.size / tau_y),
-             SampleSize(alone, alone**2 / float(np.sum(own[:, 0] ** 2 / own[:, 1])), float(own[:, 0].min()))]
+             SampleSize(alone, satterthwaite(own[:, 0], own[:, 1]), float(own[:, 0].min()))]
     return min(terms, key=lambda s: s.n_eff)
+
+
+def satterthwaite(s: np.ndarray, nu: np.ndarray) -> float:
+    """Degrees of freedom of a sum of independent estimates s (m,), each with nu (m,) degrees of
+    freedom (Satterthwaite): (sum s)^2 / sum(s^2 / nu); inf when every nu is inf (exact counts)."""
+    spread = float(np.sum(np.asarray(s, float) ** 2 / np.asarray(nu, float)))
+    return float(np.sum(s)) ** 2 / spread if spread > 0 else np.inf
 
 
 def runs_effective_samples(n_eff: np.ndarray) -> float:
@@ -289,8 +296,7 @@ def anees_over_runs(runs: list[dict], key: str, level: float = 0.99) -> dict:
     if not undecided:
         inv = 1.0 / np.array([r[n] for r in have])
         dofs = np.array([np.inf if r.get(nu) is None else r[nu] for r in have], float)
-        spread = float(np.sum(inv**2 / dofs))  # 0 when every run's n_eff is a count (nu inf): exact
-        n_eff, v = runs_effective_samples(1.0 / inv), (float(inv.sum() ** 2 / spread) if spread > 0 else np.inf)
+        n_eff, v = runs_effective_samples(1.0 / inv), satterthwaite(inv, dofs)
         return {**out, f"{key}_interval_{pct}": list(anees_interval(dof, n_eff, level, v)), n: n_eff, nu: _json_float(v)}
     if len(have) == 1:
         return {**out, f"{key}_interval_{pct}": None, n: have[0][n], nu: have[0].get(nu), f"{key}_null_reason": undecided[0]}
