@@ -414,7 +414,7 @@ class PoseGraph:
         rows["r_d"].append(ep.r_d)
         rows["r_sigma"].append(ep.r_sigma)
         if self.p.bias_states:
-            rows["r_key"] += [(stream,) + tuple(sorted((a, b))) for stream, a, b in zip(ep.r_stream, ep.r_src, ep.r_dst)]
+            rows["r_key"] += [_link(stream, a, b) for stream, a, b in zip(ep.r_stream, ep.r_src, ep.r_dst)]
         for name, z, sigma in ep.fixes:
             end = self._end(name, ep, free)
             if end is None or end[0] < 0:
@@ -610,7 +610,7 @@ class PoseGraph:
             return ep
         sigma = []
         for stream, a, b, s, t in zip(ep.r_stream, ep.r_src, ep.r_dst, ep.r_sigma, ep.r_time):
-            link = (stream,) + tuple(sorted((a, b)))
+            link = _link(stream, a, b)
             last = self.last_range.get(link)
             self.last_range[link] = t
             sigma.append(correlated_sigma(s, self.p.range_correlation, None if last is None else t - last))
@@ -649,14 +649,19 @@ class PoseGraph:
         self.belief.update(names, res.p[0], res.R[0], res.cov[0], links, None if res.b is None else res.b[0])
         return self._publish(t, names, res, 0)
 
+    def _bias_sigma0(self, a: str, b: str, sigma: float) -> float:
+        """The prior sigma (m) of link a-b's bias: its calibrated bias_sigma, else params
+        bias_sigma, else sigma, its first range's (before cal. 8's growth)."""
+        return self.calibrated.get(a, {}).get(b) or self.p.bias_sigma or float(sigma)
+
     def _join_biases(self, ep: _Epoch) -> None:
         """Add to the motion model's belief a bias state for each link of ep's ranges it does not
         hold yet: mean 0, sigma its calibrated bias_sigma, else params bias_sigma, else its first
         range's sigma (before cal. 8's growth), a random constant."""
         for stream, a, b, sigma in zip(ep.r_stream, ep.r_src, ep.r_dst, ep.r_sigma):
-            link = (stream,) + tuple(sorted((a, b)))
+            link = _link(stream, a, b)
             if link not in self.belief.bias_at:
-                self.belief.add_bias(link, self.calibrated.get(a, {}).get(b) or self.p.bias_sigma or float(sigma))
+                self.belief.add_bias(link, self._bias_sigma0(a, b, sigma))
 
     def _timed(self, ep: _Epoch) -> _Epoch:
         """ep with each uwb range of a link with a time offset c (s) corrected by the prediction's
@@ -772,7 +777,7 @@ class PoseGraph:
         for link, sigma in zip(keys, f.r_sigma):
             if link not in self.bias_index:
                 _, a, b = link
-                s0 = self.calibrated.get(a, {}).get(b) or self.p.bias_sigma or float(sigma)
+                s0 = self._bias_sigma0(a, b, sigma)
                 self.bias_index[link] = len(self.bias_index)
                 n = self.bias_mean.size
                 self.bias_mean = np.append(self.bias_mean, 0.0)
@@ -810,6 +815,11 @@ class PoseGraph:
             b = self.belief
             return {k: (b.bias[k], float(np.sqrt(b.cov[i, i]))) for k, i in b.bias_at.items()}
         return {k: (float(self.bias_mean[i]), float(np.sqrt(self.bias_cov[i, i]))) for k, i in self.bias_index.items()}
+
+
+def _link(stream: str, a: str, b: str) -> tuple[str, str, str]:
+    """The key of the link between ends a and b on stream (either direction)."""
+    return (stream,) + tuple(sorted((a, b)))
 
 
 def _flag(kinds: tuple[str, ...], first: EpochsResult, second: EpochsResult, retry: np.ndarray) -> tuple[np.ndarray, EpochsResult]:
